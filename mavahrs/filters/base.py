@@ -1,0 +1,427 @@
+r"""The interface every attitude filter shares, and the one batch loop.
+
+A filter is a *kernel* — ``step(state, params, row, out)`` on flat float64
+arrays (see :mod:`mavahrs.filters.layout`) — wrapped by a small class that
+packs its settings into ``params``, owns its ``state`` and exposes:
+
+* ``update(gyro_rad_s, accel_m_s2, mag_ut=None, *, dt_s, velocity_ned_m_s=None)``
+  → the current ``q_body_to_ned`` (per-sample path, used by the daemon);
+* ``run(inputs)`` → one output row per input row (batch path, used by replay
+  and evaluation): the *same* kernel in a compiled loop;
+* ``state`` (read/write, a :class:`FilterState` copy), ``reset()`` and
+  ``diagnostics`` (:class:`FilterDiagnostics` of the last sample).
+
+The common prefix of ``state`` and ``params`` (attitude, bias, initialisation
+flag, gain schedule) is handled here by :func:`begin_step` /
+:func:`finish_step`, so each filter module holds only its own equations.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mavahrs.filters import gains as _g
+from mavahrs.filters.gains import GainScheduleSettings, schedule_reset
+from mavahrs.filters.initial import initial_attitude
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.layout import (
+    FLAG_ACCEL_INVALID,
+    FLAG_DT_INVALID,
+    FLAG_GYRO_INVALID,
+    FLAG_MAG_INVALID,
+    FLAG_NOT_INITIALISED,
+    FLAG_REINITIALISED,
+    FLAG_STARTUP,
+    IN_ACCEL,
+    IN_DT,
+    IN_GYRO,
+    IN_MAG,
+    IN_VEL,
+    IN_WIDTH,
+    OUT_ACCEL_WEIGHT,
+    OUT_BIAS,
+    OUT_FLAGS,
+    OUT_GAIN,
+    OUT_MAG_WEIGHT,
+    OUT_Q,
+    OUT_WIDTH,
+)
+
+__all__ = [
+    "FilterSettings",
+    "FilterState",
+    "FilterDiagnostics",
+    "AttitudeFilter",
+    "make_inputs",
+    "run_rows",
+    "begin_step",
+    "finish_step",
+    "add_flag",
+    "vector_ok",
+    "S_Q",
+    "S_BIAS",
+    "S_INIT",
+    "S_SCHED",
+    "S_FILTER",
+    "P_MAX_GAP",
+    "P_SCHED",
+    "P_FILTER",
+]
+
+Array = NDArray[np.float64]
+
+# Common state prefix.
+S_Q = 0  # q_body_to_ned (4)
+S_BIAS = 4  # gyro bias estimate, rad/s (3)
+S_INIT = 7  # 1.0 once initialised
+S_SCHED = 8  # gain schedule state (gains.GS_LEN)
+S_FILTER = S_SCHED + _g.GS_LEN  # first filter-specific state value
+
+# Common params prefix.
+P_MAX_GAP = 0
+P_SCHED = 1  # gain schedule params (gains.GP_LEN)
+P_FILTER = P_SCHED + _g.GP_LEN  # first filter-specific parameter
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """Settings every filter has.
+
+    Attributes:
+        max_gap_s: a time step longer than this (s) is a gap: the filter
+            re-initialises from the next valid accelerometer (+ magnetometer)
+            sample instead of integrating across it.
+        schedule: the shared start-up / rejection gain schedule.
+    """
+
+    max_gap_s: float = 1.0
+    schedule: GainScheduleSettings = field(default_factory=GainScheduleSettings)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_gap_s) and self.max_gap_s > 0):
+            raise ValueError(f"max_gap_s must be a positive number of seconds, got {self.max_gap_s!r}")
+
+    def common_params(self) -> Array:
+        return np.concatenate([[self.max_gap_s], self.schedule.to_params()])
+
+
+@dataclass
+class FilterState:
+    """A copy of a filter's evolving state.
+
+    Attributes:
+        q_body_to_ned: attitude, scalar first.
+        gyro_bias_rad_s: gyro bias estimate, body axes.
+        initialised: False until the first valid accelerometer sample.
+        schedule: the gain schedule's state (``gains.GS_*`` order).
+        internal: the filter's own state values (layout per filter).
+    """
+
+    q_body_to_ned: Array
+    gyro_bias_rad_s: Array
+    initialised: bool
+    schedule: Array
+    internal: Array
+
+
+@dataclass(frozen=True)
+class FilterDiagnostics:
+    """What the filter did on the last sample.
+
+    Attributes:
+        gain: the correction gain in effect (after boost and weights).
+        accel_weight: trust in the accelerometer, 0 (rejected) … 1.
+        mag_weight: trust in the magnetometer, 0 … 1.
+        accel_rejected: accel_weight < 0.5.
+        mag_rejected: a magnetometer was given but mag_weight < 0.5.
+        startup: still in the start-up convergence phase.
+        gyro_bias_rad_s: bias estimate, body axes.
+        flags: the ``layout.FLAG_*`` bit field.
+    """
+
+    gain: float
+    accel_weight: float
+    mag_weight: float
+    accel_rejected: bool
+    mag_rejected: bool
+    startup: bool
+    gyro_bias_rad_s: tuple[float, float, float]
+    flags: int
+
+    @classmethod
+    def from_row(cls, out: Array) -> FilterDiagnostics:
+        flags = int(out[OUT_FLAGS])
+        return cls(
+            gain=float(out[OUT_GAIN]),
+            accel_weight=float(out[OUT_ACCEL_WEIGHT]),
+            mag_weight=float(out[OUT_MAG_WEIGHT]),
+            accel_rejected=bool(out[OUT_ACCEL_WEIGHT] < 0.5),
+            mag_rejected=bool(not flags & FLAG_MAG_INVALID and out[OUT_MAG_WEIGHT] < 0.5),
+            startup=bool(flags & FLAG_STARTUP),
+            gyro_bias_rad_s=(float(out[OUT_BIAS]), float(out[OUT_BIAS + 1]), float(out[OUT_BIAS + 2])),
+            flags=flags,
+        )
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@kernel
+def vector_ok(x, y, z):  # type: ignore[no-untyped-def]
+    """A vector usable as a direction: finite and not zero."""
+    n = x * x + y * y + z * z
+    return math.isfinite(n) and n > 0.0
+
+
+@kernel
+def begin_step(state, params, row, out):  # type: ignore[no-untyped-def]
+    """Common start of every filter step.
+
+    Checks the inputs, initialises from the first valid accelerometer (+
+    magnetometer) sample, guards ``dt`` (≤ 0 or non-finite: skip; longer than
+    ``max_gap_s``: re-initialise), and sets the flags.  Returns the ``dt`` to
+    integrate over, or −1 when the filter has nothing more to do this sample
+    (``out`` is then already complete).
+    """
+    flags = 0
+    accel_ok = vector_ok(row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2])
+    mag_ok = vector_ok(row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2])
+    gyro_ok = (
+        math.isfinite(row[IN_GYRO]) and math.isfinite(row[IN_GYRO + 1]) and math.isfinite(row[IN_GYRO + 2])
+    )
+    if not accel_ok:
+        flags |= FLAG_ACCEL_INVALID
+    if not mag_ok:
+        flags |= FLAG_MAG_INVALID
+    if not gyro_ok:
+        flags |= FLAG_GYRO_INVALID
+    dt = row[IN_DT]
+    dt_ok = math.isfinite(dt) and dt > 0.0
+    if not dt_ok:
+        flags |= FLAG_DT_INVALID
+    reinit = state[S_INIT] > 0.0 and dt_ok and dt > params[P_MAX_GAP] and accel_ok
+    if reinit:
+        flags |= FLAG_REINITIALISED
+    if state[S_INIT] == 0.0 or reinit:
+        if accel_ok:
+            initial_attitude(
+                row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2],
+                row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok, state, S_Q,
+            )  # fmt: skip
+            state[S_INIT] = 1.0
+            schedule_reset(state[S_SCHED : S_SCHED + _g.GS_LEN], params[P_SCHED : P_SCHED + _g.GP_LEN])
+            flags |= FLAG_STARTUP
+        else:
+            flags |= FLAG_NOT_INITIALISED
+        out[OUT_FLAGS] = flags
+        finish_step(state, out, 0.0, 0.0, 0.0)
+        out[OUT_FLAGS] = flags
+        return -1.0
+    out[OUT_FLAGS] = flags
+    if not dt_ok or not gyro_ok:
+        finish_step(state, out, 0.0, 0.0, 0.0)
+        return -1.0
+    if dt > params[P_MAX_GAP]:
+        dt = params[P_MAX_GAP]  # a gap with no accelerometer to restart from: clamp
+    return dt
+
+
+@kernel
+def finish_step(state, out, gain, accel_weight, mag_weight):  # type: ignore[no-untyped-def]
+    """Normalise the attitude and write the common output row (flags already set)."""
+    n = math.sqrt(state[0] * state[0] + state[1] * state[1] + state[2] * state[2] + state[3] * state[3])
+    if not (n > 0.0 and math.isfinite(n)):
+        state[0], state[1], state[2], state[3] = 1.0, 0.0, 0.0, 0.0
+        n = 1.0
+    for i in range(4):
+        state[S_Q + i] /= n
+        out[OUT_Q + i] = state[S_Q + i]
+    for i in range(3):
+        out[OUT_BIAS + i] = state[S_BIAS + i]
+    out[OUT_GAIN] = gain
+    out[OUT_ACCEL_WEIGHT] = accel_weight
+    out[OUT_MAG_WEIGHT] = mag_weight
+
+
+@kernel
+def add_flag(out, flag):  # type: ignore[no-untyped-def]
+    """Set a ``FLAG_*`` bit in the output row (flags are stored as a float)."""
+    out[OUT_FLAGS] = float(int(out[OUT_FLAGS]) | flag)
+
+
+@kernel
+def run_rows(step, state, params, inputs, outputs):  # type: ignore[no-untyped-def]
+    """The batch path: apply ``step`` to every input row, in order."""
+    for i in range(inputs.shape[0]):
+        step(state, params, inputs[i], outputs[i])
+
+
+# --------------------------------------------------------------------------- class
+
+
+def make_inputs(
+    gyro_rad_s: ArrayLike,
+    accel_m_s2: ArrayLike,
+    mag_ut: ArrayLike | None = None,
+    *,
+    dt_s: ArrayLike,
+    velocity_ned_m_s: ArrayLike | None = None,
+) -> Array:
+    """Pack sensor arrays (N, 3) into kernel input rows (N, ``IN_WIDTH``)."""
+    gyro = np.atleast_2d(np.asarray(gyro_rad_s, dtype=np.float64))
+    n = gyro.shape[0]
+    rows = np.full((n, IN_WIDTH), np.nan)
+    rows[:, IN_GYRO : IN_GYRO + 3] = gyro
+    rows[:, IN_ACCEL : IN_ACCEL + 3] = np.atleast_2d(np.asarray(accel_m_s2, dtype=np.float64))
+    if mag_ut is not None:
+        rows[:, IN_MAG : IN_MAG + 3] = np.atleast_2d(np.asarray(mag_ut, dtype=np.float64))
+    if velocity_ned_m_s is not None:
+        rows[:, IN_VEL : IN_VEL + 3] = np.atleast_2d(np.asarray(velocity_ned_m_s, dtype=np.float64))
+    rows[:, IN_DT] = np.broadcast_to(np.asarray(dt_s, dtype=np.float64), (n,))
+    return rows
+
+
+class AttitudeFilter(ABC):
+    """Base of all filters.  Subclasses set the class attributes and ``filter_params``."""
+
+    #: registry name, e.g. ``"madgwick"``
+    name: ClassVar[str]
+    #: the settings dataclass (a subclass of :class:`FilterSettings`)
+    settings_type: ClassVar[type[FilterSettings]]
+    #: the compiled kernel ``step(state, params, row, out)``
+    step: ClassVar[Any]
+    #: number of filter-specific state values after ``S_FILTER``
+    internal_len: ClassVar[int] = 0
+
+    def __init__(self, settings: FilterSettings | None = None, *, compiled: bool = True) -> None:
+        if settings is None:
+            settings = self.settings_type()
+        if not isinstance(settings, self.settings_type):
+            raise TypeError(
+                f"{self.name} filter needs {self.settings_type.__name__}, got {type(settings).__name__}"
+            )
+        self._settings = settings
+        self._compiled = compiled
+        self._params = np.ascontiguousarray(
+            np.concatenate([settings.common_params(), self.filter_params(settings)])
+        )
+        self._state = np.zeros(S_FILTER + self.internal_len)
+        self._row = np.zeros(IN_WIDTH)
+        self._out = np.zeros(OUT_WIDTH)
+        step = type(self).__dict__.get("step") or type(self).step  # unbound: dispatchers bind like methods
+        self._step = step
+        self._kernel = step if compiled else getattr(step, "py_func", step)
+        self.reset()
+
+    # -- to implement ---------------------------------------------------------
+    @classmethod
+    @abstractmethod
+    def filter_params(cls, settings: Any) -> Array:
+        """The filter-specific parameter block, appended after ``P_FILTER``."""
+
+    def initial_internal(self) -> Array:
+        """Initial filter-specific state (zeros unless overridden)."""
+        return np.zeros(self.internal_len)
+
+    # -- public ---------------------------------------------------------------
+    @property
+    def settings(self) -> FilterSettings:
+        return self._settings
+
+    @property
+    def params(self) -> Array:
+        """The packed parameter vector (read-only copy), e.g. for sweeps."""
+        return self._params.copy()
+
+    def reset(self) -> None:
+        """Forget everything: the next valid sample initialises the filter."""
+        self._state[:] = 0.0
+        self._state[S_Q] = 1.0
+        self._state[S_FILTER:] = self.initial_internal()
+        self._out[:] = 0.0
+        self._out[OUT_Q] = 1.0
+        self._out[OUT_FLAGS] = FLAG_NOT_INITIALISED
+
+    @property
+    def state(self) -> FilterState:
+        s = self._state
+        return FilterState(
+            q_body_to_ned=s[S_Q : S_Q + 4].copy(),
+            gyro_bias_rad_s=s[S_BIAS : S_BIAS + 3].copy(),
+            initialised=bool(s[S_INIT] > 0),
+            schedule=s[S_SCHED:S_FILTER].copy(),
+            internal=s[S_FILTER:].copy(),
+        )
+
+    @state.setter
+    def state(self, value: FilterState) -> None:
+        s = np.zeros_like(self._state)
+        s[S_Q : S_Q + 4] = value.q_body_to_ned
+        s[S_BIAS : S_BIAS + 3] = value.gyro_bias_rad_s
+        s[S_INIT] = 1.0 if value.initialised else 0.0
+        s[S_SCHED:S_FILTER] = value.schedule
+        s[S_FILTER:] = value.internal
+        self._state[:] = s
+
+    @property
+    def raw_state(self) -> Array:
+        """The flat state vector (a copy), as the kernels see it."""
+        return self._state.copy()
+
+    @property
+    def diagnostics(self) -> FilterDiagnostics:
+        return FilterDiagnostics.from_row(self._out)
+
+    @property
+    def q_body_to_ned(self) -> Array:
+        return self._out[OUT_Q : OUT_Q + 4].copy()
+
+    def update(
+        self,
+        gyro_rad_s: ArrayLike,
+        accel_m_s2: ArrayLike,
+        mag_ut: ArrayLike | None = None,
+        *,
+        dt_s: float,
+        velocity_ned_m_s: ArrayLike | None = None,
+    ) -> Array:
+        """Process one sample; return the new ``q_body_to_ned`` (a copy)."""
+        row = self._row
+        row[IN_DT] = dt_s
+        row[IN_GYRO : IN_GYRO + 3] = gyro_rad_s
+        row[IN_ACCEL : IN_ACCEL + 3] = accel_m_s2
+        row[IN_MAG : IN_MAG + 3] = np.nan if mag_ut is None else mag_ut
+        row[IN_VEL : IN_VEL + 3] = np.nan if velocity_ned_m_s is None else velocity_ned_m_s
+        self._kernel(self._state, self._params, row, self._out)
+        return self._out[OUT_Q : OUT_Q + 4].copy()
+
+    def update_row(self, row: Array) -> Array:
+        """Process one packed input row; return the filter's output row (not a copy).
+
+        The allocation-free path for the live daemon.
+        """
+        self._kernel(self._state, self._params, row, self._out)
+        return self._out
+
+    def run(self, inputs: Array, outputs: Array | None = None) -> Array:
+        """Process every row of ``inputs`` (N, IN_WIDTH); return outputs (N, OUT_WIDTH)."""
+        inputs = np.ascontiguousarray(inputs, dtype=np.float64)
+        if inputs.ndim != 2 or inputs.shape[1] != IN_WIDTH:
+            raise ValueError(f"inputs must have shape (N, {IN_WIDTH}), got {inputs.shape}")
+        if outputs is None:
+            outputs = np.zeros((inputs.shape[0], OUT_WIDTH))
+        if inputs.shape[0] == 0:
+            return outputs
+        if self._compiled:
+            run_rows(self._step, self._state, self._params, inputs, outputs)
+        else:
+            for i in range(inputs.shape[0]):
+                self._kernel(self._state, self._params, inputs[i], outputs[i])
+        self._out[:] = outputs[-1]
+        return outputs

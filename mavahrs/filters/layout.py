@@ -1,0 +1,67 @@
+"""Row layouts shared by every filter kernel (plain integer constants).
+
+Kernels see one input row and write one output row per sample, both flat
+``float64`` arrays, so that the same code runs interpreted, compiled, per
+sample or over a whole recording.  Numba treats these module-level integers as
+compile-time constants.
+
+Input row (``IN_WIDTH`` values):
+
+==========  =====================================================  ==========
+index       meaning                                                unit
+==========  =====================================================  ==========
+IN_DT       time since the previous sample                         s
+IN_GYRO+k   angular rate, body (sensor) axes, k = 0, 1, 2          rad/s
+IN_ACCEL+k  specific force, body axes (level FRD at rest ≈ −g z)   m/s²
+IN_MAG+k    magnetic field, body axes; NaN = no magnetometer       µT
+IN_VEL+k    GNSS velocity in NED; NaN = no fix                     m/s
+==========  =====================================================  ==========
+
+Output row (``OUT_WIDTH`` values): the attitude and the diagnostics.
+
+===============  ==========================================================
+OUT_Q+k          q_body_to_ned, scalar first
+OUT_GAIN         current main correction gain (β, K_P, α or k_g), after the
+                 start-up boost and the rejection weights
+OUT_ACCEL_WEIGHT trust in the accelerometer this sample, 0 (rejected) … 1
+OUT_MAG_WEIGHT   trust in the magnetometer this sample, 0 … 1 (0 without one)
+OUT_BIAS+k       gyro bias estimate, body axes, rad/s
+OUT_FLAGS        bit field of FLAG_* below
+===============  ==========================================================
+"""
+
+from __future__ import annotations
+
+IN_DT = 0
+IN_GYRO = 1
+IN_ACCEL = 4
+IN_MAG = 7
+IN_VEL = 10
+IN_WIDTH = 13
+
+OUT_Q = 0
+OUT_GAIN = 4
+OUT_ACCEL_WEIGHT = 5
+OUT_MAG_WEIGHT = 6
+OUT_BIAS = 7
+OUT_FLAGS = 10
+OUT_WIDTH = 11
+
+#: The accelerometer vector was zero or non-finite: its correction was skipped.
+FLAG_ACCEL_INVALID = 1
+#: The magnetometer vector was zero or non-finite (or absent): skipped.
+FLAG_MAG_INVALID = 2
+#: The gyro was non-finite: the propagation step was skipped.
+FLAG_GYRO_INVALID = 4
+#: dt was ≤ 0 or non-finite: no propagation this sample.
+FLAG_DT_INVALID = 8
+#: dt exceeded the maximum gap: the filter re-initialised from this sample.
+FLAG_REINITIALISED = 16
+#: The filter has not yet seen a valid accelerometer sample to start from.
+FLAG_NOT_INITIALISED = 32
+#: Still in the start-up convergence phase (boosted gains).
+FLAG_STARTUP = 64
+#: A sensor reading is at or beyond its saturation limit (caller-detected).
+FLAG_SATURATED = 128
+
+__all__ = [name for name in dir() if name.isupper()]
