@@ -1,0 +1,1 @@
+"""Sans-I/O MAVLink layer: codec (bytes ↔ messages), tlog framing, timelines."""
