@@ -1,0 +1,147 @@
+r"""UDP links: ``udpin:`` (listen, reply to the last sender), ``udpout:`` and ``udpbcast:``.
+
+One ``read`` returns one datagram, so the codec parses each on its own and
+junk in one datagram never swallows the frames of the next.  Sockets are
+non-blocking: a datagram that cannot be sent right now (socket buffer full,
+no peer known yet, network down) is dropped and counted, never queued —
+stale attitude is worth nothing.  Both directions work on every UDP link:
+``udpout:`` reads the replies that come back to its ephemeral port, as
+pymavlink's ``mavudp`` does, and ``udpin:`` learns its peer from what it
+receives (a restarted peer on a new port is followed at once).
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from typing import Any
+
+from mavahrs.errors import TransportError
+from mavahrs.transports.base import TransportCounters, describe_os_error, wait_readable
+from mavahrs.transports.url import Endpoint
+
+__all__ = ["UdpTransport", "resolve"]
+
+_MAX_DATAGRAM = 65535
+
+
+def resolve(host: str, port: int, what: str) -> tuple[int, Any]:
+    """(address family, socket address) for ``host:port`` (UDP)."""
+    try:
+        infos = socket.getaddrinfo(host, port, 0, socket.SOCK_DGRAM)
+    except OSError as exc:
+        raise TransportError(f"{what}: cannot resolve host {host!r}: {describe_os_error(exc)}") from None
+    family, _, _, _, addr = infos[0]
+    return family, addr
+
+
+class UdpTransport:
+    """A UDP link for an ``udpin``, ``udpout`` or ``udpbcast`` :class:`Endpoint`.
+
+    Raises:
+        TransportError: the local address cannot be bound / the host not resolved.
+    """
+
+    datagram = True
+
+    def __init__(self, endpoint: Endpoint, *, logger: logging.Logger | None = None) -> None:
+        if endpoint.kind not in ("udpin", "udpout", "udpbcast"):
+            raise ValueError(f"not a UDP endpoint: {endpoint}")
+        self.endpoint = endpoint
+        self.counters = TransportCounters()
+        self._log = logger or logging.getLogger("mavahrs.transports")
+        self._listen = endpoint.kind == "udpin"
+        family, addr = resolve(endpoint.host, endpoint.port, endpoint.text)
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            sock.setblocking(False)
+            if self._listen:
+                sock.bind(addr)
+                self.peer: Any = None
+            else:
+                if endpoint.kind == "udpbcast":
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+                self.peer = addr
+        except OSError as exc:
+            sock.close()
+            verb = "listen on" if self._listen else "send to"
+            raise TransportError(f"cannot {verb} {endpoint.text}: {describe_os_error(exc)}") from None
+        self._sock: socket.socket | None = sock
+        self._fds = (sock.fileno(),)
+        self._warned_send = False
+
+    # ------------------------------------------------------------------ info
+    @property
+    def local_address(self) -> tuple[str, int]:
+        """The bound (host, port); for ``udpout`` known after the first send."""
+        assert self._sock is not None
+        name = self._sock.getsockname()
+        return str(name[0]), int(name[1])
+
+    def describe(self) -> str:
+        peer = "" if self.peer is None else f" (peer {self.peer[0]}:{self.peer[1]})"
+        return f"{self.endpoint.text}{peer}"
+
+    def fileno(self) -> int:
+        return self._fds[0] if self._sock is not None else -1
+
+    def filenos(self) -> tuple[int, ...]:
+        return self._fds if self._sock is not None else ()
+
+    # ------------------------------------------------------------------ I/O
+    def read(self, timeout_s: float) -> bytes:
+        """One datagram, or ``b""`` when none arrives within ``timeout_s``."""
+        sock = self._sock
+        if sock is None:
+            return b""
+        if timeout_s > 0 and not wait_readable(self._fds, timeout_s):
+            return b""
+        try:
+            data, addr = sock.recvfrom(_MAX_DATAGRAM)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError as exc:  # e.g. ICMP errors reported on some platforms
+            self._log.debug("%s: receive error: %s", self.endpoint.text, describe_os_error(exc))
+            return b""
+        if self._listen:
+            self.peer = addr  # reply to the last sender
+        c = self.counters
+        c.reads += 1
+        c.bytes_in += len(data)
+        return data
+
+    def write(self, data: bytes) -> None:
+        """Send one datagram now, or drop and count it."""
+        c = self.counters
+        c.writes += 1
+        sock, peer = self._sock, self.peer
+        if sock is None or peer is None:
+            c.writes_dropped += 1
+            c.bytes_dropped += len(data)
+            return
+        try:
+            c.bytes_out += sock.sendto(data, peer)
+        except OSError as exc:  # buffer full, network down, ICMP refusal: drop
+            c.writes_dropped += 1
+            c.bytes_dropped += len(data)
+            if not self._warned_send and not isinstance(exc, BlockingIOError):
+                self._warned_send = True
+                self._log.warning(
+                    "%s: cannot send (%s); dropping until it works again", self.endpoint.text, describe_os_error(exc)
+                )
+        else:
+            self._warned_send = False
+
+    def maintain(self, now_s: float) -> None:
+        """Nothing to do: UDP has no connection to keep."""
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def __enter__(self) -> UdpTransport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

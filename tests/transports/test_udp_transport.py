@@ -1,0 +1,98 @@
+"""UDP links over real loopback sockets: datagram boundaries, last-sender replies, drops."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from mavahrs.errors import TransportError
+from mavahrs.transports import open_transport
+from mavahrs.transports.udp import UdpTransport
+
+
+@pytest.fixture
+def listener():
+    t = open_transport("udpin:127.0.0.1:0")
+    assert isinstance(t, UdpTransport)
+    yield t
+    t.close()
+
+
+def test_udpout_to_udpin_keeps_datagrams_whole_and_replies_reach_the_sender(listener: UdpTransport) -> None:
+    port = listener.local_address[1]
+    with open_transport(f"udpout:127.0.0.1:{port}") as out:
+        assert out.datagram and listener.datagram
+        out.write(b"\xfe first")
+        out.write(b"\xfd second")
+        assert listener.read(2.0) == b"\xfe first"  # one datagram per read, never merged
+        assert listener.read(2.0) == b"\xfd second"
+        assert listener.read(0.0) == b""
+        listener.write(b"reply")  # goes to the last sender: the udpout socket
+        assert out.read(2.0) == b"reply"
+        assert listener.counters.reads == 2 and listener.counters.bytes_in == len(b"\xfe first\xfd second")
+        assert out.counters.bytes_in == 5
+
+
+def test_udpin_follows_a_restarted_peer_on_a_new_port(listener: UdpTransport) -> None:
+    port = listener.local_address[1]
+    a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        a.settimeout(2.0)
+        b.settimeout(2.0)
+        a.sendto(b"from a", ("127.0.0.1", port))
+        assert listener.read(2.0) == b"from a"
+        listener.write(b"to a")
+        assert a.recv(100) == b"to a"
+        a.close()  # the peer "restarts" on another port
+        b.sendto(b"from b", ("127.0.0.1", port))
+        assert listener.read(2.0) == b"from b"
+        listener.write(b"to b")
+        assert b.recv(100) == b"to b"
+        assert listener.describe().endswith(f"(peer 127.0.0.1:{b.getsockname()[1]})")
+    finally:
+        a.close()
+        b.close()
+
+
+def test_udpin_without_a_peer_drops_and_counts(listener: UdpTransport) -> None:
+    listener.write(b"x" * 10)
+    listener.write(b"y" * 5)
+    c = listener.counters
+    assert (c.writes, c.writes_dropped, c.bytes_dropped, c.bytes_out) == (2, 2, 15, 0)
+
+
+def test_read_times_out_with_empty_bytes(listener: UdpTransport) -> None:
+    assert listener.read(0.05) == b""
+    assert listener.read(0.0) == b""
+
+
+def test_sending_to_a_closed_port_never_raises() -> None:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    with open_transport(f"udpout:127.0.0.1:{port}") as out:
+        for _ in range(5):
+            out.write(b"hello")  # ICMP port unreachable must not turn into an exception
+        assert out.read(0.05) == b""
+        assert out.counters.writes == 5
+
+
+def test_binding_a_busy_port_is_a_one_line_transport_error(listener: UdpTransport) -> None:
+    port = listener.local_address[1]
+    with pytest.raises(TransportError) as info:
+        open_transport(f"udpin:127.0.0.1:{port}")
+    assert "already in use" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_unresolvable_host_is_a_transport_error() -> None:
+    with pytest.raises(TransportError, match="cannot resolve"):
+        open_transport("udpout:no-such-host.invalid:14550")
+
+
+def test_closed_transport_has_no_descriptors(listener: UdpTransport) -> None:
+    assert listener.filenos() == (listener.fileno(),)
+    listener.close()
+    assert listener.filenos() == () and listener.fileno() == -1 and listener.read(0.0) == b""
