@@ -1,0 +1,95 @@
+"""Layer direction: lower layers never import higher ones (architecture.md).
+
+geometry → filters → sensors → protocol → transports → service → cli, with
+evaluation/replay beside the service layer.  ``mavahrs`` never imports
+``firmware_sim``; the sans-I/O layers never touch sockets, files or clocks.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+PKG = REPO / "mavahrs"
+
+# Rank of each top-level subpackage/module; a module may import only from ranks ≤ its own.
+RANK = {
+    "errors": 0,
+    "geometry": 1,
+    "filters": 2,
+    "api": 3,
+    "sensors": 3,
+    "protocol": 4,
+    "transports": 5,
+    "config": 6,
+    "service": 6,
+    "evaluation": 6,
+    "replay": 7,
+    "cli": 8,
+    "__main__": 9,
+    "__init__": 9,
+}
+
+SANS_IO = ("geometry", "filters", "sensors", "protocol")
+FORBIDDEN_IN_SANS_IO = {"socket", "selectors", "serial", "subprocess", "threading", "asyncio", "time"}
+
+
+def _modules() -> list[Path]:
+    return sorted(p for p in PKG.rglob("*.py"))
+
+
+def _layer(path: Path) -> str:
+    rel = path.relative_to(PKG)
+    return rel.parts[0].removesuffix(".py")
+
+
+def _imports(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    out: list[str] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.extend(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.append(node.module)
+    return out
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(REPO)))
+def test_layers_only_import_downwards(path: Path) -> None:
+    layer = _layer(path)
+    assert layer in RANK, f"{path}: new top-level module {layer!r} needs a rank in test_architecture.py"
+    for name in _imports(path):
+        assert not name.startswith("firmware_sim"), f"{path} imports {name}: mavahrs never imports firmware_sim"
+        if not name.startswith("mavahrs."):
+            continue
+        target = name.split(".")[1]
+        if target not in RANK:
+            continue
+        assert RANK[target] <= RANK[layer], f"{path} ({layer}) imports {name} ({target}): upward dependency"
+
+
+@pytest.mark.parametrize(
+    "path",
+    [p for p in _modules() if _layer(p) in SANS_IO],
+    ids=lambda p: str(p.relative_to(REPO)),
+)
+def test_sans_io_layers_do_no_io(path: Path) -> None:
+    for name in _imports(path):
+        root = name.split(".")[0]
+        assert root not in FORBIDDEN_IN_SANS_IO, f"{path} imports {name}: {_layer(path)} must stay free of I/O and clocks"
+
+
+def test_firmware_sim_depends_only_on_lower_layers() -> None:
+    sim = REPO / "firmware_sim"
+    if not sim.exists():
+        pytest.skip("firmware_sim not present")
+    for path in sim.rglob("*.py"):
+        for name in _imports(path):
+            if name.startswith("mavahrs."):
+                target = name.split(".")[1]
+                assert target in {"geometry", "protocol", "transports", "errors", "filters"}, (
+                    f"{path} imports {name}: the simulator may use geometry, protocol and transports only"
+                )
