@@ -1,0 +1,143 @@
+"""``mavahrs evaluate``: score filters against ground truth, or run one of the papers' studies."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register", "run"]
+
+HELP = "score filters against ground truth (BROAD .mat, RepoIMU/CSV, tlog with SIMSTATE)"
+
+DESCRIPTION = """\
+Run filters over recordings with a reference attitude and print the papers'
+accuracy table per filter: BROAD's total / heading / inclination RMS on the
+scored samples, RMS of roll, pitch and yaw at rest (< 5 deg/s) and in motion
+(>= 5 deg/s) (Madgwick 2010 Table 1), and the mean and SD per angle
+(Ermakov & Gogolev 2022 Table 2).  All figures in degrees.
+
+INPUT is a BROAD .mat trial, a RepoIMU T-stick CSV, a CSV with the columns
+documented in docs/evaluation.md, a tlog with SIMSTATE truth, or a folder of
+them (the mean over recordings is BROAD's plain mean of per-trial figures).
+
+--study runs one of the papers' studies on INPUT instead, prints its table and,
+with --plot, draws it:  beta (error vs beta 0..0.5, Fig. 10), rate (error vs
+sample rate 1..512 Hz by decimation, Fig. 11), bias (tracking an injected
+gyro drift, Fig. 12), compare (Mahony, Madgwick, complementary side by side,
+2022 Table 2 / Fig. 8-13)."""
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "evaluate", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("input", metavar="INPUT", help=".mat, .csv, .tlog file or a folder of them")
+    p.add_argument(
+        "--filter", "-f", dest="filters", action="append", metavar="NAME",
+        help="filter to run (repeatable): madgwick, mahony, complementary, gyroplatform, best, "
+        "or all (default: best; studies: their own defaults)",
+    )  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print the results as JSON instead of tables")
+    p.add_argument("--no-mag", action="store_true", help="6-axis: do not give the filters the magnetometer")
+    p.add_argument(
+        "--align", default="auto", choices=("auto", "none", "heading", "heading+body"),
+        help="reference alignment: auto = none for a north-referenced reference scored 9-axis, "
+        "else a fitted heading offset; heading+body also fits a constant body misalignment "
+        "(default: auto)",
+    )  # fmt: skip
+    p.add_argument("--skip", type=float, default=0.0, metavar="S",
+                   help="RepoIMU / tlog: do not score the first S seconds (convergence), s (default 0)")
+    p.add_argument("--per-recording", action="store_true", help="print every recording's table, not only the mean")
+    p.add_argument("--study", choices=("beta", "rate", "bias", "compare"), help="run a study instead (see above)")
+    p.add_argument("--decimation", default="average", choices=("average", "pick"),
+                   help="rate study: gyro averaged over each block, or every signal picked (default average)")
+    p.add_argument("--duration", type=float, metavar="S", help="bias study: use only the first S seconds")
+    p.add_argument("--plot", metavar="PNG", help="write a plot (evaluation: the first recording; study: its figure)")
+    p.set_defaults(func=run)
+    return p
+
+
+def _error(msg: str, code: int) -> int:
+    print(f"mavahrs evaluate: error: {msg}", file=sys.stderr)
+    return code
+
+
+def run(args: argparse.Namespace) -> int:
+    from mavahrs.errors import DataError, MavahrsError
+
+    try:
+        return _run(args)
+    except (DataError, MavahrsError, OSError) as exc:
+        return _error(str(exc), 1)
+    except ValueError as exc:  # a bad option value (unknown filter name, …)
+        return _error(str(exc), 2)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from mavahrs.evaluation.loaders import load_any
+    from mavahrs.evaluation.report import evaluate_recordings, format_report, resolve_filter_names
+
+    recordings = load_any(args.input, skip_s=args.skip)
+    if args.study:
+        return _study(args, recordings)
+    filters = resolve_filter_names(args.filters)
+    report = evaluate_recordings(
+        recordings, filters, input_name=str(args.input), use_mag=not args.no_mag, alignment=args.align,
+        progress=sys.stderr.isatty(),
+    )  # fmt: skip
+    if args.json:
+        print(report.to_json())
+    else:
+        print(format_report(report, per_recording=True if args.per_recording else None))
+    if args.plot:
+        _plot_first(args, recordings[0], filters)
+    if not any(r.scores for r in report.recordings):
+        print("mavahrs evaluate: nothing was scored (no reference attitude in the input)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _plot_first(args: argparse.Namespace, rec: Any, filters: list[str]) -> None:
+    import numpy as np
+
+    from mavahrs.evaluation.plots import plot_attitude
+    from mavahrs.evaluation.report import run_filter
+
+    t = np.cumsum(np.nan_to_num(rec.dt_s)) - np.nan_to_num(rec.dt_s[0])
+    outs = {n: run_filter(rec, n, use_mag=not args.no_mag) for n in filters}
+    path = plot_attitude(args.plot, t, outs, reference_q=rec.q_ref_body_to_ned, title=rec.name)
+    print(f"plot: {path}", file=sys.stderr)
+
+
+def _study(args: argparse.Namespace, recordings: list[Any]) -> int:
+    import json
+
+    from mavahrs.evaluation import studies
+
+    with_ref = [r for r in recordings if r.extra.get("has_reference", True)]
+    if not with_ref:
+        return _error("no recording with a reference attitude", 1)
+    filters = args.filters or []
+    progress = sys.stderr.isatty()
+    if args.study == "beta":
+        result = studies.beta_study(with_ref, filter_name=filters[0] if filters else "madgwick", progress=progress)
+    elif args.study == "rate":
+        result = studies.rate_study(
+            with_ref, filter_name=filters[0] if filters else "madgwick", method=args.decimation, progress=progress
+        )
+    elif args.study == "bias":
+        result = studies.bias_study(
+            with_ref[0], filter_name=filters[0] if filters else "madgwick", duration_s=args.duration,
+            use_mag=not args.no_mag,
+        )  # fmt: skip
+    else:
+        names = filters or ["mahony", "madgwick", "complementary"]
+        result = studies.compare_study(with_ref[0], filters=names, use_mag=not args.no_mag)
+    print(json.dumps(result.to_dict(), indent=2) if args.json else result.format())
+    if args.plot:
+        from mavahrs.evaluation.plots import plot_study
+
+        print(f"plot: {plot_study(result, Path(args.plot))}", file=sys.stderr)
+    return 0

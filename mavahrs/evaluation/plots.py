@@ -1,0 +1,309 @@
+r"""Plots of replays, evaluations and studies (matplotlib, the ``plot`` extra).
+
+The only module in mavahrs that imports matplotlib, and only inside the
+functions (the ``Agg`` backend: files, no window), so nothing else pays for it.
+
+* :func:`plot_attitude` — per angle: reference, estimates (and the autopilot's
+  own attitude, if given) on top, the error below; underneath, each filter's
+  correction gain and its accelerometer / magnetometer trust (rejection state);
+* :func:`plot_study` — the β sweep (Madgwick 2010 Fig. 10), the sample-rate
+  sweep (Fig. 11), the bias-tracking study (Fig. 12) and the side-by-side
+  comparison (Ermakov & Gogolev 2022, Fig. 8–13).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavahrs.errors import MavahrsError
+from mavahrs.evaluation.metrics import euler_deg, euler_errors_rad
+from mavahrs.filters.layout import OUT_ACCEL_WEIGHT, OUT_GAIN, OUT_MAG_WEIGHT, OUT_Q, OUT_WIDTH
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mavahrs.evaluation.studies import StudyResult
+
+__all__ = ["plot_attitude", "plot_study", "PlotError"]
+
+Array = NDArray[np.float64]
+ANGLES = ("roll", "pitch", "yaw")
+_REF_COLOR = "black"
+_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+class PlotError(MavahrsError):
+    """matplotlib is missing or the plot could not be written."""
+
+
+def _pyplot() -> Any:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise PlotError("plots need matplotlib: pip install 'mavahrs[plot]'") from exc
+    return plt
+
+
+def _save(fig: Any, path: str | Path) -> Path:
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise PlotError(f"cannot write the plot {path}: {exc}") from exc
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+    return path
+
+
+def _unwrap(y: Array, like: Array | None = None) -> Array:
+    """Unwrap an angle in degrees (no ±180° jumps drawn as lines), NaN kept.
+
+    Without ``like`` the result is shifted by whole turns so that its median
+    lies in (−180°, 180°]; with it, so that it lies on the same turn as ``like``.
+    """
+    y = np.asarray(y, dtype=float).copy()
+    fin = np.isfinite(y)
+    if fin.sum() < 2:
+        return y
+    y[fin] = np.unwrap(y[fin], period=360.0)
+    if like is not None and np.isfinite(like).any():
+        both = fin & np.isfinite(like)
+        if both.any():
+            y -= 360.0 * np.round(np.median(y[both] - like[both]) / 360.0)
+            return y
+    y -= 360.0 * np.round(np.median(y[fin]) / 360.0)
+    return y
+
+
+def _angle(y: Array, k: int, like: Array | None = None) -> Array:
+    """Angle ``k`` (0 roll, 1 pitch, 2 yaw) for drawing: roll and yaw unwrapped."""
+    return y if k == 1 else _unwrap(y, like)
+
+
+def _quats(x: Array) -> Array:
+    x = np.asarray(x, dtype=float)
+    return x[:, OUT_Q : OUT_Q + 4] if x.shape[1] == OUT_WIDTH else x
+
+
+def plot_attitude(
+    path: str | Path,
+    t_s: Array,
+    estimates: Mapping[str, Array],
+    *,
+    reference_q: Array | None = None,
+    reference_label: str = "reference",
+    others: Mapping[str, tuple[Array, Array]] | None = None,
+    title: str = "",
+    max_points: int = 20000,
+) -> Path:
+    """Truth / estimate / error per angle, gain and rejection state underneath.
+
+    Args:
+        path: PNG file to write.
+        t_s: (N,) sample times, s.
+        estimates: filter name → (N, OUT_WIDTH) filter output rows (gain and
+            weights are then drawn) or (N, 4) quaternions.
+        reference_q: (N, 4) reference ``q_body_to_ned`` (NaN rows allowed), or None.
+        reference_label: legend text for the reference (e.g. "SIMSTATE truth").
+        others: extra attitudes at their own times, name → (t_s, (M, 4) q),
+            e.g. the autopilot's ATTITUDE; drawn dashed, no error row.
+        max_points: long series are thinned to about this many points.
+    """
+    plt = _pyplot()
+    t = np.asarray(t_s, dtype=float)
+    step = max(1, t.size // max_points)
+    idx = np.arange(0, t.size, step)
+    has_diag = any(np.asarray(v).shape[1] == OUT_WIDTH for v in estimates.values())
+    has_err = reference_q is not None and np.isfinite(reference_q).all(axis=1).any()
+    rows: list[tuple[str, float]] = []
+    for a in ANGLES:
+        rows.append((a, 2.6))
+        if has_err:
+            rows.append((a + " err", 1.2))
+    if has_diag:
+        rows += [("gain", 1.1), ("trust", 1.1)]
+    fig, axes = plt.subplots(
+        len(rows), 1, sharex=True, figsize=(12, 1.15 * sum(h for _, h in rows) + 1.0),
+        gridspec_kw={"height_ratios": [h for _, h in rows]},
+    )  # fmt: skip
+    axes = np.atleast_1d(axes)
+    ax_of = {name: ax for (name, _), ax in zip(rows, axes)}
+    ref_e = euler_deg(reference_q)[idx] if has_err and reference_q is not None else None
+    est_e = {name: euler_deg(_quats(est)[idx]) for name, est in estimates.items()}
+    for k, a in enumerate(ANGLES):
+        ax = ax_of[a]
+        like = None
+        if ref_e is not None:
+            like = _angle(ref_e[:, k], k)
+            ax.plot(t[idx], like, color=_REF_COLOR, lw=1.6, label=reference_label)
+        for j, (name, e) in enumerate(est_e.items()):
+            y = _angle(e[:, k], k, like)
+            like = y if like is None else like
+            ax.plot(t[idx], y, color=_COLORS[j % len(_COLORS)], lw=0.9, label=name)
+        for j, (name, (t_o, q_o)) in enumerate((others or {}).items()):
+            e = euler_deg(q_o)
+            y = _angle(e[:, k], k, np.interp(t_o, t[idx], like) if like is not None else None)
+            ax.plot(t_o, y, ls="--", lw=0.9, color=_COLORS[(j + 3) % len(_COLORS)], label=name)
+        ax.set_ylabel(f"{a} (°)")
+        ax.grid(alpha=0.3)
+        if has_err:
+            axe = ax_of[a + " err"]
+            for j, (name, est) in enumerate(estimates.items()):
+                err = np.degrees(euler_errors_rad(_quats(est)[idx], reference_q[idx]))  # type: ignore[index]
+                rms = float(np.sqrt(np.nanmean(err[:, k] ** 2))) if np.isfinite(err[:, k]).any() else np.nan
+                axe.plot(t[idx], err[:, k], color=_COLORS[j % len(_COLORS)], lw=0.8, label=f"{name} RMS {rms:.2f}°")
+            axe.axhline(0, color="grey", lw=0.6)
+            axe.set_ylabel(f"{a} err (°)")
+            axe.grid(alpha=0.3)
+            axe.legend(loc="upper right", fontsize=7, ncol=len(estimates))
+    ax_of["roll"].legend(loc="upper right", fontsize=8, ncol=len(estimates) + 1 + len(others or {}))
+    if has_diag:
+        axg, axw = ax_of["gain"], ax_of["trust"]
+        for j, (name, est) in enumerate(estimates.items()):
+            est = np.asarray(est)
+            if est.shape[1] != OUT_WIDTH:
+                continue
+            c = _COLORS[j % len(_COLORS)]
+            axg.plot(t[idx], est[idx, OUT_GAIN], color=c, lw=0.9, label=name)
+            axw.plot(t[idx], est[idx, OUT_ACCEL_WEIGHT], color=c, lw=0.9, label=f"{name} accel")
+            axw.plot(t[idx], est[idx, OUT_MAG_WEIGHT], color=c, lw=0.9, ls=":", label=f"{name} mag")
+        axg.set_ylabel("gain")
+        axg.set_yscale("symlog", linthresh=0.01)
+        axg.grid(alpha=0.3)
+        axg.legend(loc="upper right", fontsize=7, ncol=len(estimates))
+        axw.set_ylabel("trust\n(0 = rejected)")
+        axw.set_ylim(-0.05, 1.1)
+        axw.grid(alpha=0.3)
+        axw.legend(loc="lower right", fontsize=7, ncol=2 * len(estimates))
+    axes[-1].set_xlabel("time (s)")
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+# --------------------------------------------------------------------------- studies
+
+
+def plot_study(result: StudyResult, path: str | Path) -> Path:
+    """Draw a :class:`~mavahrs.evaluation.studies.StudyResult` to a PNG."""
+    kinds = {"beta": _plot_sweep, "rate": _plot_sweep, "bias": _plot_bias, "compare": _plot_comparison}
+    try:
+        fn = kinds[result.study]
+    except KeyError:
+        raise PlotError(f"no plot for study {result.study!r}") from None
+    return fn(result, path)
+
+
+def _plot_sweep(result: StudyResult, path: str | Path) -> Path:
+    plt = _pyplot()
+    d = result.data
+    x = d["values"] if result.study == "beta" else d["rates"]
+    fig, ax = plt.subplots(1, 1, figsize=(8, 5))
+    styles = {"rest": "-", "motion": "--"}
+    colors = {"6D": "tab:blue", "9D": "tab:red"}
+    for key, y in d["curves"].items():
+        axes_label, part = key.split(" ")
+        if part == "all":
+            continue
+        kind = "total" if axes_label == "9D" else "inclination"
+        label = f"{'MARG' if axes_label == '9D' else 'IMU'} ({axes_label}, {kind}) {'static' if part == 'rest' else 'dynamic'}"
+        ax.plot(x, y, styles[part], color=colors.get(axes_label, "k"), marker="o", ms=3, label=label)
+    if result.study == "rate":
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("sample rate (Hz)")
+    else:
+        ax.set_xlabel(d.get("field", "β"))
+    ax.set_ylabel("RMS error (°)")
+    finite = np.concatenate([np.asarray(v)[np.isfinite(v)] for v in d["curves"].values()] or [np.zeros(1)])
+    if finite.size and finite.max() > 20 * max(np.percentile(finite, 50), 1e-3):
+        ax.set_yscale("log")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(result.title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _plot_bias(result: StudyResult, path: str | Path) -> Path:
+    plt = _pyplot()
+    d = result.data
+    t = d["t"]
+    step = max(1, t.size // 20000)
+    s = slice(None, None, step)
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8), gridspec_kw={"height_ratios": [2, 2, 1.4]})
+    for k, (ax, axis) in enumerate(zip(axes[:2], "xy")):
+        ax.plot(t[s], d["injected_deg_s"][s, k], color="black", lw=1.5, label=f"injected bias {axis}")
+        ax.plot(t[s], d["estimate_deg_s"][s, k], color="tab:red", lw=1.0, label=f"estimated bias {axis}")
+        ax.axvline(d["zeta_on_s"], color="grey", ls=":", lw=1)
+        ax.set_ylabel(f"gyro {axis} bias (°/s)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    axes[2].plot(t[s], d["incl_err_deg"][s], color="tab:blue", lw=0.8, label="inclination error")
+    axes[2].plot(t[s], d["total_err_deg"][s], color="tab:orange", lw=0.8, label="total error")
+    axes[2].axvline(d["zeta_on_s"], color="grey", ls=":", lw=1, label=f"{d['field']} switched on")
+    axes[2].set_ylabel("error (°)")
+    axes[2].set_xlabel("time (s)")
+    axes[2].grid(alpha=0.3)
+    axes[2].legend(fontsize=8, loc="upper left")
+    fig.suptitle(result.title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _plot_comparison(result: StudyResult, path: str | Path) -> Path:
+    plt = _pyplot()
+    d = result.data
+    names = list(d["est_euler_deg"])
+    t = d["t"]
+    step = max(1, t.size // 8000)
+    s = slice(None, None, step)
+    fig, axes = plt.subplots(
+        6, len(names), sharex=True, figsize=(4.6 * len(names) + 1, 13), squeeze=False,
+        gridspec_kw={"height_ratios": [2.2, 1.2] * 3},
+    )  # fmt: skip
+    for j, name in enumerate(names):
+        ref = d["ref_euler_deg"][name]
+        est = d["est_euler_deg"][name]
+        err = d["err_deg"][name]
+        for k, a in enumerate(ANGLES):
+            ax = axes[2 * k, j]
+            r = _angle(ref[s, k], k)
+            ax.plot(t[s], r, color=_REF_COLOR, lw=1.4, label="reference")
+            ax.plot(t[s], _angle(est[s, k], k, r), color=_COLORS[j % len(_COLORS)], lw=0.8, label=name)
+            ax.grid(alpha=0.3)
+            if j == 0:
+                ax.set_ylabel(f"{a} (°)")
+            if k == 0:
+                ax.set_title(name)
+                ax.legend(fontsize=7, loc="upper right")
+            axe = axes[2 * k + 1, j]
+            sc = d["scored"][s]
+            e = np.where(sc, err[s, k], np.nan)
+            axe.plot(t[s], e, color=_COLORS[j % len(_COLORS)], lw=0.7)
+            axe.axhline(0, color="grey", lw=0.5)
+            axe.grid(alpha=0.3)
+            m, sd = np.nanmean(err[d["scored"], k]), np.nanstd(err[d["scored"], k])
+            axe.text(0.01, 0.85, f"mean {m:+.2f}°  SD {sd:.2f}°", transform=axe.transAxes, fontsize=7)
+            if j == 0:
+                axe.set_ylabel(f"{a} err (°)")
+    for j in range(len(names)):
+        axes[-1, j].set_xlabel("time (s)")
+    # the same error scale across filters, so they compare at a glance
+    for k in range(3):
+        lims = [axes[2 * k + 1, j].get_ylim() for j in range(len(names))]
+        lo, hi = min(x[0] for x in lims), max(x[1] for x in lims)
+        for j in range(len(names)):
+            axes[2 * k + 1, j].set_ylim(lo, hi)
+    fig.suptitle(result.title, fontsize=11)
+    fig.tight_layout()
+    return _save(fig, path)

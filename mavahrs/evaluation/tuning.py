@@ -1,0 +1,436 @@
+r"""Madgwick's β and ζ, and the gyro temperature-bias model, from a stationary recording.
+
+Selezneva & Kumarin (004), eq. (1)–(5), with Madgwick 2010, eq. (47)–(51):
+
+1. **Gyro zero drift vs temperature.**  At rest the true rate is zero, so
+   each gyro axis reads its bias plus noise.  Per axis a straight line
+   ``α_k(T) = b0_k + k_k·(T − T₀)`` is fitted by least squares (004: "linear
+   approximation of the gyro readings at zero rate and different
+   temperatures").  Without a usable temperature (absent, or a spread below
+   ``min_temperature_span_c``) the bias is fitted as a line in *time* instead
+   and no temperature model is written.
+2. **Noise.**  What the line does not explain is measurement noise ϑ_t (004).
+   Its mean absolute value per axis is Madgwick's ω̃_β, "the estimated mean
+   zero-mean gyroscope measurement error of each axis".
+3. **β and ζ from the sensor figures** (Madgwick 2010, eq. (50)–(51)):
+   ``β = √(3/4)·ω̃_β`` and ``ζ = √(3/4)·ω̃_ζ``, with ω̃_ζ the bias drift rate
+   per axis: the RMS over axes of ``k_k`` times the RMS rate of temperature
+   change (from 5 s block means; or the fitted time slope without temperature).
+4. **β and ζ by least squares** (004, eq. (3)–(5)): one scalar gain μ
+   fitting ``μ·v_t ≈ w_t`` over all samples is ``μ = tr(VᵀW)/tr(VᵀV)``.
+
+   * β (eq. (2), (4)): ``w_t = ½ q ⊗ [0, ϑ_t]`` is the quaternion rate the
+     noise alone causes; ``v_t = ∇f/‖∇f‖`` is the normalised gradient of
+     Madgwick's objective (eq. (25)–(34), gravity and — with a magnetometer
+     — the compensated field of eq. (46)) at the attitude that noise would
+     produce, i.e. the direction the correction acts in.
+   * ζ (eq. (1), (3)): the bias estimate ``ζ·Σ ω_ε Δt`` (eq. (47)–(48),
+     ``ω_ε = 2 q* ⊗ ∇f/‖∇f‖``) should follow the drift
+     ``A_t = α(T_t) − α(T_0)``; the gradient is taken at the attitude error
+     the uncorrected drift would have accumulated.
+
+   Taken literally with the gradient of a running filter, eq. (4) projects
+   the instantaneous gyro noise on a direction dominated by accelerometer
+   noise and gives μ ≈ 0 — the paper's own β = −1.3·10⁻⁴ shows this.  Here
+   the gradient is evaluated on the noise-free field directions (the
+   recording's mean accelerometer and magnetometer) at the attitude the
+   gyro error alone produces, which is what eq. (1)–(2) describe.  For
+   isotropic noise this lands close to the spec formula, so the two columns
+   are a consistency check of each other.
+
+Output: :class:`TuneResult` with ``to_toml()`` — the ``[calibration.gyro_temperature]``
+model (``mavahrs.sensors.calibration.GyroTemperatureModel`` fields) and the
+Madgwick gains in ``[filters.madgwick]``, the layout ``mavahrs run --config`` reads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavahrs.errors import DataError
+from mavahrs.evaluation.datasets import Recording
+from mavahrs.geometry.quaternion import conjugate, from_rotation_vector, multiply
+from mavahrs.geometry.rotation import from_matrix
+
+__all__ = ["TuneSettings", "TuneResult", "tune", "least_squares_gain", "SPEC_FACTOR"]
+
+Array = NDArray[np.float64]
+
+#: √(3/4): Madgwick 2010, eq. (50)–(51).
+SPEC_FACTOR = math.sqrt(0.75)
+
+
+@dataclass(frozen=True)
+class TuneSettings:
+    """Options of :func:`tune`.
+
+    Attributes:
+        min_temperature_span_c: below this temperature spread (°C) no
+            temperature model is fitted (the slope would be noise).
+        outlier_sd: samples whose residual exceeds this many robust standard
+            deviations on any axis are dropped (bumps, not noise), then the
+            fits are repeated once.
+        block_s: block length for the temperature-rate estimate, s.
+        max_motion_rad_s: a residual above this on any axis means the
+            recording is not stationary; more than 1 % such samples is an error.
+    """
+
+    min_temperature_span_c: float = 1.0
+    outlier_sd: float = 6.0
+    block_s: float = 5.0
+    max_motion_rad_s: float = math.radians(10.0)
+
+    def __post_init__(self) -> None:
+        for name in ("min_temperature_span_c", "outlier_sd", "block_s", "max_motion_rad_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """What :func:`tune` measured (SI units unless the name says otherwise)."""
+
+    name: str
+    samples: int
+    duration_s: float
+    rate_hz: float
+    axes: int  # 9 = the least-squares gradient used the magnetometer, 6 = gravity only
+    temperature_model: bool
+    t0_c: float
+    temperature_range_c: tuple[float, float]
+    b0_rad_s: tuple[float, float, float]
+    k_rad_s_per_c: tuple[float, float, float]
+    drift_rad_s2: tuple[float, float, float]  # time slope when there is no temperature model
+    noise_sd_rad_s: tuple[float, float, float]
+    noise_mean_abs_rad_s: tuple[float, float, float]
+    omega_beta_rad_s: float
+    omega_zeta_rad_s2: float
+    temperature_rate_c_s: float
+    beta_spec: float
+    zeta_spec: float
+    beta_ls: float
+    zeta_ls: float
+    dropped_samples: int
+    notes: list[str] = field(default_factory=list)
+
+    def format(self) -> str:
+        d3 = np.degrees
+        lines = [
+            f"{self.name}: {self.samples} samples at rest, {self.duration_s:.1f} s, {self.rate_hz:.1f} Hz",
+        ]
+        if self.temperature_model:
+            lines.append(
+                f"temperature {self.temperature_range_c[0]:.2f} … {self.temperature_range_c[1]:.2f} °C "
+                f"(reference T0 = {self.t0_c:.2f} °C, RMS rate {self.temperature_rate_c_s * 60:.3f} °C/min)"
+            )
+        lines.append("gyro zero drift, per axis x / y / z:")
+        lines.append("  bias at T0      " + _three(d3(self.b0_rad_s), "°/s", 4))
+        if self.temperature_model:
+            lines.append("  temp. slope     " + _three(d3(self.k_rad_s_per_c), "°/s per °C", 5))
+        else:
+            lines.append("  drift in time   " + _three(d3(self.drift_rad_s2), "°/s per s", 6))
+        lines.append("  noise SD        " + _three(d3(self.noise_sd_rad_s), "°/s", 4))
+        lines.append("  noise mean |ϑ|  " + _three(d3(self.noise_mean_abs_rad_s), "°/s", 4))
+        lines.append(
+            f"ω̃_β = {self.omega_beta_rad_s:.6f} rad/s, ω̃_ζ = {self.omega_zeta_rad_s2:.3e} rad/s²"
+        )
+        lines.append(f"{'':24}{'spec (eq. 50–51)':>18}{'least squares (004)':>22}")
+        lines.append(f"{'β  (rad/s)':24}{self.beta_spec:18.6f}{self.beta_ls:22.6f}")
+        lines.append(f"{'ζ  (rad/s²)':24}{self.zeta_spec:18.3e}{self.zeta_ls:22.3e}")
+        lines.append(f"(least squares on the {'MARG' if self.axes == 9 else 'IMU'} objective)")
+        if self.dropped_samples:
+            lines.append(f"dropped {self.dropped_samples} outlier samples (bumps) before fitting")
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k in self.__dataclass_fields__:
+            v = getattr(self, k)
+            out[k] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    def to_toml(self, *, gains: str = "spec") -> str:
+        """The settings file ``mavahrs run --config`` reads.
+
+        Args:
+            gains: which β/ζ to write: ``"spec"`` (eq. 50–51) or ``"ls"``.
+        """
+        if gains not in ("spec", "ls"):
+            raise ValueError(f"gains must be 'spec' or 'ls', got {gains!r}")
+        beta = self.beta_spec if gains == "spec" else self.beta_ls
+        zeta = self.zeta_spec if gains == "spec" else self.zeta_ls
+        other_beta = self.beta_ls if gains == "spec" else self.beta_spec
+        other_zeta = self.zeta_ls if gains == "spec" else self.zeta_spec
+        lines = [
+            f"# Written by `mavahrs tune` from {self.name} ({self.samples} samples at rest, "
+            f"{self.duration_s:.0f} s).",
+            "# Use with: mavahrs run --config THIS_FILE  (flags on the command line still override it).",
+            "",
+        ]
+        if self.temperature_model:
+            lines += [
+                "# Gyro zero drift vs temperature, b(T) = b0 + k·(T − t0), subtracted from the gyro",
+                "# whenever the IMU message carries a temperature (RAW_IMU / SCALED_IMU `temperature`).",
+                f"# Fitted over {self.temperature_range_c[0]:.2f} … {self.temperature_range_c[1]:.2f} °C.",
+                "[calibration.gyro_temperature]",
+                f"b0_rad_s = {_toml_vec(self.b0_rad_s)}",
+                f"k_rad_s_per_c = {_toml_vec(self.k_rad_s_per_c)}",
+                f"t0_c = {self.t0_c:.4f}",
+                "",
+            ]
+        else:
+            lines += [
+                "# No temperature model: the recording had no usable temperature spread.",
+                f"# Mean gyro bias was {_toml_vec(self.b0_rad_s)} rad/s (not written: it changes per power-up).",
+                "",
+            ]
+        lines += [
+            f"# Madgwick gains from the {'sensor-spec formulas, Madgwick 2010 eq. (50)-(51)' if gains == 'spec' else 'least-squares method of Selezneva & Kumarin, eq. (5)'}:",
+            f"#   omega_beta = {self.omega_beta_rad_s:.6g} rad/s (mean |gyro noise| per axis), "
+            f"omega_zeta = {self.omega_zeta_rad_s2:.6g} rad/s^2 (bias drift rate per axis).",
+            f"# The {'least-squares' if gains == 'spec' else 'spec-formula'} values were "
+            f"beta = {other_beta:.6g}, zeta = {other_zeta:.6g}.",
+            "# Noise-derived gains suit a vehicle at rest; a flying vehicle usually needs a larger beta.",
+            "[filters.madgwick]",
+            f"beta_rad_s = {beta:.6g}",
+            f"zeta_rad_s = {zeta:.6g}",
+            "",
+        ]
+        return "\n".join(lines)
+
+
+def _three(v: Any, unit: str, digits: int) -> str:
+    return " / ".join(f"{float(x):+.{digits}f}" for x in v) + f" {unit}"
+
+
+def _toml_vec(v: Any) -> str:
+    return "[" + ", ".join(f"{float(x):.9g}" for x in v) + "]"
+
+
+def least_squares_gain(v: Array, w: Array) -> float:
+    """The scalar μ minimising Σ‖μ·v_t − w_t‖²: ``tr(VᵀW)/tr(VᵀV)`` (004, eq. (5))."""
+    v = np.asarray(v, dtype=np.float64)
+    w = np.asarray(w, dtype=np.float64)
+    den = float(np.sum(v * v))  # tr(VᵀV)
+    if den <= 0:
+        return float("nan")
+    return float(np.sum(v * w)) / den  # tr(VᵀW)
+
+
+# --------------------------------------------------------------------------- Madgwick objective
+
+
+def _rotate_to_body(q_body_to_ned: Array, v_ned: Array) -> Array:
+    """``q* ⊗ [0, v] ⊗ q`` without normalising q (its scale matters for the gradient)."""
+    qc = conjugate(q_body_to_ned)
+    vq = np.concatenate([np.zeros(v_ned.shape[:-1] + (1,)), v_ned], axis=-1)
+    return multiply(multiply(qc, vq), q_body_to_ned)[..., 1:]
+
+
+def _objective(q: Array, refs: list[tuple[Array, Array]]) -> Array:
+    """Madgwick 2010, eq. (25)/(29)/(31): stacked f = q*⊗d⊗q − s for each (d_ned, s_body)."""
+    return np.concatenate([_rotate_to_body(q, d) - s for d, s in refs], axis=-1)
+
+
+def _gradient_direction(q: Array, refs: list[tuple[Array, Array]], h: float = 1e-7) -> Array:
+    """∇(½‖f‖²) = Jᵀf (eq. (20), (34)) by central differences, normalised (eq. (44))."""
+    g = np.empty_like(q)
+    for i in range(4):
+        e = np.zeros(4)
+        e[i] = h
+        fp = _objective(q + e, refs)
+        fm = _objective(q - e, refs)
+        f0 = _objective(q, refs)
+        g[..., i] = np.sum(f0 * (fp - fm), axis=-1) / (2 * h)
+    n = np.linalg.norm(g, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, g / n, 0.0)
+
+
+def _rest_attitude(accel_mean: Array, mag_mean: Array | None) -> Array:
+    """q_body_to_ned from the mean specific force (+ field) at rest (TRIAD)."""
+    down = -accel_mean / np.linalg.norm(accel_mean)  # specific force points up at rest
+    if mag_mean is not None:
+        east = np.cross(down, mag_mean)
+    else:
+        east = np.cross(down, np.array([1.0, 0.0, 0.0]))
+        if np.linalg.norm(east) < 1e-6:
+            east = np.cross(down, np.array([0.0, 1.0, 0.0]))
+    east /= np.linalg.norm(east)
+    north = np.cross(east, down)
+    c_body_to_ned = np.vstack([north, east, down])  # rows: NED axes in body coordinates
+    return np.asarray(from_matrix(c_body_to_ned), dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- the fit
+
+
+def _linear_fit(x: Array, y: Array) -> tuple[Array, Array, Array]:
+    """Per column of y: intercept, slope and slope standard error of y = a + b·x."""
+    a_mat = np.column_stack([np.ones_like(x), x])
+    coef, *_ = np.linalg.lstsq(a_mat, y, rcond=None)
+    resid = y - a_mat @ coef
+    dof = max(1, x.size - 2)
+    s2 = np.sum(resid**2, axis=0) / dof
+    sxx = float(np.sum((x - x.mean()) ** 2))
+    se = np.sqrt(s2 / sxx) if sxx > 0 else np.full(y.shape[1], np.nan)
+    return coef[0], coef[1], se
+
+
+def _rms_rate(t: Array, x: Array, block_s: float) -> float:
+    """RMS rate of change of a slowly varying, quantised signal, from block means."""
+    duration = float(t[-1] - t[0])
+    block = max(block_s, duration / 200.0)
+    n_blocks = int(duration // block)
+    if n_blocks < 2:
+        return abs(float(x[-1] - x[0])) / duration if duration > 0 else 0.0
+    edges = t[0] + block * np.arange(n_blocks + 1)
+    idx = np.searchsorted(t, edges)
+    means = np.array([x[idx[i] : idx[i + 1]].mean() for i in range(n_blocks)])
+    rates = np.diff(means) / block
+    return float(np.sqrt(np.mean(rates**2)))
+
+
+def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
+    """Fit the temperature model, noise, β and ζ to a stationary recording."""
+    s = settings or TuneSettings()
+    gyro = np.asarray(rec.gyro_rad_s, dtype=np.float64)
+    accel = np.asarray(rec.accel_m_s2, dtype=np.float64)
+    ok = np.all(np.isfinite(gyro), axis=1) & np.all(np.isfinite(accel), axis=1)
+    ok &= np.linalg.norm(accel, axis=1) > 0
+    dt = np.asarray(rec.dt_s, dtype=np.float64)
+    t = rec.extra.get("time_s")
+    t = np.asarray(t, dtype=np.float64) if t is not None else np.cumsum(np.nan_to_num(dt)) - np.nan_to_num(dt[0])
+    temp_raw = rec.extra.get("temperature_c")
+    temp = np.asarray(temp_raw, dtype=np.float64) if temp_raw is not None else None
+    if temp is not None:
+        ok &= np.isfinite(temp)
+    if ok.sum() < 100:
+        raise DataError(f"{rec.name}: only {int(ok.sum())} usable samples; a stationary recording needs more")
+    notes: list[str] = []
+    use_temp = temp is not None and float(np.ptp(temp[ok])) >= s.min_temperature_span_c
+    if temp is None:
+        notes.append("no temperature in the recording: bias drift fitted against time, no temperature model")
+    elif not use_temp:
+        notes.append(
+            f"temperature spread {np.ptp(temp[ok]):.2f} °C < {s.min_temperature_span_c} °C: "
+            "no temperature model; bias drift fitted against time"
+        )
+    x_all = (temp if use_temp else t).astype(np.float64)  # type: ignore[union-attr]
+    t0_c = float(np.mean(temp[ok])) if use_temp else float("nan")  # type: ignore[index]
+    x0 = t0_c if use_temp else float(t[ok][0])
+    keep = ok.copy()
+    dropped = 0
+    for _ in range(2):
+        b0, k, k_se = _linear_fit(x_all[keep] - x0, gyro[keep])
+        resid = gyro - (b0 + np.outer(x_all - x0, k))
+        mad = np.median(np.abs(resid[keep] - np.median(resid[keep], axis=0)), axis=0) * 1.4826
+        out = np.any(np.abs(resid) > s.outlier_sd * np.maximum(mad, 1e-12), axis=1) & ok
+        new_keep = ok & ~out
+        dropped = int(out.sum())
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    moving = np.any(np.abs(resid[ok]) > s.max_motion_rad_s, axis=1)
+    if moving.mean() > 0.01:
+        raise DataError(
+            f"{rec.name}: {100 * moving.mean():.1f} % of the samples show a rate above "
+            f"{math.degrees(s.max_motion_rad_s):.0f}°/s — `mavahrs tune` needs the vehicle at rest"
+        )
+    noise = resid[keep]
+    noise_sd = noise.std(axis=0)
+    noise_mean_abs = np.mean(np.abs(noise - noise.mean(axis=0)), axis=0)
+    omega_beta = float(np.mean(noise_mean_abs))  # "mean zero-mean error of each axis"
+    tk = t[keep]
+    if use_temp:
+        temp_rate = _rms_rate(tk, temp[keep], s.block_s)  # type: ignore[index]
+        drift_rate_axes = np.abs(k) * temp_rate
+        drift = np.zeros(3)
+    else:
+        temp_rate = 0.0
+        drift_rate_axes = np.abs(k)
+        drift = k.copy()
+    omega_zeta = float(np.sqrt(np.mean(drift_rate_axes**2)))
+
+    # ---- least squares, 004 eq. (5)
+    accel_mean = accel[keep].mean(axis=0)
+    mag = rec.mag_ut
+    mag_ok = None
+    if mag is not None:
+        m = np.asarray(mag, dtype=np.float64)[keep]
+        m = m[np.all(np.isfinite(m), axis=1) & (np.linalg.norm(m, axis=1) > 0)]
+        if m.shape[0] > 10:
+            mag_ok = m.mean(axis=0)
+    q_rest = _rest_attitude(accel_mean, mag_ok)
+    refs = [(np.array([0.0, 0.0, -1.0]), accel_mean / np.linalg.norm(accel_mean))]
+    if mag_ok is not None:
+        m_hat = mag_ok / np.linalg.norm(mag_ok)
+        h = _rotate_to_body(conjugate(q_rest), m_hat)  # field in NED
+        b = np.array([math.hypot(h[0], h[1]), 0.0, h[2]])  # Madgwick 2010, eq. (46)
+        refs.append((b, m_hat))
+    eps = 1e-3  # rad: small enough to be linear, large enough for the finite differences
+
+    def perturbed_gradient(directions: Array) -> Array:
+        n = np.linalg.norm(directions, axis=1, keepdims=True)
+        unit = np.where(n > 0, directions / np.where(n > 0, n, 1.0), 0.0)
+        qp = multiply(q_rest, from_rotation_vector(eps * unit))
+        v = _gradient_direction(qp, refs)
+        v[n[:, 0] == 0] = 0.0
+        return v
+
+    rng = np.random.default_rng(0)
+    sel = np.flatnonzero(keep)
+    if sel.size > 20000:  # the gain is a mean: 20 000 samples pin it to < 1 %
+        sel = np.sort(rng.choice(sel, 20000, replace=False))
+    theta = resid[sel] - noise.mean(axis=0)
+    zeros = np.zeros((sel.size, 1))
+    w_beta = 0.5 * multiply(q_rest, np.hstack([zeros, theta]))  # eq. (2): ½ q ⊗ [0, ϑ]
+    v_beta = perturbed_gradient(theta)
+    beta_ls = least_squares_gain(v_beta, w_beta)
+
+    # ζ: A_t = α(T_t) − α(T_start), its uncorrected integral sets the gradient direction
+    order = np.flatnonzero(keep)
+    dtk = np.diff(t[order], prepend=t[order][0])
+    a_t = np.outer(x_all[order] - x_all[order][0], k)
+    err = np.cumsum(a_t * dtk[:, None], axis=0)  # attitude error the drift accumulates, rad
+    step = max(1, order.size // 20000)
+    sub = np.arange(0, order.size, step)
+    v_z = perturbed_gradient(err[sub])
+    omega_eps = 2.0 * multiply(conjugate(q_rest), v_z)[:, 1:]  # eq. (47)
+    u_t = np.cumsum(omega_eps * (dtk[sub] * step)[:, None], axis=0)  # eq. (48) without ζ
+    zeta_ls = least_squares_gain(u_t, a_t[sub]) if np.any(a_t) else 0.0
+
+    dur = float(t[ok][-1] - t[ok][0])
+    return TuneResult(
+        name=rec.name,
+        samples=int(keep.sum()),
+        duration_s=dur,
+        rate_hz=float((ok.sum() - 1) / dur) if dur > 0 else float("nan"),
+        axes=9 if mag_ok is not None else 6,
+        temperature_model=bool(use_temp),
+        t0_c=t0_c,
+        temperature_range_c=(
+            (float(np.min(temp[ok])), float(np.max(temp[ok]))) if temp is not None else (math.nan, math.nan)
+        ),
+        b0_rad_s=tuple(float(v) for v in b0),  # type: ignore[arg-type]
+        k_rad_s_per_c=tuple(float(v) for v in (k if use_temp else np.zeros(3))),  # type: ignore[arg-type]
+        drift_rad_s2=tuple(float(v) for v in drift),  # type: ignore[arg-type]
+        noise_sd_rad_s=tuple(float(v) for v in noise_sd),  # type: ignore[arg-type]
+        noise_mean_abs_rad_s=tuple(float(v) for v in noise_mean_abs),  # type: ignore[arg-type]
+        omega_beta_rad_s=omega_beta,
+        omega_zeta_rad_s2=omega_zeta,
+        temperature_rate_c_s=temp_rate,
+        beta_spec=SPEC_FACTOR * omega_beta,
+        zeta_spec=SPEC_FACTOR * omega_zeta,
+        beta_ls=beta_ls,
+        zeta_ls=float(zeta_ls),
+        dropped_samples=dropped,
+        notes=notes,
+    )
