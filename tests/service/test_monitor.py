@@ -1,0 +1,259 @@
+"""The second opinion on the autopilot's attitude: divergence, NAMED_VALUE_FLOAT, STATUSTEXT episodes."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mavahrs.evaluation.metrics import attitude_errors_rad
+from mavahrs.geometry.quaternion import from_rotation_vector, multiply
+from mavahrs.geometry.rotation import from_euler_rad, to_euler_rad
+from mavahrs.protocol.codec import MavCodec, mavlink
+from mavahrs.sensors.geomag import apply_declination
+from mavahrs.service.monitor import (
+    CLEARED_TEXT,
+    AttitudeMonitor,
+    MonitorSettings,
+    divergence_series,
+    monitor_series,
+)
+
+DECLINATION = math.radians(12.0)
+EST_DT_MS = 10.0  # our estimates at 100 Hz
+ATT_DT_MS = 100.0  # the autopilot's ATTITUDE at 10 Hz
+DURATION_S = 60.0
+
+
+def _truth(t_s: np.ndarray) -> np.ndarray:
+    """A lively flight: ±25° roll, ±15° pitch, yaw sweeping through all headings."""
+    roll = np.radians(25.0) * np.sin(2 * np.pi * 0.23 * t_s)
+    pitch = np.radians(15.0) * np.sin(2 * np.pi * 0.17 * t_s + 1.0)
+    yaw = np.radians(170.0) * np.sin(2 * np.pi * 0.02 * t_s)
+    return from_euler_rad(roll, pitch, yaw)
+
+
+def _noisy(q: np.ndarray, sigma_deg: float, rng: np.random.Generator) -> np.ndarray:
+    return multiply(q, from_rotation_vector(rng.normal(scale=math.radians(sigma_deg), size=(len(q), 3))))
+
+
+@dataclass
+class Flight:
+    t_est_ms: np.ndarray
+    q_est_true_north: np.ndarray  # as mavahrs publishes it (declination applied)
+    q_est_magnetic: np.ndarray  # as the filter estimates it
+    t_att_ms: np.ndarray
+    att_euler: np.ndarray  # the autopilot's roll, pitch, yaw (true north)
+
+
+def _flight(rng: np.random.Generator, *, fault: tuple[float, float, float] | None = None) -> Flight:
+    """Our estimate (1° noise, magnetic frame + declination) and the autopilot's (0.5° noise).
+
+    ``fault = (start_s, end_s, roll_error_deg)`` injects an autopilot roll error.
+    """
+    t_est = np.arange(0.0, DURATION_S * 1000.0, EST_DT_MS) + rng.uniform(0, 2.5, int(DURATION_S * 100))
+    t_est.sort()
+    q_true = _truth(t_est / 1000.0)
+    # The filter's frame is magnetic north: its yaw is the true yaw − D (plus noise and 1° of bias).
+    q_mag = _noisy(apply_declination(q_true, -DECLINATION - math.radians(1.0)), 1.0, rng)
+    t_att = np.arange(3.0, DURATION_S * 1000.0, ATT_DT_MS)
+    euler = to_euler_rad(_noisy(_truth(t_att / 1000.0), 0.5, rng))
+    if fault is not None:
+        start, end, err = fault
+        on = (t_att >= start * 1000.0) & (t_att < end * 1000.0)
+        euler[on, 0] += math.radians(err)
+    return Flight(t_est, apply_declination(q_mag, DECLINATION), q_mag, t_att, euler)
+
+
+def _attitude_frames(f: Flight) -> list[bytes]:
+    """The autopilot's ATTITUDE messages as it sends them (system 1, component 1)."""
+    ap = MavCodec(system_id=1, component_id=1)
+    return [
+        ap.encode(mavlink.MAVLink_attitude_message(int(t), float(r), float(p), float(y), 0.0, 0.0, 0.0))
+        for t, (r, p, y) in zip(f.t_att_ms, f.att_euler)
+    ]
+
+
+def _run_live(f: Flight, settings: MonitorSettings, q_est: np.ndarray | None = None) -> tuple[list, list]:
+    """Interleave as a daemon would (wall clock = autopilot time + 20 ms link delay); decode what comes out."""
+    q_est = f.q_est_true_north if q_est is None else q_est
+    mon = AttitudeMonitor(settings)
+    rx = MavCodec(system_id=255, component_id=190)
+    frames = _attitude_frames(f)
+    ours = MavCodec(system_id=1, component_id=191)
+    events: list[tuple[float, object]] = []
+    named: list[tuple[float, object]] = []
+    i = j = 0
+    while i < len(f.t_est_ms) or j < len(frames):
+        if j >= len(frames) or (i < len(f.t_est_ms) and f.t_est_ms[i] <= f.t_att_ms[j]):
+            now_us = int((f.t_est_ms[i] + 20.0) * 1000)
+            out = mon.add_estimate(f.t_est_ms[i], q_est[i])
+            i += 1
+        else:
+            now_us = int((f.t_att_ms[j] + 20.0) * 1000)
+            (msg,) = rx.receive_datagram(frames[j])
+            out = mon.handle(msg, now_us)
+            j += 1
+        out += mon.tick(now_us)
+        for m in out:
+            (decoded,) = rx.receive_datagram(ours.encode(m))  # round trip: valid on the wire
+            (events if decoded.get_type() == "STATUSTEXT" else named).append((now_us / 1e6 - 0.02, decoded))
+    return events, named
+
+
+def test_injected_roll_fault_raises_one_warning_in_time_and_clears(rng: np.random.Generator) -> None:
+    s = MonitorSettings()
+    f = _flight(rng, fault=(30.0, 35.0, 15.0))
+    events, named = _run_live(f, s)
+    assert len(events) == 2, [(t, e.text) for t, e in events]
+    (t_warn, warn), (t_clear, clear) = events
+    assert warn.severity == mavlink.MAV_SEVERITY_WARNING and warn.text.startswith("mavahrs: AP attitude differs")
+    assert 30.0 + s.trigger_s <= t_warn <= 30.0 + s.trigger_s + 0.25  # within the configured time (+ 2 samples)
+    assert "tilt 1" in warn.text and len(warn.text) <= 50
+    assert clear.severity == mavlink.MAV_SEVERITY_INFO and clear.text == CLEARED_TEXT
+    assert 35.0 + s.clear_s <= t_clear <= 35.0 + s.clear_s + 0.25
+    # NAMED_VALUE_FLOAT at 2 Hz, two names, values tracking the fault.
+    names = {m.name for _, m in named}
+    assert names == {"AHRS_TILT", "AHRS_HDG"}
+    tilt = [(t, m.value) for t, m in named if m.name == "AHRS_TILT"]
+    assert len(tilt) == pytest.approx(DURATION_S * s.rate_hz, abs=3)
+    during = [v for t, v in tilt if 30.5 < t < 34.5]
+    outside = [v for t, v in tilt if t > 12.0 and not 29.5 < t < 36.0]
+    assert min(during) > 12.0 and max(during) < 18.0
+    assert max(outside) < 5.0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_no_warning_without_a_fault(seed: int) -> None:
+    """Normal noise, lively motion, declination applied: never a STATUSTEXT."""
+    f = _flight(np.random.default_rng(seed))
+    events, named = _run_live(f, MonitorSettings(heading_threshold_deg=8.0))
+    assert events == []
+    hdg = np.array([m.value for t, m in named if m.name == "AHRS_HDG"])
+    assert np.all(np.abs(hdg) < 6.0)  # ours is 1° biased + noise: small
+
+
+def test_without_declination_the_heading_disagrees_by_the_declination(rng: np.random.Generator) -> None:
+    """The reason outputs must be true-north referenced: a 12° heading 'divergence' that is no fault."""
+    f = _flight(rng)
+    events, named = _run_live(f, MonitorSettings(heading_threshold_deg=8.0), q_est=f.q_est_magnetic)
+    assert len(events) == 1 and events[0][1].severity == mavlink.MAV_SEVERITY_WARNING
+    hdg = np.array([m.value for t, m in named if m.name == "AHRS_HDG"])
+    assert np.median(hdg) == pytest.approx(-13.0, abs=1.0)  # −D − 1° bias
+    # The same comparison with heading declared invalid (no declination known) stays quiet.
+    mon = monitor_series(
+        f.t_est_ms, f.q_est_magnetic, f.t_att_ms, from_euler_rad(*f.att_euler.T),
+        MonitorSettings(heading_threshold_deg=8.0), heading_valid=False,
+    )  # fmt: skip
+    assert mon.events == ()
+
+
+def test_short_disagreements_do_not_warn(rng: np.random.Generator) -> None:
+    """A 1.5 s excursion is shorter than trigger_s = 2 s: no warning (continuity is required)."""
+    f = _flight(rng, fault=(30.0, 31.5, 20.0))
+    res = monitor_series(f.t_est_ms, f.q_est_true_north, f.t_att_ms, from_euler_rad(*f.att_euler.T))
+    assert res.events == ()
+    assert np.nanmax(res.tilt_deg) > 15.0
+
+
+def test_monitor_series_matches_the_live_monitor(rng: np.random.Generator) -> None:
+    f = _flight(rng, fault=(20.0, 28.0, -12.0))
+    q_ap = from_euler_rad(*f.att_euler.T)
+    res = monitor_series(f.t_est_ms, f.q_est_true_north, f.t_att_ms, q_ap)
+    events, _ = _run_live(f, MonitorSettings())
+    assert [e.text for e in res.events] == [e.text for _, e in events]
+    assert [e.t_ms / 1000.0 for e in res.events] == pytest.approx([t for t, _ in events], abs=0.11)
+
+
+def test_divergence_series_agrees_with_the_metrics(rng: np.random.Generator) -> None:
+    t = np.arange(0.0, 2000.0, 10.0)
+    q = _noisy(_truth(t / 1000.0), 2.0, rng)
+    t_att = t[::5] + 5.0  # halfway between two estimates
+    q_ap = _noisy(_truth(t_att / 1000.0), 3.0, rng)
+    tilt, hdg = divergence_series(t, q, t_att, q_ap, tolerance_ms=20.0)
+    # Reference: the same interpolation done by hand, then BROAD's error split.
+    from mavahrs.geometry.quaternion import slerp
+
+    idx = np.searchsorted(t, t_att)
+    ok = idx < len(t)
+    q_ref = slerp(q[idx[ok] - 1], q[idx[ok]], 0.5)
+    _, h_ref, i_ref = attitude_errors_rad(q_ref, q_ap[ok])
+    np.testing.assert_allclose(tilt[ok], np.degrees(i_ref), atol=1e-9)
+    np.testing.assert_allclose(np.abs(hdg[ok]), np.degrees(h_ref), atol=1e-9)
+    assert np.all(np.isnan(tilt[~ok]))  # after our last estimate, beyond the tolerance: no comparison
+    # Sign: ours rotated +5° in yaw reads +5°.
+    tilt2, hdg2 = divergence_series(t, apply_declination(q, math.radians(5.0)), t, q)
+    np.testing.assert_allclose(hdg2, 5.0, atol=1e-9)
+    np.testing.assert_allclose(tilt2, 0.0, atol=1e-5)  # acos near 1: float floor
+    # A gap in our estimates wider than the tolerance gives NaN there.
+    gap = (t < 500) | (t > 900)
+    tilt3, _ = divergence_series(t[gap], q[gap], t_att, q_ap, tolerance_ms=20.0)
+    inside = (t_att > 525) & (t_att < 875)
+    assert np.all(np.isnan(tilt3[inside])) and np.all(np.isfinite(tilt3[(t_att < 480) | ((t_att > 920) & ok)]))
+
+
+def test_quaternion_messages_components_and_reboot(rng: np.random.Generator) -> None:
+    mon = AttitudeMonitor(MonitorSettings(startup_grace_s=0.0, trigger_s=0.5))
+    q_ok = (1.0, 0.0, 0.0, 0.0)
+    q_bad = tuple(from_euler_rad(math.radians(30.0), 0.0, 0.0))
+    ap = MavCodec(system_id=1, component_id=1)
+    other = MavCodec(system_id=1, component_id=191)
+    rx = MavCodec(system_id=255, component_id=190)
+
+    def att_q(codec: MavCodec, t: int, q: tuple[float, ...]) -> object:
+        (m,) = rx.receive_datagram(codec.encode(mavlink.MAVLink_attitude_quaternion_message(t, *q, 0, 0, 0)))
+        return m
+
+    out = []
+    for k in range(100):
+        t = 10_000 + 10 * k
+        out += mon.add_estimate(t, q_ok)
+        if k % 5 == 0:
+            out += mon.handle(att_q(other, t, q_bad), 0)  # not the autopilot: ignored
+            out += mon.handle(att_q(ap, t, q_ok), 0)
+    assert out == [] and mon.status.comparisons == 20 and mon.status.tilt_deg < 1e-6
+    # ATTITUDE is ignored once ATTITUDE_QUATERNION is seen (the same attitude twice).
+    (att,) = rx.receive_datagram(ap.encode(mavlink.MAVLink_attitude_message(11_000, 0.5, 0, 0, 0, 0, 0)))
+    assert mon.handle(att, 0) == [] and mon.status.comparisons == 20
+    # Reboot: times restart near zero; the monitor re-aligns instead of comparing across it.
+    for k in range(100):
+        t = 50 + 10 * k
+        out += mon.add_estimate(t, q_ok)
+        if k % 5 == 0:
+            out += mon.handle(att_q(ap, t, q_bad), 0)
+    assert len(out) == 1 and out[0].severity == mavlink.MAV_SEVERITY_WARNING
+    assert mon.status.warning and mon.status.episodes == 1
+    assert "WARN" in mon.status.text()
+
+
+def test_startup_grace_and_unmatched() -> None:
+    mon = AttitudeMonitor(MonitorSettings(startup_grace_s=5.0, trigger_s=0.5))
+    q_bad = tuple(from_euler_rad(math.radians(30.0), 0.0, 0.0))
+    out = []
+    for k in range(400):  # 4 s of disagreement inside the 5 s grace period
+        t = 1000 + 10 * k
+        out += mon.add_estimate(t, (1.0, 0.0, 0.0, 0.0))
+        if k % 10 == 0:
+            out += mon.add_autopilot(t + 1, q_bad)
+    assert out == [] and mon.status.tilt_deg == pytest.approx(30.0, abs=1e-6)
+    # An autopilot sample long before our history cannot be matched.
+    mon.add_autopilot(100.0, q_bad)
+    mon.add_estimate(5100.0, (1.0, 0.0, 0.0, 0.0))
+    assert mon.status.unmatched == 1
+
+
+def test_settings_validation() -> None:
+    for bad in ({"rate_hz": 10.0}, {"rate_hz": 0.5}, {"tilt_threshold_deg": 0.0}, {"clear_fraction": 1.5},
+                {"tilt_name": "AHRS_TILT_DEG"}, {"align_tolerance_ms": 0.0}):  # fmt: skip
+        with pytest.raises(ValueError):
+            MonitorSettings(**bad)  # type: ignore[arg-type]
+    assert MonitorSettings(rate_hz=0.0).rate_hz == 0.0
+    mon = AttitudeMonitor(MonitorSettings(rate_hz=0.0, startup_grace_s=0.0))
+    mon.add_estimate(0.0, (1.0, 0.0, 0.0, 0.0))
+    mon.add_autopilot(0.0, (1.0, 0.0, 0.0, 0.0))
+    assert mon.tick(10_000_000) == []
+    off = AttitudeMonitor(MonitorSettings(enabled=False))
+    assert off.add_estimate(0.0, (1, 0, 0, 0)) == [] and off.add_autopilot(0.0, (1, 0, 0, 0)) == []
+    assert off.status.comparisons == 0 and off.status.text() == "AP cmp: none"
