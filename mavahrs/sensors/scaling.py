@@ -1,0 +1,230 @@
+r"""MAVLink IMU messages → SI values (the only place wire units appear).
+
+:class:`Scaler` turns one decoded message (anything with the MAVLink field
+names as attributes — pymavlink objects, or a ``SimpleNamespace`` in tests)
+into SI values according to an :class:`~mavahrs.sensors.profiles.AutopilotProfile`:
+
+* units: ``xacc_mg``·g/1000 → m/s², ``xgyro_mrad_s``/1000 → rad/s,
+  ``xmag_mgauss``/10 → µT (1 mgauss = 0.1 µT), HIGHRES_IMU gauss·100 → µT;
+* timestamps: ``time_usec`` as is, ``time_boot_ms``·1000;
+* instance: RAW_IMU ``id`` (0 when absent), SCALED_IMU 0, SCALED_IMU2 1,
+  SCALED_IMU3 2, HIGHRES_IMU ``id``;
+* checks: an int16 field at ±32767 or a value at ≥ ``saturation_fraction``
+  of the sensor's full scale is *saturated*; NaN/inf or an impossible
+  magnitude is *invalid*; a magnetometer of exactly (0, 0, 0) is *absent*;
+  HIGHRES_IMU ``fields_updated`` says which vectors are new (a message
+  without new gyro data is not a sample: :meth:`Scaler.scale` returns None).
+
+The hot path uses :meth:`Scaler.scale` (a plain tuple, no allocation beyond
+it); :meth:`Scaler.to_sample` wraps the same values in an
+:class:`~mavahrs.sensors.sample.ImuSample`, and with ``strict=True`` raises
+:class:`~mavahrs.errors.ScalingError` instead of marking bad vectors.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from mavahrs.errors import ConfigError, ScalingError
+from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE, AutopilotProfile, MessageScale, get_profile
+from mavahrs.sensors.sample import ACCEL, GYRO, MAG, ImuSample, flag_names
+
+__all__ = ["ScalingSettings", "Scaler", "Scaled", "to_sample", "S_IMU", "S_T_US", "S_GYRO", "S_ACCEL", "S_MAG",
+           "S_TEMP", "S_SAT", "S_INVALID", "HIGHRES_ACCEL_BITS", "HIGHRES_GYRO_BITS", "HIGHRES_MAG_BITS"]  # fmt: skip
+
+#: Positions in the tuple :meth:`Scaler.scale` returns.
+S_IMU, S_T_US, S_GYRO, S_ACCEL, S_MAG, S_TEMP, S_SAT, S_INVALID = 0, 1, 2, 5, 8, 11, 12, 13
+#: ``(imu_id, t_us, gx, gy, gz, ax, ay, az, mx, my, mz, temperature_c|None, saturated, invalid)``
+Scaled = tuple[int, int, float, float, float, float, float, float, float, float, float, "float | None", int, int]
+
+HIGHRES_ACCEL_BITS = 0x007
+HIGHRES_GYRO_BITS = 0x038
+HIGHRES_MAG_BITS = 0x1C0
+
+_INT16_LIMIT = 32767
+_NAN = math.nan
+#: Smallest believable magnetic field norm, µT (Earth: 22–67 µT).
+MAG_MIN_UT = 1.0
+
+
+@dataclass(frozen=True)
+class ScalingSettings:
+    """Checks applied while scaling.
+
+    Attributes:
+        saturation_fraction: a reading at or above this fraction of the sensor's
+            full scale counts as saturated (0–1].
+        accel_range_g: accelerometer full scale, g; None = the profile's
+            (16 g, the common MEMS setting on autopilots).
+        gyro_range_deg_s: gyro full scale, °/s; None = the profile's (2000 °/s).
+        implausible_factor: a vector component beyond this multiple of full
+            scale is garbage (invalid), not saturation.
+    """
+
+    saturation_fraction: float = 0.98
+    accel_range_g: float | None = None
+    gyro_range_deg_s: float | None = None
+    implausible_factor: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.saturation_fraction <= 1.0):
+            raise ConfigError(f"saturation_fraction must be in (0, 1], got {self.saturation_fraction!r}")
+        for name in ("accel_range_g", "gyro_range_deg_s"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number or None, got {v!r}")
+        if not (math.isfinite(self.implausible_factor) and self.implausible_factor >= 1.0):
+            raise ConfigError(f"implausible_factor must be ≥ 1, got {self.implausible_factor!r}")
+
+
+class Scaler:
+    """Scales IMU messages with one profile.  Cheap to call; holds no per-sample state."""
+
+    def __init__(self, profile: AutopilotProfile | str, settings: ScalingSettings | None = None) -> None:
+        self.profile = get_profile(profile) if isinstance(profile, str) else profile
+        self.settings = settings or ScalingSettings()
+        self._fns: dict[str, Callable[[Any], Scaled | None]] = {}
+        for name, ms in self.profile.messages.items():
+            self._fns[name] = self._make(ms)
+
+    # ------------------------------------------------------------------ public
+    def handles(self, message: str) -> bool:
+        return message in self._fns
+
+    def scale(self, msg: Any) -> Scaled | None:
+        """SI values of one IMU message, or None when it carries no new gyro sample.
+
+        Raises:
+            ScalingError: the message type is not an IMU message of this profile.
+        """
+        fn = self._fns.get(msg.get_type())
+        if fn is None:
+            raise ScalingError(f"{msg.get_type()} is not an IMU message the {self.profile.name} profile scales")
+        return fn(msg)
+
+    def to_sample(self, msg: Any, *, strict: bool = False) -> ImuSample | None:
+        """The message as an :class:`ImuSample` (None: no new gyro data in a HIGHRES_IMU).
+
+        With ``strict=True`` an invalid or saturated vector raises
+        :class:`ScalingError` naming the message, the vector and its values.
+        """
+        v = self.scale(msg)
+        if v is None:
+            return None
+        sat, inv = v[S_SAT], v[S_INVALID]
+        if strict and (sat | inv):
+            raise ScalingError(
+                f"{msg.get_type()} (imu {v[S_IMU]}, t={v[S_T_US]} us): "
+                + (f"invalid {flag_names(inv)} " if inv else "")
+                + (f"saturated {flag_names(sat)} " if sat else "")
+                + f"gyro={v[2:5]} rad/s accel={v[5:8]} m/s2 mag={v[8:11]} uT"
+            )
+        mag = None if math.isnan(v[S_MAG]) and not inv & MAG else (v[8], v[9], v[10])
+        return ImuSample(
+            t_us=v[S_T_US],
+            gyro_rad_s=(v[2], v[3], v[4]),
+            accel_m_s2=(v[5], v[6], v[7]),
+            mag_ut=mag,
+            temperature_c=v[S_TEMP],
+            imu_id=v[S_IMU],
+            source=msg.get_type(),
+            saturated=sat,
+            invalid=inv,
+        )
+
+    # ------------------------------------------------------------------ builders
+    def _limits(self, ms: MessageScale) -> tuple[float, float]:
+        s = self.settings
+        accel_fs = s.accel_range_g * G_M_S2 if s.accel_range_g is not None else ms.accel_range_m_s2
+        gyro_fs = math.radians(s.gyro_range_deg_s) if s.gyro_range_deg_s is not None else ms.gyro_range_rad_s
+        return accel_fs, gyro_fs
+
+    def _make(self, ms: MessageScale) -> Callable[[Any], Scaled | None]:
+        accel_fs, gyro_fs = self._limits(ms)
+        frac = self.settings.saturation_fraction
+        bad = self.settings.implausible_factor
+        ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
+        a_sat, g_sat = accel_fs * frac, gyro_fs * frac
+        a_bad, g_bad = accel_fs * bad, gyro_fs * bad
+        mag_max, mag_legacy = ms.mag_plausible_max_ut, ms.mag_legacy_to_ut
+        tf, tk, kt = ms.time_field, ms.time_to_us, ms.temperature_to_c
+        fixed_id = INSTANCE_OF_MESSAGE[ms.message]
+        has_id = ms.message in ("RAW_IMU", "HIGHRES_IMU")
+
+        def mag_of(xm: float, ym: float, zm: float) -> tuple[float, float, float, int]:
+            """(mx, my, mz, invalid-bit) in µT; NaN when absent or unusable."""
+            if xm == 0 and ym == 0 and zm == 0:
+                return _NAN, _NAN, _NAN, 0  # absent: no compass
+            mx, my, mz = xm * km, ym * km, zm * km
+            n = math.sqrt(mx * mx + my * my + mz * mz)
+            if n > mag_max and mag_legacy is not None:
+                mx, my, mz = xm * mag_legacy, ym * mag_legacy, zm * mag_legacy
+                n = math.sqrt(mx * mx + my * my + mz * mz)
+            if not (MAG_MIN_UT <= n <= mag_max):  # also catches NaN/inf
+                return _NAN, _NAN, _NAN, MAG
+            return mx, my, mz, 0
+
+        if ms.integer_fields:
+
+            def scale_int(msg: Any) -> Scaled | None:
+                xa, ya, za = msg.xacc, msg.yacc, msg.zacc
+                xg, yg, zg = msg.xgyro, msg.ygyro, msg.zgyro
+                sat = 0
+                if max(abs(xg), abs(yg), abs(zg)) >= _INT16_LIMIT:
+                    sat = GYRO
+                if max(abs(xa), abs(ya), abs(za)) >= _INT16_LIMIT:
+                    sat |= ACCEL
+                gx, gy, gz = xg * kg, yg * kg, zg * kg
+                ax, ay, az = xa * ka, ya * ka, za * ka
+                if max(abs(gx), abs(gy), abs(gz)) >= g_sat:
+                    sat |= GYRO
+                if max(abs(ax), abs(ay), abs(az)) >= a_sat:
+                    sat |= ACCEL
+                mx, my, mz, inv = mag_of(msg.xmag, msg.ymag, msg.zmag)
+                temp = None
+                if kt is not None:
+                    raw_t = getattr(msg, "temperature", 0)
+                    if raw_t:  # 0 = "not provided" (common.xml); 0 °C is sent as 1
+                        temp = raw_t * kt
+                imu = (getattr(msg, "id", 0) or 0) if has_id else fixed_id
+                return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, temp, sat, inv)
+
+            return scale_int
+
+        def scale_float(msg: Any) -> Scaled | None:
+            upd = msg.fields_updated
+            if upd & HIGHRES_GYRO_BITS != HIGHRES_GYRO_BITS:
+                return None  # no new gyro: not an IMU sample
+            sat = inv = 0
+            gx, gy, gz = msg.xgyro * kg, msg.ygyro * kg, msg.zgyro * kg
+            m = max(abs(gx), abs(gy), abs(gz))
+            if not m < g_bad:  # NaN/inf fail this too
+                inv = GYRO
+            elif m >= g_sat:
+                sat = GYRO
+            if upd & HIGHRES_ACCEL_BITS == HIGHRES_ACCEL_BITS:
+                ax, ay, az = msg.xacc * ka, msg.yacc * ka, msg.zacc * ka
+                m = max(abs(ax), abs(ay), abs(az))
+                if not m < a_bad:
+                    inv |= ACCEL
+                elif m >= a_sat:
+                    sat |= ACCEL
+            else:
+                ax = ay = az = _NAN
+            if upd & HIGHRES_MAG_BITS == HIGHRES_MAG_BITS:
+                mx, my, mz, minv = mag_of(msg.xmag, msg.ymag, msg.zmag)
+                inv |= minv
+            else:
+                mx = my = mz = _NAN
+            imu = (getattr(msg, "id", 0) or 0) if has_id else fixed_id
+            return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, None, sat, inv)
+
+        return scale_float
+
+
+def to_sample(msg: Any, profile: AutopilotProfile | str = "generic", *, strict: bool = False) -> ImuSample | None:
+    """One-off convenience: scale ``msg`` with ``profile`` (see :meth:`Scaler.to_sample`)."""
+    return Scaler(profile).to_sample(msg, strict=strict)

@@ -1,0 +1,906 @@
+r"""The daemon's functional core: decoded messages in, attitude frames out (deterministic, no I/O).
+
+:class:`Pipeline` is what ``mavahrs run`` (the daemon), ``mavahrs replay`` and
+the end-to-end tests all run.  It never reads a clock or touches a socket:
+every call gets the time (``now_us``, the caller's monotonic clock in µs; used
+only for timers, rate meters and rate-limited notices — the filter runs on the
+autopilot's own sample timestamps).
+
+Per message from the master link (:meth:`Pipeline.handle`):
+
+* ``HEARTBEAT`` — the first autopilot heartbeat (``autopilot`` ≠
+  MAV_AUTOPILOT_INVALID) fixes the *source*: IMU data is accepted only from
+  that system/component (or the configured one), so another node on the
+  network cannot inject a fake IMU stream; it also picks the scaling profile
+  (ArduPilot/PX4/generic), our system id (the vehicle's) and starts the
+  stream requests.  A heartbeat returning after silence restarts them.
+* IMU messages (RAW_IMU, SCALED_IMU/2/3, HIGHRES_IMU) — scaled to SI
+  (:mod:`mavahrs.sensors.scaling`), offered to the IMU selector
+  (:mod:`mavahrs.sensors.imu_select`); the selected instance's samples are
+  timed by the timeline (duplicates and reordered samples dropped and counted,
+  a reboot resets everything, a gap reaches the filter as a long ``dt`` so it
+  re-initialises), calibrated (:mod:`mavahrs.sensors.calibration`), written
+  into a preallocated filter row and run through the compiled filter kernel
+  (``update_row``).  An ``ATTITUDE_QUATERNION`` follows at ``out_rate_hz`` of
+  *sample* time (0 = every sample), stamped with the sample's own
+  ``time_boot_ms``, body rates = gyro − bias, ``repr_offset_q`` zero; optionally
+  ``ATTITUDE`` (Euler).
+* ``GLOBAL_POSITION_INT`` — velocity (cm/s, true NED) into the filter's
+  velocity column on the next sample, rotated into the filter's magnetic-NED
+  frame; position and ``SYSTEM_TIME``/``GPS_RAW_INT``/``HOME_POSITION`` feed the
+  World Magnetic Model (:class:`~mavahrs.sensors.geomag.DeclinationSource`) so
+  outputs are referenced to true north.
+* ``COMMAND_ACK`` / ``STATUSTEXT`` — to the stream requester.
+
+:meth:`Pipeline.tick` runs the timers (HEARTBEAT at ``heartbeat_hz``, stream
+requests, link and rate checks); :meth:`Pipeline.status` reports;
+:meth:`Pipeline.drain_notices` returns one-line messages to log (rate-limited
+per kind).  The hot path allocates one pymavlink message for the output and
+otherwise does scalar Python arithmetic: no numpy small arrays, no logging.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from mavahrs import filters as _filters
+from mavahrs.errors import ConfigError, MavahrsError
+from mavahrs.filters.base import AttitudeFilter, FilterSettings
+from mavahrs.filters.layout import (
+    FLAG_NOT_INITIALISED,
+    FLAG_REINITIALISED,
+    IN_GYRO,
+    IN_VEL,
+    IN_WIDTH,
+    FLAG_MAG_INVALID,
+    OUT_ACCEL_WEIGHT,
+    OUT_BIAS,
+    OUT_FLAGS,
+    OUT_MAG_WEIGHT,
+    OUT_Q,
+)
+from mavahrs.protocol.codec import MavCodec, mavlink
+from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
+from mavahrs.sensors.geomag import DeclinationSource, MagneticFieldSettings, apply_declination_wxyz, rotate_true_to_magnetic
+from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings, InstanceStatus
+from mavahrs.sensors.profiles import IMU_MESSAGES, PROFILE_NAMES, AutopilotProfile, get_profile, profile_for_autopilot
+from mavahrs.sensors.sample import ACCEL, GYRO, MAG, write_row
+from mavahrs.sensors.scaling import Scaler, ScalingSettings
+from mavahrs.service.stats import Notices, RateMeter
+from mavahrs.service.stream_requests import (
+    MAV_CMD_SET_MESSAGE_INTERVAL,
+    MAV_DATA_STREAM_POSITION,
+    MAV_DATA_STREAM_RAW_SENSORS,
+    RequestDataStream,
+    StreamRequester,
+    StreamRequestSettings,
+    StreamState,
+)
+
+try:  # the protocol engineer's timeline (wrap-around, reboot, duplicates, reordering, gaps, jitter)
+    from mavahrs.protocol.timeline import Timeline as _Timeline  # type: ignore[import-not-found]
+except ImportError:  # pragma: no cover - until protocol/timeline.py lands
+    _Timeline = None
+
+__all__ = ["PipelineSettings", "Pipeline", "PipelineStatus", "Outgoing"]
+
+_MAV_AUTOPILOT_INVALID = 8
+_MAV_TYPE_ONBOARD_CONTROLLER = 18
+_MAV_STATE_ACTIVE = 4
+_NAN = math.nan
+_ZERO_Q = [0.0, 0.0, 0.0, 0.0]
+_RAD2DEG = 180.0 / math.pi
+_G = 9.80665
+
+
+class Outgoing(NamedTuple):
+    """One encoded frame and where it goes.
+
+    Attributes:
+        frame: the MAVLink bytes (our system/component id, our sequence).
+        to_master: send on the master link (the autopilot).
+        to_outputs: send to every ``--out`` output.
+    """
+
+    frame: bytes
+    to_master: bool
+    to_outputs: bool
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """Everything the pipeline does, with units and defaults.
+
+    Attributes:
+        filter_name: attitude filter (``madgwick``, ``mahony``,
+            ``complementary``, ``gyroplatform``, ``best``).
+        imu: IMU instance: ``auto`` (healthy instance, with fail-over) or
+            ``0``/``1``/``2`` (RAW_IMU or SCALED_IMU or HIGHRES_IMU,
+            SCALED_IMU2, SCALED_IMU3).
+        autopilot_profile: scaling profile: ``auto`` (from the autopilot's
+            HEARTBEAT), ``ardupilot``, ``px4`` or ``generic``.
+        out_rate_hz: ATTITUDE_QUATERNION rate, Hz of sample time; 0 = one
+            per IMU sample.
+        system_id: our MAVLink system id; None = the vehicle's (from its
+            HEARTBEAT).
+        component_id: our component id (191 = MAV_COMP_ID_ONBOARD_COMPUTER).
+        heartbeat_hz: our HEARTBEAT rate, Hz (0 = none).
+        send_attitude_euler: also send ATTITUDE (roll/pitch/yaw) with each
+            ATTITUDE_QUATERNION.
+        send_to_master: also send our output to the autopilot's link (it
+            routes it on to its ground stations); False = outputs only.
+        stream_rate_hz: IMU message rate to request, Hz.
+        stream_request_interval_s: re-send stream requests this often, s.
+        request_streams: send stream requests at all.
+        secondary_imu_rate_hz: with ``imu = auto``, rate to request for the
+            other IMU instances (to watch them for fail-over), Hz; 0 = do not
+            request them.
+        gnss_rate_hz: GLOBAL_POSITION_INT rate to request when GNSS velocity
+            is used, Hz.
+        source_system: accept IMU data only from this system id; None = the
+            first autopilot heartbeat's.
+        source_component: … and this component id; None = the first
+            autopilot heartbeat's (of ``source_system`` when given).
+        use_gnss_velocity: feed GLOBAL_POSITION_INT velocity to the filter
+            (acceleration compensation).
+        heartbeat_timeout_s: no autopilot HEARTBEAT for this long = link
+            lost (stream requests restart when it returns), s.
+        no_imu_warning_s: warn when no IMU sample arrived for this long, s.
+        low_imu_rate_hz: warn when fewer samples per second reach the filter
+            (too slow for meaningful filtering), Hz.
+        scaling: saturation/validity checks (:class:`ScalingSettings`).
+        selection: IMU instance health thresholds (its ``imu`` field is
+            replaced by ``imu`` above).
+        calibration: gyro temperature model, magnetometer calibration, axis
+            remap.
+        streams: stream-request details (ladder, timeouts); its
+            ``interval_s``/``enabled`` are replaced by the fields above.
+        magnetic: declination / expected field (true-north output).
+        timeline: settings for :class:`mavahrs.protocol.timeline.Timeline`
+            (None = its defaults).
+    """
+
+    filter_name: str = "best"
+    imu: str = "auto"
+    autopilot_profile: str = "auto"
+    out_rate_hz: float = 50.0
+    system_id: int | None = None
+    component_id: int = 191
+    heartbeat_hz: float = 1.0
+    send_attitude_euler: bool = False
+    send_to_master: bool = True
+    stream_rate_hz: float = 400.0
+    stream_request_interval_s: float = 10.0
+    request_streams: bool = True
+    secondary_imu_rate_hz: float = 50.0
+    gnss_rate_hz: float = 10.0
+    source_system: int | None = None
+    source_component: int | None = None
+    use_gnss_velocity: bool = True
+    heartbeat_timeout_s: float = 5.0
+    no_imu_warning_s: float = 3.0
+    low_imu_rate_hz: float = 50.0
+    scaling: ScalingSettings = field(default_factory=ScalingSettings)
+    selection: ImuSelectSettings = field(default_factory=ImuSelectSettings)
+    calibration: CalibrationSettings = field(default_factory=CalibrationSettings)
+    streams: StreamRequestSettings = field(default_factory=StreamRequestSettings)
+    magnetic: MagneticFieldSettings = field(default_factory=MagneticFieldSettings)
+    timeline: Any = None
+
+    def __post_init__(self) -> None:
+        if self.autopilot_profile != "auto" and self.autopilot_profile not in PROFILE_NAMES:
+            raise ConfigError(
+                f"autopilot_profile must be auto or one of {', '.join(PROFILE_NAMES)}, got {self.autopilot_profile!r}"
+            )
+        if self.filter_name not in _filters.NAMES + _filters.ALIASES:
+            raise ConfigError(f"unknown filter {self.filter_name!r}; choose one of {', '.join(_filters.NAMES + _filters.ALIASES)}")
+        for name in ("out_rate_hz", "heartbeat_hz", "secondary_imu_rate_hz", "gnss_rate_hz", "low_imu_rate_hz"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be ≥ 0 Hz, got {v!r}")
+        for name in ("stream_rate_hz", "stream_request_interval_s", "heartbeat_timeout_s", "no_imu_warning_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be positive, got {v!r}")
+        for name in ("system_id", "source_system"):
+            v = getattr(self, name)
+            if v is not None and not 1 <= v <= 255:
+                raise ConfigError(f"{name} must be 1…255 or None, got {v!r}")
+        for name in ("component_id", "source_component"):
+            v = getattr(self, name)
+            if v is not None and not 0 <= v <= 255:
+                raise ConfigError(f"{name} must be 0…255 or None, got {v!r}")
+        # validated by ImuSelectSettings
+        replace(self.selection, imu=self.imu)
+
+    @property
+    def selection_settings(self) -> ImuSelectSettings:
+        return replace(self.selection, imu=self.imu)
+
+    @property
+    def stream_settings(self) -> StreamRequestSettings:
+        return replace(self.streams, interval_s=self.stream_request_interval_s, enabled=self.request_streams)
+
+
+@dataclass(frozen=True)
+class PipelineStatus:
+    """A snapshot for the status line and for tests.
+
+    Attributes:
+        connected: an autopilot heartbeat arrived within ``heartbeat_timeout_s``.
+        vehicle: (system, component) IMU data is accepted from; None = not yet.
+        autopilot_profile: scaling profile in use (None until known).
+        filter_name: the filter running.
+        input_rate_hz: IMU messages/s from the source (all instances).
+        filter_rate_hz: samples/s reaching the filter.
+        output_rate_hz: ATTITUDE_QUATERNION/s.
+        samples_in: IMU messages accepted from the source.
+        samples_filtered: samples run through the filter.
+        outputs_sent: ATTITUDE_QUATERNION messages produced.
+        drops: samples not filtered, by reason.
+        samples_dropped: their total.
+        counters: other events (saturation, invalid vectors, reboots, …).
+        initialised: the filter has an attitude.
+        gain: current correction gain (after boost and rejection).
+        accel_weight: trust in the accelerometer 0…1.
+        mag_weight: trust in the magnetometer 0…1.
+        accel_rejected: accelerometer currently rejected.
+        mag_rejected: magnetometer currently rejected.
+        accel_rejection_pct: share of the samples filtered since the previous
+            ``status()`` call with the accelerometer (mostly) rejected, %.
+        mag_rejection_pct: the same for the magnetometer (samples with one), %.
+        bias_deg_s: gyro bias estimate, °/s (x, y, z).
+        q_body_to_ned: last attitude (true north when the declination is
+            known), or None.
+        imu_in_use: selected instance (None: none usable).
+        imu_reason: why that instance.
+        imu_instances: every instance seen.
+        streams: stream-request state per wanted message.
+        heading_reference: e.g. "true north (WMM-2025 D=+12.3°)".
+    """
+
+    connected: bool
+    vehicle: tuple[int, int] | None
+    autopilot_profile: str | None
+    filter_name: str
+    input_rate_hz: float
+    filter_rate_hz: float
+    output_rate_hz: float
+    samples_in: int
+    samples_filtered: int
+    outputs_sent: int
+    drops: Mapping[str, int]
+    samples_dropped: int
+    counters: Mapping[str, int]
+    initialised: bool
+    gain: float
+    accel_weight: float
+    mag_weight: float
+    accel_rejected: bool
+    mag_rejected: bool
+    accel_rejection_pct: float
+    mag_rejection_pct: float
+    bias_deg_s: tuple[float, float, float]
+    q_body_to_ned: tuple[float, float, float, float] | None
+    imu_in_use: int | None
+    imu_reason: str
+    imu_instances: tuple[InstanceStatus, ...]
+    streams: tuple[StreamState, ...]
+    heading_reference: str
+
+    def line(self) -> str:
+        """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | …``."""
+        drops = self.samples_dropped
+        imu = "none" if self.imu_in_use is None else str(self.imu_in_use)
+        rej = ("A" if self.accel_rejected else "") + ("M" if self.mag_rejected else "")
+        b = self.bias_deg_s
+        return (
+            f"in {self.input_rate_hz:.0f} Hz → filter {self.filter_rate_hz:.0f} Hz → out {self.output_rate_hz:.0f} Hz"
+            f" | drops {drops} | imu {imu} ({self.imu_reason}) | gain {self.gain:.3g}"
+            f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
+            f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
+        )
+
+
+class _FallbackTimeline:  # pragma: no cover - replaced by mavahrs.protocol.timeline.Timeline
+    """Minimal stand-in used only until ``mavahrs.protocol.timeline`` exists."""
+
+    class _Ev(NamedTuple):
+        kind: str
+        t_us: int
+        dt_s: float
+
+    def __init__(self, settings: Any = None) -> None:
+        self._last: int | None = None
+
+    def push(self, t_raw_us: int) -> Any:
+        last = self._last
+        if last is None:
+            self._last = t_raw_us
+            return self._Ev("first", t_raw_us, _NAN)
+        d = t_raw_us - last
+        if d == 0:
+            return self._Ev("duplicate", t_raw_us, 0.0)
+        if d < 0:
+            if d < -1_000_000:
+                self._last = t_raw_us
+                return self._Ev("reboot", t_raw_us, _NAN)
+            return self._Ev("reordered", t_raw_us, 0.0)
+        self._last = t_raw_us
+        return self._Ev("gap" if d > 500_000 else "ok", t_raw_us, d * 1e-6)
+
+
+def _new_timeline(settings: Any) -> Any:
+    if _Timeline is None:
+        return _FallbackTimeline(settings)
+    return _Timeline(settings) if settings is not None else _Timeline()
+
+
+class Pipeline:
+    """Decoded MAVLink in, encoded attitude out; see the module docstring.
+
+    Args:
+        settings: what to do (:class:`PipelineSettings`).
+        filter_settings: settings for the chosen filter (None = its defaults).
+        filter: use this filter instance instead of creating one (replay of
+            several filters, tests).
+        decimal_year: today's date for the World Magnetic Model until the
+            autopilot sends SYSTEM_TIME (the daemon passes it; None = wait).
+    """
+
+    def __init__(
+        self,
+        settings: PipelineSettings | None = None,
+        filter_settings: FilterSettings | None = None,
+        *,
+        filter: AttitudeFilter | None = None,
+        decimal_year: float | None = None,
+    ) -> None:
+        s = self.settings = settings or PipelineSettings()
+        self._filter = filter if filter is not None else _filters.create(s.filter_name, filter_settings)
+        self._filter_name = getattr(self._filter, "name", s.filter_name)
+        self._codec = MavCodec(system_id=s.system_id or 1, component_id=s.component_id)
+        self._mav = self._codec.mav
+        self._row = np.full(IN_WIDTH, _NAN)
+        self._selector = ImuSelector(s.selection_settings)
+        self._requester = StreamRequester(s.stream_settings)
+        self._decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
+        self._notices = Notices()
+        self._to_master = s.send_to_master
+        self._out_period_us = int(round(1e6 / s.out_rate_hz)) if s.out_rate_hz > 0 else 0
+        self._out_tol_us = min(self._out_period_us // 4, 1000)
+        self._hb_period_us = int(round(1e6 / s.heartbeat_hz)) if s.heartbeat_hz > 0 else 0
+        self._hb_timeout_us = int(s.heartbeat_timeout_s * 1e6)
+        self._no_imu_us = int(s.no_imu_warning_s * 1e6)
+        self._handlers: dict[str, Callable[[Any, int], list[Outgoing]]] = {
+            "HEARTBEAT": self._on_heartbeat,
+            "GLOBAL_POSITION_INT": self._on_global_position,
+            "GPS_RAW_INT": self._on_position_only,
+            "HOME_POSITION": self._on_position_only,
+            "SYSTEM_TIME": self._on_position_only,
+            "COMMAND_ACK": self._on_command_ack,
+            "STATUSTEXT": self._on_statustext,
+        }
+        for name in IMU_MESSAGES:
+            self._handlers[name] = self._on_imu
+        # source / vehicle
+        self._source: tuple[int, int] | None = None
+        if s.source_system is not None and s.source_component is not None and s.autopilot_profile != "auto":
+            self._source = (s.source_system, s.source_component)  # known without waiting for a heartbeat
+        self._profile: AutopilotProfile | None = None
+        self._scaler: Scaler | None = None
+        self._calibrators: dict[str, Calibrator] = {}
+        self._sysid_known = s.system_id is not None
+        self._last_hb_us: int | None = None
+        self._link_lost = False
+        if self._source is not None:
+            self._set_profile(get_profile(s.autopilot_profile))
+            if not self._sysid_known:
+                self._codec.system_id = self._source[0]
+                self._sysid_known = True
+        # counters and meters
+        self._drops: dict[str, int] = {}
+        self._counters: dict[str, int] = {}
+        self._in_meter = RateMeter()
+        self._filter_meter = RateMeter()
+        self._out_meter = RateMeter()
+        self.samples_in = 0
+        self.samples_filtered = 0
+        self.outputs_sent = 0
+        self._accel_rejected_n = 0
+        self._mag_rejected_n = 0
+        self._status_mark = (0, 0, 0)  # (samples filtered, accel rejected, mag rejected) at the last status()
+        self._source_since_us: int | None = None
+        self._next_hb_us: int | None = None
+        self._last_imu_us: int | None = None
+        self._last_tick_us: int | None = None
+        self._reset_stream_state()
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def codec(self) -> MavCodec:
+        """The encoding codec (our ids, sequence numbers; signing is set up on it)."""
+        return self._codec
+
+    @property
+    def filter(self) -> AttitudeFilter:
+        return self._filter
+
+    @property
+    def source(self) -> tuple[int, int] | None:
+        """(system, component) IMU data is accepted from, once known."""
+        return self._source
+
+    @property
+    def profile(self) -> AutopilotProfile | None:
+        return self._profile
+
+    @property
+    def declination(self) -> DeclinationSource:
+        return self._decl
+
+    # ------------------------------------------------------------------ state resets
+    def _reset_stream_state(self) -> None:
+        """Forget everything about the IMU streams' timing (start, reboot)."""
+        self._timelines: dict[int, Any] = {}
+        self._last_fed_imu: int | None = None
+        self._last_fed_t: int | None = None
+        self._next_out_t: int | None = None
+        self._vel: tuple[float, float, float] | None = None
+        self._vel_written = True  # row's velocity columns hold NaN already
+        self._norm_sum = 0.0
+        self._norm_n = 0
+        self._row[:] = _NAN
+
+    def reset_link(self, now_us: int) -> None:
+        """The daemon reconnected the master link: ask for the streams again."""
+        if self._source is not None:
+            self._requester.start()
+            self._notices.info("link-reset", "master link reconnected: requesting the IMU stream again", now_us)
+
+    # ------------------------------------------------------------------ entry points
+    def handle(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """Process one decoded message from the master link; return frames to send."""
+        h = self._handlers.get(msg.get_type())
+        if h is None:
+            return []
+        try:
+            return h(msg, now_us)
+        except MavahrsError as exc:
+            kind = type(exc).__name__
+            self._count(self._drops, f"error:{kind}")
+            self._notices.warning(f"error:{kind}", f"{msg.get_type()}: {exc}", now_us)
+            return []
+
+    def tick(self, now_us: int) -> list[Outgoing]:
+        """Timers: HEARTBEAT, stream requests, link and rate checks; call a few times per second or more."""
+        out: list[Outgoing] = []
+        self._last_tick_us = now_us
+        if self._hb_period_us and self._sysid_known:
+            if self._next_hb_us is None or now_us >= self._next_hb_us:
+                out.append(Outgoing(self._heartbeat_frame(), self._to_master, True))
+                nxt = (self._next_hb_us or now_us) + self._hb_period_us
+                self._next_hb_us = nxt if nxt > now_us else now_us + self._hb_period_us
+        if self._source is not None:
+            if self._last_hb_us is not None and not self._link_lost and now_us - self._last_hb_us > self._hb_timeout_us:
+                self._link_lost = True
+                self._requester.stop()
+                self._notices.warning(
+                    "hb-lost",
+                    f"no HEARTBEAT from the autopilot (system {self._source[0]}, component {self._source[1]}) "
+                    f"for {self.settings.heartbeat_timeout_s:g} s",
+                    now_us,
+                )
+            for req in self._requester.poll(now_us):
+                out.append(Outgoing(self._request_frame(req), True, False))
+            self._check_input(now_us)
+        return out
+
+    def drain_notices(self) -> list[tuple[int, str]]:
+        """(logging level, one-line message) pairs for the daemon to log, oldest first."""
+        return self._notices.drain() + self._requester.drain_notices()
+
+    # ------------------------------------------------------------------ handlers
+    def _on_heartbeat(self, msg: Any, now_us: int) -> list[Outgoing]:
+        hdr = msg.get_header()
+        src = (hdr.srcSystem, hdr.srcComponent)
+        if msg.autopilot == _MAV_AUTOPILOT_INVALID:
+            return []  # a ground station, a companion (us), a gimbal…
+        s = self.settings
+        if self._source is None:
+            if s.source_system is not None and src[0] != s.source_system:
+                return []
+            if s.source_component is not None and src[1] != s.source_component:
+                return []
+            self._source = src
+            profile = profile_for_autopilot(msg.autopilot) if s.autopilot_profile == "auto" else get_profile(s.autopilot_profile)
+            self._set_profile(profile)
+            if not self._sysid_known:
+                self._codec.system_id = src[0]
+                self._sysid_known = True
+            self._notices.info(
+                "source",
+                f"autopilot found: system {src[0]}, component {src[1]} ({profile.description}); "
+                f"IMU data accepted only from it, scaling profile {profile.name}",
+                now_us,
+            )
+        if src != self._source:
+            self._count(self._counters, "other_autopilot_heartbeats")
+            self._notices.info(
+                f"other-ap:{src}", f"ignoring a second autopilot (system {src[0]}, component {src[1]})", now_us, once=True
+            )
+            return []
+        first = self._last_hb_us is None
+        self._last_hb_us = now_us
+        if first:
+            self._requester.start()
+        elif self._link_lost:
+            self._link_lost = False
+            self._requester.start()
+            self._notices.info("hb-back", "autopilot HEARTBEAT back: requesting the IMU stream again", now_us)
+        return []
+
+    def _set_profile(self, profile: AutopilotProfile) -> None:
+        self._profile = profile
+        self._scaler = Scaler(profile, self.settings.scaling)
+        self._calibrators = {
+            name: Calibrator(self.settings.calibration, mag_already_calibrated=ms.mag_calibrated)
+            for name, ms in profile.messages.items()
+        }
+        self._update_wants()
+
+    def _message_for_instance(self, imu_id: int) -> str:
+        assert self._profile is not None
+        return self._profile.primary_message if imu_id == 0 else self._profile.secondary_messages[imu_id - 1]
+
+    def _update_wants(self) -> None:
+        """What to ask the autopilot for: the selected IMU at full rate, the others at the monitor rate."""
+        s = self.settings
+        if self._profile is None:
+            return
+        fixed = s.selection_settings.fixed
+        current = self._selector.selected if self._selector.selected is not None else (fixed or 0)
+        for imu_id in range(3):
+            name = self._message_for_instance(imu_id)
+            if imu_id == current:
+                rate = s.stream_rate_hz
+            elif fixed is None and not self._selector.is_absent(imu_id):
+                rate = s.secondary_imu_rate_hz
+            else:
+                rate = 0.0
+            self._requester.want(name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, MAV_DATA_STREAM_RAW_SENSORS)
+        self._requester.want(
+            "GLOBAL_POSITION_INT",
+            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+            s.gnss_rate_hz if s.use_gnss_velocity else 0.0,
+            MAV_DATA_STREAM_POSITION,
+        )
+
+    def _on_imu(self, msg: Any, now_us: int) -> list[Outgoing]:
+        hdr = msg.get_header()
+        if (hdr.srcSystem, hdr.srcComponent) != self._source:
+            why = "no_autopilot_yet" if self._source is None else "foreign_source"
+            self._count(self._drops, why)
+            if self._source is not None:
+                self._notices.warning(
+                    f"foreign:{hdr.srcSystem}:{hdr.srcComponent}",
+                    f"ignoring {msg.get_type()} from system {hdr.srcSystem}, component {hdr.srcComponent}: "
+                    f"IMU data is accepted only from {self._source[0]}/{self._source[1]}",
+                    now_us,
+                )
+            return []
+        name = msg.get_type()
+        self.samples_in += 1
+        self._last_imu_us = now_us
+        self._in_meter.add(now_us)
+        meter = self._requester.meters.get(name)
+        if meter is not None:
+            meter.add(now_us)
+        assert self._scaler is not None
+        v = self._scaler.scale(msg)
+        if v is None:
+            self._count(self._drops, "no_new_gyro")
+            return []
+        sat, inv = v[12], v[13]
+        if sat or inv:
+            self._count_flags(sat, inv, name, v[0], now_us)
+        return self._filter_sample(name, v, now_us, True)
+
+    def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
+        sel = self._selector
+        feed = sel.observe(name, v)
+        if sel._changes:
+            self._selection_changed(now_us)
+        if not feed:
+            imu_id = v[0]
+            if sel.is_absent(imu_id):
+                self._count(self._drops, "absent_instance")
+            elif imu_id == sel.selected:
+                self._count(self._drops, "duplicate_source")
+            else:
+                self._count(self._drops, "not_selected")
+            return []
+        imu_id, t = v[0], v[1]
+        tl = self._timelines.get(imu_id)
+        if tl is None:
+            tl = self._timelines[imu_id] = _new_timeline(self.settings.timeline)
+        ev = tl.push(t)
+        kind = ev.kind
+        t = ev.t_us
+        if kind == "reboot":
+            if not may_reset:
+                self._count(self._drops, "reboot_repeat")
+                return []
+            self._on_reboot(name, now_us)
+            return self._filter_sample(name, v, now_us, False)
+        if kind in ("duplicate", "reordered", "out_of_order", "stale", "drop"):
+            self._count(self._drops, kind)
+            return []
+        if kind == "gap":
+            self._count(self._counters, "gaps")
+        last_t = self._last_fed_t
+        if last_t is None:
+            dt = _NAN  # first sample: the filter initialises from it
+        elif imu_id == self._last_fed_imu and ev.dt_s == ev.dt_s:
+            dt = ev.dt_s
+        else:
+            dt = (t - last_t) * 1e-6  # switched instance: time since the last sample fed
+            if dt <= 0.0:
+                self._count(self._drops, "switch_overlap")
+                return []
+        self._last_fed_imu = imu_id
+        self._last_fed_t = t
+        row = self._row
+        write_row(row, dt, v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10], v[12], v[13])
+        vel = self._vel
+        if vel is not None:
+            row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2] = vel
+            self._vel = None
+            self._vel_written = False
+        elif not self._vel_written:
+            row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = _NAN
+            self._vel_written = True
+        cal = self._calibrators[name]
+        if cal.active:
+            cal.apply_row(row, v[11])
+        if self._norm_n < 400:
+            self._check_units(name, now_us)
+        out = self._filter.update_row(row)
+        self.samples_filtered += 1
+        self._filter_meter.add(now_us)
+        flags = int(out[OUT_FLAGS])
+        if out[OUT_ACCEL_WEIGHT] < 0.5:
+            self._accel_rejected_n += 1
+        if out[OUT_MAG_WEIGHT] < 0.5 and not flags & FLAG_MAG_INVALID:
+            self._mag_rejected_n += 1
+        if flags & FLAG_REINITIALISED:
+            self._count(self._counters, "filter_reinitialised")
+        if flags & FLAG_NOT_INITIALISED:
+            self._count(self._drops, "filter_not_initialised")
+            return []
+        # output rate, on sample time
+        if self._out_period_us:
+            nxt = self._next_out_t
+            if nxt is not None and t < nxt - self._out_tol_us:
+                return []
+            nxt = (nxt if nxt is not None else t) + self._out_period_us
+            self._next_out_t = nxt if nxt > t else t + self._out_period_us
+        return self._attitude_frames(t, out, row, now_us)
+
+    def _attitude_frames(self, t_us: int, out: np.ndarray, row: np.ndarray, now_us: int) -> list[Outgoing]:
+        qw, qx, qy, qz = float(out[OUT_Q]), float(out[OUT_Q + 1]), float(out[OUT_Q + 2]), float(out[OUT_Q + 3])
+        d = self._decl.declination_rad
+        if d:
+            qw, qx, qy, qz = apply_declination_wxyz(qw, qx, qy, qz, d)
+        p = float(row[IN_GYRO] - out[OUT_BIAS])
+        q = float(row[IN_GYRO + 1] - out[OUT_BIAS + 1])
+        r = float(row[IN_GYRO + 2] - out[OUT_BIAS + 2])
+        t_ms = (t_us // 1000) & 0xFFFFFFFF
+        msg = self._mav.attitude_quaternion_encode(t_ms, qw, qx, qy, qz, p, q, r, _ZERO_Q)
+        frames = [Outgoing(self._codec.encode(msg), self._to_master, True)]
+        if self.settings.send_attitude_euler:
+            roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+            pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
+            yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+            e = self._mav.attitude_encode(t_ms, roll, pitch, yaw, p, q, r)
+            frames.append(Outgoing(self._codec.encode(e), self._to_master, True))
+        self.outputs_sent += 1
+        self._out_meter.add(now_us)
+        return frames
+
+    def _on_global_position(self, msg: Any, now_us: int) -> list[Outgoing]:
+        if not self._from_source(msg):
+            return []
+        self._decl.handle(msg)
+        meter = self._requester.meters.get("GLOBAL_POSITION_INT")
+        if meter is not None:
+            meter.add(now_us)
+        if not self.settings.use_gnss_velocity or (msg.lat == 0 and msg.lon == 0):
+            return []  # no fix yet: autopilots send zeros
+        vn, ve, vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
+        f = self._decl.field
+        if f is not None:  # the filter's earth frame is magnetic NED; GNSS velocity is true NED
+            vn, ve = rotate_true_to_magnetic(vn, ve, f.declination_rad)
+        self._vel = (vn, ve, vd)
+        return []
+
+    def _on_position_only(self, msg: Any, now_us: int) -> list[Outgoing]:
+        if self._from_source(msg):
+            self._decl.handle(msg)
+        return []
+
+    def _on_command_ack(self, msg: Any, now_us: int) -> list[Outgoing]:
+        if not self._from_source(msg):
+            return []
+        tc = getattr(msg, "target_component", 0)
+        if tc not in (0, self._codec.component_id):
+            return []  # an answer to someone else's command
+        self._requester.on_command_ack(msg.command, msg.result, now_us)
+        return []
+
+    def _on_statustext(self, msg: Any, now_us: int) -> list[Outgoing]:
+        if self._from_source(msg):
+            text = msg.text if isinstance(msg.text, str) else bytes(msg.text).decode("ascii", "replace")
+            self._requester.on_statustext(text, now_us)
+            if "SCHED_LOOP_RATE" in text or "rate" in text.lower() and "too fast" in text.lower():
+                self._notices.info("ap-rate-text", f"autopilot says: {text.strip()}", now_us)
+        return []
+
+    def _from_source(self, msg: Any) -> bool:
+        hdr = msg.get_header()
+        return (hdr.srcSystem, hdr.srcComponent) == self._source
+
+    # ------------------------------------------------------------------ events
+    def _on_reboot(self, name: str, now_us: int) -> None:
+        self._count(self._counters, "reboots")
+        self._filter.reset()
+        self._selector.reset()
+        self._reset_stream_state()
+        self._requester.start()
+        self._notices.warning(
+            "reboot", f"autopilot rebooted ({name} time went back): filter restarted, streams requested again", now_us
+        )
+
+    def _selection_changed(self, now_us: int) -> None:
+        for ch in self._selector.pop_changes():
+            self._count(self._counters, "imu_switches" if ch.old is not None else "imu_selected")
+            if ch.new is None:
+                self._notices.warning("imu-none", f"no usable IMU instance: {ch.reason}", now_us)
+            elif ch.old is None:
+                self._notices.info("imu-sel", f"using IMU {ch.new} ({ch.reason})", now_us)
+            else:
+                self._notices.warning(f"imu-switch:{ch.old}:{ch.new}", f"switched from IMU {ch.old} to IMU {ch.new}: {ch.reason}", now_us)
+        self._update_wants()
+
+    def _count_flags(self, sat: int, inv: int, name: str, imu_id: int, now_us: int) -> None:
+        for bit, label in ((GYRO, "gyro"), (ACCEL, "accel"), (MAG, "mag")):
+            if sat & bit:
+                self._count(self._counters, f"saturated_{label}")
+                self._notices.warning(
+                    f"sat:{label}", f"{name} (IMU {imu_id}): {label} saturated"
+                    + (" — its correction is skipped for those samples" if bit != GYRO else " — attitude will lag"),
+                    now_us,
+                )  # fmt: skip
+            if inv & bit:
+                self._count(self._counters, f"invalid_{label}")
+                self._notices.warning(
+                    f"inv:{label}", f"{name} (IMU {imu_id}): {label} NaN, infinite or out of range — skipped", now_us
+                )
+
+    def _check_units(self, name: str, now_us: int) -> None:
+        row = self._row
+        ax, ay, az = row[4], row[5], row[6]
+        n = math.sqrt(ax * ax + ay * ay + az * az)
+        if n == n:
+            self._norm_sum += n
+            self._norm_n += 1
+            if self._norm_n == 400:
+                mean = self._norm_sum / 400
+                if not 0.5 * _G < mean < 2.0 * _G:
+                    assert self._profile is not None
+                    self._notices.warning(
+                        "units",
+                        f"{name}: the accelerometer reads {mean:.3g} m/s² on average, not ≈ 9.8 — the "
+                        f"{self._profile.name} profile's units for {name} look wrong; set autopilot_profile",
+                        now_us,
+                    )
+
+    def _check_input(self, now_us: int) -> None:
+        last = self._last_imu_us
+        if self._source_since_us is None:
+            self._source_since_us = now_us
+        ref = last if last is not None else self._source_since_us
+        if now_us - ref > self._no_imu_us:
+            since = f" for {(now_us - ref) * 1e-6:.1f} s"
+            self._notices.warning("no-imu", f"no IMU messages from the autopilot{since}", now_us)
+            return
+        if last is None:
+            return
+        rate = self._filter_meter.rate(now_us)
+        if self.samples_filtered > 20 and 0 < rate < self.settings.low_imu_rate_hz:
+            self._notices.warning(
+                "low-rate",
+                f"IMU samples reach the filter at {rate:.0f} Hz: too slow for meaningful attitude filtering "
+                f"(≥ {self.settings.low_imu_rate_hz:g} Hz needed)",
+                now_us,
+            )
+
+    # ------------------------------------------------------------------ encoding
+    def _heartbeat_frame(self) -> bytes:
+        msg = self._mav.heartbeat_encode(
+            _MAV_TYPE_ONBOARD_CONTROLLER, _MAV_AUTOPILOT_INVALID, 0, 0, _MAV_STATE_ACTIVE
+        )
+        return self._codec.encode(msg)
+
+    def _request_frame(self, req: Any) -> bytes:
+        assert self._source is not None
+        ts, tc = self._source
+        if isinstance(req, RequestDataStream):
+            msg = self._mav.request_data_stream_encode(ts, tc, req.stream_id, req.rate_hz, 1)
+        else:
+            msg = self._mav.command_long_encode(
+                ts, tc, MAV_CMD_SET_MESSAGE_INTERVAL, req.confirmation,
+                float(req.message_id), float(req.interval_us), 0.0, 0.0, 0.0, 0.0, 0.0,
+            )  # fmt: skip
+        return self._codec.encode(msg)
+
+    # ------------------------------------------------------------------ reporting
+    @staticmethod
+    def _count(d: dict[str, int], key: str) -> None:
+        d[key] = d.get(key, 0) + 1
+
+    def status(self, now_us: int | None = None) -> PipelineStatus:
+        """A snapshot; ``now_us`` defaults to the last tick's time (for the rates)."""
+        now = now_us if now_us is not None else (self._last_tick_us or 0)
+        diag = self._filter.diagnostics
+        out = self._filter._out if hasattr(self._filter, "_out") else None
+        init = bool(out is not None and not int(out[OUT_FLAGS]) & FLAG_NOT_INITIALISED)
+        q = None
+        if init and out is not None:
+            q = (float(out[OUT_Q]), float(out[OUT_Q + 1]), float(out[OUT_Q + 2]), float(out[OUT_Q + 3]))
+            d = self._decl.declination_rad
+            if d:
+                q = apply_declination_wxyz(*q, d)
+        b = diag.gyro_bias_rad_s
+        n0, a0, m0 = self._status_mark
+        n = self.samples_filtered - n0
+        acc_pct = 100.0 * (self._accel_rejected_n - a0) / n if n else 0.0
+        mag_pct = 100.0 * (self._mag_rejected_n - m0) / n if n else 0.0
+        self._status_mark = (self.samples_filtered, self._accel_rejected_n, self._mag_rejected_n)
+        connected = self._last_hb_us is not None and not self._link_lost and now - self._last_hb_us <= self._hb_timeout_us
+        return PipelineStatus(
+            connected=connected,
+            vehicle=self._source,
+            autopilot_profile=self._profile.name if self._profile else None,
+            filter_name=self._filter_name,
+            input_rate_hz=self._in_meter.rate(now),
+            filter_rate_hz=self._filter_meter.rate(now),
+            output_rate_hz=self._out_meter.rate(now),
+            samples_in=self.samples_in,
+            samples_filtered=self.samples_filtered,
+            outputs_sent=self.outputs_sent,
+            drops=dict(self._drops),
+            samples_dropped=sum(self._drops.values()),
+            counters={**self._counters, "duplicate_source": self._selector.duplicate_source},
+            initialised=init,
+            gain=diag.gain,
+            accel_weight=diag.accel_weight,
+            mag_weight=diag.mag_weight,
+            accel_rejected=diag.accel_rejected,
+            mag_rejected=diag.mag_rejected,
+            accel_rejection_pct=acc_pct,
+            mag_rejection_pct=mag_pct,
+            bias_deg_s=(b[0] * _RAD2DEG, b[1] * _RAD2DEG, b[2] * _RAD2DEG),
+            q_body_to_ned=q,
+            imu_in_use=self._selector.selected,
+            imu_reason=self._selector.reason,
+            imu_instances=self._selector.instances(),
+            streams=self._requester.states(now),
+            heading_reference=self._decl.status(),
+        )
+
