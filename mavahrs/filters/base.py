@@ -382,6 +382,29 @@ class AttitudeFilter(ABC):
     def q_body_to_ned(self) -> Array:
         return self._out[OUT_Q : OUT_Q + 4].copy()
 
+    def set_mag_reference(self, norm_ut: float, dip_rad: float) -> None:
+        """Give the magnetometer rejection its reference field, e.g. from the World Magnetic Model.
+
+        The same as constructing with ``schedule.mag_reference_norm_ut`` /
+        ``mag_reference_dip_rad``, but on a running filter: the schedule's
+        current reference is replaced at once and re-initialisations keep it
+        (``settings`` is updated to match).  ``norm_ut = 0`` returns to
+        learning the reference from the data (from the next initialisation).
+        """
+        if not (math.isfinite(norm_ut) and norm_ut >= 0.0 and math.isfinite(dip_rad)):
+            raise ValueError(f"magnetic reference needs norm_ut ≥ 0 and a finite dip, got {norm_ut!r}, {dip_rad!r}")
+        from dataclasses import replace
+
+        self._settings = replace(
+            self._settings,
+            schedule=replace(self._settings.schedule, mag_reference_norm_ut=norm_ut, mag_reference_dip_rad=dip_rad),
+        )
+        self._params[P_SCHED + _g.GP_MAG_REF_NORM] = norm_ut
+        self._params[P_SCHED + _g.GP_MAG_REF_DIP] = dip_rad
+        if norm_ut > 0.0 and self._state[S_INIT] > 0.0:
+            self._state[S_SCHED + _g.GS_MAG_NORM] = norm_ut
+            self._state[S_SCHED + _g.GS_MAG_DIP] = dip_rad
+
     def update(
         self,
         gyro_rad_s: ArrayLike,

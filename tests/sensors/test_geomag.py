@@ -274,3 +274,39 @@ def test_gain_schedule_seeded_from_the_model() -> None:
     off = DeclinationSource(MagneticFieldSettings(seed_gain_schedule=False), decimal_year=2026.0)
     off.handle(_gpi(-35.36, 149.17))
     assert off.gain_schedule(base) is base
+
+
+def test_model_seeded_reference_rejects_a_disturbance_present_from_the_start() -> None:
+    """With the model's field, a magnet already near the sensor at start-up is recognised at once;
+    without it, the schedule learns the disturbed field as its reference."""
+    from mavahrs.filters import create
+
+    src = DeclinationSource(MagneticFieldSettings(), decimal_year=2026.0)
+    src.handle(_gpi(-35.36, 149.17, 600.0))
+    f = src.field
+    assert f is not None
+    # Level, facing magnetic north: body field = (H, 0, Z) in the filter's magnetic frame; +25 % disturbance.
+    h = f.strength_ut * math.cos(f.inclination_rad)
+    z = f.strength_ut * math.sin(f.inclination_rad)
+    mag = np.array([h, 0.0, z]) * 1.25
+    accel = np.array([0.0, 0.0, -9.80665])
+
+    def mag_weights(seed: bool) -> list[float]:
+        filt = create("mahony")
+        if seed:
+            sched = src.gain_schedule(filt.settings.schedule)
+            filt.set_mag_reference(sched.mag_reference_norm_ut, sched.mag_reference_dip_rad)
+        weights = []
+        for _ in range(800):  # 8 s at 100 Hz, past the 3 s start-up boost
+            filt.update(np.zeros(3), accel, mag, dt_s=0.01)
+            weights.append(filt.diagnostics.mag_weight)
+        return weights
+
+    assert min(mag_weights(seed=False)[1:]) > 0.99  # (sample 0 initialises the filter)
+    seeded = mag_weights(seed=True)
+    assert max(seeded[400:]) < 0.01  # rejected as soon as the start-up boost is over
+    filt = create("mahony")
+    filt.set_mag_reference(f.strength_ut, f.inclination_rad)
+    assert filt.settings.schedule.mag_reference_norm_ut == f.strength_ut
+    with pytest.raises(ValueError):
+        filt.set_mag_reference(-1.0, 0.0)
