@@ -1,0 +1,8 @@
+"""``python -m mavahrs`` — the same as the ``mavahrs`` command."""
+
+from __future__ import annotations
+
+from mavahrs.cli import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,119 @@
+r"""The ``mavahrs`` command: argparse subcommands, logging, exit codes.
+
+Each subcommand lives in ``mavahrs/cli/<name>.py`` and exposes
+``register(subparsers) -> argparse.ArgumentParser`` and ``run(args) -> int``.
+:data:`SUBCOMMANDS` lists the modules looked for; a module that does not exist
+is skipped, any other import error is a bug and is raised.  Subcommand modules
+must not import numpy, numba or pymavlink at import time (``mavahrs --help``
+answers in well under half a second): import inside ``run``.
+
+Errors reach the user as one line (``mavahrs: error: …``) and an exit code
+(:mod:`mavahrs.cli.common`); a traceback only for internal errors with ``-v``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from mavahrs.cli import common
+
+__all__ = ["main", "build_parser", "SUBCOMMANDS"]
+
+#: Subcommand modules, in the order ``--help`` lists them.
+SUBCOMMANDS: tuple[str, ...] = (
+    "run",
+    "demo",
+    "doctor",
+    "replay",
+    "evaluate",
+    "tune",
+    "plot",
+    "calibrate_mag",
+    "sim",
+)
+
+
+def _load(name: str) -> Any:
+    module_name = f"{__name__}.{name}"
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name == module_name:
+            return None  # not written (yet): no such subcommand
+        raise
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full parser, with every available subcommand registered."""
+    from mavahrs import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="mavahrs",
+        description="Attitude estimation beside a MAVLink autopilot (ArduPilot, PX4).",
+        epilog=common.EXIT_CODES_HELP + ". `mavahrs COMMAND --help` for a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"mavahrs {__version__}")
+    common.add_logging_options(parser)
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        module = _load(name)
+        if module is None:
+            continue
+        before = set(subparsers.choices)
+        module.register(subparsers)
+        for cmd in set(subparsers.choices) - before:
+            sub = subparsers.choices[cmd]
+            sub.set_defaults(_run=module.run)
+            try:
+                common.add_logging_options(sub, suppress=True)
+            except argparse.ArgumentError:
+                pass  # the subcommand defines its own -v/-q
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``mavahrs`` with ``argv`` (default ``sys.argv[1:]``); return the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors (argparse already printed)
+        return int(exc.code) if isinstance(exc.code, int) else common.EXIT_USAGE
+    verbosity = int(getattr(args, "verbose", 0) or 0) - int(getattr(args, "quiet", 0) or 0)
+    log = common.setup_logging(verbosity, getattr(args, "log_format", "text"))
+    run = getattr(args, "_run", None)
+    if run is None:
+        parser.print_help(sys.stderr)
+        return common.EXIT_USAGE
+    try:
+        return int(run(args))
+    except KeyboardInterrupt:
+        log.error("interrupted")
+        return common.EXIT_INTERRUPTED
+    except BrokenPipeError:  # `mavahrs … | head`
+        return common.EXIT_OK
+    except Exception as exc:  # noqa: BLE001 - the one place errors become exit codes
+        from mavahrs.errors import MavahrsError
+
+        code = common.exit_code_for(exc)
+        if isinstance(exc, (MavahrsError, OSError)):
+            message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            if isinstance(exc, OSError) and not isinstance(exc, MavahrsError) and exc.filename:
+                message = f"{exc.filename}: {exc.strerror or message}"
+            log.error("%s", message)
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("details", exc_info=True)
+        else:
+            log.error(
+                "internal error: %s: %s%s",
+                type(exc).__name__,
+                exc,
+                "" if log.isEnabledFor(logging.DEBUG) else " (run with -v for the traceback)",
+                exc_info=log.isEnabledFor(logging.DEBUG),
+            )
+        return code

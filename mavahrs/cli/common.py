@@ -1,0 +1,210 @@
+r"""What every ``mavahrs`` subcommand shares: exit codes, logging set-up, error reporting, help formatting.
+
+Kept free of heavy imports (no numpy, numba, pymavlink): ``mavahrs --help``
+imports this module and every subcommand's ``register``.
+
+Exit codes (documented in docs/daemon.md and ``mavahrs --help``):
+
+====  ======================================================================
+0     success (also ``run`` stopped by SIGINT/SIGTERM or ``--duration``)
+1     runtime failure (an unexpected error; ``-v`` shows the traceback)
+2     usage or configuration error (bad option, config file, connection string)
+3     connection failure: a link cannot be opened (port busy, permission
+      denied, no such device, address in use) or no autopilot heartbeat
+130   interrupted (Ctrl-C outside ``run``'s own signal handling)
+====  ======================================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import re
+import sys
+from typing import Any
+
+__all__ = [
+    "EXIT_OK",
+    "EXIT_FAILURE",
+    "EXIT_USAGE",
+    "EXIT_CONNECTION",
+    "EXIT_INTERRUPTED",
+    "EXIT_CODES_HELP",
+    "exit_code_for",
+    "setup_logging",
+    "JsonFormatter",
+    "LazyDefaultsFormatter",
+    "add_logging_options",
+    "fail",
+]
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+EXIT_CONNECTION = 3
+EXIT_INTERRUPTED = 130
+
+EXIT_CODES_HELP = (
+    "exit codes: 0 ok, 1 runtime failure, 2 usage/config error, "
+    "3 connection failure or no heartbeat, 130 interrupted"
+)
+
+_LOGGER_NAME = "mavahrs"
+
+
+def exit_code_for(exc: BaseException) -> int:
+    """The documented exit code for an exception reaching the command line."""
+    from mavahrs.errors import ConfigError, TransportError
+
+    if isinstance(exc, KeyboardInterrupt):
+        return EXIT_INTERRUPTED
+    if isinstance(exc, ConfigError):
+        return EXIT_USAGE
+    if isinstance(exc, TransportError):
+        return EXIT_CONNECTION
+    return EXIT_FAILURE
+
+
+def fail(message: str, code: int = EXIT_FAILURE) -> int:
+    """Log ``message`` as one error line and return ``code`` (for ``return fail(...)`` in ``run``)."""
+    logging.getLogger(_LOGGER_NAME).error("%s", message)
+    return code
+
+
+# --------------------------------------------------------------------------- logging
+
+
+class JsonFormatter(logging.Formatter):
+    """One JSON object per line (journald, Loki, Elasticsearch…).
+
+    Keys: ``time`` (ISO 8601, UTC), ``level``, ``logger``, ``message``; a
+    record's ``status`` extra (the daemon's status fields) is included as an
+    object; ``exception`` holds a traceback when there is one.
+    """
+
+    def format(self, record: logging.LogRecord) -> str:
+        out: dict[str, Any] = {
+            "time": datetime.datetime.fromtimestamp(record.created, datetime.timezone.utc).isoformat(
+                timespec="milliseconds"
+            ),
+            "level": record.levelname,
+            "logger": record.name,
+            "message": record.getMessage(),
+        }
+        status = getattr(record, "status", None)
+        if status is not None:
+            out["status"] = status
+        if record.exc_info:
+            out["exception"] = self.formatException(record.exc_info)
+        return json.dumps(out, default=_json_default, allow_nan=False)
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
+class _NanSafeJson(JsonFormatter):
+    def format(self, record: logging.LogRecord) -> str:
+        try:
+            return super().format(record)
+        except ValueError:  # NaN/inf in the status: JSON has none, write null
+            status = getattr(record, "status", None)
+            if isinstance(status, dict):
+                record.status = {k: _finite_or_none(v) for k, v in status.items()}
+            return super().format(record)
+
+
+def _finite_or_none(value: Any) -> Any:
+    if isinstance(value, float) and (value != value or value in (float("inf"), float("-inf"))):
+        return None
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
+def setup_logging(verbosity: int = 0, log_format: str = "text", stream: Any = None) -> logging.Logger:
+    """Configure the ``mavahrs`` logger (library code only uses ``logging.getLogger``).
+
+    Args:
+        verbosity: −2 errors only, −1 warnings, 0 info (status lines), ≥ 1 debug.
+        log_format: ``"text"`` (time, level, message) or ``"json"`` (one object per line).
+        stream: where to write (default: standard error).
+    """
+    level = {-2: logging.ERROR, -1: logging.WARNING, 0: logging.INFO}.get(
+        max(-2, min(0, verbosity)), logging.INFO
+    )
+    if verbosity >= 1:
+        level = logging.DEBUG
+    logger = logging.getLogger(_LOGGER_NAME)
+    for h in list(logger.handlers):
+        if getattr(h, "_mavahrs_cli", False):
+            logger.removeHandler(h)
+    handler = logging.StreamHandler(stream if stream is not None else sys.stderr)
+    handler._mavahrs_cli = True  # type: ignore[attr-defined]
+    if log_format == "json":
+        handler.setFormatter(_NanSafeJson())
+    else:
+        handler.setFormatter(logging.Formatter("%(asctime)s.%(msecs)03d %(levelname)s %(message)s", "%H:%M:%S"))
+    logger.addHandler(handler)
+    logger.setLevel(level)
+    logger.propagate = False
+    return logger
+
+
+def add_logging_options(parser: argparse.ArgumentParser, *, suppress: bool = False) -> None:
+    """``-v``, ``-q``, ``--log-format`` (``suppress``: for subcommands, so the top-level value stays)."""
+    default: Any = argparse.SUPPRESS if suppress else 0
+    parser.add_argument("-v", "--verbose", action="count", default=default, help="more output (debug messages)")
+    parser.add_argument("-q", "--quiet", action="count", default=default, help="less output (-q warnings, -qq errors)")
+    parser.add_argument(
+        "--log-format",
+        choices=("text", "json"),
+        default=argparse.SUPPRESS if suppress else "text",
+        help="log line format: text, or json (one object per line, for journald and log collectors); "
+        "default text",
+    )
+
+
+# --------------------------------------------------------------------------- help
+
+
+class LazyDefaultsFormatter(argparse.RawDescriptionHelpFormatter):
+    """Expands ``{daemon.KEY}`` / ``{pipeline.KEY}`` / ``{filters}`` in help texts when help is printed.
+
+    Defaults live in the settings dataclasses, whose modules import numpy;
+    reading them only when ``--help`` is actually shown keeps ``mavahrs
+    --help`` fast and the help text true to the code.
+    """
+
+    _PLACEHOLDER = re.compile(r"\{(daemon|pipeline)\.([a-z0-9_]+)\}|\{filters\}")
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        text = super()._expand_help(action)
+        return self._PLACEHOLDER.sub(_default_text, text)
+
+
+def _default_text(m: re.Match[str]) -> str:
+    try:
+        if m.group(0) == "{filters}":
+            from mavahrs.filters import ALIASES, NAMES
+
+            return ", ".join((*ALIASES, *NAMES))
+        section, key = m.group(1), m.group(2)
+        if section == "daemon":
+            from mavahrs.service.daemon import DaemonSettings as cls
+        else:
+            from mavahrs.service.pipeline import PipelineSettings as cls
+        value = getattr(cls(), key)
+    except Exception:  # noqa: BLE001 - help must print even if a module is missing
+        return "?"
+    if value is None:
+        return "none"
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value)) if abs(value) < 1e15 else repr(value)
+    if isinstance(value, (tuple, list)):
+        return ", ".join(map(str, value)) or "none"
+    return str(value)

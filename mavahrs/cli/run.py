@@ -1,0 +1,153 @@
+"""``mavahrs run``: the companion daemon (live IMU in, ATTITUDE_QUATERNION out)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter
+
+__all__ = ["register", "run"]
+
+_DESCRIPTION = """\
+Connect to the autopilot (--master), request its IMU stream, estimate the
+attitude sample by sample and send ATTITUDE_QUATERNION (component 191) to
+every --out, plus HEARTBEAT at 1 Hz.  Settings come from defaults, then
+--config FILE (TOML), then these flags and --set.
+
+connection strings (as pymavlink/MAVProxy): udpin:HOST:PORT (listen; replies
+to the last sender), udp:HOST:PORT (= udpin), udpout:HOST:PORT,
+udpbcast:HOST:PORT, tcp:HOST:PORT (client, reconnects), tcpin:HOST:PORT
+(server), /dev/ttyACM0 or /dev/ttyUSB0,921600 or COM3 (serial).
+
+examples:
+  mavahrs run --master /dev/ttyACM0 --baud 921600 --out udpout:127.0.0.1:14551
+  mavahrs run --master udpin:0.0.0.0:14550 --out udpout:192.168.1.10:14550 --log flight.tlog
+  mavahrs run --master tcp:127.0.0.1:5760 --filter madgwick --out-rate 0
+"""
+
+# CLI option -> dotted setting (value conversions happen in mavahrs.config).
+_OVERRIDES = {
+    "master": "daemon.master",
+    "baud": "daemon.baud",
+    "outputs": "daemon.outputs",
+    "log": "daemon.log_path",
+    "heartbeat_timeout": "daemon.heartbeat_timeout_s",
+    "duration": "daemon.duration_s",
+    "status_interval": "daemon.status_interval_s",
+    "stats_json": "daemon.stats_path",
+    "filter": "pipeline.filter_name",
+    "imu": "pipeline.imu",
+    "out_rate": "pipeline.out_rate_hz",
+    "rate": "pipeline.stream_rate_hz",
+    "sysid": "pipeline.system_id",
+    "compid": "pipeline.component_id",
+    "euler": "pipeline.send_attitude_euler",
+    "request_streams": "pipeline.request_streams",
+}
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "run",
+        help="run the companion daemon: live IMU in, ATTITUDE_QUATERNION out",
+        description=_DESCRIPTION,
+        epilog=EXIT_CODES_HELP + ".  SIGINT/SIGTERM stop cleanly with exit code 0.",
+        formatter_class=LazyDefaultsFormatter,
+    )
+    links = p.add_argument_group("links")
+    links.add_argument("--master", metavar="URL", help="autopilot link (default: {daemon.master})")
+    links.add_argument(
+        "--baud", type=int, metavar="N", help="serial baud rate, bit/s, unless URL ends in ,BAUD (default: {daemon.baud})"
+    )
+    links.add_argument(
+        "--out", dest="outputs", action="append", metavar="URL",
+        help="send the attitude here; repeat for more outputs (default: none)",
+    )
+    links.add_argument(
+        "--heartbeat-timeout", type=float, metavar="S",
+        help="exit with code 3 if no autopilot HEARTBEAT arrives within S seconds of start; 0 = wait for ever "
+        "(default: {daemon.heartbeat_timeout_s} s)",
+    )
+    est = p.add_argument_group("estimation")
+    est.add_argument("--filter", metavar="NAME", help="attitude filter: {filters} (default: {pipeline.filter_name})")
+    est.add_argument(
+        "--imu", metavar="0|1|2|auto",
+        help="IMU instance to use; auto picks one and fails over when it goes stale (default: {pipeline.imu})",
+    )
+    est.add_argument(
+        "--rate", type=float, metavar="HZ",
+        help="IMU message rate requested from the autopilot, Hz (default: {pipeline.stream_rate_hz} Hz)",
+    )
+    est.add_argument(
+        "--no-stream-requests", dest="request_streams", action="store_const", const=False,
+        help="do not ask the autopilot for streams (it is configured to send them already)",
+    )
+    out = p.add_argument_group("output")
+    out.add_argument(
+        "--out-rate", type=float, metavar="HZ",
+        help="ATTITUDE_QUATERNION rate, Hz; 0 = one per IMU sample (default: {pipeline.out_rate_hz} Hz)",
+    )
+    out.add_argument(
+        "--sysid", type=int, metavar="N",
+        help="system id of our messages; none = the autopilot's (default: {pipeline.system_id})",
+    )
+    out.add_argument(
+        "--compid", type=int, metavar="N",
+        help="component id of our messages; 191 = MAV_COMP_ID_ONBOARD_COMPUTER (default: {pipeline.component_id})",
+    )
+    out.add_argument(
+        "--euler", action="store_const", const=True,
+        help="also send ATTITUDE (roll/pitch/yaw) (default: {pipeline.send_attitude_euler})",
+    )
+    ops = p.add_argument_group("operation")
+    ops.add_argument("--config", metavar="FILE", help="TOML settings file (see contrib/mavahrs.example.toml)")
+    ops.add_argument(
+        "--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
+        help="any setting, e.g. pipeline.out_rate_hz=100, daemon.input_queue=512, filter.max_gap_s=0.5 "
+        "(repeatable; wins over --config)",
+    )
+    ops.add_argument("--log", metavar="FILE.tlog", help="record everything in and out (flushed every second)")
+    ops.add_argument(
+        "--duration", type=float, metavar="S", help="stop after S seconds (default: run until SIGINT/SIGTERM)"
+    )
+    ops.add_argument(
+        "--status-interval", type=float, metavar="S",
+        help="seconds between status lines; 0 = none (default: {daemon.status_interval_s} s)",
+    )
+    ops.add_argument("--stats-json", metavar="FILE", help="write counters and latency percentiles here at exit")
+    ops.add_argument(
+        "--print-config", action="store_true", help="print the effective configuration as TOML and exit"
+    )
+    return p
+
+
+def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The dotted settings the command line sets (``--set`` first, explicit flags win)."""
+    from mavahrs.config import parse_override
+
+    out: dict[str, Any] = {}
+    for text in getattr(args, "settings", None) or []:
+        path, value = parse_override(text)
+        out[".".join(path)] = value
+    for attr, dotted in _OVERRIDES.items():
+        value = getattr(args, attr, None)
+        if value is None:
+            continue
+        if attr == "imu":
+            value = str(value)
+        out[dotted] = list(value) if isinstance(value, list) else value
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from mavahrs.config import load_run_config
+    from mavahrs.service.daemon import build_daemon
+
+    config = load_run_config(args.config, overrides_from_args(args))
+    if args.print_config:
+        print(config.to_toml(), end="")
+        return EXIT_OK
+    daemon = build_daemon(config.daemon, config.pipeline, config.filter)
+    daemon.run()
+    return EXIT_OK

@@ -1,0 +1,778 @@
+r"""The companion daemon's one loop: master link ↔ codec ↔ :class:`Pipeline` ↔ outputs.
+
+Everything that touches the outside world at run time happens here (the
+pipeline, codec, filters and scaling are pure).  One thread, one
+``selectors`` wait over the master link, the output links and a wake-up
+socket; no busy polling:
+
+* **master readable** → read every datagram/chunk waiting (at most
+  ``max_drain`` per wake) into a bounded inbox (``input_queue``; when a peer
+  floods faster than we process, the *oldest* entries are dropped and counted
+  as ``input_dropped``) → decode (one codec per link: datagrams on their own,
+  streams as streams) → record in the tlog → ``Pipeline.handle`` → send what
+  it returns: attitude to every ``--out`` (and to the master when the pipeline
+  marks it), replies such as stream requests to the master;
+* **an output readable** → drained and ignored (a GCS's heartbeats teach a
+  ``udpin:`` output where to send; nothing from outputs reaches the filter);
+* **timer** (``tick_hz``, default 20 Hz) → ``Pipeline.tick`` (heartbeats,
+  stream requests), link maintenance (reconnection, queued writes), log
+  flushing, the no-heartbeat watchdog, the status line every
+  ``status_interval_s``, ``--duration``.
+
+Processing latency — from the moment a datagram is read to the moment the
+last ``sendto`` of the attitude computed from it returned — goes into a
+preallocated ring (``latency_ring`` entries, nanoseconds), summarised in the
+status line and in :meth:`Daemon.stats` (used by ``scripts/bench_live.py``).
+Nothing is logged per message, and nothing here allocates numpy arrays.
+
+Shutdown: SIGINT/SIGTERM (or :meth:`Daemon.stop` from another thread) ends
+the loop at once; the tlog is flushed and synced, links closed, a summary
+logged; ``run`` returns a :class:`DaemonResult`.  No heartbeat from an
+autopilot within ``heartbeat_timeout_s`` of start raises
+:class:`~mavahrs.errors.TransportError` with what was (not) received.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import resource
+import selectors
+import signal
+import socket
+import threading
+import time
+from array import array
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, is_dataclass
+from typing import Any
+
+from mavahrs.errors import ConfigError, TransportError
+from mavahrs.service.stats import Notices
+
+__all__ = ["DaemonSettings", "Daemon", "DaemonResult", "LatencyRing", "build_daemon", "format_status"]
+
+_MSG_ID_ATTITUDE_QUATERNION = 31  # MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+_MAV_AUTOPILOT_INVALID = 8
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """How the daemon connects, records and reports.
+
+    Attributes:
+        master: connection string of the autopilot link (``udpin:0.0.0.0:14550``,
+            ``tcp:HOST:PORT``, ``/dev/ttyACM0,921600``; see docs/daemon.md).
+        baud: serial baud rate, bit/s, when ``master`` has no ``,BAUD`` suffix.
+        outputs: connection strings the attitude is sent to (any number).
+        log_path: tlog file recording everything in and out; None = no recording.
+        log_flush_interval_s: longest time recorded data stays in memory, s.
+        heartbeat_timeout_s: give up (exit code 3) when no autopilot HEARTBEAT
+            arrives within this many seconds of start, s; 0 = wait for ever.
+            Later silences are waited out and reported, never fatal.
+        status_interval_s: seconds between status lines; 0 = none.
+        tick_hz: timer rate for heartbeats, stream requests, reconnection
+            and flushing, Hz.
+        duration_s: stop after this many seconds (exit code 0); None = run
+            until SIGINT/SIGTERM.
+        reconnect_interval_s: retry period for a lost serial device / TCP server, s.
+        input_queue: bound of the input queue, datagrams (or stream chunks);
+            when a peer floods, the oldest are dropped and counted.
+        max_drain: most reads taken from a link per wake-up.
+        output_queue_bytes: bound of the write queue of each stream link, bytes.
+        max_tcp_clients: connections a ``tcpin:`` link accepts.
+        latency_ring: processing-latency samples kept for percentiles.
+        stats_path: write a JSON summary (counters, latency, CPU) here at
+            exit; None = don't.
+    """
+
+    master: str = "udpin:0.0.0.0:14550"
+    baud: int = 115200
+    outputs: tuple[str, ...] = ()
+    log_path: str | None = None
+    log_flush_interval_s: float = 1.0
+    heartbeat_timeout_s: float = 10.0
+    status_interval_s: float = 5.0
+    tick_hz: float = 20.0
+    duration_s: float | None = None
+    reconnect_interval_s: float = 1.0
+    input_queue: int = 256
+    max_drain: int = 1024
+    output_queue_bytes: int = 65536
+    max_tcp_clients: int = 8
+    latency_ring: int = 16384
+    stats_path: str | None = None
+
+    def __post_init__(self) -> None:
+        def positive(name: str, value: float) -> None:
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"daemon.{name} must be a positive number, got {value!r}")
+
+        def non_negative(name: str, value: float) -> None:
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"daemon.{name} must be zero or positive, got {value!r}")
+
+        if not self.master:
+            raise ValueError("daemon.master is required (e.g. udpin:0.0.0.0:14550 or /dev/ttyACM0,921600)")
+        positive("baud", self.baud)
+        positive("log_flush_interval_s", self.log_flush_interval_s)
+        non_negative("heartbeat_timeout_s", self.heartbeat_timeout_s)
+        non_negative("status_interval_s", self.status_interval_s)
+        positive("tick_hz", self.tick_hz)
+        if self.duration_s is not None:
+            positive("duration_s", self.duration_s)
+        positive("reconnect_interval_s", self.reconnect_interval_s)
+        for name in ("input_queue", "max_drain", "output_queue_bytes", "max_tcp_clients", "latency_ring"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value > 0):
+                raise ValueError(f"daemon.{name} must be a positive whole number, got {value!r}")
+        if not isinstance(self.outputs, tuple):
+            object.__setattr__(self, "outputs", tuple(self.outputs))
+
+
+@dataclass
+class DaemonCounters:
+    """The loop's own counters (the pipeline and codec keep theirs).
+
+    Attributes:
+        datagrams_in: reads from the master link (datagrams or stream chunks).
+        messages_in: MAVLink messages decoded from the master link.
+        input_dropped: reads dropped from the input queue (flood: oldest first).
+        attitudes_out: ATTITUDE_QUATERNION frames sent to the outputs.
+        frames_to_master: frames sent back to the autopilot.
+        frames_to_outputs: frames sent to the outputs (all kinds).
+        output_reads_ignored: reads from output links (ignored).
+        pipeline_errors: messages the pipeline failed on (counted, logged rarely).
+    """
+
+    datagrams_in: int = 0
+    messages_in: int = 0
+    input_dropped: int = 0
+    attitudes_out: int = 0
+    frames_to_master: int = 0
+    frames_to_outputs: int = 0
+    output_reads_ignored: int = 0
+    pipeline_errors: int = 0
+
+
+@dataclass(frozen=True)
+class DaemonResult:
+    """How a run ended.
+
+    Attributes:
+        reason: ``"signal"`` (SIGINT/SIGTERM), ``"duration"``, ``"stopped"`` (:meth:`Daemon.stop`).
+        signal_name: the signal that stopped it, if any.
+        run_s: seconds the loop ran.
+        stats: the final :meth:`Daemon.stats` summary.
+    """
+
+    reason: str
+    signal_name: str | None
+    run_s: float
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+class LatencyRing:
+    """Preallocated ring of latency samples (ns) with percentiles over any recent span."""
+
+    def __init__(self, size: int) -> None:
+        n = 1
+        while n < size:
+            n <<= 1
+        self._mask = n - 1
+        self._buf = array("q", bytes(8 * n))
+        self.count = 0  # samples ever added
+        self.max_ns = 0
+
+    @property
+    def capacity(self) -> int:
+        return self._mask + 1
+
+    def add(self, ns: int) -> None:
+        self._buf[self.count & self._mask] = ns
+        self.count += 1
+        if ns > self.max_ns:
+            self.max_ns = ns
+
+    def values(self, since: int = 0) -> list[int]:
+        """Samples added since the ``since``-th (at most the ring's capacity, oldest lost)."""
+        start = max(since, self.count - self.capacity, 0)
+        return [self._buf[i & self._mask] for i in range(start, self.count)]
+
+    @staticmethod
+    def summary_us(values: Sequence[int]) -> dict[str, float]:
+        """``{"n", "p50_us", "p99_us", "max_us"}`` (nearest-rank percentiles)."""
+        if not values:
+            return {"n": 0, "p50_us": math.nan, "p99_us": math.nan, "max_us": math.nan}
+        s = sorted(values)
+        n = len(s)
+
+        def pct(p: float) -> float:
+            return s[min(n - 1, max(0, math.ceil(p / 100.0 * n) - 1))] / 1000.0
+
+        return {"n": n, "p50_us": pct(50), "p99_us": pct(99), "max_us": s[-1] / 1000.0}
+
+
+def _frame_msgid(frame: bytes) -> int:
+    """The message id of a MAVLink 1/2 frame (−1 if it is neither)."""
+    if len(frame) > 9 and frame[0] == 0xFD:
+        return frame[7] | frame[8] << 8 | frame[9] << 16
+    if len(frame) > 5 and frame[0] == 0xFE:
+        return frame[5]
+    return -1
+
+
+def _status_dict(status: Any) -> dict[str, Any]:
+    if status is None:
+        return {}
+    if is_dataclass(status) and not isinstance(status, type):
+        return asdict(status)
+    if isinstance(status, dict):
+        return dict(status)
+    return {k: v for k, v in vars(status).items() if not k.startswith("_")}
+
+
+def _num(value: Any, fmt: str) -> str:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return "-"
+    return "-" if not math.isfinite(v) else format(v, fmt)
+
+
+def format_status(fields: dict[str, Any], pipeline_line: str = "") -> str:
+    """The one-line status text: the pipeline's line, then the link and loop fields."""
+    parts = [pipeline_line] if pipeline_line else [
+        f"in {_num(fields.get('in_hz'), '.0f')} Hz -> out {_num(fields.get('out_hz'), '.0f')} Hz"
+    ]
+    parts.append(f"crc {fields.get('crc_errors', 0)} bad {fields.get('bad_data', 0)} gaps {fields.get('seq_gaps', 0)}")
+    if fields.get("link_drops"):
+        parts.append(f"link drops {fields['link_drops']}")
+    parts.append(
+        f"latency p50 {_num(fields.get('latency_p50_us'), '.0f')} p99 {_num(fields.get('latency_p99_us'), '.0f')} us"
+    )
+    if fields.get("log") not in (None, "ok", "off"):
+        parts.append(f"log {fields['log']}")
+    if fields.get("link"):
+        parts.append(str(fields["link"]))
+    return " | ".join(parts)
+
+
+class Daemon:
+    """The service loop around an already built pipeline and already open links.
+
+    Args:
+        settings: :class:`DaemonSettings` (links are opened by :func:`build_daemon`).
+        pipeline: object with ``handle(msg, now_us)``, ``tick(now_us)`` (lists of
+            ``Outgoing``), ``status()`` and ``drain_notices()``.
+        master: the autopilot link.
+        outputs: the output links.
+        codec: the decoding codec of the master link (a new ``MavCodec`` if None).
+        sink: a :class:`~mavahrs.service.sinks.TlogSink` or None.
+        logger: where status lines and notices go.
+    """
+
+    def __init__(
+        self,
+        settings: DaemonSettings,
+        pipeline: Any,
+        master: Any,
+        outputs: Sequence[Any] = (),
+        *,
+        codec: Any = None,
+        sink: Any = None,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        from mavahrs.protocol.codec import MavCodec, mavlink
+
+        if codec is None:
+            codec = MavCodec()
+        self._heartbeat_type = mavlink.MAVLink_heartbeat_message
+        self.settings = settings
+        self.pipeline = pipeline
+        self.master = master
+        self.outputs = list(outputs)
+        self.codec = codec
+        self.sink = sink
+        self.log = logger or logging.getLogger("mavahrs.daemon")
+        self.counters = DaemonCounters()
+        self.latency = LatencyRing(settings.latency_ring)
+        self._notices = Notices(repeat_s=60.0)
+        self._inbox: deque[tuple[int, bytes]] = deque(maxlen=settings.input_queue)
+        self._stop_reason: str | None = None
+        self._signal_name: str | None = None
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._selector: selectors.BaseSelector | None = None
+        self._registered: dict[int, tuple[int, ...]] = {}
+        self._started_s = 0.0
+        self._first_input_s: float | None = None
+        self._cpu_at_first_input: float | None = None
+        self._last_heartbeat_s: float | None = None
+        self._heartbeats = 0
+        self._link_silent = False
+        self._last_status_s = 0.0
+        self._status_latency_count = 0  # latency samples at the previous status line
+        self._status_line = ""
+        self._master_reconnects = 0
+        self.last_status: dict[str, Any] = {}
+        self._decode: Callable[[bytes], list[Any]] = (
+            codec.receive_datagram if master.datagram else codec.receive_stream
+        )
+        self._closed = False
+
+    # ------------------------------------------------------------------ control
+    def stop(self, reason: str = "stopped") -> None:
+        """End the loop soon (thread-safe and signal-safe)."""
+        if self._stop_reason is None:
+            self._stop_reason = reason
+        try:
+            self._wake_w.send(b"\0")
+        except OSError:
+            pass
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self._signal_name = signal.Signals(signum).name
+        self.stop("signal")
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, out: Any, wall_us: int, now_s: float) -> bool:
+        """Send one pipeline ``Outgoing``; True when it was an attitude sent to the outputs."""
+        frame = out.frame
+        c = self.counters
+        if out.to_master:
+            self.master.write(frame)
+            c.frames_to_master += 1
+        attitude = False
+        if out.to_outputs and self.outputs:
+            for link in self.outputs:
+                link.write(frame)
+            c.frames_to_outputs += 1
+            if _frame_msgid(frame) == _MSG_ID_ATTITUDE_QUATERNION:
+                c.attitudes_out += 1
+                attitude = True
+        if self.sink is not None:
+            self.sink.write(wall_us, frame, now_s)
+        return attitude
+
+    # ------------------------------------------------------------------ receiving
+    def _read_master(self) -> None:
+        master, inbox, c = self.master, self._inbox, self.counters
+        perf = time.perf_counter_ns
+        maxlen = self.settings.input_queue
+        for _ in range(self.settings.max_drain):
+            data = master.read(0.0)
+            if not data:
+                break
+            if len(inbox) == maxlen:
+                c.input_dropped += 1  # the deque drops the oldest on append
+            inbox.append((perf(), data))
+        if inbox:
+            self._process_inbox()
+
+    def _process_inbox(self) -> None:
+        inbox, c, handle, decode = self._inbox, self.counters, self.pipeline.handle, self._decode
+        sink = self.sink
+        perf = time.perf_counter_ns
+        hb_type = self._heartbeat_type
+        while inbox:
+            t_rx_ns, data = inbox.popleft()
+            c.datagrams_in += 1
+            msgs = decode(data)
+            if not msgs:
+                continue
+            now_s = time.monotonic()
+            now_us = int(now_s * 1e6)
+            wall_us = time.time_ns() // 1000
+            if self._first_input_s is None:
+                self._first_input_s = now_s
+                self._cpu_at_first_input = _cpu_s()
+            attitude = False
+            for msg in msgs:
+                c.messages_in += 1
+                if sink is not None:
+                    sink.write(wall_us, msg.get_msgbuf(), now_s)
+                if type(msg) is hb_type and msg.autopilot != _MAV_AUTOPILOT_INVALID:
+                    self._on_heartbeat(now_s)
+                try:
+                    outgoing = handle(msg, now_us)
+                except Exception as exc:  # noqa: BLE001 - one bad message must not stop the service
+                    c.pipeline_errors += 1
+                    self._notices.warning(
+                        f"pipeline:{type(exc).__name__}",
+                        f"could not process {msg.get_type()}: {exc}",
+                        now_us,
+                    )
+                    continue
+                for out in outgoing:
+                    if self._send(out, wall_us, now_s):
+                        attitude = True
+            if attitude:
+                self.latency.add(perf() - t_rx_ns)
+
+    def _drain_output(self, link: Any) -> None:
+        for _ in range(self.settings.max_drain):
+            if not link.read(0.0):
+                break
+            self.counters.output_reads_ignored += 1
+
+    def _on_heartbeat(self, now_s: float) -> None:
+        self._heartbeats += 1
+        if self._last_heartbeat_s is None:
+            self.log.info("autopilot heartbeat received on %s", self.master.describe())
+        elif self._link_silent:
+            self.log.info(
+                "autopilot heartbeat back on %s after %.1f s of silence",
+                self.master.describe(),
+                now_s - self._last_heartbeat_s,
+            )
+        self._link_silent = False
+        self._last_heartbeat_s = now_s
+
+    # ------------------------------------------------------------------ selector
+    def _sync_registrations(self) -> None:
+        sel = self._selector
+        assert sel is not None
+        for link in (self.master, *self.outputs):
+            key = id(link)
+            fds = tuple(link.filenos())
+            old = self._registered.get(key, ())
+            if fds == old:
+                continue
+            for fd in old:
+                if fd not in fds:
+                    try:
+                        sel.unregister(fd)
+                    except (KeyError, ValueError, OSError):
+                        pass
+            for fd in fds:
+                if fd not in old:
+                    try:
+                        sel.register(fd, selectors.EVENT_READ, link)
+                    except KeyError:  # a reused descriptor number still registered: replace
+                        sel.unregister(fd)
+                        sel.register(fd, selectors.EVENT_READ, link)
+            self._registered[key] = fds
+
+    # ------------------------------------------------------------------ timer
+    def _tick(self, now_s: float) -> None:
+        now_us = int(now_s * 1e6)
+        wall_us = time.time_ns() // 1000
+        try:
+            outgoing = self.pipeline.tick(now_us)
+        except Exception as exc:  # noqa: BLE001
+            self.counters.pipeline_errors += 1
+            self._notices.warning(f"tick:{type(exc).__name__}", f"pipeline timer failed: {exc}", now_us)
+            outgoing = ()
+        for out in outgoing:
+            self._send(out, wall_us, now_s)
+        for link in (self.master, *self.outputs):
+            link.maintain(now_s)
+        if self.master.counters.reconnects != self._master_reconnects:
+            self._master_reconnects = self.master.counters.reconnects
+            reset = getattr(self.pipeline, "reset_link", None)
+            if reset is not None:
+                reset(now_us)
+        self._sync_registrations()
+        if self.sink is not None:
+            self.sink.tick(now_s)
+        for level, message in self.pipeline.drain_notices():
+            self.log.log(level, "%s", message)
+        for level, message in self._notices.drain():
+            self.log.log(level, "%s", message)
+        self._watchdog(now_s)
+        s = self.settings
+        if s.status_interval_s and now_s - self._last_status_s >= s.status_interval_s:
+            self._last_status_s = now_s
+            self.last_status = self.status_fields(now_s)
+            self.log.info(
+                "%s", format_status(self.last_status, self._status_line), extra={"status": _jsonable(self.last_status)}
+            )
+        if s.duration_s is not None and now_s - self._started_s >= s.duration_s:
+            self.stop("duration")
+
+    def _watchdog(self, now_s: float) -> None:
+        timeout = self.settings.heartbeat_timeout_s
+        if not timeout:
+            return
+        if self._last_heartbeat_s is None:
+            if now_s - self._started_s >= timeout:
+                raise TransportError(self._no_heartbeat_message(timeout))
+            return
+        silent_s = now_s - self._last_heartbeat_s
+        if silent_s >= timeout and not self._link_silent:
+            self._link_silent = True
+            self.log.warning(
+                "no heartbeat from the autopilot for %.0f s on %s; still listening", silent_s, self.master.describe()
+            )
+
+    def _no_heartbeat_message(self, timeout: float) -> str:
+        m = self.master
+        kind = getattr(getattr(m, "endpoint", None), "kind", "")
+        bytes_in = m.counters.bytes_in
+        cc = self.codec.counters
+        where = m.describe()
+        if bytes_in == 0:
+            hint = {
+                "udpin": "nothing received: is the autopilot or router sending to this address and port?",
+                "udpout": "nothing received: is something listening there and answering?",
+                "tcp": "nothing received",
+                "tcpin": "no client connected and sent data",
+                "serial": "nothing received: check the wiring and that this port runs MAVLink "
+                "(ArduPilot SERIALn_PROTOCOL = 2)",
+            }.get(kind, "nothing received")
+        elif cc.packets == 0:
+            hint = (
+                f"{bytes_in} bytes received but no valid MAVLink frame"
+                + (": wrong baud rate?" if kind == "serial" else ": is this a MAVLink stream?")
+            )
+        else:
+            hint = f"{cc.packets} MAVLink messages received but none was an autopilot HEARTBEAT"
+        return f"no heartbeat from {where} within {timeout:g} s ({hint})"
+
+    # ------------------------------------------------------------------ reporting
+    def status_fields(self, now_s: float | None = None) -> dict[str, Any]:
+        """The status-line fields (also logged as JSON with ``--log-format json``).
+
+        Rates, gain, accelerometer/magnetometer weights and rejection, bias and
+        the IMU in use come from the pipeline; decoder counters (CRC errors,
+        bad data, sequence gaps), the loop's drops and the processing latency
+        (since the previous status) from here.
+        """
+        now_s = time.monotonic() if now_s is None else now_s
+        status = self.pipeline.status(int(now_s * 1e6))
+        p = _status_dict(status)
+        cc = self.codec.counters
+        latency = LatencyRing.summary_us(self.latency.values(self._status_latency_count))
+        self._status_latency_count = self.latency.count
+        link_drops = self.counters.input_dropped + sum(
+            link.counters.writes_dropped for link in (self.master, *self.outputs)
+        )
+        drops = p.get("drops") or {}
+        fields: dict[str, Any] = {
+            "in_hz": p.get("input_rate_hz"),
+            "filter_hz": p.get("filter_rate_hz"),
+            "out_hz": p.get("output_rate_hz"),
+            "drops": (sum(drops.values()) if isinstance(drops, dict) else 0) + link_drops,
+            "drops_by_reason": dict(drops) if isinstance(drops, dict) else {},
+            "link_drops": link_drops,
+            "imu": p.get("imu_in_use"),
+            "imu_reason": p.get("imu_reason"),
+            "gain": p.get("gain"),
+            "accel_weight": p.get("accel_weight"),
+            "mag_weight": p.get("mag_weight"),
+            "accel_rejected": p.get("accel_rejected"),
+            "mag_rejected": p.get("mag_rejected"),
+            "bias_deg_s": list(p["bias_deg_s"]) if p.get("bias_deg_s") is not None else None,
+            "heading_reference": p.get("heading_reference"),
+            "connected": p.get("connected"),
+            "crc_errors": cc.crc_errors,
+            "bad_data": cc.bad_data,
+            "seq_gaps": cc.seq_gaps,
+            "latency_p50_us": latency["p50_us"],
+            "latency_p99_us": latency["p99_us"],
+            "latency_max_us": latency["max_us"],
+            "log": "off" if self.sink is None else self.sink.state,
+        }
+        if self._link_silent:
+            fields["link"] = "no heartbeat"
+        self._status_line = status.line() if hasattr(status, "line") else ""
+        return fields
+
+    def stats(self) -> dict[str, Any]:
+        """Totals for the whole run (written to ``stats_path``; used by bench_live.py)."""
+        now = time.monotonic()
+        cpu_now = _cpu_s()
+        cc = self.codec.counters
+        msgs = self.counters.datagrams_in
+        busy_s = now - self._first_input_s if self._first_input_s is not None else 0.0
+        cpu_s = cpu_now - self._cpu_at_first_input if self._cpu_at_first_input is not None else 0.0
+        return {
+            "run_s": now - self._started_s if self._started_s else 0.0,
+            "input_s": busy_s,
+            "cpu_s_since_first_input": cpu_s,
+            "cpu_us_per_datagram": cpu_s * 1e6 / msgs if msgs else math.nan,
+            "counters": asdict(self.counters),
+            "codec": {
+                "packets": cc.packets,
+                "crc_errors": cc.crc_errors,
+                "bad_data": cc.bad_data,
+                "seq_gaps": cc.seq_gaps,
+                "bytes_in": cc.bytes_in,
+            },
+            "links": {link.describe(): asdict(link.counters) for link in (self.master, *self.outputs)},
+            "latency": {**LatencyRing.summary_us(self.latency.values()), "count": self.latency.count,
+                        "max_ever_us": self.latency.max_ns / 1000.0},
+            "latency_ns": self.latency.values(),
+            "heartbeats": self._heartbeats,
+            "log": None if self.sink is None else {
+                "path": self.sink.path, "frames": self.sink.frames, "state": self.sink.state,
+                "frames_lost": self.sink.frames_lost,
+            },
+            "pipeline": _jsonable(_status_dict(self.pipeline.status(int(now * 1e6)))),
+        }
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> DaemonResult:
+        """Run until stopped; see the module docstring.
+
+        Raises:
+            TransportError: no autopilot heartbeat within ``heartbeat_timeout_s``.
+        """
+        s = self.settings
+        in_main = threading.current_thread() is threading.main_thread()
+        old_handlers: dict[int, Any] = {}
+        if in_main:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                old_handlers[sig] = signal.signal(sig, self._on_signal)
+        sel = self._selector = selectors.DefaultSelector()
+        sel.register(self._wake_r.fileno(), selectors.EVENT_READ, None)
+        self._sync_registrations()
+        period = 1.0 / s.tick_hz
+        self._started_s = time.monotonic()
+        self._last_status_s = self._started_s
+        self.log.info(
+            "mavahrs running: master %s; outputs %s; log %s",
+            self.master.describe(),
+            ", ".join(o.describe() for o in self.outputs) or "none",
+            self.sink.path if self.sink is not None else "off",
+        )
+        next_tick = self._started_s
+        master = self.master
+        try:
+            while self._stop_reason is None:
+                timeout = next_tick - time.monotonic()
+                events = sel.select(timeout if timeout > 0 else 0)
+                for key, _ in events:
+                    link = key.data
+                    if link is master:
+                        self._read_master()
+                    elif link is None:
+                        try:
+                            while self._wake_r.recv(64):
+                                pass
+                        except (BlockingIOError, InterruptedError):
+                            pass
+                    else:
+                        self._drain_output(link)
+                        if link.filenos() != self._registered.get(id(link)):
+                            self._sync_registrations()
+                    if link is master and master.filenos() != self._registered.get(id(master)):
+                        self._sync_registrations()
+                now = time.monotonic()
+                if now >= next_tick:
+                    self._tick(now)
+                    next_tick += period
+                    if next_tick < now:  # fell behind (suspend, overload): don't burst
+                        next_tick = now + period
+        finally:
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+            result_reason = self._stop_reason or "error"
+            stats = self.stats()
+            self.close()
+        run_s = stats["run_s"]
+        self.log.info(
+            "mavahrs stopped (%s) after %.1f s: %d messages in, %d attitudes out, %d dropped, log %s",
+            self._signal_name or result_reason,
+            run_s,
+            self.counters.messages_in,
+            self.counters.attitudes_out,
+            self.counters.input_dropped,
+            "off" if self.sink is None else f"{self.sink.frames} frames ({self.sink.state})",
+        )
+        if s.stats_path:
+            try:
+                with open(s.stats_path, "w", encoding="utf-8") as f:
+                    json.dump(_jsonable(stats), f)
+            except OSError as exc:
+                self.log.error("cannot write statistics to %s: %s", s.stats_path, exc.strerror or exc)
+        return DaemonResult(reason=result_reason, signal_name=self._signal_name, run_s=run_s, stats=stats)
+
+    def close(self) -> None:
+        """Flush and close the log, close the links (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.sink is not None:
+            self.sink.close()
+        for link in (self.master, *self.outputs):
+            try:
+                link.close()
+            except OSError:
+                pass
+        if self._selector is not None:
+            self._selector.close()
+        self._wake_r.close()
+        self._wake_w.close()
+
+
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, (int, str, bool)) or value is None:
+        return value
+    if hasattr(value, "tolist"):
+        return _jsonable(value.tolist())
+    return str(value)
+
+
+def build_daemon(
+    settings: DaemonSettings,
+    pipeline_settings: Any = None,
+    filter_settings: Any = None,
+    *,
+    pipeline: Any = None,
+    logger: logging.Logger | None = None,
+) -> Daemon:
+    """Open the links and the log and build the pipeline: a :class:`Daemon` ready to ``run()``.
+
+    Raises:
+        ConfigError: a connection string or the log path is unusable.
+        TransportError: a link cannot be opened (port busy, permission denied, …).
+    """
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.service.sinks import TlogSink
+    from mavahrs.transports import open_transport, parse_connection_string
+
+    master_ep = parse_connection_string(settings.master, settings.baud)
+    output_eps = [parse_connection_string(text, settings.baud) for text in settings.outputs]
+    if pipeline is None:
+        from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+        pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings)
+    opened: list[Any] = []
+    sink = None
+    try:
+        common = dict(
+            reconnect_interval_s=settings.reconnect_interval_s,
+            queue_bytes=settings.output_queue_bytes,
+            max_clients=settings.max_tcp_clients,
+        )
+        master = open_transport(master_ep, **common)
+        opened.append(master)
+        for ep in output_eps:
+            if ep.kind == "serial" and master_ep.kind == "serial" and ep.device == master_ep.device:
+                raise ConfigError(f"output {ep.text} is the master device")
+            opened.append(open_transport(ep, **common))
+        if settings.log_path:
+            sink = TlogSink(settings.log_path, settings.log_flush_interval_s)
+    except BaseException:
+        for link in opened:
+            link.close()
+        raise
+    # A decoding codec for the master link (the pipeline encodes with its own ids).
+    return Daemon(settings, pipeline, opened[0], opened[1:], codec=MavCodec(), sink=sink, logger=logger)
+

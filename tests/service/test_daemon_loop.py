@@ -1,0 +1,266 @@
+"""The daemon loop over real UDP sockets, with a small stand-in pipeline (fast, deterministic).
+
+The end-to-end behaviour with the real Pipeline and firmware_sim is in
+test_daemon_e2e.py; here the loop's own duties are checked: routing (master ↔
+outputs), bounded input under a flood, the no-heartbeat exit, silence
+reporting, per-message error containment, stop/duration, latency recording.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from typing import Any, NamedTuple
+
+import pytest
+
+from mavahrs.errors import TransportError
+from mavahrs.protocol.codec import MavCodec, mavlink
+from mavahrs.service.daemon import Daemon, DaemonSettings, LatencyRing
+from mavahrs.transports import open_transport
+
+
+class Out(NamedTuple):
+    frame: bytes
+    to_master: bool
+    to_outputs: bool
+
+
+class FakePipeline:
+    """RAW_IMU → one ATTITUDE_QUATERNION to the outputs; tick → HEARTBEAT to master and outputs."""
+
+    def __init__(self, fail_on: int | None = None) -> None:
+        self.codec = MavCodec(1, 191)
+        self.handled = 0
+        self.ticks = 0
+        self.fail_on = fail_on
+        self.resets = 0
+
+    def handle(self, msg: Any, now_us: int) -> list[Out]:
+        self.handled += 1
+        if self.fail_on is not None and self.handled == self.fail_on:
+            raise RuntimeError("boom")
+        if msg.get_type() != "RAW_IMU":
+            return []
+        q = self.codec.mav.attitude_quaternion_encode(msg.time_usec // 1000, 1, 0, 0, 0, 0, 0, 0, [0, 0, 0, 0])
+        return [Out(self.codec.encode(q), False, True)]
+
+    def tick(self, now_us: int) -> list[Out]:
+        self.ticks += 1
+        if self.ticks % 20:
+            return []
+        hb = self.codec.mav.heartbeat_encode(18, 8, 0, 0, 4)
+        return [Out(self.codec.encode(hb), True, True)]
+
+    def status(self, now_us: int | None = None) -> dict[str, Any]:
+        return {"input_rate_hz": 0.0, "drops": {}}
+
+    def drain_notices(self) -> list[tuple[int, str]]:
+        return []
+
+    def reset_link(self, now_us: int) -> None:
+        self.resets += 1
+
+
+class Autopilot:
+    """A UDP socket playing the autopilot: heartbeats and RAW_IMU to the daemon's udpin."""
+
+    def __init__(self, port: int) -> None:
+        self.codec = MavCodec(1, 1)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.settimeout(0.05)
+        self.addr = ("127.0.0.1", port)
+        self.t_us = 0
+
+    def heartbeat(self) -> None:
+        self.sock.sendto(self.codec.encode(self.codec.mav.heartbeat_encode(2, 3, 0, 0, 4)), self.addr)
+
+    def imu(self, n: int = 1) -> None:
+        for _ in range(n):
+            self.t_us += 2500
+            m = self.codec.mav.raw_imu_encode(self.t_us, 0, 0, -1000, 0, 0, 0, 200, 0, 400, 0, 0)
+            self.sock.sendto(self.codec.encode(m), self.addr)
+
+    def received(self) -> list[Any]:
+        dec = MavCodec()
+        out = []
+        while True:
+            try:
+                out += dec.receive_datagram(self.sock.recv(4096))
+            except (TimeoutError, socket.timeout):
+                return out
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def gcs():
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.settimeout(0.05)
+    yield s
+    s.close()
+
+
+def _daemon(gcs: socket.socket | None, pipeline: Any = None, **kw: Any) -> Daemon:
+    settings = DaemonSettings(
+        master="udpin:127.0.0.1:0",
+        outputs=(f"udpout:127.0.0.1:{gcs.getsockname()[1]}",) if gcs else (),
+        status_interval_s=0.0,
+        **kw,
+    )
+    master = open_transport(settings.master)
+    outputs = [open_transport(o) for o in settings.outputs]
+    return Daemon(settings, pipeline or FakePipeline(), master, outputs)
+
+
+def _start(d: Daemon) -> tuple[threading.Thread, dict[str, Any]]:
+    box: dict[str, Any] = {}
+
+    def target() -> None:
+        try:
+            box["result"] = d.run()
+        except Exception as exc:  # noqa: BLE001
+            box["error"] = exc
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    return t, box
+
+
+def _drain(sock: socket.socket, seconds: float) -> list[Any]:
+    dec = MavCodec()
+    out: list[Any] = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            out += dec.receive_datagram(sock.recv(4096))
+        except (TimeoutError, socket.timeout):
+            pass
+    return out
+
+
+def test_attitude_goes_to_outputs_and_heartbeats_to_both(gcs: socket.socket) -> None:
+    d = _daemon(gcs)
+    ap = Autopilot(d.master.local_address[1])
+    thread, box = _start(d)
+    try:
+        ap.heartbeat()
+        for _ in range(40):
+            ap.imu(5)
+            time.sleep(0.01)
+        got = _drain(gcs, 1.2)
+        to_ap = ap.received()
+    finally:
+        d.stop()
+        thread.join(5)
+        ap.close()
+    assert box["result"].reason == "stopped"
+    types = [m.get_type() for m in got]
+    assert types.count("ATTITUDE_QUATERNION") == 200  # one per sample, none lost on loopback
+    assert "HEARTBEAT" in types and "HEARTBEAT" in [m.get_type() for m in to_ap]
+    assert "ATTITUDE_QUATERNION" not in [m.get_type() for m in to_ap]  # to_master=False honoured
+    assert d.counters.attitudes_out == 200 and d.latency.count == 200
+    stats = box["result"].stats
+    assert stats["latency"]["n"] == 200 and stats["latency"]["p50_us"] > 0
+    assert stats["heartbeats"] == 1
+
+
+def test_a_flood_is_bounded_and_drops_the_oldest(gcs: socket.socket) -> None:
+    d = _daemon(gcs, input_queue=64, max_drain=1024)
+    ap = Autopilot(d.master.local_address[1])
+    try:
+        ap.heartbeat()
+        ap.imu(200)  # three times what the queue holds, all waiting in the socket buffer
+        time.sleep(0.2)
+        d._read_master()  # noqa: SLF001 - one wake-up of the loop
+        assert d.master.counters.reads == 201
+        assert d.counters.input_dropped == 201 - 64
+        assert d.counters.datagrams_in == 64
+        got = [m for m in _drain(gcs, 0.3) if m.get_type() == "ATTITUDE_QUATERNION"]
+        # the newest samples survived: the last one sent is the last one answered
+        assert got[-1].time_boot_ms == ap.t_us // 1000
+        assert len(got) == 64
+    finally:
+        d.close()
+        ap.close()
+
+
+def test_no_heartbeat_is_a_transport_error_saying_what_arrived(gcs: socket.socket) -> None:
+    d = _daemon(gcs, heartbeat_timeout_s=0.3)
+    with pytest.raises(TransportError) as info:
+        d.run()
+    assert "no heartbeat from udpin:127.0.0.1:0 within 0.3 s (nothing received" in str(info.value)
+
+    d = _daemon(gcs, heartbeat_timeout_s=0.5)
+    port = d.master.local_address[1]
+    junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    thread, box = _start(d)
+    try:
+        for _ in range(5):
+            junk.sendto(b"\x01\x02 this is not mavlink", ("127.0.0.1", port))
+            time.sleep(0.02)
+        thread.join(5)
+    finally:
+        junk.close()
+    assert isinstance(box.get("error"), TransportError)
+    assert "bytes received but no valid MAVLink frame" in str(box["error"])
+
+
+def test_silence_after_heartbeats_is_reported_not_fatal(gcs: socket.socket, caplog: pytest.LogCaptureFixture) -> None:
+    d = _daemon(gcs, heartbeat_timeout_s=0.3)
+    ap = Autopilot(d.master.local_address[1])
+    caplog.set_level(logging.INFO, logger="mavahrs.daemon")
+    thread, box = _start(d)
+    try:
+        ap.heartbeat()
+        time.sleep(0.8)  # silence longer than the timeout
+        assert thread.is_alive()
+        ap.heartbeat()
+        time.sleep(0.2)
+    finally:
+        d.stop()
+        thread.join(5)
+        ap.close()
+    assert box["result"].reason == "stopped"
+    text = caplog.text
+    assert "no heartbeat from the autopilot" in text and "still listening" in text
+    assert "heartbeat back" in text
+
+
+def test_an_exception_in_the_pipeline_is_counted_and_the_loop_goes_on(gcs: socket.socket) -> None:
+    pipeline = FakePipeline(fail_on=3)
+    d = _daemon(gcs, pipeline=pipeline)
+    ap = Autopilot(d.master.local_address[1])
+    thread, box = _start(d)
+    try:
+        ap.heartbeat()
+        ap.imu(10)
+        got = _drain(gcs, 0.6)
+    finally:
+        d.stop()
+        thread.join(5)
+        ap.close()
+    assert d.counters.pipeline_errors == 1
+    assert [m.get_type() for m in got].count("ATTITUDE_QUATERNION") == 9
+
+
+def test_duration_ends_the_run() -> None:
+    d = _daemon(None, duration_s=0.3, heartbeat_timeout_s=0.0)
+    result = d.run()
+    assert result.reason == "duration" and 0.25 <= result.run_s < 3.0
+
+
+def test_latency_ring_percentiles_and_wrap() -> None:
+    ring = LatencyRing(5)  # rounded up to 8
+    assert ring.capacity == 8
+    for v in range(1, 21):
+        ring.add(v * 1000)
+    assert ring.values() == [v * 1000 for v in range(13, 21)]  # the last 8
+    assert ring.values(since=18) == [19000, 20000]
+    s = LatencyRing.summary_us(list(range(1, 101)))
+    assert (s["n"], s["p50_us"], s["p99_us"], s["max_us"]) == (100, 0.05, 0.099, 0.1)
+    assert ring.max_ns == 20000
