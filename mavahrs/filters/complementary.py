@@ -76,7 +76,8 @@ _GNSS_COMP = 5
 _VDOT_TAU = 6
 _VEL_MAX_AGE = 7
 _ACCEL_TAU = 8
-_REST = 9
+_ERR_LIMIT = 9
+_REST = 10
 _N_PARAMS = _REST + RP_LEN
 
 # filter state, offsets from S_FILTER
@@ -116,6 +117,9 @@ class ComplementarySettings(FilterSettings):
             corrective rotation of the step).  0 = no bias integral.
         spin_freeze_rad_s: the bias integral pauses above this rate.  0 = never.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
+        integral_error_limit_rad: the tilt and heading errors whose corrections
+            feed the bias integral are clipped to this angle (anti-windup).
+            0 = off.
         gnss_acceleration: use f − Cᵀv̇ when a GNSS velocity is given.
         velocity_tau_s: low-pass time constant of v̇, s.
         velocity_max_age_s: a velocity older than this breaks the v̇ chain, s.
@@ -129,6 +133,7 @@ class ComplementarySettings(FilterSettings):
     bias_gain: float = 0.02
     spin_freeze_rad_s: float = math.radians(20.0)
     bias_limit_rad_s: float = math.radians(5.0)
+    integral_error_limit_rad: float = math.radians(2.0)
     gnss_acceleration: bool = True
     velocity_tau_s: float = 0.2
     velocity_max_age_s: float = 1.0
@@ -146,6 +151,7 @@ class ComplementarySettings(FilterSettings):
             "bias_gain",
             "spin_freeze_rad_s",
             "bias_limit_rad_s",
+            "integral_error_limit_rad",
             "velocity_tau_s",
             "accel_lowpass_s",
         ):
@@ -262,37 +268,50 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         s0, s1, s2, s3 = -s0, -s1, -s2, -s3
 
     # eq. (29) per channel, α = 1 − exp(−dt/τ), boosted at start-up, weighted by trust
+    elim = params[p + _ERR_LIMIT]
     c0, c1, c2, c3 = 1.0, 0.0, 0.0, 0.0
     gain = 0.0
+    bn = be = bd = 0.0  # bias integrand: the corrections with clipped errors (anti-windup)
     if use_tilt:
         alpha = min(1.0, (1.0 - math.exp(-dt / params[p + _TAU_TILT])) * boost)
         gain = alpha * w_a
         c0, c1, c2, c3 = _blend_with_identity(s0, s1, s2, s3, gain)
+        sv = math.sqrt(c1 * c1 + c2 * c2)
+        if sv > 0.0:
+            ang = 2.0 * math.atan2(sv, c0)
+            err = 2.0 * math.atan2(math.sqrt(s1 * s1 + s2 * s2), s0)
+            if elim > 0.0 and err > elim:
+                ang *= elim / err
+            bn, be = c1 / sv * ang, c2 / sv * ang
     if use_heading:
         alpha_m = min(1.0, (1.0 - math.exp(-dt / params[p + _TAU_HEADING])) * boost)
         h0, h1, h2, h3 = _blend_with_identity(t0, 0.0, 0.0, t3, alpha_m * w_m)
+        ang = 2.0 * math.atan2(h3, h0)
+        err = abs(2.0 * math.atan2(t3, t0))
+        if elim > 0.0 and err > elim:
+            ang *= elim / err
+        bd = ang
         c0, c1, c2, c3 = quat_multiply(h0, h1, h2, h3, c0, c1, c2, c3)
 
     # q = Δ_c ⊗ q_ω
     n0, n1, n2_, n3 = quat_multiply(c0, c1, c2, c3, q0, q1, q2, q3)
     state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = n0, n1, n2_, n3
 
-    # corrective rotation vector (NED) — turns f̄_NED and feeds the bias integral
+    # the corrective rotation (NED) also turns f̄_NED
     sv = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
     if sv > 0.0:
         ang = 2.0 * math.atan2(sv, c0)
-        rn, re, rd = c1 / sv * ang, c2 / sv * ang, c3 / sv * ang
-        nav_lowpass_rotate(state, S_FILTER + _LP, rn, re, rd)
-        spin = math.sqrt(gx * gx + gy * gy + gz * gz)
-        freeze = params[p + _SPIN_FREEZE]
-        kb = params[p + _KB]
-        if kb > 0.0 and boost <= 1.0 and not at_rest and (freeze <= 0.0 or spin < freeze):
-            bx, by, bz = ned_to_body(q0, q1, q2, q3, rn, re, rd)
-            lim = params[p + _BIAS_LIMIT]
-            # b̂̇ = −k·Cᵀρ: in the steady state the correction ρ cancels the drift C(b − b̂)
-            state[S_BIAS] = min(max(state[S_BIAS] - kb * bx, -lim), lim)
-            state[S_BIAS + 1] = min(max(state[S_BIAS + 1] - kb * by, -lim), lim)
-            state[S_BIAS + 2] = min(max(state[S_BIAS + 2] - kb * bz, -lim), lim)
+        nav_lowpass_rotate(state, S_FILTER + _LP, c1 / sv * ang, c2 / sv * ang, c3 / sv * ang)
+    spin = math.sqrt(gx * gx + gy * gy + gz * gz)
+    freeze = params[p + _SPIN_FREEZE]
+    kb = params[p + _KB]
+    if kb > 0.0 and boost <= 1.0 and not at_rest and (freeze <= 0.0 or spin < freeze):
+        bx, by, bz = ned_to_body(q0, q1, q2, q3, bn, be, bd)
+        lim = params[p + _BIAS_LIMIT]
+        # b̂̇ = −k·Cᵀρ: in the steady state the correction ρ cancels the drift C(b − b̂)
+        state[S_BIAS] = min(max(state[S_BIAS] - kb * bx, -lim), lim)
+        state[S_BIAS + 1] = min(max(state[S_BIAS + 1] - kb * by, -lim), lim)
+        state[S_BIAS + 2] = min(max(state[S_BIAS + 2] - kb * bz, -lim), lim)
     finish_step(state, out, gain, w_a, w_m)
 
 
@@ -312,6 +331,7 @@ class Complementary(AttitudeFilter):
         p[_KB] = settings.bias_gain
         p[_SPIN_FREEZE] = settings.spin_freeze_rad_s
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
+        p[_ERR_LIMIT] = settings.integral_error_limit_rad
         p[_GNSS_COMP] = 1.0 if settings.gnss_acceleration else 0.0
         p[_VDOT_TAU] = settings.velocity_tau_s
         p[_VEL_MAX_AGE] = settings.velocity_max_age_s

@@ -80,7 +80,8 @@ _GNSS_COMP = 7
 _VDOT_TAU = 8
 _VEL_MAX_AGE = 9
 _ACCEL_TAU = 10
-_REST = 11
+_ERR_LIMIT = 11
+_REST = 12
 _N_PARAMS = _REST + RP_LEN
 
 # filter state, offsets from S_FILTER
@@ -118,6 +119,8 @@ class GyroPlatformSettings(FilterSettings):
         spin_freeze_rad_s: the bias estimate pauses above this body rate.
             0 = never.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
+        integral_error_limit_rad: the levelling and heading errors fed to the
+            bias estimate are clipped to this magnitude (anti-windup).  0 = off.
         gnss_acceleration: level on f − v̇ when a GNSS velocity is given.
         velocity_tau_s: low-pass time constant of v̇, s.
         velocity_max_age_s: a velocity older than this breaks the v̇ chain, s.
@@ -130,10 +133,11 @@ class GyroPlatformSettings(FilterSettings):
     level_gain: float = 0.5
     heading_gain: float = 0.5
     level_bias_gain: float = 0.02
-    heading_bias_gain: float = 0.002
+    heading_bias_gain: float = 0.02
     turn_rate_limit_rad_s: float = 0.0
     spin_freeze_rad_s: float = math.radians(20.0)
     bias_limit_rad_s: float = math.radians(5.0)
+    integral_error_limit_rad: float = math.radians(2.0)
     gnss_acceleration: bool = True
     velocity_tau_s: float = 0.2
     velocity_max_age_s: float = 1.0
@@ -151,6 +155,7 @@ class GyroPlatformSettings(FilterSettings):
             "turn_rate_limit_rad_s",
             "spin_freeze_rad_s",
             "bias_limit_rad_s",
+            "integral_error_limit_rad",
             "velocity_tau_s",
             "accel_lowpass_s",
         ):
@@ -253,9 +258,17 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     spin = math.sqrt(gx * gx + gy * gy + gz * gz)
     freeze = params[p + _SPIN_FREEZE]
     if boost <= 1.0 and not at_rest and (freeze <= 0.0 or spin < freeze):
+        # per unit error: the levelling and heading rates scaled to the bias gains
         kbl = params[p + _KB_LEVEL] / max(params[p + _K_LEVEL], 1e-12)
         kbh = params[p + _KB_HEADING] / max(params[p + _K_HEADING], 1e-12)
-        # per unit error: the levelling and heading rates scaled to the bias gains
+        elim = params[p + _ERR_LIMIT]
+        if elim > 0.0:  # anti-windup: clip the error magnitudes
+            el = math.sqrt(wn * wn + we * we) / max(k_level, 1e-12)
+            if el > elim:
+                kbl *= elim / el
+            eh = abs(wd) / max(params[p + _K_HEADING] * boost * w_m, 1e-12)
+            if eh > elim:
+                kbh *= elim / eh
         bx, by, bz = ned_to_body(q0, q1, q2, q3, kbl * wn * dt, kbl * we * dt, kbh * wd * dt)
         lim = params[p + _BIAS_LIMIT]
         state[S_BIAS] = min(max(state[S_BIAS] + bx, -lim), lim)
@@ -282,6 +295,7 @@ class GyroPlatform(AttitudeFilter):
         p[_TURN_LIMIT] = settings.turn_rate_limit_rad_s
         p[_SPIN_FREEZE] = settings.spin_freeze_rad_s
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
+        p[_ERR_LIMIT] = settings.integral_error_limit_rad
         p[_GNSS_COMP] = 1.0 if settings.gnss_acceleration else 0.0
         p[_VDOT_TAU] = settings.velocity_tau_s
         p[_VEL_MAX_AGE] = settings.velocity_max_age_s

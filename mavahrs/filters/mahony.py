@@ -77,7 +77,8 @@ _GNSS_COMP = 8
 _VDOT_TAU = 9
 _VEL_MAX_AGE = 10
 _ACCEL_TAU = 11
-_REST = 12  # rest-detector block (rest.RP_LEN)
+_ERR_LIMIT = 12
+_REST = 13  # rest-detector block (rest.RP_LEN)
 _N_PARAMS = _REST + RP_LEN
 
 # filter state, offsets from S_FILTER
@@ -114,6 +115,9 @@ class MahonySettings(FilterSettings):
         spin_freeze_rad_s: the bias integral stops while the corrected rate
             exceeds this (INAV: 20°/s).  0 = never freeze.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
+        integral_error_limit_rad: each error vector fed to the bias integral
+            is clipped to this magnitude (≈ angle), so a large transient error
+            (a bad start, a disturbance) does not wind the bias up.  0 = no clip.
         cog_heading: without a magnetometer, correct heading from the GNSS
             course over ground (body x assumed along the ground track, as on a
             fixed-wing aircraft).  Off by default.
@@ -134,9 +138,10 @@ class MahonySettings(FilterSettings):
     kp_accel: float = 0.5
     kp_mag: float = 0.5
     ki_accel: float = 0.02
-    ki_mag: float = 0.002
+    ki_mag: float = 0.02
     spin_freeze_rad_s: float = math.radians(20.0)
     bias_limit_rad_s: float = math.radians(5.0)
+    integral_error_limit_rad: float = math.radians(2.0)
     cog_heading: bool = False
     cog_min_speed_m_s: float = 3.0
     gnss_acceleration: bool = True
@@ -155,6 +160,7 @@ class MahonySettings(FilterSettings):
             "ki_mag",
             "spin_freeze_rad_s",
             "bias_limit_rad_s",
+            "integral_error_limit_rad",
             "cog_min_speed_m_s",
             "velocity_tau_s",
             "accel_lowpass_s",
@@ -283,6 +289,13 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     if boost <= 1.0 and not at_rest and (freeze <= 0.0 or spin < freeze):
         kia = params[p + _KI_ACCEL] * w_a * dt
         kim = params[p + _KI_MAG] * w_m * dt
+        elim = params[p + _ERR_LIMIT]
+        if elim > 0.0:  # anti-windup: clip each error's magnitude
+            ea = math.sqrt(eax * eax + eay * eay + eaz * eaz)
+            if ea > elim:
+                kia *= elim / ea
+            if abs(e_d) > elim:
+                kim *= elim / abs(e_d)
         lim = params[p + _BIAS_LIMIT]
         nb0 = bx - kia * eax - kim * emx  # b̂̇ = −K_I e
         nb1 = by - kia * eay - kim * emy
@@ -313,6 +326,7 @@ class Mahony(AttitudeFilter):
         p[_KI_MAG] = settings.ki_mag
         p[_SPIN_FREEZE] = settings.spin_freeze_rad_s
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
+        p[_ERR_LIMIT] = settings.integral_error_limit_rad
         p[_COG] = 1.0 if settings.cog_heading else 0.0
         p[_COG_SPEED] = settings.cog_min_speed_m_s
         p[_GNSS_COMP] = 1.0 if settings.gnss_acceleration else 0.0

@@ -1,0 +1,142 @@
+"""Synthetic-truth fixtures for the filter tests.
+
+``make_truth(...)`` builds a smooth attitude trajectory with a known
+``q_body_to_ned`` and the ideal (or noisy) gyro, accelerometer and
+magnetometer readings it produces; optionally a constant gyro bias and a
+linear acceleration with the matching NED velocity (a GNSS stand-in).
+
+* The gyro sample k is the *mean* rate over the interval (k−1, k]: the rotation
+  vector of q_{k−1}* ⊗ q_k divided by dt, so exact integration of the ideal gyro
+  reproduces the truth to rounding.
+* The accelerometer reads specific force f = Cᵀ(a_NED − g_NED), g_NED = (0, 0, g):
+  a level FRD sensor at rest reads (0, 0, −g).
+* The field is magnetic north with a 66° dip: m_NED = (20, 0, 45) µT.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mavahrs.filters.base import make_inputs
+from mavahrs.geometry.quaternion import conjugate, multiply, rotate, to_rotation_vector
+from mavahrs.geometry.rotation import from_euler_rad
+
+G_M_S2 = 9.80665
+MAG_NED_UT = np.array([20.0, 0.0, 45.0])
+
+
+@dataclass
+class Truth:
+    """A synthetic recording with its true attitude."""
+
+    t_s: np.ndarray
+    dt_s: np.ndarray
+    q_body_to_ned: np.ndarray
+    gyro_rad_s: np.ndarray
+    accel_m_s2: np.ndarray
+    mag_ut: np.ndarray
+    velocity_ned_m_s: np.ndarray
+    gyro_bias_rad_s: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.t_s.size)
+
+    def inputs(self, *, mag: bool = True, velocity: bool = False) -> np.ndarray:
+        """Kernel input rows (N, IN_WIDTH)."""
+        return make_inputs(
+            self.gyro_rad_s,
+            self.accel_m_s2,
+            self.mag_ut if mag else None,
+            dt_s=self.dt_s,
+            velocity_ned_m_s=self.velocity_ned_m_s if velocity else None,
+        )
+
+
+def _euler_trajectory(t: np.ndarray, amplitude: float) -> np.ndarray:
+    """Smooth roll/pitch/yaw (rad) — sums of incommensurate sinusoids."""
+    roll = amplitude * (0.5 * np.sin(0.7 * t) + 0.2 * np.sin(1.9 * t + 1.0))
+    pitch = amplitude * (0.4 * np.sin(0.5 * t + 0.3) + 0.15 * np.sin(2.3 * t))
+    yaw = amplitude * (1.2 * np.sin(0.15 * t) + 0.5 * np.sin(0.6 * t + 2.0))
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def make_truth(
+    duration_s: float = 60.0,
+    rate_hz: float = 200.0,
+    *,
+    amplitude: float = 1.0,
+    gyro_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    noise: bool = False,
+    linear_acceleration_m: float = 0.0,
+    rest: bool = False,
+    seed: int = 7,
+) -> Truth:
+    """Build a synthetic recording.
+
+    Args:
+        duration_s, rate_hz: length and sample rate.
+        amplitude: scales the attitude excursions (0.2 = slow, ±6° roll …).
+        gyro_bias_rad_s: constant bias added to the gyro.
+        noise: add white noise (gyro 0.3°/s, accel 0.05 m/s², mag 0.3 µT).
+        linear_acceleration_m: amplitude (m) of a sinusoidal position path in
+            NED (0 = no linear motion); ≈ 1.3 m/s² peak per 2 m.
+        rest: hold the attitude at level, north (amplitude ignored).
+        seed: noise seed.
+    """
+    n = int(round(duration_s * rate_hz))
+    dt = 1.0 / rate_hz
+    t = np.arange(n) * dt
+    if rest:
+        q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    else:
+        e = _euler_trajectory(t, amplitude)
+        q = from_euler_rad(e[:, 0], e[:, 1], e[:, 2])
+        q[q[:, 0] < 0] *= -1.0
+    dq = multiply(conjugate(q[:-1]), q[1:])
+    gyro = np.empty((n, 3))
+    gyro[1:] = to_rotation_vector(dq) / dt
+    gyro[0] = gyro[1] if n > 1 else 0.0
+    a = linear_acceleration_m
+    w = np.array([0.8, 0.6, 1.1])
+    ph = np.array([0.0, 1.0, 0.5])
+    amp = a * np.array([1.0, 1.0, 0.3])
+    vel = amp * w * np.cos(w * t[:, None] + ph)
+    acc = -amp * w * w * np.sin(w * t[:, None] + ph)
+    f_ned = acc - np.array([0.0, 0.0, G_M_S2])
+    q_ned_to_body = conjugate(q)
+    accel = rotate(q_ned_to_body, f_ned)
+    mag = rotate(q_ned_to_body, np.broadcast_to(MAG_NED_UT, (n, 3)))
+    bias = np.asarray(gyro_bias_rad_s, dtype=np.float64)
+    gyro = gyro + bias
+    if noise:
+        rng = np.random.default_rng(seed)
+        gyro = gyro + rng.normal(scale=np.radians(0.3), size=gyro.shape)
+        accel = accel + rng.normal(scale=0.05, size=accel.shape)
+        mag = mag + rng.normal(scale=0.3, size=mag.shape)
+    return Truth(
+        t_s=t,
+        dt_s=np.full(n, dt),
+        q_body_to_ned=q,
+        gyro_rad_s=gyro,
+        accel_m_s2=accel,
+        mag_ut=mag,
+        velocity_ned_m_s=vel,
+        gyro_bias_rad_s=bias,
+    )
+
+
+@pytest.fixture(scope="session")
+def synthetic() -> Callable[..., Truth]:
+    """The :func:`make_truth` factory (see its arguments)."""
+    return make_truth
+
+
+@pytest.fixture(scope="session")
+def truth_9axis_noisy() -> Truth:
+    """60 s, 200 Hz, noisy, no bias: the common accuracy case."""
+    return make_truth(60.0, 200.0, noise=True)
