@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,6 +53,13 @@ __all__ = [
     "fit_ellipsoid",
     "orientation_coverage",
     "magnetic_heading_error_rad",
+    "MagRecording",
+    "load_mag_recording",
+    "MagCalibrationReport",
+    "calibrate_recording",
+    "calibration_toml",
+    "format_report",
+    "write_calibration_toml",
 ]
 
 Array = NDArray[np.float64]
@@ -372,3 +380,336 @@ def magnetic_heading_error_rad(
     m_ned = rotate(q_body_to_ned, mag_body_ut)
     az = np.arctan2(m_ned[..., 1], m_ned[..., 0]) - declination_rad
     return np.angle(np.exp(1j * az))
+
+
+# --------------------------------------------------------------------------- recordings (calibrate-mag)
+
+
+@dataclass(frozen=True)
+class MagRecording:
+    """Magnetometer samples read from a recording, with what is known about them.
+
+    Attributes:
+        mag_ut: (N, 3) field, µT, sensor (= body) axes; rows of NaN where absent.
+        t_ms: (N,) sample times, ms of the autopilot's boot clock (NaN for CSV).
+        source: what was read, e.g. ``"RAW_IMU (ardupilot profile)"`` or ``"CSV"``.
+        already_calibrated: the autopilot had already applied its own
+            hard/soft-iron calibration (from the scaling profile).
+        position: (lat°, lon°, alt m) of the first GNSS fix, or None.
+        decimal_year: date of the recording (SYSTEM_TIME, else the tlog's
+            own timestamps), or None.
+        attitude_t_ms: times of the autopilot's ATTITUDE messages, ms.
+        attitude_q: (M, 4) the autopilot's attitude (true north), for a
+            heading check; empty when absent.
+    """
+
+    mag_ut: Array
+    t_ms: Array
+    source: str
+    already_calibrated: bool = False
+    position: tuple[float, float, float] | None = None
+    decimal_year: float | None = None
+    attitude_t_ms: Array = field(default_factory=lambda: np.zeros(0))
+    attitude_q: Array = field(default_factory=lambda: np.zeros((0, 4)))
+
+
+_MAG_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+_MAV_AUTOPILOT_INVALID = 8
+
+
+class _Row:
+    """A structured-array record seen as a pymavlink-like message (attribute access, get_type)."""
+
+    __slots__ = ("_rec", "_type")
+
+    def __init__(self, rec: Any, kind: str) -> None:
+        self._rec = rec
+        self._type = kind
+
+    def get_type(self) -> str:
+        return self._type
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self._rec[name].item()
+        except (KeyError, ValueError):
+            raise AttributeError(name) from None
+
+
+def _read_csv(path: str) -> MagRecording:
+    import csv
+
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        raise DataError(f"{path}: empty CSV file")
+    header = [h.strip().lower() for h in rows[0]]
+    try:
+        cols = [header.index(c) for c in ("mx", "my", "mz")]
+    except ValueError:
+        raise DataError(f"{path}: CSV needs a header with columns mx, my, mz (µT); found {', '.join(header)}") from None
+    try:
+        mag = np.array([[float(r[c]) for c in cols] for r in rows[1:] if r], dtype=np.float64).reshape(-1, 3)
+    except (ValueError, IndexError) as exc:
+        raise DataError(f"{path}: unreadable number in the mx, my, mz columns ({exc})") from None
+    return MagRecording(mag, np.full(len(mag), np.nan), "CSV (mx, my, mz µT)")
+
+
+def load_mag_recording(path: str, *, message: str | None = None, profile: str = "auto") -> MagRecording:
+    """Read magnetometer samples from a tlog or a CSV (columns ``mx, my, mz`` in µT).
+
+    For a tlog the scaling profile (``auto`` = from the autopilot's
+    HEARTBEAT) converts the wire units and says whether the autopilot already
+    calibrated the magnetometer; ``message`` picks the IMU message (default:
+    the one with the most magnetometer samples, the profile's primary message
+    on a tie).  The first GNSS fix, the date and the autopilot's ATTITUDE are
+    read too (expected field strength, heading check).
+
+    Raises:
+        DataError: unreadable file or no magnetometer data in it.
+    """
+    import os
+
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such file")
+    if path.lower().endswith(".csv"):
+        return _read_csv(path)
+
+    from mavahrs.geometry.rotation import from_euler_rad
+    from mavahrs.protocol.fast_tlog import read_tlog_arrays
+    from mavahrs.sensors.geomag import decimal_year_from_unix_s
+    from mavahrs.sensors.profiles import get_profile, profile_for_autopilot
+    from mavahrs.sensors.scaling import Scaler
+
+    types = (*_MAG_MESSAGES, "HEARTBEAT", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "SYSTEM_TIME", "ATTITUDE")
+    try:
+        arrays = read_tlog_arrays(path, types)
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot read as a tlog ({exc})") from None
+    if profile == "auto":
+        hb = arrays["HEARTBEAT"]
+        hb = hb[hb["autopilot"] != _MAV_AUTOPILOT_INVALID]
+        prof = profile_for_autopilot(int(hb["autopilot"][0])) if len(hb) else get_profile("generic")
+    else:
+        prof = get_profile(profile)
+    counts = {
+        name: int(np.count_nonzero((arrays[name]["xmag"] != 0) | (arrays[name]["ymag"] != 0) | (arrays[name]["zmag"] != 0)))
+        for name in _MAG_MESSAGES
+        if prof.scale_for(name) is not None
+    }
+    if message is None:  # the profile's primary message unless another has clearly more samples
+        best = max(counts.values(), default=0)
+        primary = prof.primary_message
+        message = primary if counts.get(primary, 0) >= 0.9 * best > 0 else max(counts, key=counts.__getitem__)
+    message = message.upper()
+    if counts.get(message, 0) == 0:
+        found = ", ".join(f"{k} {v}" for k, v in counts.items() if v) or "none"
+        raise DataError(f"{path}: no magnetometer samples in {message} (samples per message: {found})")
+    scaler = Scaler(prof)
+    rows = arrays[message]
+    mag = np.full((len(rows), 3), np.nan)
+    t_ms = np.full(len(rows), np.nan)
+    for k in range(len(rows)):
+        v = scaler.scale(_Row(rows[k], message))
+        if v is None:
+            continue
+        mag[k] = v[8:11]
+        t_ms[k] = v[1] / 1000.0
+    position = None
+    gpi = arrays["GLOBAL_POSITION_INT"]
+    gpi = gpi[(gpi["lat"] != 0) | (gpi["lon"] != 0)]
+    gps = arrays["GPS_RAW_INT"]
+    gps = gps[gps["fix_type"] >= 2]
+    if len(gpi):
+        position = (gpi["lat"][0] * 1e-7, gpi["lon"][0] * 1e-7, gpi["alt"][0] * 1e-3)
+    elif len(gps):
+        position = (gps["lat"][0] * 1e-7, gps["lon"][0] * 1e-7, gps["alt"][0] * 1e-3)
+    year = None
+    st = arrays["SYSTEM_TIME"]
+    st = st[st["time_unix_usec"] > 1262304000 * 10**6]
+    if len(st):
+        year = decimal_year_from_unix_s(st["time_unix_usec"][0] * 1e-6)
+    elif len(rows) and rows["t_us"][0] > 1262304000 * 10**6:
+        year = decimal_year_from_unix_s(rows["t_us"][0] * 1e-6)  # the tlog's own (logging) clock
+    att = arrays["ATTITUDE"]
+    q_att = from_euler_rad(att["roll"], att["pitch"], att["yaw"]) if len(att) else np.zeros((0, 4))
+    scale = prof.scale_for(message)
+    return MagRecording(
+        mag_ut=mag,
+        t_ms=t_ms,
+        source=f"{message} ({prof.name} profile)",
+        already_calibrated=bool(scale is not None and scale.mag_calibrated),
+        position=position,
+        decimal_year=year,
+        attitude_t_ms=att["time_boot_ms"].astype(np.float64) if len(att) else np.zeros(0),
+        attitude_q=q_att,
+    )
+
+
+# --------------------------------------------------------------------------- the whole job
+
+
+@dataclass(frozen=True)
+class MagCalibrationReport:
+    """What ``mavahrs calibrate-mag`` found: the fit, the recording and a heading check.
+
+    Attributes:
+        fit: the calibration and its quality figures.
+        recording: the data it came from.
+        declination_rad: declination used for the heading check (None: unknown).
+        heading_rms_before_deg: RMS heading error of the raw magnetometer
+            against the autopilot's attitude (NaN without ATTITUDE).
+        heading_rms_after_deg: the same after the calibration.
+        warnings: the fit's warnings plus the recording's (already calibrated …).
+    """
+
+    fit: MagCalibrationFit
+    recording: MagRecording
+    declination_rad: float | None
+    heading_rms_before_deg: float
+    heading_rms_after_deg: float
+    warnings: tuple[str, ...]
+
+
+def calibrate_recording(
+    recording: MagRecording,
+    *,
+    strength_ut: float | None = None,
+    position: tuple[float, float, float] | None = None,
+    decimal_year: float | None = None,
+    settings: MagFitSettings | None = None,
+    force: bool = False,
+) -> MagCalibrationReport:
+    """Fit a recording; the field strength is ``strength_ut``, else the WMM at its position, else the fit's.
+
+    ``position``/``decimal_year`` override what the recording says.
+    """
+    from mavahrs.sensors.geomag import expected_field
+
+    pos = position if position is not None else recording.position
+    year = decimal_year if decimal_year is not None else recording.decimal_year
+    model = expected_field(*pos, year) if pos is not None and year is not None else None
+    if strength_ut is not None:
+        fit = fit_ellipsoid(recording.mag_ut, strength_ut, settings=settings, strength_source="given", force=force)
+    elif model is not None:
+        where = f"{model.source} at {pos[0]:.4f}, {pos[1]:.4f}"  # type: ignore[index]
+        fit = fit_ellipsoid(recording.mag_ut, model.strength_ut, settings=settings, strength_source=where, force=force)
+    else:
+        fit = fit_ellipsoid(recording.mag_ut, None, settings=settings, force=force)
+    warnings = list(fit.warnings)
+    if recording.already_calibrated:
+        warnings.insert(
+            0,
+            f"{recording.source}: the autopilot has already calibrated this magnetometer; mavahrs does not "
+            "correct it twice (the result is applied only with pipeline.calibration.force_mag_calibration = "
+            "true). Calibrate the compass in the autopilot, or read an uncalibrated message.",
+        )
+    before = after = math.nan
+    decl = model.declination_rad if model is not None else None
+    if len(recording.attitude_t_ms) and decl is not None and np.any(np.isfinite(recording.t_ms)):
+        from mavahrs.service.monitor import align_attitudes
+
+        q_ref = align_attitudes(recording.attitude_t_ms, recording.attitude_q, recording.t_ms, tolerance_ms=100.0)
+        ok = np.all(np.isfinite(q_ref), axis=1) & np.all(np.isfinite(recording.mag_ut), axis=1)
+        if np.count_nonzero(ok) >= 10:
+            e0 = magnetic_heading_error_rad(recording.mag_ut[ok], q_ref[ok], decl)
+            e1 = magnetic_heading_error_rad(fit.apply(recording.mag_ut[ok]), q_ref[ok], decl)
+            before = float(np.degrees(np.sqrt(np.mean(e0**2))))
+            after = float(np.degrees(np.sqrt(np.mean(e1**2))))
+    return MagCalibrationReport(fit, recording, decl, before, after, tuple(warnings))
+
+
+def calibration_toml(fit: MagCalibrationFit) -> str:
+    """The ``[pipeline.calibration.mag]`` table for a settings file."""
+
+    def num(v: float) -> str:
+        return f"{v:.6g}" if "e" not in f"{v:.6g}" else repr(v)
+
+    o = ", ".join(num(v) for v in fit.offset_ut)
+    rows = ",\n    ".join("[" + ", ".join(num(v) for v in row) + "]" for row in fit.matrix)
+    return (
+        f"# magnetometer calibration: m_cal = matrix · (m − offset_ut); fitted by mavahrs calibrate-mag,\n"
+        f"# residual {fit.residual_rms_ut:.2f} µT ({fit.residual_rms_percent:.1f} %), coverage {fit.coverage:.0%}, "
+        f"field {fit.field_strength_ut:.2f} µT ({fit.strength_source})\n"
+        f"[pipeline.calibration.mag]\n"
+        f"offset_ut = [{o}]\n"
+        f"matrix = [\n    {rows},\n]\n"
+    )
+
+
+def format_report(report: MagCalibrationReport) -> str:
+    """Human-readable summary (what ``calibrate-mag`` prints before the TOML)."""
+    fit = report.fit
+    rec = report.recording
+    ev = np.linalg.eigvalsh(np.asarray(fit.matrix))
+    lines = [
+        f"recording: {rec.source}, {fit.samples} magnetometer samples"
+        + (f", position {rec.position[0]:.5f}, {rec.position[1]:.5f}" if rec.position else ""),
+        f"field strength: {fit.field_strength_ut:.2f} µT ({fit.strength_source})",
+        f"hard iron (offset): {fit.offset_ut[0]:+.2f} {fit.offset_ut[1]:+.2f} {fit.offset_ut[2]:+.2f} µT "
+        f"(|o| = {np.linalg.norm(fit.offset_ut):.2f} µT)",
+        f"soft iron: matrix eigenvalues {ev[0]:.3f} {ev[1]:.3f} {ev[2]:.3f} (axis ratio {fit.axis_ratio:.3f})",
+        f"fit residual: {fit.residual_rms_ut:.2f} µT RMS = {fit.residual_rms_percent:.2f} % of the field "
+        f"(raw: {fit.raw_residual_rms_ut:.2f} µT)",
+        f"orientation coverage: {fit.coverage:.0%} of directions, spread {fit.direction_spread:.2f}, "
+        f"fit condition {fit.fit_condition:.3g}",
+    ]
+    if math.isfinite(report.heading_rms_before_deg):
+        lines.append(
+            f"heading vs the autopilot's attitude: {report.heading_rms_before_deg:.1f}° RMS raw → "
+            f"{report.heading_rms_after_deg:.1f}° RMS calibrated"
+        )
+    lines += [f"WARNING: {w}" for w in report.warnings]
+    return "\n".join(lines)
+
+
+_TABLE_RE = r"^\s*\[pipeline\.calibration\.mag\]\s*(#.*)?$"
+# a table header (``[a.b]``, ``[[a]]``), not an array row of numbers inside a multi-line value
+_ANY_TABLE_RE = r"^\s*\[\[?\s*[A-Za-z_\"'][^\]]*\]\]?\s*(#.*)?$"
+
+
+def write_calibration_toml(path: str, fit: MagCalibrationFit) -> None:
+    """Put the calibration into settings file ``path`` (created if missing).
+
+    An existing ``[pipeline.calibration.mag]`` table (and the comment lines
+    just above it) is replaced; the rest of the file is kept as it is.  The
+    result is parsed before it replaces the file.
+
+    Raises:
+        ConfigError: the existing file is not valid TOML, or the result is not.
+    """
+    import os
+    import re
+
+    from mavahrs.config import load_toml
+    from mavahrs.errors import ConfigError
+
+    old = ""
+    if os.path.exists(path):
+        load_toml(path)  # refuse to edit a file that is already broken
+        with open(path, encoding="utf-8") as f:
+            old = f.read()
+    lines = old.splitlines()
+    start = next((i for i, ln in enumerate(lines) if re.match(_TABLE_RE, ln)), None)
+    if start is not None:
+        end = start + 1
+        while end < len(lines) and not re.match(_ANY_TABLE_RE, lines[end]):
+            end += 1
+        while end > start + 1 and (not lines[end - 1].strip() or lines[end - 1].lstrip().startswith("#")):
+            end -= 1  # keep comments/blank lines that belong to the next table
+        while start > 0 and lines[start - 1].lstrip().startswith(("# magnetometer calibration", "# residual")):
+            start -= 1  # our own comment above the table
+        lines = lines[:start] + lines[end:]
+    body = "\n".join(lines).rstrip()
+    text = (body + "\n\n" if body else "") + calibration_toml(fit)
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+    try:
+        data = load_toml(tmp)
+        mag = data["pipeline"]["calibration"]["mag"]
+        MagCalibration(offset_ut=tuple(mag["offset_ut"]), matrix=tuple(tuple(r) for r in mag["matrix"]))
+    except (ConfigError, KeyError, TypeError) as exc:
+        os.unlink(tmp)
+        raise ConfigError(f"{path}: could not add the calibration ({exc}); the file is unchanged") from None
+    os.replace(tmp, path)

@@ -51,6 +51,7 @@ __all__ = [
     "MonitorEvent",
     "MonitorSeries",
     "divergence_series",
+    "align_attitudes",
     "monitor_series",
     "attitude_of_message",
     "WARNING_TEXT",
@@ -464,14 +465,34 @@ def divergence_series(
         ``(tilt_deg, heading_deg)``, each (M,); NaN where no estimate of ours
         lies close enough.  Heading is signed (ours minus the autopilot's).
     """
-    t = np.asarray(t_ms, dtype=np.float64)
-    q = np.asarray(q_est, dtype=np.float64).reshape(-1, 4)
-    ta = np.asarray(t_att_ms, dtype=np.float64)
+    q_aligned = align_attitudes(t_ms, q_est, t_att_ms, tolerance_ms=tolerance_ms)
     qa = np.asarray(q_autopilot, dtype=np.float64).reshape(-1, 4)
+    a = q_aligned / np.linalg.norm(q_aligned, axis=1, keepdims=True)
+    b = qa / np.linalg.norm(qa, axis=1, keepdims=True)
+    w = np.sum(a * b, axis=1)
+    z = -a[:, 0] * b[:, 3] - a[:, 1] * b[:, 2] + a[:, 2] * b[:, 1] + a[:, 3] * b[:, 0]
+    sign = np.where(w < 0.0, -1.0, 1.0)
+    w, z = w * sign, z * sign
+    tilt = 2.0 * np.arccos(np.clip(np.sqrt(w * w + z * z), 0.0, 1.0))
+    heading = 2.0 * np.arctan2(z, w)
+    return np.degrees(tilt), np.degrees(heading)
+
+
+def align_attitudes(t_ms: ArrayLike, q: ArrayLike, t_query_ms: ArrayLike, *, tolerance_ms: float = 50.0) -> Array:
+    """Attitudes ``q`` sampled at ``t_ms`` (increasing), evaluated at ``t_query_ms``.
+
+    Interpolated (slerp) between the two samples around each query time when
+    they are at most ``2·tolerance_ms`` apart, else the nearest sample within
+    ``tolerance_ms``, else NaN — the alignment rule of :class:`AttitudeMonitor`.
+    Returns (M, 4).
+    """
+    t = np.asarray(t_ms, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    ta = np.asarray(t_query_ms, dtype=np.float64)
     m = len(ta)
     q_aligned = np.full((m, 4), np.nan)
     if len(t):
-        hi = np.searchsorted(t, ta, side="left")  # first estimate at or after ta
+        hi = np.searchsorted(t, ta, side="left")  # first sample at or after the query
         lo = hi - 1
         hi_c = np.clip(hi, 0, len(t) - 1)
         lo_c = np.clip(lo, 0, len(t) - 1)
@@ -485,19 +506,11 @@ def divergence_series(
         d_lo = np.where(has_lo, ta - t[lo_c], np.inf)
         d_hi = np.where(has_hi, t[hi_c] - ta, np.inf)
         rest = ~bracket
-        use_lo = rest & (d_lo <= d_hi) & (d_lo <= tolerance_ms)
-        use_hi = rest & (d_hi < d_lo) & (d_hi <= tolerance_ms)
+        use_lo = rest & ~exact & (d_lo <= d_hi) & (d_lo <= tolerance_ms)
+        use_hi = rest & (exact | ((d_hi < d_lo) & (d_hi <= tolerance_ms)))
         q_aligned[use_lo] = q[lo_c[use_lo]]
-        q_aligned[use_hi | (rest & exact)] = q[hi_c[use_hi | (rest & exact)]]
-    a = q_aligned / np.linalg.norm(q_aligned, axis=1, keepdims=True)
-    b = qa / np.linalg.norm(qa, axis=1, keepdims=True)
-    w = np.sum(a * b, axis=1)
-    z = -a[:, 0] * b[:, 3] - a[:, 1] * b[:, 2] + a[:, 2] * b[:, 1] + a[:, 3] * b[:, 0]
-    sign = np.where(w < 0.0, -1.0, 1.0)
-    w, z = w * sign, z * sign
-    tilt = 2.0 * np.arccos(np.clip(np.sqrt(w * w + z * z), 0.0, 1.0))
-    heading = 2.0 * np.arctan2(z, w)
-    return np.degrees(tilt), np.degrees(heading)
+        q_aligned[use_hi] = q[hi_c[use_hi]]
+    return q_aligned
 
 
 @dataclass(frozen=True)
