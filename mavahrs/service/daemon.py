@@ -749,10 +749,6 @@ def build_daemon(
 
     master_ep = parse_connection_string(settings.master, settings.baud)
     output_eps = [parse_connection_string(text, settings.baud) for text in settings.outputs]
-    if pipeline is None:
-        from mavahrs.service.pipeline import Pipeline, PipelineSettings
-
-        pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings)
     opened: list[Any] = []
     sink = None
     try:
@@ -769,9 +765,15 @@ def build_daemon(
             opened.append(open_transport(ep, **common))
         if settings.log_path:
             sink = TlogSink(settings.log_path, settings.log_flush_interval_s)
+        if pipeline is None:  # after the links: a busy port is reported before the filter compiles
+            from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+            pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings)
     except BaseException:
         for link in opened:
             link.close()
+        if sink is not None:
+            sink.close()
         raise
     # A decoding codec for the master link (the pipeline encodes with its own ids).
     return Daemon(settings, pipeline, opened[0], opened[1:], codec=MavCodec(), sink=sink, logger=logger)

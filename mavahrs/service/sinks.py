@@ -31,9 +31,10 @@ class TlogSink:
     Args:
         path: the ``.tlog`` file (appended to if it exists, as MAVProxy does).
         flush_interval_s: the longest time written data may stay in memory.
-        writer: an already open writer with ``write(t_us, frame, now_s)``,
-            ``flush()`` and ``close()`` (tests inject failing ones); by
-            default a :class:`~mavahrs.protocol.tlog.TlogWriter` on ``path``.
+        writer: an already open writer with the interface of
+            :class:`~mavahrs.protocol.tlog.TlogWriter` (``write(t_us, frame,
+            now_s)``, ``tick(now_s)``, ``flush(now_s)``, ``close()``), e.g. one
+            on a file object; by default a ``TlogWriter`` on ``path``.
 
     Raises:
         ConfigError: the file cannot be opened (directory missing, no permission).
@@ -65,7 +66,6 @@ class TlogSink:
         self.frames_lost = 0
         self.stopped = False
         self.reason = ""
-        self._last_flush_s: float | None = None
 
     @property
     def state(self) -> str:
@@ -92,8 +92,6 @@ class TlogSink:
         if self.stopped:
             self.frames_lost += 1
             return
-        if self._last_flush_s is None:
-            self._last_flush_s = now_s
         try:
             self._writer.write(t_us, frame, now_s)
         except OSError as exc:
@@ -107,23 +105,19 @@ class TlogSink:
         """Flush when ``flush_interval_s`` has passed since the last flush (call a few times per second)."""
         if self.stopped:
             return
-        if self._last_flush_s is None:
-            self._last_flush_s = now_s
-            return
-        if now_s - self._last_flush_s >= self.flush_interval_s:
-            self.flush(now_s)
+        try:
+            self._writer.tick(now_s)
+        except OSError as exc:
+            self._fail(exc, "flushing")
 
     def flush(self, now_s: float | None = None) -> None:
         """Hand everything written so far to the operating system."""
         if self.stopped:
             return
         try:
-            self._writer.flush()
+            self._writer.flush(now_s)
         except OSError as exc:
             self._fail(exc, "flushing")
-            return
-        if now_s is not None:
-            self._last_flush_s = now_s
 
     def close(self) -> None:
         """Flush, sync to disk and close (idempotent; errors are logged, never raised)."""

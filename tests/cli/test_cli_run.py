@@ -1,0 +1,196 @@
+"""The command-line framework and ``mavahrs run``: exit codes, one-line errors, help, config printing."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mavahrs.cli import SUBCOMMANDS, _load, main
+from mavahrs.cli.common import EXIT_CONNECTION, EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+REPO = Path(__file__).resolve().parents[2]
+QUICK = ["--filter", "mahony", "--status-interval", "0"]
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--version"]) == EXIT_OK
+    assert capsys.readouterr().out.strip() == "mavahrs 0.1.0"
+
+
+def test_help_imports_nothing_heavy() -> None:
+    """``mavahrs --help`` must answer fast: no numpy, numba, scipy or pymavlink import on the way."""
+    code = (
+        "import sys, contextlib, io\n"
+        "from mavahrs.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+        "    rc = main(['--help'])\n"
+        "heavy = sorted(m for m in ('numpy', 'numba', 'scipy', 'pymavlink', 'serial', 'matplotlib') if m in sys.modules)\n"
+        "print(rc, heavy, 'run' in out.getvalue())\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(), timeout=60)
+    assert r.stdout.split("\n")[0] == "0 [] True", r.stdout + r.stderr
+
+
+def test_run_help_lists_units_and_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--help"]) == EXIT_OK
+    out = capsys.readouterr().out
+    for text in (
+        "(default: udpin:0.0.0.0:14550)",
+        "(default: 115200)",
+        "Hz; 0 = one per IMU sample (default: 50 Hz)",
+        "(default: 400 Hz)",
+        "(default: 10 s)",
+        "(default: 191)",
+        "madgwick, mahony, complementary, gyroplatform",
+        "exit codes: 0 ok, 1 runtime failure, 2 usage/config error, 3 connection failure",
+    ):
+        assert text in " ".join(out.split()), text
+    assert "?" not in out.replace("?)", "")  # every placeholder resolved
+
+
+def test_no_command_and_bad_options_are_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([]) == EXIT_USAGE
+    assert main(["run", "--out-rate", "fast"]) == EXIT_USAGE
+    assert main(["frobnicate"]) == EXIT_USAGE
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_print_config_is_the_effective_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[daemon]\noutputs = ["udpout:127.0.0.1:9"]\n[pipeline]\nout_rate_hz = 20\n')
+    rc = main(["run", "--config", str(cfg), "--out-rate", "10", "--filter", "mahony", "--imu", "1",
+               "--set", "daemon.input_queue=99", "--print-config"])
+    assert rc == EXIT_OK
+    data = tomllib.loads(capsys.readouterr().out)
+    assert data["pipeline"]["out_rate_hz"] == 10.0  # the flag wins over the file
+    assert data["pipeline"]["imu"] == "1" and data["pipeline"]["filter_name"] == "mahony"
+    assert data["daemon"]["outputs"] == ["udpout:127.0.0.1:9"] and data["daemon"]["input_queue"] == 99
+    assert "mahony" in data["filter"] and "schedule" in data["filter"]["mahony"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "code", "needle"),
+    [
+        (["--master", "bogus"], EXIT_USAGE, "is not a serial device path or a network address"),
+        (["--master", "/nonexistent/ttyUSB9", *QUICK], EXIT_CONNECTION, "cannot open serial port /nonexistent/ttyUSB9: no such device"),
+        (["--master", "udpin:127.0.0.1:0", "--out", "udpout:127.0.0.1:0"], EXIT_USAGE, "outside 1…65535"),
+        (["--set", "daemon.tick_hz=-1"], EXIT_USAGE, "daemon.tick_hz must be a positive number"),
+        (["--filter", "kalman"], EXIT_USAGE, "unknown filter 'kalman'"),
+        (["--imu", "7"], EXIT_USAGE, "imu"),
+    ],
+)
+def test_bad_input_is_one_line_and_the_documented_code(
+    argv: list[str], code: int, needle: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["run", *argv]) == code
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err, err
+
+
+def test_busy_port_and_missing_heartbeat_exit_3(capsys: pytest.CaptureFixture[str]) -> None:
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    try:
+        port = holder.getsockname()[1]
+        assert main(["run", *QUICK, "--master", f"udpin:127.0.0.1:{port}"]) == EXIT_CONNECTION
+        assert "already in use" in capsys.readouterr().err
+    finally:
+        holder.close()
+    assert main(["run", *QUICK, "--master", "udpin:127.0.0.1:0", "--heartbeat-timeout", "0.5"]) == EXIT_CONNECTION
+    err = capsys.readouterr().err
+    assert "no heartbeat from udpin:127.0.0.1:0 within 0.5 s (nothing received" in err
+    assert "Traceback" not in err
+
+
+def test_json_log_lines_carry_the_status(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    stats = tmp_path / "stats.json"
+    rc = main(["--log-format", "json", "run", "--filter", "mahony", "--master", "udpin:127.0.0.1:0",
+               "--heartbeat-timeout", "0", "--duration", "1.0", "--status-interval", "0.4",
+               "--stats-json", str(stats)])
+    assert rc == EXIT_OK
+    lines = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert {"time", "level", "logger", "message"} <= set(lines[0])
+    statuses = [line["status"] for line in lines if "status" in line]
+    assert statuses and {"in_hz", "out_hz", "drops", "gain", "crc_errors", "latency_p50_us", "log"} <= set(statuses[0])
+    assert lines[-1]["message"].startswith("mavahrs stopped (duration)")
+    summary = json.loads(stats.read_text())
+    assert summary["counters"]["datagrams_in"] == 0 and "latency" in summary
+
+
+def test_internal_errors_are_one_line_with_a_hint(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    import mavahrs.cli.run as run_module
+
+    def broken(args: object) -> int:
+        raise ZeroDivisionError("oops")
+
+    monkeypatch.setattr(run_module, "run", broken)
+    assert main(["run"]) == EXIT_FAILURE
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("internal error: ZeroDivisionError: oops (run with -v for the traceback)")
+    assert main(["-v", "run"]) == EXIT_FAILURE
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_missing_subcommand_modules_are_skipped_other_import_errors_are_not(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert _load("no_such_command_module") is None
+    assert "run" in SUBCOMMANDS and _load("run") is not None
+    import importlib
+
+    real = importlib.import_module
+
+    def fake(name: str, *a: object) -> object:
+        if name == "mavahrs.cli.no_such_command_module":
+            raise ModuleNotFoundError("No module named 'somelib'", name="somelib")
+        return real(name, *a)
+
+    monkeypatch.setattr(importlib, "import_module", fake)
+    with pytest.raises(ModuleNotFoundError, match="somelib"):
+        _load("no_such_command_module")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signals_stop_cleanly_with_exit_code_0(tmp_path: Path, sig: signal.Signals) -> None:
+    log = tmp_path / "x.tlog"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mavahrs", "run", *QUICK, "--master", "udpin:127.0.0.1:0",
+         "--heartbeat-timeout", "0", "--log", str(log)],
+        stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        line = ""
+        while "mavahrs running" not in line and time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            if not line:
+                break
+        assert "mavahrs running" in line
+        proc.send_signal(sig)
+        rc = proc.wait(20)
+        rest = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+    assert rc == EXIT_OK, rest
+    assert f"mavahrs stopped ({sig.name})" in rest and "Traceback" not in rest
+    assert log.exists()
