@@ -1,0 +1,266 @@
+r"""``python -m firmware_sim`` / ``mavahrs-sim``: a simulated flight controller.
+
+Examples::
+
+    python -m firmware_sim --out udpout:127.0.0.1:14550 --scenario aggressive --duration 60 --seed 1
+    python -m firmware_sim --out pty --scenario hover --duration 0          # prints "PTY /dev/pts/N"
+    python -m firmware_sim --tlog aggressive.tlog --fast --scenario aggressive --duration 60
+
+Exit codes: 0 done (also after SIGINT/SIGTERM), 1 unexpected error,
+2 bad arguments, 3 the link could not be opened.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+
+from mavahrs.errors import TransportError
+from firmware_sim.endpoint import STREAMABLE, EndpointSettings, Endpoint
+from firmware_sim.imu_model import EarthField, ImuErrorSettings, MagSettings
+from firmware_sim.simulation import AttitudeFault, Home, ImuFault, SimSettings, Simulation
+from firmware_sim.streamer import Blackout, open_link, run_realtime, write_stats_json, write_tlog
+from firmware_sim.trajectory import SCENARIO_DESCRIPTIONS, SCENARIOS
+
+__all__ = ["main", "build_parser", "settings_from_args"]
+
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+log = logging.getLogger("firmware_sim")
+
+
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}: expected {n} comma-separated numbers, got {text!r}") from None
+    if len(vals) != n:
+        raise argparse.ArgumentTypeError(f"{what}: expected {n} comma-separated numbers, got {len(vals)}")
+    return vals
+
+
+def _stream(text: str) -> tuple[str, float]:
+    name, sep, hz = text.partition("=")
+    name = name.strip().upper()
+    if not sep or name not in STREAMABLE:
+        raise argparse.ArgumentTypeError(f"--stream NAME=HZ with NAME one of {', '.join(STREAMABLE)}; got {text!r}")
+    if hz.strip().lower() == "max":
+        return name, math.inf
+    try:
+        return name, float(hz)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--stream {name}: rate must be a number of Hz or 'max'") from None
+
+
+def _blackout(text: str) -> Blackout:
+    vals = _floats(text.replace(":", ","), 2, "--blackout START:DURATION")
+    return Blackout(vals[0], vals[1])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    scen = "\n".join(f"  {n:12s} {SCENARIO_DESCRIPTIONS[n]}" for n in SCENARIOS)
+    p = argparse.ArgumentParser(
+        prog="mavahrs-sim",
+        description="Simulated ArduPilot/PX4 flight controller streaming MAVLink IMU data with known true attitude.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"scenarios:\n{scen}\n\nexit codes: 0 done, 1 error, 2 bad arguments, 3 link could not be opened",
+    )
+    io = p.add_argument_group("output")
+    io.add_argument("--out", default="udpout:127.0.0.1:14550", metavar="CONN",
+                    help="udpout:HOST:PORT, udpin:HOST:PORT, tcpin:HOST:PORT, a serial path, pty or pty:LINK "
+                         "(default %(default)s)")
+    io.add_argument("--baud", type=int, default=None,
+                    help="serial baud rate; also limits a serial/pty link to baud/10 bytes/s (default 115200 for serial)")
+    io.add_argument("--tlog", metavar="FILE", help="write a tlog (with --fast: instead of a link; else: record the session)")
+    io.add_argument("--fast", action="store_true", help="with --tlog: run as fast as possible, no link")
+    io.add_argument("--stats-json", metavar="FILE", help="write counters (received, ACKed, sent, pacing) at exit")
+    io.add_argument("--blackout", type=_blackout, action="append", default=[], metavar="START:DURATION",
+                    help="link outage in simulation seconds (repeatable)")
+
+    fl = p.add_argument_group("flight")
+    fl.add_argument("--scenario", choices=SCENARIOS, default="hover", help="(default %(default)s)")
+    fl.add_argument("--duration", type=float, default=60.0, metavar="S",
+                    help="simulated seconds; 0 = until stopped (live only) (default %(default)s)")
+    fl.add_argument("--seed", type=int, default=0, help="same seed, same flight and bytes (default %(default)s)")
+    fl.add_argument("--lat", type=float, default=Home.lat_deg, help="home latitude, deg (default %(default)s, CMAC)")
+    fl.add_argument("--lon", type=float, default=Home.lon_deg, help="home longitude, deg (default %(default)s)")
+    fl.add_argument("--alt-m", type=float, default=Home.alt_m, help="home altitude AMSL, m (default %(default)s)")
+    fl.add_argument("--boot-offset-s", type=float, default=0.0, help="time since boot at start, s (default 0)")
+
+    ap = p.add_argument_group("autopilot")
+    ap.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot", help="(default %(default)s)")
+    ap.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default %(default)s)")
+    ap.add_argument("--compid", type=int, default=1, help="MAVLink component id (default %(default)s)")
+    ap.add_argument("--loop-rate", type=float, default=400.0, metavar="HZ",
+                    help="scheduler loop (SCHED_LOOP_RATE), Hz; the fastest stream ArduPilot accepts is "
+                         "1/(ceil(loop period/0.8 ms) ms): 250 Hz at 400, 500 Hz at 800 (default %(default)s)")
+    ap.add_argument("--oversample", type=int, default=3, help="sensor samples per loop tick (default %(default)s)")
+    ap.add_argument("--ideal", action="store_true",
+                    help="idealised stream: sample-time stamps, no jitter, intervals down to one loop period")
+    ap.add_argument("--preset", choices=("default", "bench", "none"), default=None,
+                    help="initial stream rates: the autopilot's defaults, 'bench' (IMUs at max + truth), or "
+                         "HEARTBEAT only (default: 'default' live, 'bench' with --fast)")
+    ap.add_argument("--stream", type=_stream, action="append", default=[], metavar="NAME=HZ",
+                    help=f"initial rate of a stream, Hz or 'max' (repeatable); NAME in {', '.join(STREAMABLE)}")
+    ap.add_argument("--default-stream-hz", type=float, default=1.0,
+                    help="ArduPilot SRn_* rate of the default stream groups, Hz (default %(default)s)")
+    ap.add_argument("--no-message-interval", action="store_true",
+                    help="old firmware: ACK SET_MESSAGE_INTERVAL as UNSUPPORTED")
+    ap.add_argument("--attitude-fault", metavar="START[,DUR[,ROLL[,PITCH[,YAW]]]]",
+                    help="offset the autopilot's ATTITUDE estimate from START s for DUR s (default inf) by "
+                         "ROLL/PITCH/YAW deg (default 10,0,0), ramped over 1 s")
+
+    se = p.add_argument_group("sensors")
+    se.add_argument("--imus", type=int, default=2, choices=(1, 2, 3), help="IMU count (default %(default)s)")
+    se.add_argument("--mags", type=int, default=2, choices=(0, 1, 2, 3), help="compass count (default %(default)s)")
+    se.add_argument("--imu2-freeze-at", type=float, metavar="S", help="second IMU (SCALED_IMU2) sticks from S s")
+    se.add_argument("--imu2-saturate-at", type=float, metavar="S", help="second IMU reads full scale from S s")
+    se.add_argument("--no-sensor-errors", action="store_true",
+                    help="perfect IMU and compass (no noise, bias, scale, quantisation, vibration; low-pass kept)")
+    se.add_argument("--gyro-lowpass-hz", type=float, default=ImuErrorSettings.gyro_lowpass_hz,
+                    help="INS_GYRO_FILTER, Hz; 0 = off (default %(default)s)")
+    se.add_argument("--accel-lowpass-hz", type=float, default=ImuErrorSettings.accel_lowpass_hz,
+                    help="INS_ACCEL_FILTER, Hz; 0 = off (default %(default)s)")
+    se.add_argument("--field-ut", type=float, default=EarthField.strength_ut,
+                    help="earth field strength, uT (default %(default)s, WMM2025 at CMAC)")
+    se.add_argument("--inclination-deg", type=float, default=EarthField.inclination_deg,
+                    help="field inclination, deg, + down (default %(default)s)")
+    se.add_argument("--declination-deg", type=float, default=EarthField.declination_deg,
+                    help="magnetic north east of true north, deg (default %(default)s)")
+    se.add_argument("--mag-hard-iron-ut", type=lambda t: _floats(t, 3, "--mag-hard-iron-ut"), metavar="X,Y,Z",
+                    help="compass offset, body axes, uT (default 0,0,0: calibrated)")
+    se.add_argument("--mag-soft-iron", type=lambda t: _floats(t, 9, "--mag-soft-iron"), metavar="M11,...,M33",
+                    help="soft-iron 3x3 matrix, row-major (default identity)")
+
+    p.add_argument("--list-scenarios", action="store_true", help="print the scenarios and exit")
+    p.add_argument("-v", "--verbose", action="count", default=0)
+    p.add_argument("-q", "--quiet", action="store_true")
+    return p
+
+
+def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointSettings]:
+    """Build the simulator and endpoint settings from parsed arguments (raises ValueError)."""
+    imu = ImuErrorSettings.ideal(lowpass=True) if args.no_sensor_errors else ImuErrorSettings()
+    imu = replace(imu, gyro_lowpass_hz=args.gyro_lowpass_hz, accel_lowpass_hz=args.accel_lowpass_hz)
+    mag = MagSettings.ideal() if args.no_sensor_errors else MagSettings()
+    if args.mag_hard_iron_ut is not None:
+        mag = replace(mag, hard_iron_ut=args.mag_hard_iron_ut)
+    if args.mag_soft_iron is not None:
+        mag = replace(mag, soft_iron=args.mag_soft_iron)
+    fault = None
+    if args.attitude_fault:
+        vals = [float(v) for v in args.attitude_fault.split(",")]
+        if not 1 <= len(vals) <= 5:
+            raise ValueError("--attitude-fault takes 1 to 5 comma-separated numbers")
+        names = ("start_s", "duration_s", "roll_deg", "pitch_deg", "yaw_deg")
+        fault = AttitudeFault(**dict(zip(names, vals)))
+    imu_fault = None
+    if args.imu2_freeze_at is not None or args.imu2_saturate_at is not None:
+        imu_fault = ImuFault(instance=1, freeze_at_s=args.imu2_freeze_at, saturate_at_s=args.imu2_saturate_at)
+    sim = SimSettings(
+        scenario=args.scenario,
+        seed=args.seed,
+        loop_rate_hz=args.loop_rate,
+        oversample=args.oversample,
+        boot_offset_s=args.boot_offset_s,
+        imu=imu,
+        imu_count=args.imus,
+        mag=mag,
+        mag_count=args.mags,
+        earth_field=EarthField(args.field_ut, args.inclination_deg, args.declination_deg),
+        home=Home(args.lat, args.lon, args.alt_m),
+        attitude_fault=fault,
+        imu_fault=imu_fault,
+    )
+    preset = args.preset or ("bench" if args.fast else "default")
+    link_bps = None
+    if args.baud is not None or not (args.out.startswith(("udp", "tcp", "pty")) or args.fast):
+        link_bps = (args.baud or 115200) / 10.0
+    ep = EndpointSettings(
+        autopilot=args.autopilot,
+        system_id=args.sysid,
+        component_id=args.compid,
+        ideal=args.ideal,
+        preset=preset,
+        default_stream_hz=args.default_stream_hz,
+        streams_hz=tuple(args.stream),
+        support_message_interval=not args.no_message_interval,
+        link_bytes_per_s=link_bps if not args.fast else None,
+        block_ticks=2000 if args.fast else 40,
+    )
+    return sim, ep
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING if args.quiet else (logging.DEBUG if args.verbose > 1 else logging.INFO),
+        format="%(asctime)s %(name)s %(levelname)s: %(message)s",
+        stream=sys.stderr,
+    )
+    if args.list_scenarios:
+        for n in SCENARIOS:
+            print(f"{n:12s} {SCENARIO_DESCRIPTIONS[n]}")
+        return EXIT_OK
+    if args.fast and not args.tlog:
+        parser.error("--fast needs --tlog FILE")
+    if args.fast and args.duration <= 0:
+        parser.error("--fast needs a positive --duration")
+    try:
+        sim_settings, ep_settings = settings_from_args(args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    endpoint = Endpoint(Simulation(sim_settings), ep_settings)
+
+    if args.fast:
+        stats = write_tlog(endpoint, args.tlog, args.duration, blackouts=args.blackout)
+        print(f"wrote {args.tlog}: {args.duration:g} s simulated, {stats.frames} frames, "
+              f"{stats.bytes / 1e6:.1f} MB in {stats.wall_s:.2f} s", flush=True)
+        if args.stats_json:
+            write_stats_json(args.stats_json, endpoint, stats, f"tlog {args.tlog}")
+        return EXIT_OK
+
+    try:
+        link = open_link(args.out, baud=args.baud or 115200)
+    except TransportError as exc:
+        print(f"mavahrs-sim: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    stop = {"flag": False}
+
+    def _stop(signum: int, frame: object) -> None:
+        stop["flag"] = True
+
+    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    desc = link.describe()
+    if desc.startswith("pty "):
+        print(f"PTY {desc.split()[1]}", flush=True)
+    print(f"LINK {desc}", flush=True)
+    log.info("scenario %s, seed %d, %s, loop %g Hz%s", args.scenario, args.seed, args.autopilot, args.loop_rate,
+             " (ideal)" if args.ideal else "")
+    tlog = open(args.tlog, "wb") if args.tlog else None
+    try:
+        stats = run_realtime(
+            endpoint, link, args.duration if args.duration > 0 else None,
+            should_stop=lambda: stop["flag"], blackouts=args.blackout, tlog=tlog,
+            status_every_s=0.0 if args.quiet else 10.0,
+        )
+    finally:
+        link.close()
+        if tlog is not None:
+            tlog.close()
+        for s, h in old.items():
+            signal.signal(s, h)
+    if args.stats_json:
+        write_stats_json(args.stats_json, endpoint, stats, desc)
+    log.info("done: %d ticks, %d frames, %d late ticks (max %.1f ms)", stats.ticks, stats.frames,
+             stats.late_ticks, stats.max_late_s * 1e3)
+    return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
