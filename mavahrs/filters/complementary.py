@@ -17,7 +17,7 @@ r"""The complementary filter of Ermakov & Gogolev 2022 (002), eq. (22)–(29).
   magnetometer (or while it is rejected) the heading part is dropped, so the
   gyro's heading is kept — no Euler angle of q_ω is ever fed back.
 * α is rate-independent: α = 1 − exp(−dt/τ).  The paper's α = 0.05 at 400 Hz
-  is τ = −dt/ln(1 − α) ≈ 0.049 s.
+  is τ = −dt/ln(1 − α) ≈ 0.0487 s.
 * Bias: the corrective rotation per step, expressed in body axes, is
   integrated into the gyro-bias estimate (a PI loop; the paper has none), plus
   the shared rest-phase estimator; accelerometer low-pass in the NED frame and
@@ -135,7 +135,7 @@ class ComplementarySettings(FilterSettings):
     bias_limit_rad_s: float = math.radians(5.0)
     integral_error_limit_rad: float = math.radians(2.0)
     gnss_acceleration: bool = True
-    velocity_tau_s: float = 0.2
+    velocity_tau_s: float = 0.0
     velocity_max_age_s: float = 1.0
     accel_lowpass_s: float = 1.0
     rest: RestBiasSettings = field(default_factory=RestBiasSettings)
@@ -185,7 +185,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     mag_ok = (flags & FLAG_MAG_INVALID) == 0
     at_rest = rest_step(
         state, S_FILTER + _RS, state, S_BIAS, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
-        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], accel_ok, dt, params, p + _REST,
+        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], accel_ok,
+        row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params, p + _REST,
     )  # fmt: skip
     gx = row[IN_GYRO] - state[S_BIAS]
     gy = row[IN_GYRO + 1] - state[S_BIAS + 1]

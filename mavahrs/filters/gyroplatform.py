@@ -139,7 +139,7 @@ class GyroPlatformSettings(FilterSettings):
     bias_limit_rad_s: float = math.radians(5.0)
     integral_error_limit_rad: float = math.radians(2.0)
     gnss_acceleration: bool = True
-    velocity_tau_s: float = 0.2
+    velocity_tau_s: float = 0.0
     velocity_max_age_s: float = 1.0
     accel_lowpass_s: float = 1.0
     rest: RestBiasSettings = field(default_factory=RestBiasSettings)
@@ -184,7 +184,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     mag_ok = (flags & FLAG_MAG_INVALID) == 0
     at_rest = rest_step(
         state, S_FILTER + _RS, state, S_BIAS, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
-        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], accel_ok, dt, params, p + _REST,
+        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], accel_ok,
+        row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params, p + _REST,
     )  # fmt: skip
     gx = row[IN_GYRO] - state[S_BIAS]
     gy = row[IN_GYRO + 1] - state[S_BIAS + 1]

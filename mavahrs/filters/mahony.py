@@ -145,7 +145,7 @@ class MahonySettings(FilterSettings):
     cog_heading: bool = False
     cog_min_speed_m_s: float = 3.0
     gnss_acceleration: bool = True
-    velocity_tau_s: float = 0.2
+    velocity_tau_s: float = 0.0
     velocity_max_age_s: float = 1.0
     accel_lowpass_s: float = 1.0
     rest: RestBiasSettings = field(default_factory=RestBiasSettings)
@@ -191,7 +191,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     at_rest = rest_step(
         state, S_FILTER + _RS, state, S_BIAS, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
-        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], accel_ok, dt, params, p + _REST,
+        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], accel_ok,
+        row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params, p + _REST,
     )  # fmt: skip
     bx, by, bz = state[S_BIAS], state[S_BIAS + 1], state[S_BIAS + 2]
     gx = row[IN_GYRO] - bx

@@ -30,7 +30,7 @@ from mavahrs.filters.jit import kernel
 __all__ = ["RestBiasSettings", "REST_LEN", "RP_LEN", "rest_reset", "rest_step"]
 
 REST_LEN = 8
-RP_LEN = 6  # parameter block length (RestBiasSettings.to_params order)
+RP_LEN = 7  # parameter block length (RestBiasSettings.to_params order)
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,9 @@ class RestBiasSettings:
             low-pass at rest.
         rate_limit_rad_s: largest low-passed rate still taken for a bias.
         min_time_s: readings must stay steady this long before rest is declared.
+        max_speed_m_s: with a GNSS velocity, a ground speed above this rules
+            rest out (a steady slow turn in cruise would otherwise look like a
+            bias).
     """
 
     bias_tau_s: float = 2.0
@@ -54,6 +57,7 @@ class RestBiasSettings:
     accel_threshold_m_s2: float = 0.5
     rate_limit_rad_s: float = math.radians(3.0)
     min_time_s: float = 1.5
+    max_speed_m_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
@@ -71,6 +75,7 @@ class RestBiasSettings:
                 self.rate_limit_rad_s,
                 self.min_time_s,
                 self.bias_tau_s,
+                self.max_speed_m_s,
             ]
         )
 
@@ -82,10 +87,11 @@ def rest_reset(s, k):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, dt, rp, kp):  # type: ignore[no-untyped-def]
+def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, vn, ve, vd, dt, rp, kp):  # type: ignore[no-untyped-def]
     """Advance the detector; while at rest update ``bias[kb:kb+3]``.  Returns True at rest.
 
-    ``g`` is the raw gyro (rad/s), ``a`` the specific force (m/s²);
+    ``g`` is the raw gyro (rad/s), ``a`` the specific force (m/s²), ``v`` the
+    GNSS velocity (NED, m/s; NaN = none);
     ``rp[kp:kp+RP_LEN]`` the parameters (:meth:`RestBiasSettings.to_params`).
     A ``bias_tau_s`` of 0 disables the detector (always returns False).
     """
@@ -95,6 +101,7 @@ def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, dt, rp, kp):  # 
     rate_limit = rp[kp + 3]
     min_time_s = rp[kp + 4]
     bias_tau_s = rp[kp + 5]
+    max_speed = rp[kp + 6]
     if bias_tau_s <= 0.0:
         return False
     if s[k + 7] == 0.0:
@@ -118,7 +125,10 @@ def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, dt, rp, kp):  # 
     dgx, dgy, dgz = gx - s[k], gy - s[k + 1], gz - s[k + 2]
     steady = dgx * dgx + dgy * dgy + dgz * dgz < gyro_threshold * gyro_threshold
     slow = s[k] * s[k] + s[k + 1] * s[k + 1] + s[k + 2] * s[k + 2] < rate_limit * rate_limit
-    if still and steady and slow:
+    moving = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd) and (
+        vn * vn + ve * ve + vd * vd > max_speed * max_speed
+    )
+    if still and steady and slow and not moving:
         s[k + 6] += dt
     else:
         s[k + 6] = 0.0

@@ -140,3 +140,65 @@ def synthetic() -> Callable[..., Truth]:
 def truth_9axis_noisy() -> Truth:
     """60 s, 200 Hz, noisy, no bias: the common accuracy case."""
     return make_truth(60.0, 200.0, noise=True)
+
+
+# --------------------------------------------------------------------- real data
+
+
+@pytest.fixture(scope="session")
+def broad_trials(broad_dir):  # type: ignore[no-untyped-def]
+    """All BROAD trials in ../shared/data/broad (skips when absent)."""
+    from mavahrs.evaluation.datasets import find_broad_trials, load_broad_trial
+
+    paths = find_broad_trials(broad_dir)
+    if not paths:
+        pytest.skip(f"no BROAD .mat trials in {broad_dir}")
+    return [load_broad_trial(p) for p in paths]
+
+
+@pytest.fixture(scope="session")
+def broad_mean(broad_trials) -> Callable[..., np.ndarray]:  # type: ignore[no-untyped-def]
+    """``broad_mean(name, settings=None, six_axis=False)`` → mean (total, heading, inclination) RMS, degrees.
+
+    BROAD's scoring: per trial the RMS over ``movement == 1`` samples with a
+    reference, then the plain mean over trials; one setting for all trials.
+    """
+    from mavahrs.evaluation.metrics import summarize
+    from mavahrs.filters import create
+    from mavahrs.filters.layout import OUT_Q
+
+    def run(name: str, settings: object = None, six_axis: bool = False) -> np.ndarray:
+        rows = []
+        for rec in broad_trials:
+            inputs = make_inputs(rec.gyro_rad_s, rec.accel_m_s2, None if six_axis else rec.mag_ut, dt_s=rec.dt_s)
+            out = create(name, settings).run(inputs)
+            s = summarize(out[:, OUT_Q : OUT_Q + 4], rec.q_ref_body_to_ned, rec.scored)
+            rows.append((s.total_rms_deg, s.heading_rms_deg, s.inclination_rms_deg))
+        return np.mean(np.array(rows), axis=0)
+
+    return run
+
+
+@pytest.fixture(scope="session")
+def gnss_inclination() -> Callable[..., tuple[float, float]]:
+    """``gnss_inclination(name)`` → inclination RMS (deg) with and without GNSS velocity.
+
+    90 s, 9-axis (the NED acceleration is rotated into body axes with the
+    estimated heading, so compensation needs a heading reference), a
+    sinusoidal path of 4 m amplitude (≈ 2.6 m/s² peak horizontal
+    acceleration), noisy sensors, velocity on every row; scored after 10 s.
+    """
+    from mavahrs.evaluation.metrics import attitude_errors_rad
+    from mavahrs.filters import create
+    from mavahrs.filters.layout import OUT_Q
+
+    def run(name: str, settings: object = None) -> tuple[float, float]:
+        tr = make_truth(90.0, 200.0, noise=True, linear_acceleration_m=4.0)
+        res = []
+        for velocity in (True, False):
+            out = create(name, settings).run(tr.inputs(mag=True, velocity=velocity))
+            _, _, incl = attitude_errors_rad(out[:, OUT_Q : OUT_Q + 4], tr.q_body_to_ned)
+            res.append(float(np.degrees(np.sqrt(np.mean(incl[2000:] ** 2)))))
+        return res[0], res[1]
+
+    return run
