@@ -85,8 +85,22 @@ def _unwrap(y: Array, like: Array | None = None) -> Array:
 
 
 def _angle(y: Array, k: int, like: Array | None = None) -> Array:
-    """Angle ``k`` (0 roll, 1 pitch, 2 yaw) for drawing: roll and yaw unwrapped."""
-    return y if k == 1 else _unwrap(y, like)
+    """Angle ``k`` (0 roll, 1 pitch, 2 yaw) for drawing.
+
+    Roll and yaw are unwrapped (a level BROAD sensor sits at roll ±180°) unless
+    they turn more than a full circle (a vehicle flying circles): then they are
+    drawn wrapped to ±180° with the wrap-arounds left undrawn.
+    """
+    if k == 1:
+        return y
+    u = _unwrap(y, like)
+    fin = np.isfinite(u)
+    if fin.any() and np.ptp(u[fin]) > 400.0:
+        w = (np.asarray(y, dtype=float) + 180.0) % 360.0 - 180.0
+        if w.size > 1:
+            w[1:][np.abs(np.diff(w)) > 180.0] = np.nan
+        return w
+    return u
 
 
 def _quats(x: Array) -> Array:

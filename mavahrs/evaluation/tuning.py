@@ -38,9 +38,12 @@ Selezneva & Kumarin (004), eq. (1)–(5), with Madgwick 2010, eq. (47)–(51):
    isotropic noise this lands close to the spec formula, so the two columns
    are a consistency check of each other.
 
-Output: :class:`TuneResult` with ``to_toml()`` — the ``[calibration.gyro_temperature]``
-model (``mavahrs.sensors.calibration.GyroTemperatureModel`` fields) and the
-Madgwick gains in ``[filters.madgwick]``, the layout ``mavahrs run --config`` reads.
+Output: :class:`TuneResult` with ``to_toml()`` — the layout ``mavahrs run
+--config`` reads (:mod:`mavahrs.config`): ``[pipeline] filter_name = "madgwick"``,
+the temperature model in ``[pipeline.calibration.gyro_temperature]``
+(:class:`mavahrs.sensors.calibration.GyroTemperatureModel` fields ``b0_rad_s``,
+``k_rad_s_per_c``, ``t0_c``) and the gains in ``[filter.madgwick]``
+(``beta_rad_s``, ``zeta_rad_s``).
 """
 
 from __future__ import annotations
@@ -173,13 +176,17 @@ class TuneResult:
             f"{self.duration_s:.0f} s).",
             "# Use with: mavahrs run --config THIS_FILE  (flags on the command line still override it).",
             "",
+            "[pipeline]",
+            '# the gains below are Madgwick\'s; pick another filter with --filter (its table is then unused)',
+            'filter_name = "madgwick"',
+            "",
         ]
         if self.temperature_model:
             lines += [
                 "# Gyro zero drift vs temperature, b(T) = b0 + k·(T − t0), subtracted from the gyro",
                 "# whenever the IMU message carries a temperature (RAW_IMU / SCALED_IMU `temperature`).",
                 f"# Fitted over {self.temperature_range_c[0]:.2f} … {self.temperature_range_c[1]:.2f} °C.",
-                "[calibration.gyro_temperature]",
+                "[pipeline.calibration.gyro_temperature]",
                 f"b0_rad_s = {_toml_vec(self.b0_rad_s)}",
                 f"k_rad_s_per_c = {_toml_vec(self.k_rad_s_per_c)}",
                 f"t0_c = {self.t0_c:.4f}",
@@ -198,7 +205,7 @@ class TuneResult:
             f"# The {'least-squares' if gains == 'spec' else 'spec-formula'} values were "
             f"beta = {other_beta:.6g}, zeta = {other_zeta:.6g}.",
             "# Noise-derived gains suit a vehicle at rest; a flying vehicle usually needs a larger beta.",
-            "[filters.madgwick]",
+            "[filter.madgwick]",
             f"beta_rad_s = {beta:.6g}",
             f"zeta_rad_s = {zeta:.6g}",
             "",

@@ -1,0 +1,738 @@
+r"""Telemetry logs as filter inputs, in bulk, exactly as the daemon's pipeline would feed them.
+
+:func:`read_tlog_data` decodes a tlog once with the bulk reader
+(:mod:`mavahrs.protocol.fast_tlog`: pymavlink's messages and order at
+compiled speed).  :func:`prepare_inputs` then does, with numpy over whole
+arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
+
+* the IMU source is the first autopilot HEARTBEAT's system/component (or the
+  configured one); IMU messages before it, or from elsewhere, are not used;
+* scaling with the profile's units, saturation and validity checks
+  (:class:`mavahrs.sensors.scaling.Scaler`, mirrored element by element);
+* the IMU instance the selector (:class:`~mavahrs.sensors.imu_select.ImuSelector`)
+  would feed: instances whose accelerometer and gyro are all zero are absent
+  (an ArduSub SCALED_IMU2); all-zero samples are never fed;
+* timing from the sample timestamps (the pipeline's timeline: duplicates and
+  reordered samples dropped; a gap reaches the filter as a long ``dt``);
+* the calibration (gyro temperature model, magnetometer calibration, axis
+  remap) as :class:`~mavahrs.sensors.calibration.Calibrator` applies it;
+* GLOBAL_POSITION_INT velocity into the next fed row, rotated into the
+  magnetic frame, and the declination applied to outputs, from a real
+  :class:`~mavahrs.sensors.geomag.DeclinationSource` fed the position and
+  time messages in order.
+
+What it cannot mirror in bulk — several live IMU instances with ``imu=auto``
+(fail-over decisions), an autopilot reboot, one instance carried by two
+message types — raises :class:`FastPathUnsupported`; replay then runs the
+pipeline itself, message by message (same results, slower).  A test checks
+that both give identical attitudes and frames.
+
+:func:`load_tlog_recording` turns the result into an evaluation
+:class:`~mavahrs.evaluation.datasets.Recording` whose reference is the
+simulator's truth (SIM_STATE quaternion, else SIMSTATE Euler angles).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavahrs.errors import DataError
+from mavahrs.evaluation.datasets import Recording
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_WIDTH
+
+__all__ = [
+    "REPLAY_TYPES",
+    "REFERENCE_TYPES",
+    "TlogData",
+    "PreparedInputs",
+    "FastPathUnsupported",
+    "read_tlog_data",
+    "prepare_inputs",
+    "references",
+    "load_tlog_recording",
+    "cut_recording",
+    "decimal_year_of_log",
+]
+
+Array = NDArray[np.float64]
+
+IMU_TYPES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+POSITION_TYPES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "HOME_POSITION", "SYSTEM_TIME")
+REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE")
+#: What replay reads from a log.
+REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT",) + POSITION_TYPES + REFERENCE_TYPES
+
+_MAV_AUTOPILOT_INVALID = 8
+_NAN = math.nan
+
+
+class FastPathUnsupported(Exception):
+    """The log needs the pipeline's per-message decisions (the reason says which)."""
+
+
+# --------------------------------------------------------------------------- reading
+
+
+@dataclass
+class TlogData:
+    """A tlog decoded in bulk.
+
+    Attributes:
+        path: the file.
+        data: its bytes.
+        msgid, t_us: per frame of :data:`REPLAY_TYPES`, in pymavlink's order.
+        offset, in_side: where each frame is (to find it in a full scan).
+        arrays: message type → structured array (fields of :func:`read_tlog_arrays`).
+        pos: message type → positions of its frames in the frame order.
+        scan: the underlying :class:`~mavahrs.protocol.fast_tlog.TlogScan`.
+    """
+
+    path: str
+    data: NDArray[np.uint8]
+    msgid: NDArray[np.int32]
+    t_us: NDArray[np.int64]
+    arrays: dict[str, np.ndarray]
+    pos: dict[str, NDArray[np.int64]]
+    scan: Any
+
+    @property
+    def frames(self) -> int:
+        return int(self.msgid.shape[0])
+
+    def message(self, type_name: str, k: int) -> _Msg:
+        """The ``k``-th message of a type as an attribute object (``get_type()``, fields, header)."""
+        return _Msg(type_name, self.arrays[type_name][k])
+
+
+class _Msg:
+    """A decoded row with the pymavlink attribute interface the pipeline's helpers use."""
+
+    __slots__ = ("_type", "_row")
+
+    def __init__(self, type_name: str, row: Any) -> None:
+        self._type = type_name
+        self._row = row
+
+    def get_type(self) -> str:
+        return self._type
+
+    def get_srcSystem(self) -> int:  # noqa: N802 - pymavlink's name
+        return int(self._row["sysid"])
+
+    def get_srcComponent(self) -> int:  # noqa: N802
+        return int(self._row["compid"])
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            v = self._row[name]
+        except (ValueError, KeyError, IndexError):
+            raise AttributeError(name) from None
+        return v.item() if hasattr(v, "item") else v
+
+
+def read_tlog_data(path: str | Path) -> TlogData:
+    """Decode the message types replay needs from a tlog (bulk, pymavlink-exact)."""
+    from mavahrs.protocol.codec import mavlink
+    from mavahrs.protocol.fast_tlog import read_tlog_arrays, scan_tlog
+
+    p = Path(path)
+    if not p.is_file():
+        raise DataError(f"{p}: no such tlog")
+    data = np.fromfile(p, np.uint8)
+    if data.size == 0:
+        raise DataError(f"{p}: empty file")
+    scan = scan_tlog(data, list(REPLAY_TYPES), mode="mmap")
+    arrays = read_tlog_arrays(data, list(REPLAY_TYPES))
+    pos: dict[str, NDArray[np.int64]] = {}
+    for name in REPLAY_TYPES:
+        mid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+        pos[name] = np.flatnonzero(scan.msgid == mid).astype(np.int64)
+        if pos[name].shape[0] != arrays[name].shape[0]:  # pragma: no cover - both come from the same emulation
+            raise DataError(f"{p}: {name}: the bulk decoder and the frame scan disagree")
+    return TlogData(
+        path=str(p), data=data, msgid=scan.msgid, t_us=scan.t_us.view(np.int64), arrays=arrays, pos=pos, scan=scan
+    )
+
+
+def decimal_year_of_log(td: TlogData) -> float | None:
+    """The date of the recording from its first record's Unix timestamp (None if implausible)."""
+    if td.frames == 0:
+        return None
+    unix_s = float(td.t_us[0]) * 1e-6
+    if not 946684800.0 <= unix_s <= 4102444800.0:  # 2000 … 2100
+        return None
+    from mavahrs.sensors.geomag import decimal_year_from_unix_s
+
+    return float(decimal_year_from_unix_s(unix_s))
+
+
+# --------------------------------------------------------------------------- prepared inputs
+
+
+@dataclass
+class PreparedInputs:
+    """The filter's input rows for a log, as the pipeline would build them.
+
+    Attributes:
+        rows: (M, IN_WIDTH) input rows (dt, gyro, accel, mag, velocity).
+        t_us: (M,) sample time, µs of the autopilot's clock.
+        frame_pos: (M,) position of the IMU message in :class:`TlogData` order.
+        tlog_us: (M,) the tlog timestamp of that message.
+        temperature_c: (M,) IMU temperature (NaN when not sent).
+        declination_rad: (M,) declination applied to the outputs at each sample.
+        message: the IMU message type fed; instance: its instance number.
+        source: (system, component) of the autopilot; profile: scaling profile name.
+        engine: ``fast`` (this module) or ``pipeline`` (message by message).
+        notes: things the user should know (absent instances, low rate …).
+        counts: samples seen / fed / dropped by reason.
+    """
+
+    rows: Array
+    t_us: NDArray[np.int64]
+    frame_pos: NDArray[np.int64]
+    tlog_us: NDArray[np.int64]
+    temperature_c: Array
+    declination_rad: Array
+    message: str
+    instance: int
+    source: tuple[int, int]
+    profile: str
+    engine: str = "fast"
+    notes: list[str] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return int(self.t_us.shape[0])
+
+    def rate_hz(self) -> float:
+        """Median sample rate reaching the filter (0 if fewer than two samples)."""
+        if self.n < 2:
+            return 0.0
+        d = np.diff(self.t_us)
+        d = d[d > 0]
+        return float(1e6 / np.median(d)) if d.size else 0.0
+
+
+def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], int, str]:
+    """(source, position of its first heartbeat, profile name), as Pipeline._on_heartbeat decides."""
+    from mavahrs.sensors.profiles import profile_for_autopilot
+
+    hb = td.arrays["HEARTBEAT"]
+    hpos = td.pos["HEARTBEAT"]
+    s = settings
+    ok = hb["autopilot"] != _MAV_AUTOPILOT_INVALID
+    if s.source_system is not None:
+        ok &= hb["sysid"] == s.source_system
+    if s.source_component is not None:
+        ok &= hb["compid"] == s.source_component
+    if s.source_system is not None and s.source_component is not None and s.autopilot_profile != "auto":
+        return (int(s.source_system), int(s.source_component)), -1, s.autopilot_profile
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        raise DataError(f"{td.path}: no autopilot HEARTBEAT: cannot tell whose IMU data to use (set the source)")
+    k = int(idx[0])
+    src = (int(hb["sysid"][k]), int(hb["compid"][k]))
+    prof = profile_for_autopilot(int(hb["autopilot"][k])).name if s.autopilot_profile == "auto" else s.autopilot_profile
+    return src, int(hpos[k]), prof
+
+
+def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
+    """Vectorised :class:`mavahrs.sensors.scaling.Scaler` for one message type (same arithmetic)."""
+    from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE
+    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.sensors.scaling import HIGHRES_ACCEL_BITS, HIGHRES_GYRO_BITS, HIGHRES_MAG_BITS, MAG_MIN_UT
+
+    n = a.shape[0]
+    accel_fs = scaling.accel_range_g * G_M_S2 if scaling.accel_range_g is not None else ms.accel_range_m_s2
+    gyro_fs = math.radians(scaling.gyro_range_deg_s) if scaling.gyro_range_deg_s is not None else ms.gyro_range_rad_s
+    frac, bad = scaling.saturation_fraction, scaling.implausible_factor
+    a_sat, g_sat, a_bad, g_bad = accel_fs * frac, gyro_fs * frac, accel_fs * bad, gyro_fs * bad
+    ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
+    f64 = np.float64
+
+    def vec(prefix: str, k: float) -> tuple[Array, Array, Array, Array]:
+        x = a[f"x{prefix}"].astype(f64)
+        y = a[f"y{prefix}"].astype(f64)
+        z = a[f"z{prefix}"].astype(f64)
+        return x * k, y * k, z * k, np.stack([x, y, z], axis=1)
+
+    gx, gy, gz, graw = vec("gyro", kg)
+    ax, ay, az, araw = vec("acc", ka)
+    xm, ym, zm = (a[f"{c}mag"].astype(f64) for c in "xyz")
+    sat = np.zeros(n, np.int64)
+    inv = np.zeros(n, np.int64)
+    use = np.ones(n, bool)
+    gmax = np.maximum(np.maximum(np.abs(gx), np.abs(gy)), np.abs(gz))
+    amax = np.maximum(np.maximum(np.abs(ax), np.abs(ay)), np.abs(az))
+    if ms.integer_fields:
+        sat |= np.where(np.max(np.abs(graw), axis=1) >= 32767, GYRO, 0)
+        sat |= np.where(np.max(np.abs(araw), axis=1) >= 32767, ACCEL, 0)
+        sat |= np.where(gmax >= g_sat, GYRO, 0)
+        sat |= np.where(amax >= a_sat, ACCEL, 0)
+        mag_new = np.ones(n, bool)
+    else:
+        upd = a["fields_updated"].astype(np.int64)
+        use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
+        with np.errstate(invalid="ignore"):
+            g_inv = ~(gmax < g_bad)
+            inv |= np.where(g_inv, GYRO, 0)
+            sat |= np.where(~g_inv & (gmax >= g_sat), GYRO, 0)
+            acc_new = (upd & HIGHRES_ACCEL_BITS) == HIGHRES_ACCEL_BITS
+            a_inv = acc_new & ~(amax < a_bad)
+            inv |= np.where(a_inv, ACCEL, 0)
+            sat |= np.where(acc_new & ~a_inv & (amax >= a_sat), ACCEL, 0)
+        ax, ay, az = (np.where(acc_new, v, _NAN) for v in (ax, ay, az))
+        mag_new = (upd & HIGHRES_MAG_BITS) == HIGHRES_MAG_BITS
+    # magnetometer (Scaler.mag_of)
+    absent = (xm == 0) & (ym == 0) & (zm == 0)
+    mx, my, mz = xm * km, ym * km, zm * km
+    with np.errstate(invalid="ignore", over="ignore"):
+        nrm = np.sqrt(mx * mx + my * my + mz * mz)
+        if ms.mag_legacy_to_ut is not None:
+            legacy = nrm > ms.mag_plausible_max_ut
+            lx, ly, lz = xm * ms.mag_legacy_to_ut, ym * ms.mag_legacy_to_ut, zm * ms.mag_legacy_to_ut
+            mx, my, mz = np.where(legacy, lx, mx), np.where(legacy, ly, my), np.where(legacy, lz, mz)
+            nrm = np.where(legacy, np.sqrt(lx * lx + ly * ly + lz * lz), nrm)
+        unusable = ~((MAG_MIN_UT <= nrm) & (nrm <= ms.mag_plausible_max_ut))
+    m_inv = mag_new & ~absent & unusable
+    inv |= np.where(m_inv, MAG, 0)
+    keep_m = mag_new & ~absent & ~unusable
+    mx, my, mz = (np.where(keep_m, v, _NAN) for v in (mx, my, mz))
+    # temperature
+    temp = np.full(n, _NAN)
+    if ms.temperature_to_c is not None and "temperature" in a.dtype.names:
+        raw_t = a["temperature"].astype(np.int64)
+        temp = np.where(raw_t != 0, raw_t * ms.temperature_to_c, _NAN)
+    # instance
+    if name in ("RAW_IMU", "HIGHRES_IMU") and "id" in a.dtype.names:
+        ids = a["id"].astype(np.int64)
+        imu = np.where((ids >= 0) & (ids < 16), ids, 0)
+    else:
+        imu = np.full(n, INSTANCE_OF_MESSAGE[name], np.int64)
+    t_us = a[ms.time_field].astype(np.int64) * ms.time_to_us
+    return {
+        "imu": imu, "t_us": t_us, "gyro": np.stack([gx, gy, gz], 1), "accel": np.stack([ax, ay, az], 1),
+        "mag": np.stack([mx, my, mz], 1), "temp": temp, "sat": sat, "inv": inv, "use": use,
+    }  # fmt: skip
+
+
+def _timeline(t_us: NDArray[np.int64], settings: Any) -> tuple[NDArray[np.bool_], Array]:
+    """Which samples the pipeline's timeline passes, and their dt (s).
+
+    Runs the pipeline's own timeline object sample by sample unless the
+    timestamps are strictly increasing with no gap, where every event is "ok"
+    with dt = Δt (checked against the timeline on the first samples).
+    """
+    from mavahrs.service import pipeline as _pl
+
+    n = t_us.shape[0]
+    keep = np.ones(n, bool)
+    dt = np.full(n, _NAN)
+    if n == 0:
+        return keep, dt
+    tl = _pl._new_timeline(settings.timeline)
+    d = np.diff(t_us)
+    simple = bool(np.all(d > 0))
+    if simple:
+        probe = min(n, 64)
+        for i in range(probe):  # the timeline's own verdict on a prefix: must be plain "ok"
+            ev = tl.push(int(t_us[i]))
+            if i and (ev.kind not in ("ok",) or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
+                simple = False
+                break
+        if simple:
+            gap_like = d > 500_000
+            if gap_like.any():
+                simple = False
+    if simple:
+        dt[1:] = d * 1e-6
+        return keep, dt
+    tl = _pl._new_timeline(settings.timeline)
+    for i in range(n):
+        ev = tl.push(int(t_us[i]))
+        kind = ev.kind
+        if kind == "reboot" and i:
+            raise FastPathUnsupported("the autopilot rebooted during the log")
+        if kind in ("duplicate", "reordered", "out_of_order", "stale", "drop"):
+            keep[i] = False
+            continue
+        if ev.t_us != t_us[i]:
+            raise FastPathUnsupported("the timeline corrects timestamps")
+        dt[i] = ev.dt_s
+    return keep, dt
+
+
+def prepare_inputs(
+    td: TlogData,
+    settings: Any = None,
+    *,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    decimal_year: float | None = None,
+) -> PreparedInputs:
+    """The filter input rows of a log as :class:`~mavahrs.service.pipeline.Pipeline` builds them.
+
+    Args:
+        settings: the pipeline's settings (``PipelineSettings``; defaults if None).
+        start_s, end_s: use only IMU messages whose tlog time lies in this
+            window, seconds from the log's first record.
+        decimal_year: date for the magnetic model until SYSTEM_TIME arrives.
+
+    Raises:
+        FastPathUnsupported: the log needs per-message decisions (see the module doc).
+        DataError: no autopilot, no IMU data.
+    """
+    from mavahrs.sensors.calibration import Calibrator
+    from mavahrs.sensors.geomag import DeclinationSource, rotate_true_to_magnetic
+    from mavahrs.sensors.profiles import get_profile
+    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.service.pipeline import PipelineSettings
+
+    s = settings if settings is not None else PipelineSettings()
+    src, hb_pos, prof_name = _source_and_profile(td, s)
+    profile = get_profile(prof_name)
+    t0 = int(td.t_us[0]) if td.frames else 0
+    lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
+    hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
+    # --- every IMU message of the source, scaled, in frame order
+    parts = []
+    notes: list[str] = []
+    for name in IMU_TYPES:
+        a = td.arrays[name]
+        if a.shape[0] == 0 or profile.scale_for(name) is None:
+            continue
+        pos = td.pos[name]
+        ok = (a["sysid"] == src[0]) & (a["compid"] == src[1]) & (pos > hb_pos)
+        ok &= (td.t_us[pos] >= lo) & (td.t_us[pos] <= hi)
+        if not ok.any():
+            continue
+        sc = _scale(name, a[ok], profile.scale_for(name), s.scaling)
+        sc["name"] = name
+        sc["pos"] = pos[ok]
+        parts.append(sc)
+    if not parts:
+        raise DataError(f"{td.path}: no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) from the autopilot")
+    # --- instances: absent (all samples all-zero) or live
+    live: dict[int, list[dict[str, Any]]] = {}
+    absent: set[int] = set()
+    carriers: dict[int, set[str]] = {}
+    for sc in parts:
+        for inst in np.unique(sc["imu"]):
+            carriers.setdefault(int(inst), set()).add(sc["name"])
+    shared = sorted(k for k, v in carriers.items() if len(v) > 1)
+    if shared:
+        raise FastPathUnsupported(f"IMU instance {shared[0]} arrives in several message types")
+    for sc in parts:
+        zero = np.all(sc["gyro"] == 0, axis=1) & np.all(sc["accel"] == 0, axis=1) & sc["use"]
+        sc["zero"] = zero
+        for inst in np.unique(sc["imu"]):
+            sel = sc["imu"] == inst
+            if zero[sel & sc["use"]].all():
+                absent.add(int(inst))
+            else:
+                live.setdefault(int(inst), []).append(sc)
+    for inst in sorted(absent - set(live)):
+        notes.append(f"IMU instance {inst} sends all-zero accelerometer and gyro (no such IMU): not used")
+    fixed = s.selection_settings.fixed
+    if fixed is not None:
+        if fixed not in live:
+            raise DataError(f"{td.path}: IMU instance {fixed} has no usable data (instances: {sorted(live) or 'none'})")
+        chosen = fixed
+    else:
+        if len(live) != 1:
+            raise FastPathUnsupported(f"{len(live)} live IMU instances: the selector decides per sample")
+        chosen = next(iter(live))
+    sc = live[chosen][0]
+    sel = (sc["imu"] == chosen) & sc["use"] & ~sc["zero"]
+    if not sel.any():
+        raise DataError(f"{td.path}: IMU instance {chosen} has no usable samples")
+    pos = sc["pos"][sel]
+    t_raw = sc["t_us"][sel]
+    keep, dt = _timeline(t_raw, s)
+    pos, t_us = pos[keep], t_raw[keep]
+    dt = dt[keep]
+    if dt.size:
+        dt[0] = _NAN  # the first sample fed initialises the filter
+    gyro, accel, mag = sc["gyro"][sel][keep], sc["accel"][sel][keep], sc["mag"][sel][keep]
+    sat, inv = sc["sat"][sel][keep], sc["inv"][sel][keep]
+    temp = sc["temp"][sel][keep]
+    m = pos.shape[0]
+    rows = np.full((m, IN_WIDTH), _NAN)
+    rows[:, IN_DT] = dt
+    bad = inv | (sat & (ACCEL | MAG))  # sample.write_row
+    rows[:, IN_GYRO : IN_GYRO + 3] = np.where((bad & GYRO)[:, None] != 0, _NAN, gyro)
+    rows[:, IN_ACCEL : IN_ACCEL + 3] = np.where((bad & ACCEL)[:, None] != 0, _NAN, accel)
+    rows[:, IN_MAG : IN_MAG + 3] = np.where((bad & MAG)[:, None] != 0, _NAN, mag)
+    # --- position/time messages in order: declination per sample, velocity into the next fed row
+    decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
+    events = []
+    for name in POSITION_TYPES:
+        a = td.arrays[name]
+        if a.shape[0] == 0:
+            continue
+        ok = (a["sysid"] == src[0]) & (a["compid"] == src[1]) & (td.pos[name] > hb_pos)
+        for k in np.flatnonzero(ok):
+            events.append((int(td.pos[name][k]), name, int(k)))
+    events.sort()
+    decl_at = np.full(m, decl.declination_rad)
+    vel_rows: list[tuple[int, tuple[float, float, float]]] = []
+    for frame_pos, name, k in events:
+        msg = td.message(name, k)
+        decl.handle(msg)
+        i = int(np.searchsorted(pos, frame_pos))  # first fed sample after this message
+        decl_at[i:] = decl.declination_rad
+        if name == "GLOBAL_POSITION_INT" and s.use_gnss_velocity and not (msg.lat == 0 and msg.lon == 0):
+            vn, ve, vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
+            f = decl.field
+            if f is not None:
+                vn, ve = rotate_true_to_magnetic(vn, ve, f.declination_rad)
+            if i < m:
+                vel_rows.append((i, (vn, ve, vd)))
+    for i, v in vel_rows:  # later messages before the same sample overwrite earlier ones
+        rows[i, IN_VEL : IN_VEL + 3] = v
+    # --- calibration (Calibrator.apply_row, element by element)
+    ms = profile.scale_for(sc["name"])
+    cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
+    if cal.active:
+        _calibrate(rows, temp, cal)
+    counts = {
+        "imu_messages": int(sum(p["imu"].shape[0] for p in parts)),
+        "fed": m,
+        "dropped_timeline": int((~keep).sum()),
+    }
+    return PreparedInputs(
+        rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,
+        declination_rad=decl_at, message=sc["name"], instance=chosen, source=src, profile=prof_name,
+        engine="fast", notes=notes, counts=counts,
+    )  # fmt: skip
+
+
+def _calibrate(rows: Array, temp: Array, cal: Any) -> None:
+    """Calibrator.apply_row over all rows (the same operations, vectorised)."""
+    g = cal._gyro
+    if g is not None:
+        b0, k, t0 = g.b0_rad_s, g.k_rad_s_per_c, g.t0_c
+        d = temp - t0
+        known = np.isfinite(temp)
+        for i in range(3):
+            rows[:, IN_GYRO + i] -= np.where(known, b0[i] + k[i] * d, b0[i])
+    if cal._mag is not None:
+        mc = cal._mag
+        o = np.asarray(mc.offset_ut)
+        mat = np.asarray(mc.matrix)
+        v = rows[:, IN_MAG : IN_MAG + 3] - o
+        rows[:, IN_MAG : IN_MAG + 3] = (
+            v[:, 0:1] * mat[:, 0] + v[:, 1:2] * mat[:, 1] + v[:, 2:3] * mat[:, 2]
+        )
+    r = cal._remap
+    if r is not None:
+        for base in (IN_GYRO, IN_ACCEL, IN_MAG):
+            v = rows[:, base : base + 3].copy()
+            for i in range(3):
+                rows[:, base + i] = r[i][0] * v[:, 0] + r[i][1] * v[:, 1] + r[i][2] * v[:, 2]
+
+
+# --------------------------------------------------------------------------- references
+
+
+def _imu_clock(td: TlogData, prep: PreparedInputs) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(tlog µs, autopilot µs) pairs of the fed samples, for mapping untimed messages."""
+    return prep.tlog_us, prep.t_us
+
+
+def _tlog_to_autopilot(td: TlogData, prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> Array:
+    x, y = _imu_clock(td, prep)
+    if x.size == 0:
+        return np.full(tlog_us.shape, _NAN)
+    xm = np.maximum.accumulate(x.astype(np.float64))
+    # np.interp needs increasing x: equal tlog stamps (several messages per record time) average out
+    ux, inv = np.unique(xm, return_inverse=True)
+    uy = np.bincount(inv, weights=y.astype(np.float64)) / np.bincount(inv)
+    if ux.size == 1:
+        return np.full(tlog_us.shape, float(uy[0]))
+    return np.interp(tlog_us.astype(np.float64), ux, uy, left=_NAN, right=_NAN)
+
+
+def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Array]]:
+    """Attitudes the log already holds, name → (autopilot time µs, (K, 4) q_body_to_ned, true north).
+
+    ``autopilot ATTITUDE`` (its ``time_boot_ms``), ``autopilot AHRS2`` and the
+    simulator truth ``SIM_STATE`` (quaternion) or ``SIMSTATE`` (Euler), which
+    carry no time: their tlog timestamps are mapped onto the autopilot clock
+    through the IMU messages' (tlog time, sample time) pairs.
+    """
+    from mavahrs.geometry.rotation import from_euler_rad
+
+    out: dict[str, tuple[Array, Array]] = {}
+    src = prep.source
+
+    def of_source(a: np.ndarray) -> np.ndarray:
+        return a[(a["sysid"] == src[0]) & (a["compid"] == src[1])] if a.shape[0] else a
+
+    att = of_source(td.arrays["ATTITUDE"])
+    if att.shape[0]:
+        q = from_euler_rad(att["roll"].astype(float), att["pitch"].astype(float), att["yaw"].astype(float))
+        out["autopilot ATTITUDE"] = (att["time_boot_ms"].astype(np.float64) * 1000.0, q)
+    ahrs2 = of_source(td.arrays["AHRS2"])
+    if ahrs2.shape[0]:
+        q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
+        out["autopilot AHRS2"] = (_tlog_to_autopilot(td, prep, ahrs2["t_us"]), q)
+    sim = of_source(td.arrays["SIM_STATE"])
+    if sim.shape[0]:
+        q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
+        out["SIM_STATE truth"] = (_tlog_to_autopilot(td, prep, sim["t_us"]), q)
+    else:
+        ss = of_source(td.arrays["SIMSTATE"])
+        if ss.shape[0]:
+            q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
+            out["SIMSTATE truth"] = (_tlog_to_autopilot(td, prep, ss["t_us"]), q)
+    for k, (t, q) in list(out.items()):
+        good = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
+        if not good.any():
+            del out[k]
+            continue
+        t, q = t[good], q[good]
+        order = np.argsort(t, kind="stable")
+        out[k] = (t[order], q[order] / np.linalg.norm(q[order], axis=1, keepdims=True))
+    return out
+
+
+def interpolate_attitude(t_ref: Array, q_ref: Array, t: Array, max_gap_s: float = 0.5) -> Array:
+    """Slerp a reference attitude series onto times ``t`` (NaN outside it or across gaps)."""
+    from mavahrs.geometry.quaternion import slerp
+
+    out = np.full((t.shape[0], 4), _NAN)
+    if t_ref.shape[0] < 2:
+        return out
+    i = np.searchsorted(t_ref, t, side="right") - 1
+    ok = (i >= 0) & (i < t_ref.shape[0] - 1)
+    i = np.clip(i, 0, t_ref.shape[0] - 2)
+    t0, t1 = t_ref[i], t_ref[i + 1]
+    span = t1 - t0
+    ok &= span <= max_gap_s * 1e6
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(span > 0, (t - t0) / np.where(span > 0, span, 1.0), 0.0)
+    if ok.any():
+        out[ok] = slerp(q_ref[i[ok]], q_ref[i[ok] + 1], frac[ok])
+    return out
+
+
+# --------------------------------------------------------------------------- recordings
+
+
+def _inputs_for(td: TlogData, imu: str, settings: Any) -> PreparedInputs:
+    from mavahrs.service.pipeline import PipelineSettings
+
+    s = settings if settings is not None else PipelineSettings(imu=imu)
+    dy = decimal_year_of_log(td)
+    try:
+        return prepare_inputs(td, s, decimal_year=dy)
+    except FastPathUnsupported:
+        from mavahrs.replay import pipeline_inputs
+
+        return pipeline_inputs(td, s, decimal_year=dy)
+
+
+def load_tlog_recording(
+    path: str | Path,
+    *,
+    imu: str = "auto",
+    reference: bool = True,
+    skip_s: float = 0.0,
+    settings: Any = None,
+) -> Recording:
+    """A tlog as an evaluation :class:`Recording`: the pipeline's filter inputs, SIM_STATE/SIMSTATE truth.
+
+    The truth (true north) is slerped onto the sample times and rotated by the
+    declination the pipeline would apply, into the filter's own magnetic-NED
+    frame, so the recording scores filters exactly as the daemon's output
+    would be scored.  Samples from ``skip_s`` seconds on are scored.
+    """
+    from mavahrs.geometry.quaternion import multiply
+
+    td = read_tlog_data(path)
+    prep = _inputs_for(td, imu, settings)
+    n = prep.n
+    q_ref = np.full((n, 4), _NAN)
+    notes = list(prep.notes)
+    if reference:
+        refs = references(td, prep)
+        truth = [k for k in refs if k.endswith("truth")]
+        if truth:
+            t_ref, q = refs[truth[0]]
+            q_true = interpolate_attitude(t_ref, q, prep.t_us.astype(np.float64))
+            half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
+            q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
+            q_ref = multiply(q_dec, q_true)
+            notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame)")
+        else:
+            notes.append("no simulator truth (SIM_STATE/SIMSTATE) in this log: nothing to score against")
+    rate = prep.rate_hz()
+    if 0 < rate < 50:
+        notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
+    t_s = (prep.t_us - prep.t_us[0]) * 1e-6 if n else np.zeros(0)
+    rows = prep.rows
+    dt = rows[:, IN_DT].copy()
+    if n > 1:
+        dt[0] = float(np.median(np.diff(prep.t_us))) * 1e-6
+    mag = rows[:, IN_MAG : IN_MAG + 3]
+    vel = rows[:, IN_VEL : IN_VEL + 3]
+    return Recording(
+        name=Path(path).stem,
+        dt_s=dt,
+        gyro_rad_s=np.ascontiguousarray(rows[:, IN_GYRO : IN_GYRO + 3]),
+        accel_m_s2=np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3]),
+        mag_ut=np.ascontiguousarray(mag) if np.isfinite(mag).any() else None,
+        q_ref_body_to_ned=q_ref,
+        scored=t_s >= skip_s,
+        groups=("tlog",),
+        heading_referenced=True,
+        extra={
+            "time_s": t_s,
+            "temperature_c": prep.temperature_c,
+            "velocity_ned_m_s": np.ascontiguousarray(vel) if np.isfinite(vel).any() else None,
+            "has_reference": bool(np.isfinite(q_ref).all(axis=1).any()),
+            "notes": notes,
+            "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",
+            "prepared": prep,
+        },
+    )
+
+
+def cut_recording(rec: Recording, start_s: float | None, end_s: float | None) -> Recording:
+    """The samples of a recording between ``start_s`` and ``end_s`` (seconds from its start)."""
+    if start_s is None and end_s is None:
+        return rec
+    t = rec.extra.get("time_s")
+    t = np.asarray(t, dtype=np.float64) if t is not None else np.cumsum(rec.dt_s) - rec.dt_s[0]
+    t = t - t[0]
+    keep = np.ones(rec.n, bool)
+    if start_s is not None:
+        keep &= t >= start_s
+    if end_s is not None:
+        keep &= t <= end_s
+    if keep.sum() < 2:
+        raise DataError(f"{rec.name}: fewer than two samples between {start_s} and {end_s} s")
+
+    def cut(x: Any) -> Any:
+        return np.asarray(x)[keep] if isinstance(x, np.ndarray) and x.shape[:1] == (rec.n,) else x
+
+    extra = {k: cut(v) for k, v in rec.extra.items()}
+    return dataclasses.replace(
+        rec,
+        dt_s=rec.dt_s[keep],
+        gyro_rad_s=rec.gyro_rad_s[keep],
+        accel_m_s2=rec.accel_m_s2[keep],
+        mag_ut=None if rec.mag_ut is None else rec.mag_ut[keep],
+        q_ref_body_to_ned=rec.q_ref_body_to_ned[keep],
+        scored=rec.scored[keep],
+        extra=extra,
+    )

@@ -1,0 +1,810 @@
+r"""Replay a flight log through the filters exactly as the daemon would have run them.
+
+:func:`replay` reads a tlog, builds the filter inputs with the daemon's own
+decoding, scaling, IMU selection, timing and calibration, runs one or more
+filters and returns, per IMU sample, each filter's attitude and diagnostics —
+plus the ATTITUDE_QUATERNION frames the daemon would have sent (vehicle
+system id, component 191 (+1 per further filter), ``time_boot_ms`` of the IMU
+sample, body rates = gyro − bias, at ``out_rate_hz`` of sample time, 0 = every
+sample).  Writers put them into a CSV (one row per IMU sample, flushed as it
+goes), a copy of the tlog with the frames inserted after the IMU message they
+were computed from, and a plot; :func:`compare` scores them against what the
+log already holds (the autopilot's ATTITUDE and AHRS2, the simulator's
+SIM_STATE/SIMSTATE truth).
+
+Two engines, one result:
+
+* ``pipeline`` — every message through :class:`mavahrs.service.pipeline.Pipeline`,
+  the daemon's functional core (the reference; needed for fail-over between
+  live IMU instances and autopilot reboots);
+* ``fast`` — the log decoded in bulk (:mod:`mavahrs.evaluation.tlogdata`) and
+  each filter run over all samples at once through its compiled batch path.
+  It mirrors the pipeline's per-message logic with numpy and refuses logs it
+  cannot mirror (``auto`` falls back to ``pipeline``); a test checks both give
+  identical attitudes and identical frames.
+
+:func:`stream` presents the replay to a ground station as a vehicle (see its
+docstring): QGroundControl draws only an autopilot's attitude on its HUD.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavahrs.errors import DataError
+from mavahrs.evaluation.tlogdata import (
+    IMU_TYPES,
+    FastPathUnsupported,
+    PreparedInputs,
+    TlogData,
+    decimal_year_of_log,
+    interpolate_attitude,
+    prepare_inputs,
+    read_tlog_data,
+    references,
+)
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.layout import (
+    FLAG_MAG_INVALID,
+    FLAG_NOT_INITIALISED,
+    IN_GYRO,
+    IN_WIDTH,
+    OUT_ACCEL_WEIGHT,
+    OUT_BIAS,
+    OUT_FLAGS,
+    OUT_GAIN,
+    OUT_MAG_WEIGHT,
+    OUT_Q,
+    OUT_WIDTH,
+)
+
+__all__ = [
+    "ReplaySettings",
+    "FilterTrack",
+    "ReplayResult",
+    "replay",
+    "pipeline_inputs",
+    "compare",
+    "format_comparison",
+    "write_tlog",
+    "plot_replay",
+    "csv_columns",
+    "LOW_RATE_HZ",
+    "stream",
+    "StreamSettings",
+]
+
+log = logging.getLogger("mavahrs.replay")
+Array = NDArray[np.float64]
+
+#: Below this many samples per second, attitude filtering is not meaningful.
+LOW_RATE_HZ = 50.0
+_CHUNK = 262_144  # samples per fast-path block (CSV written and flushed per block)
+
+
+@dataclass(frozen=True)
+class ReplaySettings:
+    """What :func:`replay` does.
+
+    Attributes:
+        filters: filter names (``madgwick``, ``mahony``, ``complementary``,
+            ``gyroplatform``, ``best``); the first gets component 191, the
+            next 192, …
+        pipeline: the daemon's pipeline settings (IMU instance, profile,
+            calibration, out-rate, system id …); its ``filter_name`` is
+            replaced by each of ``filters``.
+        filter_settings: settings per filter name (defaults when absent).
+        start_s, end_s: replay only the IMU messages in this window, seconds
+            from the log's first record.
+        engine: ``auto`` (fast when it can mirror the log, else pipeline),
+            ``fast`` or ``pipeline``.
+    """
+
+    filters: tuple[str, ...] = ("best",)
+    pipeline: Any = None
+    filter_settings: Mapping[str, Any] = field(default_factory=dict)
+    start_s: float | None = None
+    end_s: float | None = None
+    engine: str = "auto"
+
+    def __post_init__(self) -> None:
+        from mavahrs.filters import ALIASES, NAMES
+
+        if not self.filters:
+            raise ValueError("replay needs at least one filter")
+        for name in self.filters:
+            if name not in NAMES + ALIASES:
+                raise ValueError(f"unknown filter {name!r}; choose from {', '.join(NAMES + ALIASES)}")
+        if len(set(self.filters)) != len(self.filters):
+            raise ValueError("each filter may be replayed once")
+        if self.engine not in ("auto", "fast", "pipeline"):
+            raise ValueError(f"engine must be auto, fast or pipeline, got {self.engine!r}")
+        if self.start_s is not None and self.end_s is not None and self.end_s <= self.start_s:
+            raise ValueError(f"--end ({self.end_s}) must be after --start ({self.start_s})")
+
+    def pipeline_settings(self) -> Any:
+        from mavahrs.service.pipeline import PipelineSettings
+
+        return self.pipeline if self.pipeline is not None else PipelineSettings(out_rate_hz=0.0)
+
+
+@dataclass
+class FilterTrack:
+    """One filter's replay.
+
+    Attributes:
+        name: filter name; component_id: the component its frames carry.
+        out: (M, OUT_WIDTH) filter output rows, with ``OUT_Q`` replaced by
+            the attitude as sent (declination applied: true north when known).
+        sent: (M,) an ATTITUDE_QUATERNION was sent for this sample.
+        frames: the encoded frames, in sample order (one per sent sample, two
+            with ``send_attitude_euler``), or None until :meth:`ReplayResult.frames` encodes them.
+    """
+
+    name: str
+    component_id: int
+    out: Array
+    sent: NDArray[np.bool_]
+    frames: list[bytes] | None = None
+
+
+@dataclass
+class ReplayResult:
+    """Everything a replay produced.  ``inputs.rows`` are the filter inputs, one per fed sample."""
+
+    path: str
+    inputs: PreparedInputs
+    tracks: dict[str, FilterTrack]
+    system_id: int
+    settings: ReplaySettings
+    references: dict[str, tuple[Array, Array]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def engine(self) -> str:
+        return self.inputs.engine
+
+    def frames(self, name: str) -> list[bytes]:
+        """The frames the daemon would have sent for filter ``name`` (encoded on first use)."""
+        tr = self.tracks[name]
+        if tr.frames is None:
+            tr.frames = _encode_frames(self, tr)
+        return tr.frames
+
+
+# --------------------------------------------------------------------------- the reference path
+
+
+def _row_of(f: Any) -> Array:
+    """A filter's current output row from its public state (q and diagnostics)."""
+    out = np.empty(OUT_WIDTH)
+    out[OUT_Q : OUT_Q + 4] = f.q_body_to_ned
+    d = f.diagnostics
+    out[OUT_GAIN] = d.gain
+    out[OUT_ACCEL_WEIGHT] = d.accel_weight
+    out[OUT_MAG_WEIGHT] = d.mag_weight
+    out[OUT_BIAS : OUT_BIAS + 3] = d.gyro_bias_rad_s
+    out[OUT_FLAGS] = d.flags
+    return out
+
+
+def _run_pipelines(
+    td: TlogData,
+    settings: Any,
+    filters: Sequence[tuple[str, Any]],
+    *,
+    start_s: float | None,
+    end_s: float | None,
+    decimal_year: float | None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[PreparedInputs, list[Array], list[list[bytes]], int]:
+    """Feed every message through one Pipeline per filter (the daemon's code), message by message."""
+    from mavahrs.filters import create
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.service.pipeline import Pipeline
+
+    pipes = []
+    filts = []
+    for i, (name, fs) in enumerate(filters):
+        f = create(name, fs)
+        ps = dataclasses.replace(settings, component_id=settings.component_id + i)
+        pipes.append(Pipeline(ps, filter=f, decimal_year=decimal_year))
+        filts.append(f)
+    p0 = pipes[0]
+    codec = MavCodec()
+    t0 = int(td.t_us[0]) if td.frames else 0
+    lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
+    hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
+    imu_ids = {int(getattr(__import__("mavahrs.protocol.codec", fromlist=["mavlink"]).mavlink,
+                           f"MAVLINK_MSG_ID_{n}")) for n in IMU_TYPES}  # fmt: skip
+    rows: list[Array] = []
+    t_list: list[int] = []
+    pos_list: list[int] = []
+    temp_list: list[float] = []
+    decl_list: list[float] = []
+    outs: list[list[Array]] = [[] for _ in pipes]
+    frames: list[list[bytes]] = [[] for _ in pipes]
+    names_fed: dict[str, int] = {}
+    for j in range(td.frames):
+        if progress is not None and j % 4096 == 0:
+            progress(j)
+        t_rec = int(td.t_us[j])
+        if int(td.msgid[j]) in imu_ids and not lo <= t_rec <= hi:
+            continue
+        msg = codec.decode_frame(td.scan.frame(j))
+        if msg is None:  # pragma: no cover - the scan returns decodable frames only
+            continue
+        before = p0.samples_filtered
+        for k, p in enumerate(pipes):
+            for o in p.handle(msg, t_rec):
+                if o.to_outputs:
+                    frames[k].append(o.frame)
+        if p0.samples_filtered > before:
+            rows.append(p0._row.copy())
+            t_list.append(int(p0._last_fed_t))
+            pos_list.append(j)
+            raw_t = getattr(msg, "temperature", 0)
+            temp_list.append(raw_t * 0.01 if raw_t and msg.get_type() != "HIGHRES_IMU" else math.nan)
+            decl_list.append(p0.declination.declination_rad)
+            names_fed[msg.get_type()] = names_fed.get(msg.get_type(), 0) + 1
+            for k, f in enumerate(filts):
+                outs[k].append(_row_of(f))
+    m = len(t_list)
+    if m == 0:
+        raise DataError(f"{td.path}: no IMU sample reached the filter (no autopilot heartbeat or IMU data)")
+    src = p0.source or (0, 0)
+    prep = PreparedInputs(
+        rows=np.vstack(rows) if rows else np.zeros((0, IN_WIDTH)),
+        t_us=np.asarray(t_list, np.int64),
+        frame_pos=np.asarray(pos_list, np.int64),
+        tlog_us=td.t_us[np.asarray(pos_list, np.int64)],
+        temperature_c=np.asarray(temp_list),
+        declination_rad=np.asarray(decl_list),
+        message=max(names_fed, key=names_fed.__getitem__),
+        instance=int(p0.status().imu_in_use or 0),
+        source=(int(src[0]), int(src[1])),
+        profile=p0.profile.name if p0.profile else "?",
+        engine="pipeline",
+        counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()}},
+    )
+    for kind, text in p0.drain_notices():
+        if kind >= logging.WARNING:
+            prep.notes.append(text)
+    return prep, [np.vstack(o) for o in outs], frames, p0.codec.system_id
+
+
+def pipeline_inputs(td: TlogData, settings: Any, *, decimal_year: float | None = None) -> PreparedInputs:
+    """The filter inputs of a log taken from the pipeline itself (any log the daemon could read)."""
+    prep, _, _, _ = _run_pipelines(td, settings, [("madgwick", None)], start_s=None, end_s=None,
+                                   decimal_year=decimal_year)  # fmt: skip
+    return prep
+
+
+# --------------------------------------------------------------------------- the fast path
+
+
+@kernel
+def _out_rate(t_us, flags, period_us, tol_us, state, sent):  # type: ignore[no-untyped-def]
+    """Pipeline._filter_sample's output-rate rule; ``state[0]`` = next output time (−1 = none yet)."""
+    nxt = state[0]
+    for i in range(t_us.shape[0]):
+        if int(flags[i]) & FLAG_NOT_INITIALISED:
+            continue
+        t = t_us[i]
+        if period_us > 0:
+            if nxt >= 0 and t < nxt - tol_us:
+                continue
+            nxt = (nxt if nxt >= 0 else t) + period_us
+            if nxt <= t:
+                nxt = t + period_us
+        sent[i] = True
+    state[0] = nxt
+
+
+def _declinate(q: Array, decl: Array) -> Array:
+    """apply_declination_wxyz over rows (cos/sin by math per distinct value: bit-identical)."""
+    out = q.copy()
+    for d in np.unique(decl):
+        if d == 0.0:
+            continue
+        sel = decl == d
+        c, s = math.cos(0.5 * d), math.sin(0.5 * d)
+        w, x, y, z = q[sel, 0], q[sel, 1], q[sel, 2], q[sel, 3]
+        out[sel, 0] = c * w - s * z
+        out[sel, 1] = c * x - s * y
+        out[sel, 2] = c * y + s * x
+        out[sel, 3] = c * z + s * w
+    return out
+
+
+def _encode_frames(result: ReplayResult, tr: FilterTrack) -> list[bytes]:
+    """ATTITUDE_QUATERNION (+ATTITUDE) frames as Pipeline._attitude_frames encodes them."""
+    from mavahrs.protocol.codec import MavCodec
+
+    codec = MavCodec(system_id=result.system_id, component_id=tr.component_id)
+    mav = codec.mav
+    rows = result.inputs.rows
+    idx = np.flatnonzero(tr.sent)
+    q = tr.out[idx, OUT_Q : OUT_Q + 4]
+    rates = rows[idx, IN_GYRO : IN_GYRO + 3] - tr.out[idx, OUT_BIAS : OUT_BIAS + 3]
+    t_ms = (result.inputs.t_us[idx] // 1000) & 0xFFFFFFFF
+    euler = result.settings.pipeline_settings().send_attitude_euler
+    zero = [0.0, 0.0, 0.0, 0.0]
+    out: list[bytes] = []
+    for k in range(idx.shape[0]):
+        qw, qx, qy, qz = (float(v) for v in q[k])
+        p, qq, r = (float(v) for v in rates[k])
+        tm = int(t_ms[k])
+        out.append(codec.encode(mav.attitude_quaternion_encode(tm, qw, qx, qy, qz, p, qq, r, zero)))
+        if euler:
+            roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+            pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
+            yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+            out.append(codec.encode(mav.attitude_encode(tm, roll, pitch, yaw, p, qq, r)))
+    return out
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+def csv_columns(names: Sequence[str]) -> tuple[list[str], list[int]]:
+    """Replay CSV header and decimals: time, then per filter q, Euler, gain, trust, rejection, bias, flags, sent."""
+    cols = ["time_s"]
+    dec = [6]
+    for n in names:
+        cols += [f"{n}_qw", f"{n}_qx", f"{n}_qy", f"{n}_qz", f"{n}_roll_deg", f"{n}_pitch_deg", f"{n}_yaw_deg",
+                 f"{n}_gain", f"{n}_accel_weight", f"{n}_mag_weight", f"{n}_accel_rejected", f"{n}_mag_rejected",
+                 f"{n}_bias_x_deg_s", f"{n}_bias_y_deg_s", f"{n}_bias_z_deg_s", f"{n}_flags", f"{n}_sent"]  # fmt: skip
+        dec += [7, 7, 7, 7, 3, 3, 3, 5, 3, 3, 0, 0, 4, 4, 4, 0, 0]
+    return cols, dec
+
+
+def _csv_block(t_us: NDArray[np.int64], outs: Sequence[Array], sents: Sequence[NDArray[np.bool_]]) -> Array:
+    from mavahrs.evaluation.metrics import euler_deg
+
+    n = t_us.shape[0]
+    blocks = [(t_us * 1e-6)[:, None]]
+    for out, sent in zip(outs, sents):
+        flags = out[:, OUT_FLAGS].astype(np.int64)
+        acc_rej = out[:, OUT_ACCEL_WEIGHT] < 0.5
+        mag_rej = ((flags & FLAG_MAG_INVALID) == 0) & (out[:, OUT_MAG_WEIGHT] < 0.5)
+        init = (flags & FLAG_NOT_INITIALISED) == 0
+        q = np.where(init[:, None], out[:, OUT_Q : OUT_Q + 4], np.nan)
+        blocks += [
+            q, euler_deg(q), out[:, OUT_GAIN : OUT_GAIN + 1], out[:, OUT_ACCEL_WEIGHT : OUT_ACCEL_WEIGHT + 1],
+            out[:, OUT_MAG_WEIGHT : OUT_MAG_WEIGHT + 1], acc_rej[:, None], mag_rej[:, None],
+            np.degrees(out[:, OUT_BIAS : OUT_BIAS + 3]), flags[:, None], sent[:, None],
+        ]  # fmt: skip
+    return np.hstack([np.asarray(b, dtype=np.float64).reshape(n, -1) for b in blocks])
+
+
+# --------------------------------------------------------------------------- replay
+
+
+def replay(
+    path: str | Path,
+    settings: ReplaySettings | None = None,
+    *,
+    csv_path: str | Path | None = None,
+    progress: bool = False,
+) -> ReplayResult:
+    """Replay a tlog; optionally write the per-sample CSV as it goes.
+
+    Raises:
+        DataError: unreadable log, no autopilot, no IMU data.
+        FastPathUnsupported: ``engine="fast"`` on a log that needs the pipeline.
+    """
+    s = settings or ReplaySettings()
+    ps = s.pipeline_settings()
+    td = read_tlog_data(path)
+    dy = decimal_year_of_log(td)
+    filters = [(n, s.filter_settings.get(n)) for n in s.filters]
+    sink = None
+    notes: list[str] = []
+    try:
+        prep: PreparedInputs | None = None
+        if s.engine in ("auto", "fast"):
+            try:
+                prep = prepare_inputs(td, ps, start_s=s.start_s, end_s=s.end_s, decimal_year=dy)
+            except FastPathUnsupported as exc:
+                if s.engine == "fast":
+                    raise
+                log.info("replaying message by message through the pipeline: %s", exc)
+                notes.append(f"engine: pipeline, message by message ({exc})")
+        if csv_path is not None:
+            from mavahrs.evaluation.csvout import CsvSink
+
+            cols, dec = csv_columns(s.filters)
+            sink = CsvSink(csv_path, cols, dec)
+        if prep is not None:
+            result = _replay_fast(td, prep, s, filters, sink, progress)
+        else:
+            result = _replay_pipeline(td, ps, s, filters, dy, sink, progress)
+    finally:
+        if sink is not None:
+            sink.close()
+    result.notes = notes + result.inputs.notes + result.notes
+    result.references = references(td, result.inputs)
+    rate = result.inputs.rate_hz()
+    if rate < LOW_RATE_HZ:
+        result.notes.append(
+            f"IMU samples reach the filter at {rate:.1f} Hz: too slow for meaningful attitude filtering "
+            f"(≥ {LOW_RATE_HZ:g} Hz needed; ground stations request 2–10 Hz — ask the autopilot for more, "
+            "see docs/daemon.md). The comparison below is coarse."
+        )
+    return result
+
+
+def _progress_bar(total: int, enabled: bool, unit: str) -> Any:
+    if not enabled or total < 200_000:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit=unit, unit_scale=True, leave=False, desc="replay")
+
+
+def _replay_fast(
+    td: TlogData, prep: PreparedInputs, s: ReplaySettings, filters: Sequence[tuple[str, Any]],
+    sink: Any, progress: bool,
+) -> ReplayResult:  # fmt: skip
+    from mavahrs.filters import create
+
+    ps = s.pipeline_settings()
+    period = int(round(1e6 / ps.out_rate_hz)) if ps.out_rate_hz > 0 else 0
+    tol = min(period // 4, 1000)
+    m = prep.n
+    filts = [create(n, fs) for n, fs in filters]
+    outs = [np.empty((m, OUT_WIDTH)) for _ in filts]
+    sents = [np.zeros(m, bool) for _ in filts]
+    states = [np.full(1, -1, np.int64) for _ in filts]
+    bar = _progress_bar(m, progress, "sample")
+    try:
+        for a in range(0, m, _CHUNK):
+            b = min(m, a + _CHUNK)
+            for f, out, sent, st in zip(filts, outs, sents, states):
+                f.run(prep.rows[a:b], out[a:b])
+                _out_rate(prep.t_us[a:b], out[a:b, OUT_FLAGS], period, tol, st, sent[a:b])
+                out[a:b, OUT_Q : OUT_Q + 4] = _declinate(out[a:b, OUT_Q : OUT_Q + 4], prep.declination_rad[a:b])
+            if sink is not None:
+                sink.write(_csv_block(prep.t_us[a:b], [o[a:b] for o in outs], [x[a:b] for x in sents]))
+            if bar is not None:
+                bar.update(b - a)
+    finally:
+        if bar is not None:
+            bar.close()
+    sysid = ps.system_id or prep.source[0]
+    tracks = {
+        n: FilterTrack(n, ps.component_id + i, outs[i], sents[i]) for i, (n, _) in enumerate(filters)
+    }
+    return ReplayResult(td.path, prep, tracks, sysid, s)
+
+
+def _replay_pipeline(
+    td: TlogData, ps: Any, s: ReplaySettings, filters: Sequence[tuple[str, Any]], dy: float | None,
+    sink: Any, progress: bool,
+) -> ReplayResult:  # fmt: skip
+    bar = _progress_bar(td.frames, progress, "msg")
+    last = [0]
+
+    def tick(j: int) -> None:
+        if bar is not None:
+            bar.update(j - last[0])
+            last[0] = j
+
+    try:
+        prep, outs, frames, sysid = _run_pipelines(
+            td, ps, filters, start_s=s.start_s, end_s=s.end_s, decimal_year=dy, progress=tick
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    tracks: dict[str, FilterTrack] = {}
+    for i, (n, _) in enumerate(filters):
+        out = outs[i]
+        out[:, OUT_Q : OUT_Q + 4] = _declinate(out[:, OUT_Q : OUT_Q + 4], prep.declination_rad)
+        # which samples produced a frame: the pipeline's own rule, replayed on its outputs
+        period = int(round(1e6 / ps.out_rate_hz)) if ps.out_rate_hz > 0 else 0
+        sent = np.zeros(prep.n, bool)
+        _out_rate(prep.t_us, out[:, OUT_FLAGS], period, min(period // 4, 1000), np.full(1, -1, np.int64), sent)
+        tracks[n] = FilterTrack(n, ps.component_id + i, out, sent, frames[i])
+    if sink is not None:
+        for a in range(0, prep.n, _CHUNK):
+            b = min(prep.n, a + _CHUNK)
+            sink.write(_csv_block(prep.t_us[a:b], [t.out[a:b] for t in tracks.values()],
+                                  [t.sent[a:b] for t in tracks.values()]))  # fmt: skip
+    return ReplayResult(td.path, prep, tracks, sysid, s)
+
+
+# --------------------------------------------------------------------------- comparison
+
+
+@dataclass(frozen=True)
+class ComparisonRow:
+    filter: str
+    reference: str
+    samples: int
+    total_rms_deg: float
+    heading_rms_deg: float
+    inclination_rms_deg: float
+    roll_rms_deg: float
+    pitch_rms_deg: float
+    yaw_rms_deg: float
+
+
+def compare(result: ReplayResult) -> list[ComparisonRow]:
+    """Each filter against each attitude the log holds, at the reference's own times.
+
+    The filter's attitude (as sent: true north when the declination is known)
+    is slerped onto the reference times within the replayed span; samples
+    before the filter initialised are skipped.
+    """
+    from mavahrs.evaluation.metrics import euler_errors_rad, summarize
+
+    rows: list[ComparisonRow] = []
+    t = result.inputs.t_us.astype(np.float64)
+    if t.size < 2:
+        return rows
+    gap_s = max(0.5, 3.0 * float(np.median(np.diff(t))) * 1e-6)
+    for name, tr in result.tracks.items():
+        init = (tr.out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
+        if not init.any():
+            continue
+        tt, qq = t[init], tr.out[init, OUT_Q : OUT_Q + 4]
+        for ref_name, (t_ref, q_ref) in result.references.items():
+            q_est = interpolate_attitude(tt, qq, t_ref, max_gap_s=gap_s)
+            ok = np.all(np.isfinite(q_est), axis=1)
+            if ok.sum() < 2:
+                continue
+            sm = summarize(q_est[ok], q_ref[ok])
+            e = np.degrees(euler_errors_rad(q_est[ok], q_ref[ok]))
+            r = np.sqrt(np.mean(e**2, axis=0))
+            rows.append(ComparisonRow(name, ref_name, int(ok.sum()), sm.total_rms_deg, sm.heading_rms_deg,
+                                      sm.inclination_rms_deg, float(r[0]), float(r[1]), float(r[2])))  # fmt: skip
+    return rows
+
+
+def format_comparison(rows: Sequence[ComparisonRow]) -> str:
+    if not rows:
+        return "no attitude in the log to compare with (no ATTITUDE, AHRS2, SIM_STATE or SIMSTATE)"
+    head = (f"{'filter':<14}{'vs':<22}{'samples':>8}{'total':>8}{'head':>8}{'incl':>8}"
+            f"{'roll':>8}{'pitch':>8}{'yaw':>8}")  # fmt: skip
+    lines = ["RMS difference, degrees (heading/inclination as BROAD defines them; roll/pitch/yaw of q_ref*⊗q):",
+             head, "─" * len(head)]  # fmt: skip
+    for r in rows:
+        lines.append(
+            f"{r.filter:<14}{r.reference:<22}{r.samples:>8}{r.total_rms_deg:8.2f}{r.heading_rms_deg:8.2f}"
+            f"{r.inclination_rms_deg:8.2f}{r.roll_rms_deg:8.2f}{r.pitch_rms_deg:8.2f}{r.yaw_rms_deg:8.2f}"
+        )
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- tlog and plot
+
+
+def write_tlog(result: ReplayResult, path: str | Path) -> int:
+    """The input log with every filter's frames inserted after the IMU message they came from.
+
+    Records keep their timestamps; the inserted frames carry the IMU
+    message's.  With ``start_s``/``end_s`` only records in that window are
+    written.  Returns the number of frames inserted.
+    """
+    from mavahrs.protocol.fast_tlog import scan_tlog
+    from mavahrs.protocol.tlog import tlog_record
+
+    td = read_tlog_data(result.path) if not isinstance(result.inputs, PreparedInputs) else None
+    data = np.fromfile(result.path, np.uint8)
+    full = scan_tlog(data, None, mode="mmap")
+    # locate the fed IMU frames (by byte offset) in the full scan
+    sub = scan_tlog(data, list(_replay_types()), mode="mmap")
+    imu_off = sub.offset[result.inputs.frame_pos]
+    imu_side = sub.in_side[result.inputs.frame_pos]
+    inserts: dict[int, list[bytes]] = {}
+    for tr in result.tracks.values():
+        frames = result.frames(tr.name)
+        per = 2 if result.settings.pipeline_settings().send_attitude_euler else 1
+        idx = np.flatnonzero(tr.sent)
+        for k, i in enumerate(idx):
+            key = int(imu_off[i]) if not imu_side[i] else -1 - int(imu_off[i])
+            inserts.setdefault(key, []).extend(frames[per * k : per * k + per])
+    t0 = int(full.t_us[0]) if len(full) else 0
+    s = result.settings
+    lo = -(2**62) if s.start_s is None else t0 + int(s.start_s * 1e6)
+    hi = 2**62 if s.end_s is None else t0 + int(s.end_s * 1e6)
+    inserted = 0
+    del td
+    with open(path, "wb") as f:
+        buf: list[bytes] = []
+        for j in range(len(full)):
+            t = int(full.t_us[j])
+            if not lo <= t <= hi:
+                continue
+            buf.append(tlog_record(t, full.frame(j)))
+            key = int(full.offset[j]) if not full.in_side[j] else -1 - int(full.offset[j])
+            extra = inserts.get(key)
+            if extra:
+                for fr in extra:
+                    buf.append(tlog_record(t, fr))
+                inserted += len(extra)
+            if len(buf) >= 8192:
+                f.write(b"".join(buf))
+                buf.clear()
+        f.write(b"".join(buf))
+    return inserted
+
+
+def _replay_types() -> tuple[str, ...]:
+    from mavahrs.evaluation.tlogdata import REPLAY_TYPES
+
+    return REPLAY_TYPES
+
+
+def plot_replay(result: ReplayResult, path: str | Path) -> Path:
+    """Truth (or the autopilot's attitude), the filters, errors, gain and rejection state."""
+    from mavahrs.evaluation.plots import plot_attitude
+
+    t_us = result.inputs.t_us.astype(np.float64)
+    t0 = t_us[0] if t_us.size else 0.0
+    truth = [k for k in result.references if k.endswith("truth")]
+    ap = [k for k in result.references if k.startswith("autopilot")]
+    ref_name = truth[0] if truth else (ap[0] if ap else None)
+    ref_q = None
+    others: dict[str, tuple[Array, Array]] = {}
+    if ref_name is not None:
+        t_ref, q_ref = result.references[ref_name]
+        gap = max(0.5, 3.0 * float(np.median(np.diff(t_ref))) * 1e-6) if t_ref.size > 1 else 0.5
+        ref_q = interpolate_attitude(t_ref, q_ref, t_us, max_gap_s=gap)
+    for k in ap:
+        if k != ref_name:
+            t_ref, q_ref = result.references[k]
+            others[k] = ((t_ref - t0) * 1e-6, q_ref)
+    est = {}
+    for n, tr in result.tracks.items():
+        o = tr.out.copy()
+        bad = (o[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) != 0
+        o[bad, OUT_Q : OUT_Q + 4] = np.nan
+        est[n] = o
+    rate = result.inputs.rate_hz()
+    title = (f"{Path(result.path).name}: {result.inputs.message} (IMU {result.inputs.instance}) at {rate:.1f} Hz"
+             + (f" — reference: {ref_name}" if ref_name else ""))  # fmt: skip
+    return plot_attitude(path, (t_us - t0) * 1e-6, est, reference_q=ref_q, reference_label=ref_name or "",
+                         others=others, title=title)  # fmt: skip
+
+
+# --------------------------------------------------------------------------- QGC streaming
+
+
+@dataclass(frozen=True)
+class StreamSettings:
+    """How :func:`stream` presents a replay to a ground station.
+
+    Attributes:
+        url: where to send, a connection string (``udpout:127.0.0.1:14550``).
+        system_id: the system id of the pretend vehicle (distinct from the
+            logged vehicle's, so the ground station shows it separately).
+        speed: replay speed, 1 = real time.
+        rate_hz: ATTITUDE_QUATERNION rate, Hz of log time.
+        heartbeat_hz: HEARTBEAT rate (wall clock).
+        max_duration_s: stop after this much wall-clock time (None = to the end).
+    """
+
+    url: str = "udpout:127.0.0.1:14550"
+    system_id: int = 42
+    speed: float = 1.0
+    rate_hz: float = 50.0
+    heartbeat_hz: float = 1.0
+    max_duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.system_id <= 255:
+            raise ValueError(f"system id must be 1…255, got {self.system_id}")
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise ValueError(f"speed must be positive, got {self.speed}")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"stream rate must be positive, got {self.rate_hz}")
+
+
+def stream(result: ReplayResult, name: str, settings: StreamSettings, *, clock: Any = None) -> int:
+    """Stream one filter's replayed attitude to a ground station as a vehicle of its own.
+
+    QGroundControl draws on its HUD only the attitude of a vehicle's autopilot
+    component, so this presents itself as one: its own system id, component 1
+    (MAV_COMP_ID_AUTOPILOT1), HEARTBEAT as a quadrotor (MAV_TYPE_QUADROTOR,
+    MAV_AUTOPILOT_GENERIC) at ``heartbeat_hz``, and the filtered
+    ATTITUDE_QUATERNION (+ ATTITUDE, which older ground stations draw) paced
+    in real time (× ``speed``) by the log's sample times.  The live daemon
+    never does this: pretending to be the autopilot would confuse the ground
+    station about which vehicle is which (see docs/evaluation.md).
+
+    Returns the number of ATTITUDE_QUATERNION messages sent.
+    """
+    import time
+
+    from mavahrs.protocol.codec import MavCodec
+
+    tr = result.tracks[name]
+    clk = clock or time
+    codec = MavCodec(system_id=settings.system_id, component_id=1)
+    mav = codec.mav
+    init = (tr.out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
+    idx = np.flatnonzero(init)
+    t_us = result.inputs.t_us
+    # pick samples at the stream rate, on log time
+    period = 1e6 / settings.rate_hz
+    keep: list[int] = []
+    nxt = -1.0
+    for i in idx:
+        if t_us[i] >= nxt:
+            keep.append(int(i))
+            nxt = (t_us[i] if nxt < 0 else nxt) + period
+            if nxt <= t_us[i]:
+                nxt = t_us[i] + period
+    send = _open_udp_sender(settings.url)
+    sent = 0
+    try:
+        start = clk.monotonic()
+        t_first = float(t_us[keep[0]]) if keep else 0.0
+        next_hb = start
+        boot_ms0 = int(t_first // 1000)
+        rows = result.inputs.rows
+        for i in keep:
+            due = start + (float(t_us[i]) - t_first) * 1e-6 / settings.speed
+            while True:
+                now = clk.monotonic()
+                if now >= next_hb:
+                    send(codec.encode(mav.heartbeat_encode(2, 0, 0, 0, 4)))  # QUADROTOR, GENERIC, ACTIVE
+                    next_hb += 1.0 / settings.heartbeat_hz
+                if settings.max_duration_s is not None and now - start >= settings.max_duration_s:
+                    return sent
+                if now >= due:
+                    break
+                clk.sleep(min(due - now, max(0.0, next_hb - now), 0.05))
+            qw, qx, qy, qz = (float(v) for v in tr.out[i, OUT_Q : OUT_Q + 4])
+            p, q, r = (float(v) for v in rows[i, IN_GYRO : IN_GYRO + 3] - tr.out[i, OUT_BIAS : OUT_BIAS + 3])
+            tm = (int(t_us[i] // 1000) - boot_ms0) & 0xFFFFFFFF
+            send(codec.encode(mav.attitude_quaternion_encode(tm, qw, qx, qy, qz, p, q, r, [0.0] * 4)))
+            roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+            pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
+            yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+            send(codec.encode(mav.attitude_encode(tm, roll, pitch, yaw, p, q, r)))
+            sent += 1
+    finally:
+        close = getattr(send, "close", None)
+        if close is not None:
+            close()
+    return sent
+
+
+def _open_udp_sender(url: str) -> Callable[[bytes], None]:
+    """A sender for ``udpout:HOST:PORT`` (the daemon's transports when available, else a socket)."""
+    import socket
+
+    if not url.startswith("udpout:"):
+        raise ValueError(f"--stream supports udpout:HOST:PORT, got {url!r}")
+    host, _, port_s = url[len("udpout:") :].rpartition(":")
+    try:
+        port = int(port_s)
+    except ValueError:
+        raise ValueError(f"bad port in {url!r}") from None
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    addr = (host or "127.0.0.1", port)
+
+    class _Sender:
+        def __call__(self, data: bytes) -> None:
+            try:
+                sock.sendto(data, addr)
+            except OSError:  # nobody listening yet (ICMP port unreachable): keep streaming
+                pass
+
+        def close(self) -> None:
+            sock.close()
+
+    return _Sender()
