@@ -34,6 +34,7 @@ autopilot within ``heartbeat_timeout_s`` of start raises
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import math
@@ -140,7 +141,7 @@ class DaemonCounters:
         datagrams_in: reads from the master link (datagrams or stream chunks).
         messages_in: MAVLink messages decoded from the master link.
         input_dropped: reads dropped from the input queue (flood: oldest first).
-        attitudes_out: ATTITUDE_QUATERNION frames sent to the outputs.
+        attitudes_out: ATTITUDE_QUATERNION frames sent (to the outputs and/or the master).
         frames_to_master: frames sent back to the autopilot.
         frames_to_outputs: frames sent to the outputs (all kinds).
         output_reads_ignored: reads from output links (ignored).
@@ -340,23 +341,25 @@ class Daemon:
 
     # ------------------------------------------------------------------ sending
     def _send(self, out: Any, wall_us: int, now_s: float) -> bool:
-        """Send one pipeline ``Outgoing``; True when it was an attitude sent to the outputs."""
+        """Send one pipeline ``Outgoing``; True when it was an ATTITUDE_QUATERNION (sent anywhere)."""
         frame = out.frame
         c = self.counters
+        sent = False
         if out.to_master:
             self.master.write(frame)
             c.frames_to_master += 1
-        attitude = False
+            sent = True
         if out.to_outputs and self.outputs:
             for link in self.outputs:
                 link.write(frame)
             c.frames_to_outputs += 1
-            if _frame_msgid(frame) == _MSG_ID_ATTITUDE_QUATERNION:
-                c.attitudes_out += 1
-                attitude = True
+            sent = True
         if self.sink is not None:
             self.sink.write(wall_us, frame, now_s)
-        return attitude
+        if sent and _frame_msgid(frame) == _MSG_ID_ATTITUDE_QUATERNION:
+            c.attitudes_out += 1
+            return True
+        return False
 
     # ------------------------------------------------------------------ receiving
     def _read_master(self) -> None:
@@ -642,6 +645,11 @@ class Daemon:
         )
         next_tick = self._started_s
         master = self.master
+        # Everything allocated so far (numba, numpy, pymavlink tables: hundreds of thousands of
+        # objects) is permanent: keep the cyclic GC from walking it again in a full collection,
+        # which would otherwise stall the loop for tens of milliseconds now and then.
+        gc.collect()
+        gc.freeze()
         try:
             while self._stop_reason is None:
                 timeout = next_tick - time.monotonic()
@@ -669,6 +677,7 @@ class Daemon:
                     if next_tick < now:  # fell behind (suspend, overload): don't burst
                         next_tick = now + period
         finally:
+            gc.unfreeze()
             for sig, handler in old_handlers.items():
                 signal.signal(sig, handler)
             result_reason = self._stop_reason or "error"

@@ -1,0 +1,353 @@
+#!/usr/bin/env python3
+r"""Live latency and CPU of ``mavahrs run`` over loopback at 400 Hz, against a bare pymavlink echo server.
+
+One run, three processes, the same traffic at the same time:
+
+* this script plays the autopilot: HEARTBEAT at 1 Hz and RAW_IMU at
+  ``--rate`` Hz (default 400), each sample sent to both servers in the same
+  loop iteration (the order alternates), and it timestamps every reply;
+* ``mavahrs run --master udpin:… --out-rate 0`` — the daemon (the attitude
+  goes back on the master link, to us);
+* a bare pymavlink echo server (``mavutil.mavlink_connection("udpin:…")``,
+  ``recv_match(blocking=True)``, ``attitude_quaternion_send`` of a constant):
+  the cheapest thing that receives a MAVLink sample and answers it.
+
+Measured over ``--duration`` seconds after ``--warmup``:
+
+* the daemon's own processing latency — from the moment it read the
+  datagram to the moment the ``sendto`` of the attitude returned
+  (timestamped inside the daemon, its latency ring, via ``--stats-json``):
+  p50, p99, max;
+* the end-to-end round trip seen by the sender for both servers, and the
+  daemon's overhead over the echo (p50, p99) — the machine's scheduling noise
+  is in both, so compare, do not quote absolutes alone;
+* CPU per message of both servers (user+system from ``/proc/PID/stat`` over
+  the window, divided by the samples answered in it).
+
+Targets (issue 4): processing p50 ≤ 200 µs and p99 ≤ 1 ms; end-to-end p50
+overhead over the echo ≤ 0.2 ms; daemon CPU per message ≤ 1.5× the echo's.
+The exit code is 1 when a target is missed (2 on a setup error).
+
+Usage::
+
+    python3 scripts/bench_live.py                      # the default filter (best)
+    python3 scripts/bench_live.py --filter all         # every filter in turn
+    python3 scripts/bench_live.py --filter madgwick --duration 30 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+TARGETS = {
+    "processing_p50_us": 200.0,
+    "processing_p99_us": 1000.0,
+    "e2e_p50_overhead_us": 200.0,
+    "cpu_ratio": 1.5,
+}
+
+
+# --------------------------------------------------------------------------- the bare echo server
+
+
+def echo_server(port: int, idle_exit_s: float) -> int:
+    """A bare pymavlink echo: RAW_IMU in → ATTITUDE_QUATERNION with its time_boot_ms out."""
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=191)
+    print("ECHO READY", flush=True)
+    last = time.monotonic()
+    stop = {"flag": False}
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__("flag", True))
+    zero = [0.0, 0.0, 0.0, 0.0]
+    while not stop["flag"]:
+        msg = conn.recv_match(type="RAW_IMU", blocking=True, timeout=0.5)
+        if msg is None:
+            if time.monotonic() - last > idle_exit_s:
+                break
+            continue
+        last = time.monotonic()
+        conn.mav.attitude_quaternion_send(msg.time_usec // 1000, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, zero)
+    return 0
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process (``/proc/PID/stat``)."""
+    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    ticks = os.sysconf("SC_CLK_TCK")
+    return (int(fields[11]) + int(fields[12])) / ticks
+
+
+def _pct(values: list[float], p: float) -> float:
+    if not values:
+        return math.nan
+    s = sorted(values)
+    return s[min(len(s) - 1, max(0, math.ceil(p / 100.0 * len(s)) - 1))]
+
+
+def _free_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+class Peer:
+    """One server seen from the sender: its socket, what was sent when, the round trips."""
+
+    def __init__(self, name: str, port: int) -> None:
+        self.name = name
+        self.addr = ("127.0.0.1", port)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+        self.sent_ns: dict[int, int] = {}  # time_boot_ms → send time
+        self.rtt_us: list[float] = []
+        self.answered = 0
+        self.answered_in_window = 0
+
+    def drain(self, codec: Any, measuring: bool) -> None:
+        while True:
+            try:
+                data = self.sock.recv(65536)
+            except BlockingIOError:
+                return
+            t = time.perf_counter_ns()
+            for msg in codec.receive_datagram(data):
+                if msg.get_type() != "ATTITUDE_QUATERNION":
+                    continue
+                sent = self.sent_ns.pop(msg.time_boot_ms, None)
+                if sent is None:
+                    continue
+                self.answered += 1
+                if measuring:
+                    self.answered_in_window += 1
+                    self.rtt_us.append((t - sent) / 1000.0)
+
+
+# --------------------------------------------------------------------------- one benchmark
+
+
+def bench_one(filter_name: str, rate_hz: float, warmup_s: float, duration_s: float, verbose: bool) -> dict[str, Any]:
+    from mavahrs.protocol.codec import MavCodec
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_live_"))
+    stats_path = tmp / "daemon.json"
+    d_port, e_port = _free_port(), _free_port()
+    ring = int(rate_hz * (duration_s + warmup_s + 5)) + 1024
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "mavahrs", "run", "--master", f"udpin:127.0.0.1:{d_port}", "--filter", filter_name,
+         "--out-rate", "0", "--no-stream-requests", "--heartbeat-timeout", "0", "--status-interval", "0",
+         "--stats-json", str(stats_path), "--set", f"daemon.latency_ring={ring}", "-q"],
+        env=_env(), stderr=None if verbose else subprocess.DEVNULL,
+    )
+    echo = subprocess.Popen(
+        [sys.executable, __file__, "--echo-server", str(e_port)],
+        env=_env(), stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert echo.stdout is not None
+        if echo.stdout.readline().strip() != "ECHO READY":
+            raise RuntimeError("the echo server did not start")
+        codec = MavCodec(1, 1)
+        peers = [Peer("mavahrs", d_port), Peer("echo", e_port)]
+        heartbeat = codec.encode(codec.mav.heartbeat_encode(2, 3, 0, 0, 4))  # ArduPilot quadrotor
+        # wait for the daemon: heartbeats and a few samples until it answers (numba start-up)
+        deadline = time.monotonic() + 120
+        t_us = 1_000_000
+        while time.monotonic() < deadline and peers[0].answered == 0:
+            if daemon.poll() is not None:
+                raise RuntimeError(f"mavahrs run exited with code {daemon.returncode}")
+            for p in peers:
+                p.sock.sendto(heartbeat, p.addr)
+                t_us += 2500
+                frame = codec.encode(codec.mav.raw_imu_encode(t_us, 0, 0, -1000, 0, 0, 0, 200, 0, 400, 0, 0))
+                p.sent_ns[t_us // 1000] = time.perf_counter_ns()
+                p.sock.sendto(frame, p.addr)
+            time.sleep(0.1)
+            for p in peers:
+                p.drain(codec, False)
+        if peers[0].answered == 0:
+            raise RuntimeError("mavahrs run never answered")
+        # paced stream: warm-up, then the measured window
+        period_ns = int(1e9 / rate_hz)
+        start = time.perf_counter_ns()
+        n_warm = int(warmup_s * rate_hz)
+        n_total = n_warm + int(duration_s * rate_hz)
+        cpu0: dict[str, float] = {}
+        fds = [p.sock.fileno() for p in peers]
+        next_hb = start
+        for k in range(n_total):
+            due = start + k * period_ns
+            measuring = k >= n_warm
+            if k == n_warm:
+                cpu0 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+                for p in peers:
+                    p.answered_in_window = 0
+            while True:  # wait for the tick, receiving replies meanwhile (no busy loop)
+                now = time.perf_counter_ns()
+                if now >= due:
+                    break
+                ready, _, _ = select.select(fds, [], [], (due - now) / 1e9)
+                for p in peers:
+                    if p.sock.fileno() in ready:
+                        p.drain(codec, measuring)
+            if due >= next_hb:
+                next_hb += 1_000_000_000
+                for p in peers:
+                    p.sock.sendto(heartbeat, p.addr)
+            t_us += 2500
+            frame = codec.encode(codec.mav.raw_imu_encode(t_us, 10, -20, -1000, 1, 2, 3, 200, 0, 400, 0, 0))
+            order = peers if k % 2 == 0 else peers[::-1]
+            for p in order:
+                p.sent_ns[t_us // 1000] = time.perf_counter_ns()
+                p.sock.sendto(frame, p.addr)
+            for p in peers:
+                if len(p.sent_ns) > 4096:  # unanswered samples: forget the oldest
+                    for key in sorted(p.sent_ns)[:1024]:
+                        del p.sent_ns[key]
+        # let the last replies arrive, then read the CPU counters
+        end = time.perf_counter_ns() + 200_000_000
+        while time.perf_counter_ns() < end:
+            ready, _, _ = select.select(fds, [], [], 0.05)
+            for p in peers:
+                if p.sock.fileno() in ready:
+                    p.drain(codec, True)
+        cpu1 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+        n_window = n_total - n_warm
+    finally:
+        for proc in (daemon, echo):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in (daemon, echo):
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if echo.stdout is not None:
+            echo.stdout.close()
+    stats = json.loads(stats_path.read_text())
+    processing = [ns / 1000.0 for ns in stats["latency_ns"]][-n_window:]  # the window's samples (the last ones)
+    d, e = peers
+    result: dict[str, Any] = {
+        "filter": filter_name,
+        "rate_hz": rate_hz,
+        "window_s": duration_s,
+        "samples_sent": n_window,
+        "answered": {"mavahrs": d.answered_in_window, "echo": e.answered_in_window},
+        "processing_us": {
+            "p50": _pct(processing, 50), "p99": _pct(processing, 99), "max": max(processing) if processing else math.nan,
+            "n": len(processing),
+        },
+        "rtt_us": {
+            p.name: {"p50": _pct(p.rtt_us, 50), "p99": _pct(p.rtt_us, 99), "max": max(p.rtt_us or [math.nan])}
+            for p in peers
+        },
+        "cpu_us_per_msg": {
+            p.name: (cpu1[p.name] - cpu0[p.name]) * 1e6 / max(1, p.answered_in_window) for p in peers
+        },
+        "daemon_counters": stats["counters"],
+    }
+    result["e2e_overhead_us"] = {
+        "p50": result["rtt_us"]["mavahrs"]["p50"] - result["rtt_us"]["echo"]["p50"],
+        "p99": result["rtt_us"]["mavahrs"]["p99"] - result["rtt_us"]["echo"]["p99"],
+    }
+    echo_cpu = result["cpu_us_per_msg"]["echo"]
+    result["cpu_ratio"] = result["cpu_us_per_msg"]["mavahrs"] / echo_cpu if echo_cpu > 0 else math.inf
+    result["checks"] = {
+        "processing_p50_us": result["processing_us"]["p50"] <= TARGETS["processing_p50_us"],
+        "processing_p99_us": result["processing_us"]["p99"] <= TARGETS["processing_p99_us"],
+        "e2e_p50_overhead_us": result["e2e_overhead_us"]["p50"] <= TARGETS["e2e_p50_overhead_us"],
+        "cpu_ratio": result["cpu_ratio"] <= TARGETS["cpu_ratio"],
+        "answered_99pct": d.answered_in_window >= 0.99 * n_window,
+    }
+    return result
+
+
+def _report(r: dict[str, Any]) -> str:
+    p, rt, o, c = r["processing_us"], r["rtt_us"], r["e2e_overhead_us"], r["cpu_us_per_msg"]
+    ok = lambda name: "ok" if r["checks"][name] else "MISSED"  # noqa: E731
+    return "\n".join(
+        [
+            f"filter {r['filter']}: {r['samples_sent']} samples at {r['rate_hz']:g} Hz over {r['window_s']:g} s; "
+            f"answered mavahrs {r['answered']['mavahrs']}, echo {r['answered']['echo']}",
+            f"  processing (in daemon, receipt -> sendto returned): p50 {p['p50']:.0f} us "
+            f"[{ok('processing_p50_us')} <= 200], p99 {p['p99']:.0f} us [{ok('processing_p99_us')} <= 1000], "
+            f"max {p['max']:.0f} us",
+            f"  round trip seen by the sender: mavahrs p50 {rt['mavahrs']['p50']:.0f} / p99 {rt['mavahrs']['p99']:.0f} us; "
+            f"bare echo p50 {rt['echo']['p50']:.0f} / p99 {rt['echo']['p99']:.0f} us",
+            f"  end-to-end overhead over the echo: p50 {o['p50']:.0f} us [{ok('e2e_p50_overhead_us')} <= 200], "
+            f"p99 {o['p99']:.0f} us",
+            f"  CPU per message: mavahrs {c['mavahrs']:.0f} us, echo {c['echo']:.0f} us, ratio {r['cpu_ratio']:.2f} "
+            f"[{ok('cpu_ratio')} <= 1.5]",
+        ]
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--filter", action="append", default=None, metavar="NAME",
+                    help="filter to run (repeatable; 'all' = every filter and best; default best)")
+    ap.add_argument("--rate", type=float, default=400.0, help="RAW_IMU rate, Hz (default 400)")
+    ap.add_argument("--warmup", type=float, default=3.0, help="seconds before measuring (default 3)")
+    ap.add_argument("--duration", type=float, default=20.0, help="measured seconds (default 20)")
+    ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    ap.add_argument("-v", "--verbose", action="store_true", help="show the daemon's log")
+    ap.add_argument("--echo-server", type=int, metavar="PORT", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.echo_server is not None:
+        return echo_server(args.echo_server, idle_exit_s=30.0)
+    if not sys.platform.startswith("linux"):
+        print("bench_live.py reads /proc: Linux only", file=sys.stderr)
+        return 2
+    names = args.filter or ["best"]
+    if "all" in names:
+        from mavahrs.filters import NAMES
+
+        names = ["best", *NAMES]
+    results = []
+    for name in names:
+        try:
+            r = bench_one(name, args.rate, args.warmup, args.duration, args.verbose)
+        except RuntimeError as exc:
+            print(f"bench_live: {name}: {exc}", file=sys.stderr)
+            return 2
+        print(_report(r), flush=True)
+        results.append(r)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2))
+    missed = [f"{r['filter']}:{k}" for r in results for k, ok in r["checks"].items() if not ok]
+    if missed:
+        print("targets missed: " + ", ".join(missed), file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

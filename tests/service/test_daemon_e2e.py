@@ -1,0 +1,329 @@
+"""``mavahrs run`` against ``firmware_sim`` over real UDP sockets and a pty serial pair.
+
+Both programs run as subprocesses, as a user runs them.  The simulator streams
+RAW_IMU at 400 Hz (``--ideal``: sample-time stamps, one fresh sample per
+400 Hz loop tick) and SIMSTATE truth in the same tick (the same datagram); the
+daemon records everything in and out (``--log``), so the truth of every
+answered sample is found in its own tlog.  Checked:
+
+* ≥ 99 % of the IMU samples that reached the daemon produce an
+  ATTITUDE_QUATERNION (``--out-rate 0``), from component 191 with the
+  vehicle's system id, stamped with the sample's ``time_boot_ms``;
+* the attitude matches SIMSTATE within the filter's accuracy on the
+  ``aggressive`` scenario (inclination and heading RMS);
+* the simulator saw our HEARTBEATs and COMMAND_LONG SET_MESSAGE_INTERVAL;
+* 2 s of silence (``--blackout``) and a simulator restart (new process, new
+  port or a new pty behind the same link name) are recovered from;
+* SIGTERM ends the daemon with exit code 0 and a complete tlog.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mavahrs.evaluation.metrics import attitude_errors_rad
+from mavahrs.geometry.rotation import from_euler_rad
+from mavahrs.protocol.codec import MavCodec
+from mavahrs.protocol.tlog import iter_tlog
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(os.name != "posix", reason="subprocesses, ptys")]
+
+REPO = Path(__file__).resolve().parents[2]
+RATE_HZ = 400
+# Accuracy bounds on the aggressive scenario (issue 4: inclination RMS ≤ 3° with GNSS velocity);
+# heading: the magnetometer with the World Magnetic Model declination, after convergence.
+TILT_RMS_DEG = 3.0
+HEADING_RMS_DEG = 6.0
+SETTLE_S = 3.0  # convergence after start and after a gap (start-up gain boost)
+
+
+def _filter_name() -> str:
+    try:
+        import mavahrs.filters.best  # noqa: F401
+    except ModuleNotFoundError:
+        return "mahony"
+    return "best"
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _free_udp_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+class Daemon:
+    """``python -m mavahrs run …`` with its stderr collected by a thread."""
+
+    def __init__(self, args: list[str], cwd: Path) -> None:
+        self.lines: list[str] = []
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "mavahrs", "run", *args],
+            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=_env(), cwd=cwd,
+        )
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, text: str, timeout_s: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if any(text in line for line in self.lines):
+                return
+            if self.proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"daemon never said {text!r}:\n" + "\n".join(self.lines))
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            rc = self.proc.wait(30)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+                self.proc.wait()
+        self._reader.join(5)
+        return rc
+
+    @property
+    def log(self) -> str:
+        return "\n".join(self.lines)
+
+
+class Collector:
+    """A ground station: receives the daemon's output on a UDP port (a thread)."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.messages: list[Any] = []
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        codec = MavCodec()
+        while not self._stop:
+            try:
+                data = self.sock.recv(65536)
+            except (TimeoutError, socket.timeout):
+                continue
+            self.messages.extend(codec.receive_datagram(data))
+
+    def close(self) -> None:
+        self._stop = True
+        self._thread.join(5)
+        self.sock.close()
+
+
+def _sim(args: list[str], cwd: Path, **kw: Any) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "--ideal", "--stream", f"SIMSTATE={RATE_HZ}", "-q", *args],
+        cwd=cwd, env=_env(), text=True, **kw,
+    )
+
+
+def _split_sessions(times_ms: list[int]) -> list[int]:
+    """Session number per sample: a new session starts when the autopilot clock goes back (a restart)."""
+    out, session, last = [], 0, None
+    for t in times_ms:
+        if last is not None and t < last - 1000:
+            session += 1
+        out.append(session)
+        last = t
+    return out
+
+
+def _read_daemon_tlog(path: Path) -> tuple[dict[tuple[int, int], np.ndarray], list[tuple[int, int]], int]:
+    """From the daemon's tlog: truth quaternion per (session, time_ms) from the SIMSTATE sent in the
+    same tick as each RAW_IMU, the (session, time_ms) of every RAW_IMU received, and frames sent."""
+    codec = MavCodec()
+    records = list(iter_tlog(path))
+    imu_keys: list[tuple[int, int]] = []
+    truth: dict[tuple[int, int], np.ndarray] = {}
+    sent = 0
+    session, last_ms = 0, None
+    pending: tuple[int, int] | None = None  # (record time, imu ms) waiting for its SIMSTATE
+    for t_us, frame in records:
+        for msg in codec.receive_datagram(frame):
+            hdr = msg.get_header()
+            if hdr.srcComponent == 191:
+                sent += 1
+                continue
+            kind = msg.get_type()
+            if kind == "RAW_IMU":
+                ms = msg.time_usec // 1000
+                if last_ms is not None and ms < last_ms - 1000:
+                    session += 1
+                last_ms = ms
+                imu_keys.append((session, ms))
+                pending = (t_us, ms)
+            elif kind == "SIMSTATE" and pending is not None and pending[0] == t_us:  # same datagram
+                truth[(session, pending[1])] = from_euler_rad(msg.roll, msg.pitch, msg.yaw)
+                pending = None
+    return truth, imu_keys, sent
+
+
+def _attitudes(messages: list[Any]) -> list[tuple[int, int, np.ndarray, int, int]]:
+    att = [m for m in messages if m.get_type() == "ATTITUDE_QUATERNION"]
+    sessions = _split_sessions([m.time_boot_ms for m in att])
+    return [
+        (s, m.time_boot_ms, np.array([m.q1, m.q2, m.q3, m.q4]), m.get_srcSystem(), m.get_srcComponent())
+        for s, m in zip(sessions, att)
+    ]
+
+
+def _check_session(
+    session: int,
+    imu_keys: list[tuple[int, int]],
+    attitudes: list[tuple[int, int, np.ndarray, int, int]],
+    truth: dict[tuple[int, int], np.ndarray],
+    exclude_ms: tuple[tuple[float, float], ...] = (),
+    check_heading: bool = True,
+) -> dict[str, float]:
+    received = {ms for s, ms in imu_keys if s == session}
+    answered = {ms: q for s, ms, q, _, _ in attitudes if s == session}
+    assert received, f"session {session}: no IMU samples reached the daemon"
+    fraction = len(received & set(answered)) / len(received)
+    assert fraction >= 0.99, f"session {session}: only {fraction:.2%} of {len(received)} samples answered"
+    t0 = min(received)
+    keys = [
+        ms for ms in sorted(answered)
+        if (session, ms) in truth
+        and ms - t0 >= SETTLE_S * 1000
+        and not any(a <= ms - t0 < b for a, b in exclude_ms)
+    ]
+    assert len(keys) > RATE_HZ, f"session {session}: too few samples with truth ({len(keys)})"
+    q_est = np.array([answered[k] for k in keys])
+    q_ref = np.array([truth[(session, k)] for k in keys])
+    _, heading, tilt = attitude_errors_rad(q_est, q_ref)
+    tilt_rms = float(np.degrees(np.sqrt(np.mean(tilt**2))))
+    heading_rms = float(np.degrees(np.sqrt(np.mean(heading**2))))
+    assert tilt_rms <= TILT_RMS_DEG, f"session {session}: inclination RMS {tilt_rms:.2f}°"
+    if check_heading:
+        assert heading_rms <= HEADING_RMS_DEG, f"session {session}: heading RMS {heading_rms:.2f}°"
+    return {"fraction": fraction, "tilt_rms_deg": tilt_rms, "heading_rms_deg": heading_rms, "n": len(keys)}
+
+
+def _sim_saw_us(stats_path: Path) -> None:
+    stats = json.loads(stats_path.read_text())
+    received = stats["received"]
+    assert received.get("HEARTBEAT", 0) >= 2, received
+    assert received.get("COMMAND_LONG", 0) >= 1, received
+    assert stats["commands"].get("MAV_CMD_SET_MESSAGE_INTERVAL", 0) >= 1, stats["commands"]
+    assert received.get("ATTITUDE_QUATERNION", 0) > 0  # our output also goes back to the autopilot link
+
+
+def test_udp_400hz_accuracy_silence_and_restart(tmp_path: Path) -> None:
+    port = _free_udp_port()
+    gcs = Collector()
+    daemon = Daemon(
+        ["--master", f"udpin:127.0.0.1:{port}", "--out", f"udpout:127.0.0.1:{gcs.port}", "--filter", _filter_name(),
+         "--out-rate", "0", "--log", "daemon.tlog", "--status-interval", "2", "--heartbeat-timeout", "60",
+         "--stats-json", "daemon.json"],
+        tmp_path,
+    )
+    try:
+        daemon.wait_for("mavahrs running")
+        # session 0: 14 s of aggressive flight with 2 s of silence from 7 s
+        sim = _sim(["--out", f"udpout:127.0.0.1:{port}", "--scenario", "aggressive", "--duration", "14",
+                    "--seed", "1", "--blackout", "7:2", "--stats-json", "sim1.json"], tmp_path)
+        assert sim.wait(90) == 0
+        # session 1: the simulator restarts (new process, new source port, clock from zero)
+        sim = _sim(["--out", f"udpout:127.0.0.1:{port}", "--scenario", "aggressive", "--duration", "7",
+                    "--seed", "2", "--stats-json", "sim2.json"], tmp_path)
+        assert sim.wait(60) == 0
+        time.sleep(0.3)
+    finally:
+        rc = daemon.stop()
+        gcs.close()
+    assert rc == 0, daemon.log
+    assert "mavahrs stopped (SIGTERM)" in daemon.log and "Traceback" not in daemon.log
+
+    truth, imu_keys, sent = _read_daemon_tlog(tmp_path / "daemon.tlog")
+    attitudes = _attitudes(gcs.messages)
+    assert {(sysid, compid) for _, _, _, sysid, compid in attitudes} == {(1, 191)}
+    assert sent >= len(attitudes)  # the tlog holds what went out, too
+    s0 = _check_session(0, imu_keys, attitudes, truth, exclude_ms=((7000.0, 9000.0 + SETTLE_S * 1000),))
+    s1 = _check_session(1, imu_keys, attitudes, truth)
+    # after the silence: answered again, and accurate again (the window after it is checked separately)
+    received0 = sorted(ms for s, ms in imu_keys if s == 0)
+    after = [ms for ms in received0 if ms - received0[0] >= 9000 + SETTLE_S * 1000]
+    assert len(after) > RATE_HZ, "the stream did not come back after the silence"
+    _check_session(0, imu_keys, attitudes, truth, exclude_ms=((0.0, 9000.0 + SETTLE_S * 1000),))
+    _sim_saw_us(tmp_path / "sim1.json")
+    _sim_saw_us(tmp_path / "sim2.json")  # stream requests and heartbeats resumed after the restart
+    stats = json.loads((tmp_path / "daemon.json").read_text())
+    assert stats["counters"]["input_dropped"] == 0 and stats["counters"]["pipeline_errors"] == 0
+    print(f"\nUDP e2e: session 0 {s0}, session 1 {s1}, latency {stats['latency']}")
+
+
+def test_pty_serial_400hz_and_device_replug(tmp_path: Path) -> None:
+    link = tmp_path / "ttySIM"
+    gcs = Collector()
+
+    def start_sim(duration: str, seed: str, stats: str) -> subprocess.Popen:
+        sim = _sim(["--out", f"pty:{link}", "--scenario", "aggressive", "--duration", duration,
+                    "--seed", seed, "--stats-json", stats], tmp_path, stdout=subprocess.PIPE)
+        assert sim.stdout is not None
+        line = sim.stdout.readline()
+        assert line.startswith("PTY "), line
+        return sim
+
+    sim = start_sim("10", "3", "sim1.json")
+    daemon = Daemon(
+        ["--master", f"{link},921600", "--out", f"udpout:127.0.0.1:{gcs.port}", "--filter", _filter_name(),
+         "--out-rate", "0", "--log", "daemon.tlog", "--status-interval", "2", "--heartbeat-timeout", "60"],
+        tmp_path,
+    )
+    try:
+        assert sim.wait(90) == 0
+        sim.stdout.close()
+        daemon.wait_for("lost")  # the "device" went away with the simulator
+        sim = start_sim("7", "4", "sim2.json")  # … and comes back behind the same name
+        assert sim.wait(60) == 0
+        sim.stdout.close()
+        time.sleep(0.3)
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+            sim.wait()
+        rc = daemon.stop()
+        gcs.close()
+    assert rc == 0, daemon.log
+    assert "restored" in daemon.log, daemon.log
+    truth, imu_keys, _ = _read_daemon_tlog(tmp_path / "daemon.tlog")
+    attitudes = _attitudes(gcs.messages)
+    # the daemon started while the first simulator was already streaming: its clock starts later
+    s0 = _check_session(0, imu_keys, attitudes, truth)
+    s1 = _check_session(1, imu_keys, attitudes, truth)
+    _sim_saw_us(tmp_path / "sim1.json")
+    _sim_saw_us(tmp_path / "sim2.json")
+    print(f"\npty e2e: session 0 {s0}, session 1 {s1}")
