@@ -20,11 +20,11 @@ import sys
 from collections.abc import Sequence
 from dataclasses import replace
 
-from mavahrs.errors import TransportError
+from mavahrs.errors import ConfigError, TransportError
 from firmware_sim.endpoint import STREAMABLE, EndpointSettings, Endpoint
 from firmware_sim.imu_model import EarthField, ImuErrorSettings, MagSettings
 from firmware_sim.simulation import AttitudeFault, Home, ImuFault, SimSettings, Simulation
-from firmware_sim.streamer import Blackout, open_link, run_realtime, write_stats_json, write_tlog
+from firmware_sim.streamer import Blackout, describe_link, open_link, run_realtime, write_stats_json, write_tlog
 from firmware_sim.trajectory import SCENARIO_DESCRIPTIONS, SCENARIOS
 
 __all__ = ["main", "build_parser", "settings_from_args"]
@@ -227,6 +227,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         link = open_link(args.out, baud=args.baud or 115200)
+    except ConfigError as exc:
+        parser.error(str(exc))
     except TransportError as exc:
         print(f"mavahrs-sim: {exc}", file=sys.stderr)
         return EXIT_LINK
@@ -236,7 +238,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         stop["flag"] = True
 
     old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    desc = link.describe()
+    desc = describe_link(link)
     if desc.startswith("pty "):
         print(f"PTY {desc.split()[1]}", flush=True)
     print(f"LINK {desc}", flush=True)

@@ -13,10 +13,9 @@ ArduPilot behaviour modelled (``autopilot="ardupilot"``, the default):
   periods (at 400 Hz, 250 Hz comes out as 5 ms, 5 ms, 2.5 ms, …).
 * ``RAW_IMU.time_usec`` (and ``time_boot_ms`` elsewhere) is the **send time**
   (tick time plus a small, seeded jitter), not the sample time.
-* **MAV_CMD_SET_MESSAGE_INTERVAL** (511): interval in µs kept in whole ms
-  (truncated, as ArduPilot stores it); ``-1`` stops, ``0`` restores the
-  default, other negatives are DENIED; an interval with
-  ``interval_ms · 800 < loop_period_us`` is **DENIED** with a STATUSTEXT
+* **MAV_CMD_SET_MESSAGE_INTERVAL** (511): ``-1`` stops, ``0`` restores the
+  default, other negatives are DENIED; an interval whose whole milliseconds
+  satisfy ``interval_ms · 800 < loop_period_us`` is **DENIED** with a STATUSTEXT
   "Requested rate too fast. Increase SCHED_LOOP_RATE" — at the default 400 Hz
   loop the fastest accepted interval is 4 ms (250 Hz), at 800 Hz it is 2 ms.
 * **MAV_CMD_REQUEST_MESSAGE** (512), **MAV_CMD_GET_MESSAGE_INTERVAL** (510),
@@ -231,10 +230,9 @@ class Endpoint:
             return interval_us if interval_us >= self.min_interval_us else 0
         if self.autopilot.name == "px4":
             return max(interval_us, self.min_interval_us)
-        interval_ms = interval_us // 1000
-        if interval_ms * 800 < self.loop_period_us:
+        if (interval_us // 1000) * 800 < self.loop_period_us:  # ArduPilot's check, on whole ms
             return 0
-        return interval_ms * 1000
+        return interval_us
 
     def interval_us(self, name: str) -> int:
         """Current interval of a stream (µs; −1 = off)."""
