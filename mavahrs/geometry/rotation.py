@@ -109,9 +109,24 @@ def to_euler_rad(q_body_to_ned: ArrayLike) -> Array:
     """
     q = normalize(q_body_to_ned)
     w, x, y, z = np.moveaxis(q, -1, 0)
-    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    c21 = 2.0 * (w * x + y * z)  # cos θ sin φ
+    c22 = 1.0 - 2.0 * (x * x + y * y)  # cos θ cos φ
+    roll = np.arctan2(c21, c22)
     pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
     yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    # Gimbal lock (|θ| = 90° to within 1e-7 rad): roll and yaw are one angle and
+    # the formulas above divide rounding noise by rounding noise.  Report
+    # roll = 0 and the whole rotation about the vertical as yaw (ψ − φ at
+    # θ = +90°, ψ + φ at θ = −90°), so that from_euler_rad reproduces q.
+    lock = np.hypot(c21, c22) < 1e-7
+    if np.any(lock):
+        up = 2.0 * (w * y - z * x) > 0.0
+        half = np.arctan2(x, w)
+        lock_yaw = np.where(up, -2.0 * half, 2.0 * half)
+        lock_yaw = np.arctan2(np.sin(lock_yaw), np.cos(lock_yaw))  # wrap to (−π, π]
+        roll = np.where(lock, 0.0, roll)
+        pitch = np.where(lock, np.where(up, 0.5 * np.pi, -0.5 * np.pi), pitch)
+        yaw = np.where(lock, lock_yaw, yaw)
     return np.stack([roll, pitch, yaw], axis=-1)
 
 
