@@ -458,15 +458,24 @@ class DeclinationSource:
         """How many times the field/declination has been (re)computed."""
         return self._changes
 
+    def mag_reference(self) -> tuple[float, float] | None:
+        """``(strength_ut, inclination_rad)`` for the filter's magnetometer rejection
+        (:meth:`~mavahrs.filters.base.AttitudeFilter.set_mag_reference`), or None
+        when the field is unknown or ``seed_gain_schedule`` is off."""
+        f = self._field
+        if f is None or not self._settings.seed_gain_schedule:
+            return None
+        return f.strength_ut, f.inclination_rad
+
     def gain_schedule(self, base: GainScheduleSettings) -> GainScheduleSettings:
         """``base`` with the magnetometer reference (norm, dip) from the expected field.
 
         Unchanged when the field is unknown or ``seed_gain_schedule`` is off.
         """
-        f = self._field
-        if f is None or not self._settings.seed_gain_schedule:
+        ref = self.mag_reference()
+        if ref is None:
             return base
-        return replace(base, mag_reference_norm_ut=f.strength_ut, mag_reference_dip_rad=f.inclination_rad)
+        return replace(base, mag_reference_norm_ut=ref[0], mag_reference_dip_rad=ref[1])
 
     def status(self) -> str:
         """One short phrase for the status line, e.g. ``"true north (WMM-2025 D=+12.3°)"``."""
