@@ -181,10 +181,7 @@ class Calibrator:
         r = self._remap
         if r is not None:
             for base in (IN_GYRO, IN_ACCEL, IN_MAG):
-                x, y, z = row[base], row[base + 1], row[base + 2]
-                row[base] = r[0][0] * x + r[0][1] * y + r[0][2] * z
-                row[base + 1] = r[1][0] * x + r[1][1] * y + r[1][2] * z
-                row[base + 2] = r[2][0] * x + r[2][1] * y + r[2][2] * z
+                row[base], row[base + 1], row[base + 2] = _mul(r, (row[base], row[base + 1], row[base + 2]))
 
     def apply(self, sample: ImuSample) -> ImuSample:
         """A corrected copy of ``sample``."""

@@ -189,7 +189,7 @@ class Scaler:
                     raw_t = getattr(msg, "temperature", 0)
                     if raw_t:  # 0 = "not provided" (common.xml); 0 °C is sent as 1
                         temp = raw_t * kt
-                imu = (getattr(msg, "id", 0) or 0) if has_id else fixed_id
+                imu = _instance(msg) if has_id else fixed_id
                 return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, temp, sat, inv)
 
             return scale_int
@@ -219,10 +219,22 @@ class Scaler:
                 inv |= minv
             else:
                 mx = my = mz = _NAN
-            imu = (getattr(msg, "id", 0) or 0) if has_id else fixed_id
+            imu = _instance(msg) if has_id else fixed_id
             return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, None, sat, inv)
 
         return scale_float
+
+
+def _instance(msg: Any) -> int:
+    """The ``id`` extension field of RAW_IMU/HIGHRES_IMU (0 when absent).
+
+    pymavlink message classes also have a class attribute ``id`` (the message
+    id: 27, 105); a MAVLink 1 frame read from an old tlog lacks the extension,
+    so ``msg.id`` falls through to it.  Instance ids are small: anything else
+    means "not given".
+    """
+    i = getattr(msg, "id", 0)
+    return i if isinstance(i, int) and 0 <= i < 16 else 0
 
 
 def to_sample(msg: Any, profile: AutopilotProfile | str = "generic", *, strict: bool = False) -> ImuSample | None:

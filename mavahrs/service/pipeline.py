@@ -42,6 +42,7 @@ otherwise does scalar Python arithmetic: no numpy small arrays, no logging.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
@@ -95,6 +96,7 @@ _MAV_STATE_ACTIVE = 4
 _NAN = math.nan
 _ZERO_Q = [0.0, 0.0, 0.0, 0.0]
 _RAD2DEG = 180.0 / math.pi
+_BACKLOG = 256  # samples kept per unselected IMU instance for a seamless fail-over (0.64 s at 400 Hz)
 _G = 9.80665
 
 
@@ -416,6 +418,9 @@ class Pipeline:
         self._mag_rejected_n = 0
         self._status_mark = (0, 0, 0)  # (samples filtered, accel rejected, mag rejected) at the last status()
         self._source_since_us: int | None = None
+        #: called as ``hook(message, t_us, input_row, output_row)`` after every sample the filter ran on
+        #: (replay/CSV writers; the rows are reused: copy what you keep).  None = nothing (the daemon).
+        self.sample_hook: Callable[[str, int, np.ndarray, np.ndarray], None] | None = None
         self._next_hb_us: int | None = None
         self._last_imu_us: int | None = None
         self._last_tick_us: int | None = None
@@ -448,6 +453,7 @@ class Pipeline:
     def _reset_stream_state(self) -> None:
         """Forget everything about the IMU streams' timing (start, reboot)."""
         self._timelines: dict[int, Any] = {}
+        self._backlog: dict[int, deque[tuple[str, tuple]]] = {}
         self._last_fed_imu: int | None = None
         self._last_fed_t: int | None = None
         self._next_out_t: int | None = None
@@ -624,7 +630,27 @@ class Pipeline:
                 self._count(self._drops, "duplicate_source")
             else:
                 self._count(self._drops, "not_selected")
+                bl = self._backlog.get(imu_id)
+                if bl is None:
+                    bl = self._backlog[imu_id] = deque(maxlen=_BACKLOG)
+                bl.append((name, v))
             return []
+        bl = self._backlog.get(v[0])
+        if bl:
+            # just switched to this instance: first the samples it sent while the old one was failing,
+            # so the filter integrates over them instead of across a gap
+            out: list[Outgoing] = []
+            last = self._last_fed_t if self._last_fed_t is not None else -1
+            for bname, bv in bl:
+                if last < bv[1] < v[1]:
+                    self._count(self._counters, "backfilled")
+                    out += self._feed(bname, bv, now_us, may_reset)
+            bl.clear()
+            return out + self._feed(name, v, now_us, may_reset)
+        return self._feed(name, v, now_us, may_reset)
+
+    def _feed(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
+        """Time, calibrate, filter and (rate permitting) encode one selected sample."""
         imu_id, t = v[0], v[1]
         tl = self._timelines.get(imu_id)
         if tl is None:
@@ -672,6 +698,8 @@ class Pipeline:
             self._check_units(name, now_us)
         out = self._filter.update_row(row)
         self.samples_filtered += 1
+        if self.sample_hook is not None:
+            self.sample_hook(name, t, row, out)
         self._filter_meter.add(now_us)
         flags = int(out[OUT_FLAGS])
         if out[OUT_ACCEL_WEIGHT] < 0.5:

@@ -1,0 +1,440 @@
+"""The pipeline end to end on synthetic MAVLink: accuracy, timing, allow-list, faults, timers."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from mavahrs.filters import create
+from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_VEL
+from mavahrs.geometry import quaternion as Q
+from mavahrs.geometry import rotation
+from mavahrs.protocol.codec import MavCodec
+from mavahrs.sensors.geomag import MagneticFieldSettings
+from mavahrs.service.pipeline import Outgoing, Pipeline, PipelineSettings
+
+FILTER = "mahony"
+ARRIVAL_US = 3000  # the frame reaches us 3 ms after the autopilot stamped it
+
+
+def settings(**kw):
+    base = dict(filter_name=FILTER, out_rate_hz=0.0)
+    base.update(kw)
+    return PipelineSettings(**base)
+
+
+def feed(pipe: Pipeline, frames, tick_every_us: int = 50_000) -> list[Outgoing]:
+    """Decode each (now_us, bytes) like the daemon, run handle(), and tick() on a timer."""
+    rx = MavCodec(0, 0)
+    out: list[Outgoing] = []
+    next_tick = None
+    for now, data in frames:
+        if next_tick is None or now >= next_tick:
+            out.extend(pipe.tick(now))
+            next_tick = now + tick_every_us
+        for msg in rx.receive_datagram(data):
+            out.extend(pipe.handle(msg, now))
+    return out
+
+
+def decoded(outs, kind=None):
+    rx = MavCodec(0, 0)
+    msgs = [m for o in outs for m in rx.receive_datagram(o.frame)]
+    return [m for m in msgs if kind is None or m.get_type() == kind]
+
+
+def imu_frames(ap, traj, start=0, stop=None, *, every=1, heartbeat_s=1.0):
+    """Heartbeat first (and every ``heartbeat_s``), then RAW_IMU for samples start..stop."""
+    stop = len(traj.t_us) if stop is None else stop
+    frames = [(int(traj.t_us[start]) - 10_000 + ARRIVAL_US, ap.heartbeat())]
+    hb_every = int(round(heartbeat_s * 400))
+    for k in range(start, stop, every):
+        t = int(traj.t_us[k])
+        if (k - start) % hb_every == 0 and k > start:
+            frames.append((t + ARRIVAL_US, ap.heartbeat()))
+        frames.append((t + ARRIVAL_US, ap.raw_imu_k(traj, k)))
+    return frames
+
+
+def attitude_errors_deg(att, traj, declination_rad=0.0):
+    errs = []
+    for a in att:
+        k = traj.index_of_ms(a.time_boot_ms)
+        q_true = traj.q_body_to_ned[k]
+        if declination_rad:
+            q_true = Q.multiply([math.cos(declination_rad / 2), 0, 0, math.sin(declination_rad / 2)], q_true)
+        errs.append(math.degrees(float(Q.angle_between([a.q1, a.q2, a.q3, a.q4], q_true))))
+    return np.array(errs)
+
+
+class RecordingFilter:
+    """Wraps a real filter and keeps a copy of every input row it is given."""
+
+    def __init__(self, name=FILTER):
+        self._f = create(name)
+        self.rows: list[np.ndarray] = []
+        self.name = self._f.name
+
+    def update_row(self, row):
+        self.rows.append(row.copy())
+        return self._f.update_row(row)
+
+    def reset(self):
+        self._f.reset()
+
+    @property
+    def diagnostics(self):
+        return self._f.diagnostics
+
+    @property
+    def _out(self):
+        return self._f._out
+
+
+# ---------------------------------------------------------------------------- accuracy and timing
+
+
+def test_400hz_raw_imu_every_sample_answered_accurately(autopilot, trajectory):
+    pipe = Pipeline(settings())
+    outs = feed(pipe, imu_frames(autopilot, trajectory))
+    att = decoded([o for o in outs if o.to_outputs], "ATTITUDE_QUATERNION")
+    n = len(trajectory.t_us)
+    assert len(att) >= 0.99 * n
+    # time_boot_ms is the IMU sample's own time, in order, one per sample
+    sample_ms = set((trajectory.t_us // 1000).tolist())
+    assert all(a.time_boot_ms in sample_ms for a in att)
+    assert [a.time_boot_ms for a in att] == sorted(a.time_boot_ms for a in att)
+    # from the vehicle's system id and our component 191; repr_offset_q zero
+    hdr = att[0].get_header()
+    assert (hdr.srcSystem, hdr.srcComponent) == (1, 191)
+    assert all(list(a.repr_offset_q) == [0.0, 0.0, 0.0, 0.0] for a in att[:10])
+    # attitude within 1° RMS / 2° max of truth after the 3 s start-up (noise-free int16 quantisation only)
+    err = attitude_errors_deg(att, trajectory)
+    settled = err[[traj_t > 4_000 for traj_t in (a.time_boot_ms for a in att)]]
+    assert math.sqrt(np.mean(settled**2)) < 1.0 and settled.max() < 2.0
+    # body rates = gyro − bias ≈ true rates (mrad/s quantisation)
+    k = [trajectory.index_of_ms(a.time_boot_ms) for a in att[-100:]]
+    rates = np.array([[a.rollspeed, a.pitchspeed, a.yawspeed] for a in att[-100:]])
+    np.testing.assert_allclose(rates, trajectory.gyro_rad_s[k], atol=0.005)
+    st = pipe.status()
+    assert st.samples_filtered == n and st.samples_dropped == 0 and st.initialised
+    assert st.imu_in_use == 0 and st.autopilot_profile == "ardupilot" and st.vehicle == (1, 1)
+
+
+def test_out_rate_limits_on_sample_time(autopilot, trajectory):
+    pipe = Pipeline(settings(out_rate_hz=50.0))
+    frames = imu_frames(autopilot, trajectory, 0, 4000)  # 10 s
+    att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
+    assert 499 <= len(att) <= 501
+    gaps = np.diff([a.time_boot_ms for a in att])
+    assert set(gaps.tolist()) <= {20}
+
+
+def test_jittery_250hz_send_times_are_not_lost_samples(autopilot, trajectory):
+    """ArduPilot stamps RAW_IMU at send time in a 400 Hz loop: a 250 Hz stream arrives 2.5/5 ms apart."""
+    pipe = Pipeline(settings(out_rate_hz=50.0))
+    frames = [(0, autopilot.heartbeat())]
+    t_us, k = int(trajectory.t_us[0]), 0
+    while k < 4000:
+        frames.append((t_us + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k, t_us)))
+        step = 2 if len(frames) % 3 else 1  # 5.0, 5.0, 2.5 ms … ≈ 250 Hz
+        k += step
+        t_us = int(trajectory.t_us[min(k, len(trajectory.t_us) - 1)])
+    att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
+    assert pipe.status().samples_dropped == 0
+    assert pipe.status().counters.get("gaps", 0) == 0
+    assert abs(len(att) - 500) <= 2  # 10 s of sample time at 50 Hz
+    err = attitude_errors_deg(att[200:], trajectory)
+    assert err.max() < 2.0
+
+
+# ---------------------------------------------------------------------------- source allow-list
+
+
+def test_allow_list_rejects_injected_second_source(trajectory, make_autopilot):
+    ap, intruder, other = make_autopilot(1, 1), make_autopilot(1, 42), make_autopilot(7, 1)
+    clean = imu_frames(ap, trajectory, 0, 2000)
+    bad_q = rotation.from_euler_rad(1.0, 0.5, 2.0)
+    injected = []
+    for now, data in clean:
+        injected.append((now, data))
+        if len(injected) % 4 == 0:
+            injected.append((now, intruder.raw_imu(now, bad_q, np.zeros(3))))
+            injected.append((now, other.raw_imu(now, bad_q, np.zeros(3))))
+    ref = decoded(feed(Pipeline(settings()), clean), "ATTITUDE_QUATERNION")
+    pipe = Pipeline(settings())
+    got = decoded(feed(pipe, injected), "ATTITUDE_QUATERNION")
+    assert [(a.time_boot_ms, a.q1, a.q2, a.q3, a.q4) for a in got] == [
+        (a.time_boot_ms, a.q1, a.q2, a.q3, a.q4) for a in ref
+    ]
+    assert pipe.status().drops["foreign_source"] == len(injected) - len(clean)
+    assert any("ignoring RAW_IMU from system 1, component 42" in m for _, m in pipe.drain_notices())
+
+
+def test_imu_before_any_heartbeat_is_not_used(autopilot, trajectory):
+    pipe = Pipeline(settings())
+    frames = [(int(trajectory.t_us[k]) + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k)) for k in range(100)]
+    assert decoded(feed(pipe, frames), "ATTITUDE_QUATERNION") == []
+    assert pipe.status().drops == {"no_autopilot_yet": 100}
+
+
+def test_configured_source_without_heartbeat(autopilot, trajectory):
+    s = settings(source_system=1, source_component=1, autopilot_profile="ardupilot")
+    frames = [(int(trajectory.t_us[k]) + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k)) for k in range(100)]
+    assert len(decoded(feed(Pipeline(s), frames), "ATTITUDE_QUATERNION")) == 100
+
+
+def test_non_autopilot_heartbeats_do_not_become_the_source(make_autopilot):
+    gcs = make_autopilot(255, 190, autopilot=8)  # MAV_AUTOPILOT_INVALID: a ground station
+    ap = make_autopilot(1, 1)
+    pipe = Pipeline(settings())
+    feed(pipe, [(0, gcs.heartbeat()), (1000, ap.heartbeat())])
+    assert pipe.source == (1, 1)
+
+
+# ---------------------------------------------------------------------------- faults
+
+
+def test_duplicates_and_reordering_dropped_and_counted(autopilot, trajectory):
+    """A sample sent twice (a new frame with the same time_usec) and swapped pairs."""
+    order = []
+    dup = reo = 0
+    k = 0
+    while k < 2000:
+        if k % 100 == 50:
+            order += [k, k]
+            dup += 1
+            k += 1
+        elif k % 100 == 80:
+            order += [k + 1, k]
+            reo += 1
+            k += 2
+        else:
+            order.append(k)
+            k += 1
+    frames = [(0, autopilot.heartbeat())]
+    for k in order:
+        t = int(trajectory.t_us[k])
+        frames.append((t + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k)))
+    pipe = Pipeline(settings())
+    att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
+    st = pipe.status()
+    dropped = {k: v for k, v in st.drops.items() if k != "filter_not_initialised"}
+    assert sum(dropped.values()) == dup + reo and len(dropped) == 2
+    assert st.samples_filtered == 2000 - reo  # each sample once; the late one of a swapped pair is dropped
+    times = [a.time_boot_ms for a in att]
+    assert times == sorted(times) and len(set(times)) == len(times)
+
+
+def test_reboot_resets_and_carries_on(autopilot, trajectory, make_autopilot):
+    first = imu_frames(autopilot, trajectory, 0, 2000)
+    # the autopilot reboots: its clock restarts near zero, its sequence numbers too
+    second = []
+    ap2 = make_autopilot(1, 1)
+    shift = int(trajectory.t_us[2000]) - 500_000
+    for k in range(2000, 4000):
+        t = int(trajectory.t_us[k]) - shift
+        second.append((int(trajectory.t_us[k]) + ARRIVAL_US, ap2.raw_imu_k(trajectory, k, t)))
+    pipe = Pipeline(settings())
+    outs = feed(pipe, first + second)
+    att = decoded(outs, "ATTITUDE_QUATERNION")
+    st = pipe.status()
+    assert st.counters["reboots"] == 1
+    after = [a for a in att if a.time_boot_ms < 1000 * (int(trajectory.t_us[2000]) - shift) // 1000 + 5000]
+    assert len(after) > 1500  # outputs resume on the new clock
+    assert any("rebooted" in m for _, m in pipe.drain_notices())
+    # the stream requests start again after the reboot (the autopilot forgot our rates)
+    cmds = decoded([o for o in outs if o.to_master and not o.to_outputs], "COMMAND_LONG")
+    assert len(cmds) >= 2
+
+
+def test_gap_reaches_the_filter_and_output_recovers(autopilot, trajectory):
+    frames = imu_frames(autopilot, trajectory, 0, 2000) + imu_frames(autopilot, trajectory, 2800, 4800)[1:]
+    pipe = Pipeline(settings())
+    att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
+    assert pipe.status().counters.get("gaps", 0) == 1
+    late = [a for a in att if a.time_boot_ms > trajectory.t_us[3600] // 1000]
+    assert attitude_errors_deg(late, trajectory).max() < 2.0
+
+
+def test_all_zero_scaled_imu2_never_reaches_the_filter(autopilot, trajectory):
+    rec = RecordingFilter()
+    pipe = Pipeline(settings(), filter=rec)
+    frames = imu_frames(autopilot, trajectory, 0, 800)
+    with2 = []
+    n2 = 0
+    for now, data in frames:
+        with2.append((now, data))
+        if now > 0 and len(with2) % 2 == 0:
+            with2.append((now, autopilot.scaled_imu2(now - ARRIVAL_US, None, None)))
+            n2 += 1
+    feed(pipe, with2)
+    zero_rows = [r for r in rec.rows if not np.any(r[IN_ACCEL : IN_ACCEL + 3]) and not np.any(r[IN_GYRO : IN_GYRO + 3])]
+    assert zero_rows == []
+    st = pipe.status()
+    assert st.samples_filtered == 800
+    assert st.drops["absent_instance"] == n2
+    assert {s.imu_id: s.state for s in st.imu_instances}[1] == "absent (all-zero)"
+
+
+def test_auto_fails_over_to_scaled_imu2_when_raw_imu_stops(autopilot, trajectory):
+    frames = [(0, autopilot.heartbeat())]
+    for k in range(0, 4000):
+        t = int(trajectory.t_us[k])
+        q, g = trajectory.q_body_to_ned[k], trajectory.gyro_rad_s[k]
+        if k % 400 == 0:
+            frames.append((t + ARRIVAL_US, autopilot.heartbeat()))
+        if k < 2400:
+            frames.append((t + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k)))
+        frames.append((t + ARRIVAL_US, autopilot.scaled_imu2(t, q, g)))
+    pipe = Pipeline(settings())
+    att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
+    stop_ms = int(trajectory.t_us[2400]) // 1000
+    resumed = [a.time_boot_ms for a in att if a.time_boot_ms > stop_ms]
+    assert resumed and resumed[0] - stop_ms <= 1000  # failed over within 1 s
+    assert attitude_errors_deg([a for a in att if a.time_boot_ms > stop_ms], trajectory).max() < 2.0
+    st = pipe.status()
+    assert st.imu_in_use == 1 and "stale" in st.imu_reason
+    assert any("switched from IMU 0 to IMU 1" in m for _, m in pipe.drain_notices())
+
+
+def test_saturated_and_nan_samples_counted_and_only_that_correction_skipped(trajectory, make_autopilot):
+    ap = make_autopilot(1, 1, autopilot=12)  # PX4: HIGHRES_IMU
+    rec = RecordingFilter()
+    pipe = Pipeline(settings(), filter=rec)
+    frames = [(0, ap.heartbeat())]
+    for k in range(400):
+        t = int(trajectory.t_us[k])
+        acc = [0.0, 0.0, -9.80665]
+        gyro = [0.0, 0.0, 0.0]
+        if k in (100, 101):
+            acc[0] = math.nan
+        if k == 200:
+            acc[2] = -200.0  # 20 g: beyond the 16 g full scale → saturated
+        frames.append((t + ARRIVAL_US, ap.highres_imu(t, acc, gyro, [0.2, 0.0, 0.45])))
+    att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
+    st = pipe.status()
+    assert st.counters["invalid_accel"] == 2 and st.counters["saturated_accel"] == 1
+    assert len(att) == 400 and st.samples_filtered == 400  # the samples still propagate the gyro
+    assert all(np.isnan(rec.rows[k][IN_ACCEL : IN_ACCEL + 3]).all() for k in (100, 101, 200))
+    assert not np.isnan(rec.rows[99][IN_ACCEL : IN_ACCEL + 3]).any()
+    texts = [m for _, m in pipe.drain_notices()]
+    assert sum("accel NaN" in m for m in texts) == 1  # said once, not per sample
+
+
+# ---------------------------------------------------------------------------- GNSS, declination, units
+
+
+def test_gnss_velocity_reaches_the_filter_once_per_fix(autopilot, trajectory):
+    rec = RecordingFilter()
+    s = settings(magnetic=MagneticFieldSettings(true_north=False, declination_deg=None))
+    pipe = Pipeline(s, filter=rec, decimal_year=2026.0)
+    frames = imu_frames(autopilot, trajectory, 0, 400)
+    frames.insert(200, (frames[200][0], autopilot.global_position_int(frames[200][0], (1.0, -2.0, 0.5), lat_e7=0, lon_e7=0)))
+    frames.insert(300, (frames[300][0], autopilot.global_position_int(frames[300][0], (1.0, -2.0, 0.5))))
+    feed(pipe, frames)
+    with_vel = [i for i, r in enumerate(rec.rows) if not np.isnan(r[IN_VEL])]
+    assert len(with_vel) == 1  # the no-fix message (lat = lon = 0) is ignored
+    v = rec.rows[with_vel[0]][IN_VEL : IN_VEL + 3]
+    decl = pipe.declination.field.declination_rad  # Zürich, WMM: true NED → the filter's magnetic NED
+    assert 0.02 < decl < 0.1
+    c, s_ = math.cos(decl), math.sin(decl)
+    np.testing.assert_allclose(v, [c * 1.0 + s_ * -2.0, -s_ * 1.0 + c * -2.0, 0.5], atol=1e-9)
+
+
+def test_declination_applied_to_output(autopilot, trajectory):
+    d = math.radians(12.0)
+    pipe = Pipeline(settings(magnetic=MagneticFieldSettings(declination_deg=12.0)))
+    att = decoded(feed(pipe, imu_frames(autopilot, trajectory, 0, 2400)), "ATTITUDE_QUATERNION")
+    err = attitude_errors_deg(att[-400:], trajectory, declination_rad=d)
+    assert err.max() < 2.0
+    assert "true north" in pipe.status().heading_reference
+
+
+def test_wrong_profile_units_are_reported(autopilot, trajectory):
+    pipe = Pipeline(settings(autopilot_profile="px4"))  # ArduPilot RAW_IMU read as PX4 mm/s²
+    feed(pipe, imu_frames(autopilot, trajectory, 0, 500))
+    assert any("units" in m and "look wrong" in m for _, m in pipe.drain_notices())
+
+
+def test_slow_input_is_reported(autopilot, trajectory):
+    pipe = Pipeline(settings())
+    feed(pipe, imu_frames(autopilot, trajectory, 0, 4000, every=100), tick_every_us=10_000)  # 4 Hz
+    assert any("too slow for meaningful attitude filtering" in m for _, m in pipe.drain_notices())
+
+
+# ---------------------------------------------------------------------------- timers and stream requests
+
+
+def test_heartbeat_and_stream_requests(autopilot, trajectory):
+    pipe = Pipeline(settings())
+    outs = feed(pipe, imu_frames(autopilot, trajectory, 0, 2000), tick_every_us=20_000)  # 5 s
+    hbs = decoded(outs, "HEARTBEAT")
+    assert 5 <= len(hbs) <= 6
+    h = hbs[0]
+    assert (h.type, h.autopilot, h.get_header().srcSystem, h.get_header().srcComponent) == (18, 8, 1, 191)
+    cmds = decoded([o for o in outs if o.to_master and not o.to_outputs], "COMMAND_LONG")
+    first = cmds[0]
+    assert (first.command, first.param1, first.param2, first.target_system, first.target_component) == (511, 27, 2500, 1, 1)
+
+
+def test_denied_stream_request_steps_down_through_the_pipeline(autopilot, trajectory):
+    pipe = Pipeline(settings())
+    t0 = int(trajectory.t_us[0])
+    feed(pipe, [(t0, autopilot.heartbeat())])
+    (cmd,) = decoded(pipe.tick(t0 + 1000), "COMMAND_LONG")
+    assert cmd.param2 == 2500
+    outs = feed(pipe, [(t0 + 10_000, autopilot.statustext("Requested rate for message ID 27 too fast. Increase SCHED_LOOP_RATE")),
+                       (t0 + 20_000, autopilot.command_ack(2))], tick_every_us=1)  # fmt: skip
+    outs += pipe.tick(t0 + 30_000)
+    cmds = decoded(outs, "COMMAND_LONG")
+    assert [c.param2 for c in cmds] == [4000]
+    feed(pipe, [(t0 + 40_000, autopilot.command_ack(0))])
+    notes = pipe.drain_notices()
+    assert any(level == logging.WARNING and "SCHED_LOOP_RATE" in m and "250" in m for level, m in notes)
+    assert pipe.status(t0 + 50_000).streams[0].accepted_hz == 250.0
+
+
+def test_ack_for_another_component_is_ignored(autopilot):
+    pipe = Pipeline(settings())
+    feed(pipe, [(0, autopilot.heartbeat())])
+    pipe.tick(10)
+    feed(pipe, [(20, autopilot.command_ack(0, target_component=190))])  # the GCS's command was accepted
+    assert pipe.status(30).streams[0].accepted_hz is None
+
+
+def test_heartbeat_loss_and_return_restarts_requests(autopilot):
+    pipe = Pipeline(settings())
+    feed(pipe, [(0, autopilot.heartbeat())])
+    assert decoded(pipe.tick(1000), "COMMAND_LONG")
+    assert pipe.status(1000).connected
+    pipe.tick(7_000_000)  # 7 s without heartbeat
+    assert not pipe.status(7_000_000).connected
+    assert any("no HEARTBEAT" in m for _, m in pipe.drain_notices())
+    assert decoded(pipe.tick(7_500_000), "COMMAND_LONG") == []  # nobody to ask
+    feed(pipe, [(8_000_000, autopilot.heartbeat())])
+    again = decoded(pipe.tick(8_000_100), "COMMAND_LONG")
+    assert again and again[0].param2 == 2500
+
+
+def test_settings_validation():
+    with pytest.raises(ValueError):
+        PipelineSettings(autopilot_profile="inav")
+    with pytest.raises(ValueError):
+        PipelineSettings(filter_name="kalman")
+    with pytest.raises(ValueError):
+        PipelineSettings(imu="5")
+    with pytest.raises(ValueError):
+        PipelineSettings(out_rate_hz=-1)
+
+
+def test_every_setting_is_documented():
+    import dataclasses
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "pipeline.md").read_text(encoding="utf-8")
+    for f in dataclasses.fields(PipelineSettings):
+        assert f"`{f.name}`" in doc, f"PipelineSettings.{f.name} missing from docs/pipeline.md"
