@@ -131,7 +131,8 @@ def _start(d: Daemon) -> tuple[threading.Thread, dict[str, Any]]:
     return t, box
 
 
-def _drain(sock: socket.socket, seconds: float) -> list[Any]:
+def _drain(sock: socket.socket, seconds: float, attitudes: int | None = None) -> list[Any]:
+    """Messages arriving within ``seconds`` (sooner once ``attitudes`` ATTITUDE_QUATERNION came, plus 0.1 s)."""
     dec = MavCodec()
     out: list[Any] = []
     end = time.monotonic() + seconds
@@ -140,6 +141,9 @@ def _drain(sock: socket.socket, seconds: float) -> list[Any]:
             out += dec.receive_datagram(sock.recv(4096))
         except (TimeoutError, socket.timeout):
             pass
+        if attitudes is not None and sum(m.get_type() == "ATTITUDE_QUATERNION" for m in out) >= attitudes:
+            end = min(end, time.monotonic() + 0.1)
+            attitudes = None
     return out
 
 
@@ -152,7 +156,9 @@ def test_attitude_goes_to_outputs_and_heartbeats_to_both(gcs: socket.socket) -> 
         for _ in range(40):
             ap.imu(5)
             time.sleep(0.01)
-        got = _drain(gcs, 1.2)
+        got = _drain(gcs, 5.0, attitudes=200)
+        time.sleep(0.9)  # a heartbeat (tick 20 of the fake pipeline) reaches both sides
+        got += _drain(gcs, 0.2)
         to_ap = ap.received()
     finally:
         d.stop()
@@ -239,7 +245,7 @@ def test_an_exception_in_the_pipeline_is_counted_and_the_loop_goes_on(gcs: socke
     try:
         ap.heartbeat()
         ap.imu(10)
-        got = _drain(gcs, 0.6)
+        got = _drain(gcs, 5.0, attitudes=9)
     finally:
         d.stop()
         thread.join(5)
@@ -264,3 +270,49 @@ def test_latency_ring_percentiles_and_wrap() -> None:
     s = LatencyRing.summary_us(list(range(1, 101)))
     assert (s["n"], s["p50_us"], s["p99_us"], s["max_us"]) == (100, 0.05, 0.099, 0.1)
     assert ring.max_ns == 20000
+
+
+class _FullDisk:
+    """A binary file that takes ``capacity`` bytes, then fails every write with ENOSPC."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity, self.size = capacity, 0
+
+    def write(self, b: bytes) -> int:
+        import errno
+        import os
+
+        if self.size + len(b) > self.capacity:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self.size += len(b)
+        return len(b)
+
+    def flush(self) -> None:
+        pass
+
+
+def test_a_full_disk_stops_the_log_and_nothing_else(gcs: socket.socket, caplog: pytest.LogCaptureFixture) -> None:
+    from mavahrs.protocol.tlog import TlogWriter
+    from mavahrs.service.sinks import TlogSink
+
+    d = _daemon(gcs)
+    d.sink = TlogSink("full.tlog", flush_interval_s=0.05, writer=TlogWriter(_FullDisk(2000), flush_interval_s=0.05))
+    ap = Autopilot(d.master.local_address[1])
+    caplog.set_level(logging.ERROR)
+    thread, box = _start(d)
+    try:
+        ap.heartbeat()
+        for _ in range(20):  # 200 samples: what the receiving socket buffers without a reader
+            ap.imu(10)
+            time.sleep(0.01)
+        got = _drain(gcs, 5.0, attitudes=200)
+        fields = d.status_fields()
+    finally:
+        d.stop()
+        thread.join(5)
+        ap.close()
+    assert box["result"].reason == "stopped"
+    assert [m.get_type() for m in got].count("ATTITUDE_QUATERNION") == 200  # every sample still answered
+    assert d.sink.stopped and fields["log"] == "stopped: No space left on device"
+    assert d.sink.frames_lost > 0
+    assert sum("recording to full.tlog stopped" in r.getMessage() for r in caplog.records) == 1
