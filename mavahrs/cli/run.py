@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import signal
+import threading
 from typing import Any
 
 from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter
@@ -140,6 +143,14 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+class _StopRequested(Exception):
+    """SIGINT/SIGTERM while the daemon is still starting (links opening, filter compiling)."""
+
+
+def _stop_during_startup(signum: int, frame: Any) -> None:
+    raise _StopRequested(signal.Signals(signum).name)
+
+
 def run(args: argparse.Namespace) -> int:
     from mavahrs.config import load_run_config
     from mavahrs.service.daemon import build_daemon
@@ -148,6 +159,16 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         print(config.to_toml(), end="")
         return EXIT_OK
-    daemon = build_daemon(config.daemon, config.pipeline, config.filter)
-    daemon.run()
+    # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
+    # the daemon installs its own handlers for the loop and restores these afterwards.
+    in_main = threading.current_thread() is threading.main_thread()
+    old = {s: signal.signal(s, _stop_during_startup) for s in (signal.SIGINT, signal.SIGTERM)} if in_main else {}
+    try:
+        daemon = build_daemon(config.daemon, config.pipeline, config.filter)
+        daemon.run()
+    except _StopRequested as exc:
+        logging.getLogger("mavahrs.daemon").info("mavahrs stopped (%s) while starting", exc)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
     return EXIT_OK
