@@ -531,6 +531,7 @@ def _commented_table(path: str, cls: type, obj: Any, lines: list[str]) -> None:
 def _wrap(text: str, width: int) -> list[str]:
     import textwrap
 
+    text = re.sub(r":(?:class|func|meth|mod|attr|data):`~?([^`]+)`", r"`\1`", text).replace("``", "`")
     return textwrap.wrap(text, width) or [""]
 
 
