@@ -136,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--mag-soft-iron", type=lambda t: _floats(t, 9, "--mag-soft-iron"), metavar="M11,...,M33",
                     help="soft-iron 3x3 matrix, row-major (default identity)")
 
+    p.add_argument("--jit", action="store_true",
+                   help="compile the physics with numba (always on with --fast; costs ~2 s at start)")
     p.add_argument("--list-scenarios", action="store_true", help="print the scenarios and exit")
     p.add_argument("-v", "--verbose", action="count", default=0)
     p.add_argument("-q", "--quiet", action="store_true")
@@ -162,6 +164,7 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
     if args.imu2_freeze_at is not None or args.imu2_saturate_at is not None:
         imu_fault = ImuFault(instance=1, freeze_at_s=args.imu2_freeze_at, saturate_at_s=args.imu2_saturate_at)
     sim = SimSettings(
+        jit=bool(args.fast or args.jit),
         scenario=args.scenario,
         seed=args.seed,
         loop_rate_hz=args.loop_rate,

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from mavahrs.filters.jit import kernel
+from firmware_sim.jit import lazy_kernel
 from firmware_sim.trajectory import VibrationSpec
 
 __all__ = [
@@ -207,7 +207,7 @@ def butterworth2(cutoff_hz: float, rate_hz: float) -> Array:
     return np.array([b0, 2.0 * b0, b0, 2.0 * (ohm * ohm - 1.0) / c, (1.0 - 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm) / c])
 
 
-@kernel
+@lazy_kernel
 def iir2(coef: Array, x: Array, z: Array, out: Array) -> None:
     """Biquad (direct form II transposed) along axis 0 of ``x`` (N, M); state ``z`` (2, M) carried."""
     b0, b1, b2, a1, a2 = coef[0], coef[1], coef[2], coef[3], coef[4]
@@ -225,10 +225,11 @@ def iir2(coef: Array, x: Array, z: Array, out: Array) -> None:
 class _LowPass:
     """2nd-order Butterworth per axis with carried state (ArduPilot LowPassFilter2p)."""
 
-    def __init__(self, cutoff_hz: float, rate_hz: float) -> None:
+    def __init__(self, cutoff_hz: float, rate_hz: float, jit: bool = False) -> None:
         self.active = 0.0 < cutoff_hz < 0.5 * rate_hz
         self._z: Array | None = None
         self.coef = butterworth2(cutoff_hz, rate_hz) if self.active else np.zeros(5)
+        self._iir = iir2.select(jit)
 
     def __call__(self, x: Array) -> Array:
         if not self.active or x.shape[0] == 0:
@@ -238,7 +239,7 @@ class _LowPass:
             b0, b1, b2, a1, a2 = self.coef
             self._z = np.stack([x[0] * (b1 - a1 + b2 - a2), x[0] * (b2 - a2)])
         out = np.empty_like(x)
-        iir2(self.coef, x, self._z, out)
+        self._iir(self.coef, x, self._z, out)
         return out
 
 
@@ -273,6 +274,7 @@ class ImuModel:
         rate_hz: float,
         seed: int | np.random.SeedSequence,
         vibration: VibrationSpec | None = None,
+        jit: bool = False,
     ) -> None:
         self.settings = s = settings
         self.rate_hz = float(rate_hz)
@@ -289,8 +291,8 @@ class ImuModel:
         self._gyro_walk = np.zeros(3)
         self._accel_walk = np.zeros(3)
         self._temp0_c: float | None = None
-        self._lp_gyro = _LowPass(s.gyro_lowpass_hz, self.rate_hz)
-        self._lp_accel = _LowPass(s.accel_lowpass_hz, self.rate_hz)
+        self._lp_gyro = _LowPass(s.gyro_lowpass_hz, self.rate_hz, jit)
+        self._lp_accel = _LowPass(s.accel_lowpass_hz, self.rate_hz, jit)
         self._vib: _Vibration | None = None
         if vibration is not None and s.vibration:
             n = len(vibration.harmonics)

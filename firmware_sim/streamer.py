@@ -37,6 +37,7 @@ from typing import Any, BinaryIO
 from mavahrs.errors import TransportError
 from mavahrs.protocol.tlog import tlog_record
 from mavahrs.transports import DEFAULT_BAUD, Transport, TransportCounters, open_transport
+from mavahrs.transports.base import WriteQueue
 from firmware_sim.endpoint import Endpoint
 
 __all__ = [
@@ -76,7 +77,7 @@ class PtyLink:
 
     datagram = False
 
-    def __init__(self, link_path: str | None = None) -> None:
+    def __init__(self, link_path: str | None = None, *, queue_bytes: int = 16384) -> None:
         self.master, slave = os.openpty()
         self.slave_path = os.ttyname(slave)
         tty.setraw(slave)  # no echo, no CR/LF translation: bytes stay bytes
@@ -94,6 +95,8 @@ class PtyLink:
         self.peer_open = False
         self._pending: list[bytes] = []
         self.counters = TransportCounters()
+        # like a UART's transmit buffer: rides out a reader that stalls briefly, then drops the oldest
+        self._queue = WriteQueue(queue_bytes, self.counters)
 
     def fileno(self) -> int:
         return self.master if self.peer_open else -1
@@ -104,6 +107,15 @@ class PtyLink:
     def maintain(self, now_s: float) -> None:
         if not self.peer_open:
             self._pending.extend(self._read_raw())
+        self._flush()
+
+    def _flush(self) -> None:
+        try:
+            self._queue.flush(lambda mv: os.write(self.master, mv))
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            self._queue.clear()  # nobody has the slave open: the bytes go nowhere
 
     def _read_raw(self) -> list[bytes]:
         out = []
@@ -141,15 +153,9 @@ class PtyLink:
         return data
 
     def write(self, data: bytes) -> None:
-        c = self.counters
-        c.writes += 1
-        try:
-            c.bytes_out += os.write(self.master, data)
-        except OSError as exc:
-            if exc.errno not in (errno.EIO, errno.EAGAIN):
-                raise
-            c.writes_dropped += 1  # peer not reading: the bytes are lost
-            c.bytes_dropped += len(data)
+        self.counters.writes += 1
+        self._queue.push(data)
+        self._flush()
 
     def close(self) -> None:
         if self.link_path and os.path.islink(self.link_path):
@@ -303,6 +309,7 @@ def run_realtime(
             if now >= next_maintain:
                 link.maintain(time.monotonic())
                 next_maintain = now + 0.05
+                _service_input(endpoint, link, tlog, epoch, dark)  # a link may hold input read by maintain()
             fds = link.filenos()
             timeout = deadline - now
             if fds:

@@ -19,7 +19,7 @@ GCS = (255, 190)
 
 def _endpoint(sim: SimSettings | None = None, **ep: object) -> Endpoint:
     ep.setdefault("block_ticks", 1000)
-    return Endpoint(Simulation(sim or SimSettings()), EndpointSettings(**ep))  # type: ignore[arg-type]
+    return Endpoint(Simulation(sim or SimSettings(jit=True)), EndpointSettings(**ep))  # type: ignore[arg-type]
 
 
 class Peer:
@@ -107,7 +107,7 @@ def test_400_hz_denied_at_default_loop_with_statustext_and_accepted_at_800() -> 
     assert _ack(peer.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 27, 4000)).result == mavlink.MAV_RESULT_ACCEPTED
     assert _ack(peer.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 27, 3999)).result == mavlink.MAV_RESULT_DENIED
 
-    fast = Peer(_endpoint(SimSettings(loop_rate_hz=800.0), default_stream_hz=0.0))
+    fast = Peer(_endpoint(SimSettings(jit=True, loop_rate_hz=800.0), default_stream_hz=0.0))
     assert _ack(fast.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 400.0)).result == mavlink.MAV_RESULT_ACCEPTED
     assert len(_of(fast.run(2.0), "RAW_IMU")) == 800
     assert _ack(fast.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 27, 1000)).result == mavlink.MAV_RESULT_DENIED
@@ -188,7 +188,7 @@ def test_px4_identity_defaults_and_rates() -> None:
 
 
 def test_raw_imu_scaling_matches_the_simulated_sensor() -> None:
-    sim = SimSettings(scenario="hover", seed=2)
+    sim = SimSettings(jit=True, scenario="hover", seed=2)
     peer = Peer(_endpoint(sim, ideal=True, default_stream_hz=0.0, streams_hz=(("RAW_IMU", 400.0), ("SCALED_IMU2", 400.0))))
     msgs = peer.run(1.0)
     ref = Simulation(sim).next_block(400)
@@ -208,7 +208,7 @@ def test_raw_imu_scaling_matches_the_simulated_sensor() -> None:
 
 
 def test_simstate_and_sim_state_carry_the_truth() -> None:
-    sim = SimSettings(scenario="aggressive", seed=4)
+    sim = SimSettings(jit=True, scenario="aggressive", seed=4)
     peer = Peer(_endpoint(sim, preset="bench", streams_hz=(("SIM_STATE", math.inf),)))
     msgs = peer.run(12.0, ("SIMSTATE", "RAW_IMU", "SIM_STATE"))
     ref = Simulation(sim).next_block(4800)
@@ -230,7 +230,7 @@ def test_simstate_and_sim_state_carry_the_truth() -> None:
 
 def test_attitude_is_a_noisy_estimate_and_the_fault_shows() -> None:
     fault = AttitudeFault(start_s=10.0, duration_s=5.0, roll_deg=10.0, ramp_s=0.5)
-    sim = SimSettings(scenario="hover", seed=3, attitude_fault=fault)
+    sim = SimSettings(jit=True, scenario="hover", seed=3, attitude_fault=fault)
     peer = Peer(_endpoint(sim, default_stream_hz=0.0, streams_hz=(("ATTITUDE", 50.0),)))
     att = _of(peer.run(20.0, ("ATTITUDE",)), "ATTITUDE")
     ref = Simulation(sim).next_block(8000)
@@ -245,7 +245,7 @@ def test_attitude_is_a_noisy_estimate_and_the_fault_shows() -> None:
 
 def test_second_imu_freezes_then_saturates() -> None:
     fault = ImuFault(instance=1, freeze_at_s=5.0, saturate_at_s=8.0)
-    sim = SimSettings(scenario="hover", seed=5, imu_fault=fault)
+    sim = SimSettings(jit=True, scenario="hover", seed=5, imu_fault=fault)
     peer = Peer(_endpoint(sim, ideal=True, default_stream_hz=0.0,
                           streams_hz=(("RAW_IMU", 100.0), ("SCALED_IMU2", 100.0))))
     msgs = peer.run(10.0)
@@ -263,7 +263,7 @@ def test_second_imu_freezes_then_saturates() -> None:
 
 
 def test_missing_instances_are_sent_as_ardupilot_does() -> None:
-    sim = SimSettings(imu_count=1, mag_count=2)
+    sim = SimSettings(jit=True, imu_count=1, mag_count=2)
     peer = Peer(_endpoint(sim, default_stream_hz=0.0,
                           streams_hz=(("SCALED_IMU2", 10.0), ("SCALED_IMU3", 10.0))))
     msgs = peer.run(1.0)
@@ -284,7 +284,7 @@ def test_link_capacity_defers_frames_like_a_full_uart() -> None:
 
 
 def test_gps_velocity_matches_truth() -> None:
-    sim = SimSettings(scenario="aggressive", seed=1)
+    sim = SimSettings(jit=True, scenario="aggressive", seed=1)
     peer = Peer(_endpoint(sim, ideal=True, default_stream_hz=0.0, streams_hz=(("GLOBAL_POSITION_INT", 10.0),)))
     gpi = _of(peer.run(20.0), "GLOBAL_POSITION_INT")
     ref = Simulation(sim).next_block(8000)
@@ -296,7 +296,7 @@ def test_gps_velocity_matches_truth() -> None:
 
 
 def test_imu_error_free_stream_is_exact() -> None:
-    sim = SimSettings(scenario="rest", seed=1, imu=ImuErrorSettings.ideal())
+    sim = SimSettings(jit=True, scenario="rest", seed=1, imu=ImuErrorSettings.ideal())
     peer = Peer(_endpoint(sim, ideal=True, default_stream_hz=0.0, streams_hz=(("HIGHRES_IMU", 50.0),)))
     hr = _of(peer.run(1.0), "HIGHRES_IMU")
     acc = np.array([[m.xacc, m.yacc, m.zacc] for m in hr])

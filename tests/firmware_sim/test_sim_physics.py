@@ -43,12 +43,12 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("scenario", ["aggressive", "flips"])
 def test_gyro_minus_known_bias_integrates_to_true_attitude(scenario: str) -> None:
-    veh = Vehicle(make_scenario(scenario, 3), rate_hz=RATE_HZ)
+    veh = Vehicle(make_scenario(scenario, 3), rate_hz=RATE_HZ, jit=True)
     truth = veh.advance(int(25 * RATE_HZ))
     # every error except the low-pass (a delay) and vibration (not rigid-body motion)
     imu = ImuModel(
         ImuErrorSettings(gyro_lowpass_hz=0.0, accel_lowpass_hz=0.0, vibration=False),
-        rate_hz=RATE_HZ, seed=11,
+        rate_hz=RATE_HZ, seed=11, jit=True,
     )
     temp = np.full(truth.t_s.shape, 30.0)
     c = imu.process(truth.gyro_rad_s, truth.accel_m_s2, truth.thrust_m_s2, temp)
@@ -64,7 +64,7 @@ def test_gyro_minus_known_bias_integrates_to_true_attitude(scenario: str) -> Non
 
 
 def test_at_rest_accelerometer_reads_rotated_gravity() -> None:
-    sim = Simulation(SimSettings(scenario="rest", seed=5))
+    sim = Simulation(SimSettings(jit=True, scenario="rest", seed=5))
     blk = sim.next_block(4000)  # 10 s
     q = blk.truth.q_body_to_ned
     expect = gravity_body(q)
@@ -82,7 +82,7 @@ def test_at_rest_accelerometer_reads_rotated_gravity() -> None:
 
 def test_sustained_tilted_acceleration_departs_from_gravity_as_predicted() -> None:
     sim = Simulation(
-        SimSettings(scenario="aggressive", seed=2, imu=ImuErrorSettings.ideal(), mag=MagSettings.ideal())
+        SimSettings(jit=True, scenario="aggressive", seed=2, imu=ImuErrorSettings.ideal(), mag=MagSettings.ideal())
     )
     blk = sim.next_block(400 * 60)
     tr = blk.truth
@@ -116,7 +116,7 @@ def test_sustained_tilted_acceleration_departs_from_gravity_as_predicted() -> No
 def test_magnetometer_matches_configured_field(declination: float) -> None:
     fld = EarthField(strength_ut=50.0, inclination_deg=60.0, declination_deg=declination)
     sim = Simulation(
-        SimSettings(scenario="hover", seed=4, imu=ImuErrorSettings.ideal(), mag=MagSettings.ideal(), earth_field=fld)
+        SimSettings(jit=True, scenario="hover", seed=4, imu=ImuErrorSettings.ideal(), mag=MagSettings.ideal(), earth_field=fld)
     )
     blk = sim.next_block(400 * 20)
     fresh = blk.mag_fresh[0]
@@ -133,6 +133,7 @@ def test_hard_and_soft_iron_are_applied_as_configured() -> None:
     hard = (12.0, -7.0, 30.0)
     sim = Simulation(
         SimSettings(
+            jit=True,
             scenario="rest", seed=9, imu=ImuErrorSettings.ideal(),
             mag=MagSettings(noise_ut=0.0, lsb_ut=0.0, hard_iron_ut=hard, soft_iron=soft),
         )
@@ -147,7 +148,7 @@ def test_gyro_and_accel_saturate_where_configured() -> None:
     limit = math.radians(500.0)
     imu = ImuErrorSettings.ideal()
     imu = ImuErrorSettings(**{**imu.__dict__, "gyro_range_rad_s": limit, "accel_range_m_s2": 1.5 * G})
-    sim = Simulation(SimSettings(scenario="flips", seed=1, imu=imu))
+    sim = Simulation(SimSettings(jit=True, scenario="flips", seed=1, imu=imu))
     blk = sim.next_block(400 * 20)
     g = blk.gyro_rad_s[0]
     assert np.abs(blk.truth.gyro_rad_s).max() > math.radians(600.0)
@@ -164,14 +165,14 @@ def test_gyro_and_accel_saturate_where_configured() -> None:
 def test_quantisation_to_sensor_lsb_and_wire_units() -> None:
     lsb = math.radians(2000.0) / 32768.0
     imu = ImuErrorSettings(gyro_lowpass_hz=0.0, accel_lowpass_hz=0.0)
-    sim = Simulation(SimSettings(scenario="hover", seed=8, imu=imu))
+    sim = Simulation(SimSettings(jit=True, scenario="hover", seed=8, imu=imu))
     blk = sim.next_block(2000)
     steps = blk.gyro_rad_s[0] / lsb
     assert np.allclose(steps, np.round(steps), atol=1e-6)
     a_steps = blk.accel_m_s2[0] / imu.accel_lsb_m_s2
     assert np.allclose(a_steps, np.round(a_steps), atol=1e-6)
     # with the low-pass on, values are no longer on the grid (the filter runs after the ADC)
-    blk2 = Simulation(SimSettings(scenario="hover", seed=8)).next_block(2000)
+    blk2 = Simulation(SimSettings(jit=True, scenario="hover", seed=8)).next_block(2000)
     s2 = blk2.gyro_rad_s[0] / lsb
     assert not np.allclose(s2, np.round(s2), atol=1e-6)
     # wire units: C-style truncation toward zero
@@ -193,8 +194,8 @@ def test_lowpass_has_unit_dc_gain_and_attenuates_vibration() -> None:
 
 
 def test_vibration_scenario_aliases_into_the_passband() -> None:
-    ideal = Simulation(SimSettings(scenario="vibration", seed=1, imu=ImuErrorSettings.ideal(lowpass=True)))
-    real = Simulation(SimSettings(scenario="vibration", seed=1,
+    ideal = Simulation(SimSettings(jit=True, scenario="vibration", seed=1, imu=ImuErrorSettings.ideal(lowpass=True)))
+    real = Simulation(SimSettings(jit=True, scenario="vibration", seed=1,
                                   imu=ImuErrorSettings(**{**ImuErrorSettings.ideal(lowpass=True).__dict__, "vibration": True})))
     a = ideal.next_block(400 * 20)
     b = real.next_block(400 * 20)
@@ -205,7 +206,7 @@ def test_vibration_scenario_aliases_into_the_passband() -> None:
 
 
 def test_temperature_drives_gyro_bias() -> None:
-    sim = Simulation(SimSettings(scenario="temperature", seed=3))
+    sim = Simulation(SimSettings(jit=True, scenario="temperature", seed=3))
     blks = [sim.next_block(4000) for _ in range(6)]
     temp = np.concatenate([b.temperature_c for b in blks])
     bias = np.concatenate([b.gyro_bias_rad_s[0] for b in blks])
@@ -216,7 +217,7 @@ def test_temperature_drives_gyro_bias() -> None:
 
 
 def test_chunking_does_not_change_the_result() -> None:
-    s = SimSettings(scenario="aggressive", seed=6)
+    s = SimSettings(jit=True, scenario="aggressive", seed=6)
     a = Simulation(s)
     b = Simulation(s)
     one = a.next_block(700)
@@ -228,9 +229,17 @@ def test_chunking_does_not_change_the_result() -> None:
     assert np.allclose(one.est_q_body_to_ned, np.concatenate([p.est_q_body_to_ned for p in parts]), atol=1e-12)
 
 
+def test_compiled_and_interpreted_kernels_agree() -> None:
+    a = Simulation(SimSettings(jit=False, scenario="flips", seed=2)).next_block(400)
+    b = Simulation(SimSettings(jit=True, scenario="flips", seed=2)).next_block(400)
+    assert np.allclose(a.truth.rows, b.truth.rows, rtol=0, atol=1e-9)
+    assert np.allclose(a.gyro_rad_s, b.gyro_rad_s, rtol=0, atol=1e-9)
+    assert np.allclose(a.est_q_body_to_ned, b.est_q_body_to_ned, rtol=0, atol=1e-9)
+
+
 def _tlog_bytes(seed: int) -> bytes:
     ep = Endpoint(
-        Simulation(SimSettings(scenario="aggressive", seed=seed)), EndpointSettings(preset="bench", block_ticks=500)
+        Simulation(SimSettings(jit=True, scenario="aggressive", seed=seed)), EndpointSettings(preset="bench", block_ticks=500)
     )
     buf = io.BytesIO()
     write_tlog(ep, buf, 3.0)
@@ -246,7 +255,7 @@ def test_same_seed_gives_the_same_bytes() -> None:
 
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_every_scenario_runs_and_stays_physical(name: str) -> None:
-    sim = Simulation(SimSettings(scenario=name, seed=1))
+    sim = Simulation(SimSettings(jit=True, scenario=name, seed=1))
     blk = sim.next_block(400 * 12)
     tr = blk.truth
     assert np.all(np.isfinite(tr.rows))
