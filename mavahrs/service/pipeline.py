@@ -72,6 +72,7 @@ from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings, InstanceS
 from mavahrs.sensors.profiles import IMU_MESSAGES, PROFILE_NAMES, AutopilotProfile, get_profile, profile_for_autopilot
 from mavahrs.sensors.sample import ACCEL, GYRO, MAG, write_row
 from mavahrs.sensors.scaling import Scaler, ScalingSettings
+from mavahrs.service.monitor import AttitudeMonitor, MonitorSettings
 from mavahrs.service.stats import Notices, RateMeter
 from mavahrs.service.stream_requests import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
@@ -163,6 +164,8 @@ class PipelineSettings:
         streams: stream-request details (ladder, timeouts); its
             ``interval_s``/``enabled`` are replaced by the fields above.
         magnetic: declination / expected field (true-north output).
+        monitor: the second opinion on the autopilot's attitude
+            (NAMED_VALUE_FLOAT divergence, STATUSTEXT warnings).
         timeline: settings for :class:`mavahrs.protocol.timeline.Timeline`
             (None = its defaults).
     """
@@ -192,6 +195,7 @@ class PipelineSettings:
     calibration: CalibrationSettings = field(default_factory=CalibrationSettings)
     streams: StreamRequestSettings = field(default_factory=StreamRequestSettings)
     magnetic: MagneticFieldSettings = field(default_factory=MagneticFieldSettings)
+    monitor: MonitorSettings = field(default_factory=MonitorSettings)
     timeline: Any = None
 
     def __post_init__(self) -> None:
@@ -264,6 +268,8 @@ class PipelineStatus:
         imu_instances: every instance seen.
         streams: stream-request state per wanted message.
         heading_reference: e.g. "true north (WMM-2025 D=+12.3°)".
+        monitor: the comparison with the autopilot's attitude, e.g.
+            "AP cmp: tilt 0.8° hdg +1.2°".
     """
 
     connected: bool
@@ -294,6 +300,7 @@ class PipelineStatus:
     imu_instances: tuple[InstanceStatus, ...]
     streams: tuple[StreamState, ...]
     heading_reference: str
+    monitor: str = ""
 
     def line(self) -> str:
         """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | …``."""
@@ -306,6 +313,7 @@ class PipelineStatus:
             f" | drops {drops} | imu {imu} ({self.imu_reason}) | gain {self.gain:.3g}"
             f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
             f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
+            + (f" | {self.monitor}" if self.monitor else "")
         )
 
 
@@ -372,6 +380,8 @@ class Pipeline:
         self._selector = ImuSelector(s.selection_settings)
         self._requester = StreamRequester(s.stream_settings)
         self._decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
+        self._monitor = AttitudeMonitor(s.monitor)
+        self._monitor_on = s.monitor.enabled
         self._notices = Notices()
         self._to_master = s.send_to_master
         self._out_period_us = int(round(1e6 / s.out_rate_hz)) if s.out_rate_hz > 0 else 0
@@ -387,6 +397,8 @@ class Pipeline:
             "SYSTEM_TIME": self._on_position_only,
             "COMMAND_ACK": self._on_command_ack,
             "STATUSTEXT": self._on_statustext,
+            "ATTITUDE": self._on_autopilot_attitude,
+            "ATTITUDE_QUATERNION": self._on_autopilot_attitude,
         }
         for name in IMU_MESSAGES:
             self._handlers[name] = self._on_imu
@@ -425,6 +437,7 @@ class Pipeline:
         self._last_imu_us: int | None = None
         self._last_tick_us: int | None = None
         self._reset_stream_state()
+        self._field_changed()
 
     # ------------------------------------------------------------------ properties
     @property
@@ -504,6 +517,9 @@ class Pipeline:
                 )
             for req in self._requester.poll(now_us):
                 out.append(Outgoing(self._request_frame(req), True, False))
+            if self._monitor_on:
+                for m in self._monitor.tick(now_us):
+                    out.append(Outgoing(self._codec.encode(m), self._to_master, True))
             self._check_input(now_us)
         return out
 
@@ -625,11 +641,11 @@ class Pipeline:
         if not feed:
             imu_id = v[0]
             if sel.is_absent(imu_id):
-                self._count(self._drops, "absent_instance")
+                self._count(self._counters, "absent_instance_samples")  # not a loss: there is no such IMU
             elif imu_id == sel.selected:
                 self._count(self._drops, "duplicate_source")
             else:
-                self._count(self._drops, "not_selected")
+                self._count(self._counters, "other_instance_samples")  # watched, not filtered
                 bl = self._backlog.get(imu_id)
                 if bl is None:
                     bl = self._backlog[imu_id] = deque(maxlen=_BACKLOG)
@@ -731,6 +747,9 @@ class Pipeline:
         t_ms = (t_us // 1000) & 0xFFFFFFFF
         msg = self._mav.attitude_quaternion_encode(t_ms, qw, qx, qy, qz, p, q, r, _ZERO_Q)
         frames = [Outgoing(self._codec.encode(msg), self._to_master, True)]
+        if self._monitor_on:
+            for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz)):
+                frames.append(Outgoing(self._codec.encode(m), self._to_master, True))
         if self.settings.send_attitude_euler:
             roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
             pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
@@ -744,7 +763,8 @@ class Pipeline:
     def _on_global_position(self, msg: Any, now_us: int) -> list[Outgoing]:
         if not self._from_source(msg):
             return []
-        self._decl.handle(msg)
+        if self._decl.handle(msg):
+            self._field_changed()
         meter = self._requester.meters.get("GLOBAL_POSITION_INT")
         if meter is not None:
             meter.add(now_us)
@@ -758,9 +778,23 @@ class Pipeline:
         return []
 
     def _on_position_only(self, msg: Any, now_us: int) -> list[Outgoing]:
-        if self._from_source(msg):
-            self._decl.handle(msg)
+        if self._from_source(msg) and self._decl.handle(msg):
+            self._field_changed()
         return []
+
+    def _field_changed(self) -> None:
+        """The expected magnetic field is (newly) known: seed the filter's magnetometer rejection."""
+        ref = self._decl.mag_reference()
+        setter = getattr(self._filter, "set_mag_reference", None)
+        if ref is not None and setter is not None:
+            setter(ref[0], ref[1])
+        self._monitor.heading_valid = self._decl.known
+
+    def _on_autopilot_attitude(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """The autopilot's own ATTITUDE / ATTITUDE_QUATERNION: compared with ours (issue 9, second opinion)."""
+        if not self._monitor_on or not self._from_source(msg):
+            return []
+        return [Outgoing(self._codec.encode(m), self._to_master, True) for m in self._monitor.handle(msg, now_us)]
 
     def _on_command_ack(self, msg: Any, now_us: int) -> list[Outgoing]:
         if not self._from_source(msg):
@@ -788,6 +822,7 @@ class Pipeline:
         self._count(self._counters, "reboots")
         self._filter.reset()
         self._selector.reset()
+        self._monitor.reset()
         self._reset_stream_state()
         self._requester.start()
         self._notices.warning(
@@ -930,5 +965,6 @@ class Pipeline:
             imu_instances=self._selector.instances(),
             streams=self._requester.states(now),
             heading_reference=self._decl.status(),
+            monitor=self._monitor.status.text() if self._monitor_on else "",
         )
 
