@@ -73,8 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
     io.add_argument("--out", default="udpout:127.0.0.1:14550", metavar="CONN",
                     help="udpout:HOST:PORT, udpin:HOST:PORT, tcpin:HOST:PORT, a serial path, pty or pty:LINK "
                          "(default %(default)s)")
-    io.add_argument("--baud", type=int, default=None,
-                    help="serial baud rate; also limits a serial/pty link to baud/10 bytes/s (default 115200 for serial)")
+    io.add_argument("--baud", type=int, default=None, metavar="BIT_S",
+                    help="serial baud rate, bit/s; a serial link (and a pty if given) then carries at most "
+                         "baud/10 bytes/s, frames that do not fit are deferred as ArduPilot does (default 115200 "
+                         "for serial, unlimited for pty)")
     io.add_argument("--tlog", metavar="FILE", help="write a tlog (with --fast: instead of a link; else: record the session)")
     io.add_argument("--fast", action="store_true", help="with --tlog: run as fast as possible, no link")
     io.add_argument("--stats-json", metavar="FILE", help="write counters (received, ACKed, sent, pacing) at exit")
@@ -85,20 +87,22 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--scenario", choices=SCENARIOS, default="hover", help="(default %(default)s)")
     fl.add_argument("--duration", type=float, default=60.0, metavar="S",
                     help="simulated seconds; 0 = until stopped (live only) (default %(default)s)")
-    fl.add_argument("--seed", type=int, default=0, help="same seed, same flight and bytes (default %(default)s)")
-    fl.add_argument("--lat", type=float, default=Home.lat_deg, help="home latitude, deg (default %(default)s, CMAC)")
-    fl.add_argument("--lon", type=float, default=Home.lon_deg, help="home longitude, deg (default %(default)s)")
-    fl.add_argument("--alt-m", type=float, default=Home.alt_m, help="home altitude AMSL, m (default %(default)s)")
-    fl.add_argument("--boot-offset-s", type=float, default=0.0, help="time since boot at start, s (default 0)")
+    fl.add_argument("--seed", type=int, default=0, metavar="N",
+                    help="same seed, same flight and bytes (default %(default)s)")
+    fl.add_argument("--lat", type=float, default=Home.lat_deg, metavar="DEG", help="home latitude, deg (default %(default)s, CMAC)")
+    fl.add_argument("--lon", type=float, default=Home.lon_deg, metavar="DEG", help="home longitude, deg (default %(default)s)")
+    fl.add_argument("--alt-m", type=float, default=Home.alt_m, metavar="M", help="home altitude AMSL, m (default %(default)s)")
+    fl.add_argument("--boot-offset-s", type=float, default=0.0, metavar="S", help="time since boot at start, s (default 0)")
 
     ap = p.add_argument_group("autopilot")
     ap.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot", help="(default %(default)s)")
-    ap.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default %(default)s)")
-    ap.add_argument("--compid", type=int, default=1, help="MAVLink component id (default %(default)s)")
+    ap.add_argument("--sysid", type=int, default=1, metavar="N", help="MAVLink system id (default %(default)s)")
+    ap.add_argument("--compid", type=int, default=1, metavar="N", help="MAVLink component id (default %(default)s)")
     ap.add_argument("--loop-rate", type=float, default=400.0, metavar="HZ",
                     help="scheduler loop (SCHED_LOOP_RATE), Hz; the fastest stream ArduPilot accepts is "
                          "1/(ceil(loop period/0.8 ms) ms): 250 Hz at 400, 500 Hz at 800 (default %(default)s)")
-    ap.add_argument("--oversample", type=int, default=3, help="sensor samples per loop tick (default %(default)s)")
+    ap.add_argument("--oversample", type=int, default=3, metavar="N",
+                    help="sensor samples per loop tick: sensor rate = loop rate x N (default %(default)s)")
     ap.add_argument("--ideal", action="store_true",
                     help="idealised stream: sample-time stamps, no jitter, intervals down to one loop period")
     ap.add_argument("--preset", choices=("default", "bench", "none"), default=None,
@@ -106,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "HEARTBEAT only (default: 'default' live, 'bench' with --fast)")
     ap.add_argument("--stream", type=_stream, action="append", default=[], metavar="NAME=HZ",
                     help=f"initial rate of a stream, Hz or 'max' (repeatable); NAME in {', '.join(STREAMABLE)}")
-    ap.add_argument("--default-stream-hz", type=float, default=1.0,
+    ap.add_argument("--default-stream-hz", type=float, default=1.0, metavar="HZ",
                     help="ArduPilot SRn_* rate of the default stream groups, Hz (default %(default)s)")
     ap.add_argument("--no-message-interval", action="store_true",
                     help="old firmware: ACK SET_MESSAGE_INTERVAL as UNSUPPORTED")
@@ -121,15 +125,15 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--imu2-saturate-at", type=float, metavar="S", help="second IMU reads full scale from S s")
     se.add_argument("--no-sensor-errors", action="store_true",
                     help="perfect IMU and compass (no noise, bias, scale, quantisation, vibration; low-pass kept)")
-    se.add_argument("--gyro-lowpass-hz", type=float, default=ImuErrorSettings.gyro_lowpass_hz,
+    se.add_argument("--gyro-lowpass-hz", type=float, default=ImuErrorSettings.gyro_lowpass_hz, metavar="HZ",
                     help="INS_GYRO_FILTER, Hz; 0 = off (default %(default)s)")
-    se.add_argument("--accel-lowpass-hz", type=float, default=ImuErrorSettings.accel_lowpass_hz,
+    se.add_argument("--accel-lowpass-hz", type=float, default=ImuErrorSettings.accel_lowpass_hz, metavar="HZ",
                     help="INS_ACCEL_FILTER, Hz; 0 = off (default %(default)s)")
-    se.add_argument("--field-ut", type=float, default=EarthField.strength_ut,
+    se.add_argument("--field-ut", type=float, default=EarthField.strength_ut, metavar="UT",
                     help="earth field strength, uT (default %(default)s, WMM2025 at CMAC)")
-    se.add_argument("--inclination-deg", type=float, default=EarthField.inclination_deg,
+    se.add_argument("--inclination-deg", type=float, default=EarthField.inclination_deg, metavar="DEG",
                     help="field inclination, deg, + down (default %(default)s)")
-    se.add_argument("--declination-deg", type=float, default=EarthField.declination_deg,
+    se.add_argument("--declination-deg", type=float, default=EarthField.declination_deg, metavar="DEG",
                     help="magnetic north east of true north, deg (default %(default)s)")
     se.add_argument("--mag-hard-iron-ut", type=lambda t: _floats(t, 3, "--mag-hard-iron-ut"), metavar="X,Y,Z",
                     help="compass offset, body axes, uT (default 0,0,0: calibrated)")
@@ -139,8 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jit", action="store_true",
                    help="compile the physics with numba (always on with --fast; costs ~2 s at start)")
     p.add_argument("--list-scenarios", action="store_true", help="print the scenarios and exit")
-    p.add_argument("-v", "--verbose", action="count", default=0)
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
+    p.add_argument("-q", "--quiet", action="store_true", help="warnings only (no start/stop/status lines)")
     return p
 
 
@@ -199,6 +203,18 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the simulator; returns the exit code (argparse errors raise SystemExit(2))."""
+    try:
+        return _main(argv)
+    except (SystemExit, KeyboardInterrupt):
+        raise
+    except Exception as exc:  # noqa: BLE001 - last resort: one line for the user, details at -v
+        log.debug("unexpected error", exc_info=True)
+        print(f"mavahrs-sim: unexpected error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(

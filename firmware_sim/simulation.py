@@ -134,7 +134,7 @@ class SimSettings:
     estimate: EstimateSettings = field(default_factory=EstimateSettings)
     attitude_fault: AttitudeFault | None = None
     imu_fault: ImuFault | None = None
-    gps_velocity_noise_m_s: float = 0.05
+    gps_velocity_noise_m_s: float = 0.02
     jit: bool = False
 
     def __post_init__(self) -> None:

@@ -217,7 +217,7 @@ def _highg(rng: np.random.Generator, plan: _Plan) -> Iterator[None]:
     while True:
         kind = rng.choice(["climb", "dive", "brake"])
         if kind == "climb":
-            plan.set(thrust=rng.uniform(2.0, 4.0) * G)
+            plan.set(thrust=rng.uniform(2.5, 4.0) * G)
             plan.hold(rng.uniform(0.5, 1.2))
             plan.set(thrust=0.0)
         elif kind == "dive":
@@ -318,9 +318,9 @@ _MILD_VIBRATION = VibrationSpec(
 _STRONG_VIBRATION = VibrationSpec(
     motor_hz_at_hover=395.0,
     harmonics=(
-        Harmonic(1.0, (25.0, 25.0, 90.0), (0.3, 0.3, 0.15)),
+        Harmonic(1.0, (25.0, 25.0, 100.0), (0.3, 0.3, 0.15)),
         Harmonic(2.0, (10.0, 10.0, 45.0), (0.2, 0.2, 0.1)),
-        Harmonic(3.0, (6.0, 6.0, 8.0), (0.5, 0.5, 0.25)),
+        Harmonic(3.0, (3.0, 3.0, 4.0), (0.4, 0.4, 0.2)),
     ),
 )
 
