@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -29,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from mavahrs.filters import gains as _g
 from mavahrs.filters.gains import GainScheduleSettings, schedule_reset
 from mavahrs.filters.initial import initial_attitude
-from mavahrs.filters.jit import kernel
+from mavahrs.filters.jit import kernel, loop_kernel, prange
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_DT_INVALID,
@@ -60,6 +61,7 @@ __all__ = [
     "AttitudeFilter",
     "make_inputs",
     "run_rows",
+    "run_many",
     "begin_step",
     "finish_step",
     "add_flag",
@@ -255,11 +257,57 @@ def add_flag(out, flag):  # type: ignore[no-untyped-def]
     out[OUT_FLAGS] = float(int(out[OUT_FLAGS]) | flag)
 
 
-@kernel
+@loop_kernel
 def run_rows(step, state, params, inputs, outputs):  # type: ignore[no-untyped-def]
     """The batch path: apply ``step`` to every input row, in order."""
     for i in range(inputs.shape[0]):
         step(state, params, inputs[i], outputs[i])
+
+
+@loop_kernel(parallel=True)
+def _run_many_rows(step, states, params, inputs, q_out):  # type: ignore[no-untyped-def]
+    """``run_rows`` for M independent filters (``prange`` over them); keeps only the quaternions."""
+    for m in prange(states.shape[0]):
+        out = np.zeros(OUT_WIDTH)
+        for i in range(inputs.shape[0]):
+            step(states[m], params[m], inputs[i], out)
+            for j in range(4):
+                q_out[m, i, j] = out[OUT_Q + j]
+
+
+def run_many(filters: Sequence[AttitudeFilter], inputs: Array) -> Array:
+    """Run M filters of one class over the same recording in parallel; return (M, N, 4) quaternions.
+
+    For gain sweeps: build one filter per parameter set (e.g.
+    ``[Madgwick(MadgwickSettings(beta_rad_s=b)) for b in betas]``); each
+    continues from its current state, and its state afterwards is the state
+    after the last row, as with :meth:`AttitudeFilter.run`.  The filters run
+    on numba's thread pool (``NUMBA_NUM_THREADS`` bounds it).
+    """
+    filters = list(filters)
+    if not filters:
+        return np.zeros((0, 0, 4))
+    cls = type(filters[0])
+    if any(type(f) is not cls for f in filters):
+        raise TypeError("run_many needs filters of one class (one kernel)")
+    inputs = np.ascontiguousarray(inputs, dtype=np.float64)
+    if inputs.ndim != 2 or inputs.shape[1] != IN_WIDTH:
+        raise ValueError(f"inputs must have shape (N, {IN_WIDTH}), got {inputs.shape}")
+    states = np.ascontiguousarray(np.stack([f._state for f in filters]))
+    params = np.ascontiguousarray(np.stack([f._params for f in filters]))
+    q_out = np.zeros((len(filters), inputs.shape[0], 4))
+    if inputs.shape[0]:
+        if filters[0]._compiled:
+            _run_many_rows(filters[0]._step, states, params, inputs, q_out)
+        else:
+            out = np.zeros(OUT_WIDTH)
+            for m, f in enumerate(filters):
+                for i in range(inputs.shape[0]):
+                    f._kernel(states[m], params[m], inputs[i], out)
+                    q_out[m, i] = out[OUT_Q : OUT_Q + 4]
+    for m, f in enumerate(filters):
+        f._state[:] = states[m]
+    return q_out
 
 
 # --------------------------------------------------------------------------- class

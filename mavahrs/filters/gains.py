@@ -50,7 +50,8 @@ GP_MAG_DIP_TOL = 8
 GP_MAG_REF_NORM = 9
 GP_MAG_REF_DIP = 10
 GP_MAG_LEARN_S = 11
-GP_LEN = 12
+GP_MAG_DIP_FROM_ATTITUDE = 12
+GP_LEN = 13
 
 # --- state block (float64) ----------------------------------------------------
 GS_T = 0  # time since (re)initialisation, s
@@ -93,6 +94,11 @@ class GainScheduleSettings:
         mag_reference_dip_rad: expected dip (inclination), rad, positive
             downward (northern hemisphere).  Used when the norm is given.
         mag_learn_s: time constant of the reference learning, s.
+        mag_dip_from_attitude: measure the field's dip against the vertical
+            of the attitude estimate instead of the (trusted) accelerometer.
+            The estimate is not disturbed by motion accelerations, so fast
+            translation and spinning do not fake a dip change; the
+            accelerometer needs no converged estimate.  False = accelerometer.
     """
 
     startup_gain_factor: float = 10.0
@@ -107,6 +113,7 @@ class GainScheduleSettings:
     mag_reference_norm_ut: float = 0.0
     mag_reference_dip_rad: float = 0.0
     mag_learn_s: float = 20.0
+    mag_dip_from_attitude: bool = False
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
@@ -134,6 +141,7 @@ class GainScheduleSettings:
         p[GP_MAG_REF_NORM] = self.mag_reference_norm_ut
         p[GP_MAG_REF_DIP] = self.mag_reference_dip_rad
         p[GP_MAG_LEARN_S] = self.mag_learn_s
+        p[GP_MAG_DIP_FROM_ATTITUDE] = 1.0 if self.mag_dip_from_attitude else 0.0
         return p
 
 
@@ -218,7 +226,7 @@ def schedule_step(gs, gp, q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, 
         m_norm = math.sqrt(mx * mx + my * my + mz * mz)
         # dip: angle of m below the horizontal plane; down = −a/‖a‖ in body axes
         # (from the accelerometer when valid, else from the attitude).
-        if accel_ok and w_a > 0.5:
+        if accel_ok and w_a > 0.5 and gp[GP_MAG_DIP_FROM_ATTITUDE] == 0.0:
             a_norm = math.sqrt(ax * ax + ay * ay + az * az)
             dx, dy, dz = -ax / a_norm, -ay / a_norm, -az / a_norm
         else:

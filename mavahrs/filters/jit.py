@@ -6,14 +6,22 @@ is the readable reference; compiled by numba (cached on disk, so only the first
 run on a machine pays for compilation) the same source is the fast path for
 batch replay and for the live daemon.  Without numba everything still works,
 only slower.
+
+Cache freshness: numba re-uses a cached compilation while the *function's own
+file* is unchanged, but kernels bake in module-level constants of other files
+(the row layouts, ``P_FILTER`` = length of the gain-schedule block, …).  For
+kernels in this package the cache stamp therefore covers every ``.py`` file
+of ``mavahrs/filters`` (:class:`_FiltersCacheLocator`): editing one invalidates
+all, instead of silently running code compiled against an old layout.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "HAVE_NUMBA"]
+__all__ = ["kernel", "loop_kernel", "prange", "HAVE_NUMBA"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -21,9 +29,42 @@ try:  # numba is a core dependency, but the package must still run without it
     import numba as _numba
 
     HAVE_NUMBA = True
+    prange = _numba.prange
 except ImportError:  # pragma: no cover - exercised only where numba is absent
     _numba = None
     HAVE_NUMBA = False
+    prange = range
+
+_FILTERS_DIR = os.path.dirname(os.path.abspath(__file__))
+
+
+def _filters_source_stamp() -> tuple[tuple[str, int, int], ...]:
+    stamp = []
+    for name in sorted(os.listdir(_FILTERS_DIR)):
+        if name.endswith(".py"):
+            st = os.stat(os.path.join(_FILTERS_DIR, name))
+            stamp.append((name, st.st_mtime_ns, st.st_size))
+    return tuple(stamp)
+
+
+if HAVE_NUMBA:
+    from numba.core import caching as _caching
+
+    class _FiltersCacheLocator(_caching.InTreeCacheLocator):  # type: ignore[misc]
+        """numba cache locator for kernels in ``mavahrs/filters``: stamp = all its sources."""
+
+        def get_source_stamp(self) -> Any:
+            return _filters_source_stamp()
+
+        @classmethod
+        def from_function(cls, py_func: Any, py_file: str) -> Any:
+            if os.path.dirname(os.path.abspath(py_file)) != _FILTERS_DIR:
+                return None  # not ours: numba's own locators decide
+            return super().from_function(py_func, py_file)
+
+    _locators = _caching.CacheImpl._locator_classes
+    if not any(getattr(c, "__name__", "") == "_FiltersCacheLocator" for c in _locators):
+        _locators.insert(0, _FiltersCacheLocator)  # idempotent across re-imports
 
 
 class _Interpreted:
@@ -48,3 +89,22 @@ def kernel(func: F) -> F:
     if HAVE_NUMBA:
         return _numba.njit(cache=True, error_model="numpy")(func)  # type: ignore[no-any-return]
     return _Interpreted(func)  # type: ignore[return-value]
+
+
+def loop_kernel(func: F | None = None, *, parallel: bool = False) -> Any:
+    """Compile a *driver* loop (one that receives a kernel as an argument) with numba, uncached.
+
+    numba's on-disk cache index of a function typed on a first-class
+    dispatcher argument refers to every kernel it was ever compiled for; when
+    one of those is not loaded in the saving process the save fails
+    ("underlying object has vanished").  Driver loops are small, so they are
+    compiled once per process instead (≈ 0.5 s); the kernels they call stay
+    cached.  ``parallel=True`` enables ``numba.prange``.
+    """
+
+    def wrap(f: F) -> F:
+        if HAVE_NUMBA:
+            return _numba.njit(cache=False, parallel=parallel, error_model="numpy")(f)  # type: ignore[no-any-return]
+        return _Interpreted(f)  # type: ignore[return-value]
+
+    return wrap if func is None else wrap(func)

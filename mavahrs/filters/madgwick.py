@@ -1,0 +1,582 @@
+r"""Madgwick's gradient-descent attitude filter (IMU and MARG forms).
+
+S. Madgwick, "An efficient orientation filter for inertial and
+inertial/magnetic sensor arrays", 2010 (``../shared/seeds/000``, digest in
+``../shared/design/filters.md``).  Per sample: propagate with the gyro (eq.
+11–13, integrated exactly), take one normalised gradient-descent step on the
+objective of the gravity (eq. 25–26) and, with a magnetometer, the magnetic
+field (eq. 29–32), ``q̇ = q̇_ω − β ∇f/‖∇f‖`` (eq. 20, 34, 42–44), with
+magnetic distortion compensation (eq. 45–46) and gyro-bias drift compensation
+ζ (eq. 47–49).
+
+Convention: the equations are derived here directly for ``q_body_to_ned``
+(NED earth frame, specific-force accelerometer): the objective compares the
+predicted body-frame "down" ``C(q)ᵀ·[0,0,1]`` with the measured one ``−â``,
+and the predicted field ``C(q)ᵀ·b`` with ``m̂``.  With this choice the
+component formulas are exactly the report's (25), (26), (29), (30) with
+``(q1, q2, q3, q4) → (w, x, y, z)`` (the report's kinematics (11) and
+rotation (45) use its quaternion as the sensor→earth rotation), so no
+conjugation is needed anywhere; ``docs/filters/madgwick.md`` has the
+derivation.  The widely copied C code computes the reference ``b_x, b_z`` of
+eq. (46) a factor of two too small (BROAD issue #1); this module does not, and
+``tests/filters/test_madgwick.py`` checks every gradient against finite
+differences of ½‖f‖².
+
+Around the report's equations (all in :class:`MadgwickSettings`): the
+shared gain schedule (start-up boost, magnetometer rejection by norm and dip,
+:mod:`mavahrs.filters.gains`) and gyro-bias learning at detected rest
+(:mod:`mavahrs.filters.rest`), both on by default; optionally the
+accelerometer low-pass filtered in a quasi-inertial frame before it enters
+the gradient, and a heading-only magnetometer objective (the horizontal field,
+whose gradient is a pure rotation about the vertical) with its own β.  These
+follow Laidig & Seel 2023 (VQF); ``mavahrs.filters.best`` uses them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from mavahrs.errors import ConfigError
+from mavahrs.filters import gains as _g
+from mavahrs.filters.base import (
+    P_FILTER,
+    P_SCHED,
+    S_BIAS,
+    S_FILTER,
+    S_Q,
+    S_SCHED,
+    AttitudeFilter,
+    FilterSettings,
+    add_flag,
+    begin_step,
+    finish_step,
+    vector_ok,
+)
+from mavahrs.filters.gains import GainScheduleSettings, schedule_step
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body
+from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_rotate, nav_lowpass_step
+from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
+from mavahrs.filters.layout import FLAG_STARTUP, IN_ACCEL, IN_GYRO, IN_MAG, IN_VEL, OUT_FLAGS
+
+__all__ = [
+    "MadgwickSettings",
+    "Madgwick",
+    "default_schedule",
+    "beta_from_gyro_error",
+    "zeta_from_bias_drift",
+    "gravity_objective",
+    "gravity_gradient",
+    "field_objective",
+    "field_gradient",
+    "step",
+]
+
+_MAG_MODES = ("full", "heading")
+
+
+def beta_from_gyro_error(gyro_error_rad_s: float) -> float:
+    """β from the gyro's mean zero-mean measurement error ω̃_β per axis (Madgwick 2010, eq. (50)).
+
+    ``β = ‖½ q̂ ⊗ [0, ω̃, ω̃, ω̃]‖ = √(3/4)·ω̃_β``.
+    """
+    if not (math.isfinite(gyro_error_rad_s) and gyro_error_rad_s >= 0):
+        raise ConfigError(f"gyro error must be a non-negative rate in rad/s, got {gyro_error_rad_s!r}")
+    return math.sqrt(0.75) * gyro_error_rad_s
+
+
+def zeta_from_bias_drift(bias_drift_rad_s2: float) -> float:
+    """ζ from the gyro bias drift rate ω̃_ζ per axis, rad/s per s (Madgwick 2010, eq. (51))."""
+    if not (math.isfinite(bias_drift_rad_s2) and bias_drift_rad_s2 >= 0):
+        raise ConfigError(f"bias drift must be a non-negative rate in rad/s², got {bias_drift_rad_s2!r}")
+    return math.sqrt(0.75) * bias_drift_rad_s2
+
+
+def default_schedule() -> GainScheduleSettings:
+    """The gain schedule Madgwick uses by default (measured on BROAD, ``docs/accuracy.md``).
+
+    Start-up boost ×10 ramping down over 3 s (Madgwick 2010 §6 in spirit);
+    no accelerometer-norm rejection (on BROAD every form of it made the tilt
+    worse: fast rotation and translation then run on the gyro alone for too
+    long); magnetometer rejected when its norm departs > 15 % or its dip
+    > 15° from the learned reference, the dip measured against the
+    estimate's vertical (motion accelerations cannot fake it).
+    """
+    return GainScheduleSettings(
+        startup_gain_factor=10.0,
+        startup_s=3.0,
+        accel_norm_tolerance=0.0,
+        spin_rate_rad_s=0.0,
+        horizontal_tolerance=0.0,
+        recovery_s=0.5,
+        rejection_timeout_s=20.0,
+        mag_norm_tolerance=0.15,
+        mag_dip_tolerance_rad=math.radians(15.0),
+        mag_learn_s=20.0,
+        mag_dip_from_attitude=True,
+    )
+
+
+@dataclass(frozen=True)
+class MadgwickSettings(FilterSettings):
+    """Settings of :class:`Madgwick`; all rates and times are independent of the sample rate.
+
+    The defaults are the report's filter (β = 0.041, stacked MARG objective,
+    distortion compensation) made robust by rest-phase bias estimation and
+    magnetometer rejection; ``mavahrs.filters.best`` turns on the extensions.
+
+    Attributes:
+        beta_rad_s: β of eq. (43), 1/s: the rate at which the estimate
+            (a unit quaternion) is pulled along the normalised gradient; the
+            attitude correction rate is 2β rad/s.  The report recommends
+            0.033 (IMU) / 0.041 (MARG), i.e. ω̃_β ≈ 2.7°/s in eq. (50);
+            :func:`beta_from_gyro_error` derives it from the gyro's error.
+            0 = gyro only (no correction).
+        zeta_rad_s: ζ of eq. (48), 1/s: gain of the gyro-bias drift
+            compensation (eq. 47–49).  The report uses 0.015 (drifts up to
+            ≈ 1°/s per second); :func:`zeta_from_bias_drift` derives it from
+            the drift rate.  The bias then follows with time constant ≈ β/ζ
+            (20 s at the defaults); larger values let motion-induced errors
+            leak into the bias (measured on BROAD).  0 = no bias learning in
+            motion (the rest-phase estimate below still works).
+        zeta_spin_limit_rad_s: ζ is applied only while the corrected rate
+            is below this (INAV freezes its bias integral above 20°/s): in
+            fast turns scale-factor and timing errors look like a bias.
+            0 = always.
+        use_magnetometer: use the magnetometer when the sample has one (MARG
+            form); False = IMU form always.
+        mag_correction: ``"full"`` = the report's stacked objective (eq. 31–34;
+            the magnetometer then also acts on roll and pitch), or
+            ``"heading"`` = the magnetic objective on the horizontal field
+            only (reference b = [1, 0, 0]), normalised separately with gain
+            ``beta_heading_rad_s``: the magnetometer corrects heading only.
+        beta_heading_rad_s: β of the heading correction in ``"heading"``
+            mode, 1/s.  None = the same as ``beta_rad_s``.
+        distortion_compensation: eq. (45)–(46): the magnetic reference b is
+            the measured field's own horizontal/vertical split (a wrong dip
+            then cannot tilt the estimate).  False = b from the learned
+            reference dip of the gain schedule.
+        accel_lowpass_s: time constant (s) of a low-pass filter applied to
+            the accelerometer in the estimated NED frame, which every
+            correction rotates along (the same as VQF's gyro-integrated
+            quasi-inertial frame), before it enters the gradient: motion
+            accelerations average out while rotations are followed without
+            lag.  0 = the raw accelerometer (the report).
+        accel_lowpass_order: 1 = first-order low-pass
+            (:mod:`mavahrs.filters.prefilter`), 2 = second-order Butterworth
+            with cut-off √2/(2π·τ) (VQF's choice; attenuates motion
+            accelerations of a few tenths of a hertz ten times more).
+        rest: gyro-bias estimation at detected rest
+            (:mod:`mavahrs.filters.rest`); ``RestBiasSettings(bias_tau_s=0)``
+            turns it off.
+        bias_limit_rad_s: each component of the bias estimate is clipped to
+            ±this, rad/s.  0 = no limit.
+        large_error_tau_s: above a tilt error of 2β·τ the gravity step
+            grows with the error, giving an exponential convergence with
+            time constant τ (s) instead of the constant 2β rad/s of eq. (43),
+            which takes minutes to undo a large error when β is small.
+            0 = the report's constant rate.
+        large_heading_error_tau_s: the same for the magnetometer's heading
+            step (crossover 2β_heading·τ).  0 = constant rate.
+        schedule: the shared gain schedule (:func:`default_schedule`).
+    """
+
+    beta_rad_s: float = 0.041
+    zeta_rad_s: float = 0.002
+    zeta_spin_limit_rad_s: float = math.radians(20.0)
+    use_magnetometer: bool = True
+    mag_correction: str = "full"
+    beta_heading_rad_s: float | None = None
+    distortion_compensation: bool = True
+    accel_lowpass_s: float = 0.0
+    accel_lowpass_order: int = 2
+    large_error_tau_s: float = 0.0
+    large_heading_error_tau_s: float = 0.0
+    rest: RestBiasSettings = field(default_factory=RestBiasSettings)
+    bias_limit_rad_s: float = math.radians(5.0)
+    schedule: GainScheduleSettings = field(default_factory=default_schedule)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("beta_rad_s", "zeta_rad_s", "zeta_spin_limit_rad_s", "accel_lowpass_s", "bias_limit_rad_s", "large_error_tau_s",
+                     "large_heading_error_tau_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
+            ):
+                raise ConfigError(f"MadgwickSettings.{name} must be a finite number ≥ 0, got {value!r}")
+        if self.beta_heading_rad_s is not None and not (
+            isinstance(self.beta_heading_rad_s, (int, float))
+            and math.isfinite(self.beta_heading_rad_s)
+            and self.beta_heading_rad_s >= 0
+        ):
+            raise ConfigError(
+                f"MadgwickSettings.beta_heading_rad_s must be a number ≥ 0 or None, got {self.beta_heading_rad_s!r}"
+            )
+        if self.mag_correction not in _MAG_MODES:
+            raise ConfigError(
+                f"MadgwickSettings.mag_correction must be one of {_MAG_MODES}, got {self.mag_correction!r}"
+            )
+        if self.accel_lowpass_order not in (1, 2):
+            raise ConfigError(
+                f"MadgwickSettings.accel_lowpass_order must be 1 or 2, got {self.accel_lowpass_order!r}"
+            )
+        if not isinstance(self.rest, RestBiasSettings):
+            raise ConfigError(f"MadgwickSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
+        if not isinstance(self.schedule, GainScheduleSettings):
+            raise ConfigError(
+                f"MadgwickSettings.schedule must be a GainScheduleSettings, got {type(self.schedule).__name__}"
+            )
+
+
+# --- parameter block after P_FILTER --------------------------------------------
+PM_BETA = 0
+PM_ZETA = 1
+PM_USE_MAG = 2
+PM_HEADING_ONLY = 3
+PM_BETA_HEADING = 4
+PM_DISTORTION = 5
+PM_ACC_TAU = 6
+PM_BIAS_LIMIT = 7
+PM_LARGE_TAU = 8
+PM_ACC_ORDER = 9
+PM_LARGE_TAU_HEADING = 10
+PM_ZETA_SPIN = 11
+PM_REST = 12  # rest detector block (rest.RP_LEN)
+PM_LEN = PM_REST + RP_LEN
+
+# --- state block after S_FILTER --------------------------------------------------
+FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (2 × prefilter.LP_LEN)
+FM_REST = FM_NAVLP + 2 * LP_LEN  # rest detector (rest.REST_LEN)
+FM_LEN = FM_REST + REST_LEN
+
+
+# --------------------------------------------------------------------------- objective functions
+
+
+@kernel
+def gravity_objective(q0, q1, q2, q3, dx, dy, dz):  # type: ignore[no-untyped-def]
+    """f_g = C(q)ᵀ·[0,0,1] − d̂ for a measured body-frame down direction ``d̂ = −â`` (eq. (25))."""
+    return (
+        2.0 * (q1 * q3 - q0 * q2) - dx,
+        2.0 * (q0 * q1 + q2 * q3) - dy,
+        2.0 * (0.5 - q1 * q1 - q2 * q2) - dz,
+    )
+
+
+@kernel
+def gravity_gradient(q0, q1, q2, q3, dx, dy, dz):  # type: ignore[no-untyped-def]
+    """∇f = J_gᵀ f_g (eq. (20) with (25)–(26)): the gradient of ½‖f_g‖² over (w, x, y, z)."""
+    f0, f1, f2 = gravity_objective(q0, q1, q2, q3, dx, dy, dz)
+    # J_g rows: [−2y, 2z, −2w, 2x], [2x, 2w, 2z, 2y], [0, −4x, −4y, 0]   (eq. (26))
+    return (
+        -2.0 * q2 * f0 + 2.0 * q1 * f1,
+        2.0 * q3 * f0 + 2.0 * q0 * f1 - 4.0 * q1 * f2,
+        -2.0 * q0 * f0 + 2.0 * q3 * f1 - 4.0 * q2 * f2,
+        2.0 * q1 * f0 + 2.0 * q2 * f1,
+    )
+
+
+@kernel
+def field_objective(q0, q1, q2, q3, bx, bz, mx, my, mz):  # type: ignore[no-untyped-def]
+    """f_b = C(q)ᵀ·[b_x, 0, b_z] − m̂ (eq. (29)); b in NED (b_z > 0: field dips downward)."""
+    return (
+        2.0 * bx * (0.5 - q2 * q2 - q3 * q3) + 2.0 * bz * (q1 * q3 - q0 * q2) - mx,
+        2.0 * bx * (q1 * q2 - q0 * q3) + 2.0 * bz * (q0 * q1 + q2 * q3) - my,
+        2.0 * bx * (q0 * q2 + q1 * q3) + 2.0 * bz * (0.5 - q1 * q1 - q2 * q2) - mz,
+    )
+
+
+@kernel
+def field_gradient(q0, q1, q2, q3, bx, bz, mx, my, mz):  # type: ignore[no-untyped-def]
+    """∇f = J_bᵀ f_b (eq. (20) with (29)–(30)).
+
+    ``b_x`` and ``b_z`` are the reference components themselves — the C code's
+    ``_2bx = √(h_x²+h_y²)`` used as 2·b_x is the factor-of-two error of the
+    widely copied implementation (BROAD issue #1).
+    """
+    f0, f1, f2 = field_objective(q0, q1, q2, q3, bx, bz, mx, my, mz)
+    # J_b (eq. (30)), rows d f_i / d(w, x, y, z):
+    #   [−2bz·y,           2bz·z,            −4bx·y − 2bz·w,  −4bx·z + 2bz·x]
+    #   [−2bx·z + 2bz·x,   2bx·y + 2bz·w,    2bx·x + 2bz·z,   −2bx·w + 2bz·y]
+    #   [2bx·y,            2bx·z − 4bz·x,    2bx·w − 4bz·y,   2bx·x]
+    return (
+        -2.0 * bz * q2 * f0 + (-2.0 * bx * q3 + 2.0 * bz * q1) * f1 + 2.0 * bx * q2 * f2,
+        2.0 * bz * q3 * f0 + (2.0 * bx * q2 + 2.0 * bz * q0) * f1 + (2.0 * bx * q3 - 4.0 * bz * q1) * f2,
+        (-4.0 * bx * q2 - 2.0 * bz * q0) * f0 + (2.0 * bx * q1 + 2.0 * bz * q3) * f1
+        + (2.0 * bx * q0 - 4.0 * bz * q2) * f2,
+        (-4.0 * bx * q3 + 2.0 * bz * q1) * f0 + (-2.0 * bx * q0 + 2.0 * bz * q2) * f1 + 2.0 * bx * q1 * f2,
+    )  # fmt: skip
+
+
+# --------------------------------------------------------------------------- small kernels
+
+
+@kernel
+def _lowpass_gain(dt, tau):  # type: ignore[no-untyped-def]
+    """Discrete first-order low-pass coefficient for time constant ``tau``."""
+    if tau <= 0.0:
+        return 1.0
+    return 1.0 - math.exp(-dt / tau)
+
+
+@kernel
+def _butterworth_step(s, k, q0, q1, q2, q3, fx, fy, fz, dt, tau_s):  # type: ignore[no-untyped-def]
+    """Second-order Butterworth low-pass of the specific force in the estimated NED frame.
+
+    Cut-off f_c = √2/(2π τ) (Laidig & Seel 2023, VQF's accelerometer filter),
+    bilinear transform, direct form II transposed.  The two state vectors
+    ``s[k:k+3]`` and ``s[k+4:k+7]`` are linear combinations of past NED
+    vectors, so rotating both with every correction
+    (:func:`~mavahrs.filters.prefilter.nav_lowpass_rotate`) keeps them in the
+    current estimate's frame; ``s[k+3]``/``s[k+7]`` are 1.0 once started.
+    Returns the filtered vector in body axes.
+    """
+    fn, fe, fd = body_to_ned(q0, q1, q2, q3, fx, fy, fz)
+    # bilinear transform of f_c = √2/(2πτ): C = tan(π f_c dt); capped below π/2 so a
+    # long step (up to max_gap_s) passes the sample through instead of wrapping tan
+    c = math.tan(min(math.sqrt(0.5) * dt / tau_s, 1.5))
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    b0 = c * c / d
+    a1 = 2.0 * (c * c - 1.0) / d
+    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
+    if s[k + 3] == 0.0:  # start in the steady state of the first sample
+        s[k], s[k + 1], s[k + 2], s[k + 3] = fn * (1.0 - b0), fe * (1.0 - b0), fd * (1.0 - b0), 1.0
+        s[k + 4], s[k + 5], s[k + 6], s[k + 7] = fn * (b0 - a2), fe * (b0 - a2), fd * (b0 - a2), 1.0
+    yn = b0 * fn + s[k]
+    ye = b0 * fe + s[k + 1]
+    yd = b0 * fd + s[k + 2]
+    s[k] = 2.0 * b0 * fn - a1 * yn + s[k + 4]
+    s[k + 1] = 2.0 * b0 * fe - a1 * ye + s[k + 5]
+    s[k + 2] = 2.0 * b0 * fd - a1 * yd + s[k + 6]
+    s[k + 4] = b0 * fn - a2 * yn
+    s[k + 5] = b0 * fe - a2 * ye
+    s[k + 6] = b0 * fd - a2 * yd
+    return ned_to_body(q0, q1, q2, q3, yn, ye, yd)
+
+
+@kernel
+def _large_error_factor(theta, beta, tau):  # type: ignore[no-untyped-def]
+    """Gain multiplier ≥ 1 that turns the constant-rate step into θ/τ for errors θ > 2βτ.
+
+    The normalised gradient corrects at 2β rad/s whatever the error; a large
+    error (a bad start, a recovered disturbance) then takes minutes with a
+    small β.  Above the crossover the correction becomes proportional, with
+    time constant τ.  τ = 0 (or β = 0) keeps the report's behaviour.
+    """
+    if tau <= 0.0 or beta <= 0.0:
+        return 1.0
+    k = theta / (2.0 * beta * tau)
+    return k if k > 1.0 else 1.0
+
+
+@kernel
+def _reset_internal(state):  # type: ignore[no-untyped-def]
+    nav_lowpass_reset(state, S_FILTER + FM_NAVLP)
+    nav_lowpass_reset(state, S_FILTER + FM_NAVLP + LP_LEN)
+    rest_reset(state, S_FILTER + FM_REST)
+
+
+# --------------------------------------------------------------------------- the step
+
+
+@kernel
+def step(state, params, row, out):  # type: ignore[no-untyped-def]
+    """One Madgwick update of ``state`` by one input ``row``; writes ``out``."""
+    dt = begin_step(state, params, row, out)
+    if dt < 0.0:
+        if int(out[OUT_FLAGS]) & FLAG_STARTUP:  # (re)initialised on this sample
+            _reset_internal(state)
+        return
+    f = S_FILTER
+    p = P_FILTER
+    beta = params[p + PM_BETA]
+    zeta = params[p + PM_ZETA]
+    limit = params[p + PM_BIAS_LIMIT]
+
+    ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
+    mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
+    accel_ok = vector_ok(ax, ay, az)
+    mag_ok = params[p + PM_USE_MAG] > 0.0 and vector_ok(mx, my, mz)
+
+    # ---- gyro bias at rest (shared detector, optional) ------------------------
+    rest_step(
+        state, f + FM_REST, state, S_BIAS, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
+        ax, ay, az, accel_ok, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params, p + PM_REST,
+    )  # fmt: skip
+
+    wx = row[IN_GYRO] - state[S_BIAS]
+    wy = row[IN_GYRO + 1] - state[S_BIAS + 1]
+    wz = row[IN_GYRO + 2] - state[S_BIAS + 2]
+
+    # ---- gyro propagation with the compensated rate (eq. (49), (11)–(13)) ----
+    integrate_body_rate(state, S_Q, wx, wy, wz, dt)  # exact: q ⊗ exp(ω_c dt/2), stays unit
+    # Predict first, then correct at the propagated attitude: the gradient then
+    # compares the sample's measurements with the attitude at the same instant
+    # (the report evaluates both terms at q_{t−1}; the difference is O(dt²)).
+    q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
+
+    boost, w_a, w_m = schedule_step(
+        state[S_SCHED : S_SCHED + _g.GS_LEN], params[P_SCHED : P_SCHED + _g.GP_LEN],
+        q0, q1, q2, q3, wx, wy, wz, ax, ay, az, accel_ok, mx, my, mz, mag_ok, dt,
+    )  # fmt: skip
+    startup = boost > 1.0
+    if startup:
+        add_flag(out, FLAG_STARTUP)
+
+    # ---- accelerometer, optionally low-passed in a quasi-inertial frame -------
+    ux, uy, uz = ax, ay, az
+    tau_acc = params[p + PM_ACC_TAU]
+    if tau_acc > 0.0 and accel_ok:
+        # Every valid sample enters the average (leaving out the large ones
+        # would bias it: motion accelerations are zero-mean only as a whole).
+        if params[p + PM_ACC_ORDER] > 1.0:
+            ux, uy, uz = _butterworth_step(state, f + FM_NAVLP, q0, q1, q2, q3, ax, ay, az, dt, tau_acc)
+        else:
+            ux, uy, uz = nav_lowpass_step(state, f + FM_NAVLP, q0, q1, q2, q3, ax, ay, az, dt, tau_acc)
+
+    # ---- gradients -----------------------------------------------------------
+    sg0 = sg1 = sg2 = sg3 = 0.0  # gravity part (unnormalised J_gᵀ f_g)
+    ng = 0.0
+    theta_g = 0.0
+    if accel_ok and w_a > 0.0 and vector_ok(ux, uy, uz):
+        n = math.sqrt(ux * ux + uy * uy + uz * uz)
+        # Specific force points up at rest: measured down = −â.
+        sg0, sg1, sg2, sg3 = gravity_gradient(q0, q1, q2, q3, -ux / n, -uy / n, -uz / n)
+        ng = math.sqrt(sg0 * sg0 + sg1 * sg1 + sg2 * sg2 + sg3 * sg3)
+        # tilt error: angle between the predicted and the measured down
+        cos_t = -(2.0 * (q1 * q3 - q0 * q2) * ux + 2.0 * (q0 * q1 + q2 * q3) * uy
+                  + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * uz) / n  # fmt: skip
+        theta_g = math.acos(min(max(cos_t, -1.0), 1.0))
+    sm0 = sm1 = sm2 = sm3 = 0.0  # magnetic part (unnormalised J_bᵀ f_b)
+    nm = 0.0
+    theta_m = 0.0
+    heading_only = params[p + PM_HEADING_ONLY] > 0.0
+    if mag_ok and w_m > 0.0:
+        n = math.sqrt(mx * mx + my * my + mz * mz)
+        mnx, mny, mnz = mx / n, my / n, mz / n
+        hx, hy, hz = body_to_ned(q0, q1, q2, q3, mnx, mny, mnz)  # eq. (45)
+        hh = math.sqrt(hx * hx + hy * hy)
+        if hh > 1e-6:
+            theta_m = math.atan2(abs(hy), hx)  # heading error
+            if heading_only:
+                # Objective on the horizontal field only, b = [1, 0, 0]: its
+                # gradient is a rotation about the vertical (heading) alone.
+                bx, bz = 1.0, 0.0
+                mnx, mny, mnz = ned_to_body(q0, q1, q2, q3, hx / hh, hy / hh, 0.0)
+            elif params[p + PM_DISTORTION] > 0.0:
+                bx, bz = hh, hz  # eq. (46): b = [√(h_x²+h_y²), 0, h_z]
+            else:
+                dip = state[S_SCHED + _g.GS_MAG_DIP]
+                bx, bz = math.cos(dip), math.sin(dip)
+            sm0, sm1, sm2, sm3 = field_gradient(q0, q1, q2, q3, bx, bz, mnx, mny, mnz)
+            nm = math.sqrt(sm0 * sm0 + sm1 * sm1 + sm2 * sm2 + sm3 * sm3)
+    w_a_used = w_a if ng > 1e-12 else 0.0
+    w_m_used = w_m if nm > 1e-12 else 0.0
+
+    # ---- the correction direction q̇_ε (eq. (44)) and step (eq. (42)–(43)) ----
+    e0 = e1 = e2 = e3 = 0.0  # error direction, unit norm per trusted sensor (for ζ)
+    c0 = c1 = c2 = c3 = 0.0  # the applied correction rate β·q̇_ε
+    gain = 0.0
+    tau_large = params[p + PM_LARGE_TAU]
+    if heading_only:
+        beta_h = params[p + PM_BETA_HEADING]
+        if w_a_used > 0.0:
+            k = w_a_used / ng
+            e0, e1, e2, e3 = k * sg0, k * sg1, k * sg2, k * sg3
+            kb = beta * boost * _large_error_factor(theta_g, beta, tau_large)
+            c0, c1, c2, c3 = kb * e0, kb * e1, kb * e2, kb * e3
+            gain = beta * boost * w_a_used
+        if w_m_used > 0.0:
+            k = w_m_used / nm
+            e0 += k * sm0
+            e1 += k * sm1
+            e2 += k * sm2
+            e3 += k * sm3
+            kb = beta_h * boost * k * _large_error_factor(theta_m, beta_h, params[p + PM_LARGE_TAU_HEADING])
+            c0 += kb * sm0
+            c1 += kb * sm1
+            c2 += kb * sm2
+            c3 += kb * sm3
+    else:
+        # Stacked objective (eq. (31)–(32)); rejected parts are left out.
+        t0 = w_a_used * sg0 + w_m_used * sm0
+        t1 = w_a_used * sg1 + w_m_used * sm1
+        t2 = w_a_used * sg2 + w_m_used * sm2
+        t3 = w_a_used * sg3 + w_m_used * sm3
+        nt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2 + t3 * t3)
+        if nt > 1e-12:
+            w = max(w_a_used, w_m_used)
+            k = w / nt  # eq. (44), scaled by the trust in the remaining sensors
+            e0, e1, e2, e3 = k * t0, k * t1, k * t2, k * t3
+            kb = beta * boost * _large_error_factor(max(theta_g, theta_m * (w_m_used > 0.0)), beta, tau_large)
+            c0, c1, c2, c3 = kb * e0, kb * e1, kb * e2, kb * e3
+            gain = beta * boost * w
+
+    # ---- gyro bias drift compensation (eq. (47)–(48)), not while converging --
+    spin_limit = params[p + PM_ZETA_SPIN]
+    if spin_limit > 0.0 and wx * wx + wy * wy + wz * wz > spin_limit * spin_limit:
+        zeta = 0.0  # INAV: no bias learning while turning fast (scale errors look like bias)
+    if zeta > 0.0 and not startup:
+        # ω_ε = 2 q* ⊗ q̇_ε (eq. (47)); its scalar part is the radial component, dropped.
+        state[S_BIAS] += zeta * 2.0 * (q0 * e1 - q1 * e0 - q2 * e3 + q3 * e2) * dt  # eq. (48)
+        state[S_BIAS + 1] += zeta * 2.0 * (q0 * e2 + q1 * e3 - q2 * e0 - q3 * e1) * dt
+        state[S_BIAS + 2] += zeta * 2.0 * (q0 * e3 - q1 * e2 + q2 * e1 - q3 * e0) * dt
+    if limit > 0.0:
+        for i in range(3):
+            state[S_BIAS + i] = min(max(state[S_BIAS + i], -limit), limit)
+
+    # ---- eq. (42)–(43): q_est = q_ω − β q̇_ε Δt ---------------------------------
+    n0, n1, n2, n3 = q0 - c0 * dt, q1 - c1 * dt, q2 - c2 * dt, q3 - c3 * dt
+    if tau_acc > 0.0:
+        # the correction, a rotation of the estimated NED frame r = 2·vec(q_new ⊗ q*), turns f̄_NED too
+        nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
+        r1 = (-n0 * q1 + n1 * q0 - n2 * q3 + n3 * q2) / nn
+        r2 = (-n0 * q2 + n1 * q3 + n2 * q0 - n3 * q1) / nn
+        r3 = (-n0 * q3 - n1 * q2 + n2 * q1 + n3 * q0) / nn
+        nav_lowpass_rotate(state, f + FM_NAVLP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+        nav_lowpass_rotate(state, f + FM_NAVLP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+    state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = n0, n1, n2, n3
+    finish_step(state, out, gain, w_a, w_m if mag_ok else 0.0)
+
+
+# --------------------------------------------------------------------------- class
+
+
+class Madgwick(AttitudeFilter):
+    """Madgwick's gradient-descent filter; see the module docstring and ``docs/filters/madgwick.md``."""
+
+    name: ClassVar[str] = "madgwick"
+    settings_type: ClassVar[type[FilterSettings]] = MadgwickSettings
+    step: ClassVar[Any] = step
+    internal_len: ClassVar[int] = FM_LEN
+
+    @classmethod
+    def filter_params(cls, settings: Any) -> np.ndarray:
+        s: MadgwickSettings = settings
+        p = np.zeros(PM_LEN)
+        p[PM_BETA] = s.beta_rad_s
+        p[PM_ZETA] = s.zeta_rad_s
+        p[PM_USE_MAG] = 1.0 if s.use_magnetometer else 0.0
+        p[PM_HEADING_ONLY] = 1.0 if s.mag_correction == "heading" else 0.0
+        p[PM_BETA_HEADING] = s.beta_rad_s if s.beta_heading_rad_s is None else s.beta_heading_rad_s
+        p[PM_DISTORTION] = 1.0 if s.distortion_compensation else 0.0
+        p[PM_ACC_TAU] = s.accel_lowpass_s
+        p[PM_BIAS_LIMIT] = s.bias_limit_rad_s
+        p[PM_ACC_ORDER] = s.accel_lowpass_order
+        p[PM_LARGE_TAU] = s.large_error_tau_s
+        p[PM_LARGE_TAU_HEADING] = s.large_heading_error_tau_s
+        p[PM_ZETA_SPIN] = s.zeta_spin_limit_rad_s
+        p[PM_REST : PM_REST + RP_LEN] = s.rest.to_params()
+        return p
+
+    def initial_internal(self) -> np.ndarray:
+        s = np.zeros(FM_LEN)
+        nav_lowpass_reset(s, FM_NAVLP)
+        nav_lowpass_reset(s, FM_NAVLP + LP_LEN)
+        rest_reset(s, FM_REST)
+        return s
