@@ -55,7 +55,7 @@ def _request(m: Any, msg_id: int, hz: float) -> tuple[int, list[str]]:
 
 def _rates(m: Any, seconds: float) -> dict[str, float]:
     """Messages per second by type, counted by arrival over ``seconds`` of wall clock."""
-    deadline = time.monotonic() + 0.5
+    deadline = time.monotonic() + 0.3
     while time.monotonic() < deadline:  # let the new rates settle, drop the backlog
         m.recv_match(blocking=True, timeout=0.05)
     counts: dict[str, int] = {}
@@ -71,7 +71,7 @@ def _rates(m: Any, seconds: float) -> dict[str, float]:
 def _check_250_100_and_400_denied(m: Any) -> None:
     assert _request(m, MAV.MAVLINK_MSG_ID_RAW_IMU, 250.0)[0] == MAV.MAV_RESULT_ACCEPTED
     assert _request(m, MAV.MAVLINK_MSG_ID_HIGHRES_IMU, 100.0)[0] == MAV.MAV_RESULT_ACCEPTED
-    rates = _rates(m, 3.0)
+    rates = _rates(m, 2.5)
     assert rates.get("RAW_IMU", 0.0) == pytest.approx(250.0, rel=0.05), rates
     assert rates.get("HIGHRES_IMU", 0.0) == pytest.approx(100.0, rel=0.05), rates
     result, texts = _request(m, MAV.MAVLINK_MSG_ID_RAW_IMU, 400.0)
@@ -117,7 +117,7 @@ def test_loop_rate_800_accepts_and_delivers_400_hz(run_sim) -> None:  # type: ig
         m = _connect(f"udpout:127.0.0.1:{int(info['LINK'].rsplit(':', 1)[1])}")
         try:
             assert _request(m, MAV.MAVLINK_MSG_ID_RAW_IMU, 400.0)[0] == MAV.MAV_RESULT_ACCEPTED
-            rates = _rates(m, 3.0)
+            rates = _rates(m, 2.0)
             assert rates.get("RAW_IMU", 0.0) == pytest.approx(400.0, rel=0.05), rates
         finally:
             m.close()
