@@ -301,3 +301,26 @@ def test_imu_error_free_stream_is_exact() -> None:
     hr = _of(peer.run(1.0), "HIGHRES_IMU")
     acc = np.array([[m.xacc, m.yacc, m.zacc] for m in hr])
     assert np.allclose(np.linalg.norm(acc, axis=1), 9.80665, atol=1e-5)
+
+
+def test_boot_offset_shifts_every_timestamp() -> None:
+    sim = SimSettings(jit=True, boot_offset_s=4294.0)  # near the uint32 time_boot_ms wrap (4294967 ms)
+    peer = Peer(_endpoint(sim, ideal=True, default_stream_hz=0.0, streams_hz=(("RAW_IMU", 100.0), ("SCALED_IMU2", 100.0))))
+    msgs = peer.run(0.5, ("RAW_IMU", "SCALED_IMU2"))
+    raw = _of(msgs, "RAW_IMU")
+    assert raw[0].time_usec == 4_294_000_000
+    assert _of(msgs, "SCALED_IMU2")[0].time_boot_ms == 4_294_000
+
+
+def test_blackout_cuts_the_tlog() -> None:
+    import io
+
+    from firmware_sim.streamer import Blackout, write_tlog
+    from mavahrs.protocol.tlog import iter_tlog
+
+    ep = _endpoint(preset="bench")
+    buf = io.BytesIO()
+    write_tlog(ep, buf, 4.0, blackouts=[Blackout(1.0, 2.0)])
+    t = np.array([t_us for t_us, _ in iter_tlog(buf.getvalue())]) - ep.settings.epoch_unix_us
+    assert t.min() < 1_000_000 and t.max() > 3_000_000
+    assert not np.any((t > 1_002_600) & (t < 3_000_000))

@@ -8,8 +8,10 @@ window of a few seconds.
 
 from __future__ import annotations
 
+import os
 import socket
 import time
+import tty
 from typing import Any
 
 import pytest
@@ -152,3 +154,40 @@ def test_udpout_keeps_streaming_without_a_listener(run_sim) -> None:  # type: ig
             assert data[:1] == b"\xfd"
         finally:
             listener.close()
+
+
+def test_serial_device_path_at_a_baud_rate_carries_what_fits(run_sim) -> None:  # type: ignore[no-untyped-def]
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+    master, slave = os.openpty()  # we play the companion on the master; the simulator opens the slave
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    try:
+        with run_sim("--out", path, "--baud", "57600", "--duration", "0", "--default-stream-hz", "0",
+                     "--stream", "RAW_IMU=250") as (proc, info):
+            assert path in info["LINK"]
+            parser = dialect.MAVLink(None)
+            parser.robust_parsing = True
+            os.set_blocking(master, False)
+            end = time.monotonic() + 3.0
+            counts: dict[str, int] = {}
+            started = None
+            while time.monotonic() < end:
+                try:
+                    data = os.read(master, 65536)
+                except BlockingIOError:
+                    time.sleep(0.01)
+                    continue
+                for msg in parser.parse_buffer(data) or []:
+                    if started is None:
+                        started = time.monotonic()
+                        end = started + 2.5
+                        continue
+                    counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+            rate = counts.get("RAW_IMU", 0) / 2.5
+            # 57600 baud ≈ 5760 B/s: about 140 RAW_IMU (41 B) per second, not the 250 requested
+            assert 100.0 < rate < 150.0, counts
+            assert proc.poll() is None
+    finally:
+        os.close(master)
+        os.close(slave)
