@@ -105,11 +105,17 @@ class InstanceStatus:
 
 @dataclass(frozen=True)
 class SelectionChange:
-    """The selected instance changed (``old`` None at start)."""
+    """The selected instance changed (``old`` None at start).
+
+    ``bad_since_us``: autopilot time from which the old instance's samples were
+    already wrong (frozen, saturated, disagreeing) — the caller may undo what
+    they did to the filter; None when nothing wrong was fed (stale, start).
+    """
 
     old: int | None
     new: int | None
     reason: str
+    bad_since_us: int | None = None
 
 
 @dataclass
@@ -125,6 +131,7 @@ class _Inst:
     same_count: int = 0
     same_since_us: int = 0
     last_sat_us: int = -(10**18)
+    sat_since_us: int = -(10**18)
     ema: list[float] = field(default_factory=lambda: [0.0] * 6)
     ema_ready: bool = False
     disagree_since_us: int | None = None
@@ -197,6 +204,8 @@ class ImuSelector:
             inst.same_count = 1
             inst.same_since_us = t
         if v[S_SAT] & (GYRO | ACCEL):
+            if t - inst.last_sat_us > self._sat_us:
+                inst.sat_since_us = t  # a new saturation episode
             inst.last_sat_us = t
         # smoothing for the disagreement check (NaN-free values only)
         if ax == ax and gx == gx:
@@ -287,7 +296,8 @@ class ImuSelector:
             return
         if healthy:
             why = "first healthy instance" if old is None else f"instance {old} {problems.get(old) or 'gone'}"
-            self._set(healthy[0], why)
+            bad = self._bad_since(old, problems.get(old, "")) if old is not None else None
+            self._set(healthy[0], why, bad)
             return
         # nothing healthy: keep what is there if it still delivers, else any delivering instance
         usable = sorted(k for k, p in problems.items() if p not in ("absent (all-zero)", "stale"))
@@ -298,9 +308,21 @@ class ImuSelector:
         else:
             self._set(None, "no usable IMU instance" + ("" if not problems else f" ({_describe(problems)})"))
 
-    def _set(self, new: int | None, reason: str) -> None:
+    def _bad_since(self, imu_id: int, problem: str) -> int | None:
+        inst = self._inst.get(imu_id)
+        if inst is None:
+            return None
+        if problem == "frozen":
+            return inst.same_since_us
+        if problem == "saturated":
+            return inst.sat_since_us
+        if problem == "disagrees" and inst.disagree_since_us is not None:
+            return inst.disagree_since_us - int(2e6 * self.settings.smoothing_s)  # the smoothing's lag
+        return None
+
+    def _set(self, new: int | None, reason: str, bad_since_us: int | None = None) -> None:
         if new != self._reported:
-            self._changes.append(SelectionChange(self._reported, new, reason))
+            self._changes.append(SelectionChange(self._reported, new, reason, bad_since_us))
             self._reported = new
         self.selected = new
         self.reason = reason

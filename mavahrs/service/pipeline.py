@@ -97,7 +97,9 @@ _MAV_STATE_ACTIVE = 4
 _NAN = math.nan
 _ZERO_Q = [0.0, 0.0, 0.0, 0.0]
 _RAD2DEG = 180.0 / math.pi
-_BACKLOG = 256  # samples kept per unselected IMU instance for a seamless fail-over (0.64 s at 400 Hz)
+_BACKLOG = 1024  # samples kept per unselected IMU instance for a seamless fail-over (2.5 s at 400 Hz)
+_SNAPSHOT_US = 100_000  # filter state kept every 0.1 s of sample time …
+_SNAPSHOTS = 30  # … for 3 s, to undo samples of an IMU found frozen/saturated/disagreeing
 _G = 9.80665
 
 
@@ -467,6 +469,8 @@ class Pipeline:
         """Forget everything about the IMU streams' timing (start, reboot)."""
         self._timelines: dict[int, Any] = {}
         self._backlog: dict[int, deque[tuple[str, tuple]]] = {}
+        self._snapshots: deque[tuple[int, Any]] = deque(maxlen=_SNAPSHOTS)
+        self._last_out_t = -1
         self._last_fed_imu: int | None = None
         self._last_fed_t: int | None = None
         self._next_out_t: int | None = None
@@ -595,7 +599,10 @@ class Pipeline:
                 rate = s.secondary_imu_rate_hz
             else:
                 rate = 0.0
-            self._requester.want(name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, MAV_DATA_STREAM_RAW_SENSORS)
+            self._requester.want(
+                name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, MAV_DATA_STREAM_RAW_SENSORS,
+                warn_low_rate=imu_id == current,  # a board may have no second or third IMU
+            )  # fmt: skip
         self._requester.want(
             "GLOBAL_POSITION_INT",
             mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
@@ -714,6 +721,9 @@ class Pipeline:
             self._check_units(name, now_us)
         out = self._filter.update_row(row)
         self.samples_filtered += 1
+        snaps = self._snapshots
+        if not snaps or t - snaps[-1][0] >= _SNAPSHOT_US:
+            snaps.append((t, self._filter.state))
         if self.sample_hook is not None:
             self.sample_hook(name, t, row, out)
         self._filter_meter.add(now_us)
@@ -727,13 +737,16 @@ class Pipeline:
         if flags & FLAG_NOT_INITIALISED:
             self._count(self._drops, "filter_not_initialised")
             return []
-        # output rate, on sample time
+        # output rate, on sample time; never twice for one time (replayed samples after a roll-back)
+        if t <= self._last_out_t:
+            return []
         if self._out_period_us:
             nxt = self._next_out_t
             if nxt is not None and t < nxt - self._out_tol_us:
                 return []
             nxt = (nxt if nxt is not None else t) + self._out_period_us
             self._next_out_t = nxt if nxt > t else t + self._out_period_us
+        self._last_out_t = t
         return self._attitude_frames(t, out, row, now_us)
 
     def _attitude_frames(self, t_us: int, out: np.ndarray, row: np.ndarray, now_us: int) -> list[Outgoing]:
@@ -831,6 +844,8 @@ class Pipeline:
 
     def _selection_changed(self, now_us: int) -> None:
         for ch in self._selector.pop_changes():
+            if ch.old is not None and ch.new is not None and ch.bad_since_us is not None:
+                self._roll_back(ch.new, ch.bad_since_us, now_us)
             self._count(self._counters, "imu_switches" if ch.old is not None else "imu_selected")
             if ch.new is None:
                 self._notices.warning("imu-none", f"no usable IMU instance: {ch.reason}", now_us)
@@ -839,6 +854,24 @@ class Pipeline:
             else:
                 self._notices.warning(f"imu-switch:{ch.old}:{ch.new}", f"switched from IMU {ch.old} to IMU {ch.new}: {ch.reason}", now_us)
         self._update_wants()
+
+    def _roll_back(self, new_imu: int, bad_since_us: int, now_us: int) -> None:
+        """Undo the filter steps taken on the old instance's bad samples, if the new one can replace them."""
+        bl = self._backlog.get(new_imu)
+        snaps = self._snapshots
+        while snaps and snaps[-1][0] > bad_since_us:
+            snaps.pop()
+        if not snaps or not bl or bl[0][1][1] > snaps[-1][0] + _SNAPSHOT_US:
+            return  # no state from before the fault, or the new instance's samples do not reach back that far
+        t_snap, state = snaps[-1]
+        self._filter.state = state
+        undone = (self._last_fed_t or t_snap) - t_snap
+        self._last_fed_t = t_snap
+        self._last_fed_imu = None
+        self._count(self._counters, "rolled_back")
+        self._notices.info(
+            "rollback", f"undid {undone * 1e-6:.2f} s of filtering on the failing IMU; re-filtered with IMU {new_imu}", now_us
+        )
 
     def _count_flags(self, sat: int, inv: int, name: str, imu_id: int, now_us: int) -> None:
         for bit, label in ((GYRO, "gyro"), (ACCEL, "accel"), (MAG, "mag")):

@@ -142,10 +142,11 @@ class StreamState:
 
 class _Want:
     __slots__ = ("name", "msg_id", "stream_id", "wanted_hz", "rates", "idx", "mode", "accepted_hz",
-                 "due_us", "attempts", "requested_us", "detail", "meter", "denied_hz", "probe")  # fmt: skip
+                 "due_us", "attempts", "requested_us", "detail", "meter", "denied_hz", "probe", "warn")  # fmt: skip
 
     def __init__(self, name: str, msg_id: int, stream_id: int, wanted_hz: float, ladder: tuple[float, ...], window_s: float):
         self.name, self.msg_id, self.stream_id = name, msg_id, stream_id
+        self.warn = True
         self.meter = RateMeter(window_s)
         self.set_rate(wanted_hz, ladder)
 
@@ -193,8 +194,14 @@ class StreamRequester:
         self.acks = 0
 
     # ------------------------------------------------------------------ configuration
-    def want(self, name: str, msg_id: int, rate_hz: float, stream_id: int = MAV_DATA_STREAM_RAW_SENSORS) -> None:
-        """Ask for ``name`` at ``rate_hz`` (0 = stop asking; nothing is sent to stop it)."""
+    def want(
+        self, name: str, msg_id: int, rate_hz: float, stream_id: int = MAV_DATA_STREAM_RAW_SENSORS, *, warn_low_rate: bool = True
+    ) -> None:
+        """Ask for ``name`` at ``rate_hz`` (0 = stop asking; nothing is sent to stop it).
+
+        ``warn_low_rate=False`` for messages that may legitimately not exist
+        (a second or third IMU the board does not have).
+        """
         w = self._wants.get(name)
         if rate_hz <= 0:
             if w is not None:
@@ -210,6 +217,7 @@ class StreamRequester:
             w.set_rate(rate_hz, self.settings.ladder_hz)
             if self._inflight is w:
                 self._inflight = None
+        w.warn = warn_low_rate
 
     def start(self) -> None:
         """(Re)start from the wanted rates: connect, reconnect or autopilot reboot."""
@@ -354,7 +362,7 @@ class StreamRequester:
         frac = self.settings.low_rate_fraction
         for w in self._wants.values():
             expected = w.accepted_hz if w.mode == "command" else (w.wanted_hz if w.mode == "data_stream" else None)
-            if expected is None or w.requested_us is None or now_us - w.requested_us < self._grace_us:
+            if not w.warn or expected is None or w.requested_us is None or now_us - w.requested_us < self._grace_us:
                 continue
             got = w.meter.rate(now_us)
             if got < frac * expected:

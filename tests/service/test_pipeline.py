@@ -90,6 +90,14 @@ class RecordingFilter:
         return self._f.diagnostics
 
     @property
+    def state(self):
+        return self._f.state
+
+    @state.setter
+    def state(self, value):
+        self._f.state = value
+
+    @property
     def _out(self):
         return self._f._out
 
@@ -438,3 +446,115 @@ def test_every_setting_is_documented():
     doc = (Path(__file__).resolve().parents[2] / "docs" / "pipeline.md").read_text(encoding="utf-8")
     for f in dataclasses.fields(PipelineSettings):
         assert f"`{f.name}`" in doc, f"PipelineSettings.{f.name} missing from docs/pipeline.md"
+
+
+# ---------------------------------------------------------------------------- against firmware_sim's autopilot
+
+
+def _fly_sim(seconds: float, sim_settings=None, endpoint_settings=None, pipe_settings=None, fed=None):
+    """Run firmware_sim's ArduPilot endpoint and the pipeline against each other, in process.
+
+    Returns (pipeline, endpoint, [(time_boot_ms, q)], {time_boot_ms: q_true}, now_us);
+    ``fed`` (a list) collects (message, t_us) of every sample the filter ran on.
+    """
+    fs = pytest.importorskip("firmware_sim")
+    ss = sim_settings or fs.SimSettings(scenario="hover", seed=4)
+    es = endpoint_settings or fs.EndpointSettings(streams_hz=(("SIMSTATE", 50.0),))
+    ep = fs.Endpoint(fs.Simulation(ss), es)
+    pipe = Pipeline(pipe_settings or settings(out_rate_hz=50.0))
+    if fed is not None:
+        pipe.sample_hook = lambda name, t_us, row, out: fed.append((name, t_us))
+    rx, ours = MavCodec(255, 190), MavCodec(255, 190)
+    att, truth, replies = [], {}, []
+
+    def send(outs):
+        for o in outs:
+            if o.to_master:
+                replies.extend(ep.receive(o.frame, datagram=True))
+            for m in ours.receive_datagram(o.frame):
+                if m.get_type() == "ATTITUDE_QUATERNION":
+                    att.append((m.time_boot_ms, np.array([m.q1, m.q2, m.q3, m.q4])))
+
+    for k in range(int(seconds * ss.loop_rate_hz)):
+        frames = ep.step() + [(ep.now_us, r) for r in replies]
+        replies.clear()
+        for t_us, frame in frames:
+            for msg in rx.receive_datagram(frame):
+                if msg.get_type() == "SIMSTATE":
+                    truth[int(t_us // 1000)] = rotation.from_euler_rad(msg.roll, msg.pitch, msg.yaw)
+                send(pipe.handle(msg, t_us))
+        if k % 20 == 0:
+            send(pipe.tick(ep.now_us))
+    return pipe, ep, att, truth, ep.now_us
+
+
+def _tilt_errors_deg(att, truth, after_ms):
+    from mavahrs.evaluation.metrics import attitude_errors_rad
+
+    keys = sorted(truth)
+    pairs = []
+    for t_ms, q in att:
+        if t_ms < after_ms:
+            continue
+        j = int(np.searchsorted(keys, t_ms))
+        near = [keys[i] for i in (j - 1, j) if 0 <= i < len(keys)]
+        best = min(near, key=lambda x: abs(x - t_ms))
+        if abs(best - t_ms) <= 10:
+            pairs.append((q, truth[best]))
+    est, ref = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+    _, _, tilt = attitude_errors_rad(est, ref)
+    return np.degrees(tilt)
+
+
+def test_simulated_ardupilot_denies_400_hz_and_streams_250():
+    pipe, ep, att, truth, now = _fly_sim(8.0)
+    st = pipe.status(now)
+    raw = next(s for s in st.streams if s.message == "RAW_IMU")
+    assert raw.accepted_hz == 250.0 and raw.delivered_hz > 200.0
+    assert next(s for s in st.streams if s.message == "GLOBAL_POSITION_INT").accepted_hz == 10.0
+    notes = [m for _, m in pipe.drain_notices()]
+    assert any("refused RAW_IMU at 400 Hz" in m and "SCHED_LOOP_RATE" in m for m in notes)
+    assert not any("arrives at" in m for m in notes)
+    tilt = _tilt_errors_deg(att, truth, after_ms=4000)
+    assert len(tilt) > 150 and np.sqrt(np.mean(tilt**2)) < 3.0
+
+
+def test_simulated_old_autopilot_gets_request_data_stream():
+    fs = pytest.importorskip("firmware_sim")
+    es = fs.EndpointSettings(support_message_interval=False, streams_hz=(("SIMSTATE", 50.0),))
+    pipe, ep, att, truth, now = _fly_sim(6.0, endpoint_settings=es)
+    raw = next(s for s in pipe.status(now).streams if s.message == "RAW_IMU")
+    assert raw.mode == "data_stream" and raw.delivered_hz > 40.0
+    assert any("REQUEST_DATA_STREAM" in m for _, m in pipe.drain_notices())
+    assert len(att) > 100
+
+
+def test_simulated_slow_link_is_warned():
+    fs = pytest.importorskip("firmware_sim")
+    es = fs.EndpointSettings(link_bytes_per_s=5760.0)  # 57600 baud
+    pipe, *_ = _fly_sim(9.0, endpoint_settings=es)
+    assert any("RAW_IMU arrives at" in m and "baud" in m for _, m in pipe.drain_notices())
+
+
+def test_simulated_imu0_freeze_then_saturation_fails_over_within_1_s():
+    """Issue 9: IMU 0 freezes at 6 s then saturates: IMU 1 takes over within 1 s, accuracy kept."""
+    fs = pytest.importorskip("firmware_sim")
+    ss = fs.SimSettings(scenario="hover", seed=5, imu_fault=fs.ImuFault(instance=0, freeze_at_s=6.0, saturate_at_s=8.0))
+    fed: list = []
+    pipe, ep, att, truth, now = _fly_sim(11.0, sim_settings=ss, fed=fed)
+    st = pipe.status(now)
+    last_from_0 = max(t for name, t in fed if name == "RAW_IMU")
+    assert 6.0e6 < last_from_0 <= 7.0e6  # the fault was detected within 1 s
+    # … and the filter steps on the frozen samples were undone: IMU 1 re-filtered from before the fault
+    first_from_1 = next(t for name, t in fed if name == "SCALED_IMU2")
+    assert first_from_1 <= 6.0e6 and st.counters["rolled_back"] == 1
+    assert st.imu_in_use == 1
+    states = {s.imu_id: s.state for s in st.imu_instances}
+    assert states[0] in ("frozen", "saturated")
+    notes = [m for _, m in pipe.drain_notices()]
+    assert any("switched from IMU 0 to IMU 1" in m and "frozen" in m for m in notes)
+    # after the switch the new instance is requested at full rate
+    tilt = _tilt_errors_deg(att, truth, after_ms=4000)
+    assert np.sqrt(np.mean(tilt**2)) < 3.0 and tilt.max() < 6.0
+    s1 = next(s for s in st.streams if s.message == "SCALED_IMU2")
+    assert s1.wanted_hz == 400.0
