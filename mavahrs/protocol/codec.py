@@ -345,6 +345,18 @@ class MavCodec:
             m = _MARKERS.search(buf, j + 1, stop)
         return -1
 
+    def _incomplete_candidate_in(self, buf: bytearray, start: int, stop: int) -> bool:
+        """Whether a start marker in [start, stop) begins a frame that runs past the end of ``buf``."""
+        n = len(buf)
+        m = _MARKERS.search(buf, start, stop)
+        while m is not None:
+            j = m.start()
+            flen = frame_length(buf, j)
+            if flen == 0 or j + flen > n:
+                return True
+            m = _MARKERS.search(buf, j + 1, stop)
+        return False
+
     def _parse(self, buf: bytearray, final: bool, out: list[Any]) -> int:
         """Decode frames from ``buf`` into ``out``; returns the number of bytes consumed."""
         c = self.counters
@@ -370,6 +382,8 @@ class MavCodec:
                 i += 1
                 continue
             msg, why = self._decode_at(buf, i, flen)
+            if why == 3 and not final and self._incomplete_candidate_in(buf, i + 1, i + flen):
+                break  # an unknown id cannot be CRC-checked: first see whether a real frame starts inside
             if msg is None or (why == 3 and self._valid_known_frame_in(buf, i + 1, i + flen) >= 0):
                 if why == 1 and i >= shadow_end:
                     c.crc_errors += 1

@@ -241,7 +241,7 @@ def _decode(arr, bs, e, st, crc_extra, table):  # type: ignore[no-untyped-def]
     return _OK
 
 
-@_inline
+@kernel
 def _recv_msg(data, st, ts, tf, buf, crc_extra, table, stats):  # type: ignore[no-untyped-def]
     """pymavlink ``mavlogfile.recv_msg`` (pre_message, read bytes_needed, parse_char, post_message)."""
     n = data.shape[0]
@@ -388,7 +388,12 @@ def _emulate(  # type: ignore[no-untyped-def]
     side,
     stats,
 ):
-    """pymavlink's tlog reading: ``mavmmaplog`` index + ``recv_match(type=…)``, or plain ``mavlogfile``."""
+    """pymavlink's tlog reading: ``mavmmaplog`` index + ``recv_match(type=…)``, or plain ``mavlogfile``.
+
+    One loop with a single ``_recv_msg`` call site (it is inlined; one copy
+    keeps compilation short).  Phases: 0 index, 1 read indexed records,
+    2 read sequentially to the end of file.
+    """
     n = data.shape[0]
     st = np.zeros(_ST_LEN, np.int64)
     st[_EXP] = 8  # HEADER_LEN_V1 + 2
@@ -396,68 +401,103 @@ def _emulate(  # type: ignore[no-untyped-def]
     ts = np.zeros(1, np.uint64)
     tf = np.zeros(2, np.float64)
     buf = np.zeros(_BUF_CAP, np.uint8)
+    st0 = st.copy()
+    tf0 = tf.copy()
+    buf0 = buf.copy()
+    ts0 = ts[0]
+    seen = np.zeros(65536, np.uint8)
+    inst = np.full(65536, -1, np.int16)
     nidx = 0
-    if index_pass and n > 0:
-        seen = np.zeros(65536, np.uint8)
-        inst = np.full(65536, -1, np.int16)
-        ofs = 0
-        while ofs + 8 + 6 < n:
-            marker = data[ofs + 8]
-            plen = int(data[ofs + 9])
-            mlen = plen + 8
-            if marker == 0xFE:
-                mtype = int(data[ofs + 13])
-                mlen += 8
-                data_ofs = 14
-            elif marker == 0xFD:
-                if ofs + 8 + 10 > n:
+    r = 0
+    ofs = 0
+    # the record whose first-instance read is in progress
+    p_type = np.int64(0)
+    p_end = np.int64(0)
+    p_mlen = np.int64(0)
+    phase = 0 if (index_pass and n > 0) else (1 if indexed_read else 2)
+    if phase != 0:
+        stats[_S_INDEXED] = 0
+    while True:
+        if phase == 0:
+            found = False
+            while ofs + 8 + 6 < n:
+                marker = data[ofs + 8]
+                plen = np.int64(data[ofs + 9])
+                mlen = plen + 8
+                if marker == 0xFE:
+                    mtype = np.int64(data[ofs + 13])
+                    mlen += 8
+                    data_ofs = 14
+                elif marker == 0xFD:
+                    if ofs + 8 + 10 > n:
+                        break
+                    mtype = np.int64(data[ofs + 15]) | (np.int64(data[ofs + 16]) << 8) | (np.int64(data[ofs + 17]) << 16)
+                    mlen += 12
+                    data_ofs = 18
+                    if (data[ofs + 10] & 1) != 0:
+                        mlen += 13
+                else:
+                    ofs += 1
+                    continue
+                if mtype >= 65536 or crc_extra[mtype] < 0:
+                    ofs += mlen
+                    continue
+                if seen[mtype] == 0:  # pymavlink reads the first record of each type here
+                    seen[mtype] = 1
+                    p_type = mtype
+                    p_end = ofs + data_ofs + plen
+                    p_mlen = mlen
+                    found = True
                     break
-                mtype = int(data[ofs + 15]) | (int(data[ofs + 16]) << 8) | (int(data[ofs + 17]) << 16)
-                mlen += 12
-                data_ofs = 18
-                if (data[ofs + 10] & 1) != 0:
-                    mlen += 13
-            else:
-                ofs += 1
-                continue
-            if mtype >= 65536 or crc_extra[mtype] < 0:
+                if inst[mtype] >= 0 and ofs + data_ofs + plen > n:
+                    ofs = n  # a truncated instance-carrying record ends the index
+                    break
+                idx_off[nidx] = ofs
+                idx_id[nidx] = mtype
+                nidx += 1
                 ofs += mlen
+            if not found:
+                stats[_S_INDEXED] = nidx
+                st[_FPOS] = 0  # _rewind
+                phase = 1 if indexed_read else 2
                 continue
-            if seen[mtype] == 0:
-                seen[mtype] = 1
-                st[_FPOS] = ofs
-                kind = _recv_msg(data, st, ts, tf, buf, crc_extra, crc_table, stats)
-                if kind == _NONE:
-                    stats[_S_RAISES] += 1  # pymavlink: AttributeError on None._instance_field
-                elif kind == _OK and inst_tab[st[_RES_ID]] >= 0:
-                    inst[mtype] = inst_tab[st[_RES_ID]]
-            if inst[mtype] >= 0 and ofs + data_ofs + plen > n:
-                break  # truncated instance-carrying record ends the index
-            idx_off[nidx] = ofs
-            idx_id[nidx] = mtype
-            nidx += 1
-            ofs += mlen
-    stats[_S_INDEXED] = nidx
-    st[_FPOS] = 0  # _rewind
-    done = False
-    if indexed_read:
-        for r in range(nidx):
-            if visit[idx_id[r]] == 0:
+            st0[:] = st
+            tf0[:] = tf
+            buf0[:] = buf
+            ts0 = ts[0]
+            st[_FPOS] = ofs
+        elif phase == 1:
+            while r < nidx and visit[idx_id[r]] == 0:
+                r += 1
+            if r >= nidx:
+                phase = 2
                 continue
             st[_FPOS] = idx_off[r]
-            kind = _recv_msg(data, st, ts, tf, buf, crc_extra, crc_table, stats)
+            r += 1
+        kind = _recv_msg(data, st, ts, tf, buf, crc_extra, crc_table, stats)
+        if phase == 0:
             if kind == _NONE:
-                done = True
-                break
-            if (kind == _OK and want[st[_RES_ID]] != 0) or (kind == _UNKNOWN and want_unknown):
-                _emit(data, st, ts, buf, out_t, out_off, out_side, out_len, out_id, side, stats)
-    if not done:  # sequential reading to the end of file
-        while True:
-            kind = _recv_msg(data, st, ts, tf, buf, crc_extra, crc_table, stats)
-            if kind == _NONE:
-                break
-            if (kind == _OK and want[st[_RES_ID]] != 0) or (kind == _UNKNOWN and want_unknown):
-                _emit(data, st, ts, buf, out_t, out_off, out_side, out_len, out_id, side, stats)
+                # pymavlink raises here (AttributeError on None._instance_field);
+                # carry on as if this read had not happened
+                stats[_S_RAISES] += 1
+                st[:] = st0
+                ts[0] = ts0
+                tf[:] = tf0
+                buf[:] = buf0
+            elif kind == _OK and inst_tab[st[_RES_ID]] >= 0:
+                inst[p_type] = inst_tab[st[_RES_ID]]
+            if inst[p_type] >= 0 and p_end > n:
+                ofs = n  # truncated instance-carrying record ends the index
+            else:
+                idx_off[nidx] = ofs
+                idx_id[nidx] = p_type
+                nidx += 1
+                ofs += p_mlen
+            continue
+        if kind == _NONE:
+            break
+        if (kind == _OK and want[st[_RES_ID]] != 0) or (kind == _UNKNOWN and want_unknown):
+            _emit(data, st, ts, buf, out_t, out_off, out_side, out_len, out_id, side, stats)
     return stats[_S_EMITTED]
 
 
@@ -501,7 +541,7 @@ class TlogScan:
         indexed: records found by the index pass.
         pymavlink_raises: number of places where pymavlink itself raises
             (the first record of a type cut off by the end of file); this
-            reader carries on.
+            reader carries on as if that read had not happened.
         timestamp_scans: how often pymavlink's timestamp scan ran.
         bad_frames: frames that failed to decode (CRC, flags) or junk runs.
     """
@@ -535,6 +575,7 @@ def load_bytes(source: str | os.PathLike[str] | BinaryIO | bytes | bytearray | m
         arr = np.fromfile(os.fspath(source), np.uint8)
     else:
         arr = np.frombuffer(source.read(), np.uint8)
+    arr.flags.writeable = False  # one array type for the compiled kernels, whatever the source
     return arr
 
 
@@ -569,6 +610,9 @@ def scan_tlog(
         raise ConfigError(f"tlog scan mode must be 'mmap' or 'sequential', got {mode!r}")
     data = source if isinstance(source, np.ndarray) else load_bytes(source)
     data = np.ascontiguousarray(data, dtype=np.uint8)
+    if data.flags.writeable:  # one array type for the compiled kernels (no second compilation)
+        data = data.view()
+        data.flags.writeable = False
     n = int(data.shape[0])
     visit = np.zeros(65536, np.uint8)
     want = np.zeros(65536, np.uint8)
