@@ -71,6 +71,8 @@ STREAMABLE: dict[str, int] = {
 }
 _ONE_SHOT_ONLY = {"AUTOPILOT_VERSION": mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
 _NAME_BY_ID = {v: k for k, v in {**STREAMABLE, **_ONE_SHOT_ONLY}.items()}
+# longest MAVLink 2 frame of each message (header 10 + payload + CRC 2), for the link budget
+_MAX_FRAME = {name: 12 + mavlink.mavlink_map[mid].unpacker.size for name, mid in STREAMABLE.items()}
 
 # ArduPilot stream groups (REQUEST_DATA_STREAM ids) → messages
 _GROUPS: dict[int, tuple[str, ...]] = {
@@ -172,7 +174,6 @@ class Endpoint:
         self._k = 0
         self._now_us = sim.tick_time_us(0)
         self._one_shots: list[str] = []
-        self._pending: list[bytes] = []
         self._tokens = 0.0
         self.stats: dict[str, Counter[str]] = {
             "received": Counter(), "commands": Counter(), "acks": Counter(), "sent": Counter(), "deferred": Counter(),
@@ -275,21 +276,18 @@ class Endpoint:
             self._tokens = min(self._tokens + per_tick, max(4.0 * per_tick, 600.0))
             budget = self._tokens
         out: list[tuple[int, bytes]] = []
-        for frame in self._pending:
-            out.append((tick_us + delay, frame))
-        self._pending.clear()
         for name, st in self._streams.items():
             if st.interval_us <= 0 or tick_us < st.next_due_us:
                 continue
+            if budget is not None and _MAX_FRAME[name] > budget:
+                self.stats["deferred"][name] += 1
+                continue  # no room on the link (checked before packing, as ArduPilot): retried next tick
             send_us = tick_us + delay + 8 * len(out)
             frame = self._produce[name](w, i, send_us, tick_us)
             if frame is None:
                 st.next_due_us += st.interval_us
                 continue
             if budget is not None:
-                if len(frame) > budget:
-                    self.stats["deferred"][name] += 1
-                    continue  # stays due: retried next tick
                 budget -= len(frame)
             out.append((send_us, frame))
             self.stats["sent"][name] += 1

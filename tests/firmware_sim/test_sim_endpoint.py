@@ -281,6 +281,7 @@ def test_link_capacity_defers_frames_like_a_full_uart() -> None:
     rate = len(_of(msgs, "RAW_IMU")) / 4.0
     assert 100.0 < rate < 145.0  # what the link carries, no more
     assert peer.ep.summary()["deferred"]["RAW_IMU"] > 0
+    assert peer.codec.counters.seq_gaps == 0  # deferred before packing: no sequence number is skipped
 
 
 def test_gps_velocity_matches_truth() -> None:
