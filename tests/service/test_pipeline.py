@@ -506,8 +506,9 @@ def _tilt_errors_deg(att, truth, after_ms):
     return np.degrees(tilt)
 
 
+@pytest.mark.slow
 def test_simulated_ardupilot_denies_400_hz_and_streams_250():
-    pipe, ep, att, truth, now = _fly_sim(8.0)
+    pipe, ep, att, truth, now = _fly_sim(6.5)
     st = pipe.status(now)
     raw = next(s for s in st.streams if s.message == "RAW_IMU")
     assert raw.accepted_hz == 250.0 and raw.delivered_hz > 200.0
@@ -516,45 +517,48 @@ def test_simulated_ardupilot_denies_400_hz_and_streams_250():
     assert any("refused RAW_IMU at 400 Hz" in m and "SCHED_LOOP_RATE" in m for m in notes)
     assert not any("arrives at" in m for m in notes)
     tilt = _tilt_errors_deg(att, truth, after_ms=4000)
-    assert len(tilt) > 150 and np.sqrt(np.mean(tilt**2)) < 3.0
+    assert len(tilt) > 100 and np.sqrt(np.mean(tilt**2)) < 3.0
 
 
+@pytest.mark.slow
 def test_simulated_old_autopilot_gets_request_data_stream():
     fs = pytest.importorskip("firmware_sim")
     es = fs.EndpointSettings(support_message_interval=False, streams_hz=(("SIMSTATE", 50.0),))
-    pipe, ep, att, truth, now = _fly_sim(6.0, endpoint_settings=es)
+    pipe, ep, att, truth, now = _fly_sim(5.0, endpoint_settings=es)
     raw = next(s for s in pipe.status(now).streams if s.message == "RAW_IMU")
     assert raw.mode == "data_stream" and raw.delivered_hz > 40.0
     assert any("REQUEST_DATA_STREAM" in m for _, m in pipe.drain_notices())
     assert len(att) > 100
 
 
+@pytest.mark.slow
 def test_simulated_slow_link_is_warned():
     fs = pytest.importorskip("firmware_sim")
     es = fs.EndpointSettings(link_bytes_per_s=5760.0)  # 57600 baud
-    pipe, *_ = _fly_sim(9.0, endpoint_settings=es)
+    pipe, *_ = _fly_sim(7.5, endpoint_settings=es)
     assert any("RAW_IMU arrives at" in m and "baud" in m for _, m in pipe.drain_notices())
 
 
+@pytest.mark.slow
 def test_simulated_imu0_freeze_then_saturation_fails_over_within_1_s():
-    """Issue 9: IMU 0 freezes at 6 s then saturates: IMU 1 takes over within 1 s, accuracy kept."""
+    """Issue 9: IMU 0 freezes at 5 s then saturates: IMU 1 takes over within 1 s, accuracy kept."""
     fs = pytest.importorskip("firmware_sim")
-    ss = fs.SimSettings(scenario="hover", seed=5, imu_fault=fs.ImuFault(instance=0, freeze_at_s=6.0, saturate_at_s=8.0))
+    ss = fs.SimSettings(scenario="aggressive", seed=5, imu_fault=fs.ImuFault(instance=0, freeze_at_s=5.0, saturate_at_s=6.5))
     fed: list = []
-    pipe, ep, att, truth, now = _fly_sim(11.0, sim_settings=ss, fed=fed)
+    pipe, ep, att, truth, now = _fly_sim(8.5, sim_settings=ss, fed=fed)
     st = pipe.status(now)
     last_from_0 = max(t for name, t in fed if name == "RAW_IMU")
-    assert 6.0e6 < last_from_0 <= 7.0e6  # the fault was detected within 1 s
+    assert 5.0e6 < last_from_0 <= 6.0e6  # the fault was detected within 1 s
     # … and the filter steps on the frozen samples were undone: IMU 1 re-filtered from before the fault
     first_from_1 = next(t for name, t in fed if name == "SCALED_IMU2")
-    assert first_from_1 <= 6.0e6 and st.counters["rolled_back"] == 1
+    assert first_from_1 <= 5.0e6 and st.counters["rolled_back"] == 1
     assert st.imu_in_use == 1
     states = {s.imu_id: s.state for s in st.imu_instances}
     assert states[0] in ("frozen", "saturated")
     notes = [m for _, m in pipe.drain_notices()]
     assert any("switched from IMU 0 to IMU 1" in m and "frozen" in m for m in notes)
     # after the switch the new instance is requested at full rate
-    tilt = _tilt_errors_deg(att, truth, after_ms=4000)
-    assert np.sqrt(np.mean(tilt**2)) < 3.0 and tilt.max() < 6.0
+    tilt = _tilt_errors_deg(att, truth, after_ms=3000)  # aggressive flight: 0.4° RMS without a fault
+    assert np.sqrt(np.mean(tilt**2)) < 1.5 and tilt.max() < 3.0
     s1 = next(s for s in st.streams if s.message == "SCALED_IMU2")
     assert s1.wanted_hz == 400.0
