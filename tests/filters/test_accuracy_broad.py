@@ -1,0 +1,57 @@
+"""Accuracy on the real BROAD trials in ../shared/data/broad (skipped when the data is absent).
+
+BROAD's scoring (Laidig et al. 2021): per trial the RMS error over the scored
+movement phase, then the plain mean over the 16 trials; one setting for all
+trials.  Bounds, in degrees:
+
+* issue 2: ``best`` ≤ 3.0 total and ≤ 1.0 inclination (9-axis); the default
+  ``madgwick`` better than the ``ahrs`` package's Madgwick (5.3 / 2.4);
+* regression bounds with ≈ 15 % margin over what was measured when the
+  settings were chosen (``docs/accuracy.md``: best 1.88 / 0.72, 6-axis 0.72;
+  madgwick 2.77 / 1.66, 6-axis 1.80), below VQF's 2.46 total.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+pytestmark = pytest.mark.slow  # 16 real trials (≈ 900 k samples) per filter: a few seconds each
+
+
+def test_best_meets_the_issue_bounds_9axis(broad_mean) -> None:  # type: ignore[no-untyped-def]
+    total, heading, incl = broad_mean("best")
+    assert total <= 3.0 and incl <= 1.0, f"best: {total:.2f}° total, {incl:.2f}° inclination"
+    assert total <= 2.2 and heading <= 2.0 and incl <= 0.85, (total, heading, incl)
+
+
+def test_best_inclination_6axis(broad_mean) -> None:  # type: ignore[no-untyped-def]
+    _, _, incl = broad_mean("best", six_axis=True)
+    assert incl <= 0.85, f"best 6-axis inclination {incl:.2f}°"
+
+
+def test_default_madgwick_beats_the_ahrs_package(broad_mean) -> None:  # type: ignore[no-untyped-def]
+    total, _, incl = broad_mean("madgwick")
+    assert total < 5.3 and incl < 2.4, f"madgwick defaults: {total:.2f}° total, {incl:.2f}° inclination"
+    assert total <= 3.2 and incl <= 1.9, (total, incl)
+    _, _, incl6 = broad_mean("madgwick", six_axis=True)
+    assert incl6 < 2.4 and incl6 <= 2.1, incl6
+
+
+def test_attached_magnet_trials_reject_the_magnetometer(broad_trials) -> None:  # type: ignore[no-untyped-def]
+    """A magnet 1–3 cm from the IMU: heading stays within 2.5° RMS (VQF: 7.7° and 3.4°)."""
+    from mavahrs.evaluation.metrics import summarize
+    from mavahrs.filters import create
+    from mavahrs.filters.base import make_inputs
+    from mavahrs.filters.layout import OUT_MAG_WEIGHT, OUT_Q
+
+    trials = [r for r in broad_trials if "attached_magnet" in r.groups]
+    if not trials:
+        pytest.skip("no attached-magnet trials in ../shared/data/broad")
+    for rec in trials:
+        out = create("best").run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut, dt_s=rec.dt_s))
+        s = summarize(out[:, OUT_Q : OUT_Q + 4], rec.q_ref_body_to_ned, rec.scored)
+        assert s.heading_rms_deg < 2.5, f"{rec.name}: heading {s.heading_rms_deg:.2f}°"
+        rejected = np.mean(out[rec.scored, OUT_MAG_WEIGHT] < 0.5)
+        assert rejected > 0.2, f"{rec.name}: magnetometer rejected only {rejected:.0%} of the scored samples"
