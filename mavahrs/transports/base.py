@@ -44,7 +44,8 @@ class TransportCounters:
             the link was down, had no peer yet, or its queue was full.
         bytes_dropped: bytes in those writes.
         disconnects: times the link was lost.
-        reconnects: times it came back.
+        reconnects: times it came back (``tcpin``: a client connected;
+            ``udpin``: a new sender after silence — a restarted peer).
         ignored_reads: reads discarded (e.g. a second TCP client's input).
     """
 

@@ -7,13 +7,16 @@ no peer known yet, network down) is dropped and counted, never queued —
 stale attitude is worth nothing.  Both directions work on every UDP link:
 ``udpout:`` reads the replies that come back to its ephemeral port, as
 pymavlink's ``mavudp`` does, and ``udpin:`` learns its peer from what it
-receives (a restarted peer on a new port is followed at once).
+receives (a restarted peer on a new port is followed at once, and counted in
+``counters.reconnects`` when it appears after half a second of silence, so
+the service knows to ask it for its streams again).
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import time
 from typing import Any
 
 from mavahrs.errors import TransportError
@@ -69,6 +72,9 @@ class UdpTransport:
         self._sock: socket.socket | None = sock
         self._fds = (sock.fileno(),)
         self._warned_send = False
+        self._last_rx_s = 0.0
+        #: ``udpin``: a sender that appears after this much silence counts as a restarted peer, s
+        self.restart_silence_s = 0.5
 
     # ------------------------------------------------------------------ info
     @property
@@ -103,9 +109,18 @@ class UdpTransport:
         except OSError as exc:  # e.g. ICMP errors reported on some platforms
             self._log.debug("%s: receive error: %s", self.endpoint.text, describe_os_error(exc))
             return b""
-        if self._listen:
-            self.peer = addr  # reply to the last sender
         c = self.counters
+        if self._listen:
+            now = time.monotonic()
+            if addr != self.peer:
+                # A new sender after the previous one fell silent is a restarted peer: count it as a
+                # reconnection (the service then asks for its streams again).  Two peers talking at
+                # once are not: replies simply follow the last sender.
+                if self.peer is not None and now - self._last_rx_s >= self.restart_silence_s:
+                    c.reconnects += 1
+                    self._log.info("%s: new peer %s:%s", self.endpoint.text, addr[0], addr[1])
+                self.peer = addr  # reply to the last sender
+            self._last_rx_s = now
         c.reads += 1
         c.bytes_in += len(data)
         return data

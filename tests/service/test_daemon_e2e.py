@@ -122,7 +122,7 @@ class Collector:
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.1)
         self.port = self.sock.getsockname()[1]
-        self.messages: list[Any] = []
+        self.messages: list[tuple[float, Any]] = []  # (wall-clock receipt time, message)
         self._stop = False
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -134,7 +134,8 @@ class Collector:
                 data = self.sock.recv(65536)
             except (TimeoutError, socket.timeout):
                 continue
-            self.messages.extend(codec.receive_datagram(data))
+            now = time.time()
+            self.messages.extend((now, m) for m in codec.receive_datagram(data))
 
     def close(self) -> None:
         self._stop = True
@@ -150,18 +151,14 @@ def _sim(args: list[str], cwd: Path, **kw: Any) -> subprocess.Popen:
     )
 
 
-def _split_sessions(times_ms: list[int]) -> list[int]:
-    """Session number per sample: a new session starts when the autopilot clock goes back (a restart)."""
-    out, session, last = [], 0, None
-    for t in times_ms:
-        if last is not None and t < last - 1000:
-            session += 1
-        out.append(session)
-        last = t
-    return out
+def _session(t_wall_s: float, boundaries: tuple[float, ...]) -> int:
+    """Which simulator run a wall-clock time belongs to (``boundaries``: start times of runs 1, 2, …)."""
+    return sum(t_wall_s >= b for b in boundaries)
 
 
-def _read_daemon_tlog(path: Path) -> tuple[dict[tuple[int, int], np.ndarray], list[tuple[int, int]], int]:
+def _read_daemon_tlog(
+    path: Path, boundaries: tuple[float, ...]
+) -> tuple[dict[tuple[int, int], np.ndarray], list[tuple[int, int]], int]:
     """From the daemon's tlog (read with pymavlink, as other tools read it): truth quaternion per
     (session, time_ms) from the SIMSTATE sent in the same tick (same datagram, same record time)
     as each RAW_IMU, the (session, time_ms) of every RAW_IMU received, and the frames we sent."""
@@ -171,8 +168,7 @@ def _read_daemon_tlog(path: Path) -> tuple[dict[tuple[int, int], np.ndarray], li
     imu_keys: list[tuple[int, int]] = []
     truth: dict[tuple[int, int], np.ndarray] = {}
     sent = 0
-    session, last_ms = 0, None
-    pending: tuple[float, int] | None = None  # (record time, imu ms) waiting for its SIMSTATE
+    pending: tuple[float, int, int] | None = None  # (record time, session, imu ms) waiting for its SIMSTATE
     try:
         while True:
             msg = mlog.recv_msg()
@@ -183,26 +179,26 @@ def _read_daemon_tlog(path: Path) -> tuple[dict[tuple[int, int], np.ndarray], li
                 continue
             kind = msg.get_type()
             if kind == "RAW_IMU":
-                ms = msg.time_usec // 1000
-                if last_ms is not None and ms < last_ms - 1000:
-                    session += 1
-                last_ms = ms
-                imu_keys.append((session, ms))
-                pending = (msg._timestamp, ms)
+                key = (_session(msg._timestamp, boundaries), msg.time_usec // 1000)
+                imu_keys.append(key)
+                pending = (msg._timestamp, *key)
             elif kind == "SIMSTATE" and pending is not None and pending[0] == msg._timestamp:
-                truth[(session, pending[1])] = from_euler_rad(msg.roll, msg.pitch, msg.yaw)
+                truth[pending[1:]] = from_euler_rad(msg.roll, msg.pitch, msg.yaw)
                 pending = None
     finally:
         mlog.close()
     return truth, imu_keys, sent
 
 
-def _attitudes(messages: list[Any]) -> list[tuple[int, int, np.ndarray, int, int]]:
-    att = [m for m in messages if m.get_type() == "ATTITUDE_QUATERNION"]
-    sessions = _split_sessions([m.time_boot_ms for m in att])
+def _attitudes(
+    messages: list[tuple[float, Any]], boundaries: tuple[float, ...]
+) -> list[tuple[int, int, np.ndarray, int, int]]:
+    """(session, time_boot_ms, q, system id, component id) of every ATTITUDE_QUATERNION received."""
     return [
-        (s, m.time_boot_ms, np.array([m.q1, m.q2, m.q3, m.q4]), m.get_srcSystem(), m.get_srcComponent())
-        for s, m in zip(sessions, att)
+        (_session(t, boundaries), m.time_boot_ms, np.array([m.q1, m.q2, m.q3, m.q4]), m.get_srcSystem(),
+         m.get_srcComponent())
+        for t, m in messages
+        if m.get_type() == "ATTITUDE_QUATERNION"
     ]
 
 
@@ -218,7 +214,11 @@ def _check_session(
     answered = {ms: q for s, ms, q, _, _ in attitudes if s == session}
     assert received, f"session {session}: no IMU samples reached the daemon"
     fraction = len(received & set(answered)) / len(received)
-    assert fraction >= 0.99, f"session {session}: only {fraction:.2%} of {len(received)} samples answered"
+    missing = sorted(received - set(answered))
+    assert fraction >= 0.99, (
+        f"session {session}: only {fraction:.2%} of {len(received)} samples answered; "
+        f"missing {len(missing)}: {missing[:8]} … {missing[-3:]} (samples {min(received)}…{max(received)} ms)"
+    )
     t0 = min(received)
     keys = [
         ms for ms in sorted(answered)
@@ -226,7 +226,11 @@ def _check_session(
         and ms - t0 >= SETTLE_S * 1000
         and not any(a <= ms - t0 < b for a, b in exclude_ms)
     ]
-    assert len(keys) > RATE_HZ, f"session {session}: too few samples with truth ({len(keys)})"
+    with_truth = sum(1 for ms in answered if (session, ms) in truth)
+    assert len(keys) > RATE_HZ, (
+        f"session {session}: too few samples with truth to compare ({len(keys)}; {with_truth} of "
+        f"{len(answered)} answered have truth; samples from {t0} to {max(received)} ms)"
+    )
     q_est = np.array([answered[k] for k in keys])
     q_ref = np.array([truth[(session, k)] for k in keys])
     _, heading, tilt = attitude_errors_rad(q_est, q_ref)
@@ -263,6 +267,7 @@ def test_udp_400hz_accuracy_silence_and_restart(tmp_path: Path) -> None:
                     "--seed", "1", "--blackout", "5:2", "--stats-json", "sim1.json"], tmp_path)
         assert sim.wait(90) == 0
         # session 1: the simulator restarts (new process, new source port, clock from zero)
+        boundaries = (time.time(),)
         sim = _sim(["--out", f"udpout:127.0.0.1:{port}", "--scenario", "aggressive", "--duration", "6",
                     "--seed", "2", "--stats-json", "sim2.json"], tmp_path)
         assert sim.wait(60) == 0
@@ -273,8 +278,8 @@ def test_udp_400hz_accuracy_silence_and_restart(tmp_path: Path) -> None:
     assert rc == 0, daemon.log
     assert "mavahrs stopped (SIGTERM)" in daemon.log and "Traceback" not in daemon.log
 
-    truth, imu_keys, sent = _read_daemon_tlog(tmp_path / "daemon.tlog")
-    attitudes = _attitudes(gcs.messages)
+    truth, imu_keys, sent = _read_daemon_tlog(tmp_path / "daemon.tlog", boundaries)
+    attitudes = _attitudes(gcs.messages, boundaries)
     assert {(sysid, compid) for _, _, _, sysid, compid in attitudes} == {(1, 191)}
     assert sent >= len(attitudes)  # the tlog holds what went out, too
     silence_end_ms = 7000.0  # the blackout covers simulation time 5…7 s
@@ -311,7 +316,8 @@ def test_pty_serial_400hz_and_device_replug(tmp_path: Path) -> None:
     try:
         assert sim.wait(90) == 0
         sim.stdout.close()
-        daemon.wait_for("lost")  # the "device" went away with the simulator
+        daemon.wait_for(f"serial port {link} lost")  # the "device" went away with the simulator
+        boundaries = (time.time(),)
         sim = start_sim("6", "4", "sim2.json")  # … and comes back behind the same name
         assert sim.wait(60) == 0
         sim.stdout.close()
@@ -324,8 +330,8 @@ def test_pty_serial_400hz_and_device_replug(tmp_path: Path) -> None:
         gcs.close()
     assert rc == 0, daemon.log
     assert "restored" in daemon.log, daemon.log
-    truth, imu_keys, _ = _read_daemon_tlog(tmp_path / "daemon.tlog")
-    attitudes = _attitudes(gcs.messages)
+    truth, imu_keys, _ = _read_daemon_tlog(tmp_path / "daemon.tlog", boundaries)
+    attitudes = _attitudes(gcs.messages, boundaries)
     # the daemon started while the first simulator was already streaming: its clock starts later
     s0 = _check_session(0, imu_keys, attitudes, truth)
     s1 = _check_session(1, imu_keys, attitudes, truth)

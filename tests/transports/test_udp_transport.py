@@ -46,8 +46,11 @@ def test_udpin_follows_a_restarted_peer_on_a_new_port(listener: UdpTransport) ->
         listener.write(b"to a")
         assert a.recv(100) == b"to a"
         a.close()  # the peer "restarts" on another port
+        assert listener.counters.reconnects == 0
+        listener.restart_silence_s = 0.0  # (in the service: after 0.5 s of silence)
         b.sendto(b"from b", ("127.0.0.1", port))
         assert listener.read(2.0) == b"from b"
+        assert listener.counters.reconnects == 1  # a restarted peer is reported
         listener.write(b"to b")
         assert b.recv(100) == b"to b"
         assert listener.describe().endswith(f"(peer 127.0.0.1:{b.getsockname()[1]})")
@@ -96,3 +99,19 @@ def test_closed_transport_has_no_descriptors(listener: UdpTransport) -> None:
     assert listener.filenos() == (listener.fileno(),)
     listener.close()
     assert listener.filenos() == () and listener.fileno() == -1 and listener.read(0.0) == b""
+
+
+def test_two_peers_talking_at_once_are_not_restarts(listener: UdpTransport) -> None:
+    port = listener.local_address[1]
+    a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for _ in range(5):
+            a.sendto(b"a", ("127.0.0.1", port))
+            b.sendto(b"b", ("127.0.0.1", port))
+            assert listener.read(2.0) == b"a" and listener.read(2.0) == b"b"
+        assert listener.counters.reconnects == 0  # no silence in between: not a restart
+        assert listener.peer[1] == b.getsockname()[1]
+    finally:
+        a.close()
+        b.close()
