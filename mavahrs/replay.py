@@ -184,19 +184,6 @@ class ReplayResult:
 # --------------------------------------------------------------------------- the reference path
 
 
-def _row_of(f: Any) -> Array:
-    """A filter's current output row from its public state (q and diagnostics)."""
-    out = np.empty(OUT_WIDTH)
-    out[OUT_Q : OUT_Q + 4] = f.q_body_to_ned
-    d = f.diagnostics
-    out[OUT_GAIN] = d.gain
-    out[OUT_ACCEL_WEIGHT] = d.accel_weight
-    out[OUT_MAG_WEIGHT] = d.mag_weight
-    out[OUT_BIAS : OUT_BIAS + 3] = d.gyro_bias_rad_s
-    out[OUT_FLAGS] = d.flags
-    return out
-
-
 def _run_pipelines(
     td: TlogData,
     settings: Any,
@@ -210,6 +197,7 @@ def _run_pipelines(
     """Feed every message through one Pipeline per filter (the daemon's code), message by message."""
     from mavahrs.filters import create
     from mavahrs.protocol.codec import MavCodec
+    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
     from mavahrs.service.pipeline import Pipeline
 
     pipes = []
@@ -234,6 +222,17 @@ def _run_pipelines(
     outs: list[list[Array]] = [[] for _ in pipes]
     frames: list[list[bytes]] = [[] for _ in pipes]
     names_fed: dict[str, int] = {}
+    inst_fed: dict[int, int] = {}
+    hooked: list[list[tuple[int, Array, Array]]] = [[] for _ in pipes]
+
+    def make_hook(k: int) -> Callable[[str, int, Array, Array], None]:
+        def hook(message: str, t_us: int, in_row: Array, out_row: Array) -> None:
+            hooked[k].append((int(t_us), in_row.copy(), out_row.copy()))
+
+        return hook
+
+    for k, p in enumerate(pipes):
+        p.sample_hook = make_hook(k)
     for j in range(td.frames):
         if progress is not None and j % 4096 == 0:
             progress(j)
@@ -243,21 +242,27 @@ def _run_pipelines(
         msg = codec.decode_frame(td.scan.frame(j))
         if msg is None:  # pragma: no cover - the scan returns decodable frames only
             continue
-        before = p0.samples_filtered
         for k, p in enumerate(pipes):
             for o in p.handle(msg, t_rec):
-                if o.to_outputs:
+                if o.to_outputs and _msgid(o.frame) in _ATTITUDE_IDS:
                     frames[k].append(o.frame)
-        if p0.samples_filtered > before:
-            rows.append(p0._row.copy())
-            t_list.append(int(p0._last_fed_t))
+        if hooked[0]:
+            t_s, in_row, _ = hooked[0][-1]
+            rows.append(in_row)
+            t_list.append(t_s)
             pos_list.append(j)
             raw_t = getattr(msg, "temperature", 0)
             temp_list.append(raw_t * 0.01 if raw_t and msg.get_type() != "HIGHRES_IMU" else math.nan)
             decl_list.append(p0.declination.declination_rad)
             names_fed[msg.get_type()] = names_fed.get(msg.get_type(), 0) + 1
-            for k, f in enumerate(filts):
-                outs[k].append(_row_of(f))
+            inst = INSTANCE_OF_MESSAGE.get(msg.get_type(), 0)
+            if msg.get_type() in ("RAW_IMU", "HIGHRES_IMU"):
+                i_id = getattr(msg, "id", 0)
+                inst = i_id if isinstance(i_id, int) and 0 <= i_id < 16 else 0
+            inst_fed[inst] = inst_fed.get(inst, 0) + 1
+            for k in range(len(pipes)):
+                outs[k].append(hooked[k][-1][2])
+                hooked[k].clear()
     m = len(t_list)
     if m == 0:
         raise DataError(f"{td.path}: no IMU sample reached the filter (no autopilot heartbeat or IMU data)")
@@ -270,7 +275,7 @@ def _run_pipelines(
         temperature_c=np.asarray(temp_list),
         declination_rad=np.asarray(decl_list),
         message=max(names_fed, key=names_fed.__getitem__),
-        instance=int(p0.status().imu_in_use or 0),
+        instance=max(inst_fed, key=inst_fed.__getitem__),
         source=(int(src[0]), int(src[1])),
         profile=p0.profile.name if p0.profile else "?",
         engine="pipeline",
@@ -280,6 +285,15 @@ def _run_pipelines(
         if kind >= logging.WARNING:
             prep.notes.append(text)
     return prep, [np.vstack(o) for o in outs], frames, p0.codec.system_id
+
+
+def _msgid(frame: bytes) -> int:
+    if frame[0] == 0xFD:
+        return frame[7] | (frame[8] << 8) | (frame[9] << 16)
+    return frame[5]
+
+
+_ATTITUDE_IDS = (31, 30)  # ATTITUDE_QUATERNION, ATTITUDE
 
 
 def pipeline_inputs(td: TlogData, settings: Any, *, decimal_year: float | None = None) -> PreparedInputs:
@@ -471,7 +485,7 @@ def _replay_fast(
         for a in range(0, m, _CHUNK):
             b = min(m, a + _CHUNK)
             for f, out, sent, st in zip(filts, outs, sents, states):
-                f.run(prep.rows[a:b], out[a:b])
+                prep.run_filter(f, a, b, out[a:b])
                 _out_rate(prep.t_us[a:b], out[a:b, OUT_FLAGS], period, tol, st, sent[a:b])
                 out[a:b, OUT_Q : OUT_Q + 4] = _declinate(out[a:b, OUT_Q : OUT_Q + 4], prep.declination_rad[a:b])
             if sink is not None:

@@ -128,8 +128,10 @@ def _format_slow(v: NDArray[np.float64], d: NDArray[np.int64]) -> bytes:
                 cells.append("inf" if x > 0 else "-inf")
             elif abs(x) * 10.0**dj >= _LIMIT:
                 cells.append(repr(float(x)))
-            else:
-                cells.append(f"{x:.{int(dj)}f}")
+            else:  # the same rounding as the compiled path
+                one = np.empty(64, np.uint8)
+                used = int(_format(np.array([[x]]), np.array([dj], np.int64), one))
+                cells.append(one[: used - 1].tobytes().decode())
         lines.append(",".join(cells))
     return ("\n".join(lines) + "\n").encode()
 

@@ -430,6 +430,20 @@ def bias_study(
 
     base = base_settings if base_settings is not None else _default_settings(filter_name)
     names = {f.name for f in dataclasses.fields(base)}
+    limit_note = ""
+    if "bias_limit_rad_s" in names and base_settings is None:
+        # the injected drift grows without bound: lift the filter's bias clamp so it can be followed
+        base = dataclasses.replace(base, bias_limit_rad_s=math.radians(1000.0))
+        limit_note = "; the filter's bias clamp (bias_limit_rad_s) lifted to 1000 °/s"
+    if base_settings is None:
+        # as in the report: the bias gain alone (no rest-phase estimate, no spin freeze)
+        rest = getattr(base, "rest", None)
+        if rest is not None and dataclasses.is_dataclass(rest) and hasattr(rest, "bias_tau_s"):
+            base = dataclasses.replace(base, rest=dataclasses.replace(rest, bias_tau_s=0.0))
+            limit_note += "; rest-phase bias estimation off"
+        if "zeta_spin_limit_rad_s" in names:
+            base = dataclasses.replace(base, zeta_spin_limit_rad_s=0.0)
+            limit_note += "; ζ applied at every rate"
     bias_field = next((n for n in ("zeta_rad_s", "zeta", "ki_accel", "bias_gain", "k_b") if n in names), None)
     if bias_field is None:
         raise ValueError(f"{filter_name} has no gyro-bias gain to switch on (zeta/ki_accel)")
@@ -499,7 +513,7 @@ def bias_study(
         notes=[
             f"recording {rec.name}, {t[-1]:.0f} s, {'9' if mag is not None else '6'}-axis",
             f"bias error = estimate − injected drift (the recording's own residual bias is not subtracted); "
-            f"alignment {mode}",
+            f"alignment {mode}{limit_note}",
         ],
         data={
             "t": t,

@@ -21,11 +21,13 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
   :class:`~mavahrs.sensors.geomag.DeclinationSource` fed the position and
   time messages in order.
 
-What it cannot mirror in bulk — several live IMU instances with ``imu=auto``
-(fail-over decisions), an autopilot reboot, one instance carried by two
-message types — raises :class:`FastPathUnsupported`; replay then runs the
-pipeline itself, message by message (same results, slower).  A test checks
-that both give identical attitudes and frames.
+Several live IMU instances with ``imu=auto`` are decided by the pipeline's
+own :class:`~mavahrs.sensors.imu_select.ImuSelector`, run over the messages;
+what it cannot mirror in bulk — a fail-over to another instance (the pipeline
+back-fills the new instance's recent samples), an autopilot reboot, a timeline
+that corrects timestamps — raises :class:`FastPathUnsupported`; replay then
+runs the pipeline itself, message by message (same results, slower).  A test
+checks that both give identical attitudes and frames.
 
 :func:`load_tlog_recording` turns the result into an evaluation
 :class:`~mavahrs.evaluation.datasets.Recording` whose reference is the
@@ -45,7 +47,7 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_WIDTH
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_WIDTH, OUT_WIDTH
 
 __all__ = [
     "REPLAY_TYPES",
@@ -59,6 +61,8 @@ __all__ = [
     "load_tlog_recording",
     "cut_recording",
     "decimal_year_of_log",
+    "true_rates",
+    "interpolate_attitude",
 ]
 
 Array = NDArray[np.float64]
@@ -207,6 +211,23 @@ class PreparedInputs:
     engine: str = "fast"
     notes: list[str] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
+    #: (sample index, field strength µT, inclination rad): the pipeline seeds the filter's
+    #: magnetometer rejection (``set_mag_reference``) before that sample
+    mag_reference_events: list[tuple[int, float, float]] = field(default_factory=list)
+
+    def run_filter(self, f: Any, a: int = 0, b: int | None = None, out: Array | None = None) -> Array:
+        """Run filter ``f`` over rows ``a:b`` as the pipeline would (reference seeding included)."""
+        b = self.n if b is None else b
+        if out is None:
+            out = np.empty((b - a, OUT_WIDTH))
+        cuts = [a] + sorted({i for i, _, _ in self.mag_reference_events if a < i < b}) + [b]
+        for lo, hi in zip(cuts[:-1], cuts[1:]):
+            for i, norm, dip in self.mag_reference_events:
+                if i == lo or (lo == 0 and i <= 0):
+                    f.set_mag_reference(norm, dip)
+            if hi > lo:
+                f.run(self.rows[lo:hi], out[lo - a : hi - a])
+        return out
 
     @property
     def n(self) -> int:
@@ -324,50 +345,70 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _timeline(t_us: NDArray[np.int64], settings: Any) -> tuple[NDArray[np.bool_], Array]:
+def _timeline(
+    t_us: NDArray[np.int64], now_us: NDArray[np.int64], keys: Array, settings: Any
+) -> tuple[NDArray[np.bool_], Array]:
     """Which samples the pipeline's timeline passes, and their dt (s).
 
-    Runs the pipeline's own timeline object sample by sample unless the
-    timestamps are strictly increasing with no gap, where every event is "ok"
-    with dt = Δt (checked against the timeline on the first samples).
+    Runs :class:`mavahrs.protocol.timeline.Timeline` — with the arguments the
+    pipeline gives it (raw time, receive time, the gyro+accel values as the
+    sample key) — sample by sample, unless the timestamps strictly increase
+    by no more than the gap limit: then every event is ``ok`` with
+    dt = Δt, which the timeline itself confirms on the first samples.
     """
-    from mavahrs.service import pipeline as _pl
+    from mavahrs.protocol.timeline import DROP_KINDS, OK, REBOOT, Timeline
 
     n = t_us.shape[0]
     keep = np.ones(n, bool)
     dt = np.full(n, _NAN)
     if n == 0:
         return keep, dt
-    tl = _pl._new_timeline(settings.timeline)
     d = np.diff(t_us)
-    simple = bool(np.all(d > 0))
+    max_gap_us = int(settings.timeline.max_gap_s * 1e6)
+    simple = bool(np.all(d > 0)) and not bool(np.any(d > max_gap_us))
     if simple:
-        probe = min(n, 64)
-        for i in range(probe):  # the timeline's own verdict on a prefix: must be plain "ok"
-            ev = tl.push(int(t_us[i]))
-            if i and (ev.kind not in ("ok",) or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
+        tl = Timeline(settings.timeline)
+        for i in range(min(n, 64)):  # the timeline's own verdict on a prefix: plain "ok"
+            ev = tl.push(int(t_us[i]), int(now_us[i]), tuple(keys[i].tolist()))
+            if i and (ev.kind != OK or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
                 simple = False
                 break
-        if simple:
-            gap_like = d > 500_000
-            if gap_like.any():
-                simple = False
     if simple:
         dt[1:] = d * 1e-6
         return keep, dt
-    tl = _pl._new_timeline(settings.timeline)
+    tl = Timeline(settings.timeline)
     for i in range(n):
-        ev = tl.push(int(t_us[i]))
-        kind = ev.kind
-        if kind == "reboot" and i:
+        ev = tl.push(int(t_us[i]), int(now_us[i]), tuple(keys[i].tolist()))
+        if ev.kind == REBOOT and i:
             raise FastPathUnsupported("the autopilot rebooted during the log")
-        if kind in ("duplicate", "reordered", "out_of_order", "stale", "drop"):
+        if ev.kind in DROP_KINDS:
             keep[i] = False
             continue
         if ev.t_us != t_us[i]:
-            raise FastPathUnsupported("the timeline corrects timestamps")
+            raise FastPathUnsupported("the timeline corrects timestamps (wrap-around)")
         dt[i] = ev.dt_s
     return keep, dt
+
+
+def _run_selector(mg: dict[str, Any], names: list[str], settings: Any) -> NDArray[np.bool_]:
+    """The pipeline's own ImuSelector over every message (several live instances, ``imu=auto``)."""
+    from mavahrs.sensors.imu_select import ImuSelector
+
+    sel = ImuSelector(settings.selection_settings)
+    n = mg["pos"].shape[0]
+    feed = np.zeros(n, bool)
+    imu, t, use = mg["imu"].tolist(), mg["t_us"].tolist(), mg["use"].tolist()
+    g, a, m = mg["gyro"].tolist(), mg["accel"].tolist(), mg["mag"].tolist()
+    temp, sat, inv, kind = mg["temp"].tolist(), mg["sat"].tolist(), mg["inv"].tolist(), mg["kind"].tolist()
+    for i in range(n):
+        if not use[i]:
+            continue
+        tc = temp[i]
+        v = (imu[i], t[i], *g[i], *a[i], *m[i], None if tc != tc else tc, sat[i], inv[i])
+        feed[i] = sel.observe(names[kind[i]], v)
+        if sel._changes:
+            sel.pop_changes()
+    return feed
 
 
 def prepare_inputs(
@@ -420,50 +461,54 @@ def prepare_inputs(
         parts.append(sc)
     if not parts:
         raise DataError(f"{td.path}: no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) from the autopilot")
-    # --- instances: absent (all samples all-zero) or live
-    live: dict[int, list[dict[str, Any]]] = {}
-    absent: set[int] = set()
-    carriers: dict[int, set[str]] = {}
-    for sc in parts:
-        for inst in np.unique(sc["imu"]):
-            carriers.setdefault(int(inst), set()).add(sc["name"])
-    shared = sorted(k for k, v in carriers.items() if len(v) > 1)
-    if shared:
-        raise FastPathUnsupported(f"IMU instance {shared[0]} arrives in several message types")
-    for sc in parts:
-        zero = np.all(sc["gyro"] == 0, axis=1) & np.all(sc["accel"] == 0, axis=1) & sc["use"]
-        sc["zero"] = zero
-        for inst in np.unique(sc["imu"]):
-            sel = sc["imu"] == inst
-            if zero[sel & sc["use"]].all():
-                absent.add(int(inst))
-            else:
-                live.setdefault(int(inst), []).append(sc)
-    for inst in sorted(absent - set(live)):
+    # --- all IMU messages of the source merged in frame order
+    keys = ("imu", "t_us", "gyro", "accel", "mag", "temp", "sat", "inv", "use", "pos")
+    mg = {k: np.concatenate([sc[k] for sc in parts]) for k in keys}
+    mg["kind"] = np.concatenate([np.full(sc["pos"].shape[0], i) for i, sc in enumerate(parts)])
+    order = np.argsort(mg["pos"], kind="stable")
+    mg = {k: v[order] for k, v in mg.items()}
+    names = [sc["name"] for sc in parts]
+    mg["zero"] = np.all(mg["gyro"] == 0, axis=1) & np.all(mg["accel"] == 0, axis=1) & mg["use"]
+    # --- which samples the selector feeds
+    carriers: dict[int, set[int]] = {}
+    live: set[int] = set()
+    for inst, kind, z, u in zip(*np.unique(np.stack([mg["imu"], mg["kind"], mg["zero"], mg["use"]]), axis=1)):
+        carriers.setdefault(int(inst), set()).add(int(kind))
+        if u and not z:
+            live.add(int(inst))
+    for inst in sorted(set(carriers) - live):
         notes.append(f"IMU instance {inst} sends all-zero accelerometer and gyro (no such IMU): not used")
     fixed = s.selection_settings.fixed
-    if fixed is not None:
-        if fixed not in live:
-            raise DataError(f"{td.path}: IMU instance {fixed} has no usable data (instances: {sorted(live) or 'none'})")
-        chosen = fixed
+    if fixed is not None and fixed not in live:
+        raise DataError(f"{td.path}: IMU instance {fixed} has no usable data (instances: {sorted(live) or 'none'})")
+    if not live:
+        raise DataError(f"{td.path}: every IMU instance sends all-zero accelerometer and gyro")
+    shared = any(len(v) > 1 for v in carriers.values())
+    if not shared and (fixed is not None or len(live) == 1):
+        chosen = fixed if fixed is not None else next(iter(live))
+        feed = (mg["imu"] == chosen) & mg["use"] & ~mg["zero"]
     else:
-        if len(live) != 1:
-            raise FastPathUnsupported(f"{len(live)} live IMU instances: the selector decides per sample")
-        chosen = next(iter(live))
-    sc = live[chosen][0]
-    sel = (sc["imu"] == chosen) & sc["use"] & ~sc["zero"]
-    if not sel.any():
-        raise DataError(f"{td.path}: IMU instance {chosen} has no usable samples")
-    pos = sc["pos"][sel]
-    t_raw = sc["t_us"][sel]
-    keep, dt = _timeline(t_raw, s)
-    pos, t_us = pos[keep], t_raw[keep]
+        feed = _run_selector(mg, names, s)
+    idx = np.flatnonzero(feed)
+    if idx.size == 0:
+        raise DataError(f"{td.path}: no IMU sample would reach the filter")
+    inst_fed = mg["imu"][idx]
+    if not np.all(inst_fed == inst_fed[0]):
+        # fail-over: the pipeline also back-fills the new instance's recent samples
+        raise FastPathUnsupported("the selected IMU instance changes during the log (fail-over)")
+    keys = np.hstack([mg["gyro"][idx], mg["accel"][idx]])  # Pipeline: the scaled v[2:8]
+    keep, dt = _timeline(mg["t_us"][idx], td.t_us[mg["pos"][idx]], keys, s)
+    idx = idx[keep]
     dt = dt[keep]
     if dt.size:
         dt[0] = _NAN  # the first sample fed initialises the filter
-    gyro, accel, mag = sc["gyro"][sel][keep], sc["accel"][sel][keep], sc["mag"][sel][keep]
-    sat, inv = sc["sat"][sel][keep], sc["inv"][sel][keep]
-    temp = sc["temp"][sel][keep]
+    pos, t_us = mg["pos"][idx], mg["t_us"][idx]
+    gyro, accel, mag = mg["gyro"][idx], mg["accel"][idx], mg["mag"][idx]
+    sat, inv, temp = mg["sat"][idx], mg["inv"][idx], mg["temp"][idx]
+    kinds = mg["kind"][idx]
+    main_kind = int(np.bincount(kinds).argmax())
+    sc = parts[main_kind]
+    chosen = int(np.bincount(mg["imu"][idx]).argmax())
     m = pos.shape[0]
     rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
@@ -484,10 +529,18 @@ def prepare_inputs(
     events.sort()
     decl_at = np.full(m, decl.declination_rad)
     vel_rows: list[tuple[int, tuple[float, float, float]]] = []
+    mag_events: list[tuple[int, float, float]] = []  # Pipeline._field_changed → filter.set_mag_reference
+    ref0 = decl.mag_reference()
+    if ref0 is not None:
+        mag_events.append((0, float(ref0[0]), float(ref0[1])))
     for frame_pos, name, k in events:
         msg = td.message(name, k)
-        decl.handle(msg)
+        changed = decl.handle(msg)
         i = int(np.searchsorted(pos, frame_pos))  # first fed sample after this message
+        if changed:
+            ref = decl.mag_reference()
+            if ref is not None:
+                mag_events.append((i, float(ref[0]), float(ref[1])))
         decl_at[i:] = decl.declination_rad
         if name == "GLOBAL_POSITION_INT" and s.use_gnss_velocity and not (msg.lat == 0 and msg.lon == 0):
             vn, ve, vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
@@ -498,20 +551,24 @@ def prepare_inputs(
                 vel_rows.append((i, (vn, ve, vd)))
     for i, v in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
-    # --- calibration (Calibrator.apply_row, element by element)
-    ms = profile.scale_for(sc["name"])
-    cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
-    if cal.active:
-        _calibrate(rows, temp, cal)
+    # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
+    for kind in np.unique(kinds):
+        ms = profile.scale_for(names[int(kind)])
+        cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
+        if cal.active:
+            sel_k = kinds == kind
+            sub = rows[sel_k]
+            _calibrate(sub, temp[sel_k], cal)
+            rows[sel_k] = sub
     counts = {
-        "imu_messages": int(sum(p["imu"].shape[0] for p in parts)),
+        "imu_messages": int(mg["pos"].shape[0]),
         "fed": m,
         "dropped_timeline": int((~keep).sum()),
     }
     return PreparedInputs(
         rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,
         declination_rad=decl_at, message=sc["name"], instance=chosen, source=src, profile=prof_name,
-        engine="fast", notes=notes, counts=counts,
+        engine="fast", notes=notes, counts=counts, mag_reference_events=mag_events,
     )  # fmt: skip
 
 
@@ -603,6 +660,30 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
         order = np.argsort(t, kind="stable")
         out[k] = (t[order], q[order] / np.linalg.norm(q[order], axis=1, keepdims=True))
     return out
+
+
+def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
+    """The simulator's true body rates (SIMSTATE, else SIM_STATE ``xgyro``…), rad/s, at the sample times."""
+    src = prep.source
+    for name in ("SIMSTATE", "SIM_STATE"):
+        a = td.arrays[name]
+        if a.shape[0] < 2:
+            continue
+        a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+        if a.shape[0] < 2:
+            continue
+        t = _tlog_to_autopilot(td, prep, a["t_us"])
+        ok = np.isfinite(t)
+        if ok.sum() < 2:
+            continue
+        order = np.argsort(t[ok], kind="stable")
+        tt = t[ok][order]
+        out = np.empty((prep.n, 3))
+        for i, f in enumerate(("xgyro", "ygyro", "zgyro")):
+            out[:, i] = np.interp(prep.t_us.astype(np.float64), tt, a[f][ok][order].astype(np.float64),
+                                  left=_NAN, right=_NAN)  # fmt: skip
+        return out
+    return None
 
 
 def interpolate_attitude(t_ref: Array, q_ref: Array, t: Array, max_gap_s: float = 0.5) -> Array:
@@ -703,6 +784,7 @@ def load_tlog_recording(
             "notes": notes,
             "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",
             "prepared": prep,
+            "true_rate_rad_s": true_rates(td, prep),
         },
     )
 

@@ -125,7 +125,7 @@ class TuneResult:
     def format(self) -> str:
         d3 = np.degrees
         lines = [
-            f"{self.name}: {self.samples} samples at rest, {self.duration_s:.1f} s, {self.rate_hz:.1f} Hz",
+            f"{self.name}: {self.samples} samples, {self.duration_s:.1f} s, {self.rate_hz:.1f} Hz",
         ]
         if self.temperature_model:
             lines.append(
@@ -279,16 +279,32 @@ def _rest_attitude(accel_mean: Array, mag_mean: Array | None) -> Array:
 # --------------------------------------------------------------------------- the fit
 
 
-def _linear_fit(x: Array, y: Array) -> tuple[Array, Array, Array]:
-    """Per column of y: intercept, slope and slope standard error of y = a + b·x."""
-    a_mat = np.column_stack([np.ones_like(x), x])
-    coef, *_ = np.linalg.lstsq(a_mat, y, rcond=None)
-    resid = y - a_mat @ coef
-    dof = max(1, x.size - 2)
-    s2 = np.sum(resid**2, axis=0) / dof
-    sxx = float(np.sum((x - x.mean()) ** 2))
-    se = np.sqrt(s2 / sxx) if sxx > 0 else np.full(y.shape[1], np.nan)
-    return coef[0], coef[1], se
+def _bias_fit(
+    x: Array, gyro: Array, keep: NDArray[np.bool_], truth: Array | None, t: Array
+) -> tuple[Array, Array, Array]:
+    """Per axis, least squares ω_k = b0_k + k_k·x (+ S_k·ω_true + τ_k·ω̇_true,k when the truth is known).
+
+    Returns (b0, k, residual of every sample).
+    """
+    n = gyro.shape[0]
+    b0 = np.zeros(3)
+    k = np.zeros(3)
+    resid = np.empty_like(gyro)
+    base = [np.ones(n), x]
+    if truth is not None:
+        w = np.nan_to_num(truth)
+        dt = np.gradient(t) if n > 1 else np.ones(n)
+        wdot = np.gradient(w, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
+    for ax in range(3):
+        cols = list(base)
+        if truth is not None:
+            cols += [w[:, 0], w[:, 1], w[:, 2], wdot[:, ax]]
+        a_mat = np.column_stack(cols)
+        coef, *_ = np.linalg.lstsq(a_mat[keep], gyro[keep, ax], rcond=None)
+        b0[ax], k[ax] = coef[0], coef[1]
+        extra = a_mat[:, 2:] @ coef[2:] if truth is not None else 0.0
+        resid[:, ax] = gyro[:, ax] - (coef[0] + coef[1] * x) - extra
+    return b0, k, resid
 
 
 def _rms_rate(t: Array, x: Array, block_s: float) -> float:
@@ -333,11 +349,18 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
     x_all = (temp if use_temp else t).astype(np.float64)  # type: ignore[union-attr]
     t0_c = float(np.mean(temp[ok])) if use_temp else float("nan")  # type: ignore[index]
     x0 = t0_c if use_temp else float(t[ok][0])
+    truth = rec.extra.get("true_rate_rad_s")
+    truth = np.asarray(truth, dtype=np.float64) if truth is not None else None
+    if truth is not None:
+        ok &= np.all(np.isfinite(truth), axis=1)
+        notes.append(
+            "the simulator's true body rates (SIMSTATE) were subtracted, with the gyro's scale/cross-axis "
+            "error and filter lag fitted alongside, so a moving recording works too"
+        )
     keep = ok.copy()
     dropped = 0
     for _ in range(2):
-        b0, k, k_se = _linear_fit(x_all[keep] - x0, gyro[keep])
-        resid = gyro - (b0 + np.outer(x_all - x0, k))
+        b0, k, resid = _bias_fit(x_all - x0, gyro, keep, truth, t)
         mad = np.median(np.abs(resid[keep] - np.median(resid[keep], axis=0)), axis=0) * 1.4826
         out = np.any(np.abs(resid) > s.outlier_sd * np.maximum(mad, 1e-12), axis=1) & ok
         new_keep = ok & ~out
