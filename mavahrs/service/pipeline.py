@@ -84,10 +84,7 @@ from mavahrs.service.stream_requests import (
     StreamState,
 )
 
-try:  # the protocol engineer's timeline (wrap-around, reboot, duplicates, reordering, gaps, jitter)
-    from mavahrs.protocol.timeline import Timeline as _Timeline  # type: ignore[import-not-found]
-except ImportError:  # pragma: no cover - until protocol/timeline.py lands
-    _Timeline = None
+from mavahrs.protocol.timeline import DROP_KINDS, GAP, REBOOT, Timeline, TimelineSettings
 
 __all__ = ["PipelineSettings", "Pipeline", "PipelineStatus", "Outgoing"]
 
@@ -168,8 +165,9 @@ class PipelineSettings:
         magnetic: declination / expected field (true-north output).
         monitor: the second opinion on the autopilot's attitude
             (NAMED_VALUE_FLOAT divergence, STATUSTEXT warnings).
-        timeline: settings for :class:`mavahrs.protocol.timeline.Timeline`
-            (None = its defaults).
+        timeline: timestamp rules per IMU stream
+            (:class:`mavahrs.protocol.timeline.TimelineSettings`: gap, reboot,
+            forward-jump thresholds, wrap-around).
     """
 
     filter_name: str = "best"
@@ -198,7 +196,7 @@ class PipelineSettings:
     streams: StreamRequestSettings = field(default_factory=StreamRequestSettings)
     magnetic: MagneticFieldSettings = field(default_factory=MagneticFieldSettings)
     monitor: MonitorSettings = field(default_factory=MonitorSettings)
-    timeline: Any = None
+    timeline: TimelineSettings = field(default_factory=TimelineSettings)
 
     def __post_init__(self) -> None:
         if self.autopilot_profile != "auto" and self.autopilot_profile not in PROFILE_NAMES:
@@ -319,40 +317,6 @@ class PipelineStatus:
         )
 
 
-class _FallbackTimeline:  # pragma: no cover - replaced by mavahrs.protocol.timeline.Timeline
-    """Minimal stand-in used only until ``mavahrs.protocol.timeline`` exists."""
-
-    class _Ev(NamedTuple):
-        kind: str
-        t_us: int
-        dt_s: float
-
-    def __init__(self, settings: Any = None) -> None:
-        self._last: int | None = None
-
-    def push(self, t_raw_us: int) -> Any:
-        last = self._last
-        if last is None:
-            self._last = t_raw_us
-            return self._Ev("first", t_raw_us, _NAN)
-        d = t_raw_us - last
-        if d == 0:
-            return self._Ev("duplicate", t_raw_us, 0.0)
-        if d < 0:
-            if d < -1_000_000:
-                self._last = t_raw_us
-                return self._Ev("reboot", t_raw_us, _NAN)
-            return self._Ev("reordered", t_raw_us, 0.0)
-        self._last = t_raw_us
-        return self._Ev("gap" if d > 500_000 else "ok", t_raw_us, d * 1e-6)
-
-
-def _new_timeline(settings: Any) -> Any:
-    if _Timeline is None:
-        return _FallbackTimeline(settings)
-    return _Timeline(settings) if settings is not None else _Timeline()
-
-
 class Pipeline:
     """Decoded MAVLink in, encoded attitude out; see the module docstring.
 
@@ -467,7 +431,7 @@ class Pipeline:
     # ------------------------------------------------------------------ state resets
     def _reset_stream_state(self) -> None:
         """Forget everything about the IMU streams' timing (start, reboot)."""
-        self._timelines: dict[int, Any] = {}
+        self._timelines: dict[int, Timeline] = {}
         self._backlog: dict[int, deque[tuple[str, tuple]]] = {}
         self._snapshots: deque[tuple[int, Any]] = deque(maxlen=_SNAPSHOTS)
         self._last_out_t = -1
@@ -677,20 +641,20 @@ class Pipeline:
         imu_id, t = v[0], v[1]
         tl = self._timelines.get(imu_id)
         if tl is None:
-            tl = self._timelines[imu_id] = _new_timeline(self.settings.timeline)
-        ev = tl.push(t)
+            tl = self._timelines[imu_id] = Timeline(self.settings.timeline)
+        ev = tl.push(t, now_us, v[2:8])
         kind = ev.kind
         t = ev.t_us
-        if kind == "reboot":
+        if kind == REBOOT:
             if not may_reset:
                 self._count(self._drops, "reboot_repeat")
                 return []
             self._on_reboot(name, now_us)
             return self._filter_sample(name, v, now_us, False)
-        if kind in ("duplicate", "reordered", "out_of_order", "stale", "drop"):
-            self._count(self._drops, kind)
+        if kind in DROP_KINDS:
+            self._count(self._drops, "held_jump" if kind == "drop" else kind)
             return []
-        if kind == "gap":
+        if kind == GAP:
             self._count(self._counters, "gaps")
         last_t = self._last_fed_t
         if last_t is None:
@@ -950,6 +914,15 @@ class Pipeline:
     def _count(d: dict[str, int], key: str) -> None:
         d[key] = d.get(key, 0) + 1
 
+    def _timeline_counts(self) -> dict[str, int]:
+        out = {"lost_samples": 0, "time_wraps": 0, "jumps_rejected": 0}
+        for tl in self._timelines.values():
+            c = tl.counters
+            out["lost_samples"] += c.lost_samples
+            out["time_wraps"] += c.wraps
+            out["jumps_rejected"] += c.jumps_rejected
+        return out
+
     def status(self, now_us: int | None = None) -> PipelineStatus:
         """A snapshot; ``now_us`` defaults to the last tick's time (for the rates)."""
         now = now_us if now_us is not None else (self._last_tick_us or 0)
@@ -982,7 +955,7 @@ class Pipeline:
             outputs_sent=self.outputs_sent,
             drops=dict(self._drops),
             samples_dropped=sum(self._drops.values()),
-            counters={**self._counters, "duplicate_source": self._selector.duplicate_source},
+            counters={**self._counters, "duplicate_source": self._selector.duplicate_source, **self._timeline_counts()},
             initialised=init,
             gain=diag.gain,
             accel_weight=diag.accel_weight,
