@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,3 +39,45 @@ def mavlink_logs_dir() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+# --------------------------------------------------------------------------- simulator recordings
+
+#: The gyro temperature coefficient configured for the temperature recording, rad/s per °C.
+TEMPCO_RAD_S_PER_C = (math.radians(0.03), math.radians(-0.025), math.radians(0.02))
+
+
+def write_sim_tlog(path: Path, *args: str, imu_changes: dict[str, object] | None = None) -> Path:
+    """``python -m firmware_sim --tlog PATH --fast ARGS`` in-process, optionally changing the IMU model."""
+    fs_main = pytest.importorskip("firmware_sim.__main__")
+    from firmware_sim.endpoint import Endpoint
+    from firmware_sim.simulation import Simulation
+    from firmware_sim.streamer import write_tlog
+
+    parser = fs_main.build_parser()
+    ns = parser.parse_args(["--tlog", str(path), "--fast", "-q", *args])
+    sim, ep = fs_main.settings_from_args(ns)
+    if imu_changes:
+        sim = replace(sim, imu=replace(sim.imu, **imu_changes))
+    write_tlog(Endpoint(Simulation(sim), ep), str(path), ns.duration)
+    return path
+
+
+@pytest.fixture(scope="session")
+def sim_hover_tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 s of hover from the simulator: RAW_IMU + a live SCALED_IMU2 at 250 Hz, SIMSTATE truth."""
+    return write_sim_tlog(
+        tmp_path_factory.mktemp("sim") / "hover.tlog", "--scenario", "hover", "--duration", "20", "--seed", "3"
+    )
+
+
+@pytest.fixture(scope="session")
+def sim_temperature_tlog(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, tuple[float, float, float]]:
+    """The simulator's ``temperature`` scenario (warm-up 10 → 50 °C, τ 40 s) with a known gyro tempco:
+    (tlog path, the configured coefficient in rad/s per °C)."""
+    path = write_sim_tlog(
+        tmp_path_factory.mktemp("sim") / "temperature.tlog",
+        "--scenario", "temperature", "--duration", "120", "--seed", "5", "--imus", "1",
+        imu_changes={"gyro_temp_coeff_rad_s_per_c": TEMPCO_RAD_S_PER_C},
+    )  # fmt: skip
+    return path, TEMPCO_RAD_S_PER_C

@@ -1,0 +1,122 @@
+"""``mavahrs plot``: a picture of a replay, a recording with ground truth, or a replay CSV."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+__all__ = ["register", "run"]
+
+HELP = "plot truth/estimate/error per angle with gain and rejection state (needs matplotlib)"
+
+DESCRIPTION = """\
+INPUT is a tlog (replayed first, compared with SIMSTATE truth or the
+autopilot's ATTITUDE), a recording with ground truth (BROAD .mat, RepoIMU or
+documented CSV: the filters run over it), or a CSV written by `mavahrs replay
+--csv` (drawn as it is).  Per angle: reference, estimates and error; underneath,
+each filter's gain and accelerometer/magnetometer trust (0 = rejected)."""
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "plot", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("input", metavar="INPUT", help=".tlog, .mat, .csv (recording or replay CSV)")
+    p.add_argument("--output", "-o", metavar="PNG", required=True, help="image to write")
+    p.add_argument("--filter", "-f", dest="filters", action="append", metavar="NAME",
+                   help="filter(s) to run (repeatable; all = every filter); default best")
+    p.add_argument("--no-mag", action="store_true", help="recordings: 6-axis (no magnetometer)")
+    p.add_argument("--start", type=float, metavar="S", help="from S seconds")
+    p.add_argument("--end", type=float, metavar="S", help="up to S seconds")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from mavahrs.cli.common import fail
+    from mavahrs.errors import DataError, MavahrsError
+
+    try:
+        return _run(args)
+    except (DataError, MavahrsError, OSError) as exc:
+        return fail(f"plot: {exc}", 1)
+    except ValueError as exc:
+        return fail(f"plot: {exc}", 2)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    path = Path(args.input)
+    if not path.exists():
+        raise FileNotFoundError(2, "no such file", str(path))
+    if path.suffix.lower() == ".tlog":
+        from mavahrs import replay as rp
+        from mavahrs.evaluation.report import resolve_filter_names
+
+        res = rp.replay(path, rp.ReplaySettings(filters=tuple(resolve_filter_names(args.filters)),
+                                                start_s=args.start, end_s=args.end))  # fmt: skip
+        out = rp.plot_replay(res, args.output)
+    elif path.suffix.lower() == ".csv" and _is_replay_csv(path):
+        out = _plot_replay_csv(path, args.output)
+    else:
+        out = _plot_recording(path, args)
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+def _is_replay_csv(path: Any) -> bool:
+    with open(path, encoding="utf-8", errors="replace") as f:
+        head = f.readline()
+    return head.startswith("time_s,") and "_qw," in head and "_sent" in head
+
+
+def _plot_replay_csv(path: Any, output: str) -> Any:
+    import numpy as np
+
+    from mavahrs.evaluation.plots import plot_attitude
+    from mavahrs.filters.layout import OUT_ACCEL_WEIGHT, OUT_GAIN, OUT_MAG_WEIGHT, OUT_Q, OUT_WIDTH
+
+    with open(path, encoding="utf-8") as f:
+        cols = f.readline().strip().split(",")
+    data = np.genfromtxt(path, delimiter=",", skip_header=1, ndmin=2)
+    col = {c: i for i, c in enumerate(cols)}
+    names = [c[: -len("_qw")] for c in cols if c.endswith("_qw")]
+    est = {}
+    for n in names:
+        out = np.full((data.shape[0], OUT_WIDTH), np.nan)
+        for k, q in enumerate(("qw", "qx", "qy", "qz")):
+            out[:, OUT_Q + k] = data[:, col[f"{n}_{q}"]]
+        out[:, OUT_GAIN] = data[:, col[f"{n}_gain"]]
+        out[:, OUT_ACCEL_WEIGHT] = data[:, col[f"{n}_accel_weight"]]
+        out[:, OUT_MAG_WEIGHT] = data[:, col[f"{n}_mag_weight"]]
+        est[n] = out
+    t = data[:, col["time_s"]]
+    return plot_attitude(output, t - t[0], est, title=f"{path.name} (replay CSV)")
+
+
+def _plot_recording(path: Any, args: argparse.Namespace) -> Any:
+    import numpy as np
+
+    from mavahrs.evaluation.loaders import load_one
+    from mavahrs.evaluation.plots import plot_attitude
+    from mavahrs.evaluation.report import choose_alignment, resolve_filter_names, run_filter
+    from mavahrs.evaluation.tlogdata import cut_recording
+    from mavahrs.filters.layout import OUT_Q
+
+    rec = cut_recording(load_one(path), args.start, args.end)
+    use_mag = not args.no_mag and rec.mag_ut is not None
+    outs = {n: run_filter(rec, n, use_mag=use_mag) for n in resolve_filter_names(args.filters)}
+    ref = rec.q_ref_body_to_ned
+    mode = choose_alignment(rec, use_mag)
+    title = rec.name
+    if mode != "none" and outs:
+        from mavahrs.evaluation.alignment import fit_alignment
+
+        first = next(iter(outs.values()))
+        a = fit_alignment(first[:, OUT_Q : OUT_Q + 4], ref, rec.scored, mode=mode)
+        ref = a.apply(ref)
+        title += f" (reference: {a.describe()} to {next(iter(outs))})"
+    t = np.cumsum(np.nan_to_num(rec.dt_s)) - np.nan_to_num(rec.dt_s[0])
+    return plot_attitude(args.output, t, outs, reference_q=ref, title=title)

@@ -1,0 +1,62 @@
+"""``mavahrs evaluate``: tables, JSON, studies, tlogs with SIMSTATE, exit codes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mavahrs.cli import main
+
+
+def test_json_on_a_broad_trial(broad_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", str(broad_dir / "02_undisturbed_slow_rotation_B.mat"), "-f", "mahony", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    f = d["filters"]["mahony"]
+    for key in ("total_rms_deg", "heading_rms_deg", "inclination_rms_deg", "roll_rms_rest_deg",
+                "pitch_rms_motion_deg", "yaw_mean_deg", "roll_sd_deg"):  # fmt: skip
+        assert isinstance(f[key], float), key
+    assert 0 < f["inclination_rms_deg"] <= f["total_rms_deg"] < 10
+
+
+def test_table_on_a_repoimu_trial(shared_data: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    p = shared_data / "repoimu_tstick" / "TStick_Test02_Trial1.csv"
+    if not p.exists():
+        pytest.skip("RepoIMU data absent")
+    assert main(["evaluate", str(p), "-f", "mahony", "--align", "heading+body"]) == 0
+    out = capsys.readouterr().out
+    assert "heading offset" in out and "body misalignment" in out and "mahony" in out
+
+
+def test_simulator_tlog_is_scored_against_simstate(sim_hover_tlog: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", str(sim_hover_tlog), "-f", "mahony", "--json", "--skip", "5"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    rec = d["per_recording"]["hover"]
+    assert any("truth" in n for n in rec["notes"])
+    assert d["filters"]["mahony"]["inclination_rms_deg"] < 3.0
+    assert d["filters"]["mahony"]["alignment"] == "none"
+
+
+@pytest.mark.slow
+def test_study_rate_with_plot(broad_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "rate.png"
+    trial = str(broad_dir / "02_undisturbed_slow_rotation_B.mat")
+    assert main(["evaluate", trial, "--study", "rate", "-f", "mahony", "--plot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "Fig. 11" in out and "285.714" in out and png.stat().st_size > 10_000
+
+
+def test_errors_are_one_line_with_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", str(tmp_path / "missing.mat")]) == 1
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,foo\n1,2\n")
+    assert main(["evaluate", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert "no such file" in err and "gyro_x_rad_s" in err and "Traceback" not in err
+    csv = tmp_path / "ok.csv"
+    np.savetxt(csv, np.zeros((3, 7)), delimiter=",", comments="",
+               header="time_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2")
+    assert main(["evaluate", str(csv), "-f", "kalman"]) == 2

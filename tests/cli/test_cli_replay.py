@@ -1,0 +1,102 @@
+"""``mavahrs replay`` and ``mavahrs plot`` from the command line; a live daemon run replays identically."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mavahrs.cli import main
+
+
+@pytest.mark.slow
+def test_replay_writes_csv_tlog_and_plot(sim_hover_tlog: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("matplotlib")
+    csv, out, png = tmp_path / "r.csv", tmp_path / "r.tlog", tmp_path / "r.png"
+    rc = main(["replay", str(sim_hover_tlog), "-f", "mahony", "-f", "madgwick", "--csv", str(csv),
+               "--output", str(out), "--plot", str(png), "--out-rate", "50", "--end", "8"])  # fmt: skip
+    assert rc == 0
+    cap = capsys.readouterr()
+    assert "engine fast" in cap.out and "SIM_STATE truth" in cap.out
+    assert "component 191" in cap.err and "component 192" in cap.err
+    header = csv.read_text().splitlines()[0]
+    assert header.startswith("time_s,mahony_qw") and "madgwick_mag_rejected" in header
+    assert out.stat().st_size > sim_hover_tlog.stat().st_size / 4 and png.stat().st_size > 20_000
+    # the replay CSV can be drawn again
+    assert main(["plot", str(csv), "-o", str(tmp_path / "again.png")]) == 0
+
+
+def test_replay_real_log_says_the_rate_is_too_low(mavlink_logs_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["replay", str(mavlink_logs_dir / "ardusub_log_tools" / "small.tlog"), "-f", "mahony"]) == 0
+    out = capsys.readouterr().out
+    assert "too slow for meaningful attitude filtering" in out and "autopilot ATTITUDE" in out
+
+
+def test_replay_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["replay", str(tmp_path / "none.tlog")]) == 1
+    junk = tmp_path / "junk.tlog"
+    junk.write_bytes(b"\x00" * 100)
+    assert main(["replay", str(junk)]) == 1
+    assert main(["replay", str(junk), "--start", "5", "--end", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("\n") >= 3
+
+
+@pytest.mark.slow
+def test_plot_a_recording(broad_dir: Path, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "b.png"
+    trial = str(broad_dir / "02_undisturbed_slow_rotation_B.mat")
+    assert main(["plot", trial, "-o", str(png), "-f", "mahony", "--start", "40", "--end", "60"]) == 0
+    assert png.stat().st_size > 20_000
+
+
+@pytest.mark.slow
+def test_a_live_daemon_log_replays_to_identical_attitudes(tmp_path: Path) -> None:
+    """``firmware_sim`` → UDP → ``mavahrs run --log``; replaying that tlog gives the daemon's own attitudes."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from mavahrs.protocol.tlog import read_tlog_messages
+    from mavahrs.replay import ReplaySettings, replay
+
+    pytest.importorskip("firmware_sim")
+    repo = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(repo) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    log = tmp_path / "live.tlog"
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "mavahrs", "run", "--master", f"udpin:127.0.0.1:{port}", "--filter", "madgwick",
+         "--out-rate", "0", "--log", str(log), "--duration", "8", "-q"],
+        cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "-q", "--out", f"udpout:127.0.0.1:{port}", "--scenario", "hover",
+         "--duration", "12", "--seed", "4", "--imus", "1"],
+        cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        _, err = daemon.communicate(timeout=60)
+        assert daemon.returncode == 0, err[-2000:]
+    finally:
+        for p in (daemon, sim):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(timeout=10)
+    # what the daemon sent, from its own log (component 191)
+    live = [(m.time_boot_ms, (m.q1, m.q2, m.q3, m.q4)) for _, m in read_tlog_messages(log, ["ATTITUDE_QUATERNION"])
+            if m.get_srcComponent() == 191]  # fmt: skip
+    assert len(live) > 500
+    res = replay(log, ReplaySettings(filters=("madgwick",)))
+    tr = res.tracks["madgwick"]
+    sent = np.flatnonzero(tr.sent)
+    mine = [(int(res.inputs.t_us[i] // 1000), tuple(np.float32(tr.out[i, :4]).tolist())) for i in sent]
+    live32 = [(t, tuple(np.float32(q).tolist())) for t, q in live]
+    assert mine == live32
