@@ -572,6 +572,7 @@ class Pipeline:
             mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
             s.gnss_rate_hz if s.use_gnss_velocity else 0.0,
             MAV_DATA_STREAM_POSITION,
+            warn_low_rate=False,  # PX4 sends it only with a position estimate
         )
 
     def _on_imu(self, msg: Any, now_us: int) -> list[Outgoing]:

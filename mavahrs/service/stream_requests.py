@@ -300,6 +300,10 @@ class StreamRequester:
                 w.probe = False  # a single try while in data-stream mode
             elif w.attempts >= self.settings.attempts:
                 self._fallback(w, now_us, f"no COMMAND_ACK to SET_MESSAGE_INTERVAL for {w.name} after {w.attempts} tries")
+                # an autopilot that never answers will not answer the next ones either: don't make each wait
+                for other in self._wants.values():
+                    if other is not w and other.mode == "command" and other.accepted_hz is None:
+                        self._fallback(other, now_us, "the autopilot does not answer SET_MESSAGE_INTERVAL", quiet=True)
             else:
                 w.due_us = now_us
         if self._inflight is None:
@@ -339,13 +343,15 @@ class StreamRequester:
             w.requested_us = now_us
         return SetMessageInterval(w.msg_id, w.name, int(round(1e6 / w.rate_hz)), min(conf, 255))
 
-    def _fallback(self, w: _Want, now_us: int, why: str) -> None:
+    def _fallback(self, w: _Want, now_us: int, why: str, quiet: bool = False) -> None:
         w.mode = "data_stream"
         w.accepted_hz = None
         w.attempts = 0
         w.requested_us = None
         w.detail = why
         self._ds_due_us = None  # send the data-stream request now
+        if quiet:
+            return
         stream = "RAW_SENSORS" if w.stream_id == MAV_DATA_STREAM_RAW_SENSORS else str(w.stream_id)
         self.notices.warning(
             f"fallback:{w.name}",

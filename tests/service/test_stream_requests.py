@@ -178,3 +178,16 @@ def test_stop_and_restart_from_the_top():
 def test_disabled_sends_nothing():
     r = started(enabled=False)
     assert r.poll(0) == [] and r.poll(100 * S) == []
+
+
+def test_an_autopilot_that_never_answers_moves_every_message_to_data_streams_at_once():
+    r = StreamRequester(StreamRequestSettings(ack_timeout_s=1.0, attempts=2))
+    r.want("RAW_IMU", 27, 400.0)
+    r.want("GLOBAL_POSITION_INT", 33, 10.0, MAV_DATA_STREAM_POSITION)
+    r.start()
+    r.poll(0)
+    r.poll(1 * S)
+    reqs = r.poll(2 * S)
+    streams = sorted(q for q in reqs if isinstance(q, RequestDataStream))
+    assert streams == [RequestDataStream(MAV_DATA_STREAM_RAW_SENSORS, 400), RequestDataStream(MAV_DATA_STREAM_POSITION, 10)]
+    assert [s.mode for s in r.states(2 * S)] == ["data_stream", "data_stream"]
