@@ -22,11 +22,12 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import select
 import time
 from typing import Any
 
 from mavahrs.errors import TransportError
-from mavahrs.transports.base import TransportCounters, WriteQueue, describe_os_error, wait_readable
+from mavahrs.transports.base import TransportCounters, WriteQueue, describe_os_error
 from mavahrs.transports.reconnect import Reconnector
 from mavahrs.transports.url import Endpoint
 
@@ -102,8 +103,17 @@ class SerialTransport:
         self._reconnect = Reconnector(f"serial port {endpoint.device}", reconnect_interval_s, self._log)
         self._port: Any = open_serial_port(endpoint.device, endpoint.baud, exclusive=exclusive)
         self._fd = self._port_fd(self._port)
+        self._poller = self._new_poller(self._fd)
+        self._empty_reads = 0
         self.last_error = ""
         self._closed_for_good = False
+
+    @staticmethod
+    def _new_poller(fd: int) -> Any:
+        poller = select.poll()
+        if fd >= 0:
+            poller.register(fd, select.POLLIN | select.POLLPRI | select.POLLERR | select.POLLHUP)
+        return poller
 
     @staticmethod
     def _port_fd(port: Any) -> int:
@@ -155,6 +165,8 @@ class SerialTransport:
             return
         self._port = port
         self._fd = self._port_fd(port)
+        self._poller = self._new_poller(self._fd)
+        self._empty_reads = 0
         self.counters.reconnects += 1
         self._reconnect.restored(now_s)
 
@@ -181,8 +193,11 @@ class SerialTransport:
                     time.sleep(min(0.05, deadline - now))
         if self._fd < 0:  # no descriptor (Windows): let pyserial wait
             return self._read_pyserial(timeout_s)
-        if not wait_readable((self._fd,), timeout_s):
+        poller = self._poller
+        ready = poller.poll(max(0.0, timeout_s) * 1000.0)
+        if not ready:
             return b""
+        events = ready[0][1]
         try:
             data = os.read(self._fd, _READ)
         except (BlockingIOError, InterruptedError):
@@ -190,9 +205,17 @@ class SerialTransport:
         except OSError as exc:  # EIO/ENXIO: unplugged
             self._lose(describe_os_error(exc))
             return b""
-        if not data:  # readable but empty: hang-up
-            self._lose("device disconnected (hang-up)")
+        if not data:
+            if events & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                self._lose("device disconnected (hang-up)")
+                return b""
+            # Readable but nothing read: a spurious wake-up (ptys have them) — unless it keeps
+            # happening, which means another program is reading the same port.
+            self._empty_reads += 1
+            if self._empty_reads >= 1000:
+                self._lose("the device reports data but returns none (another program reading this port?)")
             return b""
+        self._empty_reads = 0
         self.counters.reads += 1
         self.counters.bytes_in += len(data)
         return data
