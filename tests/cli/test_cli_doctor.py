@@ -1,0 +1,141 @@
+"""``mavahrs doctor`` against the simulated autopilot (``firmware_sim`` processes, real UDP sockets and a pty).
+
+* ArduPilot, watching only: RAW_IMU at the default 1 Hz stream rate, and a
+  recommendation naming SRn_RAW_SENS / MAVn_RAW_SENS and SET_MESSAGE_INTERVAL;
+* ArduPilot, asking for 400 Hz: refused, 250 Hz accepted and measured within
+  5 %, firmware 4.5.7, SCHED_LOOP_RATE ≥ 625 recommended;
+* PX4: HIGHRES_IMU at 400 Hz within 5 %, nothing to recommend;
+* ArduPilot over a 57600-baud serial line (pty): the rate falls short and a
+  baud rate that carries 400 Hz RAW_IMU is recommended.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from mavahrs.cli import main
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(os.name != "posix", reason="subprocesses, ptys")]
+
+REPO = Path(__file__).resolve().parents[2]
+SIMS = {
+    "ardupilot": ["--out", "udpin:127.0.0.1:0"],
+    "px4": ["--out", "udpin:127.0.0.1:0", "--autopilot", "px4"],
+    "serial57600": ["--out", "pty", "--baud", "57600"],
+}
+
+
+def _start(args: list[str]) -> subprocess.Popen[str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "-q", "--scenario", "hover", "--duration", "0", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env, cwd=REPO,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def sims() -> Iterator[dict[str, str]]:
+    """The three simulators, started together; name → link ("udpin:127.0.0.1:PORT" or "pty /dev/pts/N")."""
+    procs = {name: _start(args) for name, args in SIMS.items()}
+    links: dict[str, str] = {}
+
+    def wait_link(name: str, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if line.startswith("LINK "):
+                links[name] = line[5:].strip()
+                return
+
+    threads = [threading.Thread(target=wait_link, args=item, daemon=True) for item in procs.items()]
+    for t in threads:
+        t.start()
+    try:
+        for t in threads:
+            t.join(90)
+        assert set(links) == set(SIMS), f"simulators did not start: {links}"
+        yield links
+    finally:
+        for proc in procs.values():
+            proc.terminate()
+        for proc in procs.values():
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
+
+
+def _doctor(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str]:
+    code = main(["doctor", *args])
+    return code, capsys.readouterr().out
+
+
+def _rate(text: str, message: str) -> float:
+    m = re.search(rf"{message} \(primary\): ([0-9.]+) Hz", text)
+    assert m, text
+    return float(m.group(1))
+
+
+def _udpout(link: str) -> str:
+    return link.replace("udpin:", "udpout:")
+
+
+def test_ardupilot_watch_then_request(sims: dict[str, str], capsys: pytest.CaptureFixture[str]) -> None:
+    master = _udpout(sims["ardupilot"])
+    code, text = _doctor(capsys, "--master", master, "--duration", "3.5", "--no-request")
+    assert code == 0, text
+    assert "autopilot: ArduPilot, system 1 component 1, quadrotor (ArduCopter); firmware 4.5.7 official" in text
+    assert _rate(text, "RAW_IMU") == pytest.approx(1.0, rel=0.05)  # SRn_RAW_SENS = 1 Hz, the simulator's default
+    rec = next(line for line in text.splitlines() if "RAW_IMU arrives at 1.0 Hz" in line)
+    assert "SRn_RAW_SENS" in rec and "MAVn_RAW_SENS" in rec and "SET_MESSAGE_INTERVAL" in rec
+
+    code, text = _doctor(capsys, "--master", master, "--duration", "4", "--rate", "400")
+    assert code == 0, text
+    assert "asked 400 Hz, accepted 250 Hz" in text
+    assert _rate(text, "RAW_IMU") == pytest.approx(250.0, rel=0.05)
+    assert "Set SCHED_LOOP_RATE to at least 625 Hz" in text
+    assert "magnetometer: present: |B| RAW_IMU 58.1 µT" in text
+    assert "(steps 2.5, 5 ms)" in text  # send-time stamps in the 400 Hz scheduler loop
+
+
+def test_px4_highres_imu_at_the_requested_rate(sims: dict[str, str], capsys: pytest.CaptureFixture[str]) -> None:
+    code, text = _doctor(capsys, "--master", _udpout(sims["px4"]), "--duration", "3.5", "--rate", "400")
+    assert code == 0, text
+    assert "autopilot: PX4, system 1 component 1, quadrotor; firmware 1.15.0 official" in text
+    assert _rate(text, "HIGHRES_IMU") == pytest.approx(400.0, rel=0.05)
+    assert "recommendations: none" in text
+
+
+def test_a_57600_baud_serial_link_gets_a_baud_rate(sims: dict[str, str], capsys: pytest.CaptureFixture[str]) -> None:
+    device = sims["serial57600"].split()[1]
+    code, text = _doctor(capsys, "--master", device, "--baud", "57600", "--duration", "4", "--rate", "400")
+    assert code == 0, text
+    assert _rate(text, "RAW_IMU") < 0.9 * 250.0, text  # what 5.76 kB/s leaves for RAW_IMU
+    rec = next(line for line in text.splitlines() if "baud carries at most" in line)
+    assert "57600 baud carries at most 5.8 kB/s" in rec and "400 Hz RAW_IMU alone needs 16.4 kB/s" in rec
+    assert "use ≥ 460800 baud (set ArduPilot SERIALn_BAUD = 460 and mavahrs run --baud 460800)" in rec
+    # the link is full once the rate was raised (the first second or so, before the request, was not)
+    assert re.search(r"link load: [0-9.]+ kB/s received of 5\.8 kB/s that 57600 baud carries \(([7-9]\d|10\d) %\)", text)
+
+
+def test_no_autopilot_is_exit_code_3(capsys: pytest.CaptureFixture[str]) -> None:
+    import socket
+
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    t0 = time.monotonic()
+    code, text = _doctor(capsys, "--master", f"udpin:127.0.0.1:{port}", "--duration", "1")
+    assert code == 3 and time.monotonic() - t0 < 10
+    assert "autopilot: none heard" in text and "nothing received" in text
