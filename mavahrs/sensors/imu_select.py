@@ -159,6 +159,7 @@ class ImuSelector:
         self.reason = "waiting for IMU data"
         self._reported: int | None = None
         self._t_latest = 0
+        self._resume_us = 0
         self._last_eval_us = -(10**18)
         self._changes: list[SelectionChange] = []
         #: samples refused because another message already carries the instance
@@ -176,6 +177,8 @@ class ImuSelector:
                 self.duplicate_source += 1
                 return False
             inst.source = source  # the old message stopped: follow the new one
+        if t - self._t_latest > self._stale_us and self._t_latest:
+            self._resume_us = t  # every instance was silent (link outage): judge staleness from here
         if t > self._t_latest:
             self._t_latest = t
         dt_us = t - inst.last_t_us
@@ -227,7 +230,7 @@ class ImuSelector:
         t = self._t_latest
         if inst.absent:
             return "absent (all-zero)"
-        if t - inst.last_t_us > self._stale_us:
+        if t - max(inst.last_t_us, self._resume_us) > self._stale_us:
             return "stale"
         if (
             inst.same_count >= self.settings.freeze_min_samples
@@ -244,6 +247,7 @@ class ImuSelector:
     def _update_disagreement(self) -> None:
         t = self._t_latest
         live = [i for i in self._inst.values() if not i.absent and i.ema_ready and t - i.last_t_us <= self._stale_us]
+        # (after a link outage the instances that have not spoken again simply do not vote)
         if len(live) < 3:
             for i in self._inst.values():
                 i.disagree_since_us = None
@@ -334,8 +338,7 @@ class ImuSelector:
         return out
 
     def instances(self) -> tuple[InstanceStatus, ...]:
-        """Every instance seen, with its current state."""
-        self._evaluate()
+        """Every instance seen, with its state as of the last sample (read-only: no re-evaluation)."""
         fr = self.settings.freeze_min_samples
         t = self._t_latest
         changing = {i.imu_id for i in self._inst.values()

@@ -88,6 +88,17 @@ def test_fail_over_when_selected_goes_stale_within_1_s():
     assert (ch[-1].old, ch[-1].new) == (0, 1)
 
 
+def test_link_outage_is_not_a_stale_instance():
+    """All instances silent for 2 s (a link outage); the slower secondary happens to speak first."""
+    b = Bench()
+    b.run(0, 2)
+    b.step(int(4.0e6), skip=(0,))  # instance 1 resumes first …
+    b.step(int(4.0e6) + DT_US)  # … instance 0 a moment later
+    b.run(4.01, 5)
+    assert b.sel.selected == 0 and b.sel.pop_changes()[-1].new == 0
+    assert {i for i, t in b.fed if t > 4.0e6} == {0}
+
+
 def test_fail_over_when_selected_freezes_within_1_s():
     b = Bench()
     b.run(0, 2)
