@@ -158,6 +158,9 @@ class TimelineCounters:
     wraps: int = 0
     #: forward jumps beyond ``jump_confirm_s`` that the next sample did not confirm (dropped)
     jumps_rejected: int = 0
+    #: samples held back for confirmation that turned out genuine (first of a new boot or after a
+    #: long jump): dropped all the same, the next sample is used
+    held: int = 0
     #: samples missing according to the median interval (jitter excluded)
     lost_samples: int = 0
 
@@ -232,6 +235,7 @@ class Timeline:
         if pending is not None:
             self._pending = None
             if 0 < t - pending <= self._jump_us and (d <= 0 if self._pending_back else d > self._jump_us):
+                c.held += 1
                 if self._pending_back:  # confirmed: the autopilot rebooted
                     c.reordered -= 1  # the held-back sample was the new boot's first
                     c.reboots += 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import random
@@ -144,13 +145,13 @@ def mutate_tlog() -> Callable[[bytes, random.Random], tuple[str, bytes]]:
     return _mutate
 
 
-@pytest.fixture
-def pymavlink_ref(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+@contextlib.contextmanager
+def _pymavlink_readers() -> Iterator[Any]:
     """pymavlink's own tlog readers, set to the dialect mavahrs decodes with.
 
     pymavlink picks its dialect from environment variables at import and
     switches module state when it first sees MAVLink 2; here it is pinned to
-    the MAVLink 2 ``ardupilotmega`` module for the test and restored after.
+    the MAVLink 2 ``ardupilotmega`` module and restored afterwards.
 
     ``mmap(path, types)`` = ``mavlink_connection(path)`` + ``recv_match(type=types)``
     until ``None``; ``seq(path)`` = ``mavlogfile(path)`` + ``recv_msg()`` until
@@ -159,8 +160,9 @@ def pymavlink_ref(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
     from pymavlink import mavutil
 
     saved = (mavutil.mavlink, mavutil.current_dialect)
-    monkeypatch.setenv("MAVLINK20", "1")
-    monkeypatch.setenv("MAVLINK_DIALECT", "ardupilotmega")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MAVLINK20", "1")
+    mp.setenv("MAVLINK_DIALECT", "ardupilotmega")
     mavutil.set_dialect("ardupilotmega")
 
     def mmap(path: str | os.PathLike[str], types: Any = None) -> list[Any]:
@@ -188,8 +190,25 @@ def pymavlink_ref(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
         finally:
             conn.close()
 
-    yield SimpleNamespace(mmap=mmap, seq=seq)
-    mavutil.mavlink, mavutil.current_dialect = saved
+    try:
+        yield SimpleNamespace(mmap=mmap, seq=seq)
+    finally:
+        mp.undo()
+        mavutil.mavlink, mavutil.current_dialect = saved
+
+
+@pytest.fixture
+def pymavlink_ref() -> Iterator[Any]:
+    """pymavlink readers (see ``_pymavlink_readers``) for one test."""
+    with _pymavlink_readers() as ref:
+        yield ref
+
+
+@pytest.fixture(scope="module")
+def pymavlink_ref_module() -> Iterator[Any]:
+    """The same, for a whole module (hypothesis tests cannot use function-scoped fixtures)."""
+    with _pymavlink_readers() as ref:
+        yield ref
 
 
 @pytest.fixture(scope="session")

@@ -29,6 +29,7 @@ def _tlogs(mavlink_logs_dir: Path) -> list[Path]:
     return paths
 
 
+@pytest.mark.slow
 def test_real_logs_equal_pymavlink(mavlink_logs_dir, pymavlink_ref, arrays_match_messages):
     """Every message of the 14 types in the three real logs, field for field and in order."""
     seen = {}
