@@ -6,7 +6,6 @@ import os
 import struct
 
 import numpy as np
-import pytest
 
 from mavahrs.protocol.codec import MAX_FRAME_LEN, MavCodec, frame_length, mavlink
 
