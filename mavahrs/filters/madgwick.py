@@ -236,16 +236,16 @@ class MadgwickSettings(FilterSettings):
 # --- parameter block after P_FILTER --------------------------------------------
 PM_BETA = 0
 PM_ZETA = 1
-PM_USE_MAG = 2
-PM_HEADING_ONLY = 3
-PM_BETA_HEADING = 4
-PM_DISTORTION = 5
-PM_ACC_TAU = 6
-PM_BIAS_LIMIT = 7
-PM_LARGE_TAU = 8
-PM_ACC_ORDER = 9
+PM_ZETA_SPIN = 2
+PM_USE_MAG = 3
+PM_HEADING_ONLY = 4
+PM_BETA_HEADING = 5
+PM_DISTORTION = 6
+PM_ACC_TAU = 7
+PM_ACC_ORDER = 8
+PM_LARGE_TAU = 9
 PM_LARGE_TAU_HEADING = 10
-PM_ZETA_SPIN = 11
+PM_BIAS_LIMIT = 11
 PM_REST = 12  # rest detector block (rest.RP_LEN)
 PM_LEN = PM_REST + RP_LEN
 
