@@ -207,6 +207,7 @@ class SerialTransport:
             return b""
         if not data:
             if events & (select.POLLHUP | select.POLLERR | select.POLLNVAL):
+                self._log.debug("%s: poll events %#x and no data", self.endpoint.device, events)
                 self._lose("device disconnected (hang-up)")
                 return b""
             # Readable but nothing read: a spurious wake-up (ptys have them) — unless it keeps
