@@ -264,7 +264,7 @@ def _verdict(s: AttitudeErrorSummary, settings: DemoSettings) -> str:
         return (", where sustained acceleration makes the accelerometer point away from gravity: "
                 "within mavahrs's 3° tilt target for this scenario")
     return (", where sustained acceleration makes the accelerometer point away from gravity: "
-            "above mavahrs's 3° tilt target for this scenario (a loaded machine delays the simulator)")
+            "above mavahrs's 3° tilt target for this scenario")
 
 
 # --------------------------------------------------------------------------- running
