@@ -363,7 +363,20 @@ class Daemon:
 
     # ------------------------------------------------------------------ receiving
     def _read_master(self) -> None:
+        """The master link is readable: answer what came, then drain the rest through the bounded queue.
+
+        The first read is processed at once (the usual case: one datagram per
+        wake-up, answered before the read that finds the socket empty); what
+        else is waiting is read in one go (at most ``max_drain``) into the
+        bounded inbox — when a peer floods, the oldest entries fall out and are
+        counted — and then processed, newest last.
+        """
         master, inbox, c = self.master, self._inbox, self.counters
+        data = master.read(0.0)
+        if not data:
+            return
+        inbox.append((time.perf_counter_ns(), data))
+        self._process_inbox()
         perf = time.perf_counter_ns
         maxlen = self.settings.input_queue
         for _ in range(self.settings.max_drain):
