@@ -376,10 +376,14 @@ def _stats(series: _Series, since_us: int) -> tuple[int, float, float, tuple[flo
     if dt_ms.size == 0:
         return n, rate, rx_rate, (math.nan,) * 4, (), (math.nan, math.nan)  # type: ignore[return-value]
     interval = (float(np.median(dt_ms)), float(np.std(dt_ms)), float(dt_ms.min()), float(dt_ms.max()))
-    rounded = np.round(dt_ms, 1)
-    values, counts = np.unique(rounded, return_counts=True)
-    common = values[counts >= 0.05 * dt_ms.size]
-    steps = tuple(float(v) for v in common) if 1 < common.size <= 4 else ()
+    # interval clusters (values within 0.3 ms of their neighbours): a scheduler loop's steps
+    srt = np.sort(dt_ms)
+    cuts = np.flatnonzero(np.diff(srt) > 0.3) + 1
+    clusters = [c for c in np.split(srt, cuts) if c.size >= 0.05 * srt.size]
+    covered = sum(c.size for c in clusters)
+    steps: tuple[float, ...] = ()
+    if 1 < len(clusters) <= 4 and covered >= 0.9 * srt.size:
+        steps = tuple(float(np.round(np.median(c), 1)) for c in clusters)
     delay_ms = (rx - t) / 1000.0
     delay_ms = delay_ms - delay_ms.min()
     jitter = (float(np.percentile(delay_ms, 50)), float(np.percentile(delay_ms, 99)))
@@ -420,7 +424,7 @@ def diagnose(obs: LinkObserver, link: LinkFacts, settings: DoctorSettings | None
     requested: dict[str, float] = {}
     accepted: dict[str, float | None] = {}
     denied: dict[str, list[float]] = {}
-    for t_us, message, rate in obs.requests:
+    for _t_us, message, rate in obs.requests:
         requested.setdefault(message, rate)
     for t_us, message, rate, result in obs.acks:
         if result == 0:
@@ -652,7 +656,7 @@ def _rate_drop(obs: LinkObserver, name: str, expect: float) -> tuple[float, floa
     if ser is None or len(ser.rx_us) < 10 or obs.first_us is None:
         return None
     rx = np.asarray(ser.rx_us, dtype=np.int64)
-    start = max((t for t, _, _, r in obs.acks if r == 0 and _ == name), default=obs.first_us)
+    start = max((t for t, m, _, r in obs.acks if r == 0 and m == name), default=obs.first_us)
     edges = np.arange(start, rx[-1], 1_000_000)
     if edges.size < 3:
         return None

@@ -83,7 +83,7 @@ def test_truth_tap_pairs_simstate_with_the_imu_sample_of_the_same_datagram() -> 
 def test_score_against_a_known_tilt_offset() -> None:
     t_ms = np.arange(0, 10_000, 20)
     roll, pitch, yaw = np.radians(20 * np.sin(t_ms / 900.0)), np.radians(10 * np.cos(t_ms / 700.0)), t_ms / 3000.0
-    truth = [(int(t), float(r), float(p), float(y)) for t, r, p, y in zip(t_ms, roll, pitch, yaw)]
+    truth = [(int(t), float(r), float(p), float(y)) for t, r, p, y in zip(t_ms, roll, pitch, yaw, strict=True)]
     # the estimate: truth rotated by 2° about north (pure tilt error) and offset 3° in yaw
     q_true = from_euler_rad(roll, pitch, yaw)
     tilt = from_euler_rad(math.radians(2.0), 0.0, math.radians(3.0))
