@@ -47,6 +47,9 @@ _OVERRIDES = {
     "compid": "pipeline.component_id",
     "euler": "pipeline.send_attitude_euler",
     "request_streams": "pipeline.request_streams",
+    "signing_key": "daemon.signing_key_path",
+    "require_signing": "daemon.require_signing",
+    "signing_link_id": "daemon.signing_link_id",
 }
 
 
@@ -102,6 +105,22 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     out.add_argument(
         "--euler", action="store_const", const=True,
         help="also send ATTITUDE (roll/pitch/yaw) (default: {pipeline.send_attitude_euler})",
+    )
+    sec = p.add_argument_group("security (MAVLink 2 signing)")
+    sec.add_argument(
+        "--signing-key", metavar="FILE",
+        help="sign everything we send and verify signed input with the key in FILE: 64 hex characters, or a "
+        "passphrase (key = SHA-256 of it, as MAVProxy's 'signing setup'); FILE must not be readable by "
+        "other users (chmod 600) (default: no signing)",
+    )
+    sec.add_argument(
+        "--require-signing", action="store_const", const=True,
+        help="drop unsigned input too (wrongly signed and replayed input is always dropped); needs "
+        "--signing-key (default: off)",
+    )
+    sec.add_argument(
+        "--signing-link-id", type=int, metavar="N",
+        help="link id 0-255 written into our signatures (default: {daemon.signing_link_id})",
     )
     ops = p.add_argument_group("operation")
     ops.add_argument("--config", metavar="FILE", help="TOML settings file (see contrib/mavahrs.example.toml)")

@@ -51,12 +51,14 @@ from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import Any
 
 from mavahrs.errors import ConfigError, TransportError
+from mavahrs.protocol.signing import signing_timestamp_10us
 from mavahrs.service.stats import Notices
 
 __all__ = ["DaemonSettings", "Daemon", "DaemonResult", "LatencyRing", "build_daemon", "format_status"]
 
 _MSG_ID_ATTITUDE_QUATERNION = 31  # MAVLINK_MSG_ID_ATTITUDE_QUATERNION
 _MAV_AUTOPILOT_INVALID = 8
+_SIGNING_REPORT_US = 60_000_000  # dropped-by-signing warnings: at most once a minute
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,13 @@ class DaemonSettings:
         latency_ring: processing-latency samples kept for percentiles.
         stats_path: write a JSON summary (counters, latency, CPU) here at
             exit; None = don't.
+        signing_key_path: MAVLink 2 signing key file (64 hex characters or a
+            passphrase, key = SHA-256 of it as MAVProxy's ``signing setup``;
+            must not be readable by other users); every frame we send is
+            signed and signed input is verified (bad signatures and replays
+            dropped and counted).  None = no signing.
+        require_signing: also drop unsigned input (needs ``signing_key_path``).
+        signing_link_id: the link id (0–255) written into our signatures.
     """
 
     master: str = "udpin:0.0.0.0:14550"
@@ -105,6 +114,9 @@ class DaemonSettings:
     max_tcp_clients: int = 8
     latency_ring: int = 16384
     stats_path: str | None = None
+    signing_key_path: str | None = None
+    require_signing: bool = False
+    signing_link_id: int = 0
 
     def __post_init__(self) -> None:
         def positive(name: str, value: float) -> None:
@@ -131,6 +143,8 @@ class DaemonSettings:
                 raise ValueError(f"daemon.{name} must be a positive whole number, got {value!r}")
         if not isinstance(self.outputs, tuple):
             object.__setattr__(self, "outputs", tuple(self.outputs))
+        if not (isinstance(self.signing_link_id, int) and 0 <= self.signing_link_id <= 255):
+            raise ValueError(f"daemon.signing_link_id must be 0…255, got {self.signing_link_id!r}")
 
 
 @dataclass
@@ -249,6 +263,14 @@ def format_status(fields: dict[str, Any], pipeline_line: str = "") -> str:
         f"in {_num(fields.get('in_hz'), '.0f')} Hz -> out {_num(fields.get('out_hz'), '.0f')} Hz"
     ]
     parts.append(f"crc {fields.get('crc_errors', 0)} bad {fields.get('bad_data', 0)} gaps {fields.get('seq_gaps', 0)}")
+    if fields.get("duplicates") or fields.get("out_of_order"):
+        parts[-1] += f" dup {fields.get('duplicates', 0)} ooo {fields.get('out_of_order', 0)}"
+    if fields.get("signing"):
+        parts.append(
+            f"signed {fields.get('signed_ok', 0)} rejected {fields.get('signing_rejected', 0)}"
+            f" (unsigned {fields.get('unsigned_rejected', 0)} badsig {fields.get('bad_signature', 0)}"
+            f" replay {fields.get('replayed', 0)})"
+        )
     if fields.get("link_drops"):
         parts.append(f"link drops {fields['link_drops']}")
     parts.append(
@@ -324,6 +346,9 @@ class Daemon:
             codec.receive_datagram if master.datagram else codec.receive_stream
         )
         self._closed = False
+        self._signing: tuple[int, bool] | None = None  # (link id, require) once enabled
+        self._signing_reported = 0  # frames dropped by signing at the last warning
+        self._signing_reported_us: int | None = None
 
     # ------------------------------------------------------------------ control
     def stop(self, reason: str = "stopped") -> None:
@@ -338,6 +363,41 @@ class Daemon:
     def _on_signal(self, signum: int, frame: Any) -> None:
         self._signal_name = signal.Signals(signum).name
         self.stop("signal")
+
+    # ------------------------------------------------------------------ signing
+    def enable_signing(self, key: bytes, *, link_id: int = 0, require: bool = False) -> None:
+        """MAVLink 2 signing: sign every frame we send, verify what the master link sends.
+
+        The master link's decoding codec verifies signatures (bad signatures
+        and replays are dropped and counted; with ``require`` unsigned frames
+        too), the pipeline's encoding codec signs.  Signing timestamps start at
+        wall time and follow it (every tick), never going back.  The key is
+        held by the codecs only and never logged.
+        """
+        encoder = getattr(self.pipeline, "codec", None)
+        if encoder is None or not hasattr(encoder, "enable_signing"):
+            raise ConfigError("MAVLink signing needs a pipeline with an encoding codec")
+        ts = signing_timestamp_10us(time.time())
+        self.codec.enable_signing(key, link_id, ts, sign_outgoing=False, require_signing=require)
+        encoder.enable_signing(key, link_id, ts, sign_outgoing=True)
+        self._signing = (int(link_id), bool(require))
+
+    def _signing_tick(self, now_us: int) -> None:
+        """Keep signing timestamps at wall time; warn (at most once a minute) about dropped frames."""
+        ts = signing_timestamp_10us(time.time())
+        self.codec.advance_signing_time(ts)
+        self.pipeline.codec.advance_signing_time(ts)
+        cc = self.codec.counters
+        rejected = cc.signing_rejected
+        last = self._signing_reported_us
+        if rejected > self._signing_reported and (last is None or now_us - last >= _SIGNING_REPORT_US):
+            self.log.warning(
+                "MAVLink signing: %d frames dropped since the previous report (%d in all: %d unsigned, "
+                "%d with a wrong signature, %d replayed)",
+                rejected - self._signing_reported, rejected, cc.unsigned_rejected, cc.bad_signature, cc.replayed,
+            )
+            self._signing_reported = rejected
+            self._signing_reported_us = now_us
 
     # ------------------------------------------------------------------ sending
     def _send(self, out: Any, wall_us: int, now_s: float) -> bool:
@@ -485,6 +545,8 @@ class Daemon:
             outgoing = ()
         for out in outgoing:
             self._send(out, wall_us, now_s)
+        if self._signing is not None:
+            self._signing_tick(now_us)
         for link in (self.master, *self.outputs):
             link.maintain(now_s)
         if self.master.counters.reconnects != self._master_reconnects:
@@ -588,11 +650,15 @@ class Daemon:
             "crc_errors": cc.crc_errors,
             "bad_data": cc.bad_data,
             "seq_gaps": cc.seq_gaps,
+            "duplicates": cc.duplicates,
+            "out_of_order": cc.out_of_order,
             "latency_p50_us": latency["p50_us"],
             "latency_p99_us": latency["p99_us"],
             "latency_max_us": latency["max_us"],
             "log": "off" if self.sink is None else self.sink.state,
         }
+        if self._signing is not None:
+            fields.update(_signing_counts(cc), signing="required" if self._signing[1] else "on")
         if self._link_silent:
             fields["link"] = "no heartbeat"
         self._status_line = status.line() if hasattr(status, "line") else ""
@@ -616,8 +682,16 @@ class Daemon:
                 "packets": cc.packets,
                 "crc_errors": cc.crc_errors,
                 "bad_data": cc.bad_data,
+                "bytes_skipped": cc.bytes_skipped,
                 "seq_gaps": cc.seq_gaps,
+                "duplicates": cc.duplicates,
+                "out_of_order": cc.out_of_order,
+                "unknown_messages": cc.unknown_messages,
                 "bytes_in": cc.bytes_in,
+                **(_signing_counts(cc) if self._signing is not None else {}),
+            },
+            "signing": None if self._signing is None else {
+                "link_id": self._signing[0], "require": self._signing[1],
             },
             "links": {link.describe(): asdict(link.counters) for link in (self.master, *self.outputs)},
             "latency": {**LatencyRing.summary_us(self.latency.values()), "count": self.latency.count,
@@ -651,10 +725,13 @@ class Daemon:
         self._started_s = time.monotonic()
         self._last_status_s = self._started_s
         self.log.info(
-            "mavahrs running: master %s; outputs %s; log %s",
+            "mavahrs running: master %s; outputs %s; log %s%s",
             self.master.describe(),
             ", ".join(o.describe() for o in self.outputs) or "none",
             self.sink.path if self.sink is not None else "off",
+            "" if self._signing is None else
+            f"; MAVLink signing on (link id {self._signing[0]}, unsigned input "
+            f"{'rejected' if self._signing[1] else 'accepted'})",
         )
         next_tick = self._started_s
         master = self.master
@@ -732,6 +809,16 @@ class Daemon:
         self._wake_w.close()
 
 
+def _signing_counts(cc: Any) -> dict[str, int]:
+    return {
+        "signed_ok": cc.signed_ok,
+        "signing_rejected": cc.signing_rejected,
+        "unsigned_rejected": cc.unsigned_rejected,
+        "bad_signature": cc.bad_signature,
+        "replayed": cc.replayed,
+    }
+
+
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
@@ -762,7 +849,8 @@ def build_daemon(
     """Open the links and the log and build the pipeline: a :class:`Daemon` ready to ``run()``.
 
     Raises:
-        ConfigError: a connection string or the log path is unusable.
+        ConfigError: a connection string, the log path or the signing key
+            file is unusable (missing, empty, readable by other users).
         TransportError: a link cannot be opened (port busy, permission denied, …).
     """
     from mavahrs.protocol.codec import MavCodec
@@ -771,6 +859,13 @@ def build_daemon(
 
     master_ep = parse_connection_string(settings.master, settings.baud)
     output_eps = [parse_connection_string(text, settings.baud) for text in settings.outputs]
+    signing_key = None
+    if settings.require_signing and not settings.signing_key_path:
+        raise ConfigError("--require-signing needs a key: --signing-key FILE (daemon.signing_key_path)")
+    if settings.signing_key_path:  # before any link opens: a bad key file is a config error (exit 2)
+        from mavahrs.protocol.signing import load_signing_key
+
+        signing_key = load_signing_key(settings.signing_key_path)
     opened: list[Any] = []
     sink = None
     try:
@@ -798,5 +893,12 @@ def build_daemon(
             sink.close()
         raise
     # A decoding codec for the master link (the pipeline encodes with its own ids).
-    return Daemon(settings, pipeline, opened[0], opened[1:], codec=MavCodec(), sink=sink, logger=logger)
+    daemon = Daemon(settings, pipeline, opened[0], opened[1:], codec=MavCodec(), sink=sink, logger=logger)
+    if signing_key is not None:
+        try:
+            daemon.enable_signing(signing_key, link_id=settings.signing_link_id, require=settings.require_signing)
+        except BaseException:
+            daemon.close()
+            raise
+    return daemon
 

@@ -1,0 +1,258 @@
+"""The daemon against ``firmware_sim`` through a faulty link: UDP (loss, bit flips, junk, duplicates,
+reordering, bursts, an outage) and a pty serial device (corrupted bytes, a vanishing device).
+
+UDP: one simulator run feeds, through :class:`UdpFaultRelay`, two daemons at
+once — one over a clean leg, one over a faulty leg — so the clean and faulty
+runs see the very same flight (same seed, same bytes) and are compared sample
+by sample.  The faulty leg carries the issue's mix (5 % of datagrams lost,
+10 % with a flipped bit, 5 % followed by random junk) plus duplicates and
+reordering, and, at stated times, a corruption burst and a 1.5 s outage.
+
+Checked against SIMSTATE truth (sent by the simulator in the same datagram as
+each RAW_IMU, so every sample's truth is known from the relay's records):
+
+* the faulty daemon answers ≥ 99 % of the intact IMU samples it received in
+  order (a datagram whose RAW_IMU frame arrived undamaged and not behind a
+  newer sample — a late sample cannot be fed to a causal filter and is
+  dropped and counted as reordered);
+* its inclination RMS error is within 1° of the clean daemon's over the same
+  samples (outside the bursts and their recovery time);
+* after each burst the inclination error is back within the accuracy bound
+  within the stated recovery time;
+* the counters (CRC errors, bad data, duplicates, out-of-order, lost samples,
+  drops by reason) are in the daemon's status and statistics.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mavahrs.transports.relay import FaultSettings, PtyFaultRelay, UdpFaultRelay
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(os.name != "posix", reason="subprocesses, ptys")]
+
+#: the issue's fault mix, plus duplicates and reordering
+SCENARIO = os.environ.get("REL_SCENARIO", "hover")
+MIX = FaultSettings(loss=0.05, bit_flip=0.10, junk=0.05, duplicate=0.02, reorder=0.02, truncate=0.02)
+#: a noisy serial line: chunks of the byte stream corrupted, cut short, followed by junk, lost
+PTY_MIX = FaultSettings(loss=0.02, bit_flip=0.05, truncate=0.02, junk=0.05)
+BURST = FaultSettings(loss=0.5, bit_flip=0.5, junk=0.5, duplicate=0.1, reorder=0.1)
+OUTAGE = FaultSettings(loss=1.0)
+TILT_BOUND_DEG = 3.0  # the filter's accuracy bound on this flight (issue 4: inclination RMS ≤ 3°)
+RECOVERY_S = 3.0  # stated recovery time after a fault clears
+SETTLE_S = 3.0  # start-up convergence excluded from accuracy figures
+
+
+def _daemon_args(rt, port: int, gcs: int, stats: str) -> list[str]:
+    return ["--master", f"udpin:127.0.0.1:{port}", "--out", f"udpout:127.0.0.1:{gcs}", "--filter", rt.filter_name(),
+            "--out-rate", "0", "--status-interval", "1", "--heartbeat-timeout", "60", "--stats-json", stats]
+
+
+def _answered_fraction(received_in_order: list[int], answered: dict[int, np.ndarray]) -> float:
+    got = set(received_in_order)
+    return len(got & set(answered)) / len(got)
+
+
+def _in_order(ms_sequence: list[int]) -> list[int]:
+    """Samples that arrived newer than everything before them (first copy only)."""
+    out, newest = [], -1
+    for ms in ms_sequence:
+        if ms > newest:
+            out.append(ms)
+            newest = ms
+    return out
+
+
+def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
+    port_clean, port_faulty = rt.free_udp_port(), rt.free_udp_port()
+    gcs_clean, gcs_faulty = rt.Collector(), rt.Collector()
+    clean = rt.DaemonProcess(_daemon_args(rt, port_clean, gcs_clean.port, "clean.json"), tmp_path)
+    faulty = rt.DaemonProcess(_daemon_args(rt, port_faulty, gcs_faulty.port, "faulty.json"), tmp_path)
+    relay = UdpFaultRelay(
+        [(("127.0.0.1", port_clean), FaultSettings(), True), (("127.0.0.1", port_faulty), MIX, False)], seed=7
+    )
+    relay.set_faults(1, MIX, "mix")
+    schedule = [(4.0, BURST, "burst"), (5.0, MIX, "mix"), (12.0, OUTAGE, "outage"), (13.5, MIX, "mix")]
+    try:
+        clean.wait_for("mavahrs running")
+        faulty.wait_for("mavahrs running")
+        host, rport = relay.address
+        sim = rt.start_sim(["--out", f"udpout:{host}:{rport}", "--scenario", SCENARIO, "--duration", "18",
+                         "--seed", "11"], tmp_path)
+        deadline = time.monotonic() + 60
+        while relay.counters(1).datagrams == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        t0 = time.monotonic()  # the flight is streaming: faults on the simulator's clock from here
+        for at, faults, phase in schedule:
+            time.sleep(max(0.0, at - (time.monotonic() - t0)))
+            relay.set_faults(1, faults, phase)
+        assert sim.wait(90) == 0
+        time.sleep(0.5)
+    finally:
+        rc_clean, rc_faulty = clean.stop(), faulty.stop()
+        gcs_clean.close()
+        gcs_faulty.close()
+        relay.close()
+    assert rc_clean == 0 and rc_faulty == 0, faulty.log
+    assert "Traceback" not in clean.log + faulty.log
+
+    recs = relay.records(1)
+    truth = rt.truth_from_datagrams([r.original for r in recs])
+    t_ms0 = min(truth)
+    ans_clean = rt.attitude_map(gcs_clean.attitudes())
+    ans_faulty = rt.attitude_map(gcs_faulty.attitudes())
+    # what reached each daemon: RAW_IMU frames that decode from the datagrams as sent
+    recv_clean = rt.imu_ms_in([d for _, d in relay.sent(0)])
+    recv_faulty = rt.imu_ms_in([d for _, d in relay.sent(1)])
+    in_order = _in_order(recv_faulty)
+    frac_clean = _answered_fraction(_in_order(recv_clean), ans_clean)
+    frac_faulty = _answered_fraction(in_order, ans_faulty)
+
+    # fault windows in sample time, from the phase of each record
+    def window(phase: str) -> tuple[float, float]:
+        ms = [r_ms for r in recs if r.phase == phase for r_ms in rt.imu_ms_in([r.original])]
+        return (min(ms) - t_ms0) / 1000.0, (max(ms) - t_ms0) / 1000.0
+
+    bursts = {p: window(p) for p in ("burst", "outage")}
+    # the issue's comparison: the steady fault mix only (after start-up, before the outage, which
+    # re-initialises the faulty daemon's filter and so gives it a different history from then on)
+    excluded = [(0.0, SETTLE_S), (bursts["burst"][0], bursts["burst"][1] + RECOVERY_S), (bursts["outage"][0], 1e9)]
+    keys = sorted(
+        k for k in set(ans_clean) & set(ans_faulty) & set(truth)
+        if not any(a <= (k - t_ms0) / 1000.0 < b for a, b in excluded)
+    )
+    err_clean = rt.tilt_errors_deg(ans_clean, truth, keys)
+    err_faulty = rt.tilt_errors_deg(ans_faulty, truth, keys)
+    rms_clean, rms_faulty = rt.rms(err_clean), rt.rms(err_faulty)
+
+    diff = rt.tilt_errors_deg(ans_faulty, ans_clean, keys)  # faulty vs clean daemon, same samples
+    # recovery after each burst: until the faulty daemon's inclination error is back within 1° of the
+    # clean daemon's on the same samples (the fault's effect is gone), and stays there for 1 s
+    both = sorted(k for k in set(ans_clean) & set(ans_faulty) if k in truth)
+    t_b = np.array([(k - t_ms0) / 1000.0 for k in both])
+    excess = rt.tilt_errors_deg(ans_faulty, truth, both) - rt.tilt_errors_deg(ans_clean, truth, both)
+    recovery = {p: rt.recovery_time_s(t_b, excess, b, 1.0) for p, (_, b) in bursts.items()}
+    worst = {p: float(excess[(t_b >= a) & (t_b < b + RECOVERY_S)].max()) for p, (a, b) in bursts.items()}
+
+    stats = json.loads((tmp_path / "faulty.json").read_text())
+    codec, pipe = stats["codec"], stats["pipeline"]
+    c = relay.counters(1)
+    print(
+        f"\nUDP faults: relay {c}\n answered clean {frac_clean:.2%} faulty {frac_faulty:.2%} of "
+        f"{len(in_order)} intact in-order samples; tilt RMS clean {rms_clean:.2f}° faulty {rms_faulty:.2f}° "
+        f"over {len(keys)} samples (difference RMS {rt.rms(diff):.2f}° max {diff.max():.2f}°); bursts {bursts}; "
+        f"worst excess error {worst}; recovery {recovery}\n codec {codec}\n drops {pipe['drops']}"
+        f"\n counters {pipe['counters']}"
+    )
+    if os.environ.get("REL_DEBUG"):
+        import pickle
+        with open("/tmp/rel/udp_debug.pkl", "wb") as f:
+            pickle.dump({"recs": recs, "recs0": relay.records(0), "ans_faulty": ans_faulty, "ans_clean": ans_clean,
+                         "stats": stats, "statuses": faulty.statuses()}, f)
+    assert len(in_order) > 5000
+    assert frac_clean >= 0.99
+    assert frac_faulty >= 0.99, f"only {frac_faulty:.2%} of the intact samples answered"
+    assert len(keys) > 1500
+    assert rms_clean <= TILT_BOUND_DEG
+    assert abs(rms_faulty - rms_clean) <= 1.0, (rms_clean, rms_faulty)
+    for phase, t_rec in recovery.items():
+        assert t_rec <= RECOVERY_S, f"after the {phase}: {t_rec:.2f} s to recover"
+    # every kind of fault is counted where a user sees it
+    assert codec["crc_errors"] > 0 and codec["bad_data"] > 0
+    assert codec["duplicates"] >= c.duplicates // 2 and codec["out_of_order"] > 0
+    assert pipe["counters"]["lost_samples"] > 0
+    assert pipe["drops"].get("reordered", 0) > 0
+    last = faulty.statuses()[-1]
+    assert last["crc_errors"] > 0 and last["bad_data"] > 0 and last["duplicates"] > 0 and last["out_of_order"] > 0
+
+
+def test_pty_corrupted_bytes_and_a_vanishing_device_then_sigkill(rt, tmp_path: Path) -> None:
+    """Serial: corrupted, truncated and junk-laden byte stream; the device vanishes for 1.5 s and returns;
+    at the end the daemon is killed with SIGKILL and its tlog is still readable up to the last flush."""
+    link = tmp_path / "ttyREL"
+    relay = PtyFaultRelay(link, PTY_MIX, seed=3)
+    relay.set_faults(PTY_MIX, "mix")
+    gcs = rt.Collector()
+    daemon = rt.DaemonProcess(
+        ["--master", f"{link},921600", "--out", f"udpout:127.0.0.1:{gcs.port}", "--filter", rt.filter_name(),
+         "--out-rate", "0", "--status-interval", "1", "--heartbeat-timeout", "60", "--log", "d.tlog"], tmp_path,
+    )
+    try:
+        daemon.wait_for("mavahrs running")
+        host, port = relay.address
+        sim = rt.start_sim(["--out", f"udpout:{host}:{port}", "--scenario", SCENARIO, "--duration", "13",
+                            "--seed", "5"], tmp_path)
+        deadline = time.monotonic() + 60
+        while relay.counters().datagrams == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(6.0)
+        unplug_wall = time.time()
+        relay.unplug()
+        daemon.wait_for("lost", 10)
+        time.sleep(1.5)
+        relay.plug()
+        plug_wall = time.time()
+        daemon.wait_for("restored", 10)
+        assert sim.wait(90) == 0
+        time.sleep(0.5)
+        kill_wall = time.time()
+        rc = daemon.stop(signal.SIGKILL)
+    finally:
+        daemon.stop()
+        gcs.close()
+        relay.close()
+    assert rc == -signal.SIGKILL
+    assert "Traceback" not in daemon.log
+
+    recs = relay.records()
+    truth = rt.truth_from_datagrams([r.original for r in recs])
+    t_ms0 = min(truth)
+    answered = rt.attitude_map(gcs.attitudes())
+    # intact: RAW_IMU in chunks written unmodified, away from the moments the device went and came back
+    # (bytes in the pty when it closed are gone; bytes written before the daemon reopened may be too)
+    quiet = [(unplug_wall - 0.3, plug_wall + 1.5)]
+    intact = [
+        ms for r in recs if not r.faults and r.sent and not any(a <= r.t_wall_s < b for a, b in quiet)
+        for ms in rt.imu_ms_in([r.original])
+    ]
+    fraction = len(set(intact) & set(answered)) / len(intact)
+    vanished = [ms for r in recs if "unplugged" in r.faults for ms in rt.imu_ms_in([r.original])]
+    back_s = (max(vanished) - t_ms0) / 1000.0
+    keys = sorted(k for k in answered if k in truth)
+    t = np.array([(k - t_ms0) / 1000.0 for k in keys])
+    err = rt.tilt_errors_deg(answered, truth, keys)
+    steady = (t >= SETTLE_S) & ((t < back_s - 2.0) | (t >= back_s + RECOVERY_S))
+    recovery = rt.recovery_time_s(t, err, back_s, TILT_BOUND_DEG)
+    statuses = daemon.statuses()
+    last = statuses[-1]
+    c = relay.counters()
+    print(f"\npty faults: relay {c}; answered {fraction:.2%} of {len(intact)} intact samples; tilt RMS "
+          f"{rt.rms(err[steady]):.2f}° (max {err[steady].max():.2f}°); device gone {len(vanished)} samples, back at "
+          f"{back_s:.2f} s, recovered in {recovery:.2f} s\n last status {last}")
+    assert fraction >= 0.99, f"only {fraction:.2%} of the intact samples answered"
+    assert rt.rms(err[steady]) <= TILT_BOUND_DEG
+    assert recovery <= RECOVERY_S
+    assert last["crc_errors"] > 0 and last["bad_data"] > 0 and last["seq_gaps"] > 0
+    assert last["drops_by_reason"] == {} or set(last["drops_by_reason"]) <= {"reordered", "duplicate", "held_jump"}
+    assert any("lost" in m["message"] and str(link) in m["message"] for m in daemon.messages())
+
+    # SIGKILL: the tlog holds everything up to the last flush (≤ 1 s before the kill), readable by pymavlink
+    from pymavlink import mavutil
+
+    mlog = mavutil.mavlink_connection(str(tmp_path / "d.tlog"), dialect="ardupilotmega")
+    n, last_t = 0, 0.0
+    try:
+        while (msg := mlog.recv_msg()) is not None:
+            n += 1
+            last_t = msg._timestamp
+    finally:
+        mlog.close()
+    assert n > 1000 and kill_wall - last_t <= 1.5, (n, kill_wall - last_t)
