@@ -29,7 +29,6 @@ docstring): QGroundControl draws only an autopilot's attitude on its HUD.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -42,7 +41,6 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.evaluation.tlogdata import (
-    IMU_TYPES,
     FastPathUnsupported,
     PreparedInputs,
     TlogData,
@@ -51,13 +49,13 @@ from mavahrs.evaluation.tlogdata import (
     prepare_inputs,
     read_tlog_data,
     references,
+    run_pipelines,
 )
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import (
     FLAG_MAG_INVALID,
     FLAG_NOT_INITIALISED,
     IN_GYRO,
-    IN_WIDTH,
     OUT_ACCEL_WEIGHT,
     OUT_BIAS,
     OUT_FLAGS,
@@ -72,7 +70,6 @@ __all__ = [
     "FilterTrack",
     "ReplayResult",
     "replay",
-    "pipeline_inputs",
     "compare",
     "format_comparison",
     "write_tlog",
@@ -182,125 +179,6 @@ class ReplayResult:
 
 
 # --------------------------------------------------------------------------- the reference path
-
-
-def _run_pipelines(
-    td: TlogData,
-    settings: Any,
-    filters: Sequence[tuple[str, Any]],
-    *,
-    start_s: float | None,
-    end_s: float | None,
-    decimal_year: float | None,
-    progress: Callable[[int], None] | None = None,
-) -> tuple[PreparedInputs, list[Array], list[list[bytes]], int]:
-    """Feed every message through one Pipeline per filter (the daemon's code), message by message."""
-    from mavahrs.filters import create
-    from mavahrs.protocol.codec import MavCodec
-    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
-    from mavahrs.service.pipeline import Pipeline
-
-    pipes = []
-    filts = []
-    for i, (name, fs) in enumerate(filters):
-        f = create(name, fs)
-        ps = dataclasses.replace(settings, component_id=settings.component_id + i)
-        pipes.append(Pipeline(ps, filter=f, decimal_year=decimal_year))
-        filts.append(f)
-    p0 = pipes[0]
-    codec = MavCodec()
-    t0 = int(td.t_us[0]) if td.frames else 0
-    lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
-    hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
-    imu_ids = {int(getattr(__import__("mavahrs.protocol.codec", fromlist=["mavlink"]).mavlink,
-                           f"MAVLINK_MSG_ID_{n}")) for n in IMU_TYPES}  # fmt: skip
-    rows: list[Array] = []
-    t_list: list[int] = []
-    pos_list: list[int] = []
-    temp_list: list[float] = []
-    decl_list: list[float] = []
-    outs: list[list[Array]] = [[] for _ in pipes]
-    frames: list[list[bytes]] = [[] for _ in pipes]
-    names_fed: dict[str, int] = {}
-    inst_fed: dict[int, int] = {}
-    hooked: list[list[tuple[int, Array, Array]]] = [[] for _ in pipes]
-
-    def make_hook(k: int) -> Callable[[str, int, Array, Array], None]:
-        def hook(message: str, t_us: int, in_row: Array, out_row: Array) -> None:
-            hooked[k].append((int(t_us), in_row.copy(), out_row.copy()))
-
-        return hook
-
-    for k, p in enumerate(pipes):
-        p.sample_hook = make_hook(k)
-    for j in range(td.frames):
-        if progress is not None and j % 4096 == 0:
-            progress(j)
-        t_rec = int(td.t_us[j])
-        if int(td.msgid[j]) in imu_ids and not lo <= t_rec <= hi:
-            continue
-        msg = codec.decode_frame(td.scan.frame(j))
-        if msg is None:  # pragma: no cover - the scan returns decodable frames only
-            continue
-        for k, p in enumerate(pipes):
-            for o in p.handle(msg, t_rec):
-                if o.to_outputs and _msgid(o.frame) in _ATTITUDE_IDS:
-                    frames[k].append(o.frame)
-        if hooked[0]:
-            t_s, in_row, _ = hooked[0][-1]
-            rows.append(in_row)
-            t_list.append(t_s)
-            pos_list.append(j)
-            raw_t = getattr(msg, "temperature", 0)
-            temp_list.append(raw_t * 0.01 if raw_t and msg.get_type() != "HIGHRES_IMU" else math.nan)
-            decl_list.append(p0.declination.declination_rad)
-            names_fed[msg.get_type()] = names_fed.get(msg.get_type(), 0) + 1
-            inst = INSTANCE_OF_MESSAGE.get(msg.get_type(), 0)
-            if msg.get_type() in ("RAW_IMU", "HIGHRES_IMU"):
-                i_id = getattr(msg, "id", 0)
-                inst = i_id if isinstance(i_id, int) and 0 <= i_id < 16 else 0
-            inst_fed[inst] = inst_fed.get(inst, 0) + 1
-            for k in range(len(pipes)):
-                outs[k].append(hooked[k][-1][2])
-                hooked[k].clear()
-    m = len(t_list)
-    if m == 0:
-        raise DataError(f"{td.path}: no IMU sample reached the filter (no autopilot heartbeat or IMU data)")
-    src = p0.source or (0, 0)
-    prep = PreparedInputs(
-        rows=np.vstack(rows) if rows else np.zeros((0, IN_WIDTH)),
-        t_us=np.asarray(t_list, np.int64),
-        frame_pos=np.asarray(pos_list, np.int64),
-        tlog_us=td.t_us[np.asarray(pos_list, np.int64)],
-        temperature_c=np.asarray(temp_list),
-        declination_rad=np.asarray(decl_list),
-        message=max(names_fed, key=names_fed.__getitem__),
-        instance=max(inst_fed, key=inst_fed.__getitem__),
-        source=(int(src[0]), int(src[1])),
-        profile=p0.profile.name if p0.profile else "?",
-        engine="pipeline",
-        counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()}},
-    )
-    for kind, text in p0.drain_notices():
-        if kind >= logging.WARNING:
-            prep.notes.append(text)
-    return prep, [np.vstack(o) for o in outs], frames, p0.codec.system_id
-
-
-def _msgid(frame: bytes) -> int:
-    if frame[0] == 0xFD:
-        return frame[7] | (frame[8] << 8) | (frame[9] << 16)
-    return frame[5]
-
-
-_ATTITUDE_IDS = (31, 30)  # ATTITUDE_QUATERNION, ATTITUDE
-
-
-def pipeline_inputs(td: TlogData, settings: Any, *, decimal_year: float | None = None) -> PreparedInputs:
-    """The filter inputs of a log taken from the pipeline itself (any log the daemon could read)."""
-    prep, _, _, _ = _run_pipelines(td, settings, [("madgwick", None)], start_s=None, end_s=None,
-                                   decimal_year=decimal_year)  # fmt: skip
-    return prep
 
 
 # --------------------------------------------------------------------------- the fast path
@@ -515,7 +393,7 @@ def _replay_pipeline(
             last[0] = j
 
     try:
-        prep, outs, frames, sysid = _run_pipelines(
+        prep, outs, frames, sysid = run_pipelines(
             td, ps, filters, start_s=s.start_s, end_s=s.end_s, decimal_year=dy, progress=tick
         )
     finally:

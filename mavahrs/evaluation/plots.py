@@ -201,7 +201,9 @@ def plot_attitude(
     axes[-1].set_xlabel("time (s)")
     if title:
         fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
+        fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
+    else:
+        fig.tight_layout()
     return _save(fig, path)
 
 

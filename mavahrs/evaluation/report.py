@@ -37,7 +37,7 @@ from mavahrs.evaluation.metrics import (
     summarize,
 )
 from mavahrs.filters.base import FilterSettings, make_inputs
-from mavahrs.filters.layout import OUT_Q
+from mavahrs.filters.layout import OUT_Q, OUT_WIDTH
 
 __all__ = [
     "FilterScore",
@@ -108,7 +108,19 @@ def run_filter(
     mag = rec.mag_ut if use_mag else None
     vel = rec.extra.get("velocity_ned_m_s")
     inputs = make_inputs(rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=vel)
-    return create(name, settings).run(inputs)
+    f = create(name, settings)
+    events = rec.extra.get("mag_reference_events") or ()
+    if not events:
+        return f.run(inputs)
+    # a tlog: seed the magnetometer rejection where the daemon's pipeline would (WMM field known)
+    out = np.empty((inputs.shape[0], OUT_WIDTH))
+    cuts = sorted({0, inputs.shape[0], *(min(max(int(i), 0), inputs.shape[0]) for i, _, _ in events)})
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        for i, norm, dip in events:
+            if max(int(i), 0) == lo:
+                f.set_mag_reference(norm, dip)
+        f.run(inputs[lo:hi], out[lo:hi])
+    return out
 
 
 def choose_alignment(rec: Recording, use_mag: bool, requested: str = "auto") -> str:

@@ -137,27 +137,23 @@ def _default_settings(name: str) -> FilterSettings:
 
 
 def _run_many(rec: Recording, name: str, settings_list: Sequence[FilterSettings], use_mag: bool) -> list[Array]:
-    """Run one filter with several settings over the same recording.
+    """(N, 4) attitudes of one filter with several settings over the same recording.
 
-    Uses the filters' many-instances sweep path (``run_many``) when it exists,
-    else one batch run per setting.
+    Uses the filters' many-instances sweep path (:func:`mavahrs.filters.base.run_many`,
+    compiled, instances in parallel) when it exists, else one batch run per setting.
     """
-    from mavahrs.filters import base
+    from mavahrs.filters import base, create
 
-    run_many = getattr(base, "run_many", None)
     mag = rec.mag_ut if use_mag else None
     inputs = make_inputs(
         rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=rec.extra.get("velocity_ned_m_s")
     )
-    if run_many is not None:
-        try:
-            outs = run_many(name, list(settings_list), inputs)
-            return [np.asarray(o) for o in outs]
-        except TypeError:
-            pass  # a different signature than expected: fall back to single runs
-    from mavahrs.filters import create
-
-    return [create(name, s).run(inputs) for s in settings_list]
+    filters = [create(name, s) for s in settings_list]
+    run_many = getattr(base, "run_many", None)
+    if run_many is not None and len({type(f) for f in filters}) == 1:
+        q = run_many(filters, inputs)
+        return [q[m] for m in range(q.shape[0])]
+    return [f.run(inputs)[:, OUT_Q : OUT_Q + 4] for f in filters]
 
 
 def _errors(q_est: Array, rec: Recording, use_mag: bool) -> tuple[Array, NDArray[np.bool_]]:
@@ -205,9 +201,8 @@ def beta_study(
             use_mag = a == 9
             if use_mag and rec.mag_ut is None:
                 continue
-            outs = _run_many(rec, filter_name, settings_list, use_mag)
-            for i, out in enumerate(outs):
-                err, scored = _errors(out[:, OUT_Q : OUT_Q + 4], rec, use_mag)
+            for i, q in enumerate(_run_many(rec, filter_name, settings_list, use_mag)):
+                err, scored = _errors(q, rec, use_mag)
                 acc[a][i].append(
                     (rms_deg(err, scored & ~moving), rms_deg(err, scored & moving), rms_deg(err, scored))
                 )

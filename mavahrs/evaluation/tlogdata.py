@@ -37,7 +37,9 @@ simulator's truth (SIM_STATE quaternion, else SIMSTATE Euler angles).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,6 +65,8 @@ __all__ = [
     "decimal_year_of_log",
     "true_rates",
     "interpolate_attitude",
+    "run_pipelines",
+    "pipeline_inputs",
 ]
 
 Array = NDArray[np.float64]
@@ -234,12 +238,11 @@ class PreparedInputs:
         return int(self.t_us.shape[0])
 
     def rate_hz(self) -> float:
-        """Median sample rate reaching the filter (0 if fewer than two samples)."""
+        """Mean sample rate reaching the filter over the log (0 if fewer than two samples)."""
         if self.n < 2:
             return 0.0
-        d = np.diff(self.t_us)
-        d = d[d > 0]
-        return float(1e6 / np.median(d)) if d.size else 0.0
+        span = float(self.t_us[-1] - self.t_us[0])
+        return (self.n - 1) / span * 1e6 if span > 0 else 0.0
 
 
 def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], int, str]:
@@ -472,7 +475,9 @@ def prepare_inputs(
     # --- which samples the selector feeds
     carriers: dict[int, set[int]] = {}
     live: set[int] = set()
-    for inst, kind, z, u in zip(*np.unique(np.stack([mg["imu"], mg["kind"], mg["zero"], mg["use"]]), axis=1)):
+    code = ((mg["imu"].astype(np.int64) * 64 + mg["kind"]) * 2 + mg["zero"]) * 2 + mg["use"]
+    for c in np.unique(code).tolist():  # (instance, message type, all-zero, new gyro) combinations
+        inst, kind, z, u = c // 256, (c // 4) % 64, (c // 2) % 2, c % 2
         carriers.setdefault(int(inst), set()).add(int(kind))
         if u and not z:
             live.add(int(inst))
@@ -597,6 +602,134 @@ def _calibrate(rows: Array, temp: Array, cal: Any) -> None:
                 rows[:, base + i] = r[i][0] * v[:, 0] + r[i][1] * v[:, 1] + r[i][2] * v[:, 2]
 
 
+# --------------------------------------------------------------------------- the pipeline itself
+
+
+def run_pipelines(
+    td: TlogData,
+    settings: Any,
+    filters: Sequence[tuple[str, Any]],
+    *,
+    start_s: float | None,
+    end_s: float | None,
+    decimal_year: float | None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[PreparedInputs, list[Array], list[list[bytes]], int]:
+    """Feed every message through one Pipeline per filter (the daemon's code), message by message.
+
+    Returns (the inputs as the pipeline built them, per filter its output
+    rows, per filter the ATTITUDE_QUATERNION/ATTITUDE frames it sent, the
+    system id it used).  The rows come from the pipeline's ``sample_hook``.
+    """
+    from mavahrs.filters import create
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
+    from mavahrs.service.pipeline import Pipeline
+
+    pipes = []
+    filts = []
+    for i, (name, fs) in enumerate(filters):
+        f = create(name, fs)
+        ps = dataclasses.replace(settings, component_id=settings.component_id + i)
+        pipes.append(Pipeline(ps, filter=f, decimal_year=decimal_year))
+        filts.append(f)
+    p0 = pipes[0]
+    codec = MavCodec()
+    t0 = int(td.t_us[0]) if td.frames else 0
+    lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
+    hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
+    from mavahrs.protocol.codec import mavlink
+
+    imu_ids = {int(getattr(mavlink, f"MAVLINK_MSG_ID_{n}")) for n in IMU_TYPES}
+    rows: list[Array] = []
+    t_list: list[int] = []
+    pos_list: list[int] = []
+    temp_list: list[float] = []
+    decl_list: list[float] = []
+    outs: list[list[Array]] = [[] for _ in pipes]
+    frames: list[list[bytes]] = [[] for _ in pipes]
+    names_fed: dict[str, int] = {}
+    inst_fed: dict[int, int] = {}
+    hooked: list[list[tuple[int, Array, Array]]] = [[] for _ in pipes]
+
+    def make_hook(k: int) -> Callable[[str, int, Array, Array], None]:
+        def hook(message: str, t_us: int, in_row: Array, out_row: Array) -> None:
+            hooked[k].append((int(t_us), in_row.copy(), out_row.copy()))
+
+        return hook
+
+    for k, p in enumerate(pipes):
+        p.sample_hook = make_hook(k)
+    for j in range(td.frames):
+        if progress is not None and j % 4096 == 0:
+            progress(j)
+        t_rec = int(td.t_us[j])
+        if int(td.msgid[j]) in imu_ids and not lo <= t_rec <= hi:
+            continue
+        msg = codec.decode_frame(td.scan.frame(j))
+        if msg is None:  # pragma: no cover - the scan returns decodable frames only
+            continue
+        for k, p in enumerate(pipes):
+            for o in p.handle(msg, t_rec):
+                if o.to_outputs and _msgid(o.frame) in _ATTITUDE_IDS:
+                    frames[k].append(o.frame)
+        if hooked[0]:
+            t_s, in_row, _ = hooked[0][-1]
+            rows.append(in_row)
+            t_list.append(t_s)
+            pos_list.append(j)
+            raw_t = getattr(msg, "temperature", 0)
+            temp_list.append(raw_t * 0.01 if raw_t and msg.get_type() != "HIGHRES_IMU" else math.nan)
+            decl_list.append(p0.declination.declination_rad)
+            names_fed[msg.get_type()] = names_fed.get(msg.get_type(), 0) + 1
+            inst = INSTANCE_OF_MESSAGE.get(msg.get_type(), 0)
+            if msg.get_type() in ("RAW_IMU", "HIGHRES_IMU"):
+                i_id = getattr(msg, "id", 0)
+                inst = i_id if isinstance(i_id, int) and 0 <= i_id < 16 else 0
+            inst_fed[inst] = inst_fed.get(inst, 0) + 1
+            for k in range(len(pipes)):
+                outs[k].append(hooked[k][-1][2])
+                hooked[k].clear()
+    m = len(t_list)
+    if m == 0:
+        raise DataError(f"{td.path}: no IMU sample reached the filter (no autopilot heartbeat or IMU data)")
+    src = p0.source or (0, 0)
+    prep = PreparedInputs(
+        rows=np.vstack(rows) if rows else np.zeros((0, IN_WIDTH)),
+        t_us=np.asarray(t_list, np.int64),
+        frame_pos=np.asarray(pos_list, np.int64),
+        tlog_us=td.t_us[np.asarray(pos_list, np.int64)],
+        temperature_c=np.asarray(temp_list),
+        declination_rad=np.asarray(decl_list),
+        message=max(names_fed, key=names_fed.__getitem__),
+        instance=max(inst_fed, key=inst_fed.__getitem__),
+        source=(int(src[0]), int(src[1])),
+        profile=p0.profile.name if p0.profile else "?",
+        engine="pipeline",
+        counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()}},
+    )
+    for kind, text in p0.drain_notices():
+        if kind >= logging.WARNING:
+            prep.notes.append(text)
+    return prep, [np.vstack(o) for o in outs], frames, p0.codec.system_id
+
+
+def _msgid(frame: bytes) -> int:
+    if frame[0] == 0xFD:
+        return frame[7] | (frame[8] << 8) | (frame[9] << 16)
+    return frame[5]
+
+
+_ATTITUDE_IDS = (31, 30)  # ATTITUDE_QUATERNION, ATTITUDE
+
+
+def pipeline_inputs(td: TlogData, settings: Any, *, decimal_year: float | None = None) -> PreparedInputs:
+    """The filter inputs of a log taken from the pipeline itself (any log the daemon could read)."""
+    prep, _, _, _ = _run_pipelines(td, settings, [("madgwick", None)], start_s=None, end_s=None,
+                                   decimal_year=decimal_year)  # fmt: skip
+    return prep
+
+
 # --------------------------------------------------------------------------- references
 
 
@@ -622,8 +755,8 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     """Attitudes the log already holds, name → (autopilot time µs, (K, 4) q_body_to_ned, true north).
 
     ``autopilot ATTITUDE`` (its ``time_boot_ms``), ``autopilot AHRS2`` and the
-    simulator truth ``SIM_STATE`` (quaternion) or ``SIMSTATE`` (Euler), which
-    carry no time: their tlog timestamps are mapped onto the autopilot clock
+    simulator truth ``SIMSTATE`` (Euler) or ``SIM_STATE`` (quaternion), the
+    more frequent of the two, which carry no time: their tlog timestamps are mapped onto the autopilot clock
     through the IMU messages' (tlog time, sample time) pairs.
     """
     from mavahrs.geometry.rotation import from_euler_rad
@@ -642,15 +775,16 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     if ahrs2.shape[0]:
         q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
         out["autopilot AHRS2"] = (_tlog_to_autopilot(td, prep, ahrs2["t_us"]), q)
+    # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler) or SIM_STATE (quaternion), whichever
+    # comes more often (slerping a 10 Hz truth through fast manoeuvres would add its own error)
     sim = of_source(td.arrays["SIM_STATE"])
-    if sim.shape[0]:
+    ss = of_source(td.arrays["SIMSTATE"])
+    if sim.shape[0] and sim.shape[0] >= ss.shape[0]:
         q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
         out["SIM_STATE truth"] = (_tlog_to_autopilot(td, prep, sim["t_us"]), q)
-    else:
-        ss = of_source(td.arrays["SIMSTATE"])
-        if ss.shape[0]:
-            q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
-            out["SIMSTATE truth"] = (_tlog_to_autopilot(td, prep, ss["t_us"]), q)
+    elif ss.shape[0]:
+        q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
+        out["SIMSTATE truth"] = (_tlog_to_autopilot(td, prep, ss["t_us"]), q)
     for k, (t, q) in list(out.items()):
         good = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
         if not good.any():
@@ -717,8 +851,6 @@ def _inputs_for(td: TlogData, imu: str, settings: Any) -> PreparedInputs:
     try:
         return prepare_inputs(td, s, decimal_year=dy)
     except FastPathUnsupported:
-        from mavahrs.replay import pipeline_inputs
-
         return pipeline_inputs(td, s, decimal_year=dy)
 
 
@@ -785,6 +917,7 @@ def load_tlog_recording(
             "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",
             "prepared": prep,
             "true_rate_rad_s": true_rates(td, prep),
+            "mag_reference_events": list(prep.mag_reference_events),
         },
     )
 
@@ -808,6 +941,11 @@ def cut_recording(rec: Recording, start_s: float | None, end_s: float | None) ->
         return np.asarray(x)[keep] if isinstance(x, np.ndarray) and x.shape[:1] == (rec.n,) else x
 
     extra = {k: cut(v) for k, v in rec.extra.items()}
+    events = rec.extra.get("mag_reference_events")
+    if events:  # sample indices move with the cut; earlier events apply at the new start
+        first = int(np.flatnonzero(keep)[0])
+        extra["mag_reference_events"] = [(max(0, int(i) - first), nrm, dip) for i, nrm, dip in events]
+    extra.pop("prepared", None)
     return dataclasses.replace(
         rec,
         dt_s=rec.dt_s[keep],

@@ -172,7 +172,7 @@ class TuneResult:
         other_beta = self.beta_ls if gains == "spec" else self.beta_spec
         other_zeta = self.zeta_ls if gains == "spec" else self.zeta_spec
         lines = [
-            f"# Written by `mavahrs tune` from {self.name} ({self.samples} samples at rest, "
+            f"# Written by `mavahrs tune` from {self.name} ({self.samples} samples, "
             f"{self.duration_s:.0f} s).",
             "# Use with: mavahrs run --config THIS_FILE  (flags on the command line still override it).",
             "",

@@ -17,7 +17,7 @@ def test_replay_writes_csv_tlog_and_plot(sim_hover_tlog: Path, tmp_path: Path, c
                "--output", str(out), "--plot", str(png), "--out-rate", "50", "--end", "8"])  # fmt: skip
     assert rc == 0
     cap = capsys.readouterr()
-    assert "engine fast" in cap.out and "SIM_STATE truth" in cap.out
+    assert "engine fast" in cap.out and "SIMSTATE truth" in cap.out
     assert "component 191" in cap.err and "component 192" in cap.err
     header = csv.read_text().splitlines()[0]
     assert header.startswith("time_s,mahony_qw") and "madgwick_mag_rejected" in header

@@ -26,6 +26,7 @@ def test_decimation_keeps_the_integrated_angle(synthetic_recording) -> None:
         decimate(rec, 0)
 
 
+@pytest.mark.slow
 def test_beta_sweep_has_an_optimum_above_zero(synthetic_recording) -> None:
     res = beta_study([synthetic_recording], values=(0.0, 0.02, 0.1, 0.5), axes=(9,))
     curve = res.data["curves"]["9D all"]
