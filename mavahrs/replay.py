@@ -386,16 +386,35 @@ def _replay_pipeline(
 ) -> ReplayResult:  # fmt: skip
     bar = _progress_bar(td.frames, progress, "msg")
     last = [0]
+    period = int(round(1e6 / ps.out_rate_hz)) if ps.out_rate_hz > 0 else 0
+    tol = min(period // 4, 1000)
 
     def tick(j: int) -> None:
         if bar is not None:
             bar.update(j - last[0])
             last[0] = j
 
+    csv_states = [np.full(1, -1, np.int64) for _ in filters]
+
+    def write_block(a: int, b: int, t_list: list[int], decl: list[float], outs: list[list[Array]]) -> None:
+        """Write samples a:b to the CSV while the replay goes on (an interruption keeps them)."""
+        t = np.asarray(t_list[a:b], np.int64)
+        d = np.asarray(decl[a:b])
+        blocks, sents = [], []
+        for k in range(len(filters)):
+            o = np.vstack(outs[k][a:b])
+            o[:, OUT_Q : OUT_Q + 4] = _declinate(o[:, OUT_Q : OUT_Q + 4], d)
+            sent = np.zeros(b - a, bool)
+            _out_rate(t, o[:, OUT_FLAGS], period, tol, csv_states[k], sent)
+            blocks.append(o)
+            sents.append(sent)
+        sink.write(_csv_block(t, blocks, sents))
+
     try:
         prep, outs, frames, sysid = run_pipelines(
-            td, ps, filters, start_s=s.start_s, end_s=s.end_s, decimal_year=dy, progress=tick
-        )
+            td, ps, filters, start_s=s.start_s, end_s=s.end_s, decimal_year=dy, progress=tick,
+            on_block=write_block if sink is not None else None,
+        )  # fmt: skip
     finally:
         if bar is not None:
             bar.close()
@@ -404,15 +423,9 @@ def _replay_pipeline(
         out = outs[i]
         out[:, OUT_Q : OUT_Q + 4] = _declinate(out[:, OUT_Q : OUT_Q + 4], prep.declination_rad)
         # which samples produced a frame: the pipeline's own rule, replayed on its outputs
-        period = int(round(1e6 / ps.out_rate_hz)) if ps.out_rate_hz > 0 else 0
         sent = np.zeros(prep.n, bool)
-        _out_rate(prep.t_us, out[:, OUT_FLAGS], period, min(period // 4, 1000), np.full(1, -1, np.int64), sent)
+        _out_rate(prep.t_us, out[:, OUT_FLAGS], period, tol, np.full(1, -1, np.int64), sent)
         tracks[n] = FilterTrack(n, ps.component_id + i, out, sent, frames[i])
-    if sink is not None:
-        for a in range(0, prep.n, _CHUNK):
-            b = min(prep.n, a + _CHUNK)
-            sink.write(_csv_block(prep.t_us[a:b], [t.out[a:b] for t in tracks.values()],
-                                  [t.sent[a:b] for t in tracks.values()]))  # fmt: skip
     return ReplayResult(td.path, prep, tracks, sysid, s)
 
 
@@ -676,27 +689,20 @@ def stream(result: ReplayResult, name: str, settings: StreamSettings, *, clock: 
 
 
 def _open_udp_sender(url: str) -> Callable[[bytes], None]:
-    """A sender for ``udpout:HOST:PORT`` (the daemon's transports when available, else a socket)."""
-    import socket
+    """A sender for a connection string (``udpout:HOST:PORT``, ``tcp:…``, a serial port) through
+    :func:`mavahrs.transports.open_transport`, the daemon's links."""
+    from mavahrs.transports import open_transport
 
-    if not url.startswith("udpout:"):
-        raise ValueError(f"--stream supports udpout:HOST:PORT, got {url!r}")
-    host, _, port_s = url[len("udpout:") :].rpartition(":")
-    try:
-        port = int(port_s)
-    except ValueError:
-        raise ValueError(f"bad port in {url!r}") from None
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    addr = (host or "127.0.0.1", port)
+    link = open_transport(url)
 
     class _Sender:
         def __call__(self, data: bytes) -> None:
             try:
-                sock.sendto(data, addr)
-            except OSError:  # nobody listening yet (ICMP port unreachable): keep streaming
+                link.write(data)
+            except OSError:  # nobody listening yet: a ground station may come later
                 pass
 
         def close(self) -> None:
-            sock.close()
+            link.close()
 
     return _Sender()

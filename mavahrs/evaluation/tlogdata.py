@@ -614,8 +614,14 @@ def run_pipelines(
     end_s: float | None,
     decimal_year: float | None,
     progress: Callable[[int], None] | None = None,
+    on_block: Callable[[int, int, list[int], list[float], list[list[Array]]], None] | None = None,
+    block: int = 4096,
 ) -> tuple[PreparedInputs, list[Array], list[list[bytes]], int]:
     """Feed every message through one Pipeline per filter (the daemon's code), message by message.
+
+    ``on_block(start, end, times, declinations, outputs)`` is called for every
+    ``block`` new samples (and the rest at the end), e.g. to write them out
+    while the replay goes on.
 
     Returns (the inputs as the pipeline built them, per filter its output
     rows, per filter the ATTITUDE_QUATERNION/ATTITUDE frames it sent, the
@@ -660,6 +666,7 @@ def run_pipelines(
 
     for k, p in enumerate(pipes):
         p.sample_hook = make_hook(k)
+    flushed = 0
     for j in range(td.frames):
         if progress is not None and j % 4096 == 0:
             progress(j)
@@ -690,6 +697,11 @@ def run_pipelines(
             for k in range(len(pipes)):
                 outs[k].append(hooked[k][-1][2])
                 hooked[k].clear()
+            if on_block is not None and len(t_list) - flushed >= block:
+                on_block(flushed, len(t_list), t_list, decl_list, outs)
+                flushed = len(t_list)
+    if on_block is not None and len(t_list) > flushed:
+        on_block(flushed, len(t_list), t_list, decl_list, outs)
     m = len(t_list)
     if m == 0:
         raise DataError(f"{td.path}: no IMU sample reached the filter (no autopilot heartbeat or IMU data)")

@@ -25,10 +25,11 @@ LOGS = ("UAVLogViewer/vtol.tlog", "dronekit-python/flight.tlog", "ardusub_log_to
 
 
 @pytest.mark.slow
-def test_fast_engine_equals_the_pipeline(sim_hover_tlog: Path) -> None:
+def test_fast_engine_equals_the_pipeline(sim_hover_tlog: Path, tmp_path: Path) -> None:
     s = dict(filters=("madgwick", "mahony"))
-    fast = replay(sim_hover_tlog, ReplaySettings(engine="fast", **s))
-    ref = replay(sim_hover_tlog, ReplaySettings(engine="pipeline", **s))
+    fast = replay(sim_hover_tlog, ReplaySettings(engine="fast", **s), csv_path=tmp_path / "fast.csv")
+    ref = replay(sim_hover_tlog, ReplaySettings(engine="pipeline", **s), csv_path=tmp_path / "ref.csv")
+    assert (tmp_path / "fast.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()
     assert fast.engine == "fast" and ref.engine == "pipeline"
     assert fast.inputs.n > 4000
     np.testing.assert_array_equal(fast.inputs.t_us, ref.inputs.t_us)
