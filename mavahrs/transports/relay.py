@@ -40,6 +40,7 @@ import selectors
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 __all__ = ["FaultSettings", "RelayRecord", "LegCounters", "UdpFaultRelay", "PtyFaultRelay"]
@@ -192,8 +193,12 @@ class _FaultState:
 
 
 class _Leg:
-    def __init__(self, target: tuple[str, int], faults: FaultSettings, seed: int | None, reply: bool, record: bool):
+    def __init__(
+        self, target: tuple[str, int], faults: FaultSettings, seed: int | None, reply: bool, record: bool,
+        observer: Callable[[bytes], None] | None = None,
+    ) -> None:
         self.target = target
+        self.observer = observer
         self.reply = reply
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
@@ -202,6 +207,8 @@ class _Leg:
 
     def send(self, items: list[tuple[bytes, RelayRecord | None]]) -> None:
         for data, rec in items:
+            if self.observer is not None:
+                self.observer(data)  # before sending: the answer may come back before sendto returns
             try:
                 self.sock.sendto(data, self.target)
             except OSError:
@@ -223,6 +230,10 @@ class UdpFaultRelay:
         record: keep a :class:`RelayRecord` per datagram and leg (memory grows
             with the run: tests only; counters are always kept).
         max_hold_s: a reordered datagram waits at most this long for a successor, s.
+        observer: called as ``observer(leg, data)`` from the relay's thread with
+            every datagram a leg is about to send (e.g. to follow a long run
+            without records; called before ``sendto``, so an answer cannot
+            overtake it).
     """
 
     def __init__(
@@ -232,12 +243,16 @@ class UdpFaultRelay:
         seed: int | None = 0,
         record: bool = True,
         max_hold_s: float = 0.05,
+        observer: Callable[[int, bytes], None] | None = None,
     ) -> None:
         self._up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._up.bind(("127.0.0.1", 0))
         self._up.setblocking(False)
         self._legs = [
-            _Leg(target, faults, None if seed is None else seed + i, reply, record)
+            _Leg(
+                target, faults, None if seed is None else seed + i, reply, record,
+                None if observer is None else (lambda data, i=i: observer(i, data)),
+            )
             for i, (target, faults, reply) in enumerate(legs)
         ]
         self._peer: tuple[str, int] | None = None
