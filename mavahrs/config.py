@@ -56,6 +56,7 @@ __all__ = [
     "field_docs",
     "load_run_config",
     "filter_settings_type",
+    "default_filter_settings",
     "example_toml",
 ]
 
