@@ -158,7 +158,7 @@ def _convert(tp: Any, value: Any, where: str, source: str, base: Any) -> Any:
             raise bad(f"an array of {len(args)} values")
         if not args:
             return tuple(value)
-        return tuple(_convert(a, v, f"{where}[{i}]", source, None) for i, (a, v) in enumerate(zip(args, value)))
+        return tuple(_convert(a, v, f"{where}[{i}]", source, None) for i, (a, v) in enumerate(zip(args, value, strict=True)))
     if origin is list:
         if not isinstance(value, (list, tuple)):
             raise bad("an array")

@@ -132,7 +132,7 @@ class Collector:
         while not self._stop:
             try:
                 data = self.sock.recv(65536)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 continue
             now = time.time()
             self.messages.extend((now, m) for m in codec.receive_datagram(data))

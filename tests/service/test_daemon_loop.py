@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import pytest
 
 from mavahrs.errors import TransportError
-from mavahrs.protocol.codec import MavCodec, mavlink
+from mavahrs.protocol.codec import MavCodec
 from mavahrs.service.daemon import Daemon, DaemonSettings, LatencyRing
 from mavahrs.transports import open_transport
 
@@ -89,7 +89,7 @@ class Autopilot:
         while True:
             try:
                 out += dec.receive_datagram(self.sock.recv(4096))
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 return out
 
     def close(self) -> None:
@@ -139,7 +139,7 @@ def _drain(sock: socket.socket, seconds: float, attitudes: int | None = None) ->
     while time.monotonic() < end:
         try:
             out += dec.receive_datagram(sock.recv(4096))
-        except (TimeoutError, socket.timeout):
+        except TimeoutError:
             pass
         if attitudes is not None and sum(m.get_type() == "ATTITUDE_QUATERNION" for m in out) >= attitudes:
             end = min(end, time.monotonic() + 0.1)
