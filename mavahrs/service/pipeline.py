@@ -340,6 +340,8 @@ class Pipeline:
         s = self.settings = settings or PipelineSettings()
         self._filter = filter if filter is not None else _filters.create(s.filter_name, filter_settings)
         self._filter_name = getattr(self._filter, "name", s.filter_name)
+        #: a dt the filter surely treats as a gap (re-initialise): twice its max_gap_s
+        self._gap_dt_s = 2.0 * float(getattr(getattr(self._filter, "settings", None), "max_gap_s", 1.0) or 1.0)
         self._codec = MavCodec(system_id=s.system_id or 1, component_id=s.component_id)
         self._mav = self._codec.mav
         self._row = np.full(IN_WIDTH, _NAN)
@@ -430,7 +432,11 @@ class Pipeline:
 
     # ------------------------------------------------------------------ state resets
     def _reset_stream_state(self) -> None:
-        """Forget everything about the IMU streams' timing (start, reboot)."""
+        """Forget everything about the IMU streams' timing (start, reboot); their counts are kept."""
+        if hasattr(self, "_timelines"):  # totals survive a reboot (status counters never go back)
+            self._timeline_totals = self._timeline_counts()
+        else:
+            self._timeline_totals = {"lost_samples": 0, "time_wraps": 0, "jumps_rejected": 0}
         self._timelines: dict[int, Timeline] = {}
         self._backlog: dict[int, deque[tuple[str, tuple]]] = {}
         self._snapshots: deque[tuple[int, Any]] = deque(maxlen=_SNAPSHOTS)
@@ -667,6 +673,11 @@ class Pipeline:
             if dt <= 0.0:
                 self._count(self._drops, "switch_overlap")
                 return []
+        if kind == GAP and dt == dt:
+            # The timeline's gap threshold may be shorter than the filter's own max_gap_s: make sure a gap
+            # re-initialises the filter (from this sample's accelerometer) instead of integrating this one
+            # gyro sample over the whole gap (tens of degrees off while the vehicle turns).
+            dt = max(dt, self._gap_dt_s)
         self._last_fed_imu = imu_id
         self._last_fed_t = t
         row = self._row
@@ -916,7 +927,7 @@ class Pipeline:
         d[key] = d.get(key, 0) + 1
 
     def _timeline_counts(self) -> dict[str, int]:
-        out = {"lost_samples": 0, "time_wraps": 0, "jumps_rejected": 0}
+        out = dict(self._timeline_totals)
         for tl in self._timelines.values():
             c = tl.counters
             out["lost_samples"] += c.lost_samples
