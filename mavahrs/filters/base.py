@@ -181,7 +181,7 @@ def vector_ok(x, y, z):  # type: ignore[no-untyped-def]
     return math.isfinite(n) and n > 0.0
 
 
-@kernel
+@kernel(inline=True)  # runs every sample, too large for LLVM to inline by itself
 def begin_step(state, params, row, out):  # type: ignore[no-untyped-def]
     """Common start of every filter step.
 
@@ -265,12 +265,17 @@ def run_rows(step, state, params, inputs, outputs):  # type: ignore[no-untyped-d
 
 
 @loop_kernel(parallel=True)
-def _run_many_rows(step, states, params, inputs, q_out):  # type: ignore[no-untyped-def]
-    """``run_rows`` for M independent filters (``prange`` over them); keeps only the quaternions."""
+def _run_many_rows(step, states, params, inputs, outs, q_out):  # type: ignore[no-untyped-def]
+    """``run_rows`` for M independent filters (``prange`` over them); keeps only the quaternions.
+
+    ``outs`` (M, OUT_WIDTH) is each filter's scratch output row.
+    """
     for m in prange(states.shape[0]):
-        out = np.zeros(OUT_WIDTH)
+        state = states[m]
+        par = params[m]
+        out = outs[m]
         for i in range(inputs.shape[0]):
-            step(states[m], params[m], inputs[i], out)
+            step(state, par, inputs[i], out)
             for j in range(4):
                 q_out[m, i, j] = out[OUT_Q + j]
 
@@ -298,7 +303,8 @@ def run_many(filters: Sequence[AttitudeFilter], inputs: Array) -> Array:
     q_out = np.zeros((len(filters), inputs.shape[0], 4))
     if inputs.shape[0]:
         if filters[0]._compiled:
-            _run_many_rows(filters[0]._step, states, params, inputs, q_out)
+            outs = np.zeros((len(filters), OUT_WIDTH))
+            _run_many_rows(filters[0]._step, states, params, inputs, outs, q_out)
         else:
             out = np.zeros(OUT_WIDTH)
             for m, f in enumerate(filters):

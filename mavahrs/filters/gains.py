@@ -167,7 +167,7 @@ def _smooth(previous, target, dt, tau):  # type: ignore[no-untyped-def]
     return previous + (target - previous) * k
 
 
-@kernel
+@kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
 def schedule_step(gs, gp, q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, my, mz, mag_ok, dt):  # type: ignore[no-untyped-def]
     """Advance the schedule by one sample; return ``(boost, accel_weight, mag_weight)``.
 

@@ -3,21 +3,34 @@ r"""Vehicle acceleration from GNSS velocity, for acceleration-compensated levell
 The accelerometer measures specific force f = a − g; with the true acceleration
 a = v̇ known from GNSS velocity v (NED), ``f − v̇ = −g`` is an undisturbed
 vertical reference whatever the vehicle does (003, "Влияние ускорений": the
-gyro-platform's levelling uses f̂_NED − v̇).  This kernel differentiates the
-velocity column of the input rows (``IN_VEL``, NaN = no fix) and low-passes
-the result:
+gyro-platform's levelling uses f̂_NED − v̇).  :func:`velocity_derivative_step`
+differentiates the velocity column of the input rows (``IN_VEL``, NaN = no
+fix) and low-passes the result:
 
-* on a valid fix: raw = (v − v_prev) / (time since the previous fix), and
+* on a new fix: raw = (v − v_prev) / (time since the previous fix), and
   v̇ ← v̇ + (raw − v̇)·min(1, Δt/τ);
-* fixes may arrive on every row (held or interpolated values) or only on some
-  rows with NaN between them; a fix older than ``max_age_s`` breaks the chain
-  and v̇ is invalid until two fixes are seen again.
+* fixes may arrive on every row (interpolated values), only on some rows with
+  NaN between them (what the daemon's pipeline does with GLOBAL_POSITION_INT
+  at 5–10 Hz), or *held*: the last fix repeated on every row until the next.
+  A value exactly equal to the previous fix is taken as held (no new
+  information), so a held 10 Hz stream gives the same v̇ as the NaN form
+  instead of a zero difference on every row and a spike on the change; a
+  value held longer than ``max_age_s`` is a steady velocity (v̇ = 0 over
+  that span);
+* a fix older than ``max_age_s`` (NaN rows only) breaks the chain and v̇ is
+  invalid until two fixes are seen again.
 
-With held values (one new velocity every GNSS period T and repeats between)
-the low-pass of the resulting pulse train averages to Δv/T when τ ≳ T.
+With held values the low-pass of the resulting pulse train averages to Δv/T
+when τ ≳ T.
 
 State block (``VD_LEN`` values at offset k): v_prev (3), v̇ (3), time since the
 last fix (s; −1 = none yet), number of differences averaged so far.
+
+:func:`gnss_compensation_step` turns that into the acceleration a filter
+subtracts, with a weight that ramps linearly between 0 and 1 over
+``fade_s`` as the velocity comes and goes, so losing or regaining the fix
+never makes the gravity reference jump (state block ``GC_LEN`` values: the
+``VD_LEN`` block, the last valid v̇ (3), the weight).
 """
 
 from __future__ import annotations
@@ -26,13 +39,24 @@ import math
 
 from mavahrs.filters.jit import kernel
 
-__all__ = ["VD_LEN", "velocity_derivative_reset", "velocity_derivative_step"]
+__all__ = [
+    "VD_LEN",
+    "GC_LEN",
+    "velocity_derivative_reset",
+    "velocity_derivative_step",
+    "gnss_compensation_reset",
+    "gnss_compensation_step",
+]
 
 VD_LEN = 8
 _VPREV = 0
 _VDOT = 3
 _AGE = 6
 _COUNT = 7
+
+GC_LEN = VD_LEN + 4
+_HELD = VD_LEN  # the last valid v̇ (3)
+_WEIGHT = VD_LEN + 3  # compensation weight, 0 … 1
 
 
 @kernel
@@ -43,7 +67,7 @@ def velocity_derivative_reset(s, k):  # type: ignore[no-untyped-def]
     s[k + _AGE] = -1.0
 
 
-@kernel
+@kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
 def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: ignore[no-untyped-def]
     """Advance by one row; return True when ``s[k+3:k+6]`` holds a usable v̇ (m/s², NED)."""
     fix = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd)
@@ -56,7 +80,11 @@ def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: i
             return False
         s[k + _AGE] = age
         return s[k + _COUNT] > 0.0
-    if age > 0.0 and age <= max_age_s:
+    held = age >= 0.0 and vn == s[k + _VPREV] and ve == s[k + _VPREV + 1] and vd == s[k + _VPREV + 2]
+    if held and age <= max_age_s:
+        s[k + _AGE] = age  # the previous fix repeated: nothing new yet
+        return s[k + _COUNT] > 0.0
+    if age > 0.0 and (age <= max_age_s or held):
         w = age / tau_s if tau_s > 0.0 else 1.0
         if w > 1.0 or s[k + _COUNT] == 0.0:
             w = 1.0  # the first difference is taken as it is
@@ -71,3 +99,31 @@ def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: i
     s[k + _VPREV + 2] = vd
     s[k + _AGE] = 0.0
     return s[k + _COUNT] > 0.0
+
+
+@kernel
+def gnss_compensation_reset(s, k):  # type: ignore[no-untyped-def]
+    """Forget the velocity history and the compensation (weight 0)."""
+    velocity_derivative_reset(s, k)
+    for i in range(4):
+        s[k + _HELD + i] = 0.0
+
+
+@kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
+def gnss_compensation_step(s, k, vn, ve, vd, dt, tau_s, max_age_s, fade_s):  # type: ignore[no-untyped-def]
+    """Advance by one row; return the NED acceleration (m/s²) to subtract from the specific force.
+
+    ``weight · v̇``: the weight moves linearly towards 1 while v̇ is valid and
+    towards 0 while it is not, at ``dt / fade_s`` per row (``fade_s`` ≤ 0:
+    at once); while invalid, the last valid v̇ is faded out.
+    """
+    valid = velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s)
+    if valid:
+        s[k + _HELD] = s[k + _VDOT]
+        s[k + _HELD + 1] = s[k + _VDOT + 1]
+        s[k + _HELD + 2] = s[k + _VDOT + 2]
+    step = dt / fade_s if fade_s > 0.0 else 1.0
+    w = s[k + _WEIGHT]
+    w = min(w + step, 1.0) if valid else max(w - step, 0.0)
+    s[k + _WEIGHT] = w
+    return w * s[k + _HELD], w * s[k + _HELD + 1], w * s[k + _HELD + 2]

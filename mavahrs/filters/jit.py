@@ -13,6 +13,16 @@ file* is unchanged, but kernels bake in module-level constants of other files
 kernels in this package the cache stamp therefore covers every ``.py`` file
 of ``mavahrs/filters`` (:class:`_FiltersCacheLocator`): editing one invalidates
 all, instead of silently running code compiled against an old layout.
+
+Speed (``docs/performance.md``): kernels of ``mavahrs/filters`` work on
+arrays their caller owns and never allocate, so they are compiled without
+numba's reference counting (``_nrt=False``): with it, every array argument,
+row view and slice costs an atomic increment/decrement pair, which took more
+than half of a Madgwick step.  Helpers that LLVM will not inline by itself
+(too large) but that run on every sample are marked ``@kernel(inline=True)``
+and inlined by numba into each filter's step; doing that for *every* kernel
+triples the first compilation for little further gain.  Neither changes a
+result: the same operations run in the same order.
 """
 
 from __future__ import annotations
@@ -80,15 +90,33 @@ class _Interpreted:
         return self.py_func(*args)
 
 
-def kernel(func: F) -> F:
+def _is_filter_kernel(func: Callable[..., Any]) -> bool:
+    code = getattr(func, "__code__", None)
+    return code is not None and os.path.dirname(os.path.abspath(code.co_filename)) == _FILTERS_DIR
+
+
+def kernel(func: F | None = None, *, inline: bool = False) -> Any:
     """Compile ``func`` lazily with numba (``cache=True``), keeping ``.py_func``.
 
     No ``fastmath``: the compiled and the interpreted kernels must agree to
-    rounding (tested to 1e-9).
+    rounding (tested to 1e-9).  Kernels in ``mavahrs/filters`` are compiled
+    without reference counting (they must not allocate arrays: numba then
+    refuses to compile them).  ``inline=True`` inlines the kernel into the
+    compiled kernels that call it (numba IR inlining; for large helpers called
+    on every sample).  Usable as ``@kernel`` or ``@kernel(inline=True)``.
     """
-    if HAVE_NUMBA:
-        return _numba.njit(cache=True, error_model="numpy")(func)  # type: ignore[no-any-return]
-    return _Interpreted(func)  # type: ignore[return-value]
+
+    def wrap(f: F) -> F:
+        if HAVE_NUMBA:
+            options: dict[str, Any] = {"cache": True, "error_model": "numpy"}
+            if _is_filter_kernel(f):
+                options["_nrt"] = False
+            if inline:
+                options["inline"] = "always"
+            return _numba.njit(**options)(f)  # type: ignore[no-any-return]
+        return _Interpreted(f)  # type: ignore[return-value]
+
+    return wrap if func is None else wrap(func)
 
 
 def loop_kernel(func: F | None = None, *, parallel: bool = False) -> Any:
@@ -99,12 +127,16 @@ def loop_kernel(func: F | None = None, *, parallel: bool = False) -> Any:
     one of those is not loaded in the saving process the save fails
     ("underlying object has vanished").  Driver loops are small, so they are
     compiled once per process instead (≈ 0.5 s); the kernels they call stay
-    cached.  ``parallel=True`` enables ``numba.prange``.
+    cached.  ``parallel=True`` enables ``numba.prange``.  Like the filter
+    kernels, driver loops must not allocate: they run without reference
+    counting (a row view per sample would otherwise cost two atomic
+    operations, and in a parallel loop make the threads fight over the input
+    array's reference count).
     """
 
     def wrap(f: F) -> F:
         if HAVE_NUMBA:
-            return _numba.njit(cache=False, parallel=parallel, error_model="numpy")(f)  # type: ignore[no-any-return]
+            return _numba.njit(cache=False, parallel=parallel, error_model="numpy", _nrt=False)(f)  # type: ignore[no-any-return]
         return _Interpreted(f)  # type: ignore[return-value]
 
     return wrap if func is None else wrap(func)

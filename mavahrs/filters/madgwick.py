@@ -58,8 +58,16 @@ from mavahrs.filters.base import (
 )
 from mavahrs.filters.gains import GainScheduleSettings, schedule_step
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body
-from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_rotate, nav_lowpass_step
+from mavahrs.filters.gnss import GC_LEN, gnss_compensation_reset, gnss_compensation_step
+from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body, quat_multiply
+from mavahrs.filters.prefilter import (
+    BW_LEN,
+    LP_LEN,
+    nav_lowpass_reset,
+    nav_lowpass_rotate,
+    ned_butterworth_step,
+    ned_lowpass_step,
+)
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 from mavahrs.filters.layout import FLAG_STARTUP, IN_ACCEL, IN_GYRO, IN_MAG, IN_VEL, OUT_FLAGS
 
@@ -182,6 +190,23 @@ class MadgwickSettings(FilterSettings):
             0 = the report's constant rate.
         large_heading_error_tau_s: the same for the magnetometer's heading
             step (crossover 2β_heading·τ).  0 = constant rate.
+        gnss_acceleration: with a GNSS velocity in the input rows
+            (``velocity_ned_m_s``, ``IN_VEL``; NaN = no fix), subtract the
+            vehicle's acceleration v̇ from the specific force in the
+            estimated NED frame before the low-pass and the gradient
+            (f − v̇, the 003 tutorial's acceleration-compensated vertical):
+            sustained manoeuvres then no longer tilt the estimate.  The
+            horizontal part is used only while the magnetometer has
+            corrected the heading within ``HEADING_HOLD_S`` (60 s), since it
+            is rotated into body axes with the estimated heading; the
+            vertical part always.  Without velocity nothing changes.
+        velocity_tau_s: low-pass time constant of v̇, s (0 = the latest
+            difference of fixes; :mod:`mavahrs.filters.gnss`).
+        velocity_max_age_s: a fix older than this (NaN rows in between)
+            breaks the v̇ chain, s; held (repeated) values are recognised.
+        gnss_fade_s: the compensation ramps in over this time once v̇ is
+            valid and fades out over it when the fix is lost, s (no jump in
+            the gravity reference).  0 = switch at once.
         schedule: the shared gain schedule (:func:`default_schedule`).
     """
 
@@ -196,14 +221,20 @@ class MadgwickSettings(FilterSettings):
     accel_lowpass_order: int = 2
     large_error_tau_s: float = 0.0
     large_heading_error_tau_s: float = 0.0
+    large_error_lowpass_s: float = 0.0
+    gnss_acceleration: bool = True
+    velocity_tau_s: float = 0.0
+    velocity_max_age_s: float = 1.0
+    gnss_fade_s: float = 1.0
     rest: RestBiasSettings = field(default_factory=RestBiasSettings)
     bias_limit_rad_s: float = math.radians(5.0)
     schedule: GainScheduleSettings = field(default_factory=default_schedule)
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("beta_rad_s", "zeta_rad_s", "zeta_spin_limit_rad_s", "accel_lowpass_s", "bias_limit_rad_s", "large_error_tau_s",
-                     "large_heading_error_tau_s"):
+        for name in ("beta_rad_s", "zeta_rad_s", "zeta_spin_limit_rad_s", "accel_lowpass_s", "bias_limit_rad_s",
+                     "large_error_tau_s", "large_heading_error_tau_s", "large_error_lowpass_s", "velocity_tau_s",
+                     "gnss_fade_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (
                 isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
@@ -217,6 +248,13 @@ class MadgwickSettings(FilterSettings):
             raise ConfigError(
                 f"MadgwickSettings.beta_heading_rad_s must be a number ≥ 0 or None, got {self.beta_heading_rad_s!r}"
             )
+        if not (isinstance(self.velocity_max_age_s, (int, float)) and math.isfinite(self.velocity_max_age_s)
+                and self.velocity_max_age_s > 0):
+            raise ConfigError(
+                f"MadgwickSettings.velocity_max_age_s must be a time > 0 s, got {self.velocity_max_age_s!r}"
+            )
+        if not isinstance(self.gnss_acceleration, bool):
+            raise ConfigError(f"MadgwickSettings.gnss_acceleration must be True or False, got {self.gnss_acceleration!r}")
         if self.mag_correction not in _MAG_MODES:
             raise ConfigError(
                 f"MadgwickSettings.mag_correction must be one of {_MAG_MODES}, got {self.mag_correction!r}"
@@ -246,13 +284,26 @@ PM_ACC_ORDER = 8
 PM_LARGE_TAU = 9
 PM_LARGE_TAU_HEADING = 10
 PM_BIAS_LIMIT = 11
-PM_REST = 12  # rest detector block (rest.RP_LEN)
+PM_GNSS = 12
+PM_VDOT_TAU = 13
+PM_VEL_MAX_AGE = 14
+PM_GNSS_FADE = 15
+PM_LARGE_LP = 16
+PM_REST = 17  # rest detector block (rest.RP_LEN)
 PM_LEN = PM_REST + RP_LEN
 
 # --- state block after S_FILTER --------------------------------------------------
-FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (2 × prefilter.LP_LEN)
-FM_REST = FM_NAVLP + 2 * LP_LEN  # rest detector (rest.REST_LEN)
-FM_LEN = FM_REST + REST_LEN
+FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (prefilter.BW_LEN)
+FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
+FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
+FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
+FM_LARGE_LP = FM_MAG_AGE + 1  # long low-pass for the large-error test (prefilter.BW_LEN)
+FM_LEN = FM_LARGE_LP + BW_LEN
+
+#: horizontal GNSS acceleration is rotated into body axes with the estimated heading: it is used
+#: only while the magnetometer has corrected the heading within this many seconds
+HEADING_HOLD_S = 60.0
+_NEVER_S = 1e9
 
 
 # --------------------------------------------------------------------------- objective functions
@@ -317,49 +368,6 @@ def field_gradient(q0, q1, q2, q3, bx, bz, mx, my, mz):  # type: ignore[no-untyp
 
 
 @kernel
-def _lowpass_gain(dt, tau):  # type: ignore[no-untyped-def]
-    """Discrete first-order low-pass coefficient for time constant ``tau``."""
-    if tau <= 0.0:
-        return 1.0
-    return 1.0 - math.exp(-dt / tau)
-
-
-@kernel
-def _butterworth_step(s, k, q0, q1, q2, q3, fx, fy, fz, dt, tau_s):  # type: ignore[no-untyped-def]
-    """Second-order Butterworth low-pass of the specific force in the estimated NED frame.
-
-    Cut-off f_c = √2/(2π τ) (Laidig & Seel 2023, VQF's accelerometer filter),
-    bilinear transform, direct form II transposed.  The two state vectors
-    ``s[k:k+3]`` and ``s[k+4:k+7]`` are linear combinations of past NED
-    vectors, so rotating both with every correction
-    (:func:`~mavahrs.filters.prefilter.nav_lowpass_rotate`) keeps them in the
-    current estimate's frame; ``s[k+3]``/``s[k+7]`` are 1.0 once started.
-    Returns the filtered vector in body axes.
-    """
-    fn, fe, fd = body_to_ned(q0, q1, q2, q3, fx, fy, fz)
-    # bilinear transform of f_c = √2/(2πτ): C = tan(π f_c dt); capped below π/2 so a
-    # long step (up to max_gap_s) passes the sample through instead of wrapping tan
-    c = math.tan(min(math.sqrt(0.5) * dt / tau_s, 1.5))
-    d = c * c + math.sqrt(2.0) * c + 1.0
-    b0 = c * c / d
-    a1 = 2.0 * (c * c - 1.0) / d
-    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
-    if s[k + 3] == 0.0:  # start in the steady state of the first sample
-        s[k], s[k + 1], s[k + 2], s[k + 3] = fn * (1.0 - b0), fe * (1.0 - b0), fd * (1.0 - b0), 1.0
-        s[k + 4], s[k + 5], s[k + 6], s[k + 7] = fn * (b0 - a2), fe * (b0 - a2), fd * (b0 - a2), 1.0
-    yn = b0 * fn + s[k]
-    ye = b0 * fe + s[k + 1]
-    yd = b0 * fd + s[k + 2]
-    s[k] = 2.0 * b0 * fn - a1 * yn + s[k + 4]
-    s[k + 1] = 2.0 * b0 * fe - a1 * ye + s[k + 5]
-    s[k + 2] = 2.0 * b0 * fd - a1 * yd + s[k + 6]
-    s[k + 4] = b0 * fn - a2 * yn
-    s[k + 5] = b0 * fe - a2 * ye
-    s[k + 6] = b0 * fd - a2 * yd
-    return ned_to_body(q0, q1, q2, q3, yn, ye, yd)
-
-
-@kernel
 def _large_error_factor(theta, beta, tau):  # type: ignore[no-untyped-def]
     """Gain multiplier ≥ 1 that turns the constant-rate step into θ/τ for errors θ > 2βτ.
 
@@ -375,10 +383,15 @@ def _large_error_factor(theta, beta, tau):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def _reset_internal(state):  # type: ignore[no-untyped-def]
-    nav_lowpass_reset(state, S_FILTER + FM_NAVLP)
-    nav_lowpass_reset(state, S_FILTER + FM_NAVLP + LP_LEN)
-    rest_reset(state, S_FILTER + FM_REST)
+def _reset_internal(state, k):  # type: ignore[no-untyped-def]
+    """Reset the filter-specific block at ``state[k:k + FM_LEN]`` (on (re)initialisation)."""
+    nav_lowpass_reset(state, k + FM_NAVLP)
+    nav_lowpass_reset(state, k + FM_NAVLP + LP_LEN)
+    rest_reset(state, k + FM_REST)
+    gnss_compensation_reset(state, k + FM_GNSS)
+    state[k + FM_MAG_AGE] = _NEVER_S
+    nav_lowpass_reset(state, k + FM_LARGE_LP)
+    nav_lowpass_reset(state, k + FM_LARGE_LP + LP_LEN)
 
 
 # --------------------------------------------------------------------------- the step
@@ -390,7 +403,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     dt = begin_step(state, params, row, out)
     if dt < 0.0:
         if int(out[OUT_FLAGS]) & FLAG_STARTUP:  # (re)initialised on this sample
-            _reset_internal(state)
+            _reset_internal(state, S_FILTER)
         return
     f = S_FILTER
     p = P_FILTER
@@ -428,21 +441,45 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     if startup:
         add_flag(out, FLAG_STARTUP)
 
-    # ---- accelerometer, optionally low-passed in a quasi-inertial frame -------
+    # ---- accelerometer: GNSS acceleration removed, low-passed in a quasi-inertial frame ----
+    an = ae = ad = 0.0
+    if params[p + PM_GNSS] > 0.0:
+        # f − v̇ (003, "Влияние ускорений"): what is left is −g whatever the vehicle does.
+        an, ae, ad = gnss_compensation_step(
+            state, f + FM_GNSS, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt,
+            params[p + PM_VDOT_TAU], params[p + PM_VEL_MAX_AGE], params[p + PM_GNSS_FADE],
+        )  # fmt: skip
+        if state[f + FM_MAG_AGE] > HEADING_HOLD_S:
+            an = ae = 0.0  # the horizontal part needs a heading reference to be put in body axes
     ux, uy, uz = ax, ay, az
     tau_acc = params[p + PM_ACC_TAU]
-    if tau_acc > 0.0 and accel_ok:
+    tau_long = params[p + PM_LARGE_LP]
+    theta_long = 0.0
+    if accel_ok and (tau_acc > 0.0 or tau_long > 0.0 or an != 0.0 or ae != 0.0 or ad != 0.0):
+        fn, fe, fd = body_to_ned(q0, q1, q2, q3, ax, ay, az)
+        fn, fe, fd = fn - an, fe - ae, fd - ad
+        if tau_long > 0.0:
+            ln, le, ld = ned_butterworth_step(state, f + FM_LARGE_LP, fn, fe, fd, dt, tau_long)
+            nl = math.sqrt(ln * ln + le * le + ld * ld)
+            if nl > 0.0:
+                theta_long = math.acos(min(max(-ld / nl, -1.0), 1.0))
         # Every valid sample enters the average (leaving out the large ones
         # would bias it: motion accelerations are zero-mean only as a whole).
-        if params[p + PM_ACC_ORDER] > 1.0:
-            ux, uy, uz = _butterworth_step(state, f + FM_NAVLP, q0, q1, q2, q3, ax, ay, az, dt, tau_acc)
-        else:
-            ux, uy, uz = nav_lowpass_step(state, f + FM_NAVLP, q0, q1, q2, q3, ax, ay, az, dt, tau_acc)
+        if tau_acc > 0.0:
+            if params[p + PM_ACC_ORDER] > 1.0:
+                fn, fe, fd = ned_butterworth_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
+            else:
+                fn, fe, fd = ned_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
+        ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn, fe, fd)
 
     # ---- gradients -----------------------------------------------------------
     sg0 = sg1 = sg2 = sg3 = 0.0  # gravity part (unnormalised J_gᵀ f_g)
     ng = 0.0
     theta_g = 0.0
+    tau_large = params[p + PM_LARGE_TAU]
+    # the error angles feed only _large_error_factor, which ignores them while its τ is 0:
+    # their acos/atan2 are skipped then (same results)
+    want_theta_m = tau_large > 0.0 or params[p + PM_LARGE_TAU_HEADING] > 0.0
     if accel_ok and w_a > 0.0 and vector_ok(ux, uy, uz):
         n = math.sqrt(ux * ux + uy * uy + uz * uz)
         # Specific force points up at rest: measured down = −â.
@@ -451,7 +488,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # tilt error: angle between the predicted and the measured down
         cos_t = -(2.0 * (q1 * q3 - q0 * q2) * ux + 2.0 * (q0 * q1 + q2 * q3) * uy
                   + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * uz) / n  # fmt: skip
-        theta_g = math.acos(min(max(cos_t, -1.0), 1.0))
+        if tau_long > 0.0:
+            theta_g = theta_long
+        elif tau_large > 0.0:
+            theta_g = math.acos(min(max(cos_t, -1.0), 1.0))
     sm0 = sm1 = sm2 = sm3 = 0.0  # magnetic part (unnormalised J_bᵀ f_b)
     nm = 0.0
     theta_m = 0.0
@@ -462,7 +502,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         hx, hy, hz = body_to_ned(q0, q1, q2, q3, mnx, mny, mnz)  # eq. (45)
         hh = math.sqrt(hx * hx + hy * hy)
         if hh > 1e-6:
-            theta_m = math.atan2(abs(hy), hx)  # heading error
+            if want_theta_m:
+                theta_m = math.atan2(abs(hy), hx)  # heading error
             if heading_only:
                 # Objective on the horizontal field only, b = [1, 0, 0]: its
                 # gradient is a rotation about the vertical (heading) alone.
@@ -477,12 +518,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             nm = math.sqrt(sm0 * sm0 + sm1 * sm1 + sm2 * sm2 + sm3 * sm3)
     w_a_used = w_a if ng > 1e-12 else 0.0
     w_m_used = w_m if nm > 1e-12 else 0.0
+    state[f + FM_MAG_AGE] = 0.0 if w_m_used > 0.0 else state[f + FM_MAG_AGE] + dt
 
     # ---- the correction direction q̇_ε (eq. (44)) and step (eq. (42)–(43)) ----
     e0 = e1 = e2 = e3 = 0.0  # error direction, unit norm per trusted sensor (for ζ)
     c0 = c1 = c2 = c3 = 0.0  # the applied correction rate β·q̇_ε
     gain = 0.0
-    tau_large = params[p + PM_LARGE_TAU]
     if heading_only:
         beta_h = params[p + PM_BETA_HEADING]
         if w_a_used > 0.0:
@@ -532,14 +573,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
 
     # ---- eq. (42)–(43): q_est = q_ω − β q̇_ε Δt ---------------------------------
     n0, n1, n2, n3 = q0 - c0 * dt, q1 - c1 * dt, q2 - c2 * dt, q3 - c3 * dt
-    if tau_acc > 0.0:
+    if tau_acc > 0.0 or tau_long > 0.0:
         # the correction, a rotation of the estimated NED frame r = 2·vec(q_new ⊗ q*), turns f̄_NED too
         nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
-        r1 = (-n0 * q1 + n1 * q0 - n2 * q3 + n3 * q2) / nn
-        r2 = (-n0 * q2 + n1 * q3 + n2 * q0 - n3 * q1) / nn
-        r3 = (-n0 * q3 - n1 * q2 + n2 * q1 + n3 * q0) / nn
+        _r0, r1, r2, r3 = quat_multiply(n0, n1, n2, n3, q0, -q1, -q2, -q3)
+        r1, r2, r3 = r1 / nn, r2 / nn, r3 / nn
         nav_lowpass_rotate(state, f + FM_NAVLP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
         nav_lowpass_rotate(state, f + FM_NAVLP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+        nav_lowpass_rotate(state, f + FM_LARGE_LP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+        nav_lowpass_rotate(state, f + FM_LARGE_LP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
     state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = n0, n1, n2, n3
     finish_step(state, out, gain, w_a, w_m if mag_ok else 0.0)
 
@@ -571,12 +613,15 @@ class Madgwick(AttitudeFilter):
         p[PM_LARGE_TAU] = s.large_error_tau_s
         p[PM_LARGE_TAU_HEADING] = s.large_heading_error_tau_s
         p[PM_ZETA_SPIN] = s.zeta_spin_limit_rad_s
+        p[PM_GNSS] = 1.0 if s.gnss_acceleration else 0.0
+        p[PM_VDOT_TAU] = s.velocity_tau_s
+        p[PM_VEL_MAX_AGE] = s.velocity_max_age_s
+        p[PM_GNSS_FADE] = s.gnss_fade_s
+        p[PM_LARGE_LP] = s.large_error_lowpass_s
         p[PM_REST : PM_REST + RP_LEN] = s.rest.to_params()
         return p
 
     def initial_internal(self) -> np.ndarray:
         s = np.zeros(FM_LEN)
-        nav_lowpass_reset(s, FM_NAVLP)
-        nav_lowpass_reset(s, FM_NAVLP + LP_LEN)
-        rest_reset(s, FM_REST)
+        _reset_internal(s, 0)
         return s

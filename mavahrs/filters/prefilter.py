@@ -1,22 +1,30 @@
-r"""Low-pass of the specific force in the navigation frame (vibration rejection).
+r"""Low-pass of the specific force in the navigation frame (motion-acceleration and vibration rejection).
 
 Vibration and taps put large, fast, zero-mean accelerations on the
 accelerometer.  Low-passing the body-frame vector would lag behind every
 rotation; low-passing it in the earth frame does not, because there gravity
 is constant (Laidig & Seel 2023, "VQF", section on the accelerometer
 low-pass in the quasi-inertial frame).  Here the frame is the filter's own
-estimated NED frame:
+estimated NED frame: the vector f_NED = C f is low-passed, and every
+correction the filter applies to its estimate (a rotation of the estimated
+NED frame) is applied to the filter's state as well
+(:func:`nav_lowpass_rotate`), so the state stays expressed in the current
+estimate's frame (this is what VQF's separate "inertial frame" achieves).
+The filters then use ``Cᵀ f̄_NED`` in place of f.  τ = 0 passes f through.
 
-    f̄_NED ← f̄_NED + (C f − f̄_NED)·(1 − e^(−dt/τ)),
+Two filters, both on NED vectors:
 
-and every correction the filter applies to its estimate (a rotation of the
-estimated NED frame) is applied to f̄_NED as well, so f̄ stays expressed in
-the current estimate's frame (this is what VQF's separate "inertial frame"
-achieves).  The filters then use ``Cᵀ f̄_NED`` in place of f, in their
-corrections and in the gain schedule's norm / horizontal-force gating.
-τ = 0 passes f through unchanged.
+* first order, :func:`ned_lowpass_step`:
+  ``f̄ ← f̄ + (f − f̄)·(1 − e^(−dt/τ))`` (:func:`lowpass_coefficient`);
+  state block ``LP_LEN`` values: f̄_NED (3), 1.0 once started;
+* second-order Butterworth, :func:`ned_butterworth_step`, cut-off
+  f_c = √2/(2π τ) (VQF's choice; it attenuates motion accelerations of a few
+  tenths of a hertz ten times more than the first-order filter); state block
+  ``BW_LEN`` = two ``LP_LEN`` blocks (the two delay vectors of direct form II
+  transposed), each rotated by :func:`nav_lowpass_rotate`.
 
-State block (``LP_LEN`` values at offset k): f̄_NED (3), 1.0 once started.
+:func:`nav_lowpass_step` is the first-order filter with body-frame input and
+output (rotation into NED and back included).
 """
 
 from __future__ import annotations
@@ -26,31 +34,94 @@ import math
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import body_to_ned, ned_to_body
 
-__all__ = ["LP_LEN", "nav_lowpass_reset", "nav_lowpass_step", "nav_lowpass_rotate"]
+__all__ = [
+    "LP_LEN",
+    "BW_LEN",
+    "lowpass_coefficient",
+    "nav_lowpass_reset",
+    "nav_lowpass_step",
+    "nav_lowpass_rotate",
+    "ned_lowpass_step",
+    "ned_butterworth_step",
+]
 
 LP_LEN = 4
+BW_LEN = 2 * LP_LEN
+
+
+@kernel
+def lowpass_coefficient(dt, tau_s):  # type: ignore[no-untyped-def]
+    """Discrete first-order low-pass coefficient ``1 − e^(−dt/τ)``; 1 (pass through) for τ ≤ 0."""
+    if tau_s <= 0.0:
+        return 1.0
+    return 1.0 - math.exp(-dt / tau_s)
 
 
 @kernel
 def nav_lowpass_reset(s, k):  # type: ignore[no-untyped-def]
+    """Forget the filter state (one ``LP_LEN`` block; call twice for a Butterworth block)."""
     for i in range(LP_LEN):
         s[k + i] = 0.0
 
 
 @kernel
-def nav_lowpass_step(s, k, q0, q1, q2, q3, fx, fy, fz, dt, tau_s):  # type: ignore[no-untyped-def]
-    """Feed one (valid) specific-force sample; return the filtered one in body axes."""
+def ned_lowpass_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
+    """First-order low-pass of one NED vector; returns the filtered NED vector (the input for τ ≤ 0)."""
     if tau_s <= 0.0:
-        return fx, fy, fz
-    fn, fe, fd = body_to_ned(q0, q1, q2, q3, fx, fy, fz)
+        return fn, fe, fd
     if s[k + 3] == 0.0:
         s[k], s[k + 1], s[k + 2], s[k + 3] = fn, fe, fd, 1.0
     else:
-        a = 1.0 - math.exp(-dt / tau_s)
+        a = lowpass_coefficient(dt, tau_s)
         s[k] += (fn - s[k]) * a
         s[k + 1] += (fe - s[k + 1]) * a
         s[k + 2] += (fd - s[k + 2]) * a
-    return ned_to_body(q0, q1, q2, q3, s[k], s[k + 1], s[k + 2])
+    return s[k], s[k + 1], s[k + 2]
+
+
+@kernel
+def nav_lowpass_step(s, k, q0, q1, q2, q3, fx, fy, fz, dt, tau_s):  # type: ignore[no-untyped-def]
+    """Feed one (valid) body-frame specific-force sample; return the filtered one in body axes."""
+    if tau_s <= 0.0:
+        return fx, fy, fz
+    fn, fe, fd = body_to_ned(q0, q1, q2, q3, fx, fy, fz)
+    yn, ye, yd = ned_lowpass_step(s, k, fn, fe, fd, dt, tau_s)
+    return ned_to_body(q0, q1, q2, q3, yn, ye, yd)
+
+
+@kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
+def ned_butterworth_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
+    """Second-order Butterworth low-pass of one NED vector; returns the filtered NED vector.
+
+    Cut-off f_c = √2/(2π τ) (Laidig & Seel 2023, VQF's accelerometer filter),
+    bilinear transform, direct form II transposed.  The two state vectors
+    ``s[k:k+3]`` and ``s[k+4:k+7]`` are linear combinations of past NED
+    vectors, so rotating both with every correction
+    (:func:`nav_lowpass_rotate` on ``k`` and ``k + LP_LEN``) keeps them in the
+    current estimate's frame; ``s[k+3]``/``s[k+7]`` are 1.0 once started.
+    """
+    if tau_s <= 0.0:
+        return fn, fe, fd
+    # bilinear transform of f_c = √2/(2πτ): C = tan(π f_c dt); capped below π/2 so a
+    # long step (up to max_gap_s) passes the sample through instead of wrapping tan
+    c = math.tan(min(math.sqrt(0.5) * dt / tau_s, 1.5))
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    b0 = c * c / d
+    a1 = 2.0 * (c * c - 1.0) / d
+    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
+    if s[k + 3] == 0.0:  # start in the steady state of the first sample
+        s[k], s[k + 1], s[k + 2], s[k + 3] = fn * (1.0 - b0), fe * (1.0 - b0), fd * (1.0 - b0), 1.0
+        s[k + 4], s[k + 5], s[k + 6], s[k + 7] = fn * (b0 - a2), fe * (b0 - a2), fd * (b0 - a2), 1.0
+    yn = b0 * fn + s[k]
+    ye = b0 * fe + s[k + 1]
+    yd = b0 * fd + s[k + 2]
+    s[k] = 2.0 * b0 * fn - a1 * yn + s[k + 4]
+    s[k + 1] = 2.0 * b0 * fe - a1 * ye + s[k + 5]
+    s[k + 2] = 2.0 * b0 * fd - a1 * yd + s[k + 6]
+    s[k + 4] = b0 * fn - a2 * yn
+    s[k + 5] = b0 * fe - a2 * ye
+    s[k + 6] = b0 * fd - a2 * yd
+    return yn, ye, yd
 
 
 @kernel

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mavahrs.filters.jit import kernel
+from mavahrs.filters.prefilter import lowpass_coefficient
 
 __all__ = ["RestBiasSettings", "REST_LEN", "RP_LEN", "rest_reset", "rest_step"]
 
@@ -86,7 +87,7 @@ def rest_reset(s, k):  # type: ignore[no-untyped-def]
         s[k + i] = 0.0
 
 
-@kernel
+@kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
 def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, vn, ve, vd, dt, rp, kp):  # type: ignore[no-untyped-def]
     """Advance the detector; while at rest update ``bias[kb:kb+3]``.  Returns True at rest.
 
@@ -111,7 +112,7 @@ def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, vn, ve, vd, dt, 
         s[k + 6] = 0.0
         s[k + 7] = 1.0
         return False
-    c = 1.0 - math.exp(-dt / tau_s) if tau_s > 0.0 else 1.0
+    c = lowpass_coefficient(dt, tau_s)
     s[k] += (gx - s[k]) * c
     s[k + 1] += (gy - s[k + 1]) * c
     s[k + 2] += (gz - s[k + 2]) * c
