@@ -86,6 +86,8 @@ def load_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise ConfigError(f"cannot read config file {p}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config file {p} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:  # binary garbage: tomllib decodes UTF-8 before parsing
+        raise ConfigError(f"config file {p} is not a text file (byte {exc.start} is not UTF-8)") from None
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:

@@ -45,6 +45,19 @@ from dataclasses import dataclass, field
 
 __all__ = ["FaultSettings", "RelayRecord", "LegCounters", "UdpFaultRelay", "PtyFaultRelay"]
 
+_RCVBUF_BYTES = 4 << 20  # a relay must not add losses of its own when its thread is late
+
+
+def _udp_socket() -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RCVBUF_BYTES)
+    except OSError:
+        pass
+    s.bind(("127.0.0.1", 0))
+    s.setblocking(False)
+    return s
+
 
 @dataclass(frozen=True)
 class FaultSettings:
@@ -200,9 +213,7 @@ class _Leg:
         self.target = target
         self.observer = observer
         self.reply = reply
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.setblocking(False)
+        self.sock = _udp_socket()
         self.state = _FaultState(faults, seed, record)
 
     def send(self, items: list[tuple[bytes, RelayRecord | None]]) -> None:
@@ -217,6 +228,16 @@ class _Leg:
             if rec is not None:
                 rec.sent.append(data)
                 self.state.sent_log.append((rec.index, data))
+
+
+def _leg_observer(observer: Callable[[int, bytes], None] | None, leg: int) -> Callable[[bytes], None] | None:
+    if observer is None:
+        return None
+
+    def observe(data: bytes) -> None:
+        observer(leg, data)
+
+    return observe
 
 
 class UdpFaultRelay:
@@ -245,14 +266,9 @@ class UdpFaultRelay:
         max_hold_s: float = 0.05,
         observer: Callable[[int, bytes], None] | None = None,
     ) -> None:
-        self._up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._up.bind(("127.0.0.1", 0))
-        self._up.setblocking(False)
+        self._up = _udp_socket()
         self._legs = [
-            _Leg(
-                target, faults, None if seed is None else seed + i, reply, record,
-                None if observer is None else (lambda data, i=i: observer(i, data)),
-            )
+            _Leg(target, faults, None if seed is None else seed + i, reply, record, _leg_observer(observer, i))
             for i, (target, faults, reply) in enumerate(legs)
         ]
         self._peer: tuple[str, int] | None = None
@@ -375,9 +391,7 @@ class PtyFaultRelay:
         record: bool = True, max_hold_s: float = 0.05,
     ) -> None:
         self.link = os.fspath(link)
-        self._up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._up.bind(("127.0.0.1", 0))
-        self._up.setblocking(False)
+        self._up = _udp_socket()
         self._peer: tuple[str, int] | None = None
         self._state = _FaultState(faults, seed, record)
         self._max_hold_s = max_hold_s

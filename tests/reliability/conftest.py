@@ -177,7 +177,7 @@ class InProcessDaemon:
 
     def stop(self) -> Any:
         self.daemon.stop()
-        self._thread.join(10)
+        self._thread.join(60)  # a sample being filtered may first have to compile the kernel (numba)
         assert not self._thread.is_alive(), "daemon thread did not stop"
         if self.error is not None:
             raise self.error
@@ -204,7 +204,7 @@ class Collector:
         while not self._stop:
             try:
                 data = self.sock.recv(65536)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 continue
             except OSError:
                 return

@@ -5,8 +5,10 @@ UDP: one simulator run feeds, through :class:`UdpFaultRelay`, two daemons at
 once — one over a clean leg, one over a faulty leg — so the clean and faulty
 runs see the very same flight (same seed, same bytes) and are compared sample
 by sample.  The faulty leg carries the issue's mix (5 % of datagrams lost,
-10 % with a flipped bit, 5 % followed by random junk) plus duplicates and
-reordering, and, at stated times, a corruption burst and a 1.5 s outage.
+10 % with a flipped bit, 5 % followed by random junk) plus 2 % each of
+truncated, duplicated and reordered datagrams, and, at stated times, a 1 s
+corruption burst (half of all datagrams lost, flipped, junk-laden) and a
+1.5 s outage.
 
 Checked against SIMSTATE truth (sent by the simulator in the same datagram as
 each RAW_IMU, so every sample's truth is known from the relay's records):
@@ -16,11 +18,27 @@ each RAW_IMU, so every sample's truth is known from the relay's records):
   newer sample — a late sample cannot be fed to a causal filter and is
   dropped and counted as reordered);
 * its inclination RMS error is within 1° of the clean daemon's over the same
-  samples (outside the bursts and their recovery time);
-* after each burst the inclination error is back within the accuracy bound
-  within the stated recovery time;
+  samples under the steady mix (after start-up, outside the burst and its
+  recovery time, before the outage: the outage re-initialises the faulty
+  daemon's filter, after which the two no longer share a history);
+* recovery: after the burst and after the outage, the faulty daemon's
+  inclination error is back within 1° of the clean daemon's on the same
+  samples within RECOVERY_S (and stays so for 1 s);
 * the counters (CRC errors, bad data, duplicates, out-of-order, lost samples,
   drops by reason) are in the daemon's status and statistics.
+
+Serial: the same simulator through :class:`PtyFaultRelay` (chunks of the byte
+stream flipped, cut short, followed by junk, lost); the device vanishes for
+1.5 s and returns; checked: ≥ 99 % of the samples written intact answered,
+inclination within the bound, recovery after the device returns, counters,
+and — the daemon then killed with SIGKILL — a tlog readable up to the last
+flush.
+
+The scenario is ``hover``: on ``aggressive`` the filter itself (fault-free)
+reaches 10–15° inclination error after about 12 s of flight, and an
+accelerometer re-initialisation after an outage mid-manoeuvre is 20–30° off
+for seconds (docs/reliability.md, "Known limits"), so that flight cannot
+show whether a *fault* left a lasting error.
 """
 
 from __future__ import annotations
@@ -28,7 +46,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import time
 from pathlib import Path
 
@@ -39,14 +56,14 @@ from mavahrs.transports.relay import FaultSettings, PtyFaultRelay, UdpFaultRelay
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(os.name != "posix", reason="subprocesses, ptys")]
 
-#: the issue's fault mix, plus duplicates and reordering
-SCENARIO = os.environ.get("REL_SCENARIO", "hover")
+SCENARIO = "hover"
+#: the issue's fault mix, plus truncation, duplicates and reordering
 MIX = FaultSettings(loss=0.05, bit_flip=0.10, junk=0.05, duplicate=0.02, reorder=0.02, truncate=0.02)
 #: a noisy serial line: chunks of the byte stream corrupted, cut short, followed by junk, lost
 PTY_MIX = FaultSettings(loss=0.02, bit_flip=0.05, truncate=0.02, junk=0.05)
 BURST = FaultSettings(loss=0.5, bit_flip=0.5, junk=0.5, duplicate=0.1, reorder=0.1)
 OUTAGE = FaultSettings(loss=1.0)
-TILT_BOUND_DEG = 3.0  # the filter's accuracy bound on this flight (issue 4: inclination RMS ≤ 3°)
+TILT_BOUND_DEG = 3.0  # the daemon's inclination accuracy bound on a simulated flight (issue 4: RMS ≤ 3°)
 RECOVERY_S = 3.0  # stated recovery time after a fault clears
 SETTLE_S = 3.0  # start-up convergence excluded from accuracy figures
 
@@ -152,11 +169,6 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
         f"worst excess error {worst}; recovery {recovery}\n codec {codec}\n drops {pipe['drops']}"
         f"\n counters {pipe['counters']}"
     )
-    if os.environ.get("REL_DEBUG"):
-        import pickle
-        with open("/tmp/rel/udp_debug.pkl", "wb") as f:
-            pickle.dump({"recs": recs, "recs0": relay.records(0), "ans_faulty": ans_faulty, "ans_clean": ans_clean,
-                         "stats": stats, "statuses": faulty.statuses()}, f)
     assert len(in_order) > 5000
     assert frac_clean >= 0.99
     assert frac_faulty >= 0.99, f"only {frac_faulty:.2%} of the intact samples answered"
