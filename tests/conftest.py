@@ -36,6 +36,25 @@ def mavlink_logs_dir() -> Path:
     return _require(DATA / "mavlink_logs")
 
 
+@pytest.fixture(autouse=True)
+def _isolated_mavahrs_logger() -> object:
+    """Undo what an in-process ``mavahrs.cli.main([...])`` does to the ``mavahrs`` logger.
+
+    The CLI (rightly, for a program) gives the logger its own handler, a level
+    and ``propagate = False``; a later test capturing logs with ``caplog``
+    would then see nothing.
+    """
+    import logging
+
+    logger = logging.getLogger("mavahrs")
+    saved = (list(logger.handlers), logger.level, logger.propagate, logger.disabled)
+    yield
+    logger.handlers[:] = saved[0]
+    logger.setLevel(saved[1])
+    logger.propagate = saved[2]
+    logger.disabled = saved[3]
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
