@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from mavahrs.filters import gains as _g
 from mavahrs.filters.gains import GainScheduleSettings, schedule_reset
 from mavahrs.filters.initial import initial_attitude
-from mavahrs.filters.jit import kernel, loop_kernel, prange
+from mavahrs.filters.jit import bound_loop, kernel, loop_kernel, prange
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_DT_INVALID,
@@ -264,31 +264,88 @@ def run_rows(step, state, params, inputs, outputs):  # type: ignore[no-untyped-d
         step(state, params, inputs[i], outputs[i])
 
 
-@loop_kernel(parallel=True)
-def _run_many_rows(step, states, params, inputs, outs, q_out):  # type: ignore[no-untyped-def]
-    """``run_rows`` for M independent filters (``prange`` over them); keeps only the quaternions.
+#: the kernel called by the cached loops below; bound per filter by jit.bound_loop (never set here)
+_STEP: Any = None
 
-    ``outs`` (M, OUT_WIDTH) is each filter's scratch output row.
-    """
+
+def _rows_loop(state, params, inputs, outputs):  # type: ignore[no-untyped-def]
+    """``run_rows`` with the kernel bound as the global ``_STEP`` (cacheable; see jit.bound_loop)."""
+    for i in range(inputs.shape[0]):
+        _STEP(state, params, inputs[i], outputs[i])
+
+
+def _many_loop(states, params, inputs, outs, q_out, stride):  # type: ignore[no-untyped-def]
+    """``_run_many_rows`` with the kernel bound as the global ``_STEP`` (cacheable)."""
+    for m in prange(states.shape[0]):
+        state = states[m]
+        par = params[m]
+        out = outs[m]
+        for i in range(inputs.shape[0]):
+            _STEP(state, par, inputs[i], out)
+            if i % stride == 0:
+                k = i // stride
+                for j in range(4):
+                    q_out[m, k, j] = out[OUT_Q + j]
+
+
+def _batch_loops(step: Any) -> tuple[Any, Any]:
+    """(rows loop, many loop) for a kernel: cached specialisations, or the generic loops with it bound."""
+    loops = getattr(step, "_mavahrs_batch_loops", None)
+    if loops is None:
+        py = getattr(step, "py_func", step)
+        name = f"_batch_{py.__module__.rsplit('.', 1)[-1]}_{py.__name__}"
+        rows = bound_loop(_rows_loop, f"{name}_rows", _STEP=step)
+        many = bound_loop(_many_loop, f"{name}_many", parallel=True, _STEP=step)
+        if rows is None or many is None:  # a kernel outside mavahrs/filters: the uncached generic loops
+
+            def rows(state, params, inputs, outputs):  # type: ignore[no-untyped-def]
+                run_rows(step, state, params, inputs, outputs)
+
+            def many(states, params, inputs, outs, q_out, stride):  # type: ignore[no-untyped-def]
+                _run_many_rows(step, states, params, inputs, outs, q_out, stride)
+
+        loops = (rows, many)
+        try:
+            step._mavahrs_batch_loops = loops  # memo on the kernel object itself
+        except AttributeError:  # pragma: no cover - a kernel that takes no attributes
+            pass
+    return loops
+
+
+@loop_kernel(parallel=True)
+def _run_many_rows(step, states, params, inputs, outs, q_out, stride):  # type: ignore[no-untyped-def]
+    """``run_rows`` for M independent filters (``prange`` over them); keeps the quaternion of every
+    ``stride``-th row.  ``outs`` (M, OUT_WIDTH) is each filter's output row (scratch, then the last)."""
     for m in prange(states.shape[0]):
         state = states[m]
         par = params[m]
         out = outs[m]
         for i in range(inputs.shape[0]):
             step(state, par, inputs[i], out)
-            for j in range(4):
-                q_out[m, i, j] = out[OUT_Q + j]
+            if i % stride == 0:
+                k = i // stride
+                for j in range(4):
+                    q_out[m, k, j] = out[OUT_Q + j]
 
 
-def run_many(filters: Sequence[AttitudeFilter], inputs: Array) -> Array:
+def run_many(filters: Sequence[AttitudeFilter], inputs: Array, *, stride: int = 1) -> Array:
     """Run M filters of one class over the same recording in parallel; return (M, N, 4) quaternions.
 
     For gain sweeps: build one filter per parameter set (e.g.
     ``[Madgwick(MadgwickSettings(beta_rad_s=b)) for b in betas]``); each
-    continues from its current state, and its state afterwards is the state
-    after the last row, as with :meth:`AttitudeFilter.run`.  The filters run
-    on numba's thread pool (``NUMBA_NUM_THREADS`` bounds it).
+    continues from its current state, and its state (and ``diagnostics``)
+    afterwards are those after the last row, as with
+    :meth:`AttitudeFilter.run`.  The filters run on numba's thread pool
+    (``NUMBA_NUM_THREADS`` bounds it).
+
+    ``stride`` > 1 keeps only the attitude after rows 0, stride, 2·stride, …
+    (shape (M, ⌈N/stride⌉, 4), the same as ``run_many(...)[:, ::stride]``):
+    a 1000-point sweep over a 10-minute 400 Hz recording would otherwise
+    return 7.7 GB.  Every row is still filtered.
     """
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
+        raise ValueError(f"stride must be a positive integer, got {stride!r}")
+    stride = int(stride)
     filters = list(filters)
     if not filters:
         return np.zeros((0, 0, 4))
@@ -298,21 +355,23 @@ def run_many(filters: Sequence[AttitudeFilter], inputs: Array) -> Array:
     inputs = np.ascontiguousarray(inputs, dtype=np.float64)
     if inputs.ndim != 2 or inputs.shape[1] != IN_WIDTH:
         raise ValueError(f"inputs must have shape (N, {IN_WIDTH}), got {inputs.shape}")
+    n = inputs.shape[0]
     states = np.ascontiguousarray(np.stack([f._state for f in filters]))
     params = np.ascontiguousarray(np.stack([f._params for f in filters]))
-    q_out = np.zeros((len(filters), inputs.shape[0], 4))
-    if inputs.shape[0]:
+    outs = np.ascontiguousarray(np.stack([f._out for f in filters]))
+    q_out = np.zeros((len(filters), (n + stride - 1) // stride, 4))
+    if n:
         if filters[0]._compiled:
-            outs = np.zeros((len(filters), OUT_WIDTH))
-            _run_many_rows(filters[0]._step, states, params, inputs, outs, q_out)
+            _batch_loops(filters[0]._step)[1](states, params, inputs, outs, q_out, stride)
         else:
-            out = np.zeros(OUT_WIDTH)
             for m, f in enumerate(filters):
-                for i in range(inputs.shape[0]):
-                    f._kernel(states[m], params[m], inputs[i], out)
-                    q_out[m, i] = out[OUT_Q : OUT_Q + 4]
+                for i in range(n):
+                    f._kernel(states[m], params[m], inputs[i], outs[m])
+                    if i % stride == 0:
+                        q_out[m, i // stride] = outs[m, OUT_Q : OUT_Q + 4]
     for m, f in enumerate(filters):
         f._state[:] = states[m]
+        f._out[:] = outs[m]
     return q_out
 
 
@@ -496,7 +555,7 @@ class AttitudeFilter(ABC):
         if inputs.shape[0] == 0:
             return outputs
         if self._compiled:
-            run_rows(self._step, self._state, self._params, inputs, outputs)
+            _batch_loops(self._step)[0](self._state, self._params, inputs, outputs)
         else:
             for i in range(inputs.shape[0]):
                 self._kernel(self._state, self._params, inputs[i], outputs[i])

@@ -28,10 +28,11 @@ result: the same operations run in the same order.
 from __future__ import annotations
 
 import os
+import types
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "loop_kernel", "prange", "HAVE_NUMBA"]
+__all__ = ["kernel", "loop_kernel", "bound_loop", "prange", "HAVE_NUMBA"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -140,3 +141,31 @@ def loop_kernel(func: F | None = None, *, parallel: bool = False) -> Any:
         return _Interpreted(f)  # type: ignore[return-value]
 
     return wrap if func is None else wrap(func)
+
+
+def bound_loop(template: Callable[..., Any], qualname: str, *, parallel: bool = False, **bound: Any) -> Any:
+    """A driver loop with its kernel bound as a *global*, compiled with numba and cached on disk.
+
+    ``template`` calls its kernel through module-level names (e.g. ``_STEP``);
+    this returns a copy of it whose globals bind those names to ``bound``
+    (e.g. ``_STEP=Madgwick.step``), named ``qualname`` (the cache file name:
+    unique per binding).  Unlike a :func:`loop_kernel` that receives the
+    kernel as an argument, such a loop can be cached, so a new process loads
+    it instead of compiling it (≈ 0.5 s).  Only for templates in
+    ``mavahrs/filters`` binding kernels of ``mavahrs/filters`` (the cache
+    stamp covers those sources); returns None for anything else, and without
+    numba.
+    """
+    if not HAVE_NUMBA or not _is_filter_kernel(template):
+        return None
+    for value in bound.values():
+        py = getattr(value, "py_func", None)
+        if py is None or not _is_filter_kernel(py):
+            return None
+    glb = dict(template.__globals__)
+    glb.update(bound)
+    func = types.FunctionType(template.__code__, glb, qualname.rsplit(".", 1)[-1], template.__defaults__)
+    func.__qualname__ = qualname
+    func.__module__ = template.__module__
+    func.__doc__ = template.__doc__
+    return _numba.njit(cache=True, parallel=parallel, error_model="numpy", _nrt=False)(func)
