@@ -29,7 +29,13 @@ Measured:
   clock) percentiles over the first and the last 5 minutes; the daemon's own
   processing latency (its status lines: p50/p99 per status interval) over the
   same spans (median of the per-interval values);
-* inclination error against SIMSTATE (first vs last span, away from faults);
+* the daemon's CPU time per answered sample (from /proc, first vs last
+  span): unlike latency, it does not depend on what else the machine runs,
+  so it tells a slowing daemon from a busy machine (the 1-minute load
+  average is recorded beside it);
+* inclination error against SIMSTATE (first vs last span; not in the first
+  30 s of start-up convergence, not within 5 s after a fault);
+* a series of 30-s bins with all of the above (``series`` in the JSON);
 * the daemon's counters at exit (``--stats-json``).
 
 Exit code 1 when the RSS grew by more than ``--max-rss-growth-mb`` or its
@@ -108,7 +114,7 @@ def _tilt_deg(q: tuple[float, ...], r: tuple[float, ...]) -> float:
         return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
     a, b = down_in_body(*q), down_in_body(*r)
-    c = max(-1.0, min(1.0, sum(i * j for i, j in zip(a, b)) / (math.sqrt(sum(i * i for i in a)) * math.sqrt(sum(i * i for i in b)))))
+    c = max(-1.0, min(1.0, sum(i * j for i, j in zip(a, b, strict=True)) / (math.sqrt(sum(i * i for i in a)) * math.sqrt(sum(i * i for i in b)))))
     return math.degrees(math.acos(c))
 
 
@@ -135,9 +141,20 @@ class Tracker:
         self.fault_times: deque[float] = deque(maxlen=64)
         self.window_s = window_s
         self.t_start = time.monotonic()
+        self.error_warmup_s = 30.0  # start-up convergence is not the soak's business
         self.first_lat = array("d")
         self.first_err = array("d")
         self.last: deque[tuple[float, float, float]] = deque()  # (t, latency, tilt error or nan)
+        self.bin_s = 30.0
+        #: per bin of sending time: [intact, answered, lost, lost near fault, latencies, squared errors sum, errors]
+        self.bins: dict[int, list[Any]] = {}
+
+    def _bin(self, t: float) -> list[Any]:
+        i = int((t - self.t_start) // self.bin_s)
+        b = self.bins.get(i)
+        if b is None:
+            b = self.bins[i] = [0, 0, 0, 0, array("d"), 0.0, 0]
+        return b
 
     def fault(self) -> None:
         with self.lock:
@@ -169,6 +186,7 @@ class Tracker:
             truth = _q_from_euler(sim.roll, sim.pitch, sim.yaw) if sim is not None else None
             self.pending[ms] = (now, truth)
             self.intact += 1
+            self._bin(now)[0] += 1
 
     def on_attitude(self, m: Any, now: float) -> None:
         with self.lock:
@@ -180,8 +198,15 @@ class Tracker:
             sent, truth = entry
             lat = now - sent
             err = math.nan
-            if truth is not None and not self._near_fault(sent) and not any(0 <= sent - f <= 5.0 for f in self.fault_times):
+            if (truth is not None and sent - self.t_start >= self.error_warmup_s
+                    and not any(-0.2 <= sent - f <= 5.0 for f in self.fault_times)):
                 err = _tilt_deg((m.q1, m.q2, m.q3, m.q4), truth)
+            b = self._bin(sent)
+            b[1] += 1
+            b[4].append(lat)
+            if err == err:
+                b[5] += err * err
+                b[6] += 1
             if sent - self.t_start <= self.window_s:
                 self.first_lat.append(lat)
                 if err == err:
@@ -200,8 +225,10 @@ class Tracker:
                 self.pending.popitem(last=False)
                 if self._near_fault(sent):
                     self.lost_near_fault += 1
+                    self._bin(sent)[3] += 1
                 else:
                     self.lost += 1
+                    self._bin(sent)[2] += 1
 
 
 class Collector(threading.Thread):
@@ -219,7 +246,7 @@ class Collector(threading.Thread):
         while not self.stop:
             try:
                 data = self.sock.recv(65536)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 continue
             except OSError:
                 return
@@ -261,6 +288,15 @@ class Daemon:
                 self.warnings.append(rec.get("message", ""))
             if "mavahrs running" in rec.get("message", ""):
                 self.running.set()
+
+    def cpu_s(self) -> float:
+        """User + system CPU time of the daemon process so far, s."""
+        try:
+            with open(f"/proc/{self.proc.pid}/stat", encoding="ascii") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return math.nan
 
     def rss_mb(self) -> float:
         try:
@@ -369,6 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     sim = Simulator(relay.address[1], workdir, args.scenario, args.seed)
     faults: dict[str, int] = {"burst": 0, "reboot": 0, "silence": 0, "time_jump": 0}
     rss: list[tuple[float, float]] = []
+    cpu: list[tuple[float, float, float]] = []  # (t, daemon CPU s, load average 1 min)
     t0 = time.monotonic()
     tracker.t_start = t0
     sim.start(0.0)
@@ -383,6 +420,7 @@ def main(argv: list[str] | None = None) -> int:
             now = time.monotonic()
             if now >= next_rss:
                 rss.append((now - t0, daemon.rss_mb()))
+                cpu.append((now - t0, daemon.cpu_s(), os.getloadavg()[0]))
                 next_rss += 5.0
             tracker.sweep()
             if daemon.proc.poll() is not None:
@@ -437,6 +475,31 @@ def main(argv: list[str] | None = None) -> int:
     last_status = [s for t, s in daemon.statuses if t - t0 >= elapsed - window]
     relay_c = relay.counters(0)
     intact = tracker.intact
+    series = []
+    for i in sorted(tracker.bins):
+        n_in, n_ans, n_lost, n_near, lats, sq, n_err = tracker.bins[i]
+        t_lo, t_hi = i * tracker.bin_s, (i + 1) * tracker.bin_s
+        in_bin = [(t, c, la) for t, c, la in cpu if t_lo <= t <= t_hi]
+        cpu_us = ((in_bin[-1][1] - in_bin[0][1]) * 1e6 / n_ans) if len(in_bin) >= 2 and n_ans else math.nan
+        rss_bin = [v for t, v in rss if t_lo <= t <= t_hi]
+        st = [s for t, s in daemon.statuses if t_lo <= t - t0 < t_hi]
+        pl = _percentiles(lats)
+        series.append({
+            "t_s": t_lo, "intact": n_in, "answered": n_ans, "lost": n_lost, "lost_near_fault": n_near,
+            "e2e_p50_ms": pl["p50_ms"], "e2e_p99_ms": pl["p99_ms"],
+            "daemon_p50_us": _median([s.get("latency_p50_us") for s in st]),
+            "daemon_p99_us": _median([s.get("latency_p99_us") for s in st]),
+            "daemon_cpu_us_per_sample": cpu_us,
+            "rss_mb": rss_bin[-1] if rss_bin else math.nan,
+            "load_1min": in_bin[-1][2] if in_bin else math.nan,
+            "tilt_rms_deg": math.sqrt(sq / n_err) if n_err else math.nan,
+        })
+
+    def span_mean(key: str, first: bool) -> float:
+        sel = [r[key] for r in series if (r["t_s"] + tracker.bin_s <= window if first else r["t_s"] >= elapsed - window)]
+        sel = [v for v in sel if v == v]
+        return sum(sel) / len(sel) if sel else math.nan
+
     away = max(1, intact - tracker.lost_near_fault)
     result = {
         "duration_s": round(elapsed, 1),
@@ -462,6 +525,9 @@ def main(argv: list[str] | None = None) -> int:
             "last": {"p50": _median([s.get("latency_p50_us") for s in last_status]),
                      "p99": _median([s.get("latency_p99_us") for s in last_status])},
         },
+        "daemon_cpu_us_per_sample": {"first": span_mean("daemon_cpu_us_per_sample", True),
+                                     "last": span_mean("daemon_cpu_us_per_sample", False)},
+        "load_average_1min": {"first": span_mean("load_1min", True), "last": span_mean("load_1min", False)},
         "tilt_error_deg": {
             "first_rms": math.sqrt(sum(e * e for e in tracker.first_err) / len(tracker.first_err)) if tracker.first_err else math.nan,
             "last_rms": math.sqrt(sum(e * e for e in last_err) / len(last_err)) if last_err else math.nan,
@@ -476,6 +542,7 @@ def main(argv: list[str] | None = None) -> int:
             "pipeline_counters": (dstats.get("pipeline") or {}).get("counters"),
         },
         "simulator_restarts": sim.restarts,
+        "series": series,
     }
     problems = []
     if dead or rc != 0 or daemon.tracebacks:
@@ -504,7 +571,9 @@ def main(argv: list[str] | None = None) -> int:
         f"RSS {rss_start:.1f} → {rss_end:.1f} MB (slope {slope:+.2f} MB/h); end-to-end latency p50/p99 first "
         f"{e2e['first']['p50_ms']:.2f}/{e2e['first']['p99_ms']:.2f} ms, last {e2e['last']['p50_ms']:.2f}/"
         f"{e2e['last']['p99_ms']:.2f} ms; daemon p50/p99 first {dl['first']['p50']:.0f}/{dl['first']['p99']:.0f} µs, "
-        f"last {dl['last']['p50']:.0f}/{dl['last']['p99']:.0f} µs; tilt RMS first "
+        f"last {dl['last']['p50']:.0f}/{dl['last']['p99']:.0f} µs; daemon CPU per sample first "
+        f"{result['daemon_cpu_us_per_sample']['first']:.0f} µs, last {result['daemon_cpu_us_per_sample']['last']:.0f} µs "
+        f"(load average {result['load_average_1min']['first']:.1f} / {result['load_average_1min']['last']:.1f}); tilt RMS first "
         f"{result['tilt_error_deg']['first_rms']:.2f}° last {result['tilt_error_deg']['last_rms']:.2f}°\n"
         + ("OK" if not problems else "FAILED: " + "; ".join(problems))
     )
