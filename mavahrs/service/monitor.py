@@ -69,6 +69,7 @@ _STATUSTEXT_MAX = 50
 _NAME_MAX = 10
 _REBOOT_MS = 1000.0  # time going back by more than this = autopilot reboot
 _MAX_PENDING = 64
+_INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,13 @@ class MonitorSettings:
         align_tolerance_ms: the autopilot's sample is compared with our
             estimate at the same time: interpolated when our estimates around
             it are at most 2× this apart, else the nearest one within this, ms.
-        max_gap_s: comparisons further apart than this break "continuously", s.
+        max_gap_s: comparisons further apart than this — or than
+            ``gap_intervals`` × the autopilot's typical attitude interval,
+            whichever is longer — break "continuously", s.  (ATTITUDE at 1 Hz,
+            as a ground station's stream rate may leave it, arrives every
+            1.000 ± 0.003 s: a fixed 1 s would break every other step.)
+        gap_intervals: see ``max_gap_s``; the typical interval is the median of
+            the last few intervals between the autopilot's attitudes.
         history_s: how much of our estimate history is kept for alignment, s.
         autopilot_component_id: only attitudes from this component are
             compared (1 = MAV_COMP_ID_AUTOPILOT1; 0 = any).
@@ -112,6 +119,7 @@ class MonitorSettings:
     startup_grace_s: float = 10.0
     align_tolerance_ms: float = 50.0
     max_gap_s: float = 1.0
+    gap_intervals: float = 2.5
     history_s: float = 2.0
     autopilot_component_id: int = 1
     tilt_name: str = "AHRS_TILT"
@@ -128,7 +136,7 @@ class MonitorSettings:
             raise ValueError("monitor tilt_threshold_deg must be > 0")
         if not 0.0 < self.clear_fraction <= 1.0:
             raise ValueError(f"monitor clear_fraction must be in (0, 1], got {self.clear_fraction!r}")
-        for name in ("align_tolerance_ms", "max_gap_s", "history_s"):
+        for name in ("align_tolerance_ms", "max_gap_s", "history_s", "gap_intervals"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"monitor setting {name} must be > 0, got {v!r}")
@@ -240,6 +248,7 @@ class AttitudeMonitor:
         self._tol_ms = s.align_tolerance_ms
         self._history_ms = 1000.0 * s.history_s
         self._period_us = int(round(1e6 / s.rate_hz)) if s.rate_hz > 0 else 0
+        self._max_gap_ms = 1000.0 * s.max_gap_s
         self._tilt_name = s.tilt_name.encode()
         self._heading_name = s.heading_name.encode()
         #: when False (declination unknown, or no magnetometer), heading is published but never alarmed
@@ -257,6 +266,7 @@ class AttitudeMonitor:
         self._pending: deque[tuple[float, tuple[float, float, float, float]]] = deque()
         self._first_est_ms: float | None = None
         self._last_att_ms: float | None = None
+        self._att_intervals: deque[float] = deque(maxlen=_INTERVALS)
         self._last_cmp_ms: float | None = None
         self._above_since_ms: float | None = None
         self._below_since_ms: float | None = None
@@ -312,8 +322,11 @@ class AttitudeMonitor:
         if not self.settings.enabled:
             return []
         t = float(t_boot_ms)
-        if self._last_att_ms is not None and t < self._last_att_ms - _REBOOT_MS:
+        last = self._last_att_ms
+        if last is not None and t < last - _REBOOT_MS:
             self._restart()
+        elif last is not None and t > last:
+            self._att_intervals.append(t - last)
         self._last_att_ms = t
         q = (float(q_body_to_ned[0]), float(q_body_to_ned[1]), float(q_body_to_ned[2]), float(q_body_to_ned[3]))
         self._pending.append((t, q))
@@ -381,13 +394,21 @@ class AttitudeMonitor:
             return q0
         return q1 if t1 - t <= tol else None
 
+    def _gap_ms(self) -> float:
+        """Comparisons further apart than this are not "continuous" (see ``MonitorSettings.max_gap_s``)."""
+        iv = self._att_intervals
+        if not iv:
+            return self._max_gap_ms
+        typical = sorted(iv)[len(iv) // 2]
+        return max(self._max_gap_ms, self.settings.gap_intervals * typical)
+
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         s = self.settings
         tilt, heading = _divergence(q_est, q_ap)
         self._tilt, self._heading = tilt, heading
         self._comparisons += 1
         self._fresh = True
-        gap = self._last_cmp_ms is not None and t_ms - self._last_cmp_ms > 1000.0 * s.max_gap_s
+        gap = self._last_cmp_ms is not None and t_ms - self._last_cmp_ms > self._gap_ms()
         self._last_cmp_ms = t_ms
         if gap:
             self._above_since_ms = self._below_since_ms = None

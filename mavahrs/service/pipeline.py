@@ -42,6 +42,7 @@ otherwise does scalar Python arithmetic: no numpy small arrays, no logging.
 from __future__ import annotations
 
 import math
+import struct
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
@@ -98,6 +99,16 @@ _BACKLOG = 1024  # samples kept per unselected IMU instance for a seamless fail-
 _SNAPSHOT_US = 100_000  # filter state kept every 0.1 s of sample time …
 _SNAPSHOTS = 30  # … for 3 s, to undo samples of an IMU found frozen/saturated/disagreeing
 _G = 9.80665
+# Fast encoding of the fixed-layout messages sent per sample (see Pipeline._frame): MAVLink 2 header,
+# payload as pymavlink packs it (common.xml field order: largest types first), CRC-16/MCRF4XX with CRC_EXTRA.
+_V2_HEADER = struct.Struct("<BBBBBBBHB")
+_CRC = struct.Struct("<H")
+_AQ_ID, _AQ_CRC = mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, mavlink.MAVLink_attitude_quaternion_message.crc_extra
+_AQ_PAYLOAD = struct.Struct("<Ifffffff")  # time_boot_ms, q1..q4, rates; repr_offset_q (zero) is truncated
+_ATT_ID, _ATT_CRC = mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLink_attitude_message.crc_extra
+_ATT_PAYLOAD = struct.Struct("<Iffffff")
+_HB_ID, _HB_CRC = mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLink_heartbeat_message.crc_extra
+_HB_PAYLOAD = struct.Struct("<IBBBBB")
 
 
 class Outgoing(NamedTuple):
@@ -344,6 +355,8 @@ class Pipeline:
         self._gap_dt_s = 2.0 * float(getattr(getattr(self._filter, "settings", None), "max_gap_s", 1.0) or 1.0)
         self._codec = MavCodec(system_id=s.system_id or 1, component_id=s.component_id)
         self._mav = self._codec.mav
+        #: the fast encoder applies: MAVLink 2, and the encoder state is the pymavlink MAVLink object's
+        self._fast_encode = float(mavlink.WIRE_PROTOCOL_VERSION) == 2.0 and hasattr(self._mav, "signing")
         self._row = np.full(IN_WIDTH, _NAN)
         self._selector = ImuSelector(s.selection_settings)
         self._requester = StreamRequester(s.stream_settings)
@@ -357,6 +370,8 @@ class Pipeline:
         self._hb_period_us = int(round(1e6 / s.heartbeat_hz)) if s.heartbeat_hz > 0 else 0
         self._hb_timeout_us = int(s.heartbeat_timeout_s * 1e6)
         self._no_imu_us = int(s.no_imu_warning_s * 1e6)
+        self._low_rate_window_us = int(s.stream_settings.rate_window_s * 1e6)
+        self._low_rate_since_us: int | None = None
         self._handlers: dict[str, Callable[[Any, int], list[Outgoing]]] = {
             "HEARTBEAT": self._on_heartbeat,
             "GLOBAL_POSITION_INT": self._on_global_position,
@@ -365,6 +380,9 @@ class Pipeline:
             "SYSTEM_TIME": self._on_position_only,
             "COMMAND_ACK": self._on_command_ack,
             "STATUSTEXT": self._on_statustext,
+            "REQUEST_DATA_STREAM": self._on_foreign_stream_request,
+            "COMMAND_LONG": self._on_foreign_stream_request,
+            "COMMAND_INT": self._on_foreign_stream_request,
             "ATTITUDE": self._on_autopilot_attitude,
             "ATTITUDE_QUATERNION": self._on_autopilot_attitude,
         }
@@ -734,8 +752,10 @@ class Pipeline:
         q = float(row[IN_GYRO + 1] - out[OUT_BIAS + 1])
         r = float(row[IN_GYRO + 2] - out[OUT_BIAS + 2])
         t_ms = (t_us // 1000) & 0xFFFFFFFF
-        msg = self._mav.attitude_quaternion_encode(t_ms, qw, qx, qy, qz, p, q, r, _ZERO_Q)
-        frames = [Outgoing(self._codec.encode(msg), self._to_master, True)]
+        frame = self._frame(_AQ_ID, _AQ_CRC, _AQ_PAYLOAD.pack(t_ms, qw, qx, qy, qz, p, q, r))
+        if frame is None:
+            frame = self._codec.encode(self._mav.attitude_quaternion_encode(t_ms, qw, qx, qy, qz, p, q, r, _ZERO_Q))
+        frames = [Outgoing(frame, self._to_master, True)]
         if self._monitor_on:
             for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz)):
                 frames.append(Outgoing(self._codec.encode(m), self._to_master, True))
@@ -743,8 +763,10 @@ class Pipeline:
             roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
             pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
             yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-            e = self._mav.attitude_encode(t_ms, roll, pitch, yaw, p, q, r)
-            frames.append(Outgoing(self._codec.encode(e), self._to_master, True))
+            frame = self._frame(_ATT_ID, _ATT_CRC, _ATT_PAYLOAD.pack(t_ms, roll, pitch, yaw, p, q, r))
+            if frame is None:
+                frame = self._codec.encode(self._mav.attitude_encode(t_ms, roll, pitch, yaw, p, q, r))
+            frames.append(Outgoing(frame, self._to_master, True))
         self.outputs_sent += 1
         self._out_meter.add(now_us)
         return frames
@@ -800,6 +822,30 @@ class Pipeline:
             self._requester.on_statustext(text, now_us)
             if "SCHED_LOOP_RATE" in text or "rate" in text.lower() and "too fast" in text.lower():
                 self._notices.info("ap-rate-text", f"autopilot says: {text.strip()}", now_us)
+        return []
+
+    def _on_foreign_stream_request(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """Another node (a ground station, MAVProxy, a router relaying one) changing the autopilot's stream rates.
+
+        Visible when the link carries other nodes' traffic to the autopilot (a
+        mavlink-router endpoint, a shared UDP network).  REQUEST_DATA_STREAM
+        resets whole stream groups on ArduPilot (RAW_IMU with RAW_SENSORS, or
+        all of them): ask again for what it changes, shortly after.
+        """
+        src = self._source
+        if src is None:
+            return []
+        hdr = msg.get_header()
+        sender = (hdr.srcSystem, hdr.srcComponent)
+        if sender == src or sender == (self._codec.system_id, self._codec.component_id):
+            return []  # the autopilot itself, or our own request relayed back
+        if msg.target_system not in (0, src[0]) or msg.target_component not in (0, src[1]):
+            return []
+        who = f"system {sender[0]} component {sender[1]}"
+        if msg.get_type() == "REQUEST_DATA_STREAM":
+            self._requester.on_foreign_request(now_us, stream_id=int(msg.req_stream_id), sender=who)
+        elif msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._requester.on_foreign_request(now_us, message_id=int(msg.param1), interval_us=float(msg.param2), sender=who)
         return []
 
     def _from_source(self, msg: Any) -> bool:
@@ -894,16 +940,47 @@ class Pipeline:
         if last is None:
             return
         rate = self._filter_meter.rate(now_us)
-        if self.samples_filtered > 20 and 0 < rate < self.settings.low_imu_rate_hz:
-            self._notices.warning(
-                "low-rate",
-                f"IMU samples reach the filter at {rate:.0f} Hz: too slow for meaningful attitude filtering "
-                f"(≥ {self.settings.low_imu_rate_hz:g} Hz needed)",
-                now_us,
-            )
+        # Judge the rate only once the requested one has had time to take effect (the autopilot streams
+        # at its default 1-10 Hz until then), and only when it stays low for a whole window.
+        sel = self._selector.selected
+        settled = self._profile is None or sel is None or self._requester.rate_settled(self._message_for_instance(sel), now_us)
+        if settled and self.samples_filtered > 20 and 0 < rate < self.settings.low_imu_rate_hz:
+            if self._low_rate_since_us is None:
+                self._low_rate_since_us = now_us
+            elif now_us - self._low_rate_since_us >= self._low_rate_window_us:
+                self._notices.warning(
+                    "low-rate",
+                    f"IMU samples reach the filter at {rate:.0f} Hz: too slow for meaningful attitude filtering "
+                    f"(≥ {self.settings.low_imu_rate_hz:g} Hz needed)",
+                    now_us,
+                )
+        else:
+            self._low_rate_since_us = None
 
     # ------------------------------------------------------------------ encoding
+    def _frame(self, msg_id: int, crc_extra: int, payload: bytes) -> bytes | None:
+        """One MAVLink 2 frame with our ids and the codec's next sequence number, byte for byte what
+        ``MavCodec.encode`` makes of the same message (tested) at a tenth of the cost; None when signing
+        is on (the codec signs) — then the caller encodes through the codec."""
+        mav = self._mav
+        if not self._fast_encode or mav.signing.sign_outgoing:
+            return None
+        payload = payload.rstrip(b"\0") or b"\0"  # MAVLink 2 truncates trailing zero bytes (keeps one)
+        seq = mav.seq
+        head = _V2_HEADER.pack(0xFD, len(payload), 0, 0, seq, mav.srcSystem, mav.srcComponent, msg_id & 0xFFFF, msg_id >> 16)
+        body = head + payload
+        frame = body + _CRC.pack(mavlink.x25crc(body[1:] + bytes((crc_extra,))).crc)
+        mav.seq = (seq + 1) % 256
+        c = self._codec.counters
+        c.packets_out += 1
+        c.bytes_out += len(frame)
+        return frame
+
     def _heartbeat_frame(self) -> bytes:
+        frame = self._frame(_HB_ID, _HB_CRC, _HB_PAYLOAD.pack(0, _MAV_TYPE_ONBOARD_CONTROLLER, _MAV_AUTOPILOT_INVALID,
+                                                               0, _MAV_STATE_ACTIVE, 3))  # fmt: skip
+        if frame is not None:
+            return frame
         msg = self._mav.heartbeat_encode(
             _MAV_TYPE_ONBOARD_CONTROLLER, _MAV_AUTOPILOT_INVALID, 0, 0, _MAV_STATE_ACTIVE
         )

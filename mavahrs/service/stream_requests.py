@@ -9,7 +9,15 @@ stations and MAVProxy reset stream rates when they connect.  The
    param1 = message id, param2 = interval µs)`` — one command in flight at a
    time, so each COMMAND_ACK is matched to its request;
 2. repeats the request every ``interval_s`` (default 10 s) at the rate the
-   autopilot last accepted;
+   autopilot last accepted, and **at once** when the delivered rate collapses
+   (below ``low_rate_fraction`` of the accepted rate over ``drop_window_s``,
+   judged ``drop_grace_s`` after each request was acknowledged) or when another
+   node is seen asking the autopilot for other rates (REQUEST_DATA_STREAM,
+   SET_MESSAGE_INTERVAL): MAVProxy with ``--streamrate`` and ground stations
+   reset every stream group, RAW_IMU included.  These quick re-requests are at
+   least ``rerequest_min_s`` apart; when one does not bring the rate back the
+   spacing doubles (up to ``interval_s``) and, after two in vain, a single
+   warning says the autopilot or the link cannot deliver;
 3. on ``DENIED`` steps down a ladder of rates (400 → 250 → 200 → 100 → 50 …)
    to the fastest one the autopilot accepts.  ArduPilot refuses intervals its
    scheduler cannot keep (``GCS_MAVLINK::set_message_interval``: DENIED when
@@ -23,7 +31,9 @@ stations and MAVProxy reset stream rates when they connect.  The
    trying the command once per interval in case the autopilot was busy;
 5. measures the delivered rate of each wanted message and warns when it is
    far below what was accepted (baud rate too low, a radio in the path, or a
-   ground station resetting stream rates).
+   ground station resetting stream rates faster than they can be restored);
+   :meth:`StreamRequester.rate_settled` tells the pipeline when a message's
+   rate has had time to take effect (its own low-rate warning waits for it).
 
 It produces :class:`SetMessageInterval` / :class:`RequestDataStream` requests
 (the pipeline encodes them) and notices (the daemon logs them).  Time is
@@ -74,8 +84,23 @@ class StreamRequestSettings:
             below the wanted rate are used).
         low_rate_fraction: warn when the delivered rate is below this fraction
             of the accepted rate.
-        rate_grace_s: time after a request before the delivered rate is judged, s.
+        rate_grace_s: time after a request before the delivered rate is judged, s
+            (slow check: data-stream mode, and the pipeline's own low-rate
+            warning waits this long after the accepted rate last changed).
         rate_window_s: window over which the delivered rate is measured, s.
+        rerequest_on_drop: ask again at once when the delivered rate falls
+            below ``low_rate_fraction`` × the accepted rate, or when another
+            node is seen changing the autopilot's stream rates (False: only the
+            periodic re-request every ``interval_s``).
+        drop_window_s: window of the quick delivered-rate check, s.
+        drop_grace_s: time after a request's COMMAND_ACK (or the request, for
+            REQUEST_DATA_STREAM) before the quick check judges the rate, s.
+        rerequest_min_s: quick re-requests of one message are at least this
+            far apart, s; doubled after each one that did not restore the rate
+            (up to ``interval_s``), back to this once it is restored.
+        foreign_request_delay_s: after seeing another node's
+            REQUEST_DATA_STREAM / SET_MESSAGE_INTERVAL to the autopilot, ask
+            again this much later (so ours arrives after theirs), s.
     """
 
     enabled: bool = True
@@ -86,9 +111,15 @@ class StreamRequestSettings:
     low_rate_fraction: float = 0.5
     rate_grace_s: float = 3.0
     rate_window_s: float = 2.0
+    rerequest_on_drop: bool = True
+    drop_window_s: float = 0.5
+    drop_grace_s: float = 1.0
+    rerequest_min_s: float = 1.0
+    foreign_request_delay_s: float = 0.2
 
     def __post_init__(self) -> None:
-        for name in ("interval_s", "ack_timeout_s", "rate_grace_s", "rate_window_s"):
+        for name in ("interval_s", "ack_timeout_s", "rate_grace_s", "rate_window_s", "drop_window_s", "drop_grace_s",
+                     "rerequest_min_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"stream request setting {name} must be a positive number of seconds, got {v!r}")
@@ -96,6 +127,9 @@ class StreamRequestSettings:
             raise ConfigError(f"attempts must be ≥ 1, got {self.attempts}")
         if not self.ladder_hz or any(not (math.isfinite(r) and r > 0) for r in self.ladder_hz):
             raise ConfigError(f"ladder_hz must be positive rates, got {self.ladder_hz!r}")
+        d = self.foreign_request_delay_s
+        if not (math.isfinite(d) and d >= 0):
+            raise ConfigError(f"foreign_request_delay_s must be ≥ 0 s, got {d!r}")
         if not 0 < self.low_rate_fraction <= 1:
             raise ConfigError(f"low_rate_fraction must be in (0, 1], got {self.low_rate_fraction!r}")
 
@@ -140,14 +174,43 @@ class StreamState:
     detail: str
 
 
+class _Meter:
+    """Arrival counter for one message: the status window and the quick-check window."""
+
+    __slots__ = ("slow", "fast")
+
+    def __init__(self, window_s: float, fast_window_s: float) -> None:
+        self.slow = RateMeter(window_s)
+        self.fast = RateMeter(fast_window_s)
+
+    def add(self, now_us: int, n: int = 1) -> None:
+        self.slow.add(now_us, n)
+        self.fast.add(now_us, n)
+
+    def rate(self, now_us: int) -> float:
+        return self.slow.rate(now_us)
+
+    @property
+    def total(self) -> int:
+        return self.slow.total
+
+    def reset(self) -> None:
+        self.slow.reset()
+        self.fast.reset()
+
+
 class _Want:
     __slots__ = ("name", "msg_id", "stream_id", "wanted_hz", "rates", "idx", "mode", "accepted_hz",
-                 "due_us", "attempts", "requested_us", "detail", "meter", "denied_hz", "probe", "warn")  # fmt: skip
+                 "due_us", "attempts", "requested_us", "detail", "meter", "denied_hz", "probe", "warn",
+                 "judge_us", "next_quick_us", "backoff_us", "min_backoff_us", "quick_pending", "established",
+                 "failures", "stuck_warned")  # fmt: skip
 
-    def __init__(self, name: str, msg_id: int, stream_id: int, wanted_hz: float, ladder: tuple[float, ...], window_s: float):
+    def __init__(self, name: str, msg_id: int, stream_id: int, wanted_hz: float, ladder: tuple[float, ...],
+                 meter: _Meter, min_backoff_us: int) -> None:  # fmt: skip
         self.name, self.msg_id, self.stream_id = name, msg_id, stream_id
         self.warn = True
-        self.meter = RateMeter(window_s)
+        self.meter = meter
+        self.min_backoff_us = min_backoff_us
         self.set_rate(wanted_hz, ladder)
 
     def set_rate(self, wanted_hz: float, ladder: tuple[float, ...]) -> None:
@@ -161,10 +224,21 @@ class _Want:
         self.accepted_hz: float | None = None
         self.due_us: int | None = None  # None = as soon as possible
         self.attempts = 0
-        self.requested_us: int | None = None
+        self.requested_us: int | None = None  # when the current accepted rate was asked for (rate changes only)
         self.detail = "not requested yet"
         self.denied_hz: float | None = None
         self.probe = False
+        self.reset_quick()
+
+    def reset_quick(self) -> None:
+        """Forget the quick re-request state (new rate, restart)."""
+        self.judge_us: int | None = None  # quick check: judge the delivered rate from then on
+        self.next_quick_us = 0  # no quick re-request before then
+        self.backoff_us = self.min_backoff_us
+        self.quick_pending = False  # a quick re-request went out and awaits judgement
+        self.established = False  # delivered at the accepted rate since it was accepted
+        self.failures = 0  # quick re-requests in a row that did not restore the rate
+        self.stuck_warned = False
 
     @property
     def rate_hz(self) -> float:
@@ -180,6 +254,9 @@ class StreamRequester:
         self._timeout_us = int(s.ack_timeout_s * 1e6)
         self._interval_us = int(s.interval_s * 1e6)
         self._grace_us = int(s.rate_grace_s * 1e6)
+        self._drop_grace_us = int(s.drop_grace_s * 1e6)
+        self._rerequest_min_us = int(s.rerequest_min_s * 1e6)
+        self._foreign_delay_us = int(s.foreign_request_delay_s * 1e6)
         self._wants: dict[str, _Want] = {}
         self._inflight: _Want | None = None
         self._inflight_us = 0
@@ -188,10 +265,14 @@ class StreamRequester:
         self._ds_due_us: int | None = None
         self.notices = Notices()
         #: per-message delivered-rate meters (the pipeline adds to them on arrival)
-        self.meters: dict[str, RateMeter] = {}
+        self.meters: dict[str, _Meter] = {}
         self.commands_sent = 0
         self.data_stream_requests_sent = 0
         self.acks = 0
+        #: quick re-requests after a collapse of the delivered rate
+        self.rerequests = 0
+        #: stream-rate requests by other nodes seen on the link (each answered by a re-request)
+        self.foreign_requests = 0
 
     # ------------------------------------------------------------------ configuration
     def want(
@@ -200,7 +281,8 @@ class StreamRequester:
         """Ask for ``name`` at ``rate_hz`` (0 = stop asking; nothing is sent to stop it).
 
         ``warn_low_rate=False`` for messages that may legitimately not exist
-        (a second or third IMU the board does not have).
+        (a second or third IMU the board does not have): no warning, and no
+        quick re-request unless the message did arrive at its rate before.
         """
         w = self._wants.get(name)
         if rate_hz <= 0:
@@ -211,7 +293,9 @@ class StreamRequester:
                     self._inflight = None
             return
         if w is None:
-            w = self._wants[name] = _Want(name, msg_id, stream_id, rate_hz, self.settings.ladder_hz, self.settings.rate_window_s)
+            s = self.settings
+            meter = _Meter(s.rate_window_s, s.drop_window_s)
+            w = self._wants[name] = _Want(name, msg_id, stream_id, rate_hz, s.ladder_hz, meter, self._rerequest_min_us)
             self.meters[name] = w.meter
         elif w.wanted_hz != rate_hz:
             w.set_rate(rate_hz, self.settings.ladder_hz)
@@ -251,10 +335,12 @@ class StreamRequester:
                 w.mode = "command"
             if w.accepted_hz != rate:
                 w.requested_us = now_us
+                w.reset_quick()
             w.accepted_hz = rate
             w.attempts = 0
             w.detail = f"accepted at {rate:g} Hz"
             w.due_us = now_us + self._interval_us
+            w.judge_us = now_us + self._drop_grace_us  # the new rate takes effect from now
             if w.denied_hz is not None:
                 self.notices.warning(
                     f"stepdown:{w.name}",
@@ -287,6 +373,63 @@ class StreamRequester:
         if "SCHED_LOOP_RATE" in text:
             self._sched_hint = True
 
+    def on_foreign_request(
+        self,
+        now_us: int,
+        *,
+        stream_id: int | None = None,
+        message_id: int | None = None,
+        interval_us: float | None = None,
+        sender: str = "another node",
+    ) -> bool:
+        """Another node asked the autopilot for stream rates; ask again for what it changes.
+
+        Args:
+            now_us: the caller's clock.
+            stream_id: a REQUEST_DATA_STREAM's ``req_stream_id`` (0 = all
+                streams: MAVProxy's ``--streamrate``, ground stations).
+            message_id: a SET_MESSAGE_INTERVAL's message id …
+            interval_us: … and interval (a request for our own rate changes nothing).
+            sender: who sent it, for the notice.
+
+        Returns:
+            True when a wanted message is affected (its request is repeated
+            ``foreign_request_delay_s`` later, no sooner than the quick
+            re-request spacing allows).
+        """
+        if not (self._started and self.settings.enabled and self.settings.rerequest_on_drop):
+            return False
+        hit: list[str] = []
+        for w in self._wants.values():
+            if stream_id is not None:
+                affected = stream_id in (0, w.stream_id)  # 0 = MAV_DATA_STREAM_ALL
+            else:
+                ours = w.accepted_hz if w.accepted_hz is not None else w.rate_hz
+                affected = message_id == w.msg_id and (
+                    interval_us is None or abs(float(interval_us) - 1e6 / ours) > 1.0
+                )
+            if not affected:
+                continue
+            when = max(now_us + self._foreign_delay_us, w.next_quick_us)
+            if w.mode == "command" and w.accepted_hz is not None:
+                hit.append(w.name)
+                if w.due_us is None or when < w.due_us:
+                    w.due_us = when
+                w.next_quick_us = when + w.backoff_us
+            elif w.mode == "data_stream":
+                hit.append(w.name)
+                if self._ds_due_us is None or when < self._ds_due_us:
+                    self._ds_due_us = when
+        if hit:
+            self.foreign_requests += 1
+            what = f"REQUEST_DATA_STREAM({stream_id})" if stream_id is not None else f"SET_MESSAGE_INTERVAL({message_id})"
+            self.notices.info(
+                "foreign-request",
+                f"{sender} sent {what} to the autopilot: requesting {', '.join(hit)} again",
+                now_us,
+            )
+        return bool(hit)
+
     # ------------------------------------------------------------------ outputs
     def poll(self, now_us: int) -> list[SetMessageInterval | RequestDataStream]:
         """Requests due now."""
@@ -306,6 +449,7 @@ class StreamRequester:
                         self._fallback(other, now_us, "the autopilot does not answer SET_MESSAGE_INTERVAL", quiet=True)
             else:
                 w.due_us = now_us
+        self._check_rates(now_us)  # may make a quick re-request due now
         if self._inflight is None:
             for w in self._wants.values():
                 if w.mode == "command" and (w.due_us is None or now_us >= w.due_us):
@@ -329,7 +473,6 @@ class StreamRequester:
                 w = ds[0]
                 w.probe = True
                 out.append(self._send_command(w, now_us, probe=True))
-        self._check_rates(now_us)
         return out
 
     def _send_command(self, w: _Want, now_us: int, probe: bool = False) -> SetMessageInterval:
@@ -341,6 +484,8 @@ class StreamRequester:
         self.commands_sent += 1
         if w.requested_us is None:
             w.requested_us = now_us
+        if w.accepted_hz is not None:
+            w.judge_us = now_us + self._drop_grace_us  # (again from the ACK)
         return SetMessageInterval(w.msg_id, w.name, int(round(1e6 / w.rate_hz)), min(conf, 255))
 
     def _fallback(self, w: _Want, now_us: int, why: str, quiet: bool = False) -> None:
@@ -348,6 +493,7 @@ class StreamRequester:
         w.accepted_hz = None
         w.attempts = 0
         w.requested_us = None
+        w.reset_quick()
         w.detail = why
         self._ds_due_us = None  # send the data-stream request now
         if quiet:
@@ -365,20 +511,73 @@ class StreamRequester:
         return "On ArduPilot, increase SCHED_LOOP_RATE to allow more (messages stream at most 0.8 × SCHED_LOOP_RATE)."
 
     def _check_rates(self, now_us: int) -> None:
-        frac = self.settings.low_rate_fraction
+        quick = self.settings.rerequest_on_drop
         for w in self._wants.values():
-            expected = w.accepted_hz if w.mode == "command" else (w.wanted_hz if w.mode == "data_stream" else None)
-            if not w.warn or expected is None or w.requested_us is None or now_us - w.requested_us < self._grace_us:
-                continue
-            got = w.meter.rate(now_us)
-            if got < frac * expected:
-                how = "accepted" if w.mode == "command" else "requested with REQUEST_DATA_STREAM"
+            if w.mode == "command" and quick:
+                if w.accepted_hz is not None:
+                    self._check_drop(w, w.accepted_hz, now_us)
+            elif w.mode == "command":
+                self._check_slow(w, w.accepted_hz, now_us)
+            elif w.mode == "data_stream":
+                self._check_slow(w, w.wanted_hz, now_us)
+
+    def _check_drop(self, w: _Want, expected: float, now_us: int) -> None:
+        """The quick check: re-request at once when the delivered rate collapsed (with back-off)."""
+        if w.judge_us is None or now_us < w.judge_us:
+            return
+        got = w.meter.fast.rate(now_us)
+        if got >= self.settings.low_rate_fraction * expected:
+            if w.stuck_warned:
+                self.notices.info(f"rate-back:{w.name}", f"{w.name} arrives at {got:.0f} Hz again", now_us)
+            w.quick_pending = False
+            w.failures = 0
+            w.stuck_warned = False
+            w.backoff_us = self._rerequest_min_us
+            w.established = True
+            return
+        if not (w.established or w.warn):
+            return  # e.g. a second IMU the board does not have: nothing to chase
+        if w.quick_pending:  # the last quick re-request did not bring the rate back
+            w.quick_pending = False
+            w.failures += 1
+            w.backoff_us = min(2 * w.backoff_us, self._interval_us)
+            if w.failures >= 2 and w.warn and not w.stuck_warned:
+                w.stuck_warned = True
                 self.notices.warning(
                     f"lowrate:{w.name}",
-                    f"{w.name} arrives at {got:.0f} Hz, {expected:g} Hz {how}: the link (baud rate, radio) "
-                    "may be too slow, or another ground station resets stream rates",
+                    f"{w.name} arrives at {got:.0f} Hz, {expected:g} Hz accepted, and asking again did not help: "
+                    "the link (baud rate, radio) may be too slow, or another program keeps resetting stream rates; "
+                    f"asking again less and less often (down to once every {self.settings.interval_s:g} s)",
                     now_us,
                 )
+        if now_us < w.next_quick_us:
+            return
+        if w.failures == 0:
+            self.notices.info(
+                f"drop:{w.name}",
+                f"{w.name} fell to {got:.0f} Hz ({expected:g} Hz accepted; another program may have reset the "
+                "stream rates): requesting it again",
+                now_us,
+            )
+        w.quick_pending = True
+        w.next_quick_us = now_us + w.backoff_us
+        w.due_us = now_us
+        w.judge_us = None  # judged again after the re-request is acknowledged
+        self.rerequests += 1
+
+    def _check_slow(self, w: _Want, expected: float | None, now_us: int) -> None:
+        """The slow check (data-stream mode, or quick re-requests off): warn once a minute."""
+        if not w.warn or expected is None or w.requested_us is None or now_us - w.requested_us < self._grace_us:
+            return
+        got = w.meter.rate(now_us)
+        if got < self.settings.low_rate_fraction * expected:
+            how = "accepted" if w.mode == "command" else "requested with REQUEST_DATA_STREAM"
+            self.notices.warning(
+                f"lowrate:{w.name}",
+                f"{w.name} arrives at {got:.0f} Hz, {expected:g} Hz {how}: the link (baud rate, radio) "
+                "may be too slow, or another ground station resets stream rates",
+                now_us,
+            )
 
     # ------------------------------------------------------------------ reporting
     def drain_notices(self) -> list[tuple[int, str]]:
@@ -396,3 +595,18 @@ class StreamRequester:
         w = self._wants.get(name)
         return None if w is None else w.accepted_hz
 
+    def rate_settled(self, name: str, now_us: int) -> bool:
+        """Has the rate asked for ``name`` had time to take effect (``rate_grace_s`` after it was set)?
+
+        True when nothing is asked for ``name`` (requests off, not started, not
+        wanted): the rate is what the autopilot sends.  False while the request
+        is unanswered, and for ``rate_grace_s`` after the accepted rate (or the
+        REQUEST_DATA_STREAM fallback) took effect.  Periodic and quick
+        re-requests at the same rate do not restart the grace.
+        """
+        w = self._wants.get(name)
+        if w is None or not (self._started and self.settings.enabled):
+            return True
+        if w.mode == "command" and w.accepted_hz is None:
+            return False
+        return w.requested_us is not None and now_us - w.requested_us >= self._grace_us

@@ -48,17 +48,31 @@ class Flight:
     att_euler: np.ndarray  # the autopilot's roll, pitch, yaw (true north)
 
 
-def _flight(rng: np.random.Generator, *, fault: tuple[float, float, float] | None = None) -> Flight:
+def _ardupilot_send_times_ms(rng: np.random.Generator, rate_hz: float, duration_s: float) -> np.ndarray:
+    """``time_boot_ms`` of a stream at ``rate_hz`` as ArduPilot stamps it: the send time, in the first
+    2.5 ms scheduler tick at or after each due time, one tick later now and then (no room in the port's
+    buffer), plus the loop's own jitter, in whole milliseconds."""
+    due_us = 3000.0 + np.arange(0.0, duration_s * 1e6, 1e6 / rate_hz)
+    n = len(due_us)
+    tick_us = np.ceil((due_us - 700.0) / 2500.0) * 2500.0 + 700.0  # the loop's phase is not on the ms grid
+    tick_us += 2500.0 * (rng.random(n) < 0.3) + rng.uniform(0.0, 400.0, n)
+    return np.floor(tick_us / 1000.0)
+
+
+def _flight(
+    rng: np.random.Generator, *, fault: tuple[float, float, float] | None = None, att_hz: float | None = None
+) -> Flight:
     """Our estimate (1° noise, magnetic frame + declination) and the autopilot's (0.5° noise).
 
     ``fault = (start_s, end_s, roll_error_deg)`` injects an autopilot roll error.
+    ``att_hz``: the autopilot's ATTITUDE rate with ArduPilot's send-time stamps (default: 10 Hz, exact).
     """
     t_est = np.arange(0.0, DURATION_S * 1000.0, EST_DT_MS) + rng.uniform(0, 2.5, int(DURATION_S * 100))
     t_est.sort()
     q_true = _truth(t_est / 1000.0)
     # The filter's frame is magnetic north: its yaw is the true yaw − D (plus noise and 1° of bias).
     q_mag = _noisy(apply_declination(q_true, -DECLINATION - math.radians(1.0)), 1.0, rng)
-    t_att = np.arange(3.0, DURATION_S * 1000.0, ATT_DT_MS)
+    t_att = np.arange(3.0, DURATION_S * 1000.0, ATT_DT_MS) if att_hz is None else _ardupilot_send_times_ms(rng, att_hz, DURATION_S)
     euler = to_euler_rad(_noisy(_truth(t_att / 1000.0), 0.5, rng))
     if fault is not None:
         start, end, err = fault
@@ -133,6 +147,25 @@ def test_no_warning_without_a_fault(seed: int) -> None:
     assert events == []
     hdg = np.array([m.value for t, m in named if m.name == "AHRS_HDG"])
     assert np.all(np.abs(hdg) < 6.0)  # ours is 1° biased + noise: small
+
+
+@pytest.mark.parametrize("att_hz", [1.0, 2.0, 4.0, 10.0, 25.0, 50.0])
+def test_any_attitude_rate_from_1_to_50_hz_warns_in_time_and_never_without_a_fault(att_hz: float) -> None:
+    """ATTITUDE at the rates ground stations leave it at (MAVProxy --streamrate=4, SRn_EXTRA1 = 1 …)."""
+    s = MonitorSettings(heading_threshold_deg=8.0)
+    period_s = 1.0 / att_hz
+    for seed in (1, 2):
+        events, _ = _run_live(_flight(np.random.default_rng(seed), att_hz=att_hz), s)
+        assert events == [], (att_hz, [(t, e.text) for t, e in events])
+        f = _flight(np.random.default_rng(seed), fault=(30.0, 40.0, 15.0), att_hz=att_hz)
+        events, _ = _run_live(f, s)
+        assert len(events) == 2, (att_hz, [(t, e.text) for t, e in events])
+        (t_warn, warn), (t_clear, clear) = events
+        # the first comparison that sees the fault comes within one ATTITUDE period of its onset, the one that
+        # completes trigger_s within another (send-time jitter), + our next estimate (10 ms) + a loop tick
+        late = 2.0 * period_s + 0.015
+        assert warn.severity == mavlink.MAV_SEVERITY_WARNING and 30.0 + s.trigger_s <= t_warn <= 30.0 + s.trigger_s + late
+        assert clear.text == CLEARED_TEXT and 40.0 + s.clear_s <= t_clear <= 40.0 + s.clear_s + late
 
 
 def test_without_declination_the_heading_disagrees_by_the_declination(rng: np.random.Generator) -> None:
@@ -257,3 +290,103 @@ def test_settings_validation() -> None:
     off = AttitudeMonitor(MonitorSettings(enabled=False))
     assert off.add_estimate(0.0, (1, 0, 0, 0)) == [] and off.add_autopilot(0.0, (1, 0, 0, 0)) == []
     assert off.status.comparisons == 0 and off.status.text() == "AP cmp: none"
+
+
+# ---------------------------------------------------------------------------- against firmware_sim, every ATTITUDE rate
+
+SIM_S = 25.0
+SIM_FAULT = dict(start_s=12.0, duration_s=6.0, roll_deg=15.0, ramp_s=1.0)  # exceeds 10° at 12.67 s, ends at 18 s
+
+
+@dataclass
+class SimFlight:
+    events: list  # in arrival order: ("est", time_boot_ms, q) published by the pipeline, ("ap", msg, now_us)
+    statustexts: list  # (autopilot time s, severity, text) the pipeline itself sent (ATTITUDE at 50 Hz)
+
+
+def _sim_flight(scenario: str, fault: dict | None) -> SimFlight:
+    """The real Pipeline (filter ``best``, its own monitor) on firmware_sim's ArduPilot: RAW_IMU at the fastest
+    accepted rate, ATTITUDE at 50 Hz with send-time stamps, GNSS for the declination."""
+    fs = pytest.importorskip("firmware_sim")
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    ss = fs.SimSettings(scenario=scenario, seed=7, attitude_fault=fs.AttitudeFault(**fault) if fault else None)
+    ep = fs.Endpoint(fs.Simulation(ss), fs.EndpointSettings(preset="none", block_ticks=400, streams_hz=(
+        ("RAW_IMU", math.inf), ("ATTITUDE", 50.0), ("GLOBAL_POSITION_INT", 5.0), ("SYSTEM_TIME", 1.0))))  # fmt: skip
+    pipe = Pipeline(PipelineSettings(out_rate_hz=50.0))
+    rx, ours = MavCodec(255, 190), MavCodec(255, 190)
+    events: list = []
+    texts: list = []
+    for k in range(int(SIM_S * ss.loop_rate_hz)):
+        for t_us, frame in ep.step():
+            for msg in rx.receive_datagram(frame):
+                if msg.get_type() == "ATTITUDE":
+                    events.append(("ap", msg, t_us))
+                for o in pipe.handle(msg, t_us):
+                    for m in ours.receive_datagram(o.frame):
+                        if m.get_type() == "ATTITUDE_QUATERNION":
+                            events.append(("est", m.time_boot_ms, (m.q1, m.q2, m.q3, m.q4)))
+                        elif m.get_type() == "STATUSTEXT":
+                            texts.append((t_us / 1e6, m.severity, m.text))
+        if k % 20 == 0:
+            pipe.tick(ep.now_us)
+    assert pipe.declination.known and pipe.status().monitor.startswith("AP cmp: tilt")
+    return SimFlight(events, texts)
+
+
+@pytest.fixture(scope="module")
+def sim_clean() -> SimFlight:
+    return _sim_flight("aggressive", None)
+
+
+@pytest.fixture(scope="module")
+def sim_fault() -> SimFlight:
+    return _sim_flight("hover", SIM_FAULT)
+
+
+def _monitor_at(f: SimFlight, att_hz: float) -> list[tuple[float, int, str]]:
+    """The pipeline's monitor fed as live, with the autopilot's ATTITUDE thinned to ``att_hz`` the way
+    ArduPilot's scheduler sends a slower stream (the first message at or after each due time)."""
+    mon = AttitudeMonitor(MonitorSettings())
+    out: list[tuple[float, int, str]] = []
+    due_ms = -math.inf
+    for kind, a, b in f.events:
+        if kind == "est":
+            msgs = mon.add_estimate(a, b)
+        elif a.time_boot_ms >= due_ms:
+            due_ms = (due_ms if math.isfinite(due_ms) else a.time_boot_ms) + 1000.0 / att_hz
+            msgs = mon.handle(a, b)
+            mon.tick(b)
+        else:
+            continue
+        out += [(mon.last_comparison_ms / 1000.0, int(m.severity), m.text) for m in msgs]
+    return out
+
+
+@pytest.mark.slow
+def test_simulated_autopilot_the_pipeline_monitor_is_quiet_without_a_fault_and_warns_on_one(
+    sim_clean: SimFlight, sim_fault: SimFlight
+) -> None:
+    assert sim_clean.statustexts == []
+    (t_warn, sev, text), (t_ok, sev_ok, _) = sim_fault.statustexts
+    s = MonitorSettings()
+    assert sev == mavlink.MAV_SEVERITY_WARNING and "tilt 1" in text
+    onset = SIM_FAULT["start_s"] + 2.0 / 3.0 * SIM_FAULT["ramp_s"]  # 15° ramped in over 1 s passes 10°
+    assert onset + s.trigger_s <= t_warn <= onset + s.trigger_s + 0.2
+    end = SIM_FAULT["start_s"] + SIM_FAULT["duration_s"]
+    assert sev_ok == mavlink.MAV_SEVERITY_INFO and end + s.clear_s <= t_ok <= end + s.clear_s + 0.3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("att_hz", [1.0, 2.0, 4.0, 10.0, 25.0])
+def test_simulated_autopilot_at_every_attitude_rate(sim_clean: SimFlight, sim_fault: SimFlight, att_hz: float) -> None:
+    """Issue 9 / the MAVProxy report: ATTITUDE at 4 Hz (MAVProxy --streamrate=4) or lower is no reason to warn."""
+    assert _monitor_at(sim_clean, att_hz) == []
+    s = MonitorSettings()
+    events = _monitor_at(sim_fault, att_hz)
+    assert [e[1] for e in events] == [mavlink.MAV_SEVERITY_WARNING, mavlink.MAV_SEVERITY_INFO], events
+    onset = SIM_FAULT["start_s"] + 2.0 / 3.0 * SIM_FAULT["ramp_s"]
+    late = 2.0 / att_hz + 0.05
+    assert onset + s.trigger_s - 1.0 / att_hz <= events[0][0] <= onset + s.trigger_s + late
+    end = SIM_FAULT["start_s"] + SIM_FAULT["duration_s"]
+    assert end + s.clear_s - 1.0 / att_hz <= events[1][0] <= end + s.clear_s + late

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
 import pytest
 
 from mavahrs.service.stream_requests import (
@@ -31,6 +32,34 @@ def only(reqs, kind):
     out = [q for q in reqs if isinstance(q, kind)]
     assert len(out) == 1, reqs
     return out[0]
+
+
+def deliver(r, rate_hz, start_us, end_us, *, name="RAW_IMU", ack=False, poll_us=50_000, rate_after=None):
+    """Messages of ``name`` arriving at ``rate_hz`` from start to end, polling every ``poll_us``.
+
+    ``ack``: the autopilot accepts every SET_MESSAGE_INTERVAL 5 ms after it is sent.
+    ``rate_after``: ``(t_us, rate_hz)`` — the rate changes then (e.g. restored by a request).
+    Returns ``(time, request)`` for every request sent.
+    """
+    sent = []
+    meter = r.meters[name]
+    t, next_poll, pending_ack = float(start_us), start_us, None
+    while t < end_us:
+        if rate_after is not None and t >= rate_after[0]:
+            rate_hz = rate_after[1]
+            rate_after = None
+        while next_poll <= t:
+            if pending_ack is not None and next_poll >= pending_ack:
+                r.on_command_ack(CMD, ACCEPTED, pending_ack)
+                pending_ack = None
+            for q in r.poll(next_poll):
+                sent.append((next_poll, q))
+                if ack and isinstance(q, SetMessageInterval):
+                    pending_ack = next_poll + 5000
+            next_poll += poll_us
+        meter.add(int(t))
+        t += 1e6 / rate_hz
+    return sent
 
 
 def test_first_request_is_set_message_interval_at_the_wanted_rate():
@@ -74,9 +103,9 @@ def test_periodic_re_request_at_the_accepted_rate():
     r = started(interval_s=10.0)
     r.poll(0)
     r.on_command_ack(CMD, ACCEPTED, 50_000)
-    assert r.poll(5 * S) == []
-    assert r.poll(10 * S) == []  # due 10 s after the ACK
-    q = only(r.poll(10 * S + 50_000), SetMessageInterval)
+    sent = deliver(r, 400.0, 50_000, 10 * S + 50_000)  # delivered as accepted: nothing to chase
+    assert sent == []
+    q = only(r.poll(10 * S + 50_000), SetMessageInterval)  # due 10 s after the ACK
     assert q.interval_us == 2500
 
 
@@ -142,13 +171,9 @@ def test_delivered_rate_far_below_accepted_is_warned():
     r = started(rate_grace_s=1.0)
     r.poll(0)
     r.on_command_ack(CMD, ACCEPTED, 1000)
-    meter = r.meters["RAW_IMU"]
-    for k in range(500):  # 100 Hz for 5 s
-        meter.add(k * 10_000)
-        if k % 50 == 0:
-            r.poll(k * 10_000)
-    notes = [t for _, t in r.drain_notices()]
-    assert len(notes) == 1 and "arrives at 100 Hz" in notes[0] and "400 Hz" in notes[0]
+    deliver(r, 100.0, 0, 5 * S, ack=True)  # 100 Hz of the 400 Hz accepted, for 5 s
+    notes = [t for lvl, t in r.drain_notices() if lvl == logging.WARNING]
+    assert len(notes) == 1 and "arrives at 100 Hz" in notes[0] and "400 Hz" in notes[0] and "baud" in notes[0]
     assert r.states(5 * S)[0].delivered_hz == pytest.approx(100.0, rel=0.05)
 
 
@@ -191,3 +216,135 @@ def test_an_autopilot_that_never_answers_moves_every_message_to_data_streams_at_
     streams = sorted(q for q in reqs if isinstance(q, RequestDataStream))
     assert streams == [RequestDataStream(MAV_DATA_STREAM_RAW_SENSORS, 400), RequestDataStream(MAV_DATA_STREAM_POSITION, 10)]
     assert [s.mode for s in r.states(2 * S)] == ["data_stream", "data_stream"]
+
+
+# ---------------------------------------------------------------------------- quick re-requests after a rate reset
+
+
+class FakeAutopilot:
+    """Streams RAW_IMU at the rate last set; ACKs SET_MESSAGE_INTERVAL after 5 ms; a link carries at most ``max_hz``.
+
+    ``resets``: times (µs) at which another program's REQUEST_DATA_STREAM(ALL, 4 Hz) sets the rate to 4 Hz.
+    """
+
+    def __init__(self, r, *, rate_hz=0.0, max_hz=float("inf"), resets=(), accept_hz=250.0):
+        self.r, self.rate_hz, self.max_hz, self.resets, self.accept_hz = r, rate_hz, max_hz, list(resets), accept_hz
+        self.sent: list = []
+
+    def run(self, start_us, end_us, poll_us=50_000):
+        r, meter = self.r, self.r.meters["RAW_IMU"]
+        t, next_poll, next_msg, acks = start_us, start_us, start_us, []
+        while t < end_us:
+            if self.resets and t >= self.resets[0]:
+                self.resets.pop(0)
+                self.rate_hz = 4.0
+            if acks and t >= acks[0][0]:
+                _, q = acks.pop(0)
+                ok = 1e6 / q.interval_us <= self.accept_hz
+                if ok:
+                    self.rate_hz = 1e6 / q.interval_us
+                r.on_command_ack(CMD, ACCEPTED if ok else DENIED, t)
+            if t >= next_poll:
+                for q in r.poll(t):
+                    self.sent.append((t, q))
+                    if isinstance(q, SetMessageInterval):
+                        acks.append((t + 5000, q))
+                next_poll += poll_us
+            delivered = min(self.rate_hz, self.max_hz)
+            if delivered > 0 and t >= next_msg:
+                meter.add(t)
+                next_msg = t + int(1e6 / delivered)
+            t += 500
+
+    def requests(self, after_us=0):
+        return [(t, q) for t, q in self.sent if t >= after_us and isinstance(q, SetMessageInterval)]
+
+
+def test_a_stream_rate_reset_is_undone_at_once_not_at_the_next_periodic_request():
+    # MAVProxy --streamrate=4: REQUEST_DATA_STREAM(ALL, 4) at 5 s drops RAW_IMU from 250 to 4 Hz
+    r = started(interval_s=10.0)
+    ap = FakeAutopilot(r, resets=[5 * S])
+    ap.run(0, 9 * S)
+    after = ap.requests(5 * S)
+    assert after, "no re-request within 4 s of the reset (the periodic one is due only at 10 s)"
+    t_req, q = after[0]
+    assert q.interval_us == 4000 and t_req - 5 * S <= 600_000  # drop window 0.5 s (+ one poll)
+    assert len(after) == 1  # restored: no more
+    assert ap.rate_hz == 250.0 and r.rerequests == 1
+    notes = r.drain_notices()
+    assert not [t for lvl, t in notes if lvl >= logging.WARNING and "arrives at" in t]
+    assert any("RAW_IMU fell to" in t for _, t in notes)
+
+
+def test_repeated_resets_are_each_undone_but_no_faster_than_rerequest_min_s():
+    r = started(interval_s=10.0, rerequest_min_s=1.0)
+    ap = FakeAutopilot(r, resets=[4 * S, 4 * S + 300_000, 4 * S + 700_000, 15 * S])
+    ap.run(0, 18 * S)
+    quick = [t for t, q in ap.requests(4 * S) if not (9.9 * S < t < 10.3 * S) and not (19.9 * S < t)]
+    assert all(b - a >= 1.0 * S for a, b in zip(quick, quick[1:], strict=False)), quick
+    assert any(4 * S < t < 6 * S for t in quick) and any(15 * S < t < 15.7 * S for t in quick)
+    assert ap.rate_hz == 250.0
+
+
+def test_an_autopilot_that_cannot_deliver_is_asked_with_back_off_and_warned_once():
+    # the link carries 100 Hz of the 250 Hz accepted: re-requesting cannot help
+    r = started(interval_s=10.0)
+    ap = FakeAutopilot(r, max_hz=100.0)
+    ap.run(0, 60 * S)
+    times = [t for t, _ in ap.requests()]
+    gaps = np.diff(times) / S
+    assert len(times) <= 14, times  # 1 + 1 (400 DENIED, 250) + backed-off and periodic ones, not one per second
+    assert all(g >= 0.99 for g in gaps[2:])
+    assert max(gaps) <= 10.1  # never less often than the periodic re-request
+    warnings = [t for lvl, t in r.drain_notices() if lvl == logging.WARNING and "arrives at" in t]
+    assert len(warnings) == 1 and "100 Hz" in warnings[0] and "250 Hz accepted" in warnings[0]
+
+
+def test_a_message_that_never_arrived_and_may_not_exist_is_not_chased():
+    r = StreamRequester(StreamRequestSettings(interval_s=10.0))
+    r.want("SCALED_IMU2", 116, 50.0, warn_low_rate=False)  # a second IMU the board may not have
+    r.start()
+    (q,) = r.poll(0)
+    r.on_command_ack(CMD, ACCEPTED, 1000)
+    sent = [r.poll(k * 50_000) for k in range(1, 190)]  # 9.5 s, nothing arrives
+    assert [x for x in sent if x] == []
+    assert r.drain_notices() == [] and r.rerequests == 0
+
+
+def test_someone_elses_stream_request_is_answered_by_ours_soon_after():
+    r = started(interval_s=10.0, foreign_request_delay_s=0.2)
+    ap = FakeAutopilot(r)
+    ap.run(0, 3 * S)
+    n = len(ap.requests())
+    assert r.on_foreign_request(3 * S, stream_id=0, sender="system 255 component 190")  # REQUEST_DATA_STREAM(ALL)
+    assert r.poll(3 * S + 100_000) == []
+    assert only(r.poll(3 * S + 200_000), SetMessageInterval).interval_us == 4000
+    r.on_command_ack(CMD, ACCEPTED, 3 * S + 205_000)
+    assert len(ap.requests()) == n
+    # not for other messages or groups, nor for a request of our own rate
+    assert not r.on_foreign_request(3 * S + 300_000, stream_id=6)  # POSITION
+    assert not r.on_foreign_request(3 * S + 300_000, message_id=30, interval_us=100_000)  # ATTITUDE
+    assert not r.on_foreign_request(3 * S + 300_000, message_id=27, interval_us=4000)  # the same 250 Hz
+    # SET_MESSAGE_INTERVAL for RAW_IMU at another rate: yes, but not sooner than rerequest_min_s after the last
+    assert r.on_foreign_request(3 * S + 400_000, message_id=27, interval_us=100_000)
+    assert r.poll(3 * S + 700_000) == []
+    assert only(r.poll(4 * S + 250_000), SetMessageInterval).message == "RAW_IMU"
+    assert any("REQUEST_DATA_STREAM(0)" in t for _, t in r.drain_notices())
+
+
+def test_rate_settled_waits_for_the_accepted_rate_and_its_grace():
+    r = started(rate_grace_s=3.0)
+    assert not r.rate_settled("RAW_IMU", 0)
+    r.poll(0)
+    r.on_command_ack(CMD, DENIED, 10_000)
+    r.poll(20_000)
+    assert not r.rate_settled("RAW_IMU", 2 * S)  # not accepted yet
+    r.on_command_ack(CMD, ACCEPTED, 30_000)
+    assert not r.rate_settled("RAW_IMU", 3 * S)
+    assert r.rate_settled("RAW_IMU", 3 * S + 30_000)
+    # the periodic re-request at the same rate does not restart the grace
+    only(r.poll(10 * S + 40_000), SetMessageInterval)
+    r.on_command_ack(CMD, ACCEPTED, 10 * S + 50_000)
+    assert r.rate_settled("RAW_IMU", 10 * S + 60_000)
+    assert r.rate_settled("GLOBAL_POSITION_INT", 0)  # not wanted: whatever arrives is the rate
+    assert StreamRequester().rate_settled("RAW_IMU", 0)
