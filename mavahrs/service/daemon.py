@@ -886,6 +886,9 @@ def build_daemon(
             from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
             pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings)
+        warm_up = getattr(getattr(pipeline, "filter", None), "warm_up", None)
+        if warm_up is not None:  # compile/load the filter kernel before serving, not on the first sample
+            warm_up()
     except BaseException:
         for link in opened:
             link.close()
