@@ -264,19 +264,24 @@ def _csv_block(t_us: NDArray[np.int64], outs: Sequence[Array], sents: Sequence[N
     from mavahrs.evaluation.metrics import euler_deg
 
     n = t_us.shape[0]
-    blocks = [(t_us * 1e-6)[:, None]]
-    for out, sent in zip(outs, sents):
+    width = 17  # columns per filter (csv_columns)
+    res = np.empty((n, 1 + width * len(outs)))  # filled column block by column block: no hstack copy
+    np.multiply(t_us, 1e-6, out=res[:, 0])
+    for k, (out, sent) in enumerate(zip(outs, sents)):
+        c = 1 + width * k
         flags = out[:, OUT_FLAGS].astype(np.int64)
-        acc_rej = out[:, OUT_ACCEL_WEIGHT] < 0.5
-        mag_rej = ((flags & FLAG_MAG_INVALID) == 0) & (out[:, OUT_MAG_WEIGHT] < 0.5)
         init = (flags & FLAG_NOT_INITIALISED) == 0
-        q = np.where(init[:, None], out[:, OUT_Q : OUT_Q + 4], np.nan)
-        blocks += [
-            q, euler_deg(q), out[:, OUT_GAIN : OUT_GAIN + 1], out[:, OUT_ACCEL_WEIGHT : OUT_ACCEL_WEIGHT + 1],
-            out[:, OUT_MAG_WEIGHT : OUT_MAG_WEIGHT + 1], acc_rej[:, None], mag_rej[:, None],
-            np.degrees(out[:, OUT_BIAS : OUT_BIAS + 3]), flags[:, None], sent[:, None],
-        ]  # fmt: skip
-    return np.hstack([np.asarray(b, dtype=np.float64).reshape(n, -1) for b in blocks])
+        q = res[:, c : c + 4]
+        q[...] = np.nan
+        np.copyto(q, out[:, OUT_Q : OUT_Q + 4], where=init[:, None])
+        res[:, c + 4 : c + 7] = euler_deg(q)
+        res[:, c + 7 : c + 10] = out[:, OUT_GAIN : OUT_MAG_WEIGHT + 1]  # gain, accel weight, mag weight
+        np.less(out[:, OUT_ACCEL_WEIGHT], 0.5, out=res[:, c + 10])  # accelerometer rejected
+        res[:, c + 11] = ((flags & FLAG_MAG_INVALID) == 0) & (out[:, OUT_MAG_WEIGHT] < 0.5)
+        np.degrees(out[:, OUT_BIAS : OUT_BIAS + 3], out=res[:, c + 12 : c + 15])
+        res[:, c + 15] = flags
+        res[:, c + 16] = sent
+    return res
 
 
 # --------------------------------------------------------------------------- replay

@@ -148,7 +148,7 @@ class _Msg:
 def read_tlog_data(path: str | Path) -> TlogData:
     """Decode the message types replay needs from a tlog (bulk, pymavlink-exact)."""
     from mavahrs.protocol.codec import mavlink
-    from mavahrs.protocol.fast_tlog import read_tlog_arrays, scan_tlog
+    from mavahrs.protocol.fast_tlog import decode_scan, scan_tlog
 
     p = Path(path)
     if not p.is_file():
@@ -157,7 +157,7 @@ def read_tlog_data(path: str | Path) -> TlogData:
     if data.size == 0:
         raise DataError(f"{p}: empty file")
     scan = scan_tlog(data, list(REPLAY_TYPES), mode="mmap")
-    arrays = read_tlog_arrays(data, list(REPLAY_TYPES))
+    arrays = decode_scan(scan, list(REPLAY_TYPES))  # = read_tlog_arrays(data, REPLAY_TYPES), one scan
     pos: dict[str, NDArray[np.int64]] = {}
     for name in REPLAY_TYPES:
         mid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")

@@ -72,6 +72,7 @@ __all__ = [
     "DEFAULT_TYPES",
     "TlogScan",
     "read_tlog_arrays",
+    "decode_scan",
     "scan_tlog",
     "message_dtype",
     "load_bytes",
@@ -769,7 +770,21 @@ def read_tlog_arrays(
         raise ConfigError(f"engine must be 'fast' or 'pymavlink', got {engine!r}")
     names = [str(t).upper() for t in types]
     _type_ids(names)
-    scan = scan_tlog(source, names)
+    return decode_scan(scan_tlog(source, names), names, engine=engine)
+
+
+def decode_scan(scan: TlogScan, types: Sequence[str], *, engine: str = "fast") -> dict[str, np.ndarray]:
+    """The fields of the given types from a :func:`scan_tlog` result (``read_tlog_arrays``'s second half).
+
+    ``read_tlog_arrays(source, types)`` is ``decode_scan(scan_tlog(source, types), types)``;
+    a caller that needs the scan too (frame order, raw frames) scans once and
+    decodes from it.  The scan must be of the same ``types`` (``mode="mmap"``):
+    which frames pymavlink returns depends on the types requested.
+    """
+    if engine not in ("fast", "pymavlink"):
+        raise ConfigError(f"engine must be 'fast' or 'pymavlink', got {engine!r}")
+    names = [str(t).upper() for t in types]
+    _type_ids(names)
     result: dict[str, np.ndarray] = {}
     for name in names:
         cls = _NAME_TO_CLASS[name]
