@@ -294,8 +294,10 @@ def test_settings_validation() -> None:
 
 # ---------------------------------------------------------------------------- against firmware_sim, every ATTITUDE rate
 
-SIM_S = 25.0
-SIM_FAULT = dict(start_s=12.0, duration_s=6.0, roll_deg=15.0, ramp_s=1.0)  # exceeds 10° at 12.67 s, ends at 18 s
+SIM_S = 30.0
+# exceeds 10° at 12.67 s, ends at 18 s: fault-free, judged comparisons from 10 s (start-up grace) to 12.67 s and
+# from 23 s (cleared) to 30 s, in the aggressive flight (sustained tilts, fast turns)
+SIM_FAULT = dict(start_s=12.0, duration_s=6.0, roll_deg=15.0, ramp_s=1.0)
 
 
 @dataclass
@@ -304,13 +306,15 @@ class SimFlight:
     statustexts: list  # (autopilot time s, severity, text) the pipeline itself sent (ATTITUDE at 50 Hz)
 
 
-def _sim_flight(scenario: str, fault: dict | None) -> SimFlight:
-    """The real Pipeline (filter ``best``, its own monitor) on firmware_sim's ArduPilot: RAW_IMU at the fastest
-    accepted rate, ATTITUDE at 50 Hz with send-time stamps, GNSS for the declination."""
+@pytest.fixture(scope="module")
+def sim_flight() -> SimFlight:
+    """The real Pipeline (filter ``best``, its own monitor) on firmware_sim's ArduPilot flying ``aggressive`` with
+    an injected estimator fault: RAW_IMU at the fastest accepted rate, ATTITUDE at 50 Hz with send-time stamps,
+    GNSS for the declination."""
     fs = pytest.importorskip("firmware_sim")
     from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
-    ss = fs.SimSettings(scenario=scenario, seed=7, attitude_fault=fs.AttitudeFault(**fault) if fault else None)
+    ss = fs.SimSettings(scenario="aggressive", seed=7, attitude_fault=fs.AttitudeFault(**SIM_FAULT))
     ep = fs.Endpoint(fs.Simulation(ss), fs.EndpointSettings(preset="none", block_ticks=400, streams_hz=(
         ("RAW_IMU", math.inf), ("ATTITUDE", 50.0), ("GLOBAL_POSITION_INT", 5.0), ("SYSTEM_TIME", 1.0))))  # fmt: skip
     pipe = Pipeline(PipelineSettings(out_rate_hz=50.0))
@@ -334,16 +338,6 @@ def _sim_flight(scenario: str, fault: dict | None) -> SimFlight:
     return SimFlight(events, texts)
 
 
-@pytest.fixture(scope="module")
-def sim_clean() -> SimFlight:
-    return _sim_flight("aggressive", None)
-
-
-@pytest.fixture(scope="module")
-def sim_fault() -> SimFlight:
-    return _sim_flight("hover", SIM_FAULT)
-
-
 def _monitor_at(f: SimFlight, att_hz: float) -> list[tuple[float, int, str]]:
     """The pipeline's monitor fed as live, with the autopilot's ATTITUDE thinned to ``att_hz`` the way
     ArduPilot's scheduler sends a slower stream (the first message at or after each due time)."""
@@ -363,30 +357,29 @@ def _monitor_at(f: SimFlight, att_hz: float) -> list[tuple[float, int, str]]:
     return out
 
 
-@pytest.mark.slow
-def test_simulated_autopilot_the_pipeline_monitor_is_quiet_without_a_fault_and_warns_on_one(
-    sim_clean: SimFlight, sim_fault: SimFlight
-) -> None:
-    assert sim_clean.statustexts == []
-    (t_warn, sev, text), (t_ok, sev_ok, _) = sim_fault.statustexts
+def _check_fault_events(events: list[tuple[float, int, str]], att_hz: float) -> None:
+    """Exactly one WARNING, in time, and one INFO when it has cleared: nothing before, between or after."""
     s = MonitorSettings()
-    assert sev == mavlink.MAV_SEVERITY_WARNING and "tilt 1" in text
+    assert [e[1] for e in events] == [mavlink.MAV_SEVERITY_WARNING, mavlink.MAV_SEVERITY_INFO], (att_hz, events)
+    (t_warn, _, text), (t_ok, _, _) = events
+    assert "tilt 1" in text
     onset = SIM_FAULT["start_s"] + 2.0 / 3.0 * SIM_FAULT["ramp_s"]  # 15° ramped in over 1 s passes 10°
-    assert onset + s.trigger_s <= t_warn <= onset + s.trigger_s + 0.2
+    # our estimate's own error (≤ 3° in this flight) moves the 10° crossing of the 15°/s ramp by ≤ 0.2 s;
+    # then sampling: the first comparison above, and the one completing trigger_s (see the synthetic test)
+    early, late = 0.2, 0.2 + 2.0 / att_hz + 0.03
+    assert onset + s.trigger_s - early <= t_warn <= onset + s.trigger_s + late
     end = SIM_FAULT["start_s"] + SIM_FAULT["duration_s"]
-    assert sev_ok == mavlink.MAV_SEVERITY_INFO and end + s.clear_s <= t_ok <= end + s.clear_s + 0.3
+    assert end + s.clear_s - early <= t_ok <= end + s.clear_s + late
+
+
+@pytest.mark.slow
+def test_simulated_autopilot_fault_through_the_pipelines_own_monitor(sim_flight: SimFlight) -> None:
+    _check_fault_events(sim_flight.statustexts, 50.0)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("att_hz", [1.0, 2.0, 4.0, 10.0, 25.0])
-def test_simulated_autopilot_at_every_attitude_rate(sim_clean: SimFlight, sim_fault: SimFlight, att_hz: float) -> None:
-    """Issue 9 / the MAVProxy report: ATTITUDE at 4 Hz (MAVProxy --streamrate=4) or lower is no reason to warn."""
-    assert _monitor_at(sim_clean, att_hz) == []
-    s = MonitorSettings()
-    events = _monitor_at(sim_fault, att_hz)
-    assert [e[1] for e in events] == [mavlink.MAV_SEVERITY_WARNING, mavlink.MAV_SEVERITY_INFO], events
-    onset = SIM_FAULT["start_s"] + 2.0 / 3.0 * SIM_FAULT["ramp_s"]
-    late = 2.0 / att_hz + 0.05
-    assert onset + s.trigger_s - 1.0 / att_hz <= events[0][0] <= onset + s.trigger_s + late
-    end = SIM_FAULT["start_s"] + SIM_FAULT["duration_s"]
-    assert end + s.clear_s - 1.0 / att_hz <= events[1][0] <= end + s.clear_s + late
+def test_simulated_autopilot_at_every_attitude_rate(sim_flight: SimFlight, att_hz: float) -> None:
+    """Issue 9 / the MAVProxy report: ATTITUDE at 4 Hz (MAVProxy --streamrate=4) or lower is no reason to warn,
+    and the injected fault is still found in time."""
+    _check_fault_events(_monitor_at(sim_flight, att_hz), att_hz)
