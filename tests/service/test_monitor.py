@@ -86,7 +86,7 @@ def _attitude_frames(f: Flight) -> list[bytes]:
     ap = MavCodec(system_id=1, component_id=1)
     return [
         ap.encode(mavlink.MAVLink_attitude_message(int(t), float(r), float(p), float(y), 0.0, 0.0, 0.0))
-        for t, (r, p, y) in zip(f.t_att_ms, f.att_euler)
+        for t, (r, p, y) in zip(f.t_att_ms, f.att_euler, strict=True)
     ]
 
 
