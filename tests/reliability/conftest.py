@@ -112,7 +112,7 @@ class DaemonProcess:
     def statuses(self) -> list[dict[str, Any]]:
         return [m["status"] for m in self.messages() if "status" in m]
 
-    def wait_for(self, text: str, timeout_s: float = 60.0) -> None:
+    def wait_for(self, text: str, timeout_s: float = 180.0) -> None:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if any(text in line for line in list(self.lines)):
