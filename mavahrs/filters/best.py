@@ -58,12 +58,14 @@ def best_settings() -> MadgwickSettings:
     """The recommended settings (a new frozen dataclass; use ``dataclasses.replace`` to vary)."""
     return MadgwickSettings(
         beta_rad_s=0.01,
-        zeta_rad_s=0.001,
+        zeta_rad_s=0.0005,
         accel_lowpass_s=2.0,
         accel_lowpass_order=2,
         mag_correction="heading",
         beta_heading_rad_s=0.005,
         large_error_tau_s=2.0,
+        lowpass_norm_tolerance=0.05,
+        gnss_acceleration=True,
         large_heading_error_tau_s=20.0,
     )
 

@@ -56,7 +56,7 @@ from mavahrs.filters.base import (
     finish_step,
     vector_ok,
 )
-from mavahrs.filters.gains import GainScheduleSettings, schedule_step
+from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.gnss import GC_LEN, gnss_compensation_reset, gnss_compensation_step
 from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body, quat_multiply
@@ -66,7 +66,7 @@ from mavahrs.filters.prefilter import (
     nav_lowpass_reset,
     nav_lowpass_rotate,
     ned_butterworth_step,
-    ned_lowpass_step,
+    vector_lowpass_step,
 )
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 from mavahrs.filters.layout import FLAG_STARTUP, IN_ACCEL, IN_GYRO, IN_MAG, IN_VEL, OUT_FLAGS
@@ -221,7 +221,8 @@ class MadgwickSettings(FilterSettings):
     accel_lowpass_order: int = 2
     large_error_tau_s: float = 0.0
     large_heading_error_tau_s: float = 0.0
-    large_error_lowpass_s: float = 0.0
+    lowpass_norm_tolerance: float = 0.0
+    lowpass_norm_min_weight: float = 0.2
     gnss_acceleration: bool = True
     velocity_tau_s: float = 0.0
     velocity_max_age_s: float = 1.0
@@ -233,7 +234,7 @@ class MadgwickSettings(FilterSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("beta_rad_s", "zeta_rad_s", "zeta_spin_limit_rad_s", "accel_lowpass_s", "bias_limit_rad_s",
-                     "large_error_tau_s", "large_heading_error_tau_s", "large_error_lowpass_s", "velocity_tau_s",
+                     "large_error_tau_s", "large_heading_error_tau_s", "lowpass_norm_tolerance", "velocity_tau_s",
                      "gnss_fade_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (
@@ -252,6 +253,10 @@ class MadgwickSettings(FilterSettings):
                 and self.velocity_max_age_s > 0):
             raise ConfigError(
                 f"MadgwickSettings.velocity_max_age_s must be a time > 0 s, got {self.velocity_max_age_s!r}"
+            )
+        if not (isinstance(self.lowpass_norm_min_weight, (int, float)) and 0.0 <= self.lowpass_norm_min_weight <= 1.0):
+            raise ConfigError(
+                f"MadgwickSettings.lowpass_norm_min_weight must be in [0, 1], got {self.lowpass_norm_min_weight!r}"
             )
         if not isinstance(self.gnss_acceleration, bool):
             raise ConfigError(f"MadgwickSettings.gnss_acceleration must be True or False, got {self.gnss_acceleration!r}")
@@ -288,8 +293,9 @@ PM_GNSS = 12
 PM_VDOT_TAU = 13
 PM_VEL_MAX_AGE = 14
 PM_GNSS_FADE = 15
-PM_LARGE_LP = 16
-PM_REST = 17  # rest detector block (rest.RP_LEN)
+PM_NORM_TOL = 16
+PM_NORM_MIN_WEIGHT = 17
+PM_REST = 18  # rest detector block (rest.RP_LEN)
 PM_LEN = PM_REST + RP_LEN
 
 # --- state block after S_FILTER --------------------------------------------------
@@ -297,8 +303,7 @@ FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (prefilter.BW_
 FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
 FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
 FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
-FM_LARGE_LP = FM_MAG_AGE + 1  # long low-pass for the large-error test (prefilter.BW_LEN)
-FM_LEN = FM_LARGE_LP + BW_LEN
+FM_LEN = FM_MAG_AGE + 1
 
 #: horizontal GNSS acceleration is rotated into body axes with the estimated heading: it is used
 #: only while the magnetometer has corrected the heading within this many seconds
@@ -368,18 +373,24 @@ def field_gradient(q0, q1, q2, q3, bx, bz, mx, my, mz):  # type: ignore[no-untyp
 
 
 @kernel
-def _large_error_factor(theta, beta, tau):  # type: ignore[no-untyped-def]
+def _large_error_factor(theta, beta, tau, weight):  # type: ignore[no-untyped-def]
     """Gain multiplier ≥ 1 that turns the constant-rate step into θ/τ for errors θ > 2βτ.
 
     The normalised gradient corrects at 2β rad/s whatever the error; a large
     error (a bad start, a recovered disturbance) then takes minutes with a
     small β.  Above the crossover the correction becomes proportional, with
     time constant τ.  τ = 0 (or β = 0) keeps the report's behaviour.
+    ``weight`` in [0, 1] scales the speed-up (0: the report's constant rate).
+    Returns (multiplier, whether θ is beyond the crossover).
     """
     if tau <= 0.0 or beta <= 0.0:
-        return 1.0
+        return 1.0, False
     k = theta / (2.0 * beta * tau)
-    return k if k > 1.0 else 1.0
+    if k <= 1.0:
+        return 1.0, False
+    if weight < 1.0:
+        k = 1.0 + weight * (k - 1.0)
+    return k, True
 
 
 @kernel
@@ -390,8 +401,6 @@ def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     rest_reset(state, k + FM_REST)
     gnss_compensation_reset(state, k + FM_GNSS)
     state[k + FM_MAG_AGE] = _NEVER_S
-    nav_lowpass_reset(state, k + FM_LARGE_LP)
-    nav_lowpass_reset(state, k + FM_LARGE_LP + LP_LEN)
 
 
 # --------------------------------------------------------------------------- the step
@@ -453,29 +462,25 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             an = ae = 0.0  # the horizontal part needs a heading reference to be put in body axes
     ux, uy, uz = ax, ay, az
     tau_acc = params[p + PM_ACC_TAU]
-    tau_long = params[p + PM_LARGE_LP]
-    theta_long = 0.0
-    if accel_ok and (tau_acc > 0.0 or tau_long > 0.0 or an != 0.0 or ae != 0.0 or ad != 0.0):
+    ntol = params[p + PM_NORM_TOL]
+    if accel_ok and (tau_acc > 0.0 or an != 0.0 or ae != 0.0 or ad != 0.0):
         fn, fe, fd = body_to_ned(q0, q1, q2, q3, ax, ay, az)
         fn, fe, fd = fn - an, fe - ae, fd - ad
-        if tau_long > 0.0:
-            ln, le, ld = ned_butterworth_step(state, f + FM_LARGE_LP, fn, fe, fd, dt, tau_long)
-            nl = math.sqrt(ln * ln + le * le + ld * ld)
-            if nl > 0.0:
-                theta_long = math.acos(min(max(-ld / nl, -1.0), 1.0))
         # Every valid sample enters the average (leaving out the large ones
         # would bias it: motion accelerations are zero-mean only as a whole).
         if tau_acc > 0.0:
             if params[p + PM_ACC_ORDER] > 1.0:
                 fn, fe, fd = ned_butterworth_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
             else:
-                fn, fe, fd = ned_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
+                fn, fe, fd = vector_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
         ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn, fe, fd)
 
     # ---- gradients -----------------------------------------------------------
     sg0 = sg1 = sg2 = sg3 = 0.0  # gravity part (unnormalised J_gᵀ f_g)
     ng = 0.0
     theta_g = 0.0
+    norm_w = 1.0  # trust in the gravity direction from the norm of f̄ (manoeuvre detection)
+    large_w = 1.0  # … and in the large-error speed-up
     tau_large = params[p + PM_LARGE_TAU]
     # the error angles feed only _large_error_factor, which ignores them while its τ is 0:
     # their acos/atan2 are skipped then (same results)
@@ -488,10 +493,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # tilt error: angle between the predicted and the measured down
         cos_t = -(2.0 * (q1 * q3 - q0 * q2) * ux + 2.0 * (q0 * q1 + q2 * q3) * uy
                   + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * uz) / n  # fmt: skip
-        if tau_long > 0.0:
-            theta_g = theta_long
-        elif tau_large > 0.0:
+        if tau_large > 0.0:
             theta_g = math.acos(min(max(cos_t, -1.0), 1.0))
+        if ntol > 0.0 and not startup:
+            # ‖f̄‖ ≠ g: the vehicle is accelerating, and f̄ is not the vertical (a multirotor's
+            # accelerometer reads thrust and rotor drag in sustained tilted acceleration)
+            large_w = 1.0 - abs(n / G_M_S2 - 1.0) / ntol
+            large_w = large_w if large_w > 0.0 else 0.0
+            norm_w = max(large_w, params[p + PM_NORM_MIN_WEIGHT])
     sm0 = sm1 = sm2 = sm3 = 0.0  # magnetic part (unnormalised J_bᵀ f_b)
     nm = 0.0
     theta_m = 0.0
@@ -516,7 +525,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 bx, bz = math.cos(dip), math.sin(dip)
             sm0, sm1, sm2, sm3 = field_gradient(q0, q1, q2, q3, bx, bz, mnx, mny, mnz)
             nm = math.sqrt(sm0 * sm0 + sm1 * sm1 + sm2 * sm2 + sm3 * sm3)
-    w_a_used = w_a if ng > 1e-12 else 0.0
+    w_a_used = w_a * norm_w if ng > 1e-12 else 0.0
     w_m_used = w_m if nm > 1e-12 else 0.0
     state[f + FM_MAG_AGE] = 0.0 if w_m_used > 0.0 else state[f + FM_MAG_AGE] + dt
 
@@ -524,12 +533,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     e0 = e1 = e2 = e3 = 0.0  # error direction, unit norm per trusted sensor (for ζ)
     c0 = c1 = c2 = c3 = 0.0  # the applied correction rate β·q̇_ε
     gain = 0.0
+    large = False  # an error beyond the large-error crossover (heading mode: the tilt's): not a drift
     if heading_only:
         beta_h = params[p + PM_BETA_HEADING]
         if w_a_used > 0.0:
             k = w_a_used / ng
             e0, e1, e2, e3 = k * sg0, k * sg1, k * sg2, k * sg3
-            kb = beta * boost * _large_error_factor(theta_g, beta, tau_large)
+            lf, large = _large_error_factor(theta_g, beta, tau_large, large_w)
+            kb = beta * boost * lf
             c0, c1, c2, c3 = kb * e0, kb * e1, kb * e2, kb * e3
             gain = beta * boost * w_a_used
         if w_m_used > 0.0:
@@ -538,7 +549,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             e1 += k * sm1
             e2 += k * sm2
             e3 += k * sm3
-            kb = beta_h * boost * k * _large_error_factor(theta_m, beta_h, params[p + PM_LARGE_TAU_HEADING])
+            lf, _large_h = _large_error_factor(theta_m, beta_h, params[p + PM_LARGE_TAU_HEADING], 1.0)
+            kb = beta_h * boost * k * lf
             c0 += kb * sm0
             c1 += kb * sm1
             c2 += kb * sm2
@@ -554,15 +566,17 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             w = max(w_a_used, w_m_used)
             k = w / nt  # eq. (44), scaled by the trust in the remaining sensors
             e0, e1, e2, e3 = k * t0, k * t1, k * t2, k * t3
-            kb = beta * boost * _large_error_factor(max(theta_g, theta_m * (w_m_used > 0.0)), beta, tau_large)
+            lf, large = _large_error_factor(max(theta_g, theta_m * (w_m_used > 0.0)), beta, tau_large, large_w)
+            kb = beta * boost * lf
             c0, c1, c2, c3 = kb * e0, kb * e1, kb * e2, kb * e3
             gain = beta * boost * w
 
     # ---- gyro bias drift compensation (eq. (47)–(48)), not while converging --
+    # (start-up boost, or an error beyond the large-error crossover: neither is a drift)
     spin_limit = params[p + PM_ZETA_SPIN]
     if spin_limit > 0.0 and wx * wx + wy * wy + wz * wz > spin_limit * spin_limit:
         zeta = 0.0  # INAV: no bias learning while turning fast (scale errors look like bias)
-    if zeta > 0.0 and not startup:
+    if zeta > 0.0 and not startup and not large:
         # ω_ε = 2 q* ⊗ q̇_ε (eq. (47)); its scalar part is the radial component, dropped.
         state[S_BIAS] += zeta * 2.0 * (q0 * e1 - q1 * e0 - q2 * e3 + q3 * e2) * dt  # eq. (48)
         state[S_BIAS + 1] += zeta * 2.0 * (q0 * e2 + q1 * e3 - q2 * e0 - q3 * e1) * dt
@@ -573,17 +587,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
 
     # ---- eq. (42)–(43): q_est = q_ω − β q̇_ε Δt ---------------------------------
     n0, n1, n2, n3 = q0 - c0 * dt, q1 - c1 * dt, q2 - c2 * dt, q3 - c3 * dt
-    if tau_acc > 0.0 or tau_long > 0.0:
+    if tau_acc > 0.0:
         # the correction, a rotation of the estimated NED frame r = 2·vec(q_new ⊗ q*), turns f̄_NED too
         nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
         _r0, r1, r2, r3 = quat_multiply(n0, n1, n2, n3, q0, -q1, -q2, -q3)
         r1, r2, r3 = r1 / nn, r2 / nn, r3 / nn
         nav_lowpass_rotate(state, f + FM_NAVLP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
         nav_lowpass_rotate(state, f + FM_NAVLP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
-        nav_lowpass_rotate(state, f + FM_LARGE_LP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
-        nav_lowpass_rotate(state, f + FM_LARGE_LP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
     state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = n0, n1, n2, n3
-    finish_step(state, out, gain, w_a, w_m if mag_ok else 0.0)
+    finish_step(state, out, gain, w_a * norm_w, w_m if mag_ok else 0.0)
 
 
 # --------------------------------------------------------------------------- class
@@ -617,7 +629,8 @@ class Madgwick(AttitudeFilter):
         p[PM_VDOT_TAU] = s.velocity_tau_s
         p[PM_VEL_MAX_AGE] = s.velocity_max_age_s
         p[PM_GNSS_FADE] = s.gnss_fade_s
-        p[PM_LARGE_LP] = s.large_error_lowpass_s
+        p[PM_NORM_TOL] = s.lowpass_norm_tolerance
+        p[PM_NORM_MIN_WEIGHT] = s.lowpass_norm_min_weight
         p[PM_REST : PM_REST + RP_LEN] = s.rest.to_params()
         return p
 

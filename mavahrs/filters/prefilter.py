@@ -14,7 +14,7 @@ The filters then use ``Cᵀ f̄_NED`` in place of f.  τ = 0 passes f through.
 
 Two filters, both on NED vectors:
 
-* first order, :func:`ned_lowpass_step`:
+* first order, :func:`vector_lowpass_step` (on any vector):
   ``f̄ ← f̄ + (f − f̄)·(1 − e^(−dt/τ))`` (:func:`lowpass_coefficient`);
   state block ``LP_LEN`` values: f̄_NED (3), 1.0 once started;
 * second-order Butterworth, :func:`ned_butterworth_step`, cut-off
@@ -41,7 +41,7 @@ __all__ = [
     "nav_lowpass_reset",
     "nav_lowpass_step",
     "nav_lowpass_rotate",
-    "ned_lowpass_step",
+    "vector_lowpass_step",
     "ned_butterworth_step",
 ]
 
@@ -65,8 +65,8 @@ def nav_lowpass_reset(s, k):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def ned_lowpass_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
-    """First-order low-pass of one NED vector; returns the filtered NED vector (the input for τ ≤ 0)."""
+def vector_lowpass_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
+    """First-order low-pass of one vector (any fixed frame); returns the filtered vector (the input for τ ≤ 0)."""
     if tau_s <= 0.0:
         return fn, fe, fd
     if s[k + 3] == 0.0:
@@ -85,7 +85,7 @@ def nav_lowpass_step(s, k, q0, q1, q2, q3, fx, fy, fz, dt, tau_s):  # type: igno
     if tau_s <= 0.0:
         return fx, fy, fz
     fn, fe, fd = body_to_ned(q0, q1, q2, q3, fx, fy, fz)
-    yn, ye, yd = ned_lowpass_step(s, k, fn, fe, fd, dt, tau_s)
+    yn, ye, yd = vector_lowpass_step(s, k, fn, fe, fd, dt, tau_s)
     return ned_to_body(q0, q1, q2, q3, yn, ye, yd)
 
 
