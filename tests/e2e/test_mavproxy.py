@@ -15,7 +15,8 @@ Checked:
   message;
 * MAVProxy with a non-negative ``--streamrate`` resets every stream rate with
   REQUEST_DATA_STREAM(ALL) every 15 s (ArduPilot applies it to RAW_IMU too):
-  mavahrs's stream requests win back the IMU rate.
+  mavahrs sees the delivered rate collapse and wins the IMU rate back within
+  a second or two (not at its next periodic request).
 """
 
 from __future__ import annotations
@@ -187,10 +188,14 @@ def _recovery_s(session: dict[str, Any]) -> tuple[float, float]:
     """(seconds from MAVProxy's reset until RAW_IMU is back at ≥ 80 % of its rate before, that rate)."""
     reset = _reset_after_request(session)
     t = _raw_imu_times(session)
-    before = _rate(t, reset - 4.0, reset - 0.2)
+    # (from 1 s after mavahrs's first request at the earliest: before it, MAVProxy's start-up reset holds 4 Hz)
+    before = _rate(t, max(reset - 4.0, session["first_request"] + 1.0), reset - 0.2)
     # the simulator runs in real time on a shared machine: judge against what it delivered just before
     assert before > 0.6 * RAW_RATE_HZ, f"RAW_IMU at {before:.0f} Hz before the reset, {RAW_RATE_HZ:g} Hz accepted"
-    assert _rate(t, reset + 0.5, reset + 1.0) < 0.2 * before, "the reset did not lower the rate: nothing tested"
+    # mavahrs restores the rate within ~0.5 s now: look for the dip in 0.2 s windows after the reset (the
+    # frames pass through MAVProxy, which may lag on a loaded machine)
+    dip = min(_rate(t, reset + 0.05 * k, reset + 0.05 * k + 0.2) for k in range(60))
+    assert dip < 0.2 * before, "the reset did not lower the rate: nothing tested"
     for k in range(int(AFTER_RESET_S * 4)):
         start = reset + 0.25 * k
         if start + 1.0 > t[-1]:
@@ -206,12 +211,8 @@ def test_mavproxy_stream_rate_reset_is_undone(session: dict[str, Any]) -> None:
     assert recovery_s <= REREQUEST_S + 1.5, (recovery_s, before, session["mavahrs_out"][-3000:])
 
 
-@pytest.mark.xfail(
-    reason="the stream requester re-requests only every stream_request_interval_s (10 s): it should re-send at "
-    "once when the delivered rate collapses after acceptance (MAVProxy/GCS REQUEST_DATA_STREAM resets)",
-    strict=False,
-)
 def test_mavproxy_stream_rate_reset_is_undone_within_3_s(session: dict[str, Any]) -> None:
-    # (passes by luck when mavahrs's periodic re-request happens to fall just after MAVProxy's reset)
-    recovery_s, _ = _recovery_s(session)
-    assert recovery_s <= 3.0
+    # mavahrs re-requests as soon as the delivered rate collapses (0.5 s window), not at its next periodic request
+    recovery_s, before = _recovery_s(session)
+    assert recovery_s <= 3.0, (recovery_s, before, session["mavahrs_out"][-3000:])
+    assert "RAW_IMU fell to" in session["mavahrs_out"]
