@@ -84,7 +84,8 @@ def probe(master: str, baud: int, duration_s: float, settings: Any) -> tuple[Any
     tx = MavCodec(system_id=1, component_id=_COMPONENT)
     decode = rx.receive_datagram if link.datagram else rx.receive_stream
     obs = LinkObserver()
-    requester = StreamRequester(StreamRequestSettings(interval_s=max(duration_s, 10.0)))
+    # ask once and watch: no quick re-requests, which would hide a stream-rate reset the report should name
+    requester = StreamRequester(StreamRequestSettings(interval_s=max(duration_s, 10.0), rerequest_on_drop=False))
     target: tuple[int, int] | None = None
     version_tries = 0
     next_version_us = 0
