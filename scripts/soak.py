@@ -18,6 +18,10 @@ junk, 0.5 % duplicates, 0.5 % reordering).
 
 Measured:
 
+* start-up: seconds from the simulator's start to the first answer (the
+  soak proper starts there: a first sample may still wait for a filter
+  kernel to compile, and what the kernel drops meanwhile is start-up, not
+  steady state);
 * samples: every RAW_IMU the relay delivered intact and in order, and
   whether an ATTITUDE_QUATERNION for it came back within 3 s (``lost``
   otherwise; a sample within 1 s after a fault event is counted apart, as
@@ -155,6 +159,17 @@ class Tracker:
         if b is None:
             b = self.bins[i] = [0, 0, 0, 0, array("d"), 0.0, 0]
         return b
+
+    def reset(self, t_start: float) -> None:
+        """Forget everything counted so far (the measurement starts at ``t_start``)."""
+        with self.lock:
+            self.pending.clear()
+            self.intact = self.answered = self.lost = self.lost_near_fault = self.late_answers = 0
+            self.first_lat = array("d")
+            self.first_err = array("d")
+            self.last.clear()
+            self.bins.clear()
+            self.t_start = t_start
 
     def fault(self) -> None:
         with self.lock:
@@ -406,9 +421,15 @@ def main(argv: list[str] | None = None) -> int:
     faults: dict[str, int] = {"burst": 0, "reboot": 0, "silence": 0, "time_jump": 0}
     rss: list[tuple[float, float]] = []
     cpu: list[tuple[float, float, float]] = []  # (t, daemon CPU s, load average 1 min)
-    t0 = time.monotonic()
-    tracker.t_start = t0
+    # Start-up (first samples may still wait for compiled kernels) is measured apart: the soak
+    # proper starts at the first answer.
+    t_launch = time.monotonic()
     sim.start(0.0)
+    while tracker.answered == 0 and time.monotonic() - t_launch < 600 and daemon.proc.poll() is None:
+        time.sleep(0.05)
+    startup_s = time.monotonic() - t_launch
+    t0 = time.monotonic()
+    tracker.reset(t0)
     events = [(10.0, "burst"), (13.0, "end_burst"), (20.0, "reboot"), (30.0, "silence"), (33.0, "end_silence"),
               (45.0, "time_jump")]
     next_rss = t0
@@ -503,6 +524,7 @@ def main(argv: list[str] | None = None) -> int:
     away = max(1, intact - tracker.lost_near_fault)
     result = {
         "duration_s": round(elapsed, 1),
+        "startup_to_first_answer_s": round(startup_s, 1),
         "rate_hz": 400,
         "scenario": args.scenario,
         "filter": args.filter,
@@ -564,7 +586,8 @@ def main(argv: list[str] | None = None) -> int:
     e2e = result["latency_end_to_end"]
     dl = result["latency_daemon_us"]
     print(
-        f"soak {elapsed:.0f} s at 400 Hz ({args.scenario}, {args.filter}): {intact} intact samples delivered, "
+        f"soak {elapsed:.0f} s at 400 Hz ({args.scenario}, {args.filter}; first answer {startup_s:.1f} s after the "
+        f"simulator started): {intact} intact samples delivered, "
         f"{tracker.answered} answered, {tracker.lost} lost (+{tracker.lost_near_fault} right after a fault); "
         f"faults {faults}, relay {relay_c.lost} lost / {relay_c.bit_flips} flipped / {relay_c.truncated} truncated / "
         f"{relay_c.junk} junk / {relay_c.duplicates} duplicated / {relay_c.reordered} reordered datagrams\n"
