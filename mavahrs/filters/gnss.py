@@ -12,11 +12,13 @@ fix) and low-passes the result:
 * fixes may arrive on every row (interpolated values), only on some rows with
   NaN between them (what the daemon's pipeline does with GLOBAL_POSITION_INT
   at 5–10 Hz), or *held*: the last fix repeated on every row until the next.
-  A value exactly equal to the previous fix is taken as held (no new
-  information), so a held 10 Hz stream gives the same v̇ as the NaN form
-  instead of a zero difference on every row and a spike on the change; a
-  value held longer than ``max_age_s`` is a steady velocity (v̇ = 0 over
-  that span);
+  A value exactly equal to the one on the row before is taken as held (no
+  new information), so a held 10 Hz stream gives nearly the same v̇ as the
+  NaN form instead of a zero difference on every row and a spike on the
+  change.  A held value that stays unchanged for longer than 1.5 times the
+  interval between the last two changes (or ``max_age_s`` before that is
+  known) is a new fix with the same velocity (a steady velocity: v̇ = 0).
+  After NaN rows an equal value is always a new fix;
 * a fix older than ``max_age_s`` (NaN rows only) breaks the chain and v̇ is
   invalid until two fixes are seen again.
 
@@ -24,7 +26,9 @@ With held values the low-pass of the resulting pulse train averages to Δv/T
 when τ ≳ T.
 
 State block (``VD_LEN`` values at offset k): v_prev (3), v̇ (3), time since the
-last fix (s; −1 = none yet), number of differences averaged so far.
+last fix (s; −1 = none yet), number of differences averaged so far, 1.0 when
+the previous row had a velocity, the interval between the last two changes
+of the held value (s; 0 = not known).
 
 :func:`gnss_compensation_step` turns that into the acceleration a filter
 subtracts, with a weight that ramps linearly between 0 and 1 over
@@ -48,11 +52,13 @@ __all__ = [
     "gnss_compensation_step",
 ]
 
-VD_LEN = 8
+VD_LEN = 10
 _VPREV = 0
 _VDOT = 3
 _AGE = 6
 _COUNT = 7
+_PREV_ROW = 8
+_PERIOD = 9
 
 GC_LEN = VD_LEN + 4
 _HELD = VD_LEN  # the last valid v̇ (3)
@@ -74,17 +80,24 @@ def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: i
     age = s[k + _AGE]
     if age >= 0.0:
         age += dt
+    prev_row = s[k + _PREV_ROW] > 0.0
+    s[k + _PREV_ROW] = 1.0 if fix else 0.0
     if not fix:
         if age > max_age_s or age < 0.0:
             velocity_derivative_reset(s, k)
             return False
         s[k + _AGE] = age
         return s[k + _COUNT] > 0.0
-    held = age >= 0.0 and vn == s[k + _VPREV] and ve == s[k + _VPREV + 1] and vd == s[k + _VPREV + 2]
-    if held and age <= max_age_s:
-        s[k + _AGE] = age  # the previous fix repeated: nothing new yet
-        return s[k + _COUNT] > 0.0
+    same = age >= 0.0 and vn == s[k + _VPREV] and ve == s[k + _VPREV + 1] and vd == s[k + _VPREV + 2]
+    held = same and prev_row  # the row before had this very value: a held fix
+    if held:
+        limit = 1.5 * s[k + _PERIOD] if s[k + _PERIOD] > 0.0 else max_age_s
+        if age <= min(limit, max_age_s):
+            s[k + _AGE] = age  # nothing new yet
+            return s[k + _COUNT] > 0.0
     if age > 0.0 and (age <= max_age_s or held):
+        if not same:
+            s[k + _PERIOD] = age
         w = age / tau_s if tau_s > 0.0 else 1.0
         if w > 1.0 or s[k + _COUNT] == 0.0:
             w = 1.0  # the first difference is taken as it is
@@ -98,6 +111,7 @@ def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: i
     s[k + _VPREV + 1] = ve
     s[k + _VPREV + 2] = vd
     s[k + _AGE] = 0.0
+    s[k + _PREV_ROW] = 1.0
     return s[k + _COUNT] > 0.0
 
 
