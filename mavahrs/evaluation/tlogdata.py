@@ -348,6 +348,10 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     }  # fmt: skip
 
 
+#: dt given to the filters for a timeline gap: beyond every filter's max_gap_s (finite, so not "invalid")
+_GAP_DT_S = 1.0e6
+
+
 def _timeline(
     t_us: NDArray[np.int64], now_us: NDArray[np.int64], keys: Array, settings: Any
 ) -> tuple[NDArray[np.bool_], Array]:
@@ -359,7 +363,7 @@ def _timeline(
     by no more than the gap limit: then every event is ``ok`` with
     dt = Δt, which the timeline itself confirms on the first samples.
     """
-    from mavahrs.protocol.timeline import DROP_KINDS, OK, REBOOT, Timeline
+    from mavahrs.protocol.timeline import DROP_KINDS, GAP, OK, REBOOT, Timeline
 
     n = t_us.shape[0]
     keep = np.ones(n, bool)
@@ -389,7 +393,9 @@ def _timeline(
             continue
         if ev.t_us != t_us[i]:
             raise FastPathUnsupported("the timeline corrects timestamps (wrap-around)")
-        dt[i] = ev.dt_s
+        # As the pipeline does: a gap reaches the filter as a dt longer than any filter's
+        # max_gap_s, so it re-initialises instead of integrating one gyro sample across it.
+        dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
     return keep, dt
 
 
