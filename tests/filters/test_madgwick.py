@@ -169,6 +169,11 @@ def test_gains_from_sensor_specs() -> None:
         {"beta_heading_rad_s": -1.0},
         {"accel_lowpass_s": float("nan")},
         {"rest": 2.0},
+        {"lowpass_norm_tolerance": -0.1},
+        {"lowpass_norm_min_weight": 1.5},
+        {"velocity_max_age_s": 0.0},
+        {"gnss_fade_s": float("inf")},
+        {"gnss_acceleration": "yes"},
     ],
 )
 def test_invalid_settings_are_rejected(kwargs: dict) -> None:  # type: ignore[type-arg]
@@ -377,6 +382,44 @@ def test_accelerometer_lowpass_removes_motion_acceleration_tilt(synthetic) -> No
         out = Madgwick(s).run(rows)
         res[tau] = _rms(_deg(attitude_errors_rad(out[k:, OUT_Q : OUT_Q + 4], tr.q_body_to_ned[k:])[2]))
     assert res[2.0] < res[0.0] / 3.0
+
+
+@pytest.mark.parametrize("velocity", [False, True], ids=["no-velocity", "velocity"])
+def test_lowpass_norm_weight_and_gnss_compensation(velocity: bool, synthetic) -> None:  # type: ignore[no-untyped-def]
+    """A 4 m sinusoidal path (≈ 2.6 m/s² peaks, periods of 6–8 s) that the 2 s low-pass cannot average out.
+
+    Without velocity, ``best`` without the manoeuvre weight is ≈ 4.5° off
+    (inclination RMS); with it (‖f̄‖ beyond 5 % of g: 20 % of the gravity
+    correction, reported as accel_weight) ≈ 2°, and the weight is below 0.5
+    for most of the run.  With velocity, f − v̇ is the vertical: ≈ 0.3°
+    either way, and the weight stays at 1 (the compensated f̄ has norm g).
+    """
+    tr = synthetic(90.0, RATE_HZ, noise=True, linear_acceleration_m=4.0)
+    rows = tr.inputs(mag=True, velocity=velocity)
+    k = int(10 * RATE_HZ)
+    res = {}
+    for tol in (0.0, 0.05):
+        out = Madgwick(replace(best_settings(), lowpass_norm_tolerance=tol)).run(rows)
+        res[tol] = _rms(_deg(attitude_errors_rad(out[k:, OUT_Q : OUT_Q + 4], tr.q_body_to_ned[k:])[2]))
+        weight_low = float(np.mean(out[k:, OUT_ACCEL_WEIGHT] < 0.5))
+        if tol == 0.0 or velocity:
+            assert weight_low == 0.0
+        else:
+            assert weight_low > 0.5
+    if velocity:
+        assert res[0.0] < 0.5 and res[0.05] < 0.5
+    else:
+        assert res[0.0] > 3.0
+        assert res[0.05] < 0.6 * res[0.0]
+
+
+def test_gnss_compensation_off_ignores_velocity(synthetic) -> None:  # type: ignore[no-untyped-def]
+    """``gnss_acceleration=False``: the velocity column changes nothing (the rest detector aside, off here)."""
+    tr = synthetic(20.0, RATE_HZ, noise=True, linear_acceleration_m=4.0)
+    s = replace(best_settings(), gnss_acceleration=False, rest=RestBiasSettings(bias_tau_s=0.0))
+    a = Madgwick(s).run(tr.inputs(velocity=True))
+    b = Madgwick(s).run(tr.inputs(velocity=False))
+    np.testing.assert_array_equal(a[:, OUT_Q : OUT_Q + 4], b[:, OUT_Q : OUT_Q + 4])
 
 
 def test_startup_flag_and_boost_after_initialisation(synthetic) -> None:  # type: ignore[no-untyped-def]
