@@ -190,6 +190,17 @@ class MadgwickSettings(FilterSettings):
             0 = the report's constant rate.
         large_heading_error_tau_s: the same for the magnetometer's heading
             step (crossover 2β_heading·τ).  0 = constant rate.
+        lowpass_norm_tolerance: manoeuvre weight: when the norm of the
+            low-passed (GNSS-compensated) specific force f̄ departs from g
+            by this fraction, the gravity correction falls to
+            ``lowpass_norm_min_weight`` and the large-error speed-up to 0
+            (linearly in between): a sustained acceleration — a
+            multirotor's accelerometer reads thrust and drag, not gravity,
+            while it accelerates — is not taken for a tilt error.
+            0 = off (the report's filter).
+        lowpass_norm_min_weight: the gravity correction's weight never
+            falls below this (0–1), so that a mis-scaled accelerometer slows
+            the correction down but never stops it.
         gnss_acceleration: with a GNSS velocity in the input rows
             (``velocity_ned_m_s``, ``IN_VEL``; NaN = no fix), subtract the
             vehicle's acceleration v̇ from the specific force in the
