@@ -172,7 +172,7 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
     assert len(in_order) > 5000
     assert frac_clean >= 0.99
     assert frac_faulty >= 0.99, f"only {frac_faulty:.2%} of the intact samples answered"
-    assert len(keys) > 1500
+    assert len(keys) > 1000  # the steady-mix window: 2.5 s or more of 400 Hz samples
     assert rms_clean <= TILT_BOUND_DEG
     assert abs(rms_faulty - rms_clean) <= 1.0, (rms_clean, rms_faulty)
     for phase, t_rec in recovery.items():
