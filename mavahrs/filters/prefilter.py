@@ -98,20 +98,35 @@ def ned_butterworth_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untype
     ``s[k:k+3]`` and ``s[k+4:k+7]`` are linear combinations of past NED
     vectors, so rotating both with every correction
     (:func:`nav_lowpass_rotate` on ``k`` and ``k + LP_LEN``) keeps them in the
-    current estimate's frame; ``s[k+3]``/``s[k+7]`` are 1.0 once started.
+    current estimate's frame; ``s[k+3]`` is 1.0 once started and ``s[k+7]``
+    holds the nominal step (s) the coefficients are computed from.
     """
     if tau_s <= 0.0:
         return fn, fe, fd
+    # The coefficients follow a smoothed nominal step (kept in s[k+7]), not each
+    # sample's dt: the two state vectors of this form are only meaningful for the
+    # coefficients that built them, so coefficients that jump with every dt (send-time
+    # jitter, a stream that changes rate) make the recursion diverge.  A step more than
+    # 3x away from the nominal one (a gap, a new stream rate) restarts the filter in
+    # the steady state of this sample.
+    restart = s[k + 3] == 0.0
+    nominal = dt if restart else s[k + 7]
+    if not restart and (dt > 3.0 * nominal or dt < nominal / 3.0):
+        restart = True
+        nominal = dt
+    elif not restart:
+        nominal += 0.05 * (dt - nominal)
     # bilinear transform of f_c = √2/(2πτ): C = tan(π f_c dt); capped below π/2 so a
     # long step (up to max_gap_s) passes the sample through instead of wrapping tan
-    c = math.tan(min(math.sqrt(0.5) * dt / tau_s, 1.5))
+    c = math.tan(min(math.sqrt(0.5) * nominal / tau_s, 1.5))
     d = c * c + math.sqrt(2.0) * c + 1.0
     b0 = c * c / d
     a1 = 2.0 * (c * c - 1.0) / d
     a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
-    if s[k + 3] == 0.0:  # start in the steady state of the first sample
+    if restart:  # start in the steady state of this sample
         s[k], s[k + 1], s[k + 2], s[k + 3] = fn * (1.0 - b0), fe * (1.0 - b0), fd * (1.0 - b0), 1.0
-        s[k + 4], s[k + 5], s[k + 6], s[k + 7] = fn * (b0 - a2), fe * (b0 - a2), fd * (b0 - a2), 1.0
+        s[k + 4], s[k + 5], s[k + 6] = fn * (b0 - a2), fe * (b0 - a2), fd * (b0 - a2)
+    s[k + 7] = nominal  # > 0 once started (nav_lowpass_rotate's "started" test)
     yn = b0 * fn + s[k]
     ye = b0 * fe + s[k + 1]
     yd = b0 * fd + s[k + 2]
