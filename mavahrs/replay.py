@@ -260,27 +260,75 @@ def csv_columns(names: Sequence[str]) -> tuple[list[str], list[int]]:
     return cols, dec
 
 
-def _csv_block(t_us: NDArray[np.int64], outs: Sequence[Array], sents: Sequence[NDArray[np.bool_]]) -> Array:
-    from mavahrs.evaluation.metrics import euler_deg
+@kernel
+def _csv_fill(t_us, out, sent, res, c, args):  # type: ignore[no-untyped-def]
+    """One filter's CSV columns except the Euler angles, and the arguments of their atan2/asin.
 
+    ``res[:, c:c+17]`` as :func:`csv_columns` lays them out (columns c+4…c+6
+    left for the caller); ``args`` (n, 6) gets, per row of the normalised
+    quaternion, the arguments of roll (atan2), pitch (asin, clipped) and yaw
+    (atan2) exactly as :func:`mavahrs.geometry.rotation.to_euler_rad` forms
+    them, and 1.0 in column 5 for rows :func:`mavahrs.evaluation.metrics.euler_deg`
+    reports as NaN.  The trigonometry itself stays with numpy's ufuncs, so the
+    text is the same as that of ``euler_deg`` to the last digit.
+    """
+    r2d = 180.0 / math.pi
+    for i in range(t_us.shape[0]):
+        res[i, 0] = t_us[i] * 1e-6
+        flags = int(out[i, OUT_FLAGS])
+        w, x, y, z = out[i, OUT_Q], out[i, OUT_Q + 1], out[i, OUT_Q + 2], out[i, OUT_Q + 3]
+        if flags & FLAG_NOT_INITIALISED:
+            w = x = y = z = math.nan
+        res[i, c], res[i, c + 1], res[i, c + 2], res[i, c + 3] = w, x, y, z
+        n = math.sqrt(w * w + x * x + y * y + z * z)  # np.linalg.norm over the row, same order
+        if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and n > 0.0):
+            w, x, y, z, n = 1.0, 0.0, 0.0, 0.0, 1.0
+            args[i, 5] = 1.0
+        else:
+            args[i, 5] = 0.0
+        w, x, y, z = w / n, x / n, y / n, z / n
+        args[i, 0] = 2.0 * (w * x + y * z)
+        args[i, 1] = 1.0 - 2.0 * (x * x + y * y)
+        p = 2.0 * (w * y - z * x)
+        args[i, 2] = min(max(p, -1.0), 1.0)
+        args[i, 3] = 2.0 * (w * z + x * y)
+        args[i, 4] = 1.0 - 2.0 * (y * y + z * z)
+        res[i, c + 7] = out[i, OUT_GAIN]
+        res[i, c + 8] = out[i, OUT_ACCEL_WEIGHT]
+        res[i, c + 9] = out[i, OUT_MAG_WEIGHT]
+        res[i, c + 10] = 1.0 if out[i, OUT_ACCEL_WEIGHT] < 0.5 else 0.0
+        res[i, c + 11] = 1.0 if (flags & FLAG_MAG_INVALID) == 0 and out[i, OUT_MAG_WEIGHT] < 0.5 else 0.0
+        for k in range(3):
+            res[i, c + 12 + k] = out[i, OUT_BIAS + k] * r2d  # np.degrees: x · (180/π)
+        res[i, c + 15] = float(flags)
+        res[i, c + 16] = 1.0 if sent[i] else 0.0
+
+
+def _csv_block(t_us: NDArray[np.int64], outs: Sequence[Array], sents: Sequence[NDArray[np.bool_]]) -> Array:
+    """The CSV rows of a block of samples (``csv_columns`` order), identical to the column-wise numpy
+    formulation (``euler_deg`` for the angles) but in one compiled pass plus three ufuncs per filter."""
     n = t_us.shape[0]
     width = 17  # columns per filter (csv_columns)
-    res = np.empty((n, 1 + width * len(outs)))  # filled column block by column block: no hstack copy
-    np.multiply(t_us, 1e-6, out=res[:, 0])
+    res = np.empty((n, 1 + width * len(outs)))
+    args = np.empty((n, 6))
+    t = np.ascontiguousarray(t_us, dtype=np.int64)
     for k, (out, sent) in enumerate(zip(outs, sents)):
         c = 1 + width * k
-        flags = out[:, OUT_FLAGS].astype(np.int64)
-        init = (flags & FLAG_NOT_INITIALISED) == 0
-        q = res[:, c : c + 4]
-        q[...] = np.nan
-        np.copyto(q, out[:, OUT_Q : OUT_Q + 4], where=init[:, None])
-        res[:, c + 4 : c + 7] = euler_deg(q)
-        res[:, c + 7 : c + 10] = out[:, OUT_GAIN : OUT_MAG_WEIGHT + 1]  # gain, accel weight, mag weight
-        np.less(out[:, OUT_ACCEL_WEIGHT], 0.5, out=res[:, c + 10])  # accelerometer rejected
-        res[:, c + 11] = ((flags & FLAG_MAG_INVALID) == 0) & (out[:, OUT_MAG_WEIGHT] < 0.5)
-        np.degrees(out[:, OUT_BIAS : OUT_BIAS + 3], out=res[:, c + 12 : c + 15])
-        res[:, c + 15] = flags
-        res[:, c + 16] = sent
+        _csv_fill(t, np.ascontiguousarray(out), np.ascontiguousarray(sent, dtype=np.bool_), res, c, args)
+        euler = np.empty((n, 3))
+        np.arctan2(args[:, 0], args[:, 1], out=euler[:, 0])
+        np.arcsin(args[:, 2], out=euler[:, 1])
+        np.arctan2(args[:, 3], args[:, 4], out=euler[:, 2])
+        lock = np.hypot(args[:, 0], args[:, 1]) < 1e-7  # gimbal lock: to_euler_rad's own special case
+        if lock.any():
+            from mavahrs.geometry.rotation import to_euler_rad
+
+            q = res[lock, c : c + 4]
+            ok = args[lock, 5] == 0.0
+            euler[np.flatnonzero(lock)[ok]] = to_euler_rad(q[ok])
+        np.degrees(euler, out=euler)
+        euler[args[:, 5] != 0.0] = np.nan
+        res[:, c + 4 : c + 7] = euler
     return res
 
 
