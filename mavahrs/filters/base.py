@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from mavahrs.filters import gains as _g
 from mavahrs.filters.gains import GainScheduleSettings, schedule_reset
 from mavahrs.filters.initial import initial_attitude
-from mavahrs.filters.jit import bound_loop, kernel, loop_kernel, prange
+from mavahrs.filters.jit import bound_loop, kernel, loop_kernel, prange, pure_python
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_DT_INVALID,
@@ -429,7 +429,7 @@ class AttitudeFilter(ABC):
         self._out = np.zeros(OUT_WIDTH)
         step = type(self).__dict__.get("step") or type(self).step  # unbound: dispatchers bind like methods
         self._step = step
-        self._kernel = step if compiled else getattr(step, "py_func", step)
+        self._kernel = step if compiled else pure_python(step)  # the interpreter all the way down
         self.reset()
 
     # -- to implement ---------------------------------------------------------

@@ -32,7 +32,7 @@ import types
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "loop_kernel", "bound_loop", "prange", "HAVE_NUMBA"]
+__all__ = ["kernel", "loop_kernel", "bound_loop", "pure_python", "prange", "HAVE_NUMBA"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -94,6 +94,39 @@ class _Interpreted:
 def _is_filter_kernel(func: Callable[..., Any]) -> bool:
     code = getattr(func, "__code__", None)
     return code is not None and os.path.dirname(os.path.abspath(code.co_filename)) == _FILTERS_DIR
+
+
+def pure_python(func: Any) -> Callable[..., Any]:
+    """The interpreted reference of a kernel: its source run by the interpreter, and every kernel it calls too.
+
+    ``kernel.py_func`` alone would still call the *compiled* helpers (the
+    names in its globals are numba dispatchers), and calling those from
+    Python compiles a standalone copy of every helper that the compiled
+    steps inline: seconds per helper on a cold cache, for a path that is
+    meant to be the slow, readable reference.  Here each kernel of
+    ``mavahrs/filters`` reached from ``func`` is replaced by its own
+    pure-Python version (a copy of its function with those names rebound).
+    Anything else is returned as its ``py_func`` (or itself).
+    """
+    return _pure(func, {})
+
+
+def _pure(func: Any, memo: dict[int, Callable[..., Any]]) -> Callable[..., Any]:
+    py = getattr(func, "py_func", func)
+    if not isinstance(py, types.FunctionType) or not _is_filter_kernel(py):
+        return py  # type: ignore[no-any-return]
+    done = memo.get(id(py))
+    if done is not None:
+        return done
+    glb = dict(py.__globals__)
+    clone = types.FunctionType(py.__code__, glb, py.__name__, py.__defaults__, py.__closure__)
+    clone.__qualname__, clone.__module__, clone.__doc__ = py.__qualname__, py.__module__, py.__doc__
+    memo[id(py)] = clone
+    for name in py.__code__.co_names:  # the globals this function refers to
+        value = glb.get(name)
+        if value is not None and hasattr(value, "py_func"):
+            glb[name] = _pure(value, memo)
+    return clone
 
 
 def kernel(func: F | None = None, *, inline: bool = False) -> Any:
