@@ -328,6 +328,77 @@ def _min_window(run: Callable[[int, int], None], n: int, window: int, budget_s: 
     return best
 
 
+def _report_settings() -> Any:
+    """MadgwickSettings reduced to the 2010 report's filter: β, ζ, distortion compensation only."""
+    from mavahrs.filters.gains import GainScheduleSettings
+    from mavahrs.filters.madgwick import MadgwickSettings
+    from mavahrs.filters.rest import RestBiasSettings
+
+    off = GainScheduleSettings(startup_gain_factor=1.0, startup_s=0.0, accel_norm_tolerance=0.0, recovery_s=0.0,
+                               rejection_timeout_s=0.0, mag_norm_tolerance=0.0, mag_dip_tolerance_rad=0.0,
+                               mag_learn_s=0.0)  # fmt: skip
+    return MadgwickSettings(beta_rad_s=0.041, zeta_rad_s=0.015, zeta_spin_limit_rad_s=0.0, bias_limit_rad_s=0.0,
+                            rest=RestBiasSettings(bias_tau_s=0.0), schedule=off)  # fmt: skip
+
+
+def _plain_madgwick() -> Any:
+    """Madgwick's MadgwickAHRSupdate (MadgwickAHRS.c, 2010/2011) in numba: the arithmetic-limit reference."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover
+        return None
+
+    @numba.njit(error_model="numpy", _nrt=False)
+    def run(q, g, a, m, dt, beta, out):  # type: ignore[no-untyped-def]
+        q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+        for i in range(g.shape[0]):
+            gx, gy, gz = g[i, 0], g[i, 1], g[i, 2]
+            ax, ay, az = a[i, 0], a[i, 1], a[i, 2]
+            mx, my, mz = m[i, 0], m[i, 1], m[i, 2]
+            qd1 = 0.5 * (-q1 * gx - q2 * gy - q3 * gz)
+            qd2 = 0.5 * (q0 * gx + q2 * gz - q3 * gy)
+            qd3 = 0.5 * (q0 * gy - q1 * gz + q3 * gx)
+            qd4 = 0.5 * (q0 * gz + q1 * gy - q2 * gx)
+            r = 1.0 / math.sqrt(ax * ax + ay * ay + az * az)
+            ax, ay, az = ax * r, ay * r, az * r
+            r = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+            mx, my, mz = mx * r, my * r, mz * r
+            _2q0mx, _2q0my, _2q0mz, _2q1mx = 2.0 * q0 * mx, 2.0 * q0 * my, 2.0 * q0 * mz, 2.0 * q1 * mx
+            _2q0, _2q1, _2q2, _2q3 = 2.0 * q0, 2.0 * q1, 2.0 * q2, 2.0 * q3
+            _2q0q2, _2q2q3 = 2.0 * q0 * q2, 2.0 * q2 * q3
+            q0q0, q0q1, q0q2, q0q3 = q0 * q0, q0 * q1, q0 * q2, q0 * q3
+            q1q1, q1q2, q1q3 = q1 * q1, q1 * q2, q1 * q3
+            q2q2, q2q3, q3q3 = q2 * q2, q2 * q3, q3 * q3
+            hx = mx * q0q0 - _2q0my * q3 + _2q0mz * q2 + mx * q1q1 + _2q1 * my * q2 + _2q1 * mz * q3 - mx * q2q2 - mx * q3q3
+            hy = _2q0mx * q3 + my * q0q0 - _2q0mz * q1 + _2q1mx * q2 - my * q1q1 + my * q2q2 + _2q2 * mz * q3 - my * q3q3
+            _2bx = math.sqrt(hx * hx + hy * hy)
+            _2bz = -_2q0mx * q2 + _2q0my * q1 + mz * q0q0 + _2q1mx * q3 - mz * q1q1 + _2q2 * my * q3 - mz * q2q2 + mz * q3q3
+            _4bx, _4bz = 2.0 * _2bx, 2.0 * _2bz
+            f1 = 2.0 * q1q3 - _2q0q2 - ax
+            f2 = 2.0 * q0q1 + _2q2q3 - ay
+            f3 = 1.0 - 2.0 * q1q1 - 2.0 * q2q2 - az
+            f4 = _2bx * (0.5 - q2q2 - q3q3) + _2bz * (q1q3 - q0q2) - mx
+            f5 = _2bx * (q1q2 - q0q3) + _2bz * (q0q1 + q2q3) - my
+            f6 = _2bx * (q0q2 + q1q3) + _2bz * (0.5 - q1q1 - q2q2) - mz
+            s0 = -_2q2 * f1 + _2q1 * f2 - _2bz * q2 * f4 + (-_2bx * q3 + _2bz * q1) * f5 + _2bx * q2 * f6
+            s1 = _2q3 * f1 + _2q0 * f2 - 4.0 * q1 * f3 + _2bz * q3 * f4 + (_2bx * q2 + _2bz * q0) * f5 \
+                + (_2bx * q3 - _4bz * q1) * f6
+            s2 = -_2q0 * f1 + _2q3 * f2 - 4.0 * q2 * f3 + (-_4bx * q2 - _2bz * q0) * f4 \
+                + (_2bx * q1 + _2bz * q3) * f5 + (_2bx * q0 - _4bz * q2) * f6
+            s3 = _2q1 * f1 + _2q2 * f2 + (-_4bx * q3 + _2bz * q1) * f4 + (-_2bx * q0 + _2bz * q2) * f5 + _2bx * q1 * f6
+            r = 1.0 / math.sqrt(s0 * s0 + s1 * s1 + s2 * s2 + s3 * s3)
+            q0 += (qd1 - beta * s0 * r) * dt
+            q1 += (qd2 - beta * s1 * r) * dt
+            q2 += (qd3 - beta * s2 * r) * dt
+            q3 += (qd4 - beta * s3 * r) * dt
+            r = 1.0 / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+            q0, q1, q2, q3 = q0 * r, q1 * r, q2 * r, q3 * r
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0, q1, q2, q3
+        q[0], q[1], q[2], q[3] = q0, q1, q2, q3
+
+    return run
+
+
 def bench_batch(rec: Any, quick: bool) -> tuple[list[Row], dict[str, Any]]:
     import numpy as np
 
@@ -355,6 +426,31 @@ def bench_batch(rec: Any, quick: bool) -> tuple[list[Row], dict[str, Any]]:
                 f.run(data[a:b], out)
 
             res["ns_per_sample"][f"{name} {mode}"] = _min_window(run, n, window, budget) * 1e9
+    # the same kernel doing only the report's filter (no rest detection, no gain schedule)
+    f = create("madgwick", _report_settings())
+    out = np.empty((window, 11))
+    f.run(rows_marg[:100])
+
+    def run_report(a: int, b: int) -> None:
+        if a == 0:
+            f.reset()
+        f.run(rows_marg[a:b], out)
+
+    res["ns_per_sample"]["madgwick MARG, report's filter only"] = _min_window(run_report, n, window, budget) * 1e9
+    # the arithmetic limit: Madgwick's own C code (2010 report, MadgwickAHRS.c) transliterated, compiled
+    plain = _plain_madgwick()
+    if plain is not None:
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        acc_up = np.ascontiguousarray(-rec.accel_m_s2)  # the C code's convention: gravity reads +z
+        plain_out = np.empty((n, 4))
+        gyr = np.ascontiguousarray(rec.gyro_rad_s)
+        mag_ok = np.ascontiguousarray(np.nan_to_num(rec.mag_ut)) if rec.mag_ut is not None else np.zeros_like(gyr)
+        plain(q, gyr[:100], acc_up[:100], mag_ok[:100], 1.0 / RATE_HZ, 0.041, plain_out)
+
+        def run_plain(a: int, b: int) -> None:
+            plain(q, gyr[a:b], acc_up[a:b], mag_ok[a:b], 1.0 / RATE_HZ, 0.041, plain_out[a:b])
+
+        res["ns_per_sample"]["Madgwick 2010 C code (numba)"] = _min_window(run_plain, n, window, budget) * 1e9
     # references on the same samples: imufusion (per sample from Python), VQF updateBatch
     gyro = np.ascontiguousarray(rec.gyro_rad_s)
     acc = np.ascontiguousarray(rec.accel_m_s2)
@@ -414,6 +510,13 @@ def bench_batch(rec: Any, quick: bool) -> tuple[list[Row], dict[str, Any]]:
     if vqf is not None:
         rows.append(Row("batch", f"Madgwick MARG ≥ {BATCH_VQF_RATIO:g}× VQF updateBatch",
                         f"{vqf / mad:.1f}× ({vqf:.0f} ns VQF)", vqf / mad >= BATCH_VQF_RATIO))  # fmt: skip
+    rep = ns["madgwick MARG, report's filter only"]
+    rows.append(Row("batch", "Madgwick MARG, report's filter only (no rest detection, no gain schedule)",
+                    f"{1e3 / rep:.2f} M/s ({rep:.0f} ns){f', {vqf / rep:.1f}× VQF' if vqf else ''}", None))  # fmt: skip
+    c_ref = ns.get("Madgwick 2010 C code (numba)")
+    if c_ref is not None:
+        rows.append(Row("batch", "Madgwick's 2010 C code compiled (the arithmetic limit)",
+                        f"{1e3 / c_ref:.2f} M/s ({c_ref:.0f} ns)", None))  # fmt: skip
     imf = ns.get("imufusion per sample MARG")
     if imf is not None:
         rows.append(Row("batch", "Madgwick MARG vs imufusion per sample (Python loop)", f"{imf / mad:.0f}×", None))
