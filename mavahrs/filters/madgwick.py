@@ -57,7 +57,7 @@ from mavahrs.filters.base import (
     vector_ok,
 )
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
-from mavahrs.filters.jit import kernel
+from mavahrs.filters.jit import kernel, pure_python
 from mavahrs.filters.gnss import GC_LEN, gnss_compensation_reset, gnss_compensation_step
 from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body, quat_multiply
 from mavahrs.filters.prefilter import (
@@ -647,5 +647,5 @@ class Madgwick(AttitudeFilter):
 
     def initial_internal(self) -> np.ndarray:
         s = np.zeros(FM_LEN)
-        _reset_internal(s, 0)
+        pure_python(_reset_internal)(s, 0)  # interpreted: no second compiled copy for Python's int argument
         return s

@@ -191,7 +191,12 @@ def test_compensation_kernel_ramps_in_and_fades_out_linearly() -> None:
     falls by exactly 2·dt/fade_s per row to 0 and stays there.
     """
     from mavahrs.filters.gnss import GC_LEN, gnss_compensation_reset, gnss_compensation_step
+    from mavahrs.filters.jit import pure_python
 
+    # the interpreted kernels (the compiled ones are inlined into the steps; compiling standalone
+    # copies just for this test would cost seconds on a cold cache; both agree: test_contract)
+    gnss_compensation_reset = pure_python(gnss_compensation_reset)
+    gnss_compensation_step = pure_python(gnss_compensation_step)
     dt, fade, max_age = 0.01, 0.5, 0.305  # the chain breaks 31 rows after the last fix
     s = np.zeros(GC_LEN)
     gnss_compensation_reset(s, 0)
