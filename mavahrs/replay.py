@@ -312,7 +312,7 @@ def _csv_block(t_us: NDArray[np.int64], outs: Sequence[Array], sents: Sequence[N
     res = np.empty((n, 1 + width * len(outs)))
     args = np.empty((n, 6))
     t = np.ascontiguousarray(t_us, dtype=np.int64)
-    for k, (out, sent) in enumerate(zip(outs, sents)):
+    for k, (out, sent) in enumerate(zip(outs, sents, strict=True)):
         c = 1 + width * k
         _csv_fill(t, np.ascontiguousarray(out), np.ascontiguousarray(sent, dtype=np.bool_), res, c, args)
         euler = np.empty((n, 3))
