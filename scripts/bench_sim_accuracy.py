@@ -121,19 +121,27 @@ def write_flight(folder: Path, scenario: str, seed: int, duration_s: float) -> t
 # ------------------------------------------------------------------ references
 
 
+def _sample_by_sample(
+    rows: np.ndarray, update: Callable[..., object], quaternion: Callable[[], object],
+    gyro_scale: float, accel_scale: float, frame: str,
+) -> np.ndarray:  # fmt: skip
+    """Feed the rows one sample at a time; return each attitude, converted from ``frame`` to NED."""
+    gyr = np.ascontiguousarray(rows[:, IN_GYRO : IN_GYRO + 3] * gyro_scale)
+    acc = np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3] * accel_scale)
+    mag = np.ascontiguousarray(rows[:, IN_MAG : IN_MAG + 3])
+    q = np.empty((rows.shape[0], 4))
+    for i in range(rows.shape[0]):
+        update(gyr[i], acc[i], mag[i])
+        q[i] = quaternion()
+    return convert_earth_frame(q, frame, "NED")
+
+
 def vqf_reference() -> Reference:
     from vqf import VQF  # bench extra
 
     def run(rows: np.ndarray) -> np.ndarray:
         v = VQF(1.0 / RATE_HZ)
-        gyr = np.ascontiguousarray(rows[:, IN_GYRO : IN_GYRO + 3])
-        acc = np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3])
-        mag = np.ascontiguousarray(rows[:, IN_MAG : IN_MAG + 3])
-        q = np.empty((rows.shape[0], 4))
-        for i in range(rows.shape[0]):
-            v.update(gyr[i], acc[i], mag[i])
-            q[i] = v.getQuat9D()
-        return convert_earth_frame(q, "ENU", "NED")
+        return _sample_by_sample(rows, v.update, v.getQuat9D, 1.0, 1.0, "ENU")
 
     return run
 
@@ -144,14 +152,7 @@ def imufusion_reference() -> Reference:
     def run(rows: np.ndarray) -> np.ndarray:
         ahrs = imufusion.Ahrs()
         ahrs.set_sample_period(1.0 / RATE_HZ)
-        gyr = np.degrees(rows[:, IN_GYRO : IN_GYRO + 3])
-        acc = rows[:, IN_ACCEL : IN_ACCEL + 3] / G_M_S2
-        mag = np.ascontiguousarray(rows[:, IN_MAG : IN_MAG + 3])
-        q = np.empty((rows.shape[0], 4))
-        for i in range(rows.shape[0]):
-            ahrs.update(gyr[i], acc[i], mag[i])
-            q[i] = ahrs.get_quaternion()
-        return convert_earth_frame(q, "NWU", "NED")
+        return _sample_by_sample(rows, ahrs.update, ahrs.get_quaternion, 180.0 / np.pi, 1.0 / G_M_S2, "NWU")
 
     return run
 
