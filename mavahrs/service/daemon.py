@@ -883,9 +883,13 @@ def build_daemon(
         if settings.log_path:
             sink = TlogSink(settings.log_path, settings.log_flush_interval_s)
         if pipeline is None:  # after the links: a busy port is reported before the filter compiles
+            from mavahrs.sensors.geomag import decimal_year_from_unix_s
             from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
-            pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings)
+            # today's date for the magnetic model until the autopilot sends SYSTEM_TIME (many never
+            # do before a GNSS fix gives them the time: without a date there is no declination)
+            today = decimal_year_from_unix_s(time.time())
+            pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings, decimal_year=today)
         warm_up = getattr(getattr(pipeline, "filter", None), "warm_up", None)
         if warm_up is not None:  # compile/load the filter kernel before serving, not on the first sample
             warm_up()

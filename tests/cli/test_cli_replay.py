@@ -53,7 +53,7 @@ def test_plot_a_recording(broad_dir: Path, tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_live_daemon_log_replays_to_identical_attitudes(tmp_path: Path) -> None:
-    """``firmware_sim`` → UDP → ``mavahrs run --log``; replaying that tlog gives the daemon's own attitudes (to 1e-6)."""
+    """``firmware_sim`` → UDP → ``mavahrs run --log``; replaying that tlog gives the daemon's own attitudes."""
     import os
     import socket
     import subprocess
@@ -97,10 +97,8 @@ def test_a_live_daemon_log_replays_to_identical_attitudes(tmp_path: Path) -> Non
     res = replay(log, ReplaySettings(filters=("madgwick",)))
     tr = res.tracks["madgwick"]
     sent = np.flatnonzero(tr.sent)
-    # Same samples, same stamps; the quaternions agree to float32 resolution accumulated over the
-    # flight (the bulk path scales the wire units with vectorised arithmetic, so single inputs can
-    # differ in the last bit of a double, and a few ulps of that survive thousands of steps).
-    assert [int(res.inputs.t_us[i] // 1000) for i in sent] == [t for t, _ in live]
-    mine = np.float32(tr.out[sent, :4])
-    theirs = np.array([q for _, q in live], dtype=np.float32)
-    assert np.max(np.abs(mine - theirs)) < 1e-6
+    mine = [(int(res.inputs.t_us[i] // 1000), tuple(np.float32(tr.out[i, :4]).tolist())) for i in sent]
+    live32 = [(t, tuple(np.float32(q).tolist())) for t, q in live]
+    # bit for bit: this caught the daemon starting without a date for the magnetic model (replay
+    # had one), which rotated the first GNSS velocity differently and the attitude by up to 3e-5
+    assert mine == live32

@@ -320,3 +320,45 @@ def test_a_full_disk_stops_the_log_and_nothing_else(gcs: socket.socket, caplog: 
     assert d.sink.stopped and fields["log"] == "stopped: No space left on device"
     assert d.sink.frames_lost > 0
     assert sum("recording to full.tlog stopped" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_the_real_daemon_points_true_north_without_system_time(gcs: socket.socket) -> None:
+    """A GNSS position alone (no SYSTEM_TIME, as an autopilot before its first time fix) gives true north.
+
+    ``build_daemon`` gives the pipeline today's date for the magnetic model, so
+    the declination at the reported position (Canberra, about 12.7° east) is
+    applied from the first position on: a level vehicle whose compass points
+    to magnetic north publishes a yaw equal to the declination.
+    """
+    import math
+
+    from mavahrs.sensors.geomag import decimal_year_from_unix_s, expected_field
+    from mavahrs.service.daemon import build_daemon
+
+    lat, lon = -35.363262, 149.165237
+    want_deg = expected_field(lat, lon, 584.0, decimal_year_from_unix_s(time.time())).declination_deg
+    d = build_daemon(DaemonSettings(
+        master="udpin:127.0.0.1:0", outputs=(f"udpout:127.0.0.1:{gcs.getsockname()[1]}",), status_interval_s=0.0,
+    ))  # fmt: skip
+    ap = Autopilot(d.master.local_address[1])
+    thread, box = _start(d)
+    try:
+        ap.heartbeat()
+        time.sleep(0.05)
+        pos = ap.codec.mav.global_position_int_encode(1000, int(lat * 1e7), int(lon * 1e7), 584000, 0, 0, 0, 0, 0)
+        ap.sock.sendto(ap.codec.encode(pos), ap.addr)
+        for _ in range(40):
+            ap.imu(5)
+            time.sleep(0.01)
+        # 0.5 s of samples at the default output rate (50 Hz): 25 attitudes
+        got = [m for m in _drain(gcs, 5.0, attitudes=25) if m.get_type() == "ATTITUDE_QUATERNION"]
+    finally:
+        d.stop()
+        thread.join(5)
+        ap.close()
+    assert box["result"].reason == "stopped"
+    assert len(got) >= 20
+    m = got[-1]
+    yaw_deg = math.degrees(math.atan2(2 * (m.q1 * m.q4 + m.q2 * m.q3), 1 - 2 * (m.q3**2 + m.q4**2)))
+    assert abs(want_deg) > 5  # the test means something only where the declination is large
+    assert yaw_deg == pytest.approx(want_deg, abs=1.0)
