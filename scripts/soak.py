@@ -396,8 +396,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    # SIGTERM (kill, a CI timeout) unwinds like Ctrl-C: the simulator and the daemon are stopped too
+    signal.signal(signal.SIGTERM, _interrupt)
     import tempfile
 
     workdir = Path(args.workdir or tempfile.mkdtemp(prefix="mavahrs-soak-"))

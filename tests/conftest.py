@@ -14,6 +14,35 @@ SHARED = REPO.parent / "shared"
 DATA = SHARED / "data"
 
 
+#: Tests that stream in real time between processes (simulator, daemon, MAVProxy, a relay) over
+#: sockets or ptys.  With pytest-xdist (``--dist loadgroup``, see pyproject.toml) they form one
+#: group and so run one at a time, never two flights sharing the machine's two cores; every other
+#: test file is a group of its own, so its module fixtures are computed once.
+LIVE_TESTS = (
+    "tests/e2e/",
+    "tests/reliability/",
+    "tests/cli/test_cli_demo.py",
+    "tests/cli/test_cli_doctor.py",
+    "tests/cli/test_cli_replay.py",
+    "tests/cli/test_cli_run.py",
+    "tests/evaluation/test_replay_engines.py",
+    "tests/firmware_sim/test_sim_cli.py",
+    "tests/firmware_sim/test_sim_live.py",
+    "tests/service/test_daemon_e2e.py",
+    "tests/service/test_daemon_loop.py",
+)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        try:
+            rel = Path(item.path).resolve().relative_to(REPO).as_posix()
+        except ValueError:
+            continue
+        item.add_marker(pytest.mark.xdist_group("live" if rel.startswith(LIVE_TESTS) else rel))
+
+
 def _require(path: Path) -> Path:
     if not path.exists():
         pytest.skip(f"reference data not found at {path} (expected ../shared/data beside the checkout)")

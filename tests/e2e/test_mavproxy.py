@@ -16,7 +16,7 @@ Checked:
 * MAVProxy with a non-negative ``--streamrate`` resets every stream rate with
   REQUEST_DATA_STREAM(ALL) every 15 s (ArduPilot applies it to RAW_IMU too):
   mavahrs sees the delivered rate collapse and wins the IMU rate back within
-  a second or two (not at its next periodic request).
+  a second or two (not at its next periodic request, 10 s later).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.skipif(sys.platform == "win32", reas
 
 RAW_RATE_HZ = 250.0  # what the simulated ArduPilot (400 Hz loop) accepts for RAW_IMU
 REREQUEST_S = 10.0  # mavahrs's stream_request_interval_s default
-AFTER_RESET_S = REREQUEST_S + 5.0  # session length after MAVProxy's reset: re-request + measuring window
+AFTER_RESET_S = 5.0  # session length after MAVProxy's reset: mavahrs's fast re-request (~0.5 s) + measuring window
 
 
 def _messages(path: Path, types: set[str] | None = None) -> list[tuple[float, str, int, int, Any]]:
@@ -203,12 +203,6 @@ def _recovery_s(session: dict[str, Any]) -> tuple[float, float]:
         if _rate(t, start, start + 1.0) >= 0.8 * before:
             return start - reset, before
     return math.inf, before
-
-
-def test_mavproxy_stream_rate_reset_is_undone(session: dict[str, Any]) -> None:
-    # mavahrs re-sends its request every stream_request_interval_s: the rate is back by then
-    recovery_s, before = _recovery_s(session)
-    assert recovery_s <= REREQUEST_S + 1.5, (recovery_s, before, session["mavahrs_out"][-3000:])
 
 
 def test_mavproxy_stream_rate_reset_is_undone_within_3_s(session: dict[str, Any]) -> None:
