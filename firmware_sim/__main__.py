@@ -20,12 +20,19 @@ import sys
 from collections.abc import Sequence
 from dataclasses import replace
 
-from mavahrs.errors import ConfigError, TransportError
-from firmware_sim.endpoint import STREAMABLE, EndpointSettings, Endpoint
+from firmware_sim.endpoint import STREAMABLE, Endpoint, EndpointSettings
 from firmware_sim.imu_model import EarthField, ImuErrorSettings, MagSettings
 from firmware_sim.simulation import AttitudeFault, Home, ImuFault, SimSettings, Simulation
-from firmware_sim.streamer import Blackout, describe_link, open_link, run_realtime, write_stats_json, write_tlog
+from firmware_sim.streamer import (
+    Blackout,
+    describe_link,
+    open_link,
+    run_realtime,
+    write_stats_json,
+    write_tlog,
+)
 from firmware_sim.trajectory import SCENARIO_DESCRIPTIONS, SCENARIOS
+from mavahrs.errors import ConfigError, TransportError
 
 __all__ = ["main", "build_parser", "settings_from_args"]
 

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.geometry.rotation import to_euler_rad
-from mavahrs.protocol.codec import MavCodec, mavlink
 from firmware_sim.simulation import LoopBlock
 from firmware_sim.vehicle import G
+from mavahrs.geometry.rotation import to_euler_rad
+from mavahrs.protocol.codec import MavCodec, mavlink
 
 __all__ = ["FrameEncoder", "WireBlock", "Autopilot", "to_int16"]
 

@@ -45,9 +45,9 @@ from typing import Any
 
 import numpy as np
 
-from mavahrs.protocol.codec import MavCodec, mavlink
 from firmware_sim.encoder import Autopilot, FrameEncoder, WireBlock
 from firmware_sim.simulation import Simulation
+from mavahrs.protocol.codec import MavCodec, mavlink
 
 __all__ = ["EndpointSettings", "Endpoint", "STREAMABLE", "PRESETS", "DENIED_TEXT", "EPOCH_2025_06_01_US"]
 

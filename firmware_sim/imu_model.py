@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+
 from firmware_sim.jit import lazy_kernel
 from firmware_sim.trajectory import VibrationSpec
 

@@ -18,11 +18,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from mavahrs.geometry import quaternion as quat
-from mavahrs.geometry.rotation import from_euler_rad
+
 from firmware_sim.imu_model import EarthField, ImuErrorSettings, ImuModel, MagModel, MagSettings, iir2
 from firmware_sim.trajectory import make_scenario
 from firmware_sim.vehicle import G, TruthChunk, Vehicle, VehicleSettings
+from mavahrs.geometry import quaternion as quat
+from mavahrs.geometry.rotation import from_euler_rad
 
 __all__ = [
     "Home",

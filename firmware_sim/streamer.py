@@ -34,11 +34,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from firmware_sim.endpoint import Endpoint
 from mavahrs.errors import TransportError
 from mavahrs.protocol.tlog import tlog_record
 from mavahrs.transports import DEFAULT_BAUD, Transport, TransportCounters, open_transport
 from mavahrs.transports.base import WriteQueue
-from firmware_sim.endpoint import Endpoint
 
 __all__ = [
     "PtyLink",

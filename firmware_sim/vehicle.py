@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.geometry import quaternion as quat
-from mavahrs.geometry.rotation import from_euler_rad
 from firmware_sim.jit import lazy_kernel
 from firmware_sim.trajectory import Scenario
+from mavahrs.geometry import quaternion as quat
+from mavahrs.geometry.rotation import from_euler_rad
 
 __all__ = [
     "G",

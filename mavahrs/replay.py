@@ -39,7 +39,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.errors import DataError
 from mavahrs.evaluation.tlogdata import (
     FastPathUnsupported,
     PreparedInputs,

@@ -196,7 +196,7 @@ def format_tables(results: list[Result], recs: list[Recording]) -> str:
     titles = [t for t, _ in GROUPS]
     counts = {t: sum(1 for r in recs if tag == "all" or tag in r.groups) for t, tag in GROUPS}
     head = f"{'filter':14s} " + " ".join(f"{t + f' ({counts[t]})':>17s}" for t in titles)
-    lines.append(f"9-axis, mean over trials of the per-trial RMS error, degrees: total / heading / inclination")
+    lines.append("9-axis, mean over trials of the per-trial RMS error, degrees: total / heading / inclination")
     lines.append(head)
     lines.append("-" * len(head))
     for r in results:

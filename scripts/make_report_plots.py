@@ -39,13 +39,13 @@ def main() -> int:
 
     import numpy as np
 
+    from mavahrs import replay as rp
     from mavahrs.evaluation import studies
     from mavahrs.evaluation.datasets import find_broad_trials, load_broad_trial
     from mavahrs.evaluation.loaders import load_any
     from mavahrs.evaluation.plots import plot_attitude, plot_study
     from mavahrs.evaluation.report import evaluate_recordings, format_report, resolve_filter_names, run_filter
     from mavahrs.evaluation.tlogdata import cut_recording
-    from mavahrs import replay as rp
 
     t_start = time.time()
     names = resolve_filter_names(["all"])

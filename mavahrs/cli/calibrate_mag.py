@@ -54,7 +54,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from mavahrs.errors import ConfigError, DataError
     from mavahrs.evaluation.magcal import (
-        MagFitSettings, calibrate_recording, calibration_toml, format_report, load_mag_recording,
+        MagFitSettings,
+        calibrate_recording,
+        calibration_toml,
+        format_report,
+        load_mag_recording,
         write_calibration_toml,
     )  # fmt: skip
 

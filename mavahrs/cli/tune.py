@@ -59,8 +59,8 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mavahrs.evaluation.loaders import load_one
-    from mavahrs.evaluation.tuning import tune
     from mavahrs.evaluation.tlogdata import cut_recording
+    from mavahrs.evaluation.tuning import tune
 
     path = Path(args.input)
     if not path.is_file():

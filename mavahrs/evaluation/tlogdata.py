@@ -743,7 +743,7 @@ _ATTITUDE_IDS = (31, 30)  # ATTITUDE_QUATERNION, ATTITUDE
 
 def pipeline_inputs(td: TlogData, settings: Any, *, decimal_year: float | None = None) -> PreparedInputs:
     """The filter inputs of a log taken from the pipeline itself (any log the daemon could read)."""
-    prep, _, _, _ = _run_pipelines(td, settings, [("madgwick", None)], start_s=None, end_s=None,
+    prep, _, _, _ = run_pipelines(td, settings, [("madgwick", None)], start_s=None, end_s=None,
                                    decimal_year=decimal_year)  # fmt: skip
     return prep
 

@@ -12,7 +12,13 @@ from __future__ import annotations
 
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator, GyroTemperatureModel, MagCalibration
 from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings
-from mavahrs.sensors.profiles import PROFILES, AutopilotProfile, MessageScale, get_profile, profile_for_autopilot
+from mavahrs.sensors.profiles import (
+    PROFILES,
+    AutopilotProfile,
+    MessageScale,
+    get_profile,
+    profile_for_autopilot,
+)
 from mavahrs.sensors.sample import ImuSample
 from mavahrs.sensors.scaling import Scaler, ScalingSettings, to_sample
 

@@ -57,12 +57,12 @@ from mavahrs import filters as _filters
 from mavahrs.errors import ConfigError, MavahrsError
 from mavahrs.filters.base import AttitudeFilter, FilterSettings
 from mavahrs.filters.layout import (
+    FLAG_MAG_INVALID,
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
     IN_GYRO,
     IN_VEL,
     IN_WIDTH,
-    FLAG_MAG_INVALID,
     OUT_ACCEL_WEIGHT,
     OUT_BIAS,
     OUT_FLAGS,
@@ -70,10 +70,22 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.protocol.codec import MavCodec, mavlink
+from mavahrs.protocol.timeline import DROP_KINDS, GAP, REBOOT, Timeline, TimelineSettings
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
-from mavahrs.sensors.geomag import DeclinationSource, MagneticFieldSettings, apply_declination_wxyz, rotate_true_to_magnetic
+from mavahrs.sensors.geomag import (
+    DeclinationSource,
+    MagneticFieldSettings,
+    apply_declination_wxyz,
+    rotate_true_to_magnetic,
+)
 from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings, InstanceStatus
-from mavahrs.sensors.profiles import IMU_MESSAGES, PROFILE_NAMES, AutopilotProfile, get_profile, profile_for_autopilot
+from mavahrs.sensors.profiles import (
+    IMU_MESSAGES,
+    PROFILE_NAMES,
+    AutopilotProfile,
+    get_profile,
+    profile_for_autopilot,
+)
 from mavahrs.sensors.sample import ACCEL, GYRO, MAG, write_row
 from mavahrs.sensors.scaling import Scaler, ScalingSettings
 from mavahrs.service.monitor import AttitudeMonitor, MonitorSettings
@@ -87,8 +99,6 @@ from mavahrs.service.stream_requests import (
     StreamRequestSettings,
     StreamState,
 )
-
-from mavahrs.protocol.timeline import DROP_KINDS, GAP, REBOOT, Timeline, TimelineSettings
 
 __all__ = ["PipelineSettings", "Pipeline", "PipelineStatus", "Outgoing"]
 

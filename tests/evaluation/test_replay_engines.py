@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavahrs.filters.layout import OUT_FLAGS, OUT_Q
 from mavahrs.replay import (
     ReplaySettings,
     StreamSettings,
@@ -185,3 +184,38 @@ def test_stream_to_a_pymavlink_ground_station(sim_hover_tlog: Path) -> None:
     wall_span = atts[-1][0] - atts[0][0]
     assert 1.2 < log_span / wall_span < 3.5
     np.testing.assert_allclose(np.median(np.diff([m.time_boot_ms for _, m in atts])), 1000 / 25, rtol=0.1)
+
+
+def test_a_log_with_an_autopilot_reboot_loads_through_the_pipeline(tmp_path: Path) -> None:
+    """``evaluate``/``tune``/``plot`` read a log the bulk engine cannot mirror (a reboot) through the Pipeline."""
+    import struct
+
+    from mavahrs.evaluation.tlogdata import load_tlog_recording
+    from mavahrs.protocol.codec import MavCodec, mavlink
+
+    ap = MavCodec(system_id=1, component_id=1)
+    out = bytearray()
+    wall_us = 1_790_000_000 * 10**6
+
+    def rec(msg: object) -> None:
+        out.extend(struct.pack(">Q", wall_us))
+        out.extend(ap.encode(msg))
+
+    for boot in range(2):  # the second boot's clock starts again near zero
+        rec(mavlink.MAVLink_heartbeat_message(2, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3))
+        for k in range(800):
+            wall_us += 2500
+            # level, still, compass north: 1 g up in the body's −z (mG), 0.2/0.4 G field
+            rec(mavlink.MAVLink_raw_imu_message(1_000_000 + 2500 * k, 0, 0, -1000, 0, 0, 0, 200, 0, 400, 0, 0))
+    path = tmp_path / "reboot.tlog"
+    path.write_bytes(bytes(out))
+    rec_ = load_tlog_recording(path, reference=False)
+    # both boots are there (the first sample after the reboot waits for the next to confirm it)
+    assert 1598 <= rec_.n <= 1600
+    np.testing.assert_allclose(rec_.accel_m_s2[:, 2], -9.80665, rtol=1e-6)
+    # one re-initialisation (dt NaN) at the reboot, the stream's 2.5 ms everywhere else
+    gaps = np.flatnonzero(~np.isfinite(rec_.dt_s))
+    assert gaps.tolist() == [800]
+    np.testing.assert_allclose(np.delete(rec_.dt_s, gaps), 0.0025)
+    ref = replay(path, ReplaySettings(filters=("madgwick",), engine="pipeline"))
+    assert ref.inputs.n == rec_.n

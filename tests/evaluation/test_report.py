@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mavahrs.evaluation.datasets import Recording, load_csv, load_repoimu_csv, write_csv_recording
-from mavahrs.evaluation.report import evaluate_recordings, format_report, resolve_filter_names
 from mavahrs.evaluation.loaders import load_any
+from mavahrs.evaluation.report import evaluate_recordings, format_report, resolve_filter_names
 from mavahrs.geometry.quaternion import from_rotation_vector, multiply
 from mavahrs.geometry.rotation import to_matrix
 

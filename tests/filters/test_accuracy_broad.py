@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-
 pytestmark = pytest.mark.slow  # 16 real trials (≈ 900 k samples) per filter: a few seconds each
 
 

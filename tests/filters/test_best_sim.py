@@ -25,7 +25,6 @@ import pytest
 from mavahrs.evaluation.metrics import attitude_errors_rad, summarize
 from mavahrs.filters import create
 from mavahrs.filters.base import make_inputs
-from mavahrs.filters.best import best_settings
 from mavahrs.filters.layout import FLAG_NOT_INITIALISED, IN_VEL, OUT_FLAGS, OUT_Q
 
 G_M_S2 = 9.80665

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import mavahrs
+from mavahrs.evaluation.metrics import attitude_errors_rad
 from mavahrs.filters import NAMES, create, filter_class
 from mavahrs.filters.base import make_inputs
 from mavahrs.filters.layout import (
@@ -35,7 +36,6 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.geometry.quaternion import from_axis_angle, multiply
-from mavahrs.evaluation.metrics import attitude_errors_rad
 
 RATE_HZ = 200.0
 

@@ -10,13 +10,13 @@ import pytest
 
 from mavahrs.evaluation.metrics import attitude_errors_rad
 from mavahrs.filters import create
+from mavahrs.filters.base import make_inputs
 from mavahrs.filters.complementary import ComplementarySettings
 from mavahrs.filters.layout import FLAG_STARTUP, OUT_BIAS, OUT_FLAGS, OUT_GAIN, OUT_Q
 from mavahrs.filters.mahony import Mahony, MahonySettings
 from mavahrs.filters.rest import RestBiasSettings
 from mavahrs.geometry.quaternion import conjugate, multiply, rotate, to_rotation_vector
 from mavahrs.geometry.rotation import from_euler_rad
-from mavahrs.filters.base import make_inputs
 
 RATE_HZ = 200.0
 NO_REST = RestBiasSettings(bias_tau_s=0.0)
