@@ -12,11 +12,22 @@ NED frame) is applied to the filter's state as well
 estimate's frame (this is what VQF's separate "inertial frame" achieves).
 The filters then use ``Cᵀ f̄_NED`` in place of f.  τ = 0 passes f through.
 
+Start (and restart after a re-initialisation): for the first τ seconds both
+filters output the time-weighted mean of the samples so far, then continue
+from it in their steady state (VQF does the same).  Starting a low-pass from
+its first sample instead would hold that one sample's noise and vibration —
+and, since the attitude was initialised from the same sample, agree with its
+error — for about τ: after a 1.5 s link outage in a simulated hover, the
+re-initialised ``best`` filter (τ = 2 s) stayed 1.1° worse than the
+uninterrupted run for 1.5 s and 0.4° worse 4 s later.  The phase is kept in
+the block's fourth value: 0 not started, −t while averaging (t seconds
+averaged), 1 running.
+
 Two filters, both on NED vectors:
 
 * first order, :func:`vector_lowpass_step` (on any vector):
   ``f̄ ← f̄ + (f − f̄)·(1 − e^(−dt/τ))`` (:func:`lowpass_coefficient`);
-  state block ``LP_LEN`` values: f̄_NED (3), 1.0 once started;
+  state block ``LP_LEN`` values: f̄_NED (3), the phase (below);
 * second-order Butterworth, :func:`ned_butterworth_step`, cut-off
   f_c = √2/(2π τ) (VQF's choice; it attenuates motion accelerations of a few
   tenths of a hertz ten times more than the first-order filter); state block
@@ -64,13 +75,36 @@ def nav_lowpass_reset(s, k):  # type: ignore[no-untyped-def]
         s[k + i] = 0.0
 
 
+@kernel(inline=True)
+def _average_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
+    """The start phase: fold one sample into the time-weighted mean ``s[k:k+3]``.
+
+    Returns True while the mean still covers less than τ (``s[k+3]`` = −seconds
+    averaged); False once τ is covered (the caller then starts its recursion
+    from the mean and sets ``s[k+3]`` = 1).
+    """
+    elapsed = dt - s[k + 3]  # s[k+3] is 0 (nothing yet) or −(seconds averaged so far)
+    w = dt / elapsed
+    s[k] += (fn - s[k]) * w  # the first sample: w = 1
+    s[k + 1] += (fe - s[k + 1]) * w
+    s[k + 2] += (fd - s[k + 2]) * w
+    if elapsed < tau_s:
+        s[k + 3] = -elapsed
+        return True
+    return False
+
+
 @kernel
 def vector_lowpass_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
-    """First-order low-pass of one vector (any fixed frame); returns the filtered vector (the input for τ ≤ 0)."""
+    """First-order low-pass of one vector (any fixed frame); returns the filtered vector (the input for τ ≤ 0).
+
+    The first τ seconds are averaged (module docstring).
+    """
     if tau_s <= 0.0:
         return fn, fe, fd
-    if s[k + 3] == 0.0:
-        s[k], s[k + 1], s[k + 2], s[k + 3] = fn, fe, fd, 1.0
+    if s[k + 3] <= 0.0:
+        if not _average_step(s, k, fn, fe, fd, dt, tau_s):
+            s[k + 3] = 1.0
     else:
         a = lowpass_coefficient(dt, tau_s)
         s[k] += (fn - s[k]) * a
@@ -89,6 +123,16 @@ def nav_lowpass_step(s, k, q0, q1, q2, q3, fx, fy, fz, dt, tau_s):  # type: igno
     return ned_to_body(q0, q1, q2, q3, yn, ye, yd)
 
 
+@kernel(inline=True)
+def _butterworth_coefficients(dt, tau_s):  # type: ignore[no-untyped-def]
+    """(b0, a1, a2) of the second-order Butterworth of cut-off √2/(2πτ) at step ``dt`` (b1 = 2·b0, b2 = b0)."""
+    # bilinear transform of f_c = √2/(2πτ): C = tan(π f_c dt); capped below π/2 so a
+    # long step (up to max_gap_s) passes the sample through instead of wrapping tan
+    c = math.tan(min(math.sqrt(0.5) * dt / tau_s, 1.5))
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    return c * c / d, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d
+
+
 @kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
 def ned_butterworth_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untyped-def]
     """Second-order Butterworth low-pass of one NED vector; returns the filtered NED vector.
@@ -98,31 +142,35 @@ def ned_butterworth_step(s, k, fn, fe, fd, dt, tau_s):  # type: ignore[no-untype
     ``s[k:k+3]`` and ``s[k+4:k+7]`` are linear combinations of past NED
     vectors, so rotating both with every correction
     (:func:`nav_lowpass_rotate` on ``k`` and ``k + LP_LEN``) keeps them in the
-    current estimate's frame; ``s[k+3]`` is 1.0 once started and ``s[k+7]``
-    holds the nominal step (s) the coefficients are computed from.
+    current estimate's frame; ``s[k+3]`` is the phase (module docstring: the
+    first τ seconds are averaged in ``s[k:k+3]``) and ``s[k+7]`` holds the
+    nominal step (s) the coefficients are computed from.
     """
     if tau_s <= 0.0:
         return fn, fe, fd
+    if s[k + 3] <= 0.0:  # the start: the mean of the samples so far
+        s[k + 7] = dt if s[k + 3] == 0.0 else s[k + 7] + 0.05 * (dt - s[k + 7])
+        if _average_step(s, k, fn, fe, fd, dt, tau_s):
+            return s[k], s[k + 1], s[k + 2]
+        # τ averaged: the recursion goes on from the mean, in its steady state
+        mn, me, md = s[k], s[k + 1], s[k + 2]
+        b0, _a1, a2 = _butterworth_coefficients(s[k + 7], tau_s)
+        s[k], s[k + 1], s[k + 2], s[k + 3] = mn * (1.0 - b0), me * (1.0 - b0), md * (1.0 - b0), 1.0
+        s[k + 4], s[k + 5], s[k + 6] = mn * (b0 - a2), me * (b0 - a2), md * (b0 - a2)
+        return mn, me, md
     # The coefficients follow a smoothed nominal step (kept in s[k+7]), not each
     # sample's dt: the two state vectors of this form are only meaningful for the
     # coefficients that built them, so coefficients that jump with every dt (send-time
     # jitter, a stream that changes rate) make the recursion diverge.  A step more than
     # 3x away from the nominal one (a gap, a new stream rate) restarts the filter in
     # the steady state of this sample.
-    restart = s[k + 3] == 0.0
-    nominal = dt if restart else s[k + 7]
-    if not restart and (dt > 3.0 * nominal or dt < nominal / 3.0):
-        restart = True
+    nominal = s[k + 7]
+    restart = dt > 3.0 * nominal or dt < nominal / 3.0
+    if restart:
         nominal = dt
-    elif not restart:
+    else:
         nominal += 0.05 * (dt - nominal)
-    # bilinear transform of f_c = √2/(2πτ): C = tan(π f_c dt); capped below π/2 so a
-    # long step (up to max_gap_s) passes the sample through instead of wrapping tan
-    c = math.tan(min(math.sqrt(0.5) * nominal / tau_s, 1.5))
-    d = c * c + math.sqrt(2.0) * c + 1.0
-    b0 = c * c / d
-    a1 = 2.0 * (c * c - 1.0) / d
-    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
+    b0, a1, a2 = _butterworth_coefficients(nominal, tau_s)
     if restart:  # start in the steady state of this sample
         s[k], s[k + 1], s[k + 2], s[k + 3] = fn * (1.0 - b0), fe * (1.0 - b0), fd * (1.0 - b0), 1.0
         s[k + 4], s[k + 5], s[k + 6] = fn * (b0 - a2), fe * (b0 - a2), fd * (b0 - a2)
