@@ -34,11 +34,10 @@ inclination within the bound, recovery after the device returns, counters,
 and — the daemon then killed with SIGKILL — a tlog readable up to the last
 flush.
 
-The scenario is ``hover``: on ``aggressive`` the filter itself (fault-free)
-reaches 10–15° inclination error after about 12 s of flight, and an
-accelerometer re-initialisation after an outage mid-manoeuvre is 20–30° off
-for seconds (docs/reliability.md, "Known limits"), so that flight cannot
-show whether a *fault* left a lasting error.
+The scenario is ``hover``: on ``aggressive`` an accelerometer
+re-initialisation after an outage mid-manoeuvre is 8–24° off for seconds
+(docs/reliability.md, "Known limits"), so that flight cannot show whether a
+*fault* left a lasting error.
 """
 
 from __future__ import annotations
