@@ -50,6 +50,7 @@ _OVERRIDES = {
     "signing_key": "daemon.signing_key_path",
     "require_signing": "daemon.require_signing",
     "signing_link_id": "daemon.signing_link_id",
+    "realtime_priority": "daemon.realtime_priority",
 }
 
 
@@ -138,6 +139,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         help="seconds between status lines; 0 = none (default: {daemon.status_interval_s} s)",
     )
     ops.add_argument("--stats-json", metavar="FILE", help="write counters and latency percentiles here at exit")
+    ops.add_argument(
+        "--realtime-priority", type=int, metavar="N",
+        help="run under real-time scheduling, SCHED_FIFO priority 1-99 (needs root or CAP_SYS_NICE; "
+        "systemd: CPUSchedulingPolicy=fifo); 0 = normal (default: {daemon.realtime_priority})",
+    )
     ops.add_argument(
         "--print-config", action="store_true", help="print the effective configuration as TOML and exit"
     )

@@ -539,6 +539,7 @@ def prepare_inputs(
             events.append((int(td.pos[name][k]), name, int(k)))
     events.sort()
     decl_at = np.full(m, decl.declination_rad)
+    decl_steps: list[tuple[int, float]] = []  # (first sample, declination from there on), filled in once below
     vel_rows: list[tuple[int, tuple[float, float, float]]] = []
     mag_events: list[tuple[int, float, float]] = []  # Pipeline._field_changed → filter.set_mag_reference
     ref0 = decl.mag_reference()
@@ -552,7 +553,8 @@ def prepare_inputs(
             ref = decl.mag_reference()
             if ref is not None:
                 mag_events.append((i, float(ref[0]), float(ref[1])))
-        decl_at[i:] = decl.declination_rad
+        if decl.declination_rad != (decl_steps[-1][1] if decl_steps else decl_at[0]):
+            decl_steps.append((i, decl.declination_rad))
         if name == "GLOBAL_POSITION_INT" and s.use_gnss_velocity and not (msg.lat == 0 and msg.lon == 0):
             vn, ve, vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
             f = decl.field
@@ -560,6 +562,8 @@ def prepare_inputs(
                 vn, ve = rotate_true_to_magnetic(vn, ve, f.declination_rad)
             if i < m:
                 vel_rows.append((i, (vn, ve, vd)))
+    for j, (i, d) in enumerate(decl_steps):  # one pass, not one fill per position message
+        decl_at[i : decl_steps[j + 1][0] if j + 1 < len(decl_steps) else m] = d
     for i, v in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
     # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)

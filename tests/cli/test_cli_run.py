@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -194,3 +195,66 @@ def test_signals_stop_cleanly_with_exit_code_0(tmp_path: Path, sig: signal.Signa
     assert rc == EXIT_OK, rest
     assert f"mavahrs stopped ({sig.name})" in rest and "Traceback" not in rest
     assert log.exists()
+
+
+def _may_use_sched_fifo() -> bool:
+    """Whether a process of ours may switch itself to SCHED_FIFO (root or CAP_SYS_NICE, no seccomp rule against it)."""
+    probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+    return subprocess.run([sys.executable, "-c", probe], capture_output=True, timeout=60).returncode == 0
+
+
+def _run_with_realtime_priority(tmp_path: Path, prefix: list[str]) -> tuple[int | None, int | None, str, str, str]:
+    """``[prefix…] mavahrs run --realtime-priority 7`` for 3 s: (policy and priority seen from outside while it
+    runs, its start-up line, the whole log, ``scheduling`` from --stats-json)."""
+    stats = tmp_path / "stats.json"
+    proc = subprocess.Popen(
+        [*prefix, sys.executable, "-m", "mavahrs", "run", *QUICK, "--master", "udpin:127.0.0.1:0",
+         "--heartbeat-timeout", "0", "--duration", "3", "--realtime-priority", "7", "--stats-json", str(stats)],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=_env(),
+    )  # fmt: skip
+    assert proc.stderr is not None
+    lines = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        lines.append(line)
+        if "mavahrs running" in line:
+            break
+    policy = os.sched_getscheduler(proc.pid) if proc.poll() is None else None
+    priority = os.sched_getparam(proc.pid).sched_priority if proc.poll() is None else None
+    _, rest = proc.communicate(timeout=60)
+    log = "".join(lines) + rest
+    assert proc.returncode == EXIT_OK, log
+    running = next(line for line in lines if "mavahrs running" in line)
+    return policy, priority, running, log, json.loads(stats.read_text())["scheduling"]
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="no POSIX real-time scheduling on this system")
+def test_realtime_priority_is_applied_or_refused_with_one_warning(tmp_path: Path) -> None:
+    """``--realtime-priority 7``: the running daemon is under SCHED_FIFO 7 (checked from outside, in the start-up
+    line and in --stats-json); where the system refuses, one warning and normal scheduling, not a failure.
+    With the permission, the refusal is also shown by dropping CAP_SYS_NICE (util-linux ``setpriv``)."""
+    refused_runs = []
+    if _may_use_sched_fifo():
+        policy, priority, running, log, scheduling = _run_with_realtime_priority(tmp_path, [])
+        assert (policy, priority) == (os.SCHED_FIFO, 7), log
+        assert "scheduling SCHED_FIFO priority 7" in running
+        assert scheduling == "SCHED_FIFO priority 7"
+        assert "cannot run under real-time scheduling" not in log
+        setpriv = shutil.which("setpriv")
+        if setpriv is not None:
+            refused_runs.append([setpriv, "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"])
+    else:
+        refused_runs.append([])
+    for prefix in refused_runs:
+        policy, _, running, log, scheduling = _run_with_realtime_priority(tmp_path, prefix)
+        assert policy == os.SCHED_OTHER, log
+        assert log.count("cannot run under real-time scheduling (SCHED_FIFO priority 7)") == 1, log
+        assert "scheduling normal" in running and scheduling == "normal"
+
+
+def test_realtime_priority_out_of_range_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", *QUICK, "--master", "udpin:127.0.0.1:0", "--realtime-priority", "100"]) == EXIT_USAGE
+    assert "realtime_priority" in capsys.readouterr().err
