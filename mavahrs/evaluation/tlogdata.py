@@ -282,14 +282,20 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
     f64 = np.float64
 
-    def vec(prefix: str, k: float) -> tuple[Array, Array, Array, Array]:
-        x = a[f"x{prefix}"].astype(f64)
-        y = a[f"y{prefix}"].astype(f64)
-        z = a[f"z{prefix}"].astype(f64)
-        return x * k, y * k, z * k, np.stack([x, y, z], axis=1)
+    def vec(prefix: str, k: float) -> tuple[Array, Array]:
+        """(raw · k as an (n, 3) array, whether a raw component is at the int16 limit)."""
+        out = np.empty((n, 3))
+        at_limit = np.zeros(n, bool)
+        for j, c in enumerate("xyz"):
+            raw = a[f"{c}{prefix}"].astype(f64)
+            np.multiply(raw, k, out=out[:, j])
+            at_limit |= np.abs(raw) >= 32767
+        return out, at_limit
 
-    gx, gy, gz, graw = vec("gyro", kg)
-    ax, ay, az, araw = vec("acc", ka)
+    gyro, g_limit = vec("gyro", kg)
+    accel, a_limit = vec("acc", ka)
+    gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
+    ax, ay, az = accel[:, 0], accel[:, 1], accel[:, 2]
     xm, ym, zm = (a[f"{c}mag"].astype(f64) for c in "xyz")
     sat = np.zeros(n, np.int64)
     inv = np.zeros(n, np.int64)
@@ -297,8 +303,8 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     gmax = np.maximum(np.maximum(np.abs(gx), np.abs(gy)), np.abs(gz))
     amax = np.maximum(np.maximum(np.abs(ax), np.abs(ay)), np.abs(az))
     if ms.integer_fields:
-        sat |= np.where(np.max(np.abs(graw), axis=1) >= 32767, GYRO, 0)
-        sat |= np.where(np.max(np.abs(araw), axis=1) >= 32767, ACCEL, 0)
+        sat |= np.where(g_limit, GYRO, 0)
+        sat |= np.where(a_limit, ACCEL, 0)
         sat |= np.where(gmax >= g_sat, GYRO, 0)
         sat |= np.where(amax >= a_sat, ACCEL, 0)
         mag_new = np.ones(n, bool)
@@ -313,23 +319,28 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
             a_inv = acc_new & ~(amax < a_bad)
             inv |= np.where(a_inv, ACCEL, 0)
             sat |= np.where(acc_new & ~a_inv & (amax >= a_sat), ACCEL, 0)
-        ax, ay, az = (np.where(acc_new, v, _NAN) for v in (ax, ay, az))
+        accel[~acc_new] = _NAN
         mag_new = (upd & HIGHRES_MAG_BITS) == HIGHRES_MAG_BITS
     # magnetometer (Scaler.mag_of)
     absent = (xm == 0) & (ym == 0) & (zm == 0)
-    mx, my, mz = xm * km, ym * km, zm * km
+    mag = np.empty((n, 3))
+    mx, my, mz = mag[:, 0], mag[:, 1], mag[:, 2]
+    for raw, col in ((xm, mx), (ym, my), (zm, mz)):
+        np.multiply(raw, km, out=col)
     with np.errstate(invalid="ignore", over="ignore"):
         nrm = np.sqrt(mx * mx + my * my + mz * mz)
         if ms.mag_legacy_to_ut is not None:
             legacy = nrm > ms.mag_plausible_max_ut
-            lx, ly, lz = xm * ms.mag_legacy_to_ut, ym * ms.mag_legacy_to_ut, zm * ms.mag_legacy_to_ut
-            mx, my, mz = np.where(legacy, lx, mx), np.where(legacy, ly, my), np.where(legacy, lz, mz)
-            nrm = np.where(legacy, np.sqrt(lx * lx + ly * ly + lz * lz), nrm)
+            if legacy.any():
+                k_old = ms.mag_legacy_to_ut
+                lx, ly, lz = xm[legacy] * k_old, ym[legacy] * k_old, zm[legacy] * k_old
+                mx[legacy], my[legacy], mz[legacy] = lx, ly, lz
+                nrm[legacy] = np.sqrt(lx * lx + ly * ly + lz * lz)
         unusable = ~((MAG_MIN_UT <= nrm) & (nrm <= ms.mag_plausible_max_ut))
     m_inv = mag_new & ~absent & unusable
     inv |= np.where(m_inv, MAG, 0)
     keep_m = mag_new & ~absent & ~unusable
-    mx, my, mz = (np.where(keep_m, v, _NAN) for v in (mx, my, mz))
+    mag[~keep_m] = _NAN
     # temperature
     temp = np.full(n, _NAN)
     if ms.temperature_to_c is not None and "temperature" in a.dtype.names:
@@ -343,8 +354,8 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
         imu = np.full(n, INSTANCE_OF_MESSAGE[name], np.int64)
     t_us = a[ms.time_field].astype(np.int64) * ms.time_to_us
     return {
-        "imu": imu, "t_us": t_us, "gyro": np.stack([gx, gy, gz], 1), "accel": np.stack([ax, ay, az], 1),
-        "mag": np.stack([mx, my, mz], 1), "temp": temp, "sat": sat, "inv": inv, "use": use,
+        "imu": imu, "t_us": t_us, "gyro": gyro, "accel": accel,
+        "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use,
     }  # fmt: skip
 
 
@@ -353,7 +364,7 @@ _GAP_DT_S = 1.0e6
 
 
 def _timeline(
-    t_us: NDArray[np.int64], now_us: NDArray[np.int64], keys: Array, settings: Any
+    t_us: NDArray[np.int64], now_us: NDArray[np.int64], gyro: Array, accel: Array, settings: Any
 ) -> tuple[NDArray[np.bool_], Array]:
     """Which samples the pipeline's timeline passes, and their dt (s).
 
@@ -363,6 +374,10 @@ def _timeline(
     by no more than the gap limit: then every event is ``ok`` with
     dt = Δt, which the timeline itself confirms on the first samples.
     """
+
+    def key(i: int) -> tuple[float, ...]:  # Pipeline: the scaled v[2:8]
+        return (*gyro[i].tolist(), *accel[i].tolist())
+
     from mavahrs.protocol.timeline import DROP_KINDS, GAP, OK, REBOOT, Timeline
 
     n = t_us.shape[0]
@@ -376,7 +391,7 @@ def _timeline(
     if simple:
         tl = Timeline(settings.timeline)
         for i in range(min(n, 64)):  # the timeline's own verdict on a prefix: plain "ok"
-            ev = tl.push(int(t_us[i]), int(now_us[i]), tuple(keys[i].tolist()))
+            ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
             if i and (ev.kind != OK or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
                 simple = False
                 break
@@ -385,7 +400,7 @@ def _timeline(
         return keep, dt
     tl = Timeline(settings.timeline)
     for i in range(n):
-        ev = tl.push(int(t_us[i]), int(now_us[i]), tuple(keys[i].tolist()))
+        ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
         if ev.kind == REBOOT and i:
             raise FastPathUnsupported("the autopilot rebooted during the log")
         if ev.kind in DROP_KINDS:
@@ -472,10 +487,14 @@ def prepare_inputs(
         raise DataError(f"{td.path}: no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) from the autopilot")
     # --- all IMU messages of the source merged in frame order
     keys = ("imu", "t_us", "gyro", "accel", "mag", "temp", "sat", "inv", "use", "pos")
-    mg = {k: np.concatenate([sc[k] for sc in parts]) for k in keys}
-    mg["kind"] = np.concatenate([np.full(sc["pos"].shape[0], i) for i, sc in enumerate(parts)])
-    order = np.argsort(mg["pos"], kind="stable")
-    mg = {k: v[order] for k, v in mg.items()}
+    if len(parts) == 1:  # one message type: already in frame order
+        mg = {k: parts[0][k] for k in keys}
+        mg["kind"] = np.zeros(parts[0]["pos"].shape[0], np.int64)
+    else:
+        mg = {k: np.concatenate([sc[k] for sc in parts]) for k in keys}
+        mg["kind"] = np.concatenate([np.full(sc["pos"].shape[0], i) for i, sc in enumerate(parts)])
+        order = np.argsort(mg["pos"], kind="stable")
+        mg = {k: v[order] for k, v in mg.items()}
     names = [sc["name"] for sc in parts]
     mg["zero"] = np.all(mg["gyro"] == 0, axis=1) & np.all(mg["accel"] == 0, axis=1) & mg["use"]
     # --- which samples the selector feeds
@@ -507,16 +526,23 @@ def prepare_inputs(
     if not np.all(inst_fed == inst_fed[0]):
         # fail-over: the pipeline also back-fills the new instance's recent samples
         raise FastPathUnsupported("the selected IMU instance changes during the log (fail-over)")
-    keys = np.hstack([mg["gyro"][idx], mg["accel"][idx]])  # Pipeline: the scaled v[2:8]
-    keep, dt = _timeline(mg["t_us"][idx], td.t_us[mg["pos"][idx]], keys, s)
-    idx = idx[keep]
-    dt = dt[keep]
+    every = idx.size == feed.size  # every message is fed: views instead of copies
+
+    def take(k: str, sel: Any) -> Any:
+        return mg[k] if sel is None else mg[k][sel]
+
+    sel = None if every else idx
+    keep, dt = _timeline(take("t_us", sel), td.t_us[take("pos", sel)], take("gyro", sel), take("accel", sel), s)
+    if not keep.all():
+        idx = idx[keep]
+        dt = dt[keep]
+        sel = idx
     if dt.size:
         dt[0] = _NAN  # the first sample fed initialises the filter
-    pos, t_us = mg["pos"][idx], mg["t_us"][idx]
-    gyro, accel, mag = mg["gyro"][idx], mg["accel"][idx], mg["mag"][idx]
-    sat, inv, temp = mg["sat"][idx], mg["inv"][idx], mg["temp"][idx]
-    kinds = mg["kind"][idx]
+    pos, t_us = take("pos", sel), take("t_us", sel)
+    gyro, accel, mag = take("gyro", sel), take("accel", sel), take("mag", sel)
+    sat, inv, temp = take("sat", sel), take("inv", sel), take("temp", sel)
+    kinds = take("kind", sel)
     main_kind = int(np.bincount(kinds).argmax())
     sc = parts[main_kind]
     chosen = int(np.bincount(mg["imu"][idx]).argmax())
@@ -524,9 +550,11 @@ def prepare_inputs(
     rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
     bad = inv | (sat & (ACCEL | MAG))  # sample.write_row
-    rows[:, IN_GYRO : IN_GYRO + 3] = np.where((bad & GYRO)[:, None] != 0, _NAN, gyro)
-    rows[:, IN_ACCEL : IN_ACCEL + 3] = np.where((bad & ACCEL)[:, None] != 0, _NAN, accel)
-    rows[:, IN_MAG : IN_MAG + 3] = np.where((bad & MAG)[:, None] != 0, _NAN, mag)
+    for col, values, bit in ((IN_GYRO, gyro, GYRO), (IN_ACCEL, accel, ACCEL), (IN_MAG, mag, MAG)):
+        rows[:, col : col + 3] = values
+        blank = (bad & bit) != 0
+        if blank.any():
+            rows[blank, col : col + 3] = _NAN
     # --- position/time messages in order: declination per sample, velocity into the next fed row
     decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
     events = []
