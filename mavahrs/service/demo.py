@@ -343,11 +343,20 @@ class _Live:
 
         r, p, y = euler_deg(q)[0]
         text += f" | roll {r:+6.1f}° pitch {p:+6.1f}° yaw {y % 360.0:5.1f}°"
-        # the truth of the nearest tick (the output's tick may carry no SIMSTATE; the final score interpolates)
+        # The error of the newest attitude whose tick has a truth within 5 ms.  The output's
+        # tick may carry no SIMSTATE (with both streams at 250 Hz on a 400 Hz loop their ticks
+        # coincide in a pattern that depends on when each stream started), and the nearest truth
+        # may be a later tick that has not arrived yet: older attitudes are tried too (the final
+        # score interpolates instead).
         truth = None
-        for k in range(6):
-            truth = self.tap.truth_by_ms.get(t_ms - k) or self.tap.truth_by_ms.get(t_ms + k)
+        for j in range(1, min(len(self.gcs.t_ms), 25) + 1):
+            t_ms = self.gcs.t_ms[-j]
+            for k in range(6):
+                truth = self.tap.truth_by_ms.get(t_ms - k) or self.tap.truth_by_ms.get(t_ms + k)
+                if truth is not None:
+                    break
             if truth is not None:
+                q = np.asarray(self.gcs.q[-j], dtype=np.float64)
                 break
         if truth is None:
             return text
