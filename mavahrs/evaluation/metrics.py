@@ -68,9 +68,14 @@ def error_quaternion(q_est: ArrayLike, q_ref: ArrayLike) -> Array:
     return multiply(_normalize_allow_nan(q_est), conjugate(_normalize_allow_nan(q_ref)))
 
 
+# BROAD's definitions, total = 2·acos|e_w| and inclination = 2·acos√(e_w² + e_z²), written as
+# the equal atan2 forms: acos near 1 resolves no angle below ~2e-8 rad (one rounding step of
+# its argument), atan2 of the two parts is exact to rounding at every angle.
+
+
 def total_error_rad(e: ArrayLike) -> Array:
     e = np.asarray(e)
-    return 2.0 * np.arccos(np.clip(np.abs(e[..., 0]), 0.0, 1.0))
+    return 2.0 * np.arctan2(np.sqrt(e[..., 1] ** 2 + e[..., 2] ** 2 + e[..., 3] ** 2), np.abs(e[..., 0]))
 
 
 def heading_error_rad(e: ArrayLike) -> Array:
@@ -80,7 +85,7 @@ def heading_error_rad(e: ArrayLike) -> Array:
 
 def inclination_error_rad(e: ArrayLike) -> Array:
     e = np.asarray(e)
-    return 2.0 * np.arccos(np.clip(np.sqrt(e[..., 0] ** 2 + e[..., 3] ** 2), 0.0, 1.0))
+    return 2.0 * np.arctan2(np.sqrt(e[..., 1] ** 2 + e[..., 2] ** 2), np.sqrt(e[..., 0] ** 2 + e[..., 3] ** 2))
 
 
 def attitude_errors_rad(q_est: ArrayLike, q_ref: ArrayLike) -> tuple[Array, Array, Array]:

@@ -241,8 +241,9 @@ def finish_step(state, out, gain, accel_weight, mag_weight):  # type: ignore[no-
     if not (n > 0.0 and math.isfinite(n)):
         state[0], state[1], state[2], state[3] = 1.0, 0.0, 0.0, 0.0
         n = 1.0
+    inv_n = 1.0 / n
     for i in range(4):
-        state[S_Q + i] /= n
+        state[S_Q + i] *= inv_n
         out[OUT_Q + i] = state[S_Q + i]
     for i in range(3):
         out[OUT_BIAS + i] = state[S_BIAS + i]

@@ -228,12 +228,12 @@ def schedule_step(gs, gp, q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, 
         # (from the accelerometer when valid, else from the attitude).
         if accel_ok and w_a > 0.5 and gp[GP_MAG_DIP_FROM_ATTITUDE] == 0.0:
             a_norm = math.sqrt(ax * ax + ay * ay + az * az)
-            dx, dy, dz = -ax / a_norm, -ay / a_norm, -az / a_norm
+            s = -(mx * ax + my * ay + mz * az) / (m_norm * a_norm)  # down d̂ = −â
         else:
             dx = 2 * (q1 * q3 - q0 * q2)
             dy = 2 * (q2 * q3 + q0 * q1)
             dz = 1 - 2 * (q1 * q1 + q2 * q2)
-        s = (mx * dx + my * dy + mz * dz) / m_norm
+            s = (mx * dx + my * dy + mz * dz) / m_norm
         if s > 1.0:
             s = 1.0
         elif s < -1.0:

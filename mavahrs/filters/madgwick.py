@@ -498,13 +498,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     want_theta_m = tau_large > 0.0 or params[p + PM_LARGE_TAU_HEADING] > 0.0
     if accel_ok and w_a > 0.0 and vector_ok(ux, uy, uz):
         n = math.sqrt(ux * ux + uy * uy + uz * uz)
+        inv_n = 1.0 / n  # one division, three multiplications
         # Specific force points up at rest: measured down = −â.
-        sg0, sg1, sg2, sg3 = gravity_gradient(q0, q1, q2, q3, -ux / n, -uy / n, -uz / n)
+        sg0, sg1, sg2, sg3 = gravity_gradient(q0, q1, q2, q3, -ux * inv_n, -uy * inv_n, -uz * inv_n)
         ng = math.sqrt(sg0 * sg0 + sg1 * sg1 + sg2 * sg2 + sg3 * sg3)
-        # tilt error: angle between the predicted and the measured down
-        cos_t = -(2.0 * (q1 * q3 - q0 * q2) * ux + 2.0 * (q0 * q1 + q2 * q3) * uy
-                  + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * uz) / n  # fmt: skip
         if tau_large > 0.0:
+            # tilt error: angle between the predicted and the measured down
+            cos_t = -(2.0 * (q1 * q3 - q0 * q2) * ux + 2.0 * (q0 * q1 + q2 * q3) * uy
+                      + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * uz) * inv_n  # fmt: skip
             theta_g = math.acos(min(max(cos_t, -1.0), 1.0))
         if ntol > 0.0 and not startup:
             # ‖f̄‖ ≠ g: the vehicle is accelerating, and f̄ is not the vertical (a multirotor's
@@ -517,8 +518,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     theta_m = 0.0
     heading_only = params[p + PM_HEADING_ONLY] > 0.0
     if mag_ok and w_m > 0.0:
-        n = math.sqrt(mx * mx + my * my + mz * mz)
-        mnx, mny, mnz = mx / n, my / n, mz / n
+        inv_n = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+        mnx, mny, mnz = mx * inv_n, my * inv_n, mz * inv_n
         hx, hy, hz = body_to_ned(q0, q1, q2, q3, mnx, mny, mnz)  # eq. (45)
         hh = math.sqrt(hx * hx + hy * hy)
         if hh > 1e-6:
