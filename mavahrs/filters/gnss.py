@@ -131,7 +131,8 @@ def gnss_compensation_step(s, k, vn, ve, vd, dt, tau_s, max_age_s, fade_s):  # t
     towards 0 while it is not, at ``dt / fade_s`` per row (``fade_s`` ≤ 0:
     at once); while invalid, the last valid v̇ is faded out.
     """
-    if s[k + _WEIGHT] == 0.0 and s[k + _AGE] < 0.0 and not (math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd)):
+    fix = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd)
+    if not fix and s[k + _WEIGHT] == 0.0 and s[k + _AGE] < 0.0:
         # no fix now, none since the last reset (the block is in its reset state) and nothing
         # left to fade out: what the steps below would do, without doing it (a log without GNSS)
         return 0.0, 0.0, 0.0

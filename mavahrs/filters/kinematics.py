@@ -56,8 +56,8 @@ def quat_exp(rx, ry, rz):  # type: ignore[no-untyped-def]
     ``[cos(a/2), sin(a/2)/a · r]`` with ``a = ‖r‖``.  For the small angles of
     one filter step (a < ``SERIES_MAX_ANGLE``) both come from their Taylor
     series in ``h² = a²/4`` up to the h¹⁰ term: no square root, sine or cosine
-    (those calls took a third of a Madgwick step), and the first term left
-    out is below 3e-21 there, far under the rounding of a double.
+    on every sample, and the first term left out is below 3e-21 there, far
+    under the rounding of a double.
     """
     a2 = rx * rx + ry * ry + rz * rz
     if a2 < SERIES_MAX_ANGLE * SERIES_MAX_ANGLE:

@@ -337,7 +337,6 @@ class _Live:
         text = f"{elapsed_s:5.1f} s | in {(imu - imu0) / dt:4.0f} Hz -> out {(out - out0) / dt:3.0f} Hz"
         if not out:
             return text + " | waiting for the first attitude"
-        t_ms = self.gcs.t_ms[-1]
         q = np.asarray(self.gcs.q[-1], dtype=np.float64)
         from mavahrs.evaluation.metrics import euler_deg
 

@@ -31,7 +31,7 @@ def test_quat_exp_equals_sin_cos_on_both_sides_of_the_series_limit(wrap: object)
     angles = np.concatenate([[0.0, 1e-300, 1e-12, 1e-6], rng.uniform(0.0, 2.0 * SERIES_MAX_ANGLE, 196)])
     angles[10] = SERIES_MAX_ANGLE * (1 - 1e-12)  # just inside the series' range
     angles[11] = SERIES_MAX_ANGLE  # the closed form from here on
-    for axis, angle in zip(axes, angles):
+    for axis, angle in zip(axes, angles, strict=True):
         r = axis * angle
         got = np.array(f(*r))
         want = np.array(_closed_form(*r))

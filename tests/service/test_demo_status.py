@@ -26,7 +26,9 @@ def _tap_with_truth(truth_ms: list[int], rpy: tuple[float, float, float]) -> Tru
     tap = TruthTap(_Pipeline())
     for k, t in enumerate(truth_ms):
         now_us = 10_000_000 + 10 * k
-        tap.handle(mavlink.MAVLink_raw_imu_message(t * 1000, 0, 0, -1000, 0, 0, 0, 200, 30, 450, 0, 3500), now_us)
+        tap.handle(
+            mavlink.MAVLink_raw_imu_message(t * 1000, 0, 0, -1000, 0, 0, 0, 200, 30, 450, 0, 3500), now_us
+        )
         tap.handle(mavlink.MAVLink_simstate_message(*rpy, 0, 0, -9.8, 0, 0, 0, 0, 0), now_us)
         tap.handle(mavlink.MAVLink_raw_imu_message(t * 1000 + 2500, 0, 0, -1000, 0, 0, 0, 200, 30, 450, 0, 3500),
                    now_us + 5)  # fmt: skip
