@@ -155,7 +155,8 @@ class DaemonSettings:
             object.__setattr__(self, "outputs", tuple(self.outputs))
         if not (isinstance(self.signing_link_id, int) and 0 <= self.signing_link_id <= 255):
             raise ValueError(f"daemon.signing_link_id must be 0…255, got {self.signing_link_id!r}")
-        if not (isinstance(self.realtime_priority, int) and 0 <= self.realtime_priority <= 99):
+        rt = self.realtime_priority
+        if isinstance(rt, bool) or not (isinstance(rt, int) and 0 <= rt <= 99):  # `true` in a TOML is no priority
             raise ValueError(f"daemon.realtime_priority must be 0 (normal) or 1…99 (SCHED_FIFO), got {self.realtime_priority!r}")
 
 

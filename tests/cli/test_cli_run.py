@@ -258,3 +258,10 @@ def test_realtime_priority_is_applied_or_refused_with_one_warning(tmp_path: Path
 def test_realtime_priority_out_of_range_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["run", *QUICK, "--master", "udpin:127.0.0.1:0", "--realtime-priority", "100"]) == EXIT_USAGE
     assert "realtime_priority" in capsys.readouterr().err
+    assert main(["run", *QUICK, "--master", "udpin:127.0.0.1:0", "--set", "daemon.realtime_priority=true"]) == EXIT_USAGE
+    assert "realtime_priority" in capsys.readouterr().err
+    # the API too: Python's bool is an int, and True would have meant SCHED_FIFO priority 1
+    from mavahrs.service.daemon import DaemonSettings
+
+    with pytest.raises(ValueError, match="realtime_priority"):
+        DaemonSettings(realtime_priority=True)
