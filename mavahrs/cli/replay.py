@@ -112,6 +112,9 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mavahrs import replay as rp
+    from mavahrs.cli.common import prefer_small_pages
+
+    prefer_small_pages()
 
     if not Path(args.tlog).is_file():
         raise FileNotFoundError(2, "no such file", args.tlog)

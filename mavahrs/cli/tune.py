@@ -58,10 +58,12 @@ def _run(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
+    from mavahrs.cli.common import prefer_small_pages
     from mavahrs.evaluation.loaders import load_one
     from mavahrs.evaluation.tlogdata import cut_recording
     from mavahrs.evaluation.tuning import tune
 
+    prefer_small_pages()
     path = Path(args.input)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))
