@@ -84,7 +84,7 @@ Array = NDArray[np.float64]
 
 #: Below this many samples per second, attitude filtering is not meaningful.
 LOW_RATE_HZ = 50.0
-_CHUNK = 262_144  # samples per fast-path block (CSV written and flushed per block)
+_CHUNK = 131_072  # samples per fast-path block (CSV written and flushed per block)
 
 
 @dataclass(frozen=True)
@@ -419,7 +419,8 @@ def _replay_fast(
                 _out_rate(prep.t_us[a:b], out[a:b, OUT_FLAGS], period, tol, st, sent[a:b])
                 out[a:b, OUT_Q : OUT_Q + 4] = _declinate(out[a:b, OUT_Q : OUT_Q + 4], prep.declination_rad[a:b])
             if sink is not None:
-                sink.write(_csv_block(prep.t_us[a:b], [o[a:b] for o in outs], [x[a:b] for x in sents]))
+                # formatted and written by the sink's thread while the next chunk is filtered
+                sink.write_behind(_csv_block(prep.t_us[a:b], [o[a:b] for o in outs], [x[a:b] for x in sents]))
             if bar is not None:
                 bar.update(b - a)
     finally:

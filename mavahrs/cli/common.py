@@ -77,7 +77,7 @@ def fail(message: str, code: int = EXIT_FAILURE) -> int:
 def prefer_small_pages() -> None:
     """Stop numpy asking the kernel for transparent huge pages for its large arrays (bulk commands).
 
-    numpy ``madvise``\ s every array of 4 MB or more for huge pages. Where the
+    numpy calls ``madvise(MADV_HUGEPAGE)`` on every array of 4 MB or more. Where the
     kernel's THP ``defrag`` setting is ``madvise`` (a common default), each 2 MB
     fault in such an array may then compact memory synchronously. Replay and
     evaluation allocate a few hundred MB once and stream over it, so they

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Iterator, Sequence
 from typing import IO
 
 import numpy as np
@@ -30,20 +31,32 @@ __all__ = ["format_rows", "CsvSink"]
 _LIMIT = 1e15  # scaled values beyond this use the slow path
 
 
-@kernel
+#: "00", "01", … "99" as ASCII: two digits per table lookup
+_PAIRS = np.frombuffer(b"".join(b"%02d" % i for i in range(100)), np.uint8).copy()
+_POW10 = np.array([10**i for i in range(20)], np.uint64)
+
+
+@kernel(nogil=True)
 def _format(values, decimals, out):  # type: ignore[no-untyped-def]
-    """Write rows of ``values`` (n, c) into ``out`` (uint8); return bytes used or < 0 if a value is too large."""
+    """Write rows of ``values`` (n, c) into ``out`` (uint8); return bytes used or < 0 if a value is too large.
+
+    Each number is written right to left, two digits at a time from a
+    "00".."99" table, after counting its digits against powers of ten.
+    """
     n, c = values.shape
     scales = np.empty(c)
     for j in range(c):
         scales[j] = 10.0 ** decimals[j]
+    pairs = _PAIRS
+    pow10 = _POW10
     p = 0
     cap = out.shape[0]
-    digits = np.empty(24, np.uint8)
+    h = np.uint64(100)
+    ten = np.uint64(10)
     for i in range(n):
+        if p + 19 * c + 1 > cap:  # a value takes ≤ 19 bytes with its comma ("-" + 16 digits + "."), "\n"
+            return -1
         for j in range(c):
-            if p + 40 > cap:
-                return -1
             if j > 0:
                 out[p] = 44  # ','
                 p += 1
@@ -71,25 +84,41 @@ def _format(values, decimals, out):  # type: ignore[no-untyped-def]
             if v < 0 and k != 0:
                 out[p] = 45  # '-'
                 p += 1
-            # digits of k, least significant first (unsigned: no sign fix-ups in // and %)
-            m = 0
-            ten = np.uint64(10)
-            while True:
-                k10 = k // ten
-                digits[m] = np.uint8(48 + (k - k10 * ten))
-                k = k10
-                m += 1
-                if k == 0:
-                    break
-            while m <= d:  # at least one digit before the point
-                digits[m] = 48
-                m += 1
-            for q in range(m - 1, -1, -1):
-                out[p] = digits[q]
-                p += 1
-                if q == d and d > 0:
-                    out[p] = 46  # '.'
-                    p += 1
+            nd = d + 1  # digits to write: at least one before the point (k < 1e16)
+            while nd < 16 and k >= pow10[nd]:
+                nd += 1
+            end = p + nd + (1 if d > 0 else 0)
+            q = end - 1
+            x = k
+            r = d
+            while r >= 2:
+                t = x // h
+                u = 2 * (x - t * h)
+                out[q] = pairs[u + 1]
+                out[q - 1] = pairs[u]
+                q -= 2
+                x = t
+                r -= 2
+            if r == 1:
+                t = x // ten
+                out[q] = np.uint8(48 + (x - t * ten))
+                q -= 1
+                x = t
+            if d > 0:
+                out[q] = 46  # '.'
+                q -= 1
+            r = nd - d
+            while r >= 2:
+                t = x // h
+                u = 2 * (x - t * h)
+                out[q] = pairs[u + 1]
+                out[q - 1] = pairs[u]
+                q -= 2
+                x = t
+                r -= 2
+            if r == 1:
+                out[q] = np.uint8(48 + x)
+            p = end
         out[p] = 10  # '\n'
         p += 1
     return p
@@ -97,6 +126,17 @@ def _format(values, decimals, out):  # type: ignore[no-untyped-def]
 
 def format_rows(values: NDArray[np.float64], decimals: Sequence[int] | NDArray[np.int64]) -> bytes:
     """CSV text (no header) of a 2-D float array, column ``j`` with ``decimals[j]`` decimals."""
+    return b"".join(bytes(part) for part in _formatted_parts(values, decimals))
+
+
+def _formatted_parts(
+    values: NDArray[np.float64], decimals: Sequence[int] | NDArray[np.int64]
+) -> Iterator[bytes | memoryview]:
+    """The CSV text of ``values`` in consecutive parts of about 4 MB.
+
+    A part may be a view of a buffer the next part overwrites: use each
+    before asking for the next (write it, copy it).
+    """
     v = np.ascontiguousarray(values, dtype=np.float64)
     if v.ndim != 2:
         raise ValueError(f"values must be 2-D, got shape {v.shape}")
@@ -104,16 +144,14 @@ def format_rows(values: NDArray[np.float64], decimals: Sequence[int] | NDArray[n
     if d.shape != (v.shape[1],) or (d < 0).any() or (d > 12).any():
         raise ValueError("decimals must give 0…12 per column")
     if v.shape[0] == 0:
-        return b""
+        return
     width = int(v.shape[1] * 24 + 2)
     block = max(1, (1 << 22) // width)  # ~4 MB of text per pass: no huge temporary buffer
-    buf = np.empty(block * width, np.uint8)
-    parts = []
+    buf = np.empty(min(block, v.shape[0]) * width, np.uint8)
     for start in range(0, v.shape[0], block):
         part = v[start : start + block]
         used = int(_format(part, d, buf))
-        parts.append(buf[:used].tobytes() if used >= 0 else _format_slow(part, d))
-    return b"".join(parts)
+        yield memoryview(buf)[:used] if used >= 0 else _format_slow(part, d)
 
 
 def _format_slow(v: NDArray[np.float64], d: NDArray[np.int64]) -> bytes:
@@ -139,6 +177,12 @@ def _format_slow(v: NDArray[np.float64], d: NDArray[np.int64]) -> bytes:
 class CsvSink:
     """Append numeric rows to a CSV file; every :meth:`write` is flushed to the OS.
 
+    :meth:`write_behind` formats and writes a block in a worker thread while
+    the caller computes the next one (the formatter releases the GIL): the
+    bulk replay's CSV then costs little more than the filters.  One block at
+    most is in flight; :meth:`close` (also on an exception or Ctrl-C in the
+    caller) waits for it, so every block handed over reaches the file.
+
     Args:
         path: file to create (truncated if it exists).
         columns: header names.
@@ -155,6 +199,8 @@ class CsvSink:
         self._file.write((",".join(self.columns) + "\n").encode())
         self._file.flush()
         self.rows = 0
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: Future[None] | None = None
 
     def write(self, values: NDArray[np.float64]) -> None:
         """Append rows (n, len(columns)) and flush."""
@@ -164,19 +210,44 @@ class CsvSink:
             return
         if values.ndim != 2 or values.shape[1] != len(self.columns):
             raise ValueError(f"expected rows of {len(self.columns)} columns, got shape {values.shape}")
-        self._file.write(format_rows(values, self._decimals))
+        for part in _formatted_parts(values, self._decimals):
+            self._file.write(part)
         self._file.flush()
         self.rows += int(values.shape[0])
 
+    def write_behind(self, values: NDArray[np.float64]) -> None:
+        """:meth:`write` in the worker thread; first waits for the previous block (raising its error).
+
+        ``values`` must not be changed afterwards.
+        """
+        self._wait()
+        if self._file is None:
+            raise ValueError(f"CSV file {self.path} is closed")
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mavahrs-csv")
+        self._pending = self._pool.submit(self.write, values)
+
+    def _wait(self) -> None:
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
     def close(self) -> None:
-        if self._file is not None:
-            self._file.flush()
-            try:
-                os.fsync(self._file.fileno())
-            except OSError:
-                pass
-            self._file.close()
-            self._file = None
+        """Wait for a block still being written, flush, fsync and close (idempotent)."""
+        try:
+            self._wait()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._pool = None
+            if self._file is not None:
+                self._file.flush()
+                try:
+                    os.fsync(self._file.fileno())
+                except OSError:
+                    pass
+                self._file.close()
+                self._file = None
 
     def __enter__(self) -> CsvSink:
         return self

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
+from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_WIDTH, OUT_WIDTH
 
 __all__ = [
@@ -271,8 +272,7 @@ def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], i
 def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     """Vectorised :class:`mavahrs.sensors.scaling.Scaler` for one message type (same arithmetic)."""
     from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE
-    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
-    from mavahrs.sensors.scaling import HIGHRES_ACCEL_BITS, HIGHRES_GYRO_BITS, HIGHRES_MAG_BITS, MAG_MIN_UT
+    from mavahrs.sensors.scaling import MAG_MIN_UT
 
     n = a.shape[0]
     accel_fs = scaling.accel_range_g * G_M_S2 if scaling.accel_range_g is not None else ms.accel_range_m_s2
@@ -280,47 +280,68 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     frac, bad = scaling.saturation_fraction, scaling.implausible_factor
     a_sat, g_sat, a_bad, g_bad = accel_fs * frac, gyro_fs * frac, accel_fs * bad, gyro_fs * bad
     ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
+    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*: one compiled pass (_scale_integer), no temporaries
+        gyro, accel, mag = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        sat = np.empty(n, np.int64)
+        inv = np.empty(n, np.int64)
+        zero = np.empty(n, bool)
+        k_old = ms.mag_legacy_to_ut if ms.mag_legacy_to_ut is not None else _NAN
+        _scale_integer(
+            a["xgyro"], a["ygyro"], a["zgyro"], a["xacc"], a["yacc"], a["zacc"], a["xmag"], a["ymag"], a["zmag"],
+            kg, ka, km, k_old, g_sat, a_sat, MAG_MIN_UT, ms.mag_plausible_max_ut, gyro, accel, mag, sat, inv, zero,
+        )  # fmt: skip
+        use = np.ones(n, bool)
+    else:
+        gyro, accel, mag, sat, inv, use = _scale_highres(a, n, ms, kg, ka, km, g_sat, a_sat, g_bad, a_bad)
+        zero = np.all(gyro == 0, axis=1) & np.all(accel == 0, axis=1)
+    # temperature
+    temp = np.full(n, _NAN)
+    if ms.temperature_to_c is not None and "temperature" in a.dtype.names:
+        raw_t = a["temperature"].astype(np.int64)
+        temp = np.where(raw_t != 0, raw_t * ms.temperature_to_c, _NAN)
+    # instance
+    if name in ("RAW_IMU", "HIGHRES_IMU") and "id" in a.dtype.names:
+        ids = a["id"].astype(np.int64)
+        imu = np.where((ids >= 0) & (ids < 16), ids, 0)
+    else:
+        imu = np.full(n, INSTANCE_OF_MESSAGE[name], np.int64)
+    t_us = a[ms.time_field].astype(np.int64) * ms.time_to_us
+    return {
+        "imu": imu, "t_us": t_us, "gyro": gyro, "accel": accel,
+        "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use, "zero": zero,
+    }  # fmt: skip
+
+
+def _scale_highres(
+    a: np.ndarray, n: int, ms: Any, kg: float, ka: float, km: float, g_sat: float, a_sat: float, g_bad: float,
+    a_bad: float,
+) -> tuple[Array, Array, Array, NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
+    """HIGHRES_IMU (float fields, ``fields_updated``): gyro, accel, mag, saturated, invalid, new-gyro flags."""
+    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.sensors.scaling import HIGHRES_ACCEL_BITS, HIGHRES_GYRO_BITS, HIGHRES_MAG_BITS, MAG_MIN_UT
+
     f64 = np.float64
-
-    def vec(prefix: str, k: float) -> tuple[Array, Array]:
-        """(raw · k as an (n, 3) array, whether a raw component is at the int16 limit)."""
-        out = np.empty((n, 3))
-        at_limit = np.zeros(n, bool)
-        for j, c in enumerate("xyz"):
-            raw = a[f"{c}{prefix}"].astype(f64)
-            np.multiply(raw, k, out=out[:, j])
-            at_limit |= np.abs(raw) >= 32767
-        return out, at_limit
-
-    gyro, g_limit = vec("gyro", kg)
-    accel, a_limit = vec("acc", ka)
+    gyro = np.column_stack([a[f"{c}gyro"].astype(f64) * kg for c in "xyz"])
+    accel = np.column_stack([a[f"{c}acc"].astype(f64) * ka for c in "xyz"])
     gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
     ax, ay, az = accel[:, 0], accel[:, 1], accel[:, 2]
     xm, ym, zm = (a[f"{c}mag"].astype(f64) for c in "xyz")
     sat = np.zeros(n, np.int64)
     inv = np.zeros(n, np.int64)
-    use = np.ones(n, bool)
     gmax = np.maximum(np.maximum(np.abs(gx), np.abs(gy)), np.abs(gz))
     amax = np.maximum(np.maximum(np.abs(ax), np.abs(ay)), np.abs(az))
-    if ms.integer_fields:
-        sat |= np.where(g_limit, GYRO, 0)
-        sat |= np.where(a_limit, ACCEL, 0)
-        sat |= np.where(gmax >= g_sat, GYRO, 0)
-        sat |= np.where(amax >= a_sat, ACCEL, 0)
-        mag_new = np.ones(n, bool)
-    else:
-        upd = a["fields_updated"].astype(np.int64)
-        use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
-        with np.errstate(invalid="ignore"):
-            g_inv = ~(gmax < g_bad)
-            inv |= np.where(g_inv, GYRO, 0)
-            sat |= np.where(~g_inv & (gmax >= g_sat), GYRO, 0)
-            acc_new = (upd & HIGHRES_ACCEL_BITS) == HIGHRES_ACCEL_BITS
-            a_inv = acc_new & ~(amax < a_bad)
-            inv |= np.where(a_inv, ACCEL, 0)
-            sat |= np.where(acc_new & ~a_inv & (amax >= a_sat), ACCEL, 0)
-        accel[~acc_new] = _NAN
-        mag_new = (upd & HIGHRES_MAG_BITS) == HIGHRES_MAG_BITS
+    upd = a["fields_updated"].astype(np.int64)
+    use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
+    with np.errstate(invalid="ignore"):
+        g_inv = ~(gmax < g_bad)
+        inv |= np.where(g_inv, GYRO, 0)
+        sat |= np.where(~g_inv & (gmax >= g_sat), GYRO, 0)
+        acc_new = (upd & HIGHRES_ACCEL_BITS) == HIGHRES_ACCEL_BITS
+        a_inv = acc_new & ~(amax < a_bad)
+        inv |= np.where(a_inv, ACCEL, 0)
+        sat |= np.where(acc_new & ~a_inv & (amax >= a_sat), ACCEL, 0)
+    accel[~acc_new] = _NAN
+    mag_new = (upd & HIGHRES_MAG_BITS) == HIGHRES_MAG_BITS
     # magnetometer (Scaler.mag_of)
     absent = (xm == 0) & (ym == 0) & (zm == 0)
     mag = np.empty((n, 3))
@@ -341,22 +362,58 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     inv |= np.where(m_inv, MAG, 0)
     keep_m = mag_new & ~absent & ~unusable
     mag[~keep_m] = _NAN
-    # temperature
-    temp = np.full(n, _NAN)
-    if ms.temperature_to_c is not None and "temperature" in a.dtype.names:
-        raw_t = a["temperature"].astype(np.int64)
-        temp = np.where(raw_t != 0, raw_t * ms.temperature_to_c, _NAN)
-    # instance
-    if name in ("RAW_IMU", "HIGHRES_IMU") and "id" in a.dtype.names:
-        ids = a["id"].astype(np.int64)
-        imu = np.where((ids >= 0) & (ids < 16), ids, 0)
-    else:
-        imu = np.full(n, INSTANCE_OF_MESSAGE[name], np.int64)
-    t_us = a[ms.time_field].astype(np.int64) * ms.time_to_us
-    return {
-        "imu": imu, "t_us": t_us, "gyro": gyro, "accel": accel,
-        "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use,
-    }  # fmt: skip
+    return gyro, accel, mag, sat, inv, use
+
+
+@kernel
+def _scale_integer(  # type: ignore[no-untyped-def]
+    gx, gy, gz, ax, ay, az, xm, ym, zm, kg, ka, km, k_old, g_sat, a_sat, mag_min, mag_max,
+    gyro, accel, mag, sat, inv, zero,
+):  # fmt: skip
+    """:class:`mavahrs.sensors.scaling.Scaler` on integer-field messages (RAW_IMU, SCALED_IMU*), row by row.
+
+    The raw int16 fields in, per row: gyro, accel, mag (SI; mag NaN when
+    absent or implausible), the saturated and invalid bit masks (GYRO=1,
+    ACCEL=2, MAG=4, as :mod:`mavahrs.sensors.sample`), and whether gyro and
+    accelerometer are all zero (an absent IMU instance).  The same operations as
+    ``Scaler``: value · unit; saturated when a raw component is at the int16
+    limit or the scaled magnitude reaches ``*_sat``; the magnetometer
+    re-read with the legacy unit ``k_old`` (NaN: none) when its norm exceeds
+    ``mag_max``, unusable outside [``mag_min``, ``mag_max``].
+    """
+    n = gyro.shape[0]
+    nan = np.nan
+    for i in range(n):
+        rg0, rg1, rg2 = float(gx[i]), float(gy[i]), float(gz[i])
+        ra0, ra1, ra2 = float(ax[i]), float(ay[i]), float(az[i])
+        g0, g1, g2 = rg0 * kg, rg1 * kg, rg2 * kg
+        a0, a1, a2 = ra0 * ka, ra1 * ka, ra2 * ka
+        gyro[i, 0], gyro[i, 1], gyro[i, 2] = g0, g1, g2
+        accel[i, 0], accel[i, 1], accel[i, 2] = a0, a1, a2
+        s = 0
+        if abs(rg0) >= 32767.0 or abs(rg1) >= 32767.0 or abs(rg2) >= 32767.0:
+            s |= 1
+        if abs(ra0) >= 32767.0 or abs(ra1) >= 32767.0 or abs(ra2) >= 32767.0:
+            s |= 2
+        if max(max(abs(g0), abs(g1)), abs(g2)) >= g_sat:
+            s |= 1
+        if max(max(abs(a0), abs(a1)), abs(a2)) >= a_sat:
+            s |= 2
+        sat[i] = s
+        zero[i] = g0 == 0.0 and g1 == 0.0 and g2 == 0.0 and a0 == 0.0 and a1 == 0.0 and a2 == 0.0
+        rm0, rm1, rm2 = float(xm[i]), float(ym[i]), float(zm[i])
+        m0, m1, m2 = rm0 * km, rm1 * km, rm2 * km
+        nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        if k_old == k_old and nrm > mag_max:
+            m0, m1, m2 = rm0 * k_old, rm1 * k_old, rm2 * k_old
+            nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        absent = rm0 == 0.0 and rm1 == 0.0 and rm2 == 0.0
+        if absent or not (mag_min <= nrm and nrm <= mag_max):
+            inv[i] = 0 if absent else 4
+            m0 = m1 = m2 = nan
+        else:
+            inv[i] = 0
+        mag[i, 0], mag[i, 1], mag[i, 2] = m0, m1, m2
 
 
 #: dt given to the filters for a timeline gap: beyond every filter's max_gap_s (finite, so not "invalid")
@@ -479,14 +536,14 @@ def prepare_inputs(
         ok &= (td.t_us[pos] >= lo) & (td.t_us[pos] <= hi)
         if not ok.any():
             continue
-        sc = _scale(name, a[ok], profile.scale_for(name), s.scaling)
+        sc = _scale(name, a if ok.all() else a[ok], profile.scale_for(name), s.scaling)
         sc["name"] = name
         sc["pos"] = pos[ok]
         parts.append(sc)
     if not parts:
         raise DataError(f"{td.path}: no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) from the autopilot")
     # --- all IMU messages of the source merged in frame order
-    keys = ("imu", "t_us", "gyro", "accel", "mag", "temp", "sat", "inv", "use", "pos")
+    keys = ("imu", "t_us", "gyro", "accel", "mag", "temp", "sat", "inv", "use", "zero", "pos")
     if len(parts) == 1:  # one message type: already in frame order
         mg = {k: parts[0][k] for k in keys}
         mg["kind"] = np.zeros(parts[0]["pos"].shape[0], np.int64)
@@ -496,12 +553,12 @@ def prepare_inputs(
         order = np.argsort(mg["pos"], kind="stable")
         mg = {k: v[order] for k, v in mg.items()}
     names = [sc["name"] for sc in parts]
-    mg["zero"] = np.all(mg["gyro"] == 0, axis=1) & np.all(mg["accel"] == 0, axis=1) & mg["use"]
+    mg["zero"] = mg["zero"] & mg["use"]
     # --- which samples the selector feeds
     carriers: dict[int, set[int]] = {}
     live: set[int] = set()
     code = ((mg["imu"].astype(np.int64) * 64 + mg["kind"]) * 2 + mg["zero"]) * 2 + mg["use"]
-    for c in np.unique(code).tolist():  # (instance, message type, all-zero, new gyro) combinations
+    for c in np.flatnonzero(np.bincount(code)).tolist():  # (instance, message type, all-zero, new gyro)
         inst, kind, z, u = c // 256, (c // 4) % 64, (c // 2) % 2, c % 2
         carriers.setdefault(int(inst), set()).add(int(kind))
         if u and not z:
@@ -595,7 +652,7 @@ def prepare_inputs(
     for i, v in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
     # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
-    for kind in np.unique(kinds):
+    for kind in np.flatnonzero(np.bincount(kinds)):
         ms = profile.scale_for(names[int(kind)])
         cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
         if cal.active:

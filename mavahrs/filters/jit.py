@@ -129,7 +129,7 @@ def _pure(func: Any, memo: dict[int, Callable[..., Any]]) -> Callable[..., Any]:
     return clone
 
 
-def kernel(func: F | None = None, *, inline: bool = False) -> Any:
+def kernel(func: F | None = None, *, inline: bool = False, nogil: bool = False) -> Any:
     """Compile ``func`` lazily with numba (``cache=True``), keeping ``.py_func``.
 
     No ``fastmath``: the compiled and the interpreted kernels must agree to
@@ -137,7 +137,9 @@ def kernel(func: F | None = None, *, inline: bool = False) -> Any:
     without reference counting (they must not allocate arrays: numba then
     refuses to compile them).  ``inline=True`` inlines the kernel into the
     compiled kernels that call it (numba IR inlining; for large helpers called
-    on every sample).  Usable as ``@kernel`` or ``@kernel(inline=True)``.
+    on every sample).  ``nogil=True`` releases the GIL while the compiled
+    kernel runs, so another thread can work meanwhile (replay's CSV writer).
+    Usable as ``@kernel`` or ``@kernel(inline=True)``.
     """
 
     def wrap(f: F) -> F:
@@ -147,6 +149,8 @@ def kernel(func: F | None = None, *, inline: bool = False) -> Any:
                 options["_nrt"] = False
             if inline:
                 options["inline"] = "always"
+            if nogil:
+                options["nogil"] = True
             return _numba.njit(**options)(f)  # type: ignore[no-any-return]
         return _Interpreted(f)  # type: ignore[return-value]
 

@@ -35,3 +35,28 @@ def test_sink_flushes_every_block(tmp_path: Path) -> None:
     sink.write(np.array([[3.0, 4.0], [5.0, 6.0]]))
     sink.close()
     assert p.read_text().splitlines()[-1] == "5.0,6.00" and sink.rows == 3
+
+
+def test_digit_counts_and_rounding_across_powers_of_ten() -> None:
+    """Every length from 1 to 15 digits, values that round up to the next power of ten, signs and zeros."""
+    vals = [0.0, -0.0, 0.4, 0.5, -0.0004, 9.9996, 99.96, -999.9996, 123456789012.34, 1e14 - 1]
+    vals += [10.0**e * m for e in range(-3, 14) for m in (1.0, 1.5, -7.25)]
+    v = np.array(vals)[:, None] * np.ones((1, 3))
+    dec = [3, 0, 1]
+    got = format_rows(v, dec).decode().splitlines()
+    for g, row in zip(got, v, strict=True):
+        want = [f"{x:.{d}f}" for x, d in zip(row, dec, strict=True)]
+        cells = g.split(",")
+        for c, w, x, d in zip(cells, want, row, dec, strict=True):
+            # Python writes "-0.000" for tiny negatives where this writes "0.000"; ties may round apart
+            assert c == w or (float(c) == float(w) == 0.0) or abs(float(c) - x) <= 0.5 * 10.0**-d + 1e-9, (c, w)
+
+
+def test_one_row_per_call_takes_the_compiled_path() -> None:
+    """A block of one row must fit the compiled formatter's buffer (no fall-back to the slow path)."""
+    from mavahrs.evaluation import csvout
+
+    v = np.array([[-123456789012.5, 1.0]])
+    buf = np.empty(v.shape[1] * 24 + 2, np.uint8)
+    used = int(csvout._format(v, np.array([3, 12], np.int64), buf))
+    assert used > 0 and bytes(buf[:used]) == b"-123456789012.500,1.000000000000\n"
