@@ -21,7 +21,9 @@ decoded from it:
    (240 million filter updates) with ``run_many`` (all cores), wall clock;
    each β is scored against the truth.
 4. **Live** — ``scripts/bench_live.py`` for ``best`` and every filter:
-   processing latency, round trip over a bare pymavlink echo, CPU per message;
+   processing latency, round trip over a bare pymavlink echo, CPU per message
+   (the sending script on one CPU, both servers on the others: see
+   bench_live.py on CPU placement);
    twice per filter where this process may use real-time scheduling (root or
    CAP_SYS_NICE): both servers under normal scheduling (reported, not judged),
    then both under SCHED_FIFO priority ``--live-realtime`` (default 20; judged:
