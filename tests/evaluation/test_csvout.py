@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from mavahrs.evaluation.csvout import CsvSink, format_rows
 
@@ -60,3 +61,28 @@ def test_one_row_per_call_takes_the_compiled_path() -> None:
     buf = np.empty(v.shape[1] * 24 + 2, np.uint8)
     used = int(csvout._format(v, np.array([3, 12], np.int64), buf))
     assert used > 0 and bytes(buf[:used]) == b"-123456789012.500,1.000000000000\n"
+
+
+def test_write_behind_keeps_order_and_every_block(tmp_path: Path, rng: np.random.Generator) -> None:
+    blocks = [rng.normal(size=(n, 3)) for n in (1, 500, 7, 2000)]
+    a, b = tmp_path / "sync.csv", tmp_path / "behind.csv"
+    with CsvSink(a, ["x", "y", "z"], [3, 4, 5]) as sync:
+        for blk in blocks:
+            sync.write(blk)
+    behind = CsvSink(b, ["x", "y", "z"], [3, 4, 5])
+    for blk in blocks:
+        behind.write_behind(blk)
+    behind.close()  # waits for the last block
+    assert b.read_bytes() == a.read_bytes() and behind.rows == sum(len(x) for x in blocks)
+
+
+def test_write_behind_reports_a_failed_block(tmp_path: Path) -> None:
+    p = tmp_path / "x.csv"
+    sink = CsvSink(p, ["a", "b"], [1, 1])
+    sink.write_behind(np.array([[1.0, 2.0]]))
+    sink.write_behind(np.zeros((2, 3)))  # wrong width: fails in the worker
+    with pytest.raises(ValueError, match="2 columns"):
+        sink.close()
+    assert p.read_text() == "a,b\n1.0,2.0\n"  # what was written before stays, the file is closed
+    with pytest.raises(ValueError, match="closed"):
+        sink.write(np.array([[1.0, 2.0]]))
