@@ -373,11 +373,13 @@ def replay(
             result = _replay_fast(td, prep, s, filters, sink, progress)
         else:
             result = _replay_pipeline(td, ps, s, filters, dy, sink, progress)
+        if sink is not None:
+            sink.sync_behind()  # the CSV's last block and fsync go on while the references are read
+        result.references = references(td, result.inputs)
     finally:
         if sink is not None:
             sink.close()
     result.notes = notes + result.inputs.notes + result.notes
-    result.references = references(td, result.inputs)
     rate = result.inputs.rate_hz()
     if rate < LOW_RATE_HZ:
         result.notes.append(

@@ -19,7 +19,7 @@ import math
 import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Iterator, Sequence
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -181,7 +181,8 @@ class CsvSink:
     the caller computes the next one (the formatter releases the GIL): the
     bulk replay's CSV then costs little more than the filters.  One block at
     most is in flight; :meth:`close` (also on an exception or Ctrl-C in the
-    caller) waits for it, so every block handed over reaches the file.
+    caller) waits for it, so every block handed over reaches the file;
+    :meth:`sync_behind` queues the final flush and fsync behind it.
 
     Args:
         path: file to create (truncated if it exists).
@@ -200,7 +201,8 @@ class CsvSink:
         self._file.flush()
         self.rows = 0
         self._pool: ThreadPoolExecutor | None = None
-        self._pending: Future[None] | None = None
+        self._pending: list[Future[None]] = []
+        self._synced_rows = -1  # rows on disk at the last fsync (-1: never)
 
     def write(self, values: NDArray[np.float64]) -> None:
         """Append rows (n, len(columns)) and flush."""
@@ -216,24 +218,42 @@ class CsvSink:
         self.rows += int(values.shape[0])
 
     def write_behind(self, values: NDArray[np.float64]) -> None:
-        """:meth:`write` in the worker thread; first waits for the previous block (raising its error).
+        """:meth:`write` in the worker thread; first waits for what was handed over before (raising its error).
 
         ``values`` must not be changed afterwards.
         """
         self._wait()
+        self._submit(self.write, values)
+
+    def sync_behind(self) -> None:
+        """Flush and fsync in the worker, after the blocks handed over so far; the caller goes on."""
+        if self._file is not None:
+            self._submit(self._sync)
+
+    def _submit(self, fn: Any, *args: Any) -> None:
         if self._file is None:
             raise ValueError(f"CSV file {self.path} is closed")
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mavahrs-csv")
-        self._pending = self._pool.submit(self.write, values)
+        self._pending.append(self._pool.submit(fn, *args))  # one worker: done in order
 
     def _wait(self) -> None:
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.result()
+        pending, self._pending = self._pending, []
+        errors = [exc for f in pending if (exc := f.exception()) is not None]
+        if errors:
+            raise errors[0]
+
+    def _sync(self) -> None:
+        assert self._file is not None
+        self._file.flush()
+        try:
+            os.fsync(self._file.fileno())
+        except OSError:
+            pass
+        self._synced_rows = self.rows
 
     def close(self) -> None:
-        """Wait for a block still being written, flush, fsync and close (idempotent)."""
+        """Wait for what is still being written, flush, fsync and close (idempotent)."""
         try:
             self._wait()
         finally:
@@ -241,11 +261,8 @@ class CsvSink:
                 self._pool.shutdown(wait=True)
                 self._pool = None
             if self._file is not None:
-                self._file.flush()
-                try:
-                    os.fsync(self._file.fileno())
-                except OSError:
-                    pass
+                if self._synced_rows != self.rows:
+                    self._sync()
                 self._file.close()
                 self._file = None
 

@@ -205,4 +205,5 @@ def bound_loop(template: Callable[..., Any], qualname: str, *, parallel: bool = 
     func.__qualname__ = qualname
     func.__module__ = template.__module__
     func.__doc__ = template.__doc__
-    return _numba.njit(cache=True, parallel=parallel, error_model="numpy", _nrt=False)(func)
+    # nogil: a batch run leaves the interpreter to other threads (replay's CSV writer formats meanwhile)
+    return _numba.njit(cache=True, parallel=parallel, error_model="numpy", _nrt=False, nogil=True)(func)

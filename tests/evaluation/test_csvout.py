@@ -72,7 +72,8 @@ def test_write_behind_keeps_order_and_every_block(tmp_path: Path, rng: np.random
     behind = CsvSink(b, ["x", "y", "z"], [3, 4, 5])
     for blk in blocks:
         behind.write_behind(blk)
-    behind.close()  # waits for the last block
+    behind.sync_behind()  # queued behind the last block
+    behind.close()  # waits for both
     assert b.read_bytes() == a.read_bytes() and behind.rows == sum(len(x) for x in blocks)
 
 
