@@ -281,7 +281,12 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     a_sat, g_sat, a_bad, g_bad = accel_fs * frac, gyro_fs * frac, accel_fs * bad, gyro_fs * bad
     ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
     if ms.integer_fields:  # RAW_IMU, SCALED_IMU*: one compiled pass (_scale_integer), no temporaries
-        gyro, accel, mag = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        # written in place in an array shaped like the filter's input rows, which the common case
+        # (one message type, every sample fed) then uses as they are: no copy, no second 150 MB
+        block = np.empty((n, IN_WIDTH))
+        gyro = block[:, IN_GYRO : IN_GYRO + 3]
+        accel = block[:, IN_ACCEL : IN_ACCEL + 3]
+        mag = block[:, IN_MAG : IN_MAG + 3]
         sat = np.empty(n, np.int64)
         inv = np.empty(n, np.int64)
         zero = np.empty(n, bool)
@@ -292,6 +297,7 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
         )  # fmt: skip
         use = np.ones(n, bool)
     else:
+        block = None
         gyro, accel, mag, sat, inv, use = _scale_highres(a, n, ms, kg, ka, km, g_sat, a_sat, g_bad, a_bad)
         zero = np.all(gyro == 0, axis=1) & np.all(accel == 0, axis=1)
     # temperature
@@ -308,7 +314,7 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     t_us = a[ms.time_field].astype(np.int64) * ms.time_to_us
     return {
         "imu": imu, "t_us": t_us, "gyro": gyro, "accel": accel,
-        "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use, "zero": zero,
+        "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use, "zero": zero, "block": block,
     }  # fmt: skip
 
 
@@ -604,11 +610,17 @@ def prepare_inputs(
     sc = parts[main_kind]
     chosen = int(np.bincount(mg["imu"][idx]).argmax())
     m = pos.shape[0]
-    rows = np.full((m, IN_WIDTH), _NAN)
+    in_place = sel is None and len(parts) == 1 and parts[0]["block"] is not None
+    if in_place:  # gyro, accel and mag are already columns of these rows (_scale)
+        rows = parts[0]["block"]
+        rows[:, IN_VEL : IN_VEL + 3] = _NAN
+    else:
+        rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
     bad = inv | (sat & (ACCEL | MAG))  # sample.write_row
     for col, values, bit in ((IN_GYRO, gyro, GYRO), (IN_ACCEL, accel, ACCEL), (IN_MAG, mag, MAG)):
-        rows[:, col : col + 3] = values
+        if not in_place:
+            rows[:, col : col + 3] = values
         blank = (bad & bit) != 0
         if blank.any():
             rows[blank, col : col + 3] = _NAN
