@@ -13,7 +13,9 @@ decoded from it:
    Euler angles (mavahrs's CSV has 18 columns: the references do less
    formatting).  The references run on the first ``--prefix`` seconds of the
    same file; their time is extrapolated to the whole file as start-up +
-   loop time × (samples / prefix samples).
+   loop time × (samples / prefix samples).  mavahrs's bytecode is written
+   first (``compileall``), as ``pip install`` does: the references are
+   installed packages with theirs.
 2. **Batch filters** — µs per sample (thread CPU time, the fastest of many
    20 000-sample windows: the machine is shared) of every filter, MARG and
    IMU, against imufusion per sample from Python and VQF's ``updateBatch``.
@@ -253,6 +255,9 @@ def bench_replay(full: Path, prefix: Path, workdir: Path, quick: bool, repeats: 
     out_csv = workdir / "replay_mavahrs.csv"
     cmd = [sys.executable, "-m", "mavahrs", "replay", str(full), "--filter", "madgwick", "--csv", str(out_csv),
            "--no-progress"]  # fmt: skip
+    # the package's bytecode, as `pip install` writes it (a source checkout run with
+    # PYTHONDONTWRITEBYTECODE=1 would otherwise recompile every module in every run)
+    res["bytecode_compiled"] = _byte_compile_mavahrs()
     # warm-up on the prefix: loads (or, after an edit, compiles) the cached kernels, fills the page cache
     timed_process([*cmd[:4], str(prefix), *cmd[5:]])
     runs = []
@@ -297,6 +302,18 @@ def bench_replay(full: Path, prefix: Path, workdir: Path, quick: bool, repeats: 
         say(f"  attitude check over the prefix, mavahrs vs {name}: mean |Δroll| {d['roll_deg']:.2f}°, "
             f"|Δpitch| {d['pitch_deg']:.2f}°")
     return rows, res
+
+
+def _byte_compile_mavahrs() -> bool:
+    """Write the bytecode of the mavahrs package being measured (``compileall``, quietly); False if it cannot."""
+    import compileall
+
+    import mavahrs
+
+    try:
+        return bool(compileall.compile_dir(str(Path(mavahrs.__file__).parent), quiet=2))
+    except OSError:
+        return False
 
 
 def _compare_csvs(mine: Path, others: list[Path]) -> dict[str, dict[str, float]]:

@@ -76,11 +76,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from mavahrs.cli.common import prefer_small_pages
+    from mavahrs.cli.common import prefer_small_pages, start_kernels
     from mavahrs.evaluation.loaders import load_any
     from mavahrs.evaluation.report import evaluate_recordings, format_report, resolve_filter_names
 
     prefer_small_pages()
+    start_kernels()
 
     recordings = load_any(args.input, skip_s=args.skip)
     if args.study:

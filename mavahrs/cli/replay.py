@@ -112,9 +112,10 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mavahrs import replay as rp
-    from mavahrs.cli.common import prefer_small_pages
+    from mavahrs.cli.common import prefer_small_pages, start_kernels
 
     prefer_small_pages()
+    start_kernels()
 
     if not Path(args.tlog).is_file():
         raise FileNotFoundError(2, "no such file", args.tlog)

@@ -58,12 +58,13 @@ def _run(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from mavahrs.cli.common import prefer_small_pages
+    from mavahrs.cli.common import prefer_small_pages, start_kernels
     from mavahrs.evaluation.loaders import load_one
     from mavahrs.evaluation.tlogdata import cut_recording
     from mavahrs.evaluation.tuning import tune
 
     prefer_small_pages()
+    start_kernels()
     path = Path(args.input)
     if not path.is_file():
         raise FileNotFoundError(2, "no such file", str(path))

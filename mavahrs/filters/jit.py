@@ -28,11 +28,12 @@ result: the same operations run in the same order.
 from __future__ import annotations
 
 import os
+import sys
 import types
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "loop_kernel", "bound_loop", "pure_python", "prange", "HAVE_NUMBA"]
+__all__ = ["kernel", "loop_kernel", "bound_loop", "pure_python", "prange", "quick_start", "HAVE_NUMBA"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -207,3 +208,32 @@ def bound_loop(template: Callable[..., Any], qualname: str, *, parallel: bool = 
     func.__doc__ = template.__doc__
     # nogil: a batch run leaves the interpreter to other threads (replay's CSV writer formats meanwhile)
     return _numba.njit(cache=True, parallel=parallel, error_model="numpy", _nrt=False, nogil=True)(func)
+
+
+def quick_start() -> bool:
+    """Load numba's compiler registries now, with its BLAS probe answered "none" (command-line processes).
+
+    The first cached kernel a process runs makes numba import all of its
+    lowering registries; one of them probes for BLAS by importing
+    ``scipy.linalg`` (0.14 s of the 0.3 s load on the development VM), which
+    only code that compiles ``np.dot``-like calls with numba needs.  The
+    kernels of mavahrs use none, so the command-line tools load the
+    registries with ``scipy.linalg`` hidden for that moment; it imports as
+    usual afterwards.  Not done when the library is imported: a user's own
+    numba code in the same process may need BLAS.  Returns whether the probe
+    was skipped (False: numba absent, already loaded, or ``scipy.linalg``
+    already imported, when the probe costs nothing).
+    """
+    if not HAVE_NUMBA or "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return False
+    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # import scipy.linalg → ImportError
+    try:
+        from numba.core.registry import cpu_target
+
+        cpu_target.target_context.refresh()
+    except Exception:  # noqa: BLE001 - numba internals moved: it loads them itself on first use
+        return False
+    finally:
+        if sys.modules.get("scipy.linalg", 0) is None:
+            del sys.modules["scipy.linalg"]
+    return True
