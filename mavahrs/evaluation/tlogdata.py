@@ -148,8 +148,7 @@ class _Msg:
 
 def read_tlog_data(path: str | Path) -> TlogData:
     """Decode the message types replay needs from a tlog (bulk, pymavlink-exact)."""
-    from mavahrs.protocol.codec import mavlink
-    from mavahrs.protocol.fast_tlog import decode_scan, scan_tlog
+    from mavahrs.protocol.fast_tlog import decode_scan, scan_positions, scan_tlog
 
     p = Path(path)
     if not p.is_file():
@@ -158,11 +157,9 @@ def read_tlog_data(path: str | Path) -> TlogData:
     if data.size == 0:
         raise DataError(f"{p}: empty file")
     scan = scan_tlog(data, list(REPLAY_TYPES), mode="mmap")
-    arrays = decode_scan(scan, list(REPLAY_TYPES))  # = read_tlog_arrays(data, REPLAY_TYPES), one scan
-    pos: dict[str, NDArray[np.int64]] = {}
+    pos: dict[str, NDArray[np.int64]] = scan_positions(scan, list(REPLAY_TYPES))
+    arrays = decode_scan(scan, list(REPLAY_TYPES), positions=pos)  # = read_tlog_arrays(data, REPLAY_TYPES)
     for name in REPLAY_TYPES:
-        mid = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
-        pos[name] = np.flatnonzero(scan.msgid == mid).astype(np.int64)
         if pos[name].shape[0] != arrays[name].shape[0]:  # pragma: no cover - both come from the same emulation
             raise DataError(f"{p}: {name}: the bulk decoder and the frame scan disagree")
     return TlogData(

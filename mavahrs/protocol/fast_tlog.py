@@ -830,23 +830,45 @@ def read_tlog_arrays(
     return decode_scan(scan_tlog(source, names), names, engine=engine)
 
 
-def decode_scan(scan: TlogScan, types: Sequence[str], *, engine: str = "fast") -> dict[str, np.ndarray]:
+def scan_positions(scan: TlogScan, types: Sequence[str]) -> dict[str, np.ndarray]:
+    """The positions (int64, frame order) of each type's frames in ``scan``; one count, then only the types present."""
+    names = [str(t).upper() for t in types]
+    ids = _type_ids(names)
+    counts = None
+    if scan.msgid.size and int(scan.msgid.max()) < 65536:
+        counts = np.bincount(scan.msgid, minlength=65536)
+    out: dict[str, np.ndarray] = {}
+    for name, mid in zip(names, ids, strict=True):
+        if counts is not None and counts[mid] == 0:
+            out[name] = np.empty(0, np.int64)
+        else:
+            out[name] = np.flatnonzero(scan.msgid == mid).astype(np.int64)
+    return out
+
+
+def decode_scan(
+    scan: TlogScan, types: Sequence[str], *, engine: str = "fast", positions: dict[str, np.ndarray] | None = None
+) -> dict[str, np.ndarray]:
     """The fields of the given types from a :func:`scan_tlog` result (``read_tlog_arrays``'s second half).
 
     ``read_tlog_arrays(source, types)`` is ``decode_scan(scan_tlog(source, types), types)``;
     a caller that needs the scan too (frame order, raw frames) scans once and
     decodes from it.  The scan must be of the same ``types`` (``mode="mmap"``):
     which frames pymavlink returns depends on the types requested.
+    ``positions``: :func:`scan_positions` of the same scan and types, if the
+    caller has them.
     """
     if engine not in ("fast", "pymavlink"):
         raise ConfigError(f"engine must be 'fast' or 'pymavlink', got {engine!r}")
     names = [str(t).upper() for t in types]
     _type_ids(names)
+    if positions is None:
+        positions = scan_positions(scan, names)
     result: dict[str, np.ndarray] = {}
     for name in names:
         cls = _NAME_TO_CLASS[name]
         dtype = message_dtype(name)
-        sel = np.flatnonzero(scan.msgid == cls.id)
+        sel = positions[name]
         try:
             wire = _wire_dtype(cls) if engine == "fast" else None
         except ValueError:
