@@ -504,31 +504,8 @@ def _emulate(  # type: ignore[no-untyped-def]
 
 
 @kernel
-def _gather(data, side, out_off, out_side, out_len, sel, width, mat, sysid, compid):  # type: ignore[no-untyped-def]
-    """Payloads of the selected frames into ``mat`` (zero-padded/truncated to ``width``), and their ids."""
-    for r in range(sel.shape[0]):
-        j = sel[r]
-        src = side if out_side[j] != 0 else data
-        f = out_off[j]
-        plen = int(src[f + 1])
-        if src[f] == 0xFE:
-            h = 6
-            sysid[r] = src[f + 3]
-            compid[r] = src[f + 4]
-        else:
-            h = 10
-            sysid[r] = src[f + 5]
-            compid[r] = src[f + 6]
-        m = plen if plen < width else width
-        for q in range(m):
-            mat[r, q] = src[f + h + q]
-        for q in range(m, width):
-            mat[r, q] = 0
-
-
-@kernel
 def _gather_fields(data, side, out_off, out_side, sel, scan_t, field_src, field_dst, field_len, rec, t_col, sys_col, comp_col):  # type: ignore[no-untyped-def]  # noqa: E501
-    """:func:`_gather` and the field copies in one pass: each selected frame straight into its record.
+    """The payloads of the selected frames, field by field, straight into their records.
 
     ``rec`` is the output records as bytes (n, itemsize); field ``k`` takes
     ``field_len[k]`` bytes at ``field_src[k]`` of the payload (zero past the
@@ -870,7 +847,8 @@ def decode_scan(
         dtype = message_dtype(name)
         sel = positions[name]
         try:
-            wire = _wire_dtype(cls) if engine == "fast" else None
+            # the compiled copy writes the wire's little-endian bytes as they are: elsewhere, pymavlink
+            wire = _wire_dtype(cls) if engine == "fast" and sys.byteorder == "little" else None
         except ValueError:
             wire = None
         if wire is None:
@@ -880,20 +858,5 @@ def decode_scan(
             msgs = [codec.decode_frame(scan.frame(int(j))) for j in sel]
             result[name] = _fields_from_messages(msgs, scan.t_us[sel], dtype)
             continue
-        if sys.byteorder == "little":
-            result[name] = _decode_direct(scan, sel, cls, wire, dtype)
-            continue
-        width = wire.itemsize
-        mat = np.empty((sel.shape[0], width), np.uint8)
-        sysid = np.empty(sel.shape[0], np.uint8)
-        compid = np.empty(sel.shape[0], np.uint8)
-        _gather(scan.data, scan.side, scan.offset, scan.in_side.view(np.uint8), scan.length, sel, width, mat, sysid, compid)
-        payload = mat.view(wire).reshape(sel.shape[0])
-        out = np.empty(sel.shape[0], dtype)
-        out["t_us"] = scan.t_us[sel].view(np.int64)
-        out["sysid"] = sysid
-        out["compid"] = compid
-        for f in cls.fieldnames:
-            out[f] = payload[f]
-        result[name] = out
+        result[name] = _decode_direct(scan, sel, cls, wire, dtype)
     return result
