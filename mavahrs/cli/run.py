@@ -51,6 +51,7 @@ _OVERRIDES = {
     "require_signing": "daemon.require_signing",
     "signing_link_id": "daemon.signing_link_id",
     "realtime_priority": "daemon.realtime_priority",
+    "fast_lane": "daemon.fast_lane",
 }
 
 
@@ -143,6 +144,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "--realtime-priority", type=int, metavar="N",
         help="run under real-time scheduling, SCHED_FIFO priority 1-99 (needs root or CAP_SYS_NICE; "
         "systemd: CPUSchedulingPolicy=fifo); 0 = normal (default: {daemon.realtime_priority})",
+    )
+    ops.add_argument(
+        "--no-fast-lane", dest="fast_lane", action="store_const", const=False,
+        help="answer every datagram through the Python path only (default: steady-state RAW_IMU on a UDP "
+        "link is answered by the compiled fast lane and confirmed byte for byte by the Python path)",
     )
     ops.add_argument(
         "--print-config", action="store_true", help="print the effective configuration as TOML and exit"

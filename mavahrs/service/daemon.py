@@ -49,7 +49,7 @@ from array import array
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, is_dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from mavahrs.errors import ConfigError, TransportError
 from mavahrs.protocol.signing import signing_timestamp_10us
@@ -105,6 +105,11 @@ class DaemonSettings:
             receipt and the attitude's ``sendto`` (docs/daemon.md, measured
             live figures); the loop still blocks in ``select`` between
             datagrams.  Refused by the system: one warning, normal scheduling.
+        fast_lane: answer steady-state RAW_IMU datagrams on a UDP master link
+            from compiled code before the Python path runs, which then builds
+            the same frame and checks it byte for byte
+            (:mod:`mavahrs.service.fastlane`; a difference is logged, counted
+            and switches the lane off).  False = the Python path only.
     """
 
     master: str = "udpin:0.0.0.0:14550"
@@ -127,6 +132,7 @@ class DaemonSettings:
     require_signing: bool = False
     signing_link_id: int = 0
     realtime_priority: int = 0
+    fast_lane: bool = True
 
     def __post_init__(self) -> None:
         def positive(name: str, value: float) -> None:
@@ -158,6 +164,16 @@ class DaemonSettings:
         rt = self.realtime_priority
         if isinstance(rt, bool) or not (isinstance(rt, int) and 0 <= rt <= 99):  # `true` in a TOML is no priority
             raise ValueError(f"daemon.realtime_priority must be 0 (normal) or 1…99 (SCHED_FIFO), got {self.realtime_priority!r}")
+        if not isinstance(self.fast_lane, bool):
+            raise ValueError(f"daemon.fast_lane must be true or false, got {self.fast_lane!r}")
+
+
+class _Early(NamedTuple):
+    """The fast lane's answer, sent like a pipeline ``Outgoing``."""
+
+    frame: bytes
+    to_master: bool
+    to_outputs: bool
 
 
 @dataclass
@@ -173,6 +189,9 @@ class DaemonCounters:
         frames_to_outputs: frames sent to the outputs (all kinds).
         output_reads_ignored: reads from output links (ignored).
         pipeline_errors: messages the pipeline failed on (counted, logged rarely).
+        fast_lane_answers: attitudes sent by the fast lane ahead of the Python path.
+        fast_lane_mismatches: datagrams whose fast-lane answer the Python path did
+            not confirm byte for byte (then the lane is switched off).
     """
 
     datagrams_in: int = 0
@@ -183,6 +202,8 @@ class DaemonCounters:
     frames_to_outputs: int = 0
     output_reads_ignored: int = 0
     pipeline_errors: int = 0
+    fast_lane_answers: int = 0
+    fast_lane_mismatches: int = 0
 
 
 @dataclass(frozen=True)
@@ -358,6 +379,15 @@ class Daemon:
         self._decode: Callable[[bytes], list[Any]] = (
             codec.receive_datagram if master.datagram else codec.receive_stream
         )
+        self._lane: Any = None
+        if settings.fast_lane and master.datagram:
+            from mavahrs.service.fastlane import FastLane
+            from mavahrs.service.pipeline import Pipeline
+
+            if isinstance(pipeline, Pipeline):
+                lane = FastLane(pipeline, receive_codec=codec)
+                self._lane = lane if lane.usable else None
+        self._lane_to_master = bool(getattr(getattr(pipeline, "settings", None), "send_to_master", True))
         self._closed = False
         self._signing: tuple[int, bool] | None = None  # (link id, require) once enabled
         self._signing_reported = 0  # frames dropped by signing at the last warning
@@ -414,8 +444,11 @@ class Daemon:
             self._signing_reported_us = now_us
 
     # ------------------------------------------------------------------ sending
-    def _send(self, out: Any, wall_us: int, now_s: float) -> bool:
-        """Send one pipeline ``Outgoing``; True when it was an ATTITUDE_QUATERNION (sent anywhere)."""
+    def _send(self, out: Any, wall_us: int, now_s: float, *, log: bool = True) -> bool:
+        """Send one pipeline ``Outgoing``; True when it was an ATTITUDE_QUATERNION (sent anywhere).
+
+        ``log=False``: not into the ``--log`` tlog (the fast lane's frame is recorded when the
+        pipeline confirms it, after the IMU message it answers)."""
         frame = out.frame
         c = self.counters
         sent = False
@@ -428,7 +461,7 @@ class Daemon:
                 link.write(frame)
             c.frames_to_outputs += 1
             sent = True
-        if self.sink is not None:
+        if log and self.sink is not None:
             self.sink.write(wall_us, frame, now_s)
         if sent and _frame_msgid(frame) == _MSG_ID_ATTITUDE_QUATERNION:
             c.attitudes_out += 1
@@ -471,8 +504,17 @@ class Daemon:
         while inbox:
             t_rx_ns, data = inbox.popleft()
             c.datagrams_in += 1
+            lane = self._lane
+            early = lane.answer(data) if lane is not None else None
+            if early is not None:  # the attitude leaves now; the Python path below confirms it
+                self._send(_Early(early, self._lane_to_master, True), 0, 0.0, log=False)
+                self.latency.add(perf() - t_rx_ns)
+                c.fast_lane_answers += 1
+            confirmed = False
             msgs = decode(data)
             if not msgs:
+                if early is not None:
+                    self._lane_mismatch("the datagram did not decode")
                 continue
             now_s = time.monotonic()
             now_us = int(now_s * 1e6)
@@ -498,10 +540,32 @@ class Daemon:
                     )
                     continue
                 for out in outgoing:
+                    if early is not None and not confirmed and out.frame == early:
+                        confirmed = True  # already sent: only recorded
+                        if sink is not None:
+                            sink.write(wall_us, out.frame, now_s)
+                        continue
                     if self._send(out, wall_us, now_s):
                         attitude = True
-            if attitude:
+            if early is not None and not confirmed:
+                self._lane_mismatch("the pipeline built a different frame or none")
+            elif attitude and early is None:
                 self.latency.add(perf() - t_rx_ns)
+            if self._lane is not None:
+                self._lane.refresh()
+
+    def _lane_mismatch(self, why: str) -> None:
+        """The fast lane's answer was not confirmed: count, say so, and switch the lane off."""
+        self.counters.fast_lane_mismatches += 1
+        if self._lane is not None:
+            self._lane.disable()
+            self._lane = None
+        self.log.warning(
+            "fast lane: an ATTITUDE_QUATERNION it sent was not confirmed by the pipeline (%s); the "
+            "pipeline's own frames were sent too. Fast lane off for the rest of the run "
+            "(daemon.fast_lane = false avoids it altogether)",
+            why,
+        )
 
     def _drain_output(self, link: Any) -> None:
         for _ in range(self.settings.max_drain):
@@ -569,6 +633,8 @@ class Daemon:
             if reset is not None:
                 reset(now_us)
         self._sync_registrations()
+        if self._lane is not None:
+            self._lane.refresh()  # the timer's frames took sequence numbers; its checks may have changed state
         if self.sink is not None:
             self.sink.tick(now_s)
         for level, message in self.pipeline.drain_notices():

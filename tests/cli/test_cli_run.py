@@ -86,6 +86,9 @@ def test_print_config_is_the_effective_toml(tmp_path: Path, capsys: pytest.Captu
     assert data["pipeline"]["imu"] == "1" and data["pipeline"]["filter_name"] == "mahony"
     assert data["daemon"]["outputs"] == ["udpout:127.0.0.1:9"] and data["daemon"]["input_queue"] == 99
     assert "mahony" in data["filter"] and "schedule" in data["filter"]["mahony"]
+    assert data["daemon"]["fast_lane"] is True  # the default
+    assert main(["run", "--no-fast-lane", "--print-config"]) == EXIT_OK
+    assert tomllib.loads(capsys.readouterr().out)["daemon"]["fast_lane"] is False
 
 
 @pytest.mark.parametrize(
@@ -97,6 +100,7 @@ def test_print_config_is_the_effective_toml(tmp_path: Path, capsys: pytest.Captu
         (["--set", "daemon.tick_hz=-1"], EXIT_USAGE, "daemon.tick_hz must be a positive number"),
         (["--filter", "kalman"], EXIT_USAGE, "unknown filter 'kalman'"),
         (["--imu", "7"], EXIT_USAGE, "imu"),
+        (["--set", "daemon.fast_lane=1"], EXIT_USAGE, "daemon.fast_lane must be true or false"),
     ],
 )
 def test_bad_input_is_one_line_and_the_documented_code(

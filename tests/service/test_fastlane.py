@@ -1,0 +1,262 @@
+"""The daemon's fast lane answers exactly what the Python path answers, or stands aside.
+
+Each datagram goes to the lane first and then through the real codec and
+Pipeline; every answer the lane gives must equal, byte for byte, the
+ATTITUDE_QUATERNION the pipeline builds for that datagram.  The daemon tests
+send real datagrams over UDP sockets.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mavahrs.protocol.codec import MavCodec, mavlink
+from mavahrs.service.daemon import DaemonSettings, build_daemon
+from mavahrs.service.fastlane import I_SEQ, FastLane
+from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+_AQ_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+
+
+class Autopilot:
+    """RAW_IMU of a vehicle turning slowly (with a second IMU if asked), plus HEARTBEAT and GNSS."""
+
+    def __init__(self, seed: int = 1, second_imu: bool = False) -> None:
+        self.codec = MavCodec(1, 1)
+        self.rng = np.random.default_rng(seed)
+        self.t_us = 1_000_000
+        self.k = 0
+        self.second_imu = second_imu
+
+    def heartbeat(self) -> bytes:
+        return self.codec.encode(self.codec.mav.heartbeat_encode(2, 3, 0, 0, 4))
+
+    def raw_imu(self, imu: int = 0, **override: int) -> bytes:
+        k = self.k
+        g = (30 * math.sin(k / 80), 20 * math.cos(k / 50), 50)
+        f = dict(
+            xacc=int(self.rng.normal(0, 8)), yacc=int(self.rng.normal(0, 8)), zacc=-1000 + int(self.rng.normal(0, 8)),
+            xgyro=int(g[0] + self.rng.normal(0, 2)), ygyro=int(g[1] + self.rng.normal(0, 2)),
+            zgyro=int(g[2] + self.rng.normal(0, 2)),
+            xmag=200 + int(self.rng.normal(0, 3)), ymag=int(self.rng.normal(0, 3)), zmag=400 + int(self.rng.normal(0, 3)),
+        )  # fmt: skip
+        f.update(override)
+        m = self.codec.mav.raw_imu_encode(
+            self.t_us, f["xacc"], f["yacc"], f["zacc"], f["xgyro"], f["ygyro"], f["zgyro"],
+            f["xmag"], f["ymag"], f["zmag"], imu, 0,
+        )  # fmt: skip
+        return self.codec.encode(m)
+
+    def step(self) -> None:
+        self.t_us += 2500
+        self.k += 1
+
+    def gnss(self) -> bytes:
+        m = self.codec.mav.global_position_int_encode(self.t_us // 1000, -353632620, 1491652370, 584000, 0, 120, -40, 5, 0)
+        return self.codec.encode(m)
+
+
+def _aq(outs: list[Any]) -> list[bytes]:
+    return [o.frame for o in outs if o.frame[7] == _AQ_ID]
+
+
+def _run(pipe: Pipeline, datagrams: list[bytes]) -> tuple[int, int, list[int]]:
+    """(lane answers, pipeline attitudes, indices where the lane stood aside but the pipeline answered)."""
+    lane = FastLane(pipe)
+    assert lane.usable
+    rx = MavCodec()
+    answers = attitudes = 0
+    aside = []
+    for i, d in enumerate(datagrams):
+        ans = lane.answer(d)
+        outs: list[Any] = []
+        for m in rx.receive_datagram(d):
+            outs += pipe.handle(m, 1000 * i)
+        aq = _aq(outs)
+        attitudes += len(aq)
+        if ans is not None:
+            answers += 1
+            assert aq and aq[0] == ans, f"datagram {i}: the lane answered {ans.hex()}, the pipeline {aq}"
+        elif aq:
+            aside.append(i)
+        lane.refresh()
+    return answers, attitudes, aside
+
+
+@pytest.mark.parametrize("name", ["best", "madgwick", "mahony", "complementary", "gyroplatform"])
+@pytest.mark.parametrize("out_rate", [0.0, 50.0])
+def test_every_answer_is_the_pipelines_frame(name: str, out_rate: float) -> None:
+    ap = Autopilot()
+    dgrams = [ap.heartbeat()]
+    for _ in range(1600):
+        ap.step()
+        dgrams.append(ap.raw_imu())
+    pipe = Pipeline(PipelineSettings(filter_name=name, out_rate_hz=out_rate))
+    answers, attitudes, aside = _run(pipe, dgrams)
+    assert attitudes > (1000 if out_rate == 0 else 150)
+    assert answers >= attitudes - 3, f"the lane stood aside on {aside}"  # all but the start
+
+
+def test_it_stands_aside_where_the_steady_state_ends() -> None:
+    """Saturation, a gap, a duplicate, MAVLink 1, a bad CRC, a foreign source, GNSS velocity, declination."""
+    ap = Autopilot(seed=2)
+    special: dict[int, str] = {}
+    dgrams = [ap.heartbeat()]
+    for k in range(2400):
+        ap.step()
+        i = len(dgrams)
+        if k == 300:
+            dgrams.append(ap.raw_imu(xgyro=32767))
+            special[i] = "saturated"
+        elif k == 400:
+            ap.t_us += 800_000  # 0.8 s: beyond the timeline's gap limit (0.5 s)
+            dgrams.append(ap.raw_imu())
+            special[i] = "gap"
+        elif k == 500:
+            dgrams.append(dgrams[-1])
+            special[i] = "duplicate"
+        elif k == 600:
+            bad = bytearray(ap.raw_imu())
+            bad[-1] ^= 0xFF
+            dgrams.append(bytes(bad))
+            special[i] = "bad CRC"
+        elif k == 700:
+            other = MavCodec(7, 1)
+            dgrams.append(other.encode(other.mav.raw_imu_encode(ap.t_us, 0, 0, -1000, 0, 0, 0, 200, 0, 400, 0, 0)))
+            special[i] = "foreign"
+        elif k == 800:
+            dgrams.append(ap.gnss())  # the next row carries the velocity: the Python path's
+            special[i + 1] = "velocity"
+            ap.step()
+            dgrams.append(ap.raw_imu())
+        elif k == 1000:
+            m = ap.codec.mav.raw_imu_encode(ap.t_us, 0, 0, -1000, 1, 2, 3, 200, 0, 400)
+            dgrams.append(ap.codec.encode(m, force_mavlink1=True))
+            special[i] = "MAVLink 1"
+        elif k == 900:
+            dgrams.append(bytes(ap.raw_imu(zacc=0, xacc=0, yacc=0, xgyro=0, ygyro=0, zgyro=0)))
+            special[i] = "all zero"
+        else:
+            dgrams.append(ap.raw_imu())
+    pipe = Pipeline(PipelineSettings(filter_name="best", out_rate_hz=0.0), decimal_year=2026.9)
+    lane = FastLane(pipe)
+    rx = MavCodec()
+    answered = {}
+    for i, d in enumerate(dgrams):
+        ans = lane.answer(d)
+        outs: list[Any] = []
+        for m in rx.receive_datagram(d):
+            outs += pipe.handle(m, 2500 * i)
+        aq = _aq(outs)
+        if ans is not None:
+            assert aq and aq[0] == ans, (i, special.get(i))
+        answered[i] = ans is not None
+        lane.refresh()
+    for i, why in special.items():
+        assert not answered[i], f"the lane answered a {why} sample ({i})"
+    # after each special case it comes back
+    assert sum(answered.values()) > 2000
+    # the position gave a declination: answered frames after it carry it too (checked equal above)
+    assert pipe.declination.declination_rad != 0.0
+    assert any(answered[i] for i in range(max(special) + 10, len(dgrams)))
+
+
+def test_two_imu_instances_only_between_the_selectors_evaluations() -> None:
+    """With a second IMU the selector may switch at each evaluation (every 20 ms): those samples are the pipeline's."""
+    ap = Autopilot(seed=3)
+    dgrams = [ap.heartbeat()]
+    for _ in range(1200):
+        ap.step()
+        dgrams.append(ap.raw_imu(0))
+        dgrams.append(ap.raw_imu(1))
+    pipe = Pipeline(PipelineSettings(filter_name="madgwick", out_rate_hz=0.0))
+    answers, attitudes, aside = _run(pipe, dgrams)
+    assert attitudes > 1000
+    assert 0.7 * attitudes < answers < attitudes  # most, not all
+
+
+# --------------------------------------------------------------------------- the daemon, over UDP
+
+
+def _daemon_run(fast_lane: bool, n: int, sabotage: bool = False) -> tuple[list[Any], Any, Any]:
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(0.05)
+    d = build_daemon(DaemonSettings(
+        master="udpin:127.0.0.1:0", outputs=(f"udpout:127.0.0.1:{gcs.getsockname()[1]}",), status_interval_s=0.0,
+        fast_lane=fast_lane,
+    ), PipelineSettings(filter_name="madgwick", out_rate_hz=0.0))  # fmt: skip
+    if sabotage:
+        lane = d._lane
+        real = lane.refresh
+        calls = [0]
+
+        def refresh() -> None:
+            real()
+            calls[0] += 1
+            if calls[0] == 200:
+                lane.icfg[I_SEQ] = (lane.icfg[I_SEQ] + 1) % 256  # the lane's next frame is wrong
+
+        lane.refresh = refresh
+    ap = Autopilot(seed=4)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    addr = ("127.0.0.1", d.master.local_address[1])
+    box: dict[str, Any] = {}
+    thread = threading.Thread(target=lambda: box.update(result=d.run()), daemon=True)
+    thread.start()
+    got: list[Any] = []
+    rx = MavCodec()
+    try:
+        sock.sendto(ap.heartbeat(), addr)
+        time.sleep(0.05)
+        for _ in range(n):
+            ap.step()
+            sock.sendto(ap.raw_imu(), addr)
+            time.sleep(0.001)
+            try:
+                got += rx.receive_datagram(gcs.recv(4096))
+            except TimeoutError:
+                pass
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            try:
+                got += rx.receive_datagram(gcs.recv(4096))
+            except TimeoutError:
+                pass
+    finally:
+        d.stop()
+        thread.join(10)
+        sock.close()
+        gcs.close()
+    return [m for m in got if m.get_type() == "ATTITUDE_QUATERNION"], d.counters, box.get("result")
+
+
+def test_the_daemon_answers_from_the_lane_and_sends_each_attitude_once() -> None:
+    fast, fc, _ = _daemon_run(True, 600)
+    slow, sc, _ = _daemon_run(False, 600)
+    assert fc.fast_lane_answers >= 0.95 * fc.attitudes_out and fc.fast_lane_mismatches == 0
+    assert sc.fast_lane_answers == 0
+    # the same attitudes, each once, as the Python path alone sends them
+    times = [m.time_boot_ms for m in fast]
+    assert len(times) == len(set(times)) >= 590
+    a = {m.time_boot_ms: (m.q1, m.q2, m.q3, m.q4, m.rollspeed) for m in fast}
+    b = {m.time_boot_ms: (m.q1, m.q2, m.q3, m.q4, m.rollspeed) for m in slow}
+    assert a == b
+
+
+def test_an_unconfirmed_answer_is_logged_counted_and_switches_the_lane_off(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING, logger="mavahrs"):
+        att, c, _ = _daemon_run(True, 500, sabotage=True)
+    assert c.fast_lane_mismatches == 1
+    assert 150 < c.fast_lane_answers < 250  # answered until the sabotage, then off
+    assert any("fast lane" in r.getMessage() and "not confirmed" in r.getMessage() for r in caplog.records)
+    # the pipeline's frame went out too: every sample still has its (correct) attitude
+    assert len({m.time_boot_ms for m in att}) >= 490
