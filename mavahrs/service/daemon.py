@@ -514,7 +514,7 @@ class Daemon:
             msgs = decode(data)
             if not msgs:
                 if early is not None:
-                    self._lane_mismatch("the datagram did not decode")
+                    self._lane_mismatch("the datagram did not decode", early)
                 continue
             now_s = time.monotonic()
             now_us = int(now_s * 1e6)
@@ -548,15 +548,17 @@ class Daemon:
                     if self._send(out, wall_us, now_s):
                         attitude = True
             if early is not None and not confirmed:
-                self._lane_mismatch("the pipeline built a different frame or none")
+                self._lane_mismatch("the pipeline built a different frame or none", early)
             elif attitude and early is None:
                 self.latency.add(perf() - t_rx_ns)
             if self._lane is not None:
                 self._lane.refresh()
 
-    def _lane_mismatch(self, why: str) -> None:
-        """The fast lane's answer was not confirmed: count, say so, and switch the lane off."""
+    def _lane_mismatch(self, why: str, frame: bytes) -> None:
+        """The fast lane's answer was not confirmed: record it, count, say so, and switch the lane off."""
         self.counters.fast_lane_mismatches += 1
+        if self.sink is not None:  # it was sent: the recording shows it
+            self.sink.write(time.time_ns() // 1000, frame, time.monotonic())
         if self._lane is not None:
             self._lane.disable()
             self._lane = None

@@ -230,7 +230,7 @@ class FastLane:
 
     def answer(self, data: bytes) -> bytes | None:
         """The ATTITUDE_QUATERNION frame for ``data``, or None: the ordinary path decides."""
-        if self.icfg[I_ON] == 0:
+        if self.icfg[I_ON] == 0 or type(data) is not bytes:  # (one compiled signature: bytes)
             return None
         t = _parse(data, self.icfg, self.fcfg, self._row, self._state, self._scratch)
         if t < 0:
