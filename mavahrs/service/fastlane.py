@@ -120,9 +120,21 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
             t |= np.int64(data[10 + _O_T + i]) << (8 * i)
     if t < 0:
         return -1  # beyond int64: the Python path judges
-    xa, ya, za = _payload_i16(data, plen, _O_XACC), _payload_i16(data, plen, _O_YACC), _payload_i16(data, plen, _O_ZACC)
-    xg, yg, zg = _payload_i16(data, plen, _O_XGYRO), _payload_i16(data, plen, _O_YGYRO), _payload_i16(data, plen, _O_ZGYRO)
-    xm, ym, zm = _payload_i16(data, plen, _O_XMAG), _payload_i16(data, plen, _O_YMAG), _payload_i16(data, plen, _O_ZMAG)
+    xa, ya, za = (
+        _payload_i16(data, plen, _O_XACC),
+        _payload_i16(data, plen, _O_YACC),
+        _payload_i16(data, plen, _O_ZACC),
+    )
+    xg, yg, zg = (
+        _payload_i16(data, plen, _O_XGYRO),
+        _payload_i16(data, plen, _O_YGYRO),
+        _payload_i16(data, plen, _O_ZGYRO),
+    )
+    xm, ym, zm = (
+        _payload_i16(data, plen, _O_XMAG),
+        _payload_i16(data, plen, _O_YMAG),
+        _payload_i16(data, plen, _O_ZMAG),
+    )
     # Scaler.scale_int: anything saturated or invalid takes the Python path
     if max(abs(xg), abs(yg), abs(zg)) >= 32767 or max(abs(xa), abs(ya), abs(za)) >= 32767:
         return -1
@@ -265,7 +277,14 @@ class FastLane:
         inst = sel._inst.get(imu)
         tl = p._timelines.get(imu)
         cal = p._calibrators.get("RAW_IMU")
-        if ms is None or not ms.integer_fields or ms.time_to_us != 1 or inst is None or tl is None or cal is None:
+        if (
+            ms is None
+            or not ms.integer_fields
+            or ms.time_to_us != 1
+            or inst is None
+            or tl is None
+            or cal is None
+        ):
             return
         if inst.source != "RAW_IMU" or inst.absent or p._backlog.get(imu) or cal.active:
             return

@@ -60,7 +60,9 @@ class Autopilot:
         self.k += 1
 
     def gnss(self) -> bytes:
-        m = self.codec.mav.global_position_int_encode(self.t_us // 1000, -353632620, 1491652370, 584000, 0, 120, -40, 5, 0)
+        m = self.codec.mav.global_position_int_encode(
+            self.t_us // 1000, -353632620, 1491652370, 584000, 0, 120, -40, 5, 0
+        )
         return self.codec.encode(m)
 
 
@@ -68,18 +70,20 @@ def _aq(outs: list[Any]) -> list[bytes]:
     return [o.frame for o in outs if o.frame[7] == _AQ_ID]
 
 
-def _run(pipe: Pipeline, datagrams: list[bytes]) -> tuple[int, int, list[int]]:
-    """(lane answers, pipeline attitudes, indices where the lane stood aside but the pipeline answered)."""
+def _run(pipe: Pipeline, datagrams: list[bytes]) -> tuple[int, int, list[int], list[bool]]:
+    """(lane answers, pipeline attitudes, indices where the lane stood aside but the pipeline answered,
+    whether the lane answered each datagram); every answer is checked against the pipeline's frame."""
     lane = FastLane(pipe)
     assert lane.usable
     rx = MavCodec()
     answers = attitudes = 0
     aside = []
+    answered = []
     for i, d in enumerate(datagrams):
         ans = lane.answer(d)
         outs: list[Any] = []
         for m in rx.receive_datagram(d):
-            outs += pipe.handle(m, 1000 * i)
+            outs += pipe.handle(m, 2500 * i)
         aq = _aq(outs)
         attitudes += len(aq)
         if ans is not None:
@@ -87,8 +91,9 @@ def _run(pipe: Pipeline, datagrams: list[bytes]) -> tuple[int, int, list[int]]:
             assert aq and aq[0] == ans, f"datagram {i}: the lane answered {ans.hex()}, the pipeline {aq}"
         elif aq:
             aside.append(i)
+        answered.append(ans is not None)
         lane.refresh()
-    return answers, attitudes, aside
+    return answers, attitudes, aside, answered
 
 
 @pytest.mark.parametrize("name", ["best", "madgwick", "mahony", "complementary", "gyroplatform"])
@@ -100,7 +105,7 @@ def test_every_answer_is_the_pipelines_frame(name: str, out_rate: float) -> None
         ap.step()
         dgrams.append(ap.raw_imu())
     pipe = Pipeline(PipelineSettings(filter_name=name, out_rate_hz=out_rate))
-    answers, attitudes, aside = _run(pipe, dgrams)
+    answers, attitudes, aside, _ = _run(pipe, dgrams)
     assert attitudes > (1000 if out_rate == 0 else 150)
     assert answers >= attitudes - 3, f"the lane stood aside on {aside}"  # all but the start
 
@@ -130,7 +135,9 @@ def test_it_stands_aside_where_the_steady_state_ends() -> None:
             special[i] = "bad CRC"
         elif k == 700:
             other = MavCodec(7, 1)
-            dgrams.append(other.encode(other.mav.raw_imu_encode(ap.t_us, 0, 0, -1000, 0, 0, 0, 200, 0, 400, 0, 0)))
+            dgrams.append(
+                other.encode(other.mav.raw_imu_encode(ap.t_us, 0, 0, -1000, 0, 0, 0, 200, 0, 400, 0, 0))
+            )
             special[i] = "foreign"
         elif k == 800:
             dgrams.append(ap.gnss())  # the next row carries the velocity: the Python path's
@@ -147,23 +154,11 @@ def test_it_stands_aside_where_the_steady_state_ends() -> None:
         else:
             dgrams.append(ap.raw_imu())
     pipe = Pipeline(PipelineSettings(filter_name="best", out_rate_hz=0.0), decimal_year=2026.9)
-    lane = FastLane(pipe)
-    rx = MavCodec()
-    answered = {}
-    for i, d in enumerate(dgrams):
-        ans = lane.answer(d)
-        outs: list[Any] = []
-        for m in rx.receive_datagram(d):
-            outs += pipe.handle(m, 2500 * i)
-        aq = _aq(outs)
-        if ans is not None:
-            assert aq and aq[0] == ans, (i, special.get(i))
-        answered[i] = ans is not None
-        lane.refresh()
+    _, _, _, answered = _run(pipe, dgrams)
     for i, why in special.items():
         assert not answered[i], f"the lane answered a {why} sample ({i})"
     # after each special case it comes back
-    assert sum(answered.values()) > 2000
+    assert sum(answered) > 2000
     # the position gave a declination: answered frames after it carry it too (checked equal above)
     assert pipe.declination.declination_rad != 0.0
     assert any(answered[i] for i in range(max(special) + 10, len(dgrams)))
@@ -178,7 +173,7 @@ def test_two_imu_instances_only_between_the_selectors_evaluations() -> None:
         dgrams.append(ap.raw_imu(0))
         dgrams.append(ap.raw_imu(1))
     pipe = Pipeline(PipelineSettings(filter_name="madgwick", out_rate_hz=0.0))
-    answers, attitudes, aside = _run(pipe, dgrams)
+    answers, attitudes, _, _ = _run(pipe, dgrams)
     assert attitudes > 1000
     assert 0.7 * attitudes < answers < attitudes  # most, not all
 
@@ -252,7 +247,9 @@ def test_the_daemon_answers_from_the_lane_and_sends_each_attitude_once() -> None
     assert a == b
 
 
-def test_an_unconfirmed_answer_is_logged_counted_and_switches_the_lane_off(caplog: pytest.LogCaptureFixture) -> None:
+def test_an_unconfirmed_answer_is_logged_counted_and_switches_the_lane_off(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     with caplog.at_level(logging.WARNING, logger="mavahrs"):
         att, c, _ = _daemon_run(True, 500, sabotage=True)
     assert c.fast_lane_mismatches == 1
