@@ -505,7 +505,15 @@ class Daemon:
             t_rx_ns, data = inbox.popleft()
             c.datagrams_in += 1
             lane = self._lane
-            early = lane.answer(data) if lane is not None else None
+            early = None
+            if lane is not None:
+                try:
+                    early = lane.answer(data)
+                except Exception as exc:  # noqa: BLE001 - never the daemon's end: the Python path answers
+                    self._lane = None
+                    self.log.warning(
+                        "fast lane failed (%s: %s); off for the rest of the run", type(exc).__name__, exc
+                    )
             if early is not None:  # the attitude leaves now; the Python path below confirms it
                 self._send(_Early(early, self._lane_to_master, True), 0, 0.0, log=False)
                 self.latency.add(perf() - t_rx_ns)

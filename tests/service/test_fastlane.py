@@ -257,3 +257,26 @@ def test_an_unconfirmed_answer_is_logged_counted_and_switches_the_lane_off(
     assert any("fast lane" in r.getMessage() and "not confirmed" in r.getMessage() for r in caplog.records)
     # the pipeline's frame went out too: every sample still has its (correct) attitude
     assert len({m.time_boot_ms for m in att}) >= 490
+
+
+def test_a_failing_lane_is_switched_off_and_the_daemon_goes_on(caplog: pytest.LogCaptureFixture) -> None:
+    """An exception inside the lane (never expected) costs the lane, not the daemon or the attitude."""
+    original = FastLane.answer
+    calls = [0]
+
+    def answer(self: FastLane, data: bytes) -> bytes | None:
+        calls[0] += 1
+        if calls[0] == 100:
+            raise RuntimeError("lane broke")
+        return original(self, data)
+
+    FastLane.answer = answer  # type: ignore[method-assign]
+    try:
+        with caplog.at_level(logging.WARNING, logger="mavahrs"):
+            att, c, result = _daemon_run(True, 300)
+    finally:
+        FastLane.answer = original  # type: ignore[method-assign]
+    assert result is not None and c.fast_lane_mismatches == 0
+    assert 90 <= c.fast_lane_answers < 100
+    assert any("fast lane failed" in r.getMessage() for r in caplog.records)
+    assert len({m.time_boot_ms for m in att}) >= 295  # the Python path answered the rest
