@@ -168,6 +168,24 @@ class DaemonSettings:
             raise ValueError(f"daemon.fast_lane must be true or false, got {self.fast_lane!r}")
 
 
+def _load_filter_kernel(pipeline: Any) -> None:
+    """Compile (first run on a machine) or load the pipeline filter's step now, not on the first sample.
+
+    Compiling takes seconds on a fresh install; on the first sample the input would pile up
+    meanwhile and overflow the socket's buffer.  The step runs once on a copy of the state and
+    a row of NaN (nothing changes in the filter).
+    """
+    f = getattr(pipeline, "filter", None)
+    step, state, params = getattr(f, "_kernel", None), getattr(f, "_state", None), getattr(f, "_params", None)
+    if step is None or state is None or params is None:
+        return
+    import numpy as np
+
+    from mavahrs.filters.layout import IN_WIDTH, OUT_WIDTH
+
+    step(np.array(state, dtype=np.float64), params, np.full(IN_WIDTH, np.nan), np.zeros(OUT_WIDTH))
+
+
 class _Early(NamedTuple):
     """The fast lane's answer, sent like a pipeline ``Outgoing``."""
 
@@ -379,6 +397,7 @@ class Daemon:
         self._decode: Callable[[bytes], list[Any]] = (
             codec.receive_datagram if master.datagram else codec.receive_stream
         )
+        _load_filter_kernel(pipeline)
         self._lane: Any = None
         if settings.fast_lane and master.datagram:
             from mavahrs.service.fastlane import FastLane
@@ -421,6 +440,7 @@ class Daemon:
         encoder = getattr(self.pipeline, "codec", None)
         if encoder is None or not hasattr(encoder, "enable_signing"):
             raise ConfigError("MAVLink signing needs a pipeline with an encoding codec")
+        self._lane = None  # the fast lane answers unsigned frames with unsigned ones only
         ts = signing_timestamp_10us(time.time())
         self.codec.enable_signing(key, link_id, ts, sign_outgoing=False, require_signing=require)
         encoder.enable_signing(key, link_id, ts, sign_outgoing=True)
