@@ -25,7 +25,8 @@ filter update — which builds the frame again.  The two must be identical; the
 daemon then does not send it twice.  If they ever differ (or the ordinary path
 sends nothing), the daemon logs it, counts it (``fast_lane_mismatches``),
 sends the ordinary path's frames and switches the lane off for the rest of
-the run: the lane can make the answer earlier, never different.
+the run: at most one frame the pipeline would not have sent can go out (never
+seen in testing), and it is followed at once by the pipeline's own.
 
 The lane reads the pipeline's state from a small mirror (:meth:`FastLane.refresh`,
 after each datagram, outside the latency window) and stands aside whenever
