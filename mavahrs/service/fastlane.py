@@ -6,8 +6,9 @@ development VM decoding a RAW_IMU datagram and handling it took 40 µs and
 latency from receipt to the ``sendto`` of the attitude.  The fast lane does
 the part that decides the answer in three compiled calls:
 
-1. :func:`_parse`: the datagram is one unsigned MAVLink 2 RAW_IMU frame
-   with a valid CRC from the autopilot, its sample scales like
+1. :func:`_parse`: the datagram starts with an unsigned MAVLink 2 RAW_IMU
+   frame with a valid CRC from the autopilot (what follows it in the same
+   datagram is handled after it, so cannot change its answer), its sample scales like
    :class:`mavahrs.sensors.scaling.Scaler` with nothing saturated or
    invalid, belongs to the IMU instance the selector feeds, and continues
    that instance's timeline by 0 < Δt ≤ the timeline's gap limit; with
@@ -101,7 +102,7 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
     if icfg[I_ON] == 0 or n < 12 or data[0] != 0xFD or data[2] != 0:  # MAVLink 2, unsigned
         return -1
     plen = np.int64(data[1])
-    if n != plen + 12 or plen > _RAW_LEN:  # exactly one frame
+    if n < plen + 12 or plen > _RAW_LEN:  # the datagram starts with one whole frame
         return -1
     if np.int64(data[7]) | (np.int64(data[8]) << 8) | (np.int64(data[9]) << 16) != _RAW_ID:
         return -1
@@ -236,7 +237,6 @@ class FastLane:
         self._f32 = np.zeros(7, np.float32)
         self._f32_bytes = self._f32.view(np.uint8)
         self._frame = np.zeros(64, np.uint8)
-        self.sent = 0
         if self.usable:  # compile (or load) the kernels now, not on the first sample
             _parse(b"\0" * 12, self.icfg, self.fcfg, self._row, self._state, self._scratch)
             _encode(self._out, self._row, 0, self.icfg, self.fcfg, self._f32, self._f32_bytes, self._frame)
@@ -252,7 +252,6 @@ class FastLane:
         n = _encode(self._out, self._row, t, self.icfg, self.fcfg, self._f32, self._f32_bytes, self._frame)
         if n == 0:
             return None
-        self.sent += 1
         return self._frame[:n].tobytes()
 
     def disable(self) -> None:

@@ -151,12 +151,19 @@ def test_it_stands_aside_where_the_steady_state_ends() -> None:
         elif k == 900:
             dgrams.append(bytes(ap.raw_imu(zacc=0, xacc=0, yacc=0, xgyro=0, ygyro=0, zgyro=0)))
             special[i] = "all zero"
+        elif k == 1100:  # a bundle led by another message: the Python path's
+            dgrams.append(ap.heartbeat() + ap.raw_imu())
+            special[i] = "bundle led by a HEARTBEAT"
+        elif k == 1200:  # a bundle led by the sample: the lane's (checked equal like every answer)
+            dgrams.append(ap.raw_imu() + ap.heartbeat())
+            bundle_led_by_imu = i
         else:
             dgrams.append(ap.raw_imu())
     pipe = Pipeline(PipelineSettings(filter_name="best", out_rate_hz=0.0), decimal_year=2026.9)
     _, _, _, answered = _run(pipe, dgrams)
     for i, why in special.items():
         assert not answered[i], f"the lane answered a {why} sample ({i})"
+    assert answered[bundle_led_by_imu]
     # after each special case it comes back
     assert sum(answered) > 2000
     # the position gave a declination: answered frames after it carry it too (checked equal above)
