@@ -348,8 +348,9 @@ def bench_one(
         "samples_sent": n_window,
         "answered": {"mavahrs": d.answered_in_window, "echo": e.answered_in_window},
         "processing_us": {
-            "p50": _pct(processing, 50), "p99": _pct(processing, 99), "max": max(processing) if processing else math.nan,
-            "n": len(processing),
+            "p50": _pct(processing, 50), "p90": _pct(processing, 90), "p99": _pct(processing, 99),
+            "max": max(processing) if processing else math.nan, "n": len(processing),
+            "over_1ms": sum(1 for v in processing if v > 1000.0),
         },
         "rtt_us": {
             p.name: {"p50": _pct(p.rtt_us, 50), "p99": _pct(p.rtt_us, 99), "max": max(p.rtt_us or [math.nan])}
@@ -378,6 +379,7 @@ def bench_one(
 
 def _report(r: dict[str, Any]) -> str:
     p, rt, o, c = r["processing_us"], r["rtt_us"], r["e2e_overhead_us"], r["cpu_us_per_msg"]
+    k = r.get("daemon_counters", {})
     ok = lambda name: "ok" if r["checks"][name] else "MISSED"  # noqa: E731
     return "\n".join(
         [
@@ -386,13 +388,16 @@ def _report(r: dict[str, Any]) -> str:
             + (f"; sender on CPU {r['cpus']['sender']}, servers on {r['cpus']['servers']}" if r.get("cpus") else ""),
             f"  processing (in daemon, receipt -> sendto returned): p50 {p['p50']:.0f} us "
             f"[{ok('processing_p50_us')} <= 200], p99 {p['p99']:.0f} us [{ok('processing_p99_us')} <= 1000], "
-            f"max {p['max']:.0f} us",
+            f"max {p['max']:.0f} us; p90 {p['p90']:.0f} us, {p['over_1ms']} of {p['n']} over 1 ms",
             f"  round trip seen by the sender: mavahrs p50 {rt['mavahrs']['p50']:.0f} / p99 {rt['mavahrs']['p99']:.0f} us; "
             f"bare echo p50 {rt['echo']['p50']:.0f} / p99 {rt['echo']['p99']:.0f} us",
             f"  end-to-end overhead over the echo: p50 {o['p50']:.0f} us [{ok('e2e_p50_overhead_us')} <= 200], "
             f"p99 {o['p99']:.0f} us",
             f"  CPU per message: mavahrs {c['mavahrs']:.0f} us, echo {c['echo']:.0f} us, ratio {r['cpu_ratio']:.2f} "
             f"[{ok('cpu_ratio')} <= 1.5]",
+            f"  fast lane: {k.get('fast_lane_answers', 0)} of {k.get('attitudes_out', 0)} attitudes "
+            f"({k.get('fast_lane_chained', 0)} chained over queued datagrams), "
+            f"{k.get('fast_lane_mismatches', 0)} mismatches",
         ]
     )
 

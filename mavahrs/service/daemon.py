@@ -210,6 +210,8 @@ class DaemonCounters:
         fast_lane_answers: attitudes sent by the fast lane ahead of the Python path.
         fast_lane_mismatches: datagrams whose fast-lane answer the Python path did
             not confirm byte for byte (then the lane is switched off).
+        fast_lane_chained: of ``fast_lane_answers``, those given in a chain over
+            datagrams that had queued up (the process was not scheduled for a while).
     """
 
     datagrams_in: int = 0
@@ -222,6 +224,7 @@ class DaemonCounters:
     pipeline_errors: int = 0
     fast_lane_answers: int = 0
     fast_lane_mismatches: int = 0
+    fast_lane_chained: int = 0
 
 
 @dataclass(frozen=True)
@@ -521,23 +524,31 @@ class Daemon:
         sink = self.sink
         perf = time.perf_counter_ns
         hb_type = self._heartbeat_type
+        chained: deque[bytes | None] = deque()  # answers already sent for the next datagrams (see below)
         while inbox:
+            if not chained and len(inbox) > 1 and self._lane is not None:
+                # Several datagrams waited (the process was not scheduled for a while): answer them
+                # all from the lane first, each from the state the previous answer left, so that
+                # the last one does not wait for the Python path of all before it.
+                chained.extend(self._lane_call(self._lane.answer_queue, (d for _, d in inbox)) or ())
+                for (t_rx_ns, _), early in zip(inbox, chained):
+                    if early is not None:
+                        self._send(_Early(early, self._lane_to_master, True), 0, 0.0, log=False)
+                        self.latency.add(perf() - t_rx_ns)
+                        c.fast_lane_answers += 1
+                        c.fast_lane_chained += 1
             t_rx_ns, data = inbox.popleft()
             c.datagrams_in += 1
-            lane = self._lane
-            early = None
-            if lane is not None:
-                try:
-                    early = lane.answer(data)
-                except Exception as exc:  # noqa: BLE001 - never the daemon's end: the Python path answers
-                    self._lane = None
-                    self.log.warning(
-                        "fast lane failed (%s: %s); off for the rest of the run", type(exc).__name__, exc
-                    )
-            if early is not None:  # the attitude leaves now; the Python path below confirms it
-                self._send(_Early(early, self._lane_to_master, True), 0, 0.0, log=False)
-                self.latency.add(perf() - t_rx_ns)
-                c.fast_lane_answers += 1
+            if chained:
+                early = chained.popleft()  # answered (or found not due) by the chain above
+            else:
+                early = None
+                if self._lane is not None:
+                    early = self._lane_call(self._lane.answer, data)
+                if early is not None:  # the attitude leaves now; the Python path below confirms it
+                    self._send(_Early(early, self._lane_to_master, True), 0, 0.0, log=False)
+                    self.latency.add(perf() - t_rx_ns)
+                    c.fast_lane_answers += 1
             confirmed = False
             msgs = decode(data)
             if not msgs:
@@ -582,14 +593,25 @@ class Daemon:
             if self._lane is not None:
                 self._lane.refresh()
 
+    def _lane_call(self, method: Any, arg: Any) -> Any:
+        """A fast-lane call; an exception switches the lane off (the Python path answers), never the daemon."""
+        try:
+            return method(arg)
+        except Exception as exc:  # noqa: BLE001 - never the daemon's end
+            self._lane = None
+            self.log.warning("fast lane failed (%s: %s); off for the rest of the run", type(exc).__name__, exc)
+            return None
+
     def _lane_mismatch(self, why: str, frame: bytes) -> None:
         """The fast lane's answer was not confirmed: record it, count, say so, and switch the lane off."""
         self.counters.fast_lane_mismatches += 1
         if self.sink is not None:  # it was sent: the recording shows it
             self.sink.write(time.time_ns() // 1000, frame, time.monotonic())
-        if self._lane is not None:
-            self._lane.disable()
-            self._lane = None
+        if self._lane is None:  # already off: a later answer of the same chain (said once)
+            self.log.debug("fast lane: chained answer not confirmed either (%s)", why)
+            return
+        self._lane.disable()
+        self._lane = None
         self.log.warning(
             "fast lane: an ATTITUDE_QUATERNION it sent was not confirmed by the pipeline (%s); the "
             "pipeline's own frames were sent too. Fast lane off for the rest of the run "

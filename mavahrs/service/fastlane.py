@@ -39,6 +39,7 @@ calibration, ATTITUDE output, a fail-over backlog, a start or reboot.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -75,7 +76,8 @@ _O_XMAG, _O_YMAG, _O_ZMAG, _O_ID = (_RAW_WIRE.fields[f][1] for f in ("xmag", "ym
 # integer mirror
 I_ON, I_SYS, I_COMP, I_IMU, I_T_LAST, I_WRAP_OFF, I_MAX_GAP, I_EVAL_DUE = range(8)
 I_LAST_OUT_T, I_NEXT_OUT_T, I_HAVE_NEXT, I_PERIOD, I_TOL, I_OUR_SYS, I_OUR_COMP, I_SEQ = range(8, 16)
-I_LEN = 16
+I_CHAIN = 16  # answers may be chained over queued datagrams (nothing but the attitude takes sequence numbers)
+I_LEN = 17
 # float mirror
 F_KG, F_KA, F_KM, F_KOLD, F_GSAT, F_ASAT, F_MAG_MAX, F_DECL = range(8)
 F_LEN = 8
@@ -254,6 +256,45 @@ class FastLane:
             return None
         return self._frame[:n].tobytes()
 
+    def answer_queue(self, datas: Iterable[bytes]) -> list[bytes | None]:
+        """Chained answers for datagrams queued together (a stall delayed them): one per datagram taken.
+
+        The first is answered as by :meth:`answer`; each next one from the
+        state the previous answer left in the scratch copy, with the mirror
+        advanced the way the pipeline will advance it (the timeline's last
+        time, the output-rate rule, the sequence number).  Entries are the
+        frame, or None where the filter stepped but no output was due.  The
+        chain ends before the first datagram the lane does not take, and
+        after one that holds more than the RAW_IMU frame (what follows the
+        frame may change the pipeline's state).  The mirror is restored; the
+        daemon confirms every answer with the Python path as usual, so a
+        chain that went wrong is caught at its first wrong frame (and the
+        frames after it in the chain have gone out too).
+        """
+        icfg = self.icfg
+        taken: list[bytes | None] = []
+        if icfg[I_ON] == 0 or icfg[I_CHAIN] == 0:
+            return taken
+        saved = icfg.copy()
+        source = self._state
+        try:
+            for data in datas:
+                if type(data) is not bytes:
+                    break
+                t = _parse(data, icfg, self.fcfg, self._row, source, self._scratch)
+                if t < 0:
+                    break
+                self._step(self._scratch, self._params, self._row, self._out)
+                n = _encode(self._out, self._row, t, icfg, self.fcfg, self._f32, self._f32_bytes, self._frame)
+                taken.append(self._frame[:n].tobytes() if n else None)
+                if len(data) != data[1] + 12:
+                    break
+                source = self._scratch  # the next sample continues from this one
+                _advance(icfg, t, n > 0)
+        finally:
+            icfg[:] = saved
+        return taken
+
     def disable(self) -> None:
         self.usable = False
         self.icfg[I_ON] = 0
@@ -312,4 +353,22 @@ class FastLane:
         icfg[I_PERIOD], icfg[I_TOL] = p._out_period_us, p._out_tol_us
         mav = p._mav
         icfg[I_OUR_SYS], icfg[I_OUR_COMP], icfg[I_SEQ] = mav.srcSystem, mav.srcComponent, mav.seq
+        # Chaining predicts the sequence numbers: nothing else may take one meanwhile.  The monitor
+        # sends a STATUSTEXT after an attitude only to resolve an autopilot attitude it holds, and
+        # those arrive in other messages, which end a chain.
+        icfg[I_CHAIN] = not p._monitor_on or not p._monitor._pending
         icfg[I_ON] = 1
+
+
+def _advance(icfg: np.ndarray, t: int, sent: bool) -> None:
+    """The mirror after a sample at time ``t`` was fed (``sent``: its attitude went out): as ``Pipeline._feed``."""
+    icfg[I_T_LAST] = t
+    if not sent:
+        return
+    icfg[I_SEQ] = (int(icfg[I_SEQ]) + 1) & 0xFF
+    period = int(icfg[I_PERIOD])
+    if period:
+        nxt = (int(icfg[I_NEXT_OUT_T]) if icfg[I_HAVE_NEXT] else t) + period
+        icfg[I_NEXT_OUT_T] = nxt if nxt > t else t + period
+        icfg[I_HAVE_NEXT] = 1
+    icfg[I_LAST_OUT_T] = t

@@ -185,10 +185,132 @@ def test_two_imu_instances_only_between_the_selectors_evaluations() -> None:
     assert 0.7 * attitudes < answers < attitudes  # most, not all
 
 
+def _run_queued(pipe: Pipeline, datagrams: list[bytes], seed: int = 0) -> tuple[int, int, list[bool]]:
+    """As :func:`_run`, but the datagrams arrive in bursts of 1–15, handled as the daemon handles its
+    inbox: while two or more wait, ``answer_queue`` answers a chain of them; the others one by one.
+
+    Returns (answers, pipeline attitudes, whether each datagram was answered)."""
+    lane = FastLane(pipe)
+    rx = MavCodec()
+    rng = np.random.default_rng(seed)
+    answers = attitudes = 0
+    answered = [False] * len(datagrams)
+    chained = 0
+    i = 0
+    while i < len(datagrams):
+        inbox = list(range(i, min(i + int(rng.integers(1, 16)), len(datagrams))))
+        i = inbox[-1] + 1
+        chain: list[bytes | None] = []
+        while inbox:
+            if not chain and len(inbox) > 1:
+                chain = lane.answer_queue(datagrams[k] for k in inbox)
+                assert len(chain) <= len(inbox)
+                chained += sum(a is not None for a in chain)
+            k = inbox.pop(0)
+            if chain:
+                ans = chain.pop(0)
+                in_chain = True
+            else:
+                ans = lane.answer(datagrams[k])
+                in_chain = False
+            outs: list[Any] = []
+            for m in rx.receive_datagram(datagrams[k]):
+                outs += pipe.handle(m, 2500 * k)
+            aq = _aq(outs)
+            attitudes += len(aq)
+            if ans is not None:
+                answers += 1
+                answered[k] = True
+                assert aq and aq[0] == ans, f"datagram {k} differs (chained: {in_chain})"
+            elif in_chain:  # the filter stepped in the chain, no output was due
+                assert not aq, f"datagram {k}: the chain saw no output due, the pipeline sent one"
+            lane.refresh()
+    assert chained > 0.5 * answers  # most answers came from chains
+    return answers, attitudes, answered
+
+
+@pytest.mark.parametrize("name", ["best", "madgwick", "mahony"])
+@pytest.mark.parametrize("out_rate", [0.0, 50.0])
+def test_chained_answers_over_queued_datagrams_are_the_pipelines_frames(name: str, out_rate: float) -> None:
+    """Datagrams that queued up are answered one after the other from the lane's own state: each
+    answer, including its sequence number and the output-rate rule, equals the pipeline's frame."""
+    ap = Autopilot(seed=5)
+    dgrams = [ap.heartbeat()]
+    for _ in range(1600):
+        ap.step()
+        dgrams.append(ap.raw_imu())
+    pipe = Pipeline(PipelineSettings(filter_name=name, out_rate_hz=out_rate))
+    answers, attitudes, _ = _run_queued(pipe, dgrams)
+    assert attitudes > (1000 if out_rate == 0 else 150)
+    assert answers >= attitudes - 3
+
+
+def test_a_chain_ends_where_the_steady_state_ends() -> None:
+    """Bursts holding a gap, a bad CRC, a GNSS fix, a bundle: the chain stops before (or, for a
+    bundle led by the sample, after) them, never answering what the pipeline answers otherwise."""
+    ap = Autopilot(seed=6)
+    special: dict[int, str] = {}
+    dgrams = [ap.heartbeat()]
+    for k in range(2000):
+        ap.step()
+        i = len(dgrams)
+        if k % 250 == 100:
+            ap.t_us += 800_000
+            dgrams.append(ap.raw_imu())
+            special[i] = "gap"
+        elif k % 250 == 150:
+            bad = bytearray(ap.raw_imu())
+            bad[20] ^= 0x55
+            dgrams.append(bytes(bad))
+            special[i] = "bad CRC"
+        elif k % 250 == 200:
+            dgrams.append(ap.raw_imu() + ap.gnss())  # answered; the next row carries the velocity
+            ap.step()
+            dgrams.append(ap.raw_imu())
+            special[i + 1] = "velocity"
+        else:
+            dgrams.append(ap.raw_imu())
+    pipe = Pipeline(PipelineSettings(filter_name="best", out_rate_hz=0.0))
+    answers, attitudes, answered = _run_queued(pipe, dgrams, seed=1)
+    for i, why in special.items():
+        assert not answered[i], f"the chain answered a {why} sample ({i})"
+    assert answers > 0.9 * attitudes
+
+
+def test_no_chain_while_the_monitor_holds_an_autopilot_attitude() -> None:
+    """The monitor's STATUSTEXT would take a sequence number the chain cannot foresee."""
+    ap = Autopilot(seed=7)
+    pipe = Pipeline(PipelineSettings(filter_name="madgwick", out_rate_hz=0.0))
+    lane = FastLane(pipe)
+    rx = MavCodec()
+    for d in [ap.heartbeat()] + [ap.raw_imu() for _ in range(5) if not ap.step()]:
+        for m in rx.receive_datagram(d):
+            pipe.handle(m, 0)
+        lane.refresh()
+    burst = []
+    for _ in range(4):
+        ap.step()
+        burst.append(ap.raw_imu())
+    assert len(lane.answer_queue(burst)) == 4
+    att = ap.codec.encode(ap.codec.mav.attitude_encode(ap.t_us // 1000 + 50, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0))
+    for m in rx.receive_datagram(att):
+        pipe.handle(m, 0)
+    lane.refresh()
+    assert pipe._monitor._pending
+    assert lane.answer_queue(burst) == []
+    assert lane.answer(burst[0]) is not None  # one at a time it still answers (the mirror is exact)
+
+
 # --------------------------------------------------------------------------- the daemon, over UDP
 
 
-def _daemon_run(fast_lane: bool, n: int, sabotage: bool = False) -> tuple[list[Any], Any, Any]:
+def _daemon_run(
+    fast_lane: bool, n: int, sabotage: bool = False, stall: bool = False
+) -> tuple[list[Any], Any, Any]:
+    """Run a daemon in a thread against ``n`` RAW_IMU datagrams sent 1 ms apart over UDP.
+
+    ``sabotage``: the lane's mirror gets a wrong sequence number after its 200th refresh;
+    ``stall``: the daemon sleeps 40 ms there (as if not scheduled), so datagrams queue up."""
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     gcs.bind(("127.0.0.1", 0))
     gcs.settimeout(0.05)
@@ -196,7 +318,7 @@ def _daemon_run(fast_lane: bool, n: int, sabotage: bool = False) -> tuple[list[A
         master="udpin:127.0.0.1:0", outputs=(f"udpout:127.0.0.1:{gcs.getsockname()[1]}",), status_interval_s=0.0,
         fast_lane=fast_lane,
     ), PipelineSettings(filter_name="madgwick", out_rate_hz=0.0))  # fmt: skip
-    if sabotage:
+    if sabotage or stall:
         lane = d._lane
         real = lane.refresh
         calls = [0]
@@ -205,7 +327,10 @@ def _daemon_run(fast_lane: bool, n: int, sabotage: bool = False) -> tuple[list[A
             real()
             calls[0] += 1
             if calls[0] == 200:
-                lane.icfg[I_SEQ] = (lane.icfg[I_SEQ] + 1) % 256  # the lane's next frame is wrong
+                if stall:
+                    time.sleep(0.04)
+                if sabotage:
+                    lane.icfg[I_SEQ] = (lane.icfg[I_SEQ] + 1) % 256  # the lane's next frame is wrong
 
         lane.refresh = refresh
     ap = Autopilot(seed=4)
@@ -223,10 +348,13 @@ def _daemon_run(fast_lane: bool, n: int, sabotage: bool = False) -> tuple[list[A
             ap.step()
             sock.sendto(ap.raw_imu(), addr)
             time.sleep(0.001)
+            gcs.setblocking(False)  # the sender keeps its pace while the daemon stalls
             try:
-                got += rx.receive_datagram(gcs.recv(4096))
-            except TimeoutError:
+                while True:
+                    got += rx.receive_datagram(gcs.recv(4096))
+            except BlockingIOError:
                 pass
+            gcs.settimeout(0.05)
         end = time.monotonic() + 1.0
         while time.monotonic() < end:
             try:
@@ -263,6 +391,28 @@ def test_an_unconfirmed_answer_is_logged_counted_and_switches_the_lane_off(
     assert 150 < c.fast_lane_answers < 250  # answered until the sabotage, then off
     assert any("fast lane" in r.getMessage() and "not confirmed" in r.getMessage() for r in caplog.records)
     # the pipeline's frame went out too: every sample still has its (correct) attitude
+    assert len({m.time_boot_ms for m in att}) >= 490
+
+
+def test_after_a_stall_the_queued_datagrams_are_answered_in_a_chain() -> None:
+    fast, fc, _ = _daemon_run(True, 600, stall=True)
+    slow, _, _ = _daemon_run(False, 600, stall=False)
+    assert fc.fast_lane_chained >= 10 and fc.fast_lane_mismatches == 0
+    assert fc.fast_lane_answers >= 0.95 * fc.attitudes_out
+    a = {m.time_boot_ms: (m.q1, m.q2, m.q3, m.q4, m.rollspeed) for m in fast}
+    b = {m.time_boot_ms: (m.q1, m.q2, m.q3, m.q4, m.rollspeed) for m in slow}
+    assert len(fast) == len(a) >= 590 and a == b  # each once, the same as the Python path's
+
+
+def test_a_chain_gone_wrong_is_caught_and_every_sample_still_gets_its_attitude(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    with caplog.at_level(logging.WARNING, logger="mavahrs"):
+        att, c, _ = _daemon_run(True, 500, sabotage=True, stall=True)
+    assert c.fast_lane_chained >= 10  # the wrong chain went out …
+    assert c.fast_lane_mismatches >= 10  # … and each of its frames was caught
+    warnings = [r for r in caplog.records if "not confirmed" in r.getMessage()]
+    assert len(warnings) == 1
     assert len({m.time_boot_ms for m in att}) >= 490
 
 
