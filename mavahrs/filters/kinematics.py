@@ -71,7 +71,7 @@ def quat_exp(rx, ry, rz):  # type: ignore[no-untyped-def]
     return c, k * rx, k * ry, k * rz
 
 
-@kernel
+@kernel(inline=True)  # every sample of every filter: a call here cost more than its arithmetic
 def integrate_body_rate(state, k, wx, wy, wz, dt):  # type: ignore[no-untyped-def]
     """``q ← q ⊗ exp(ω·dt/2)`` in place: exact for ω constant over dt (Madgwick 2010, eq. (11))."""
     d0, d1, d2, d3 = quat_exp(wx * dt, wy * dt, wz * dt)
