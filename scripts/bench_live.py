@@ -133,6 +133,21 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / ticks
 
 
+def _cpu_times() -> tuple[int, int] | None:
+    """(all ticks, steal ticks) of the machine from ``/proc/stat``; None where it is not readable.
+
+    Steal is the time the hypervisor ran something else while this VM's CPUs had work:
+    the measure of how much the virtual machine itself stalled during the window."""
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            fields = [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    if len(fields) < 8:
+        return None
+    return sum(fields[:8]), fields[7]
+
+
 def _pct(values: list[float], p: float) -> float:
     if not values:
         return math.nan
@@ -277,6 +292,7 @@ def bench_one(
         n_warm = int(warmup_s * rate_hz)
         n_total = n_warm + int(duration_s * rate_hz)
         cpu0: dict[str, float] = {}
+        machine0: tuple[int, int] | None = None
         fds = [p.sock.fileno() for p in peers]
         next_hb = start
         for k in range(n_total):
@@ -284,6 +300,7 @@ def bench_one(
             measuring = k >= n_warm
             if k == n_warm:
                 cpu0 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+                machine0 = _cpu_times()
                 for p in peers:
                     p.answered_in_window = 0
             _wait_until(due, fds, peers, codec, measuring)
@@ -317,6 +334,7 @@ def bench_one(
                 if p.sock.fileno() in ready:
                     p.drain(codec, True)
         cpu1 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+        machine1 = _cpu_times()
         n_window = n_total - n_warm
     finally:
         for proc in (daemon, echo):
@@ -360,6 +378,11 @@ def bench_one(
             p.name: (cpu1[p.name] - cpu0[p.name]) * 1e6 / max(1, p.answered_in_window) for p in peers
         },
         "daemon_counters": stats["counters"],
+        # share of the machine's CPU time the hypervisor took away during the window (VMs only)
+        "steal_pct": (
+            100.0 * (machine1[1] - machine0[1]) / max(1, machine1[0] - machine0[0])
+            if machine0 is not None and machine1 is not None else None
+        ),
     }
     result["e2e_overhead_us"] = {
         "p50": result["rtt_us"]["mavahrs"]["p50"] - result["rtt_us"]["echo"]["p50"],
@@ -394,7 +417,8 @@ def _report(r: dict[str, Any]) -> str:
             f"  end-to-end overhead over the echo: p50 {o['p50']:.0f} us [{ok('e2e_p50_overhead_us')} <= 200], "
             f"p99 {o['p99']:.0f} us",
             f"  CPU per message: mavahrs {c['mavahrs']:.0f} us, echo {c['echo']:.0f} us, ratio {r['cpu_ratio']:.2f} "
-            f"[{ok('cpu_ratio')} <= 1.5]",
+            f"[{ok('cpu_ratio')} <= 1.5]"
+            + (f"; the VM's steal time {r['steal_pct']:.1f} % of the CPUs" if r.get("steal_pct") is not None else ""),
             f"  fast lane: {k.get('fast_lane_answers', 0)} of {k.get('attitudes_out', 0)} attitudes "
             f"({k.get('fast_lane_chained', 0)} chained over queued datagrams), "
             f"{k.get('fast_lane_mismatches', 0)} mismatches",

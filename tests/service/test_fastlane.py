@@ -59,6 +59,14 @@ class Autopilot:
         self.t_us += 2500
         self.k += 1
 
+    def stream(self, n: int) -> list[bytes]:
+        """A HEARTBEAT, then ``n`` RAW_IMU datagrams 2.5 ms apart."""
+        out = [self.heartbeat()]
+        for _ in range(n):
+            self.step()
+            out.append(self.raw_imu())
+        return out
+
     def gnss(self) -> bytes:
         m = self.codec.mav.global_position_int_encode(
             self.t_us // 1000, -353632620, 1491652370, 584000, 0, 120, -40, 5, 0
@@ -100,10 +108,7 @@ def _run(pipe: Pipeline, datagrams: list[bytes]) -> tuple[int, int, list[int], l
 @pytest.mark.parametrize("out_rate", [0.0, 50.0])
 def test_every_answer_is_the_pipelines_frame(name: str, out_rate: float) -> None:
     ap = Autopilot()
-    dgrams = [ap.heartbeat()]
-    for _ in range(1600):
-        ap.step()
-        dgrams.append(ap.raw_imu())
+    dgrams = ap.stream(1600)
     pipe = Pipeline(PipelineSettings(filter_name=name, out_rate_hz=out_rate))
     answers, attitudes, aside, _ = _run(pipe, dgrams)
     assert attitudes > (1000 if out_rate == 0 else 150)
@@ -235,10 +240,7 @@ def test_chained_answers_over_queued_datagrams_are_the_pipelines_frames(name: st
     """Datagrams that queued up are answered one after the other from the lane's own state: each
     answer, including its sequence number and the output-rate rule, equals the pipeline's frame."""
     ap = Autopilot(seed=5)
-    dgrams = [ap.heartbeat()]
-    for _ in range(1600):
-        ap.step()
-        dgrams.append(ap.raw_imu())
+    dgrams = ap.stream(1600)
     pipe = Pipeline(PipelineSettings(filter_name=name, out_rate_hz=out_rate))
     answers, attitudes, _ = _run_queued(pipe, dgrams)
     assert attitudes > (1000 if out_rate == 0 else 150)
