@@ -638,7 +638,8 @@ def bench_live(quick: bool, verbose: bool, realtime_priority: int = 20) -> tuple
 
             rows += [
                 Row("live", f"{label}: processing p50 ≤ {t['processing_p50_us']:.0f} µs, p99 ≤ "
-                    f"{t['processing_p99_us']:.0f} µs", f"p50 {p['p50']:.0f} µs, p99 {p['p99']:.0f} µs, max {p['max']:.0f} µs",
+                    f"{t['processing_p99_us']:.0f} µs", f"p50 {p['p50']:.0f} µs, p99 {p['p99']:.0f} µs, max {p['max']:.0f} µs" + (
+                        f" (VM steal {r['steal_pct']:.0f} %)" if r.get("steal_pct") is not None else ""),
                     verdict(c["processing_p50_us"] and c["processing_p99_us"])),
                 Row("live", f"{label}: e2e p50 overhead over bare echo ≤ {t['e2e_p50_overhead_us']:.0f} µs",
                     f"{o['p50']:.0f} µs (p99 {o['p99']:.0f} µs)", verdict(c["e2e_p50_overhead_us"])),

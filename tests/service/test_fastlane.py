@@ -285,7 +285,7 @@ def test_no_chain_while_the_monitor_holds_an_autopilot_attitude() -> None:
     pipe = Pipeline(PipelineSettings(filter_name="madgwick", out_rate_hz=0.0))
     lane = FastLane(pipe)
     rx = MavCodec()
-    for d in [ap.heartbeat()] + [ap.raw_imu() for _ in range(5) if not ap.step()]:
+    for d in ap.stream(5):
         for m in rx.receive_datagram(d):
             pipe.handle(m, 0)
         lane.refresh()
