@@ -27,7 +27,10 @@ daemon then does not send it twice.  If they ever differ (or the ordinary path
 sends nothing), the daemon logs it, counts it (``fast_lane_mismatches``),
 sends the ordinary path's frames and switches the lane off for the rest of
 the run: at most one frame the pipeline would not have sent can go out (never
-seen in testing), and it is followed at once by the pipeline's own.
+seen in testing), and it is followed at once by the pipeline's own — or, when
+datagrams had queued up and were answered as a chain (:meth:`FastLane.answer_queue`),
+the frames of that one chain from its first wrong one on, each followed by the
+pipeline's own when its turn comes.
 
 The lane reads the pipeline's state from a small mirror (:meth:`FastLane.refresh`,
 after each datagram, outside the latency window) and stands aside whenever
