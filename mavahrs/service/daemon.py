@@ -531,7 +531,7 @@ class Daemon:
                 # all from the lane first, each from the state the previous answer left, so that
                 # the last one does not wait for the Python path of all before it.
                 chained.extend(self._lane_call(self._lane.answer_queue, (d for _, d in inbox)) or ())
-                for (t_rx_ns, _), early in zip(inbox, chained):
+                for (t_rx_ns, _), early in zip(inbox, chained, strict=False):  # the chain is a prefix
                     if early is not None:
                         self._send(_Early(early, self._lane_to_master, True), 0, 0.0, log=False)
                         self.latency.add(perf() - t_rx_ns)

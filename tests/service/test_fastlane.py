@@ -406,7 +406,9 @@ def test_an_unconfirmed_answer_is_logged_counted_and_switches_the_lane_off(
     # one (or, had datagrams queued up just then, each of a chain's answers) caught, said once
     assert c.fast_lane_mismatches >= 1
     assert 150 < c.fast_lane_answers < 250  # answered until the sabotage, then off
-    warnings = [r for r in caplog.records if "fast lane" in r.getMessage() and "not confirmed" in r.getMessage()]
+    warnings = [
+        r for r in caplog.records if "fast lane" in r.getMessage() and "not confirmed" in r.getMessage()
+    ]
     assert len(warnings) == 1
     # the pipeline's frame went out too: every sample still has its (correct) attitude
     assert len({m.time_boot_ms for m in att}) >= 490
