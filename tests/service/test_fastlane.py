@@ -329,24 +329,29 @@ def _daemon_run(
         def refresh() -> None:
             real()
             calls[0] += 1
-            if calls[0] == 200:
-                if stall:
-                    time.sleep(0.04)
-                if sabotage:
-                    lane.icfg[I_SEQ] = (lane.icfg[I_SEQ] + 1) % 256  # the lane's next frame is wrong
+            if calls[0] == 200 and stall:
+                time.sleep(0.04)
+            if calls[0] >= 200 and sabotage:
+                # the lane's next frame is wrong (again after every refresh, the timer's too, until
+                # the daemon has caught it and switched the lane off)
+                lane.icfg[I_SEQ] = (lane.icfg[I_SEQ] + 1) % 256
 
         lane.refresh = refresh
     if sabotage_chain:
         chain_lane = d._lane
         real_queue = chain_lane.answer_queue
         done = [False]
+        sabotaged: list[int] = []  # answers in the sabotaged chain
 
         def answer_queue(datas: Any) -> list[bytes | None]:
             datas = list(datas)
-            if len(datas) >= 5 and not done[0]:
-                done[0] = True
-                chain_lane.icfg[I_SEQ] = (chain_lane.icfg[I_SEQ] + 1) % 256  # (refresh() mends it)
-            return real_queue(datas)
+            if len(datas) < 5 or done[0]:
+                return real_queue(datas)
+            done[0] = True
+            chain_lane.icfg[I_SEQ] = (chain_lane.icfg[I_SEQ] + 1) % 256  # (refresh() mends it)
+            taken = real_queue(datas)
+            sabotaged.append(sum(a is not None for a in taken))
+            return taken
 
         chain_lane.answer_queue = answer_queue
     ap = Autopilot(seed=4)
@@ -382,6 +387,8 @@ def _daemon_run(
         thread.join(10)
         sock.close()
         gcs.close()
+    if sabotage_chain:
+        d.counters.sabotaged_chain = sabotaged[0] if sabotaged else 0  # type: ignore[attr-defined]
     return [m for m in got if m.get_type() == "ATTITUDE_QUATERNION"], d.counters, box.get("result")
 
 
@@ -429,8 +436,8 @@ def test_a_chain_gone_wrong_is_caught_and_every_sample_still_gets_its_attitude(
 ) -> None:
     with caplog.at_level(logging.WARNING, logger="mavahrs"):
         att, c, _ = _daemon_run(True, 500, stall=True, sabotage_chain=True)
-    assert c.fast_lane_chained >= 5  # the wrong chain went out …
-    assert c.fast_lane_mismatches == c.fast_lane_chained  # … and each of its frames was caught
+    assert c.sabotaged_chain >= 5  # the wrong chain went out …
+    assert c.fast_lane_mismatches == c.sabotaged_chain  # … and each of its frames was caught
     warnings = [r for r in caplog.records if "not confirmed" in r.getMessage()]
     assert len(warnings) == 1
     assert len({m.time_boot_ms for m in att}) >= 490
@@ -460,6 +467,6 @@ def test_a_failing_lane_is_switched_off_and_the_daemon_goes_on(caplog: pytest.Lo
     finally:
         FastLane.answer, FastLane.answer_queue = original, original_queue  # type: ignore[method-assign]
     assert result is not None and c.fast_lane_mismatches == 0
-    assert 90 <= c.fast_lane_answers < 100
+    assert 50 <= c.fast_lane_answers < 100  # (a chain the failure hit sent nothing: up to its length fewer)
     assert any("fast lane failed" in r.getMessage() for r in caplog.records)
     assert len({m.time_boot_ms for m in att}) >= 295  # the Python path answered the rest
