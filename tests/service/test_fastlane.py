@@ -311,7 +311,7 @@ def _daemon_run(
 ) -> tuple[list[Any], Any, Any]:
     """Run a daemon in a thread against ``n`` RAW_IMU datagrams sent 1 ms apart over UDP.
 
-    ``sabotage``: the lane's mirror gets a wrong sequence number after its 200th refresh;
+    ``sabotage``: the lane's mirror gets a wrong sequence number after every refresh from the 200th on;
     ``stall``: the daemon sleeps 40 ms there (as if not scheduled), so datagrams queue up;
     ``sabotage_chain``: the first chain of five or more datagrams starts from a wrong sequence number."""
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
