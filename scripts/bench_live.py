@@ -20,6 +20,10 @@ Measured over ``--duration`` seconds after ``--warmup``:
   datagram to the moment the ``sendto`` of the attitude returned
   (timestamped inside the daemon, its latency ring, via ``--stats-json``):
   p50, p99, max;
+* the same span inside the bare echo server (return of its ``recvfrom`` to
+  return of its ``sendto``), as a control: the least work a MAVLink answer
+  takes, with the same wake-ups and the VM's same steal time (reported, not
+  judged);
 * the end-to-end round trip seen by the sender for both servers, and the
   daemon's overhead over the echo (p50, p99) — the machine's scheduling noise
   is in both, so compare, do not quote absolutes alone;
@@ -95,8 +99,14 @@ TARGETS = {
 # --------------------------------------------------------------------------- the bare echo server
 
 
-def echo_server(port: int, idle_exit_s: float, realtime_priority: int = 0) -> int:
-    """A bare pymavlink echo: RAW_IMU in → ATTITUDE_QUATERNION with its time_boot_ms out."""
+def echo_server(port: int, idle_exit_s: float, realtime_priority: int = 0, stats_path: str | None = None) -> int:
+    """A bare pymavlink echo: RAW_IMU in → ATTITUDE_QUATERNION with its time_boot_ms out.
+
+    With ``stats_path`` it also times its own processing the way the daemon does (from the return of
+    the datagram's ``recvfrom`` to the return of the answer's ``sendto``) and writes the list (ns) there
+    as JSON on exit: the same span for the least work a MAVLink answer takes, as a control for the
+    machine's own scheduling noise.
+    """
     from pymavlink import mavutil
 
     if realtime_priority:
@@ -106,6 +116,19 @@ def echo_server(port: int, idle_exit_s: float, realtime_priority: int = 0) -> in
             print(f"ECHO REFUSED real-time scheduling: {exc.strerror or exc}", flush=True)
             return 2
     conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=191)
+    perf = time.perf_counter_ns
+    received = [0]  # when the last datagram's recvfrom returned (one frame per datagram here)
+    latency_ns: list[int] = []
+    if stats_path:
+        recv = conn.recv
+
+        def timed_recv(n: int | None = None) -> Any:
+            data = recv(n)
+            if data:
+                received[0] = perf()
+            return data
+
+        conn.recv = timed_recv  # type: ignore[method-assign]
     print("ECHO READY", flush=True)
     last = time.monotonic()
     stop = {"flag": False}
@@ -119,6 +142,10 @@ def echo_server(port: int, idle_exit_s: float, realtime_priority: int = 0) -> in
             continue
         last = time.monotonic()
         conn.mav.attitude_quaternion_send(msg.time_usec // 1000, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, zero)
+        if stats_path:
+            latency_ns.append(perf() - received[0])
+    if stats_path:
+        Path(stats_path).write_text(json.dumps(latency_ns))
     return 0
 
 
@@ -246,6 +273,7 @@ def bench_one(
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_live_"))
     stats_path = tmp / "daemon.json"
+    echo_stats_path = tmp / "echo.json"
     d_port, e_port = _free_port(), _free_port()
     ring = int(rate_hz * (duration_s + warmup_s + 5)) + 1024
     daemon = subprocess.Popen(
@@ -256,7 +284,8 @@ def bench_one(
         env=_env(), stderr=None if verbose else subprocess.DEVNULL, preexec_fn=on_server_cpus,
     )
     echo = subprocess.Popen(
-        [sys.executable, __file__, "--echo-server", str(e_port), "--realtime-priority", str(realtime_priority)],
+        [sys.executable, __file__, "--echo-server", str(e_port), "--realtime-priority", str(realtime_priority),
+         "--echo-stats", str(echo_stats_path)],
         env=_env(), stdout=subprocess.PIPE, text=True, preexec_fn=on_server_cpus,
     )
     if placement is not None:
@@ -355,6 +384,10 @@ def bench_one(
     if stats.get("scheduling", "normal") != wanted:
         raise RuntimeError(f"mavahrs run ran under {stats.get('scheduling')!r} scheduling, not {wanted!r}")
     processing = [ns / 1000.0 for ns in stats["latency_ns"]][-n_window:]  # the window's samples (the last ones)
+    try:
+        echo_processing = [ns / 1000.0 for ns in json.loads(echo_stats_path.read_text())][-n_window:]
+    except (OSError, ValueError):
+        echo_processing = []
     d, e = peers
     result: dict[str, Any] = {
         "filter": filter_name,
@@ -369,6 +402,13 @@ def bench_one(
             "p50": _pct(processing, 50), "p90": _pct(processing, 90), "p99": _pct(processing, 99),
             "max": max(processing) if processing else math.nan, "n": len(processing),
             "over_1ms": sum(1 for v in processing if v > 1000.0),
+        },
+        # the bare echo's own receipt -> sendto span in the same window (a control: the least work an
+        # answer takes, with the same wake-ups and the same steal); not judged
+        "echo_processing_us": {
+            "p50": _pct(echo_processing, 50), "p99": _pct(echo_processing, 99),
+            "max": max(echo_processing) if echo_processing else math.nan, "n": len(echo_processing),
+            "over_1ms": sum(1 for v in echo_processing if v > 1000.0),
         },
         "rtt_us": {
             p.name: {"p50": _pct(p.rtt_us, 50), "p99": _pct(p.rtt_us, 99), "max": max(p.rtt_us or [math.nan])}
@@ -402,6 +442,8 @@ def bench_one(
 
 def _report(r: dict[str, Any]) -> str:
     p, rt, o, c = r["processing_us"], r["rtt_us"], r["e2e_overhead_us"], r["cpu_us_per_msg"]
+    nan = {"p50": math.nan, "p99": math.nan, "max": math.nan, "n": 0, "over_1ms": 0}
+    ep = r.get("echo_processing_us", nan)
     k = r.get("daemon_counters", {})
     ok = lambda name: "ok" if r["checks"][name] else "MISSED"  # noqa: E731
     return "\n".join(
@@ -412,6 +454,8 @@ def _report(r: dict[str, Any]) -> str:
             f"  processing (in daemon, receipt -> sendto returned): p50 {p['p50']:.0f} us "
             f"[{ok('processing_p50_us')} <= 200], p99 {p['p99']:.0f} us [{ok('processing_p99_us')} <= 1000], "
             f"max {p['max']:.0f} us; p90 {p['p90']:.0f} us, {p['over_1ms']} of {p['n']} over 1 ms",
+            f"  the bare echo's own receipt -> sendto (control, not judged): p50 {ep['p50']:.0f} us, "
+            f"p99 {ep['p99']:.0f} us, max {ep['max']:.0f} us, {ep['over_1ms']} of {ep['n']} over 1 ms",
             f"  round trip seen by the sender: mavahrs p50 {rt['mavahrs']['p50']:.0f} / p99 {rt['mavahrs']['p99']:.0f} us; "
             f"bare echo p50 {rt['echo']['p50']:.0f} / p99 {rt['echo']['p99']:.0f} us",
             f"  end-to-end overhead over the echo: p50 {o['p50']:.0f} us [{ok('e2e_p50_overhead_us')} <= 200], "
@@ -445,9 +489,11 @@ def main(argv: list[str] | None = None) -> int:
                     "and both servers on the others")
     ap.add_argument("-v", "--verbose", action="store_true", help="show the daemon's log")
     ap.add_argument("--echo-server", type=int, metavar="PORT", help=argparse.SUPPRESS)
+    ap.add_argument("--echo-stats", metavar="FILE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.echo_server is not None:
-        return echo_server(args.echo_server, idle_exit_s=30.0, realtime_priority=args.realtime_priority)
+        return echo_server(args.echo_server, idle_exit_s=30.0, realtime_priority=args.realtime_priority,
+                           stats_path=args.echo_stats)
     if not 0 <= args.realtime_priority <= 99:
         ap.error("--realtime-priority must be 0…99")
     if not sys.platform.startswith("linux"):
