@@ -34,7 +34,8 @@ of the held value (s; 0 = not known).
 subtracts, with a weight that ramps linearly between 0 and 1 over
 ``fade_s`` as the velocity comes and goes, so losing or regaining the fix
 never makes the gravity reference jump (state block ``GC_LEN`` values: the
-``VD_LEN`` block, the last valid v̇ (3), the weight).
+``VD_LEN`` block, the last valid v̇ (3), the weight; after a reset the first
+valid v̇ applies in full at once).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ __all__ = [
     "velocity_derivative_step",
     "gnss_compensation_reset",
     "gnss_compensation_step",
+    "gnss_compensation_fresh",
 ]
 
 VD_LEN = 10
@@ -62,7 +64,8 @@ _PERIOD = 9
 
 GC_LEN = VD_LEN + 4
 _HELD = VD_LEN  # the last valid v̇ (3)
-_WEIGHT = VD_LEN + 3  # compensation weight, 0 … 1
+_WEIGHT = VD_LEN + 3  # compensation weight, 0 … 1; _FRESH: none since the reset
+_FRESH = -1.0
 
 
 @kernel
@@ -117,10 +120,17 @@ def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: i
 
 @kernel
 def gnss_compensation_reset(s, k):  # type: ignore[no-untyped-def]
-    """Forget the velocity history and the compensation (weight 0)."""
+    """Forget the velocity history and the compensation (weight −1: none since the reset)."""
     velocity_derivative_reset(s, k)
-    for i in range(4):
+    for i in range(3):
         s[k + _HELD + i] = 0.0
+    s[k + _WEIGHT] = _FRESH
+
+
+@kernel
+def gnss_compensation_fresh(s, k):  # type: ignore[no-untyped-def]
+    """True from a reset until the first valid v̇ (no compensation since the filter's (re)initialisation)."""
+    return s[k + _WEIGHT] < 0.0
 
 
 @kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
@@ -129,10 +139,14 @@ def gnss_compensation_step(s, k, vn, ve, vd, dt, tau_s, max_age_s, fade_s):  # t
 
     ``weight · v̇``: the weight moves linearly towards 1 while v̇ is valid and
     towards 0 while it is not, at ``dt / fade_s`` per row (``fade_s`` ≤ 0:
-    at once); while invalid, the last valid v̇ is faded out.
+    at once); while invalid, the last valid v̇ is faded out.  The first valid
+    v̇ after a reset (the filter's (re)initialisation) applies in full at once:
+    there is no gravity reference yet to keep from jumping, and a filter
+    re-initialised in a manoeuvre converges on f − v̇ from the start instead
+    of on f for the fade time.
     """
     fix = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd)
-    if not fix and s[k + _WEIGHT] == 0.0 and s[k + _AGE] < 0.0:
+    if not fix and s[k + _WEIGHT] <= 0.0 and s[k + _AGE] < 0.0:
         # no fix now, none since the last reset (the block is in its reset state) and nothing
         # left to fade out: what the steps below would do, without doing it (a log without GNSS)
         return 0.0, 0.0, 0.0
@@ -143,6 +157,10 @@ def gnss_compensation_step(s, k, vn, ve, vd, dt, tau_s, max_age_s, fade_s):  # t
         s[k + _HELD + 2] = s[k + _VDOT + 2]
     step = dt / fade_s if fade_s > 0.0 else 1.0
     w = s[k + _WEIGHT]
+    if w < 0.0:  # nothing since the reset
+        w = 1.0 if valid else _FRESH
+        s[k + _WEIGHT] = w
+        return (s[k + _HELD], s[k + _HELD + 1], s[k + _HELD + 2]) if valid else (0.0, 0.0, 0.0)
     w = min(w + step, 1.0) if valid else max(w - step, 0.0)
     s[k + _WEIGHT] = w
     return w * s[k + _HELD], w * s[k + _HELD + 1], w * s[k + _HELD + 2]

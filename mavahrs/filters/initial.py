@@ -5,6 +5,11 @@ body-frame direction of NED "down" is ``d = −a/‖a‖``.  With a magnetometer
 east is ``e = d × m`` and north ``n = e × d`` (TRIAD); the rows of
 ``C_body_to_ned`` are ``n, e, d``.  Without one, heading is set to zero
 (roll and pitch from the 2022 paper's eq. (22), written for specific force).
+
+:func:`triad_attitude` is the general TRIAD (Black 1964): two body-frame
+vectors and the same two vectors in NED, the first matched exactly; the
+filters use it with the specific force against ``v̇ − g`` (GNSS) when the
+vehicle is not at rest.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ import math
 
 from mavahrs.filters.jit import kernel
 
-__all__ = ["quat_from_matrix_rows", "initial_attitude"]
+__all__ = ["quat_from_matrix_rows", "initial_attitude", "triad_attitude"]
 
 
 @kernel
@@ -74,3 +79,42 @@ def initial_attitude(ax, ay, az, mx, my, mz, use_mag, out, k):  # type: ignore[n
     out[k + 1] = sr * cp
     out[k + 2] = cr * sp
     out[k + 3] = -sr * sp
+
+
+@kernel
+def triad_attitude(b1x, b1y, b1z, b2x, b2y, b2z, r1x, r1y, r1z, r2x, r2y, r2z, out, k):  # type: ignore[no-untyped-def]
+    """Write ``q_body_to_ned`` with ``C b1 ∥ r1`` exactly and ``C b2`` in the plane of r1 and r2 to ``out[k:k+4]``.
+
+    TRIAD: the orthonormal triads t1 = v1/‖v1‖, t2 = (v1 × v2)/‖v1 × v2‖,
+    t3 = t1 × t2 of the body pair (b) and the NED pair (r) give
+    ``C = Σᵢ t_i,r t_i,bᵀ``.  Returns False (``out`` untouched) when either
+    pair is (nearly) parallel or a vector is zero.
+    """
+    nb1 = math.sqrt(b1x * b1x + b1y * b1y + b1z * b1z)
+    nr1 = math.sqrt(r1x * r1x + r1y * r1y + r1z * r1z)
+    if not (nb1 > 0.0 and nr1 > 0.0):
+        return False
+    t1bx, t1by, t1bz = b1x / nb1, b1y / nb1, b1z / nb1
+    t1rx, t1ry, t1rz = r1x / nr1, r1y / nr1, r1z / nr1
+    t2bx, t2by, t2bz = t1by * b2z - t1bz * b2y, t1bz * b2x - t1bx * b2z, t1bx * b2y - t1by * b2x
+    t2rx, t2ry, t2rz = t1ry * r2z - t1rz * r2y, t1rz * r2x - t1rx * r2z, t1rx * r2y - t1ry * r2x
+    nb2 = math.sqrt(t2bx * t2bx + t2by * t2by + t2bz * t2bz)
+    nr2 = math.sqrt(t2rx * t2rx + t2ry * t2ry + t2rz * t2rz)
+    if not (nb2 > 1e-3 * math.sqrt(b2x * b2x + b2y * b2y + b2z * b2z) and nr2 > 1e-3 * math.sqrt(
+        r2x * r2x + r2y * r2y + r2z * r2z
+    )):
+        return False  # the second vector (nearly) along the first: no heading
+    t2bx, t2by, t2bz = t2bx / nb2, t2by / nb2, t2bz / nb2
+    t2rx, t2ry, t2rz = t2rx / nr2, t2ry / nr2, t2rz / nr2
+    t3bx, t3by, t3bz = t1by * t2bz - t1bz * t2by, t1bz * t2bx - t1bx * t2bz, t1bx * t2by - t1by * t2bx
+    t3rx, t3ry, t3rz = t1ry * t2rz - t1rz * t2ry, t1rz * t2rx - t1rx * t2rz, t1rx * t2ry - t1ry * t2rx
+    quat_from_matrix_rows(
+        t1rx * t1bx + t2rx * t2bx + t3rx * t3bx, t1rx * t1by + t2rx * t2by + t3rx * t3by,
+        t1rx * t1bz + t2rx * t2bz + t3rx * t3bz,
+        t1ry * t1bx + t2ry * t2bx + t3ry * t3bx, t1ry * t1by + t2ry * t2by + t3ry * t3by,
+        t1ry * t1bz + t2ry * t2bz + t3ry * t3bz,
+        t1rz * t1bx + t2rz * t2bx + t3rz * t3bx, t1rz * t1by + t2rz * t2by + t3rz * t3by,
+        t1rz * t1bz + t2rz * t2bz + t3rz * t3bz,
+        out, k,
+    )  # fmt: skip
+    return True

@@ -58,7 +58,8 @@ from mavahrs.filters.base import (
 )
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
 from mavahrs.filters.jit import kernel, pure_python
-from mavahrs.filters.gnss import GC_LEN, gnss_compensation_reset, gnss_compensation_step
+from mavahrs.filters.gnss import GC_LEN, gnss_compensation_fresh, gnss_compensation_reset, gnss_compensation_step
+from mavahrs.filters.initial import triad_attitude
 from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body, quat_multiply
 from mavahrs.filters.prefilter import (
     BW_LEN,
@@ -314,7 +315,8 @@ FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (prefilter.BW_
 FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
 FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
 FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
-FM_LEN = FM_MAG_AGE + 1
+FM_VLP = FM_MAG_AGE + 1  # the subtracted GNSS acceleration, low-passed like the specific force (BW_LEN)
+FM_LEN = FM_VLP + BW_LEN
 
 #: horizontal GNSS acceleration is rotated into body axes with the estimated heading: it is used
 #: only while the magnetometer has corrected the heading within this many seconds
@@ -412,6 +414,8 @@ def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     rest_reset(state, k + FM_REST)
     gnss_compensation_reset(state, k + FM_GNSS)
     state[k + FM_MAG_AGE] = _NEVER_S
+    nav_lowpass_reset(state, k + FM_VLP)
+    nav_lowpass_reset(state, k + FM_VLP + LP_LEN)
 
 
 # --------------------------------------------------------------------------- the step
@@ -465,26 +469,60 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     an = ae = ad = 0.0
     if params[p + PM_GNSS] > 0.0:
         # f − v̇ (003, "Влияние ускорений"): what is left is −g whatever the vehicle does.
+        fresh = gnss_compensation_fresh(state, f + FM_GNSS)
         an, ae, ad = gnss_compensation_step(
             state, f + FM_GNSS, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt,
             params[p + PM_VDOT_TAU], params[p + PM_VEL_MAX_AGE], params[p + PM_GNSS_FADE],
         )  # fmt: skip
+        if fresh and startup and accel_ok and mag_ok and not gnss_compensation_fresh(state, f + FM_GNSS):
+            # The first v̇ since the (re)initialisation, which took the accelerometer for gravity: in a
+            # manoeuvre that is tens of degrees off, and converging from there with f − v̇ in the
+            # estimate's (wrong) frame can diverge (the error it leaves, (E − I)·v̇, exceeds g when
+            # braking hard). Re-align at once instead: TRIAD with f ↔ v̇ − g and m ↔ the reference
+            # field (the learned dip); the low-passes restart in the new frame.
+            dip = state[S_SCHED + _g.GS_MAG_DIP]
+            if triad_attitude(
+                ax, ay, az, mx, my, mz, an, ae, ad - G_M_S2, math.cos(dip), 0.0, math.sin(dip), state, S_Q
+            ):
+                q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
+                for i in range(BW_LEN):
+                    state[f + FM_NAVLP + i] = 0.0
+                    state[f + FM_VLP + i] = 0.0
+                state[f + FM_MAG_AGE] = 0.0  # the heading is the magnetometer's now
         if state[f + FM_MAG_AGE] > HEADING_HOLD_S:
             an = ae = 0.0  # the horizontal part needs a heading reference to be put in body axes
     ux, uy, uz = ax, ay, az
     tau_acc = params[p + PM_ACC_TAU]
     ntol = params[p + PM_NORM_TOL]
+    # f̄ and the GNSS acceleration v̄ are low-passed separately and subtracted afterwards: f̄ is
+    # kept in the estimate's NED frame (each correction rotates its state, below) while v̇ is
+    # in the earth's; subtracted first, a correction would turn the subtracted v̇ too, which
+    # after a re-initialisation mid-manoeuvre (corrections of tens of degrees) leaves
+    # ‖v̄‖·angle of acceleration in f̄. Without GNSS v̄ = 0.
+    vn_lp = ve_lp = vd_lp = 0.0
+    fn = fe = fd = 0.0
     if accel_ok and (tau_acc > 0.0 or an != 0.0 or ae != 0.0 or ad != 0.0):
         fn, fe, fd = body_to_ned(q0, q1, q2, q3, ax, ay, az)
-        fn, fe, fd = fn - an, fe - ae, fd - ad
         # Every valid sample enters the average (leaving out the large ones
         # would bias it: motion accelerations are zero-mean only as a whole).
         if tau_acc > 0.0:
+            gnss_lp = an != 0.0 or ae != 0.0 or ad != 0.0 or state[f + FM_VLP + 3] != 0.0
+            if gnss_lp and state[f + FM_VLP + 3] == 0.0:
+                # start as if fed zeros since f̄'s low-pass started: its phase (the time averaged so far,
+                # or running) and its nominal step, so that both average over the same samples
+                state[f + FM_VLP + 3] = state[f + FM_NAVLP + 3]
+                state[f + FM_VLP + 7] = state[f + FM_NAVLP + 7]
             if params[p + PM_ACC_ORDER] > 1.0:
                 fn, fe, fd = ned_butterworth_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
+                if gnss_lp:
+                    vn_lp, ve_lp, vd_lp = ned_butterworth_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
             else:
                 fn, fe, fd = vector_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
-        ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn, fe, fd)
+                if gnss_lp:
+                    vn_lp, ve_lp, vd_lp = vector_lowpass_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
+        else:
+            vn_lp, ve_lp, vd_lp = an, ae, ad  # no low-pass
+        ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn - vn_lp, fe - ve_lp, fd - vd_lp)
 
     # ---- gradients -----------------------------------------------------------
     sg0 = sg1 = sg2 = sg3 = 0.0  # gravity part (unnormalised J_gᵀ f_g)
@@ -510,7 +548,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if ntol > 0.0 and not startup:
             # ‖f̄‖ ≠ g: the vehicle is accelerating, and f̄ is not the vertical (a multirotor's
             # accelerometer reads thrust and rotor drag in sustained tilted acceleration)
-            large_w = 1.0 - abs(n / G_M_S2 - 1.0) / ntol
+            ratio = n / G_M_S2
+            if vn_lp != 0.0 or ve_lp != 0.0 or vd_lp != 0.0:
+                # With the GNSS acceleration v̄: the low-passed specific force is v̄ − g, so its norm
+                # must be ‖v̄ − g‖. Both norms are blind to the attitude, unlike ‖f̄ − v̄‖, which a
+                # tilt error E makes ‖E(v̄ − g) − v̄‖ ≠ g: that would hold the gain low exactly while
+                # a re-initialised estimate is wrong in a manoeuvre.
+                ref = math.sqrt(vn_lp * vn_lp + ve_lp * ve_lp + (vd_lp - G_M_S2) * (vd_lp - G_M_S2))
+                ratio = math.sqrt(fn * fn + fe * fe + fd * fd) / ref
+            large_w = 1.0 - abs(ratio - 1.0) / ntol
             large_w = large_w if large_w > 0.0 else 0.0
             norm_w = max(large_w, params[p + PM_NORM_MIN_WEIGHT])
     sm0 = sm1 = sm2 = sm3 = 0.0  # magnetic part (unnormalised J_bᵀ f_b)

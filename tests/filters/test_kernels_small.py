@@ -67,3 +67,36 @@ def test_lowpass_coefficient_equals_expm1(wrap: object) -> None:
             rel = 3e-16 if dt / tau < 0.02 else 1e-14
             assert f(dt, tau) == pytest.approx(want, rel=rel, abs=0.0), (dt, tau)
     assert f(0.0025, 0.0) == 1.0  # τ = 0 passes the input through
+
+
+@pytest.mark.parametrize("wrap", KERNELS)
+def test_triad_recovers_the_rotation_from_two_vector_pairs(wrap: object) -> None:
+    """``triad_attitude``: b = Cᵀ r for random rotations and vectors gives back C; the first pair exactly.
+
+    With noise on the second body vector only, the first vector still maps
+    exactly (TRIAD trusts it), and the rotation moves by about the noise angle.
+    Parallel or zero vectors are refused (False, output untouched).
+    """
+    from mavahrs.filters.initial import triad_attitude
+    from mavahrs.geometry.quaternion import angle_between, conjugate, random_unit, rotate
+
+    triad = wrap(triad_attitude)  # type: ignore[operator]
+    rng = np.random.default_rng(5)
+    qs = random_unit(100, rng)
+    out = np.zeros(4)
+    for q in qs:
+        r1 = rng.normal(size=3) * 5.0
+        r2 = rng.normal(size=3) * 40.0
+        b1, b2 = rotate(conjugate(q), r1), rotate(conjugate(q), r2)
+        assert triad(*b1, *b2, *r1, *r2, out, 0)
+        assert min(np.abs(out - q).max(), np.abs(out + q).max()) < 1e-12
+        noisy = b2 + rng.normal(size=3) * 0.02 * np.linalg.norm(b2)
+        assert triad(*b1, *noisy, *r1, *r2, out, 0)
+        mapped = rotate(out, b1)
+        np.testing.assert_allclose(mapped / np.linalg.norm(mapped), r1 / np.linalg.norm(r1), atol=1e-12)
+        assert 0.0 < angle_between(out, q) < math.radians(10.0)
+    out[:] = 7.0
+    assert not triad(1.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, out, 0)  # body pair parallel
+    assert not triad(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -9.8, 0.0, 0.0, 40.0, out, 0)  # NED pair parallel
+    assert not triad(0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -9.8, 20.0, 0.0, 40.0, out, 0)  # a zero vector
+    assert np.all(out == 7.0)
