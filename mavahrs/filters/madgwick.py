@@ -205,20 +205,25 @@ class MadgwickSettings(FilterSettings):
         gnss_acceleration: with a GNSS velocity in the input rows
             (``velocity_ned_m_s``, ``IN_VEL``; NaN = no fix), subtract the
             vehicle's acceleration v̇ from the specific force in the
-            estimated NED frame before the low-pass and the gradient
-            (f − v̇, the 003 tutorial's acceleration-compensated vertical):
-            sustained manoeuvres then no longer tilt the estimate.  The
-            horizontal part is used only while the magnetometer has
-            corrected the heading within ``HEADING_HOLD_S`` (60 s), since it
-            is rotated into body axes with the estimated heading; the
-            vertical part always.  Without velocity nothing changes.
+            estimated NED frame before the gradient (f − v̇, the 003
+            tutorial's acceleration-compensated vertical; each low-passed
+            separately): sustained manoeuvres then no longer tilt the
+            estimate.  The horizontal part is used only while the
+            magnetometer has corrected the heading within
+            ``HEADING_HOLD_S`` (60 s), since it is rotated into body axes
+            with the estimated heading; the vertical part always.  The
+            first v̇ after a (re)initialisation re-aligns the estimate at
+            once (TRIAD: f ↔ v̇ − g, m ↔ the reference field) and applies
+            in full: a start from the accelerometer in a manoeuvre is
+            tens of degrees off.  Without velocity nothing changes.
         velocity_tau_s: low-pass time constant of v̇, s (0 = the latest
             difference of fixes; :mod:`mavahrs.filters.gnss`).
         velocity_max_age_s: a fix older than this (NaN rows in between)
             breaks the v̇ chain, s; held (repeated) values are recognised.
-        gnss_fade_s: the compensation ramps in over this time once v̇ is
-            valid and fades out over it when the fix is lost, s (no jump in
-            the gravity reference).  0 = switch at once.
+        gnss_fade_s: the compensation fades out over this time when the
+            fix is lost and back in when it returns, s (no jump in the
+            gravity reference; the first v̇ after a (re)initialisation
+            applies at once).  0 = switch at once.
         schedule: the shared gain schedule (:func:`default_schedule`).
     """
 
