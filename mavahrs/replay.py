@@ -70,6 +70,7 @@ __all__ = [
     "ReplayResult",
     "replay",
     "compare",
+    "attitude_at_reference",
     "format_comparison",
     "write_tlog",
     "plot_replay",
@@ -500,27 +501,38 @@ class ComparisonRow:
     yaw_rms_deg: float
 
 
+def attitude_at_reference(result: ReplayResult, filter_name: str, reference_name: str) -> NDArray[np.float64]:
+    """A filter's attitude (as sent) slerped onto a reference's own times: (N_ref, 4), NaN where it has none.
+
+    NaN before the filter initialised, outside the replayed span and across
+    gaps in its output longer than 0.5 s (or three sample periods).  The
+    reference itself is ``result.references[reference_name]`` (times µs, q).
+    """
+    t_ref, _q_ref = result.references[reference_name]
+    t = result.inputs.t_us.astype(np.float64)
+    out = result.tracks[filter_name].out
+    init = (out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
+    if t.size < 2 or not init.any():
+        return np.full((len(t_ref), 4), np.nan)
+    gap_s = max(0.5, 3.0 * float(np.median(np.diff(t))) * 1e-6)
+    return interpolate_attitude(t[init], out[init, OUT_Q : OUT_Q + 4], t_ref, max_gap_s=gap_s)
+
+
 def compare(result: ReplayResult) -> list[ComparisonRow]:
     """Each filter against each attitude the log holds, at the reference's own times.
 
     The filter's attitude (as sent: true north when the declination is known)
     is slerped onto the reference times within the replayed span; samples
-    before the filter initialised are skipped.
+    before the filter initialised are skipped (:func:`attitude_at_reference`).
     """
     from mavahrs.evaluation.metrics import euler_errors_rad, summarize
 
     rows: list[ComparisonRow] = []
-    t = result.inputs.t_us.astype(np.float64)
-    if t.size < 2:
+    if result.inputs.t_us.size < 2:
         return rows
-    gap_s = max(0.5, 3.0 * float(np.median(np.diff(t))) * 1e-6)
-    for name, tr in result.tracks.items():
-        init = (tr.out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
-        if not init.any():
-            continue
-        tt, qq = t[init], tr.out[init, OUT_Q : OUT_Q + 4]
-        for ref_name, (t_ref, q_ref) in result.references.items():
-            q_est = interpolate_attitude(tt, qq, t_ref, max_gap_s=gap_s)
+    for name in result.tracks:
+        for ref_name, (_t_ref, q_ref) in result.references.items():
+            q_est = attitude_at_reference(result, name, ref_name)
             ok = np.all(np.isfinite(q_est), axis=1)
             if ok.sum() < 2:
                 continue

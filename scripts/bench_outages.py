@@ -63,18 +63,15 @@ def _flight(folder: Path, seed: int, duration_s: float, gnss: bool, blackout: st
 def _inclination_series(path: Path, filter_name: str) -> tuple[np.ndarray, np.ndarray]:
     """(seconds since the first truth sample, inclination error in degrees) at the truth's times."""
     from mavahrs.evaluation.metrics import attitude_errors_rad
-    from mavahrs.evaluation.tlogdata import interpolate_attitude
-    from mavahrs.filters.layout import FLAG_NOT_INITIALISED, OUT_FLAGS, OUT_Q
-    from mavahrs.replay import ReplaySettings, replay
+    from mavahrs.replay import ReplaySettings, attitude_at_reference, replay
     from mavahrs.sensors.geomag import MagneticFieldSettings
     from mavahrs.service.pipeline import PipelineSettings
 
     ps = PipelineSettings(out_rate_hz=0.0, magnetic=MagneticFieldSettings(declination_deg=0.0))
     res = replay(path, ReplaySettings(filters=(filter_name,), pipeline=ps))
-    (t_ref, q_ref), = [v for k, v in res.references.items() if "truth" in k]
-    out = res.tracks[filter_name].out
-    init = (out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
-    q = interpolate_attitude(res.inputs.t_us[init].astype(np.float64), out[init, OUT_Q : OUT_Q + 4], t_ref)
+    (truth,) = [k for k in res.references if "truth" in k]
+    t_ref, q_ref = res.references[truth]
+    q = attitude_at_reference(res, filter_name, truth)
     err = np.full(t_ref.size, np.nan)
     ok = np.all(np.isfinite(q), axis=1)
     err[ok] = np.degrees(attitude_errors_rad(q[ok], q_ref[ok])[2])

@@ -213,6 +213,19 @@ def decimal_year_from_unix_s(unix_s: float) -> float:
     return t.year + (t - start).total_seconds() / (end - start).total_seconds()
 
 
+def _model_day(decimal_year: float | None) -> float | None:
+    """A date (decimal year) rounded to 1/1024 year (≈ 8.6 h), for the model.
+
+    The field changes by a few nT a month, so that resolution loses nothing; and the daemon (its
+    start time) and a replay of its log (the first record's time) then compute the very same model
+    though their clocks are a fraction of a second apart: the attitudes replay bit for bit (the
+    first GNSS re-alignment uses the model's dip).  Dyadic, so whole years stay exact.
+    """
+    if decimal_year is None or not math.isfinite(decimal_year):
+        return decimal_year
+    return round(decimal_year * 1024.0) / 1024.0
+
+
 def distance_km(lat1_deg: float, lon1_deg: float, lat2_deg: float, lon2_deg: float) -> float:
     """Great-circle distance (haversine, spherical Earth), km."""
     p1 = math.radians(lat1_deg)
@@ -313,7 +326,7 @@ class DeclinationSource:
     def __init__(self, settings: MagneticFieldSettings | None = None, decimal_year: float | None = None) -> None:
         self._settings = settings if settings is not None else MagneticFieldSettings()
         s = self._settings
-        self._year: float | None = s.decimal_year if s.decimal_year is not None else decimal_year
+        self._year: float | None = s.decimal_year if s.decimal_year is not None else _model_day(decimal_year)
         self._year_locked = s.decimal_year is not None
         self._position: tuple[float, float, float] | None = None  # last position seen
         self._position_source = ""
@@ -362,7 +375,7 @@ class DeclinationSource:
         """Set the date (ignored when the settings fix it); True when the field changed."""
         if self._year_locked or not math.isfinite(decimal_year):
             return False
-        self._year = decimal_year
+        self._year = _model_day(decimal_year)
         return self._refresh()
 
     def _position_from_e7(self, lat_e7: int, lon_e7: int, alt_m: float, source: str) -> bool:

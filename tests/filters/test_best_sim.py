@@ -25,7 +25,7 @@ import pytest
 from mavahrs.evaluation.metrics import attitude_errors_rad, summarize
 from mavahrs.filters import create
 from mavahrs.filters.base import make_inputs
-from mavahrs.filters.layout import FLAG_NOT_INITIALISED, IN_VEL, OUT_FLAGS, OUT_Q
+from mavahrs.filters.layout import IN_VEL, OUT_Q
 
 G_M_S2 = 9.80665
 GLOBAL_POSITION_INT = 33
@@ -56,21 +56,24 @@ def aggressive_flight(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, P
     return with_gps, without
 
 
-def _replayed_inclination_deg(path: Path) -> tuple[float, float]:
-    """(inclination RMS, heading RMS) of the daemon's ``best`` on ``path`` against SIMSTATE truth, degrees."""
-    from mavahrs.evaluation.tlogdata import interpolate_attitude
-    from mavahrs.replay import ReplaySettings, replay
+def _replayed_best(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The daemon's ``best`` replayed on ``path``: (truth times µs, its attitude at them (NaN: none), the truth)."""
+    from mavahrs.replay import ReplaySettings, attitude_at_reference, replay
     from mavahrs.sensors.geomag import MagneticFieldSettings
     from mavahrs.service.pipeline import PipelineSettings
 
     ps = PipelineSettings(out_rate_hz=0.0, magnetic=MagneticFieldSettings(declination_deg=0.0))
     res = replay(path, ReplaySettings(filters=("best",), pipeline=ps))
-    (t_ref, q_ref), = [v for k, v in res.references.items() if "truth" in k]
-    out = res.tracks["best"].out
-    init = (out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
-    q = interpolate_attitude(res.inputs.t_us[init].astype(np.float64), out[init, OUT_Q : OUT_Q + 4], t_ref)
+    (truth,) = [k for k in res.references if "truth" in k]
+    t_ref, q_ref = res.references[truth]
+    return t_ref, attitude_at_reference(res, "best", truth), q_ref
+
+
+def _replayed_inclination_deg(path: Path) -> tuple[float, float]:
+    """(inclination RMS, heading RMS) of the daemon's ``best`` on ``path`` against SIMSTATE truth, degrees."""
+    _t, q, q_ref = _replayed_best(path)
     ok = np.all(np.isfinite(q), axis=1)
-    assert ok.sum() > 0.9 * t_ref.size
+    assert ok.sum() > 0.9 * len(q)
     s = summarize(q[ok], q_ref[ok])
     return s.inclination_rms_deg, s.heading_rms_deg
 
@@ -94,18 +97,8 @@ def test_best_meets_issue_4_on_aggressive_flight(aggressive_flight: tuple[Path, 
 
 def _replayed_inclination_series(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(time since the first truth sample, s; inclination error of the daemon's ``best``, °) at the truth's times."""
-    from mavahrs.evaluation.tlogdata import interpolate_attitude
-    from mavahrs.replay import ReplaySettings, replay
-    from mavahrs.sensors.geomag import MagneticFieldSettings
-    from mavahrs.service.pipeline import PipelineSettings
-
-    ps = PipelineSettings(out_rate_hz=0.0, magnetic=MagneticFieldSettings(declination_deg=0.0))
-    res = replay(path, ReplaySettings(filters=("best",), pipeline=ps))
-    (t_ref, q_ref), = [v for k, v in res.references.items() if "truth" in k]
-    out = res.tracks["best"].out
-    init = (out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
-    q = interpolate_attitude(res.inputs.t_us[init].astype(np.float64), out[init, OUT_Q : OUT_Q + 4], t_ref)
-    err = np.full(t_ref.size, np.nan)
+    t_ref, q, q_ref = _replayed_best(path)
+    err = np.full(len(q), np.nan)
     ok = np.all(np.isfinite(q), axis=1)
     err[ok] = np.degrees(attitude_errors_rad(q[ok], q_ref[ok])[2])
     return (t_ref - t_ref[0]) * 1e-6, err
@@ -248,7 +241,12 @@ def test_compensation_kernel_starts_in_full_then_fades_out_and_in_linearly() -> 
     2·dt/fade_s per row to 0; when the fixes come back it rises by the same
     step per row from the second new fix on.
     """
-    from mavahrs.filters.gnss import GC_LEN, gnss_compensation_fresh, gnss_compensation_reset, gnss_compensation_step
+    from mavahrs.filters.gnss import (
+        GC_LEN,
+        gnss_compensation_fresh,
+        gnss_compensation_reset,
+        gnss_compensation_step,
+    )
     from mavahrs.filters.jit import pure_python
 
     # the interpreted kernels (the compiled ones are inlined into the steps; compiling standalone
