@@ -323,6 +323,9 @@ FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the 
 FM_VLP = FM_MAG_AGE + 1  # the subtracted GNSS acceleration, low-passed like the specific force (BW_LEN)
 FM_LEN = FM_VLP + BW_LEN
 
+#: the first GNSS v̇ this soon after a (re)initialisation re-aligns the estimate (TRIAD); a first fix
+#: later than this meets an estimate that has converged, which one noisy sample would only disturb
+REALIGN_WINDOW_S = 5.0
 #: horizontal GNSS acceleration is rotated into body axes with the estimated heading: it is used
 #: only while the magnetometer has corrected the heading within this many seconds
 HEADING_HOLD_S = 60.0
@@ -479,8 +482,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state, f + FM_GNSS, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt,
             params[p + PM_VDOT_TAU], params[p + PM_VEL_MAX_AGE], params[p + PM_GNSS_FADE],
         )  # fmt: skip
-        if fresh and startup and accel_ok and mag_ok and not gnss_compensation_fresh(state, f + FM_GNSS):
-            # The first v̇ since the (re)initialisation, which took the accelerometer for gravity: in a
+        if (
+            fresh and state[S_SCHED + _g.GS_T] < REALIGN_WINDOW_S and accel_ok and mag_ok
+            and not gnss_compensation_fresh(state, f + FM_GNSS)
+        ):
+            # The first v̇ soon after the (re)initialisation, which took the accelerometer for gravity: in a
             # manoeuvre that is tens of degrees off, and converging from there with f − v̇ in the
             # estimate's (wrong) frame can diverge (the error it leaves, (E − I)·v̇, exceeds g when
             # braking hard). Re-align at once instead: TRIAD with f ↔ v̇ − g and m ↔ the reference

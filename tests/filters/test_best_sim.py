@@ -198,6 +198,35 @@ def test_gnss_compensation_keeps_tilt_under_sustained_acceleration() -> None:
     assert np.mean(with_vel[moving]) < 0.1 * np.mean(without[moving])
 
 
+@pytest.mark.parametrize("boost", [10.0, 1.0])
+def test_a_restart_mid_acceleration_is_realigned_on_the_first_velocity(boost: float) -> None:
+    """A 2 s gap at 20 s, in the middle of 3 m/s² north: the accelerometer start is 17° off.
+
+    With the velocity, the first v̇ after the restart (two fixes, ≤ 0.1 s later) re-aligns the
+    estimate by TRIAD: 0.5 s after the gap the tilt is within 1.5° — with the start-up boost and
+    without it (``startup_gain_factor=1``: the re-alignment is bound to the time since the
+    restart, not to the boost). Without the velocity it is still > 8° off then.
+    """
+    from dataclasses import replace
+
+    from mavahrs.filters.best import best_settings
+
+    rows, q = _accelerating_north("nan")
+    gap = int(20 * RATE_HZ)
+    rows[gap, 0] = 2.0  # IN_DT: a 2 s step, beyond max_gap_s: the filter re-initialises on this row
+    s = best_settings()
+    s = replace(s, schedule=replace(s.schedule, startup_gain_factor=boost))
+    out = create("madgwick", s).run(rows)
+    incl = np.degrees(attitude_errors_rad(out[:, OUT_Q : OUT_Q + 4], q)[2])
+    assert incl[gap] > 10.0  # the restart itself: the accelerometer's direction
+    assert np.max(incl[gap + int(0.5 * RATE_HZ) : gap + int(3.0 * RATE_HZ)]) < 1.5
+    no_vel = rows.copy()
+    no_vel[:, IN_VEL : IN_VEL + 3] = np.nan
+    out = create("madgwick", s).run(no_vel)
+    incl = np.degrees(attitude_errors_rad(out[:, OUT_Q : OUT_Q + 4], q)[2])
+    assert incl[gap + int(0.5 * RATE_HZ)] > 8.0
+
+
 def test_held_velocity_works_like_nan_between_fixes() -> None:
     """A fix repeated on every row gives the same attitudes as NaN between fixes, to 0.05°.
 
