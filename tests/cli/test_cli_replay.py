@@ -58,6 +58,8 @@ def test_a_live_daemon_log_replays_to_identical_attitudes(tmp_path: Path) -> Non
     import socket
     import subprocess
     import sys
+    import threading
+    import time
 
     import numpy as np
 
@@ -74,22 +76,33 @@ def test_a_live_daemon_log_replays_to_identical_attitudes(tmp_path: Path) -> Non
     log = tmp_path / "live.tlog"
     daemon = subprocess.Popen(
         [sys.executable, "-m", "mavahrs", "run", "--master", f"udpin:127.0.0.1:{port}", "--filter", "madgwick",
-         "--out-rate", "0", "--log", str(log), "--duration", "5", "-q"],
+         "--out-rate", "0", "--log", str(log), "--duration", "5", "--status-interval", "0"],
         cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
-    sim = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "-q", "--out", f"udpout:127.0.0.1:{port}", "--scenario", "hover",
-         "--duration", "12", "--seed", "4", "--imus", "1"],
-        cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(daemon.stderr or ()), daemon=True)
+    reader.start()
+    sim = None
     try:
-        _, err = daemon.communicate(timeout=60)
-        assert daemon.returncode == 0, err[-2000:]
+        # The simulator starts once the daemon serves: on a cold cache its kernels compile first (tens of
+        # seconds on a fresh machine), and a simulator started at once would have streamed its 12 s at the
+        # default 1 Hz into the socket by then (seen in CI: 11 attitudes).
+        deadline = time.monotonic() + 180
+        while not any("mavahrs running" in ln for ln in lines):
+            assert daemon.poll() is None and time.monotonic() < deadline, "".join(lines)[-2000:]
+            time.sleep(0.05)
+        sim = subprocess.Popen(
+            [sys.executable, "-m", "firmware_sim", "-q", "--out", f"udpout:127.0.0.1:{port}", "--scenario", "hover",
+             "--duration", "12", "--seed", "4", "--imus", "1"],
+            cwd=repo, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        assert daemon.wait(timeout=60) == 0, "".join(lines)[-2000:]
     finally:
         for p in (daemon, sim):
-            if p.poll() is None:
+            if p is not None and p.poll() is None:
                 p.terminate()
                 p.wait(timeout=10)
+        reader.join(5)
     # what the daemon sent, from its own log (component 191)
     live = [(m.time_boot_ms, (m.q1, m.q2, m.q3, m.q4)) for _, m in read_tlog_messages(log, ["ATTITUDE_QUATERNION"])
             if m.get_srcComponent() == 191]  # fmt: skip
