@@ -15,8 +15,8 @@ from mavahrs.filters.base import AttitudeFilter, FilterSettings
 
 __all__ = ["NAMES", "ALIASES", "create", "filter_class", "AttitudeFilter", "FilterSettings"]
 
-#: The four filters, in the order they are documented.
-NAMES: tuple[str, ...] = ("madgwick", "mahony", "complementary", "gyroplatform")
+#: The filters, in the order they are documented.
+NAMES: tuple[str, ...] = ("madgwick", "mahony", "complementary", "gyroplatform", "eskf")
 #: Other accepted names.
 ALIASES: tuple[str, ...] = ("best",)
 
@@ -25,6 +25,7 @@ _CLASSES: dict[str, tuple[str, str]] = {
     "mahony": ("mavahrs.filters.mahony", "Mahony"),
     "complementary": ("mavahrs.filters.complementary", "Complementary"),
     "gyroplatform": ("mavahrs.filters.gyroplatform", "GyroPlatform"),
+    "eskf": ("mavahrs.filters.eskf", "Eskf"),
 }
 
 

@@ -1,7 +1,17 @@
 r"""The configuration mavahrs recommends: ``filter="best"`` (also the daemon's default filter).
 
-It is the Madgwick filter (:mod:`mavahrs.filters.madgwick`) with the
-extensions that measured best on the 16 BROAD trials in ``../shared/data/broad``
+Two filters run side by side on every sample and ``best`` sends the one that
+measures best for the inputs it has:
+
+* **with GNSS velocity** — the velocity-aided error-state Kalman filter
+  (:mod:`mavahrs.filters.eskf`): on ArduCopter SITL flights it reaches
+  0.2–0.3° inclination RMS where the autopilot's own EKF3 has 0.15–0.26°
+  and the Madgwick configuration below 0.8–0.9° (``scripts/bench_sitl.py``,
+  ``docs/accuracy.md``).  It takes over on the first fix, starting from the
+  Madgwick attitude and bias (so the hand-over does not jump), and hands back
+  over ``fade_s`` after ``aiding_timeout_s`` without a fix;
+* **without** — the Madgwick filter (:mod:`mavahrs.filters.madgwick`) with the
+  extensions that measured best on the 16 BROAD trials in ``../shared/data/broad``
 (Laidig et al. 2021; one parameter set for all trials, mean of the per-trial
 RMS over the scored movement phases; ``scripts/bench_accuracy.py``) *and* on
 ``firmware_sim`` flights replayed through the daemon's pipeline, with and
@@ -63,20 +73,38 @@ BROAD by more than 0.01°.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-from mavahrs.filters.base import AttitudeFilter, FilterSettings
+import numpy as np
+
+from mavahrs.filters.base import (
+    P_FILTER,
+    S_BIAS,
+    S_FILTER,
+    S_INIT,
+    S_Q,
+    AttitudeFilter,
+    FilterSettings,
+    FilterState,
+)
+from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
+from mavahrs.filters.eskf import Eskf, EskfSettings, eskf_aided, eskf_reopen_attitude
+from mavahrs.filters.eskf import step as _eskf_step
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.layout import IN_DT, IN_VEL, OUT_BIAS, OUT_Q, OUT_WIDTH
 from mavahrs.filters.madgwick import Madgwick, MadgwickSettings
+from mavahrs.filters.madgwick import step as _madgwick_step
 from mavahrs.filters.rest import RestBiasSettings
 
-__all__ = ["best_settings", "create_best", "BEST_FILTER"]
+__all__ = ["best_settings", "best_eskf_settings", "BestSettings", "Best", "create_best", "BEST_FILTER"]
 
-#: the registry name of the filter ``"best"`` uses
+#: the registry name of the filter ``"best"`` uses without GNSS velocity
 BEST_FILTER = "madgwick"
 
 
 def best_settings() -> MadgwickSettings:
-    """The recommended settings (a new frozen dataclass; use ``dataclasses.replace`` to vary)."""
+    """The Madgwick configuration ``best`` runs without velocity aiding (a new frozen dataclass)."""
     return MadgwickSettings(
         beta_rad_s=0.01,
         zeta_rad_s=0.0005,
@@ -93,9 +121,200 @@ def best_settings() -> MadgwickSettings:
     )
 
 
-def create_best(settings: FilterSettings | None = None, **kwargs: Any) -> AttitudeFilter:
-    """The recommended filter; ``settings`` (a :class:`MadgwickSettings`) overrides the recommendation.
+def best_eskf_settings() -> EskfSettings:
+    """The velocity-aided filter ``best`` runs with GNSS velocity: :class:`EskfSettings` defaults.
 
-    ``kwargs`` are passed to the filter's constructor (e.g. ``compiled=False``).
+    ``sensor_delay_s`` is set per stream by the pipeline from the autopilot's
+    scaling profile (:meth:`Best.set_sensor_delay`).
     """
-    return Madgwick(best_settings() if settings is None else settings, **kwargs)
+    return EskfSettings()
+
+
+@dataclass(frozen=True)
+class BestSettings(FilterSettings):
+    """Settings of :class:`Best`.
+
+    Attributes:
+        madgwick: the filter used without velocity aiding.
+        eskf: the velocity-aided filter.
+        fade_s: after the velocity-aided filter loses its aiding
+            (``eskf.aiding_timeout_s`` without a fix), the output moves from
+            its attitude to the Madgwick attitude over this long, s.
+    """
+
+    madgwick: MadgwickSettings = field(default_factory=best_settings)
+    eskf: EskfSettings = field(default_factory=best_eskf_settings)
+    fade_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (math.isfinite(self.fade_s) and self.fade_s >= 0.0):
+            raise ValueError(f"BestSettings.fade_s must be ≥ 0 s, got {self.fade_s!r}")
+        if self.madgwick.max_gap_s != self.max_gap_s or self.eskf.max_gap_s != self.max_gap_s:
+            raise ValueError("BestSettings: max_gap_s must be the same for best and both of its filters")
+
+
+# layout of the composite (offsets from S_FILTER / P_FILTER), fixed by the two filters' sizes
+_LM = S_FILTER + Madgwick.internal_len  # a whole Madgwick state
+_LE = S_FILTER + Eskf.internal_len
+_PLM = len(best_settings().common_params()) + len(Madgwick.filter_params(best_settings()))
+_PLE = len(EskfSettings().common_params()) + len(Eskf.filter_params(EskfSettings()))
+_SM = S_FILTER  # Madgwick state
+_SE = _SM + _LM  # ESKF state
+_OM = _SE + _LE  # Madgwick's output row
+_OE = _OM + OUT_WIDTH  # ESKF's output row
+_W = _OE + OUT_WIDTH  # output weight of the ESKF, 0 … 1
+_QOUT = _W + 1  # the attitude last written to the common prefix (4): detects a state set by hand
+_N_STATE = _QOUT + 4 - S_FILTER
+_PM = P_FILTER  # Madgwick params
+_PE = _PM + _PLM  # ESKF params
+_FADE = _PE + _PLE
+_N_PARAMS = _FADE + 1 - P_FILTER
+
+
+@kernel
+def step(state, params, row, out):  # type: ignore[no-untyped-def]
+    """Both filters, then the output: the ESKF's while velocity-aided, else Madgwick's (faded)."""
+    sm = state[_SM : _SM + _LM]
+    se = state[_SE : _SE + _LE]
+    pm = params[_PM : _PM + _PLM]
+    pe = params[_PE : _PE + _PLE]
+    om = state[_OM : _OM + OUT_WIDTH]
+    oe = state[_OE : _OE + OUT_WIDTH]
+    fix = (
+        not (row[IN_VEL] != row[IN_VEL])
+        or not (row[IN_VEL + 1] != row[IN_VEL + 1])
+        or not (row[IN_VEL + 2] != row[IN_VEL + 2])
+    )
+    if fix and sm[S_INIT] > 0.0 and se[S_INIT] > 0.0 and not eskf_aided(se, pe):
+        # the ESKF (re)starts its aiding: from the Madgwick attitude and bias, so nothing jumps
+        for i in range(4):
+            se[S_Q + i] = sm[S_Q + i]
+        for i in range(3):
+            se[S_BIAS + i] = sm[S_BIAS + i]
+        eskf_reopen_attitude(se, S_FILTER, pe)
+    _madgwick_step(sm, pm, row, om)
+    _eskf_step(se, pe, row, oe)
+    aided = eskf_aided(se, pe)
+    w = state[_W]
+    dt = row[IN_DT]
+    if aided:
+        w = 1.0
+    elif w > 0.0:
+        fade = params[_FADE]
+        w = w - dt / fade if (fade > 0.0 and dt > 0.0 and dt < 1.0) else 0.0
+        if w < 0.0 or not (w == w):
+            w = 0.0
+    state[_W] = w
+    src = oe if w >= 0.5 else om
+    for i in range(OUT_WIDTH):
+        out[i] = src[i]
+    if 0.0 < w < 1.0:  # normalised linear blend, same hemisphere
+        dot = 0.0
+        for i in range(4):
+            dot += oe[OUT_Q + i] * om[OUT_Q + i]
+        sgn = 1.0 if dot >= 0.0 else -1.0
+        n = 0.0
+        for i in range(4):
+            out[OUT_Q + i] = w * oe[OUT_Q + i] + (1.0 - w) * sgn * om[OUT_Q + i]
+            n += out[OUT_Q + i] * out[OUT_Q + i]
+        n = math.sqrt(n)
+        for i in range(4):
+            out[OUT_Q + i] /= n
+    for i in range(4):
+        state[S_Q + i] = out[OUT_Q + i]
+        state[_QOUT + i] = out[OUT_Q + i]
+    for i in range(3):
+        state[S_BIAS + i] = out[OUT_BIAS + i]
+    state[S_INIT] = 1.0 if (sm[S_INIT] > 0.0 or se[S_INIT] > 0.0) else 0.0
+
+
+class Best(AttitudeFilter):
+    """The recommended filter: velocity-aided ESKF with GNSS, tuned Madgwick without.  See :class:`BestSettings`."""
+
+    name = "best"
+    settings_type = BestSettings
+    step = step
+    internal_len = _N_STATE
+
+    @classmethod
+    def filter_params(cls, settings: BestSettings) -> np.ndarray:  # type: ignore[override]
+        p = np.zeros(_N_PARAMS)
+        m = np.concatenate([settings.madgwick.common_params(), Madgwick.filter_params(settings.madgwick)])
+        e = np.concatenate([settings.eskf.common_params(), Eskf.filter_params(settings.eskf)])
+        p[_PM - P_FILTER : _PM - P_FILTER + _PLM] = m
+        p[_PE - P_FILTER : _PE - P_FILTER + _PLE] = e
+        p[_FADE - P_FILTER] = settings.fade_s
+        return p
+
+    def initial_internal(self) -> np.ndarray:
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        internal = np.zeros(_N_STATE)
+        internal[_SM - S_FILTER : _SM - S_FILTER + _LM] = Madgwick(s.madgwick, compiled=False).raw_state
+        internal[_SE - S_FILTER : _SE - S_FILTER + _LE] = Eskf(s.eskf, compiled=False).raw_state
+        internal[_QOUT - S_FILTER] = 1.0
+        return internal
+
+    @property
+    def using_velocity_aiding(self) -> bool:
+        """True while the output is the velocity-aided filter's."""
+        return bool(self._state[_W] >= 0.5)
+
+    @AttitudeFilter.state.setter  # type: ignore[attr-defined,misc]
+    def state(self, value: FilterState) -> None:
+        AttitudeFilter.state.fset(self, value)  # type: ignore[attr-defined]
+        s = self._state
+        if not np.array_equal(s[S_Q : S_Q + 4], s[_QOUT : _QOUT + 4]):
+            # the attitude was set from outside: both filters continue from it
+            for base in (_SM, _SE):
+                s[base + S_Q : base + S_Q + 4] = s[S_Q : S_Q + 4]
+                s[base + S_BIAS : base + S_BIAS + 3] = s[S_BIAS : S_BIAS + 3]
+                s[base + S_INIT] = s[S_INIT]
+            s[_QOUT : _QOUT + 4] = s[S_Q : S_Q + 4]
+
+    def set_mag_reference(self, norm_ut: float, dip_rad: float) -> None:
+        """Both filters' magnetometer rejection reference (see :meth:`AttitudeFilter.set_mag_reference`)."""
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        for sub, base, pbase in ((Madgwick(s.madgwick, compiled=False), _SM, _PM),
+                                 (Eskf(s.eskf, compiled=False), _SE, _PE)):  # fmt: skip
+            n = _LM if base == _SM else _LE
+            pn = _PLM if base == _SM else _PLE
+            sub._state[:] = self._state[base : base + n]
+            sub._params[:] = self._params[pbase : pbase + pn]
+            sub.set_mag_reference(norm_ut, dip_rad)
+            self._state[base : base + n] = sub._state
+            self._params[pbase : pbase + pn] = sub._params
+        self._settings = replace(
+            s,
+            madgwick=replace(s.madgwick, schedule=replace(s.madgwick.schedule, mag_reference_norm_ut=norm_ut,
+                                                          mag_reference_dip_rad=dip_rad)),
+            eskf=replace(s.eskf, schedule=replace(s.eskf.schedule, mag_reference_norm_ut=norm_ut,
+                                                  mag_reference_dip_rad=dip_rad)),
+        )  # fmt: skip
+        AttitudeFilter.set_mag_reference(self, norm_ut, dip_rad)
+
+    def set_sensor_delay(self, delay_s: float) -> None:
+        """The IMU data's delay behind its time stamps (s), for the velocity-aided filter's output and fixes."""
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        eskf = replace(s.eskf, sensor_delay_s=delay_s)
+        self._settings = replace(s, eskf=eskf)
+        self._params[_PE + P_FILTER + _DELAY_OFFSET] = eskf.sensor_delay_s
+
+
+
+
+
+def create_best(settings: FilterSettings | None = None, **kwargs: Any) -> AttitudeFilter:
+    """The recommended filter.
+
+    ``settings``: a :class:`BestSettings`, or a :class:`MadgwickSettings` for
+    the part used without velocity aiding (the rest recommended).  ``kwargs``
+    are passed to the constructor (e.g. ``compiled=False``).
+    """
+    if isinstance(settings, MadgwickSettings):
+        settings = BestSettings(madgwick=settings, max_gap_s=settings.max_gap_s,
+                                eskf=replace(best_eskf_settings(), max_gap_s=settings.max_gap_s))  # fmt: skip
+    return Best(settings, **kwargs)

@@ -14,7 +14,10 @@ IN_DT       time since the previous sample                         s
 IN_GYRO+k   angular rate, body (sensor) axes, k = 0, 1, 2          rad/s
 IN_ACCEL+k  specific force, body axes (level FRD at rest ≈ −g z)   m/s²
 IN_MAG+k    magnetic field, body axes; NaN = no magnetometer       µT
-IN_VEL+k    GNSS velocity in NED; NaN = no fix                     m/s
+IN_VEL+k    GNSS velocity in NED; NaN = no fix (per component:     m/s
+            a receiver's fix has no vertical)
+IN_VEL_AGE  age of that velocity at this sample's time: sample    s
+            time − the fix's own time stamp; NaN = not known
 ==========  =====================================================  ==========
 
 Output row (``OUT_WIDTH`` values): the attitude and the diagnostics.
@@ -37,7 +40,8 @@ IN_GYRO = 1
 IN_ACCEL = 4
 IN_MAG = 7
 IN_VEL = 10
-IN_WIDTH = 13
+IN_VEL_AGE = 13
+IN_WIDTH = 14
 
 OUT_Q = 0
 OUT_GAIN = 4

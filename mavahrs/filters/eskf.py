@@ -1,0 +1,662 @@
+r"""Velocity-aided error-state Kalman filter: attitude, NED velocity and gyro bias.
+
+The autopilot's way of using GNSS for attitude (ArduPilot's EKF3, PX4's
+EKF2; Solà, "Quaternion kinematics for the error-state Kalman filter", 2017,
+§5–7): the gyro propagates the attitude, the specific force rotated into NED
+and integrated with gravity propagates a velocity, and each GNSS velocity fix
+corrects both through their covariance.  A tilt error δθ turns part of
+gravity into a horizontal acceleration, δv̇ = −[f_NED]× δθ, so after a few
+fixes the velocity residual *is* the tilt error, measured over the fix
+interval without differentiating the velocity; while the vehicle accelerates
+horizontally the same residual measures the heading too.  This replaces the
+differentiated, low-passed v̇ of :mod:`mavahrs.filters.gnss` (a derivative of
+a 10 Hz signal, whose noise and delay set the accuracy of the compensated
+gravity reference) with the integral form of the 003 tutorial's acceleration
+compensation: the gyro-platform's levelling equation ``v̇ = C f + g`` (003,
+"Влияние ускорений") closed through a Kalman gain instead of a fixed one.
+
+Nominal state: ``q_body_to_ned`` (common prefix), ``v_ned`` (m/s), gyro bias
+``b`` (common prefix, rad/s).  Error state (9): δθ (rotation in NED,
+``q_true = exp(δθ/2) ⊗ q``), δv, δb.  Per IMU sample, over dt:
+
+* q ← q ⊗ exp((ω − b)·dt/2);  v ← v + (C f + g)·dt  (Madgwick 2010 eq. (11)
+  solved exactly; 003's velocity equation);
+* P ← Φ P Φᵀ + Q·dt with Φ = I + F·dt,  F: δθ̇ = −C δb,  δv̇ = −[C f]× δθ
+  (Solà eq. 270, global error);
+* a velocity fix (``IN_VEL``, any of its components; a NaN component — the
+  vertical from GPS_RAW_INT — is not fused): innovation against the INS
+  velocity *at the fix's own time* (``IN_VEL_AGE``, plus the IMU data's delay
+  ``sensor_delay_s``), read from a short history, one scalar update per
+  component with a χ² gate;
+* the magnetometer, at most ``mag_rate_hz`` and only when the shared gain
+  schedule trusts it (norm and dip near the reference): one scalar update of
+  the horizontal field's angle from magnetic north, H = [m_D/m_H, 0, −1, 0…]
+  (a tilt error about north moves the horizontal projection by m_D/m_H
+  times as much), gated;
+* without velocity aiding (no fix yet, or none for ``aiding_timeout_s``), the
+  accelerometer's direction as a gravity measurement, its noise scaled by
+  the schedule's accelerometer trust: the filter is then an accelerometer +
+  magnetometer AHRS like the others, and ``best`` uses the Madgwick
+  configuration there instead (:mod:`mavahrs.filters.best`).
+
+Each update's δx is injected at once (q ← exp(δθ/2) ⊗ q, v += δv, b += δb)
+and the error state returns to zero.  The output is the attitude advanced by
+``sensor_delay_s`` with the current rate, q ⊗ exp(ω·τ/2): an autopilot's
+IMU messages carry low-passed rates (ArduPilot: INS_GYRO_FILTER, a 20 Hz
+second-order filter, ≈ 11 ms of delay), so the integrated attitude trails the
+vehicle by that much; the state itself is not advanced.  Details and the
+measured choices: ``docs/filters/eskf.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mavahrs.filters import gains as _g
+from mavahrs.filters.base import (
+    P_FILTER,
+    P_SCHED,
+    S_BIAS,
+    S_FILTER,
+    S_Q,
+    S_SCHED,
+    AttitudeFilter,
+    FilterSettings,
+    add_flag,
+    begin_step,
+    finish_step,
+)
+from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.kinematics import integrate_body_rate, quat_multiply
+from mavahrs.filters.layout import (
+    FLAG_ACCEL_INVALID,
+    FLAG_MAG_INVALID,
+    FLAG_STARTUP,
+    IN_ACCEL,
+    IN_GYRO,
+    IN_MAG,
+    IN_VEL,
+    IN_VEL_AGE,
+    OUT_ACCEL_WEIGHT,
+    OUT_FLAGS,
+    OUT_Q,
+)
+
+__all__ = ["EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM"]
+
+N = 9  # error-state size: δθ (0–2), δv (3–5), δb (6–8)
+HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 400 Hz
+
+# filter parameters, offsets from P_FILTER
+_Q_GYRO = 0  # gyro noise density², rad²/s
+_Q_ACCEL = 1  # accelerometer noise density², (m/s²)²·s
+_Q_BIAS = 2  # bias random walk², rad²/s³
+_R_VEL_H = 3  # horizontal velocity noise², (m/s)²
+_R_VEL_V = 4  # vertical velocity noise², (m/s)²
+_R_HEADING = 5  # magnetic heading noise², rad²
+_R_GRAVITY = 6  # gravity-direction noise (unaided), (m/s²)²
+_GATE = 7  # χ gate (σ)
+_AID_TIMEOUT = 8  # s
+_DELAY = 9  # s
+_MAG_PERIOD = 10  # s between magnetometer updates
+_P0_TILT = 11  # initial tilt σ², rad²
+_P0_HEADING = 12  # initial heading σ², rad²
+_P0_BIAS = 13  # initial bias σ², (rad/s)²
+_BIAS_LIMIT = 14  # rad/s per axis
+_VEL_RESET = 15  # s of rejected velocity before the velocity is reset to the fix
+_MAG_STALE = 16  # s: assumed age spread of a magnetometer reading (heading noise grows with the yaw rate)
+_REJECT_RESET = 17  # s of rejected attitude measurements before the attitude covariance is re-opened
+_N_PARAMS = 18
+#: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
+DELAY_PARAM = _DELAY
+
+# filter state, offsets from S_FILTER
+_V = 0  # INS velocity, NED (3)
+_P = 3  # covariance, row-major N×N
+_CLK = _P + N * N  # time since (re)initialisation, s
+_LAST_FIX = _CLK + 1  # clock time of the last fused velocity fix (−1: not aided)
+_LAST_MAG = _CLK + 2  # clock time of the last magnetometer update
+_VREJ = _CLK + 3  # how long every velocity fix has been rejected, s
+_PREV_VEL = _CLK + 4  # the previous row's velocity (3): a held value is not a new fix
+_PREV_MAG = _CLK + 7  # the previous row's magnetometer (3): a repeated reading is not a new one
+_GREJ = _CLK + 10  # how long every gravity / heading measurement has been rejected, s
+_HPOS = _CLK + 11  # next history slot
+_HCOUNT = _CLK + 12  # filled history slots
+_DX = _CLK + 13  # accumulated error-state correction (N)
+_PH = _DX + N  # scratch: P·hᵀ (N)
+_H = _PH + N  # scratch: h (N)
+_C = _H + N  # scratch: C_body_to_ned (9)
+_M = _C + 9  # scratch: −[f_NED]× (9)
+_A = _M + 9  # scratch: Φ·P (N×N)
+_HIST = _A + N * N  # INS velocity history, HISTORY_LEN × (t, vn, ve, vd)
+_N_STATE = _HIST + 4 * HISTORY_LEN
+
+
+@dataclass(frozen=True)
+class EskfSettings(FilterSettings):
+    """Settings of :class:`Eskf` (noise densities are rate-independent).
+
+    Attributes:
+        gyro_noise_rad_s: gyro white-noise density, rad/s/√Hz (the attitude's
+            random walk between corrections; also covers the sampling and
+            low-pass errors of an autopilot's telemetry IMU stream).
+        accel_noise_m_s2: accelerometer white-noise density, m/s²/√Hz (the
+            INS velocity's random walk).
+        bias_walk_rad_s2: gyro-bias random walk, rad/s per √s (how fast the
+            bias may wander: ArduPilot's simulator drifts about 2 mrad/s over
+            two minutes).
+        velocity_noise_m_s: 1-σ noise of a horizontal GNSS velocity fix, m/s.
+        vertical_velocity_noise_m_s: 1-σ noise of the vertical velocity, m/s.
+        heading_noise_rad: 1-σ noise of one magnetometer heading, rad.
+        gravity_noise_m_s2: 1-σ noise of the accelerometer as a gravity
+            measurement while not velocity-aided, m/s² (divided by the
+            schedule's accelerometer trust).
+        gate_sigma: an innovation beyond this many σ is rejected.
+        aiding_timeout_s: no velocity fix fused for this long = not aided
+            (the gravity measurement takes over; the next fix restarts the
+            velocity).
+        sensor_delay_s: delay of the IMU data behind its time stamps, s
+            (ArduPilot's RAW_IMU: its 20 Hz INS filters, ≈ 0.011 s).  Fixes
+            are compared with the INS velocity this much later, and the
+            output attitude is advanced by it.  0 = none.
+        mag_rate_hz: magnetometer updates per second at most (ArduPilot
+            reads its compass at 10 Hz and repeats the value in between).
+        initial_tilt_rad, initial_heading_rad: 1-σ uncertainty of the
+            initial attitude from the accelerometer (+ magnetometer).
+        initial_bias_rad_s: 1-σ uncertainty of the initial gyro bias.
+        bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
+        velocity_reset_s: every fix rejected for this long resets the INS
+            velocity to the fix (as autopilot EKFs do).
+        mag_staleness_s: how old a magnetometer reading may be when it
+            arrives, s (ArduPilot repeats a 10 Hz compass reading in every IMU
+            message): the heading noise grows by yaw rate × this, so readings
+            taken in a fast yaw count less.  A reading is fused when it
+            changes (at most ``mag_rate_hz``), or after 1 s of repeats.
+        rejection_reset_s: every gravity and heading measurement rejected
+            by the gate for this long re-opens the attitude covariance (the
+            estimate is what is wrong: a bad start, a state set by hand).
+        schedule: the shared schedule: only its magnetometer rejection (norm,
+            dip) and accelerometer trust are used; no start-up boost (the
+            covariance converges the filter).
+    """
+
+    gyro_noise_rad_s: float = 0.003
+    accel_noise_m_s2: float = 0.1
+    bias_walk_rad_s2: float = 5e-5
+    velocity_noise_m_s: float = 0.1
+    vertical_velocity_noise_m_s: float = 0.15
+    heading_noise_rad: float = math.radians(5.0)
+    gravity_noise_m_s2: float = 1.0
+    gate_sigma: float = 3.0
+    aiding_timeout_s: float = 3.0
+    sensor_delay_s: float = 0.0
+    mag_rate_hz: float = 10.0
+    initial_tilt_rad: float = math.radians(3.0)
+    initial_heading_rad: float = math.radians(20.0)
+    initial_bias_rad_s: float = math.radians(0.5)
+    bias_limit_rad_s: float = math.radians(5.0)
+    velocity_reset_s: float = 5.0
+    mag_staleness_s: float = 0.1
+    rejection_reset_s: float = 2.0
+    schedule: GainScheduleSettings = field(
+        default_factory=lambda: GainScheduleSettings(
+            startup_gain_factor=1.0,
+            startup_s=0.0,
+            accel_norm_tolerance=0.2,
+            spin_rate_rad_s=0.0,
+            horizontal_tolerance=0.0,
+            rejection_timeout_s=0.0,
+            mag_norm_tolerance=0.08,
+            mag_dip_tolerance_rad=math.radians(5.0),
+        )
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in (
+            "gyro_noise_rad_s", "accel_noise_m_s2", "bias_walk_rad_s2", "velocity_noise_m_s",
+            "vertical_velocity_noise_m_s", "heading_noise_rad", "gravity_noise_m_s2", "gate_sigma",
+            "aiding_timeout_s", "mag_rate_hz", "initial_tilt_rad", "initial_heading_rad",
+            "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s",
+        ):  # fmt: skip
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(self.sensor_delay_s) and 0.0 <= self.sensor_delay_s <= 0.1):
+            raise ValueError(f"EskfSettings.sensor_delay_s must be in [0, 0.1] s, got {self.sensor_delay_s!r}")
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@kernel
+def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
+    """Initial covariance and an empty history (after the attitude's (re)initialisation)."""
+    p = P_FILTER
+    for i in range(_N_STATE):
+        s[k + i] = 0.0
+    kp = k + _P
+    s[kp + 0] = s[kp + N + 1] = params[p + _P0_TILT]
+    s[kp + 2 * N + 2] = params[p + _P0_HEADING]
+    for i in range(6, 9):
+        s[kp + i * N + i] = params[p + _P0_BIAS]
+    s[k + _LAST_FIX] = -1.0
+    s[k + _LAST_MAG] = -1.0e9
+    for i in range(3):
+        s[k + _PREV_VEL + i] = math.nan
+
+
+@kernel
+def eskf_reopen_attitude(s, k, params):  # type: ignore[no-untyped-def]
+    """Attitude covariance back to its initial values, uncorrelated with the rest."""
+    kp = k + _P
+    for i in range(3):
+        for j in range(N):
+            s[kp + i * N + j] = 0.0
+            s[kp + j * N + i] = 0.0
+    s[kp + 0] = s[kp + N + 1] = params[P_FILTER + _P0_TILT]
+    s[kp + 2 * N + 2] = params[P_FILTER + _P0_HEADING]
+
+
+@kernel
+def _restart_velocity(s, k, vn, ve, vd, r_h, r_v):  # type: ignore[no-untyped-def]
+    """Velocity := the fix (unknown components 0 with a large variance), uncorrelated with the rest."""
+    kp = k + _P
+    for i in range(3, 6):
+        for j in range(N):
+            s[kp + i * N + j] = 0.0
+            s[kp + j * N + i] = 0.0
+    s[k + _V] = vn if math.isfinite(vn) else 0.0
+    s[k + _V + 1] = ve if math.isfinite(ve) else 0.0
+    s[k + _V + 2] = vd if math.isfinite(vd) else 0.0
+    s[kp + 3 * N + 3] = r_h if math.isfinite(vn) else 100.0
+    s[kp + 4 * N + 4] = r_h if math.isfinite(ve) else 100.0
+    s[kp + 5 * N + 5] = r_v if math.isfinite(vd) else 100.0
+    s[k + _HCOUNT] = 0.0
+    s[k + _VREJ] = 0.0
+
+
+@kernel(inline=True)
+def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias):  # type: ignore[no-untyped-def]
+    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb, δv̇ = M δθ with M = −[f]×; scratch C, M)."""
+    kp = k + _P
+    ka = k + _A
+    kc = k + _C
+    km = k + _M
+    # A = Φ P
+    for j in range(N):
+        for i in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += s[kc + 3 * i + m] * s[kp + (6 + m) * N + j]
+            s[ka + i * N + j] = s[kp + i * N + j] - dt * acc
+            acc = 0.0
+            for m in range(3):
+                acc += s[km + 3 * i + m] * s[kp + m * N + j]
+            s[ka + (3 + i) * N + j] = s[kp + (3 + i) * N + j] + dt * acc
+            s[ka + (6 + i) * N + j] = s[kp + (6 + i) * N + j]
+    # P = A Φᵀ
+    for i in range(N):
+        for j in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += s[ka + i * N + 6 + m] * s[kc + 3 * j + m]
+            s[kp + i * N + j] = s[ka + i * N + j] - dt * acc
+            acc = 0.0
+            for m in range(3):
+                acc += s[ka + i * N + m] * s[km + 3 * j + m]
+            s[kp + i * N + 3 + j] = s[ka + i * N + 3 + j] + dt * acc
+            s[kp + i * N + 6 + j] = s[ka + i * N + 6 + j]
+    for i in range(3):
+        s[kp + i * N + i] += q_gyro * dt
+        s[kp + (3 + i) * N + 3 + i] += q_accel * dt
+        s[kp + (6 + i) * N + 6 + i] += q_bias * dt
+    # keep P symmetric against round-off
+    for i in range(N):
+        for j in range(i + 1, N):
+            a = 0.5 * (s[kp + i * N + j] + s[kp + j * N + i])
+            s[kp + i * N + j] = a
+            s[kp + j * N + i] = a
+
+
+@kernel(inline=True)
+def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
+    """One scalar measurement: innovation ``y`` (before this update's δx), h in scratch, noise ``r``.
+
+    Returns False (and changes nothing) when the innovation fails the χ gate.
+    """
+    kp = k + _P
+    kh = k + _H
+    kph = k + _PH
+    kdx = k + _DX
+    hs = 0.0
+    for i in range(N):
+        acc = 0.0
+        for j in range(N):
+            acc += s[kp + i * N + j] * s[kh + j]
+        s[kph + i] = acc
+        hs += s[kh + i] * s[k + _DX + i]
+    y -= hs  # what the corrections already found this sample explain
+    sv = r
+    for i in range(N):
+        sv += s[kh + i] * s[kph + i]
+    if not (sv > 0.0) or y * y > gate * gate * sv:
+        return False
+    inv = 1.0 / sv
+    for i in range(N):
+        s[kdx + i] += s[kph + i] * inv * y
+    for i in range(N):
+        ki = s[kph + i] * inv
+        for j in range(N):
+            s[kp + i * N + j] -= ki * s[kph + j]
+    return True
+
+
+@kernel
+def _history_velocity(s, k, t, out3):  # type: ignore[no-untyped-def]
+    """The INS velocity at clock time ``t`` from the history (linear between entries); False if not held."""
+    n = int(s[k + _HCOUNT])
+    if n == 0:
+        return False
+    pos = int(s[k + _HPOS])
+    newest = (pos - 1) % HISTORY_LEN
+    kh = k + _HIST
+    if t >= s[kh + 4 * newest]:
+        for i in range(3):
+            out3[i] = s[k + _V + i]
+        return True
+    later = newest
+    for back in range(1, n):
+        idx = (newest - back) % HISTORY_LEN
+        te = s[kh + 4 * idx]
+        if te <= t:
+            tl = s[kh + 4 * later]
+            w = (t - te) / (tl - te) if tl > te else 0.0
+            for i in range(3):
+                out3[i] = s[kh + 4 * idx + 1 + i] + w * (s[kh + 4 * later + 1 + i] - s[kh + 4 * idx + 1 + i])
+            return True
+        later = idx
+    return False
+
+
+@kernel
+def step(state, params, row, out):  # type: ignore[no-untyped-def]
+    """One ESKF update (see the module docstring for the equations)."""
+    dt = begin_step(state, params, row, out)
+    flags = int(out[OUT_FLAGS])
+    k = S_FILTER
+    if dt < 0.0:
+        if flags & FLAG_STARTUP:
+            eskf_reset(state, k, params)
+        return
+    p = P_FILTER
+    accel_ok = (flags & FLAG_ACCEL_INVALID) == 0
+    mag_ok = (flags & FLAG_MAG_INVALID) == 0
+    q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
+    gx = row[IN_GYRO] - state[S_BIAS]
+    gy = row[IN_GYRO + 1] - state[S_BIAS + 1]
+    gz = row[IN_GYRO + 2] - state[S_BIAS + 2]
+    ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
+    mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
+    boost, w_a, w_m = schedule_step(
+        state[S_SCHED : S_SCHED + _g.GS_LEN],
+        params[P_SCHED : P_SCHED + _g.GP_LEN],
+        q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, my, mz, mag_ok, dt,
+    )  # fmt: skip
+    if boost > 1.0:
+        add_flag(out, FLAG_STARTUP)
+
+    # ---- C = C_body_to_ned(q), f in NED ---------------------------------------------------
+    kc = k + _C
+    state[kc + 0] = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
+    state[kc + 1] = 2.0 * (q1 * q2 - q0 * q3)
+    state[kc + 2] = 2.0 * (q1 * q3 + q0 * q2)
+    state[kc + 3] = 2.0 * (q1 * q2 + q0 * q3)
+    state[kc + 4] = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
+    state[kc + 5] = 2.0 * (q2 * q3 - q0 * q1)
+    state[kc + 6] = 2.0 * (q1 * q3 - q0 * q2)
+    state[kc + 7] = 2.0 * (q2 * q3 + q0 * q1)
+    state[kc + 8] = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+    fn = fe = fd = 0.0
+    if accel_ok:
+        fn = state[kc + 0] * ax + state[kc + 1] * ay + state[kc + 2] * az
+        fe = state[kc + 3] * ax + state[kc + 4] * ay + state[kc + 5] * az
+        fd = state[kc + 6] * ax + state[kc + 7] * ay + state[kc + 8] * az
+    km = k + _M  # M = −[f]×
+    state[km + 0] = 0.0
+    state[km + 1] = fd
+    state[km + 2] = -fe
+    state[km + 3] = -fd
+    state[km + 4] = 0.0
+    state[km + 5] = fn
+    state[km + 6] = fe
+    state[km + 7] = -fn
+    state[km + 8] = 0.0
+
+    # ---- propagate ---------------------------------------------------------------------------
+    state[k + _CLK] += dt
+    clk = state[k + _CLK]
+    aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
+    if aided and accel_ok:
+        state[k + _V] += fn * dt
+        state[k + _V + 1] += fe * dt
+        state[k + _V + 2] += (fd + G_M_S2) * dt
+    _propagate_covariance(state, k, dt, params[p + _Q_GYRO], params[p + _Q_ACCEL], params[p + _Q_BIAS])
+    integrate_body_rate(state, S_Q, gx, gy, gz, dt)
+    # history of the INS velocity (the state after this sample, at its time)
+    pos = int(state[k + _HPOS])
+    kh = k + _HIST + 4 * pos
+    state[kh] = clk
+    state[kh + 1] = state[k + _V]
+    state[kh + 2] = state[k + _V + 1]
+    state[kh + 3] = state[k + _V + 2]
+    state[k + _HPOS] = (pos + 1) % HISTORY_LEN
+    if state[k + _HCOUNT] < HISTORY_LEN:
+        state[k + _HCOUNT] += 1.0
+
+    for i in range(N):
+        state[k + _DX + i] = 0.0
+    updated = False
+    gate = params[p + _GATE]
+
+    # ---- velocity fix ------------------------------------------------------------------------
+    vn, ve, vd = row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2]
+    any_fix = math.isfinite(vn) or math.isfinite(ve) or math.isfinite(vd)
+    held = (
+        any_fix
+        and (vn == state[k + _PREV_VEL] or not (math.isfinite(vn) or math.isfinite(state[k + _PREV_VEL])))
+        and (ve == state[k + _PREV_VEL + 1] or not (math.isfinite(ve) or math.isfinite(state[k + _PREV_VEL + 1])))
+        and (vd == state[k + _PREV_VEL + 2] or not (math.isfinite(vd) or math.isfinite(state[k + _PREV_VEL + 2])))
+    )
+    state[k + _PREV_VEL] = vn
+    state[k + _PREV_VEL + 1] = ve
+    state[k + _PREV_VEL + 2] = vd
+    r_h = params[p + _R_VEL_H]
+    r_v = params[p + _R_VEL_V]
+    if any_fix and not held:
+        if not aided:
+            _restart_velocity(state, k, vn, ve, vd, r_h, r_v)
+            state[k + _LAST_FIX] = clk
+        else:
+            age = row[IN_VEL_AGE]
+            if not (math.isfinite(age) and age > 0.0):
+                age = 0.0
+            t_fix = clk - age + params[p + _DELAY]
+            vh = state[k + _H : k + _H + 3]  # borrow scratch h[0:3] for the historic velocity
+            if _history_velocity(state, k, t_fix, vh):
+                y0, y1, y2 = vn - vh[0], ve - vh[1], vd - vh[2]
+                accepted = False
+                for c in range(3):
+                    y = y0 if c == 0 else (y1 if c == 1 else y2)
+                    if not math.isfinite(y):
+                        continue
+                    for i in range(N):
+                        state[k + _H + i] = 0.0
+                    state[k + _H + 3 + c] = 1.0
+                    if _scalar_update(state, k, y, r_h if c < 2 else r_v, gate):
+                        accepted = True
+                        updated = True
+                if accepted:
+                    state[k + _LAST_FIX] = clk
+                    state[k + _VREJ] = 0.0
+                else:
+                    state[k + _VREJ] += dt if state[k + _VREJ] > 0.0 else 1e-9
+                    if clk - state[k + _LAST_FIX] > params[p + _VEL_RESET]:
+                        _restart_velocity(state, k, vn, ve, vd, r_h, r_v)
+                        state[k + _LAST_FIX] = clk
+    aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
+
+    # ---- gravity direction while not aided -------------------------------------------------
+    tried = False  # an attitude measurement was offered this sample
+    passed = False  # … and accepted
+    if not aided and accel_ok and w_a > 0.0:
+        na = math.sqrt(ax * ax + ay * ay + az * az)
+        if na > 0.0:
+            sc = G_M_S2 / na  # the direction only
+            r_g = params[p + _R_GRAVITY] / (w_a * w_a)
+            # f_NED(est) − (0, 0, −g) = [f]× δθ: rows (0, g, 0 …) and (−g, 0, 0 …)
+            for i in range(N):
+                state[k + _H + i] = 0.0
+            state[k + _H + 1] = G_M_S2
+            tried = True
+            if _scalar_update(state, k, fn * sc, r_g, gate):
+                updated = passed = True
+            for i in range(N):
+                state[k + _H + i] = 0.0
+            state[k + _H + 0] = -G_M_S2
+            if _scalar_update(state, k, fe * sc, r_g, gate):
+                updated = passed = True
+
+    # ---- magnetometer heading ----------------------------------------------------------------
+    new_mag = mx != state[k + _PREV_MAG] or my != state[k + _PREV_MAG + 1] or mz != state[k + _PREV_MAG + 2]
+    state[k + _PREV_MAG] = mx
+    state[k + _PREV_MAG + 1] = my
+    state[k + _PREV_MAG + 2] = mz
+    since = clk - state[k + _LAST_MAG]
+    if mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
+        hn = state[kc + 0] * mx + state[kc + 1] * my + state[kc + 2] * mz
+        he = state[kc + 3] * mx + state[kc + 4] * my + state[kc + 5] * mz
+        hd = state[kc + 6] * mx + state[kc + 7] * my + state[kc + 8] * mz
+        bh = math.sqrt(hn * hn + he * he)
+        if bh > 0.05 * math.sqrt(mx * mx + my * my + mz * mz):
+            psi = math.atan2(he, hn)  # the estimate's heading error (magnetic north = 0)
+            for i in range(N):
+                state[k + _H + i] = 0.0
+            # ψ ≈ −δθ_D + (m_D/m_H)(δθ_N cos ψ + δθ_E sin ψ)
+            state[k + _H + 0] = hd / bh * math.cos(psi)
+            state[k + _H + 1] = hd / bh * math.sin(psi)
+            state[k + _H + 2] = -1.0
+            # a reading held between compass reads is up to its period old: while turning, its
+            # heading trails by rate × age
+            stale = params[p + _MAG_STALE] * (state[kc + 6] * gx + state[kc + 7] * gy + state[kc + 8] * gz)
+            r_m = (params[p + _R_HEADING] + stale * stale) / (w_m * w_m)
+            tried = True
+            if _scalar_update(state, k, psi, r_m, gate):
+                updated = passed = True
+            state[k + _LAST_MAG] = clk
+    if tried:
+        if passed:
+            state[k + _GREJ] = 0.0
+        else:
+            state[k + _GREJ] += dt
+            if state[k + _GREJ] > params[p + _REJECT_RESET]:
+                # consistently refused: the estimate, not every sensor, is wrong (a bad start, a
+                # disturbance learned as the reference): re-open the attitude covariance
+                eskf_reopen_attitude(state, k, params)
+                state[k + _GREJ] = 0.0
+
+    # ---- inject ------------------------------------------------------------------------------
+    if updated:
+        kdx = k + _DX
+        rx, ry, rz = state[kdx], state[kdx + 1], state[kdx + 2]
+        ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+        if ang > 0.0:
+            h = 0.5 * ang
+            sh = math.sin(h) / ang
+            e0, e1, e2, e3 = math.cos(h), rx * sh, ry * sh, rz * sh
+            a0, a1, a2, a3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
+            state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = quat_multiply(
+                e0, e1, e2, e3, a0, a1, a2, a3
+            )
+        if aided:
+            for i in range(3):
+                state[k + _V + i] += state[kdx + 3 + i]
+        lim = params[p + _BIAS_LIMIT]
+        for i in range(3):
+            b = state[S_BIAS + i] + state[kdx + 6 + i]
+            state[S_BIAS + i] = min(max(b, -lim), lim)
+
+    kp = k + _P
+    tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
+    finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_m)
+    # output: advanced by the IMU data's delay (the state is not)
+    tau = params[p + _DELAY]
+    if tau > 0.0:
+        hx, hy, hz = 0.5 * gx * tau, 0.5 * gy * tau, 0.5 * gz * tau
+        o0, o1, o2, o3 = quat_multiply(out[OUT_Q], out[OUT_Q + 1], out[OUT_Q + 2], out[OUT_Q + 3],
+                                       1.0, hx, hy, hz)  # fmt: skip
+        n = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2 + o3 * o3)
+        out[OUT_Q], out[OUT_Q + 1], out[OUT_Q + 2], out[OUT_Q + 3] = o0 / n, o1 / n, o2 / n, o3 / n
+    if not aided:
+        out[OUT_ACCEL_WEIGHT] = w_a
+
+
+@kernel
+def eskf_aided(s, params):  # type: ignore[no-untyped-def]
+    """True while a velocity fix was fused within ``aiding_timeout_s`` (``s``/``params``: a whole ESKF's)."""
+    last = s[S_FILTER + _LAST_FIX]
+    return last >= 0.0 and s[S_FILTER + _CLK] - last <= params[P_FILTER + _AID_TIMEOUT]
+
+
+@kernel
+def s_pos(x):  # type: ignore[no-untyped-def]
+    """x if positive, else 0."""
+    return x if x > 0.0 else 0.0
+
+
+class Eskf(AttitudeFilter):
+    """Velocity-aided error-state Kalman filter.  See :class:`EskfSettings` and the module docstring."""
+
+    name = "eskf"
+    settings_type = EskfSettings
+    step = step
+    internal_len = _N_STATE
+
+    @classmethod
+    def filter_params(cls, settings: EskfSettings) -> np.ndarray:  # type: ignore[override]
+        p = np.zeros(_N_PARAMS)
+        p[_Q_GYRO] = settings.gyro_noise_rad_s**2
+        p[_Q_ACCEL] = settings.accel_noise_m_s2**2
+        p[_Q_BIAS] = settings.bias_walk_rad_s2**2
+        p[_R_VEL_H] = settings.velocity_noise_m_s**2
+        p[_R_VEL_V] = settings.vertical_velocity_noise_m_s**2
+        p[_R_HEADING] = settings.heading_noise_rad**2
+        p[_R_GRAVITY] = settings.gravity_noise_m_s2**2
+        p[_GATE] = settings.gate_sigma
+        p[_AID_TIMEOUT] = settings.aiding_timeout_s
+        p[_DELAY] = settings.sensor_delay_s
+        p[_MAG_PERIOD] = 1.0 / settings.mag_rate_hz
+        p[_P0_TILT] = settings.initial_tilt_rad**2
+        p[_P0_HEADING] = settings.initial_heading_rad**2
+        p[_P0_BIAS] = settings.initial_bias_rad_s**2
+        p[_BIAS_LIMIT] = settings.bias_limit_rad_s
+        p[_VEL_RESET] = settings.velocity_reset_s
+        p[_MAG_STALE] = settings.mag_staleness_s
+        p[_REJECT_RESET] = settings.rejection_reset_s
+        return p
+
+    def set_sensor_delay(self, delay_s: float) -> None:
+        """The IMU data's delay behind its time stamps, s (see ``EskfSettings.sensor_delay_s``)."""
+        from dataclasses import replace
+
+        self._settings = replace(self._settings, sensor_delay_s=float(delay_s))
+        self._params[P_FILTER + _DELAY] = self._settings.sensor_delay_s
+
+    def initial_internal(self) -> np.ndarray:
+        s = np.zeros(_N_STATE)
+        eskf_reset(s, 0, self._params)
+        return s
