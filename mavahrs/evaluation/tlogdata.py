@@ -216,12 +216,17 @@ class PreparedInputs:
     #: (sample index, field strength µT, inclination rad): the pipeline seeds the filter's
     #: magnetometer rejection (``set_mag_reference``) before that sample
     mag_reference_events: list[tuple[int, float, float]] = field(default_factory=list)
+    #: the IMU data's delay behind its stamps (the profile's ``delay_s``), given to filters that use it
+    sensor_delay_s: float = 0.0
 
     def run_filter(self, f: Any, a: int = 0, b: int | None = None, out: Array | None = None) -> Array:
         """Run filter ``f`` over rows ``a:b`` as the pipeline would (reference seeding included)."""
         b = self.n if b is None else b
         if out is None:
             out = np.empty((b - a, OUT_WIDTH))
+        set_delay = getattr(f, "set_sensor_delay", None)
+        if set_delay is not None:  # Pipeline._set_profile does the same
+            set_delay(self.sensor_delay_s)
         cuts = [a] + sorted({i for i, _, _ in self.mag_reference_events if a < i < b}) + [b]
         for lo, hi in zip(cuts[:-1], cuts[1:]):
             for i, norm, dip in self.mag_reference_events:
@@ -678,6 +683,7 @@ def prepare_inputs(
         rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,
         declination_rad=decl_at, message=sc["name"], instance=chosen, source=src, profile=prof_name,
         engine="fast", notes=notes, counts=counts, mag_reference_events=mag_events,
+        sensor_delay_s=_delay_of(profile, sc["name"]),
     )  # fmt: skip
 
 
@@ -865,6 +871,12 @@ def _tlog_to_autopilot(td: TlogData, prep: PreparedInputs, tlog_us: NDArray[np.i
     if ux.size == 1:
         return np.full(tlog_us.shape, float(uy[0]))
     return np.interp(tlog_us.astype(np.float64), ux, uy, left=_NAN, right=_NAN)
+
+
+def _delay_of(profile: Any, message: str) -> float:
+    """The profile's ``delay_s`` for ``message`` (0 when unknown)."""
+    ms = profile.scale_for(message)
+    return float(ms.delay_s) if ms is not None else 0.0
 
 
 def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Array]]:

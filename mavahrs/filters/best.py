@@ -192,7 +192,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             se[S_Q + i] = sm[S_Q + i]
         for i in range(3):
             se[S_BIAS + i] = sm[S_BIAS + i]
-        eskf_reopen_attitude(se, S_FILTER, pe)
+        eskf_reopen_attitude(se, S_FILTER, pe, 0.0, 0.0)
     _madgwick_step(sm, pm, row, om)
     _eskf_step(se, pe, row, oe)
     aided = eskf_aided(se, pe)

@@ -91,6 +91,10 @@ __all__ = ["EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude",
 N = 9  # error-state size: δθ (0–2), δv (3–5), δb (6–8)
 HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 400 Hz
 
+#: variances the attitude covariance is re-opened to after persistent rejection, rad²
+_REOPEN_TILT = (math.pi / 4.0) ** 2
+_REOPEN_HEADING = (math.pi / 2.0) ** 2
+
 # filter parameters, offsets from P_FILTER
 _Q_GYRO = 0  # gyro noise density², rad²/s
 _Q_ACCEL = 1  # accelerometer noise density², (m/s²)²·s
@@ -251,15 +255,15 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def eskf_reopen_attitude(s, k, params):  # type: ignore[no-untyped-def]
-    """Attitude covariance back to its initial values, uncorrelated with the rest."""
+def eskf_reopen_attitude(s, k, params, big_tilt, big_heading):  # type: ignore[no-untyped-def]
+    """Attitude covariance re-opened (at least its initial values, or the variances given), uncorrelated."""
     kp = k + _P
     for i in range(3):
         for j in range(N):
             s[kp + i * N + j] = 0.0
             s[kp + j * N + i] = 0.0
-    s[kp + 0] = s[kp + N + 1] = params[P_FILTER + _P0_TILT]
-    s[kp + 2 * N + 2] = params[P_FILTER + _P0_HEADING]
+    s[kp + 0] = s[kp + N + 1] = max(params[P_FILTER + _P0_TILT], big_tilt)
+    s[kp + 2 * N + 2] = max(params[P_FILTER + _P0_HEADING], big_heading)
 
 
 @kernel
@@ -566,7 +570,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if state[k + _GREJ] > params[p + _REJECT_RESET]:
                 # consistently refused: the estimate, not every sensor, is wrong (a bad start, a
                 # disturbance learned as the reference): re-open the attitude covariance
-                eskf_reopen_attitude(state, k, params)
+                eskf_reopen_attitude(state, k, params, _REOPEN_TILT, _REOPEN_HEADING)
                 state[k + _GREJ] = 0.0
 
     # ---- inject ------------------------------------------------------------------------------

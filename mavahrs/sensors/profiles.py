@@ -119,6 +119,12 @@ class MessageScale:
             ``mag_plausible_max_ut``, rescale the raw values by this instead
             (ArduPilot HIGHRES_IMU before PR #32286); None = no fallback.
         mag_plausible_max_ut: largest believable field norm, µT.
+        delay_s: how far the values trail their time stamp, s: the group
+            delay of the autopilot's low-pass (ArduPilot's INS_GYRO_FILTER,
+            a 20 Hz second-order filter by default: √2/(2π·20 Hz) ≈ 11 ms;
+            measured on ArduCopter SITL against its true rates: 10–12 ms).
+            The velocity-aided filter compares GNSS fixes with its velocity
+            this much later and advances its output by it.  0 = not known.
         source: where these facts come from.
         note: anything a user should know.
     """
@@ -139,6 +145,7 @@ class MessageScale:
     sample_time: bool = False
     mag_legacy_to_ut: float | None = None
     mag_plausible_max_ut: float = 2000.0
+    delay_s: float = 0.0
     source: str = ""
     note: str = ""
 
@@ -191,31 +198,34 @@ def _int_msg(message: str, time_field: str, **kw: object) -> MessageScale:
 
 
 _AP_SRC = "ArduPilot GCS_Common.cpp send_raw_imu/send_scaled_imu; MAVLink common.xml units"
+#: group delay of ArduPilot's default INS_GYRO_FILTER / INS_ACCEL_FILTER (20 Hz, second order), s
+AP_INS_DELAY_S = math.sqrt(2.0) / (2.0 * math.pi * 20.0)
 _ARDUPILOT = AutopilotProfile(
     name="ardupilot",
     description="ArduPilot",
     messages=MappingProxyType(
         {
             "RAW_IMU": _int_msg(
-                "RAW_IMU", "time_usec", mag_calibrated=True, source=_AP_SRC,
+                "RAW_IMU", "time_usec", mag_calibrated=True, source=_AP_SRC, delay_s=AP_INS_DELAY_S,
                 note="calibrated, board-rotated, low-passed; time_usec is the send time (loop-period jitter)",
             ),
             "SCALED_IMU": _int_msg(
-                "SCALED_IMU", "time_boot_ms", mag_calibrated=True, source=_AP_SRC,
+                "SCALED_IMU", "time_boot_ms", mag_calibrated=True, source=_AP_SRC, delay_s=AP_INS_DELAY_S,
                 note="identical to RAW_IMU on ArduPilot, ms timestamps",
             ),
             "SCALED_IMU2": _int_msg(
-                "SCALED_IMU2", "time_boot_ms", mag_calibrated=True, source=_AP_SRC,
+                "SCALED_IMU2", "time_boot_ms", mag_calibrated=True, source=_AP_SRC, delay_s=AP_INS_DELAY_S,
                 note="instance 1; accel/gyro all zero when only a second compass exists",
             ),
             "SCALED_IMU3": _int_msg(
-                "SCALED_IMU3", "time_boot_ms", mag_calibrated=True, source=_AP_SRC,
+                "SCALED_IMU3", "time_boot_ms", mag_calibrated=True, source=_AP_SRC, delay_s=AP_INS_DELAY_S,
                 note="instance 2; accel/gyro all zero when only a third compass exists",
             ),
             "HIGHRES_IMU": MessageScale(
                 message="HIGHRES_IMU", accel_to_m_s2=1.0, gyro_to_rad_s=1.0, mag_to_ut=_GAUSS,
                 time_field="time_usec", time_to_us=1, temperature_to_c=None, integer_fields=False,
-                mag_calibrated=True, mag_legacy_to_ut=1e-4, source="ArduPilot GCS_Common.cpp send_highres_imu; PR #32286",
+                mag_calibrated=True, mag_legacy_to_ut=1e-4, delay_s=AP_INS_DELAY_S,
+                source="ArduPilot GCS_Common.cpp send_highres_imu; PR #32286",
                 note="mag was sent as mgauss×1000 before PR #32286 (rescaled automatically); temperature is the baro's",
             ),  # fmt: skip
         }

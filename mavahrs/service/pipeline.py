@@ -575,6 +575,10 @@ class Pipeline:
     def _set_profile(self, profile: AutopilotProfile) -> None:
         self._profile = profile
         self._scaler = Scaler(profile, self.settings.scaling)
+        set_delay = getattr(self._filter, "set_sensor_delay", None)
+        ms = profile.scale_for(profile.primary_message)
+        if set_delay is not None and ms is not None:  # the IMU data's low-pass delay (velocity-aided filter)
+            set_delay(ms.delay_s)
         self._calibrators = {
             name: Calibrator(self.settings.calibration, mag_already_calibrated=ms.mag_calibrated)
             for name, ms in profile.messages.items()
