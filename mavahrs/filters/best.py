@@ -89,11 +89,12 @@ from mavahrs.filters.base import (
     FilterState,
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
-from mavahrs.filters.eskf import Eskf, EskfSettings, eskf_aided, eskf_reopen_attitude
+from mavahrs.filters.eskf import Eskf, EskfSettings, eskf_aided
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import IN_DT, IN_VEL, OUT_BIAS, OUT_Q, OUT_WIDTH
-from mavahrs.filters.madgwick import Madgwick, MadgwickSettings
+from mavahrs.filters.gnss import gnss_compensation_fresh
+from mavahrs.filters.layout import IN_DT, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_BIAS, OUT_Q, OUT_WIDTH
+from mavahrs.filters.madgwick import FM_GNSS, PM_GNSS, Madgwick, MadgwickSettings
 from mavahrs.filters.madgwick import step as _madgwick_step
 from mavahrs.filters.rest import RestBiasSettings
 
@@ -165,7 +166,8 @@ _OM = _SE + _LE  # Madgwick's output row
 _OE = _OM + OUT_WIDTH  # ESKF's output row
 _W = _OE + OUT_WIDTH  # output weight of the ESKF, 0 … 1
 _QOUT = _W + 1  # the attitude last written to the common prefix (4): detects a state set by hand
-_N_STATE = _QOUT + 4 - S_FILTER
+_ROW = _QOUT + 4  # scratch: the input row as the ESKF sees it
+_N_STATE = _ROW + IN_WIDTH - S_FILTER
 _PM = P_FILTER  # Madgwick params
 _PE = _PM + _PLM  # ESKF params
 _FADE = _PE + _PLE
@@ -186,15 +188,28 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         or not (row[IN_VEL + 1] != row[IN_VEL + 1])
         or not (row[IN_VEL + 2] != row[IN_VEL + 2])
     )
-    if fix and sm[S_INIT] > 0.0 and se[S_INIT] > 0.0 and not eskf_aided(se, pe):
-        # the ESKF (re)starts its aiding: from the Madgwick attitude and bias, so nothing jumps
-        for i in range(4):
-            se[S_Q + i] = sm[S_Q + i]
-        for i in range(3):
-            se[S_BIAS + i] = sm[S_BIAS + i]
-        eskf_reopen_attitude(se, S_FILTER, pe, 0.0, 0.0)
+    erow = row
+    if fix and not eskf_aided(se, pe):
+        if (
+            sm[S_INIT] > 0.0 and se[S_INIT] > 0.0
+            and (pm[P_FILTER + PM_GNSS] == 0.0 or not gnss_compensation_fresh(sm, S_FILTER + FM_GNSS))
+        ):  # fmt: skip
+            # the ESKF (re)starts its aiding from the Madgwick attitude and bias, so nothing jumps;
+            # Madgwick has had its first v̇ since its own (re)initialisation, which re-aligned it by
+            # TRIAD (after a restart in a manoeuvre the accelerometer's start is 20–45° off)
+            for i in range(4):
+                se[S_Q + i] = sm[S_Q + i]
+            for i in range(3):
+                se[S_BIAS + i] = sm[S_BIAS + i]
+        else:  # not yet: the ESKF sees this fix as no fix
+            erow = state[_ROW : _ROW + IN_WIDTH]
+            for i in range(IN_WIDTH):
+                erow[i] = row[i]
+            for i in range(3):
+                erow[IN_VEL + i] = math.nan
+            erow[IN_VEL_AGE] = math.nan
     _madgwick_step(sm, pm, row, om)
-    _eskf_step(se, pe, row, oe)
+    _eskf_step(se, pe, erow, oe)
     aided = eskf_aided(se, pe)
     w = state[_W]
     dt = row[IN_DT]

@@ -94,6 +94,9 @@ HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 
 #: variances the attitude covariance is re-opened to after persistent rejection, rad²
 _REOPEN_TILT = (math.pi / 4.0) ** 2
 _REOPEN_HEADING = (math.pi / 2.0) ** 2
+#: … and when velocity aiding (re)starts
+_RESTART_TILT = math.radians(20.0) ** 2
+_RESTART_HEADING = math.radians(45.0) ** 2
 
 # filter parameters, offsets from P_FILTER
 _Q_GYRO = 0  # gyro noise density², rad²/s
@@ -128,9 +131,10 @@ _VREJ = _CLK + 3  # how long every velocity fix has been rejected, s
 _PREV_VEL = _CLK + 4  # the previous row's velocity (3): a held value is not a new fix
 _PREV_MAG = _CLK + 7  # the previous row's magnetometer (3): a repeated reading is not a new one
 _GREJ = _CLK + 10  # how long every gravity / heading measurement has been rejected, s
-_HPOS = _CLK + 11  # next history slot
-_HCOUNT = _CLK + 12  # filled history slots
-_DX = _CLK + 13  # accumulated error-state correction (N)
+_PERIOD = _CLK + 11  # interval between the last two changes of the velocity, s (0: not known)
+_HPOS = _CLK + 12  # next history slot
+_HCOUNT = _CLK + 13  # filled history slots
+_DX = _CLK + 14  # accumulated error-state correction (N)
 _PH = _DX + N  # scratch: P·hᵀ (N)
 _H = _PH + N  # scratch: h (N)
 _C = _H + N  # scratch: C_body_to_ned (9)
@@ -363,10 +367,10 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
 @kernel
 def _history_velocity(s, k, t, out3):  # type: ignore[no-untyped-def]
     """The INS velocity at clock time ``t`` from the history (linear between entries); False if not held."""
-    n = int(s[k + _HCOUNT])
-    if n == 0:
-        return False
+    n = min(int(s[k + _HCOUNT]), HISTORY_LEN)
     pos = int(s[k + _HPOS])
+    if n <= 0 or not 0 <= pos < HISTORY_LEN:
+        return False
     newest = (pos - 1) % HISTORY_LEN
     kh = k + _HIST
     if t >= s[kh + 4 * newest]:
@@ -453,6 +457,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     integrate_body_rate(state, S_Q, gx, gy, gz, dt)
     # history of the INS velocity (the state after this sample, at its time)
     pos = int(state[k + _HPOS])
+    if not 0 <= pos < HISTORY_LEN:  # a state set from outside: never index beyond the history
+        pos = 0
     kh = k + _HIST + 4 * pos
     state[kh] = clk
     state[kh + 1] = state[k + _V]
@@ -479,12 +485,22 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     state[k + _PREV_VEL] = vn
     state[k + _PREV_VEL + 1] = ve
     state[k + _PREV_VEL + 2] = vd
+    if held and aided:
+        # the last fix repeated on every row: unchanged for 1.5 fix periods (0.5 s before the period
+        # is known) it is a new fix with the same velocity (a steady velocity)
+        period = state[k + _PERIOD]
+        held = clk - state[k + _LAST_FIX] <= (1.5 * period if period > 0.0 else 0.5)
+    elif any_fix and aided:
+        state[k + _PERIOD] = clk - state[k + _LAST_FIX]
     r_h = params[p + _R_VEL_H]
     r_v = params[p + _R_VEL_V]
     if any_fix and not held:
         if not aided:
             _restart_velocity(state, k, vn, ve, vd, r_h, r_v)
+            # the first fixes tell the tilt within a second even from far off: let them
+            eskf_reopen_attitude(state, k, params, _RESTART_TILT, _RESTART_HEADING)
             state[k + _LAST_FIX] = clk
+            state[k + _PERIOD] = 0.0
         else:
             age = row[IN_VEL_AGE]
             if not (math.isfinite(age) and age > 0.0):
@@ -550,9 +566,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             psi = math.atan2(he, hn)  # the estimate's heading error (magnetic north = 0)
             for i in range(N):
                 state[k + _H + i] = 0.0
-            # ψ ≈ −δθ_D + (m_D/m_H)(δθ_N cos ψ + δθ_E sin ψ)
-            state[k + _H + 0] = hd / bh * math.cos(psi)
-            state[k + _H + 1] = hd / bh * math.sin(psi)
+            # ψ ≈ −δθ_D + (m_D/m_H)(δθ_N cos ψ + δθ_E sin ψ): the tilt terms are left out of H, so
+            # that the magnetometer never moves the tilt (with a large tilt uncertainty, after a
+            # restart, it would; measured on the SITL flights: no difference otherwise)
             state[k + _H + 2] = -1.0
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age

@@ -78,7 +78,13 @@ def velocity_derivative_reset(s, k):  # type: ignore[no-untyped-def]
 
 @kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
 def velocity_derivative_step(s, k, vn, ve, vd, dt, tau_s, max_age_s):  # type: ignore[no-untyped-def]
-    """Advance by one row; return True when ``s[k+3:k+6]`` holds a usable v̇ (m/s², NED)."""
+    """Advance by one row; return True when ``s[k+3:k+6]`` holds a usable v̇ (m/s², NED).
+
+    A fix without a vertical (``vd`` NaN: a receiver's ground speed and
+    course) gives a horizontal v̇ with 0 vertical acceleration.
+    """
+    if not math.isfinite(vd) and math.isfinite(vn) and math.isfinite(ve):
+        vd = 0.0
     fix = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd)
     age = s[k + _AGE]
     if age >= 0.0:
@@ -145,7 +151,7 @@ def gnss_compensation_step(s, k, vn, ve, vd, dt, tau_s, max_age_s, fade_s):  # t
     re-initialised in a manoeuvre converges on f − v̇ from the start instead
     of on f for the fade time.
     """
-    fix = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd)
+    fix = math.isfinite(vn) and math.isfinite(ve)  # a vertical is optional (velocity_derivative_step)
     if not fix and s[k + _WEIGHT] <= 0.0 and s[k + _AGE] < 0.0:
         # no fix now, none since the last reset (the block is in its reset state) and nothing
         # left to fade out: what the steps below would do, without doing it (a log without GNSS)

@@ -126,9 +126,8 @@ def rest_step(s, k, bias, kb, gx, gy, gz, ax, ay, az, accel_ok, vn, ve, vd, dt, 
     dgx, dgy, dgz = gx - s[k], gy - s[k + 1], gz - s[k + 2]
     steady = dgx * dgx + dgy * dgy + dgz * dgz < gyro_threshold * gyro_threshold
     slow = s[k] * s[k] + s[k + 1] * s[k + 1] + s[k + 2] * s[k + 2] < rate_limit * rate_limit
-    moving = math.isfinite(vn) and math.isfinite(ve) and math.isfinite(vd) and (
-        vn * vn + ve * ve + vd * vd > max_speed * max_speed
-    )
+    vz = vd if math.isfinite(vd) else 0.0  # a receiver's fix has no vertical: its ground speed still tells
+    moving = math.isfinite(vn) and math.isfinite(ve) and (vn * vn + ve * ve + vz * vz > max_speed * max_speed)
     if still and steady and slow and not moving:
         s[k + 6] += dt
     else:
