@@ -202,7 +202,8 @@ class PreparedInputs:
         notes: things the user should know (absent instances, low rate …).
         counts: samples seen / fed / dropped by reason.
         velocity_source: the ``velocity_source`` setting in effect (``auto``,
-            a message's name in lower case, ``none``).
+            ``auto, receiver only`` with the monitor's
+            ``receiver_velocity_only``, a named source, ``none``).
         velocity_fixes: GNSS velocity fixes used, per message (in the
             preference order; a fix after the last fed sample included).
     """
@@ -250,6 +251,12 @@ class PreparedInputs:
             return 0.0
         span = float(self.t_us[-1] - self.t_us[0])
         return (self.n - 1) / span * 1e6 if span > 0 else 0.0
+
+
+def _velocity_setting(s: Any) -> str:
+    """The ``velocity_source`` in effect, as the replay header names it."""
+    v = str(s.effective_velocity_source)
+    return f"{v}, receiver only" if v == "auto" and s.monitor.receiver_velocity_only else v
 
 
 def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], int, str]:
@@ -689,7 +696,7 @@ def prepare_inputs(
         rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,
         declination_rad=decl_at, message=sc["name"], instance=chosen, source=src, profile=prof_name,
         engine="fast", notes=notes, counts=counts, mag_reference_events=mag_events,
-        velocity_source=s.effective_velocity_source, velocity_fixes={k: vsel.used(k) for k in vsel.messages},
+        velocity_source=_velocity_setting(s), velocity_fixes={k: vsel.used(k) for k in vsel.messages},
     )  # fmt: skip
 
 
@@ -835,7 +842,7 @@ def run_pipelines(
         profile=p0.profile.name if p0.profile else "?",
         engine="pipeline",
         counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()}},
-        velocity_source=settings.effective_velocity_source,
+        velocity_source=_velocity_setting(settings),
         velocity_fixes={k: p0.velocity_selector.used(k) for k in p0.velocity_selector.messages},
     )
     for kind, text in p0.drain_notices():

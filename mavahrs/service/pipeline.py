@@ -427,6 +427,10 @@ class Pipeline:
         self._vel_meter = RateMeter()
         self._vel_meter_source: str | None = None
         self._notices = Notices()
+        if not s.use_gnss_velocity:
+            self._notices.warning(
+                "deprecated", "pipeline.use_gnss_velocity = false is deprecated: set velocity_source = \"none\"", 0
+            )
         self._to_master = s.send_to_master
         self._out_period_us = int(round(1e6 / s.out_rate_hz)) if s.out_rate_hz > 0 else 0
         self._out_tol_us = min(self._out_period_us // 4, 1000)
