@@ -243,3 +243,16 @@ def test_selector_reordered_and_a_new_clock():
     assert sel.offer(gps(1_000_000), 200_000, None) is not None
     assert sel.counters == {"reordered": 1}
     assert fix_age_s(1_250_000, 1_000_000) == 0.25 and fix_age_s(1_250_000, None) == 0.0
+
+
+def test_replay_velocity_line_after_a_switch():
+    from types import SimpleNamespace
+
+    from mavahrs.replay import format_velocity
+
+    inp = SimpleNamespace(velocity_source="auto", velocity_fixes={"GLOBAL_POSITION_INT": 1200, "GPS_RAW_INT": 40, "GPS2_RAW": 0})
+    assert format_velocity(inp) == (
+        "velocity: GLOBAL_POSITION_INT, 1200 fixes + GPS_RAW_INT, 40 fixes (velocity_source auto)"
+    )
+    inp = SimpleNamespace(velocity_source="auto, receiver only", velocity_fixes={"GPS_RAW_INT": 0, "GPS2_RAW": 0})
+    assert format_velocity(inp) == "velocity: none (velocity_source auto, receiver only: no usable fix in the log)"
