@@ -302,3 +302,30 @@ def test_engines_identical_with_gps_raw_int(shared_data: Path, source: str) -> N
         assert 0.0 <= ages.min() and ages.max() < 0.05
         n = fast.inputs.velocity_fixes["GLOBAL_POSITION_INT"]
         assert format_velocity(fast.inputs) == f"velocity: GLOBAL_POSITION_INT, {n} fixes (velocity_source auto)"
+
+
+@pytest.mark.parametrize("source", ["auto", "gps_raw_int"])
+def test_engines_identical_on_the_simulators_gps_raw_int(sim_gps_raw_tlog: Path, source: str) -> None:
+    """firmware_sim's ArduPilot GPS_RAW_INT: fixes taken at 5 Hz, sent at 10 Hz 120-320 ms later, each twice."""
+    from mavahrs.filters.layout import IN_VEL, IN_VEL_AGE
+    from mavahrs.replay import format_velocity
+    from mavahrs.service.pipeline import PipelineSettings
+
+    s = dict(filters=("mahony",), pipeline=PipelineSettings(velocity_source=source))
+    fast = replay(sim_gps_raw_tlog, ReplaySettings(engine="fast", **s))
+    ref = replay(sim_gps_raw_tlog, ReplaySettings(engine="pipeline", **s))
+    assert fast.engine == "fast" and ref.engine == "pipeline"
+    np.testing.assert_array_equal(fast.inputs.rows, ref.inputs.rows)
+    np.testing.assert_array_equal(fast.tracks["mahony"].out, ref.tracks["mahony"].out)
+    assert fast.frames("mahony") == ref.frames("mahony")
+    rows = fast.inputs.rows
+    fed = np.flatnonzero(~np.isnan(rows[:, IN_VEL]))
+    ages = rows[fed, IN_VEL_AGE]
+    if source == "gps_raw_int":
+        n = _receiver_fixes(sim_gps_raw_tlog)
+        assert fed.size == n > 50 and np.isnan(rows[fed, IN_VEL + 2]).all()
+        assert 0.12 <= ages.min() and ages.max() < 0.33
+        assert format_velocity(ref.inputs) == f"velocity: GPS_RAW_INT, {n} fixes (velocity_source gps_raw_int)"
+    else:  # GLOBAL_POSITION_INT arrives all along: GPS_RAW_INT stays unused
+        assert set(fast.inputs.velocity_fixes) == {"GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW"}
+        assert fast.inputs.velocity_fixes["GPS_RAW_INT"] == 0 and np.isfinite(rows[fed, IN_VEL + 2]).all()
