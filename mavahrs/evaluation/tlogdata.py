@@ -533,9 +533,9 @@ def prepare_inputs(
     """
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
-    from mavahrs.sensors.velocity import VelocitySelector, fix_age_s
     from mavahrs.sensors.profiles import get_profile
     from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.sensors.velocity import VelocitySelector, fix_age_s
     from mavahrs.service.pipeline import PipelineSettings
 
     s = settings if settings is not None else PipelineSettings()
