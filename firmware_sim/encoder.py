@@ -157,6 +157,10 @@ class FrameEncoder:
             )
         )
 
+    def gps_raw_int(self, time_usec: int, lat_e7: int, lon_e7: int, alt_mm: int, vel_cm_s: int, cog_cdeg: int) -> bytes:
+        """A 3D fix from the receiver: ground speed and course over ground, HDOP 0.8, VDOP 1.2, 12 satellites."""
+        return self._enc(self.mav.gps_raw_int_encode(time_usec, 3, lat_e7, lon_e7, alt_mm, 80, 120, vel_cm_s, cog_cdeg, 12))
+
     def attitude(self, w: WireBlock, i: int, send_us: int) -> bytes:
         e, r = w.est_euler[i], w.est_rates[i]
         return self._enc(self.mav.attitude_encode(send_us // 1000, e[0], e[1], e[2], r[0], r[1], r[2]))

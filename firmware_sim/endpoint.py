@@ -68,6 +68,7 @@ STREAMABLE: dict[str, int] = {
     "ATTITUDE_QUATERNION": mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
     "GLOBAL_POSITION_INT": mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     "SYSTEM_TIME": mavlink.MAVLINK_MSG_ID_SYSTEM_TIME,
+    "GPS_RAW_INT": mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,  # only when asked for: see _GpsReceiver
 }
 _ONE_SHOT_ONLY = {"AUTOPILOT_VERSION": mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
 _NAME_BY_ID = {v: k for k, v in {**STREAMABLE, **_ONE_SHOT_ONLY}.items()}
@@ -157,6 +158,39 @@ class _Stream:
     next_due_us: int = 0
 
 
+class _GpsReceiver:
+    """The GNSS receiver behind GPS_RAW_INT, as ArduPilot reports it.
+
+    A fix (the reported velocity as ground speed and course, the position) is
+    taken every ``PERIOD_US`` (5 Hz) and reaches the autopilot ``LATENCY_US``
+    later; GPS_RAW_INT, streamed at its own rate (10 Hz on ArduPilot), carries
+    the latest fix that has arrived, stamped ``time_usec`` = the time the fix
+    was taken — so at 10 Hz each fix is sent twice with the same time stamp,
+    as ArduCopter SITL does.  :meth:`observe` runs every tick while the stream
+    is on.
+    """
+
+    PERIOD_US = 200_000
+    LATENCY_US = 120_000
+
+    def __init__(self) -> None:
+        self._next_us: int | None = None
+        self._taken: list[tuple[int, int, int, int, int, int]] = []
+        self.fix: tuple[int, int, int, int, int, int] | None = None  # time_usec, lat, lon, alt mm, vel cm/s, cog cdeg
+
+    def observe(self, w: WireBlock, i: int, tick_us: int) -> None:
+        if self._next_us is None:
+            self._next_us = (tick_us // self.PERIOD_US + 1) * self.PERIOD_US
+        if tick_us >= self._next_us:
+            vn, ve = w.vel_cm_s[i][0], w.vel_cm_s[i][1]
+            cog = int(round(math.degrees(math.atan2(ve, vn)) * 100.0)) % 36000
+            self._taken.append((tick_us, w.lat_e7[i], w.lon_e7[i], w.alt_mm[i], int(round(math.hypot(vn, ve))), cog))
+            while self._next_us <= tick_us:
+                self._next_us += self.PERIOD_US
+        while self._taken and self._taken[0][0] + self.LATENCY_US <= tick_us:
+            self.fix = self._taken.pop(0)
+
+
 class Endpoint:
     """A simulated autopilot's MAVLink endpoint on one link (pure protocol logic)."""
 
@@ -178,6 +212,7 @@ class Endpoint:
         self.stats: dict[str, Counter[str]] = {
             "received": Counter(), "commands": Counter(), "acks": Counter(), "sent": Counter(), "deferred": Counter(),
         }
+        self._gps = _GpsReceiver()
         self._produce = self._producers()
         self._init_defaults()
 
@@ -276,6 +311,8 @@ class Endpoint:
             self._tokens = min(self._tokens + per_tick, max(4.0 * per_tick, 600.0))
             budget = self._tokens
         out: list[tuple[int, bytes]] = []
+        if self._streams["GPS_RAW_INT"].interval_us > 0:
+            self._gps.observe(w, i, tick_us)
         for name, st in self._streams.items():
             if st.interval_us <= 0 or tick_us < st.next_due_us:
                 continue
@@ -329,6 +366,7 @@ class Endpoint:
             "ATTITUDE_QUATERNION": lambda w, i, s, t: enc.attitude_quaternion(w, i, stamp(s, t)),
             "GLOBAL_POSITION_INT": lambda w, i, s, t: enc.global_position_int(w, i, stamp(s, t)),
             "SYSTEM_TIME": lambda w, i, s, t: enc.system_time(w, i, s, self.settings.epoch_unix_us),
+            "GPS_RAW_INT": lambda w, i, s, t: enc.gps_raw_int(*self._gps.fix) if self._gps.fix else None,
             "AUTOPILOT_VERSION": lambda w, i, s, t: enc.autopilot_version(self.settings.system_id),
         }
 

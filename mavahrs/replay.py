@@ -72,6 +72,7 @@ __all__ = [
     "compare",
     "attitude_at_reference",
     "format_comparison",
+    "format_velocity",
     "write_tlog",
     "plot_replay",
     "csv_columns",
@@ -557,6 +558,22 @@ def format_comparison(rows: Sequence[ComparisonRow]) -> str:
             f"{r.inclination_rms_deg:8.2f}{r.roll_rms_deg:8.2f}{r.pitch_rms_deg:8.2f}{r.yaw_rms_deg:8.2f}"
         )
     return "\n".join(lines)
+
+
+def format_velocity(inputs: Any) -> str:
+    """The replay header's velocity line: which GNSS velocity the filters got, and how many fixes.
+
+    E.g. ``velocity: GPS_RAW_INT, 979 fixes (velocity_source gps_raw_int)``;
+    ``velocity: GLOBAL_POSITION_INT, 1200 fixes + GPS_RAW_INT, 40 fixes
+    (velocity_source auto)`` when ``auto`` switched; ``velocity: none
+    (velocity_source auto: no usable fix in the log)``.
+    """
+    src = inputs.velocity_source
+    used = [f"{m}, {n} fixes" for m, n in inputs.velocity_fixes.items() if n]
+    if used:
+        return f"velocity: {' + '.join(used)} (velocity_source {src})"
+    why = "" if src == "none" else ": no usable fix in the log"
+    return f"velocity: none (velocity_source {src}{why})"
 
 
 # --------------------------------------------------------------------------- tlog and plot

@@ -670,8 +670,9 @@ t0 = time.perf_counter()
 import numpy as np
 from mavahrs.filters import create
 from mavahrs.filters.base import _batch_loops
+from mavahrs.filters.layout import IN_WIDTH
 name = sys.argv[1]
-row = np.full((1000, 13), np.nan); row[:, 0] = 0.0025; row[:, 1:4] = 0.01; row[:, 4:7] = [0.0, 0.0, -9.8]
+row = np.full((1000, IN_WIDTH), np.nan); row[:, 0] = 0.0025; row[:, 1:4] = 0.01; row[:, 4:7] = [0.0, 0.0, -9.8]
 row[:, 7:10] = [20.0, 1.0, 45.0]
 t1 = time.perf_counter()
 f = create(name)

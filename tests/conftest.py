@@ -120,6 +120,15 @@ def sim_hover_tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def sim_gps_raw_tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """12 s of the ``aggressive`` flight with GPS_RAW_INT at 10 Hz (5 Hz fixes, each sent twice) as well."""
+    return write_sim_tlog(
+        tmp_path_factory.mktemp("sim") / "gps_raw.tlog",
+        "--scenario", "aggressive", "--duration", "12", "--seed", "5", "--stream", "GPS_RAW_INT=10",
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="session")
 def sim_temperature_tlog(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, tuple[float, float, float]]:
     """The simulator's ``temperature`` scenario (warm-up 10 → 50 °C, τ 40 s) with a known gyro tempco:
     (tlog path, the configured coefficient in rad/s per °C)."""

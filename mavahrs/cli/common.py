@@ -201,6 +201,21 @@ def add_logging_options(parser: argparse.ArgumentParser, *, suppress: bool = Fal
     )
 
 
+#: ``velocity_source`` values (mavahrs.sensors.velocity.VELOCITY_SOURCES; spelled out so that ``--help``
+#: needs no numpy import; a test keeps the two equal)
+VELOCITY_SOURCE_CHOICES = ("auto", "global_position_int", "gps_raw_int", "gps2_raw", "none")
+
+
+def add_velocity_source_option(parser: Any, *, default_text: str = "auto") -> None:
+    """``--velocity-source``: which GNSS velocity aids the filter (run, replay, evaluate)."""
+    parser.add_argument(
+        "--velocity-source", choices=VELOCITY_SOURCE_CHOICES, metavar="SOURCE",
+        help="GNSS velocity for the filter: auto (GLOBAL_POSITION_INT while it arrives, else GPS_RAW_INT, "
+        "else GPS2_RAW), global_position_int, gps_raw_int, gps2_raw (the receiver's own: independent of "
+        f"the autopilot's EKF; no vertical) or none (default: {default_text})",
+    )  # fmt: skip
+
+
 # --------------------------------------------------------------------------- help
 
 

@@ -30,6 +30,8 @@ gyro drift, Fig. 12), compare (Mahony, Madgwick, complementary side by side,
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.common import add_velocity_source_option
+
     p: argparse.ArgumentParser = subparsers.add_parser(
         "evaluate", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -40,6 +42,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "or all (default: best; studies: their own defaults)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of tables")
+    add_velocity_source_option(p, default_text="auto; tlogs only")
     p.add_argument("--no-mag", action="store_true", help="6-axis: do not give the filters the magnetometer")
     p.add_argument(
         "--align", default="auto", choices=("auto", "none", "heading", "heading+body"),
@@ -83,7 +86,7 @@ def _run(args: argparse.Namespace) -> int:
     prefer_small_pages()
     start_kernels()
 
-    recordings = load_any(args.input, skip_s=args.skip)
+    recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto")
     if args.study:
         return _study(args, recordings)
     filters = resolve_filter_names(args.filters)

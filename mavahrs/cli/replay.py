@@ -11,8 +11,8 @@ __all__ = ["register", "run"]
 HELP = "replay a tlog through the filters (CSV, tlog with ATTITUDE_QUATERNION, plot, QGC stream)"
 
 DESCRIPTION = """\
-Read the IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) and GLOBAL_POSITION_INT
-of a tlog with the daemon's own scaling, IMU selection and timing, run the
+Read the IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) and the GNSS velocity
+(GLOBAL_POSITION_INT, GPS_RAW_INT, GPS2_RAW: --velocity-source) of a tlog with the daemon's own scaling, IMU selection and timing, run the
 filters, and compare them with the attitude the log already holds (the
 autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE truth).
 
@@ -31,6 +31,8 @@ autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE truth)
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.common import add_velocity_source_option
+
     p: argparse.ArgumentParser = subparsers.add_parser(
         "replay", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -46,6 +48,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--start", type=float, metavar="S", help="replay from S seconds after the log's start")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds after the log's start")
     p.add_argument("--imu", default=None, metavar="N", help="IMU instance: auto, 0, 1 or 2 (default auto)")
+    add_velocity_source_option(p, default_text="auto, or the --config file's")
     p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
                    help="scaling profile (default: from the autopilot's HEARTBEAT)")
     p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline and filter settings)")
@@ -101,6 +104,8 @@ def _settings(args: argparse.Namespace) -> Any:
         changes["imu"] = args.imu
     if args.profile is not None:
         changes["autopilot_profile"] = args.profile
+    if args.velocity_source is not None:
+        changes["velocity_source"] = args.velocity_source
     ps = dataclasses.replace(ps, **changes)
     return ReplaySettings(
         filters=tuple(filters), pipeline=ps, filter_settings=filter_settings,
@@ -127,6 +132,7 @@ def _run(args: argparse.Namespace) -> int:
     print(f"{Path(args.tlog).name}: {inp.n} IMU samples of {inp.message} (instance {inp.instance}) "
           f"from system {inp.source[0]}/{inp.source[1]} ({inp.profile} scaling), {dur:.1f} s at "
           f"{inp.rate_hz():.1f} Hz; engine {result.engine}")  # fmt: skip
+    print(rp.format_velocity(inp))
     for note in result.notes:
         print(f"note: {note}")
     print(rp.format_comparison(rp.compare(result)))

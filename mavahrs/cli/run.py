@@ -8,7 +8,7 @@ import signal
 import threading
 from typing import Any
 
-from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter
+from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter, add_velocity_source_option
 
 __all__ = ["register", "run"]
 
@@ -41,6 +41,7 @@ _OVERRIDES = {
     "stats_json": "daemon.stats_path",
     "filter": "pipeline.filter_name",
     "imu": "pipeline.imu",
+    "velocity_source": "pipeline.velocity_source",
     "out_rate": "pipeline.out_rate_hz",
     "rate": "pipeline.stream_rate_hz",
     "sysid": "pipeline.system_id",
@@ -83,6 +84,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "--imu", metavar="0|1|2|auto",
         help="IMU instance to use; auto picks one and fails over when it goes stale (default: {pipeline.imu})",
     )
+    add_velocity_source_option(est, default_text="{pipeline.velocity_source}")
     est.add_argument(
         "--rate", type=float, metavar="HZ",
         help="IMU message rate requested from the autopilot, Hz (default: {pipeline.stream_rate_hz} Hz)",

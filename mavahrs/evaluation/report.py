@@ -107,7 +107,10 @@ def run_filter(
 
     mag = rec.mag_ut if use_mag else None
     vel = rec.extra.get("velocity_ned_m_s")
-    inputs = make_inputs(rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=vel)
+    inputs = make_inputs(
+        rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=vel,
+        velocity_age_s=rec.extra.get("velocity_age_s") if vel is not None else None,
+    )  # fmt: skip
     f = create(name, settings)
     events = rec.extra.get("mag_reference_events") or ()
     if not events:

@@ -145,9 +145,11 @@ def _run_many(rec: Recording, name: str, settings_list: Sequence[FilterSettings]
     from mavahrs.filters import base, create
 
     mag = rec.mag_ut if use_mag else None
+    vel = rec.extra.get("velocity_ned_m_s")
     inputs = make_inputs(
-        rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=rec.extra.get("velocity_ned_m_s")
-    )
+        rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=vel,
+        velocity_age_s=rec.extra.get("velocity_age_s") if vel is not None else None,
+    )  # fmt: skip
     filters = [create(name, s) for s in settings_list]
     run_many = getattr(base, "run_many", None)
     if run_many is not None and len({type(f) for f in filters}) == 1:
@@ -282,7 +284,7 @@ def decimate(rec: Recording, factor: int, method: str = "average") -> Recording:
         gyro = rec.gyro_rad_s[last]
     dt = blocks(rec.dt_s).sum(axis=1)
     extra = dict(rec.extra)
-    for key in ("time_s", "temperature_c", "velocity_ned_m_s"):
+    for key in ("time_s", "temperature_c", "velocity_ned_m_s", "velocity_age_s"):
         if key in extra and extra[key] is not None:
             extra[key] = np.asarray(extra[key])[last]
     return dataclasses.replace(

@@ -16,10 +16,13 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
   reordered samples dropped; a gap reaches the filter as a long ``dt``);
 * the calibration (gyro temperature model, magnetometer calibration, axis
   remap) as :class:`~mavahrs.sensors.calibration.Calibrator` applies it;
-* GLOBAL_POSITION_INT velocity into the next fed row, rotated into the
-  magnetic frame, and the declination applied to outputs, from a real
-  :class:`~mavahrs.sensors.geomag.DeclinationSource` fed the position and
-  time messages in order.
+* the GNSS velocity of the configured source (GLOBAL_POSITION_INT,
+  GPS_RAW_INT, GPS2_RAW, chosen by the pipeline's own
+  :class:`~mavahrs.sensors.velocity.VelocitySelector` over the messages in
+  order, at their tlog times) into the next fed row, rotated into the
+  magnetic frame, with its age (``IN_VEL_AGE``), and the declination applied
+  to outputs, from a real :class:`~mavahrs.sensors.geomag.DeclinationSource`
+  fed the position and time messages in order.
 
 Several live IMU instances with ``imu=auto`` are decided by the pipeline's
 own :class:`~mavahrs.sensors.imu_select.ImuSelector`, run over the messages;
@@ -50,7 +53,7 @@ from numpy.typing import NDArray
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_WIDTH, OUT_WIDTH
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_WIDTH
 
 __all__ = [
     "REPLAY_TYPES",
@@ -73,7 +76,7 @@ __all__ = [
 Array = NDArray[np.float64]
 
 IMU_TYPES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
-POSITION_TYPES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "HOME_POSITION", "SYSTEM_TIME")
+POSITION_TYPES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW", "HOME_POSITION", "SYSTEM_TIME")
 REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE")
 #: What replay reads from a log.
 REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT",) + POSITION_TYPES + REFERENCE_TYPES
@@ -187,7 +190,7 @@ class PreparedInputs:
     """The filter's input rows for a log, as the pipeline would build them.
 
     Attributes:
-        rows: (M, IN_WIDTH) input rows (dt, gyro, accel, mag, velocity).
+        rows: (M, IN_WIDTH) input rows (dt, gyro, accel, mag, velocity, its age).
         t_us: (M,) sample time, µs of the autopilot's clock.
         frame_pos: (M,) position of the IMU message in :class:`TlogData` order.
         tlog_us: (M,) the tlog timestamp of that message.
@@ -198,6 +201,11 @@ class PreparedInputs:
         engine: ``fast`` (this module) or ``pipeline`` (message by message).
         notes: things the user should know (absent instances, low rate …).
         counts: samples seen / fed / dropped by reason.
+        velocity_source: the ``velocity_source`` setting in effect (``auto``,
+            ``auto, receiver only`` with the monitor's
+            ``receiver_velocity_only``, a named source, ``none``).
+        velocity_fixes: GNSS velocity fixes used, per message (in the
+            preference order; a fix after the last fed sample included).
     """
 
     rows: Array
@@ -213,6 +221,8 @@ class PreparedInputs:
     engine: str = "fast"
     notes: list[str] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
+    velocity_source: str = "auto"
+    velocity_fixes: dict[str, int] = field(default_factory=dict)
     #: (sample index, field strength µT, inclination rad): the pipeline seeds the filter's
     #: magnetometer rejection (``set_mag_reference``) before that sample
     mag_reference_events: list[tuple[int, float, float]] = field(default_factory=list)
@@ -246,6 +256,12 @@ class PreparedInputs:
             return 0.0
         span = float(self.t_us[-1] - self.t_us[0])
         return (self.n - 1) / span * 1e6 if span > 0 else 0.0
+
+
+def _velocity_setting(s: Any) -> str:
+    """The ``velocity_source`` in effect, as the replay header names it."""
+    v = str(s.effective_velocity_source)
+    return f"{v}, receiver only" if v == "auto" and s.monitor.receiver_velocity_only else v
 
 
 def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], int, str]:
@@ -521,9 +537,10 @@ def prepare_inputs(
         DataError: no autopilot, no IMU data.
     """
     from mavahrs.sensors.calibration import Calibrator
-    from mavahrs.sensors.geomag import DeclinationSource, rotate_true_to_magnetic
+    from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile
     from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.sensors.velocity import VelocitySelector, fix_age_s
     from mavahrs.service.pipeline import PipelineSettings
 
     s = settings if settings is not None else PipelineSettings()
@@ -616,6 +633,7 @@ def prepare_inputs(
     if in_place:  # gyro, accel and mag are already columns of these rows (_scale)
         rows = parts[0]["block"]
         rows[:, IN_VEL : IN_VEL + 3] = _NAN
+        rows[:, IN_VEL_AGE] = _NAN
     else:
         rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
@@ -639,7 +657,8 @@ def prepare_inputs(
     events.sort()
     decl_at = np.full(m, decl.declination_rad)
     decl_steps: list[tuple[int, float]] = []  # (first sample, declination from there on), filled in once below
-    vel_rows: list[tuple[int, tuple[float, float, float]]] = []
+    vel_rows: list[tuple[int, tuple[float, float, float], int | None]] = []
+    vsel = VelocitySelector(s.effective_velocity_source, s.monitor.receiver_velocity_only)
     mag_events: list[tuple[int, float, float]] = []  # Pipeline._field_changed → filter.set_mag_reference
     ref0 = decl.mag_reference()
     if ref0 is not None:
@@ -654,17 +673,16 @@ def prepare_inputs(
                 mag_events.append((i, float(ref[0]), float(ref[1])))
         if decl.declination_rad != (decl_steps[-1][1] if decl_steps else decl_at[0]):
             decl_steps.append((i, decl.declination_rad))
-        if name == "GLOBAL_POSITION_INT" and s.use_gnss_velocity and not (msg.lat == 0 and msg.lon == 0):
-            vn, ve, vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
+        if name in vsel.messages:  # Pipeline._on_velocity, at the time the pipeline gets it in replay
             f = decl.field
-            if f is not None:
-                vn, ve = rotate_true_to_magnetic(vn, ve, f.declination_rad)
-            if i < m:
-                vel_rows.append((i, (vn, ve, vd)))
+            got = vsel.offer(msg, int(td.t_us[frame_pos]), f.declination_rad if f is not None else None)
+            if got is not None and i < m:
+                vel_rows.append((i, got[1:], got[0].fix_time_us))
     for j, (i, d) in enumerate(decl_steps):  # one pass, not one fill per position message
         decl_at[i : decl_steps[j + 1][0] if j + 1 < len(decl_steps) else m] = d
-    for i, v in vel_rows:  # later messages before the same sample overwrite earlier ones
+    for i, v, fix_t in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
+        rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), fix_t)
     # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
     for kind in np.flatnonzero(np.bincount(kinds)):
         ms = profile.scale_for(names[int(kind)])
@@ -684,6 +702,7 @@ def prepare_inputs(
         declination_rad=decl_at, message=sc["name"], instance=chosen, source=src, profile=prof_name,
         engine="fast", notes=notes, counts=counts, mag_reference_events=mag_events,
         sensor_delay_s=_delay_of(profile, sc["name"]),
+        velocity_source=_velocity_setting(s), velocity_fixes={k: vsel.used(k) for k in vsel.messages},
     )  # fmt: skip
 
 
@@ -829,6 +848,8 @@ def run_pipelines(
         profile=p0.profile.name if p0.profile else "?",
         engine="pipeline",
         counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()}},
+        velocity_source=_velocity_setting(settings),
+        velocity_fixes={k: p0.velocity_selector.used(k) for k in p0.velocity_selector.messages},
     )
     for kind, text in p0.drain_notices():
         if kind >= logging.WARNING:
@@ -971,10 +992,10 @@ def interpolate_attitude(t_ref: Array, q_ref: Array, t: Array, max_gap_s: float 
 # --------------------------------------------------------------------------- recordings
 
 
-def _inputs_for(td: TlogData, imu: str, settings: Any) -> PreparedInputs:
+def _inputs_for(td: TlogData, imu: str, settings: Any, velocity_source: str = "auto") -> PreparedInputs:
     from mavahrs.service.pipeline import PipelineSettings
 
-    s = settings if settings is not None else PipelineSettings(imu=imu)
+    s = settings if settings is not None else PipelineSettings(imu=imu, velocity_source=velocity_source)
     dy = decimal_year_of_log(td)
     try:
         return prepare_inputs(td, s, decimal_year=dy)
@@ -989,6 +1010,7 @@ def load_tlog_recording(
     reference: bool = True,
     skip_s: float = 0.0,
     settings: Any = None,
+    velocity_source: str = "auto",
 ) -> Recording:
     """A tlog as an evaluation :class:`Recording`: the pipeline's filter inputs, SIM_STATE/SIMSTATE truth.
 
@@ -996,11 +1018,14 @@ def load_tlog_recording(
     declination the pipeline would apply, into the filter's own magnetic-NED
     frame, so the recording scores filters exactly as the daemon's output
     would be scored.  Samples from ``skip_s`` seconds on are scored.
+    ``velocity_source`` (without ``settings``): the GNSS velocity the
+    pipeline would feed (:mod:`mavahrs.sensors.velocity`); the velocity and
+    its age are in ``extra["velocity_ned_m_s"]`` / ``extra["velocity_age_s"]``.
     """
     from mavahrs.geometry.quaternion import multiply
 
     td = read_tlog_data(path)
-    prep = _inputs_for(td, imu, settings)
+    prep = _inputs_for(td, imu, settings, velocity_source)
     n = prep.n
     q_ref = np.full((n, 4), _NAN)
     notes = list(prep.notes)
@@ -1040,6 +1065,7 @@ def load_tlog_recording(
             "time_s": t_s,
             "temperature_c": prep.temperature_c,
             "velocity_ned_m_s": np.ascontiguousarray(vel) if np.isfinite(vel).any() else None,
+            "velocity_age_s": rows[:, IN_VEL_AGE].copy() if np.isfinite(vel).any() else None,
             "has_reference": bool(np.isfinite(q_ref).all(axis=1).any()),
             "notes": notes,
             "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",

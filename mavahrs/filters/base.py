@@ -44,6 +44,7 @@ from mavahrs.filters.layout import (
     IN_GYRO,
     IN_MAG,
     IN_VEL,
+    IN_VEL_AGE,
     IN_WIDTH,
     OUT_ACCEL_WEIGHT,
     OUT_BIAS,
@@ -386,8 +387,14 @@ def make_inputs(
     *,
     dt_s: ArrayLike,
     velocity_ned_m_s: ArrayLike | None = None,
+    velocity_age_s: ArrayLike | None = None,
 ) -> Array:
-    """Pack sensor arrays (N, 3) into kernel input rows (N, ``IN_WIDTH``)."""
+    """Pack sensor arrays (N, 3) into kernel input rows (N, ``IN_WIDTH``).
+
+    ``velocity_age_s`` (N,) fills ``IN_VEL_AGE``; without it the age is 0 where
+    a velocity component is given (a fix taken at the sample's time) and NaN
+    where the whole velocity is NaN.
+    """
     gyro = np.atleast_2d(np.asarray(gyro_rad_s, dtype=np.float64))
     n = gyro.shape[0]
     rows = np.full((n, IN_WIDTH), np.nan)
@@ -397,6 +404,10 @@ def make_inputs(
         rows[:, IN_MAG : IN_MAG + 3] = np.atleast_2d(np.asarray(mag_ut, dtype=np.float64))
     if velocity_ned_m_s is not None:
         rows[:, IN_VEL : IN_VEL + 3] = np.atleast_2d(np.asarray(velocity_ned_m_s, dtype=np.float64))
+        if velocity_age_s is None:
+            rows[:, IN_VEL_AGE] = np.where(np.isnan(rows[:, IN_VEL : IN_VEL + 3]).all(axis=1), np.nan, 0.0)
+    if velocity_age_s is not None:
+        rows[:, IN_VEL_AGE] = np.broadcast_to(np.asarray(velocity_age_s, dtype=np.float64), (n,))
     rows[:, IN_DT] = np.broadcast_to(np.asarray(dt_s, dtype=np.float64), (n,))
     return rows
 

@@ -14,10 +14,13 @@ IN_DT       time since the previous sample                         s
 IN_GYRO+k   angular rate, body (sensor) axes, k = 0, 1, 2          rad/s
 IN_ACCEL+k  specific force, body axes (level FRD at rest ≈ −g z)   m/s²
 IN_MAG+k    magnetic field, body axes; NaN = no magnetometer       µT
-IN_VEL+k    GNSS velocity in NED; NaN = no fix (per component:     m/s
-            a receiver's fix has no vertical)
-IN_VEL_AGE  age of that velocity at this sample's time: sample    s
-            time − the fix's own time stamp; NaN = not known
+IN_VEL+k    GNSS velocity in (magnetic) NED; NaN = no fix; a NaN   m/s
+            component alone = that component unknown (GPS_RAW_INT
+            and GPS2_RAW give no vertical: (vn, ve, NaN))
+IN_VEL_AGE  age of the velocity in IN_VEL at this sample's time:   s
+            sample time − the fix's own time stamp (0 when the
+            fix's time stamp is on another clock); NaN when
+            IN_VEL is NaN
 ==========  =====================================================  ==========
 
 Output row (``OUT_WIDTH`` values): the attitude and the diagnostics.

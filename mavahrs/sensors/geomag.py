@@ -346,7 +346,7 @@ class DeclinationSource:
         kind = msg.get_type()
         if kind == "GLOBAL_POSITION_INT":
             return self._position_from_e7(msg.lat, msg.lon, msg.alt * 1e-3, kind)
-        if kind == "GPS_RAW_INT":
+        if kind in ("GPS_RAW_INT", "GPS2_RAW"):
             if msg.fix_type < 2:  # GPS_FIX_TYPE_2D_FIX
                 return False
             return self._position_from_e7(msg.lat, msg.lon, msg.alt * 1e-3, kind)

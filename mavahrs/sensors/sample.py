@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_WIDTH
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
 
 __all__ = ["ImuSample", "GYRO", "ACCEL", "MAG", "Vector3", "write_row", "new_row", "flag_names"]
 
@@ -75,13 +75,14 @@ class ImuSample:
         return not any(self.gyro_rad_s) and not any(self.accel_m_s2)
 
     def to_row(self, row: NDArray[np.float64] | None = None, *, dt_s: float = _NAN) -> NDArray[np.float64]:
-        """The filter input row for this sample (velocity NaN); fills ``row`` if given."""
+        """The filter input row for this sample (velocity and its age NaN); fills ``row`` if given."""
         if row is None:
             row = new_row()
         g, a = self.gyro_rad_s, self.accel_m_s2
         m = self.mag_ut if self.mag_ut is not None else (_NAN, _NAN, _NAN)
         write_row(row, dt_s, g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], self.saturated, self.invalid)
         row[IN_VEL : IN_VEL + 3] = _NAN
+        row[IN_VEL_AGE] = _NAN
         return row
 
 

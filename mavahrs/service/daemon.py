@@ -778,6 +778,7 @@ class Daemon:
             "mag_rejected": p.get("mag_rejected"),
             "bias_deg_s": list(p["bias_deg_s"]) if p.get("bias_deg_s") is not None else None,
             "heading_reference": p.get("heading_reference"),
+            "velocity": p.get("velocity"),
             "connected": p.get("connected"),
             "crc_errors": cc.crc_errors,
             "bad_data": cc.bad_data,

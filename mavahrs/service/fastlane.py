@@ -55,6 +55,7 @@ from mavahrs.filters.layout import (
     IN_GYRO,
     IN_MAG,
     IN_VEL,
+    IN_VEL_AGE,
     IN_WIDTH,
     OUT_BIAS,
     OUT_FLAGS,
@@ -174,7 +175,7 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
     row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2] = gx, gy, gz
     row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2] = ax, ay, az
     row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2] = mx, my, mz
-    row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = np.nan
+    row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = np.nan
     for i in range(state.shape[0]):
         scratch[i] = state[i]
     return tt

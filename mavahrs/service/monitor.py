@@ -107,6 +107,13 @@ class MonitorSettings:
             compared (1 = MAV_COMP_ID_AUTOPILOT1; 0 = any).
         tilt_name: NAMED_VALUE_FLOAT name for the tilt divergence (≤ 10 chars).
         heading_name: NAMED_VALUE_FLOAT name for the heading divergence.
+        receiver_velocity_only: judge the autopilot with an estimate aided
+            only by the GNSS receiver's own velocity (GPS_RAW_INT, GPS2_RAW),
+            never by GLOBAL_POSITION_INT, which is the autopilot EKF's output:
+            the estimate the monitor judges is the pipeline's own, so this
+            makes the pipeline's ``velocity_source = auto`` use GPS_RAW_INT,
+            else GPS2_RAW (and rejects ``global_position_int``).  The
+            published attitude is then receiver-aided as well.
     """
 
     enabled: bool = True
@@ -124,6 +131,7 @@ class MonitorSettings:
     autopilot_component_id: int = 1
     tilt_name: str = "AHRS_TILT"
     heading_name: str = "AHRS_HDG"
+    receiver_velocity_only: bool = False
 
     def __post_init__(self) -> None:
         if not (self.rate_hz == 0.0 or 1.0 <= self.rate_hz <= 5.0):
@@ -157,6 +165,9 @@ class MonitorStatus:
         comparisons: comparisons made.
         unmatched: autopilot attitudes with no estimate of ours near their time.
         episodes: warnings raised so far.
+        velocity_source: the GNSS velocity aiding the estimate judged (the
+            status line's short name: ``GPI``, ``GPS_RAW``, ``GPS2_RAW``,
+            ``none``); "" = not told.
     """
 
     tilt_deg: float
@@ -165,12 +176,15 @@ class MonitorStatus:
     comparisons: int
     unmatched: int
     episodes: int
+    velocity_source: str = ""
 
     def text(self) -> str:
+        """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
         if self.comparisons == 0:
             return "AP cmp: none"
         flag = " WARN" if self.warning else ""
-        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{flag}"
+        vel = f" (vel {self.velocity_source})" if self.velocity_source else ""
+        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{flag}{vel}"
 
 
 # --------------------------------------------------------------------------- scalar maths
@@ -253,6 +267,8 @@ class AttitudeMonitor:
         self._heading_name = s.heading_name.encode()
         #: when False (declination unknown, or no magnetometer), heading is published but never alarmed
         self.heading_valid = True
+        #: the GNSS velocity aiding our estimate, as the owner (the pipeline) tells it; shown in the status
+        self.velocity_source = ""
         self._comparisons = 0
         self._unmatched = 0
         self._episodes = 0
@@ -454,6 +470,7 @@ class AttitudeMonitor:
             comparisons=self._comparisons,
             unmatched=self._unmatched,
             episodes=self._episodes,
+            velocity_source=self.velocity_source,
         )
 
 

@@ -62,6 +62,7 @@ from mavahrs.filters.layout import (
     FLAG_REINITIALISED,
     IN_GYRO,
     IN_VEL,
+    IN_VEL_AGE,
     IN_WIDTH,
     OUT_ACCEL_WEIGHT,
     OUT_BIAS,
@@ -76,7 +77,6 @@ from mavahrs.sensors.geomag import (
     DeclinationSource,
     MagneticFieldSettings,
     apply_declination_wxyz,
-    rotate_true_to_magnetic,
 )
 from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings, InstanceStatus
 from mavahrs.sensors.profiles import (
@@ -88,10 +88,12 @@ from mavahrs.sensors.profiles import (
 )
 from mavahrs.sensors.sample import ACCEL, GYRO, MAG, write_row
 from mavahrs.sensors.scaling import Scaler, ScalingSettings
+from mavahrs.sensors.velocity import LABELS, VELOCITY_SOURCES, VelocitySelector, fix_age_s, source_messages
 from mavahrs.service.monitor import AttitudeMonitor, MonitorSettings
 from mavahrs.service.stats import Notices, RateMeter
 from mavahrs.service.stream_requests import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
+    MAV_DATA_STREAM_EXTENDED_STATUS,
     MAV_DATA_STREAM_POSITION,
     MAV_DATA_STREAM_RAW_SENSORS,
     RequestDataStream,
@@ -122,6 +124,14 @@ _ATT_ID, _ATT_CRC = mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLink_attitude_me
 _ATT_PAYLOAD = struct.Struct("<Iffffff")
 _HB_ID, _HB_CRC = mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLink_heartbeat_message.crc_extra
 _HB_PAYLOAD = struct.Struct("<IBBBBB")
+
+
+#: velocity messages and the stream group (REQUEST_DATA_STREAM) each belongs to on ArduPilot
+_VELOCITY_STREAMS = {
+    "GLOBAL_POSITION_INT": MAV_DATA_STREAM_POSITION,
+    "GPS_RAW_INT": MAV_DATA_STREAM_EXTENDED_STATUS,
+    "GPS2_RAW": MAV_DATA_STREAM_EXTENDED_STATUS,
+}
 
 
 class Outgoing(NamedTuple):
@@ -166,14 +176,22 @@ class PipelineSettings:
         secondary_imu_rate_hz: with ``imu = auto``, rate to request for the
             other IMU instances (to watch them for fail-over), Hz; 0 = do not
             request them.
-        gnss_rate_hz: GLOBAL_POSITION_INT rate to request when GNSS velocity
-            is used, Hz.
+        gnss_rate_hz: rate to request the velocity source's message(s) at
+            (``auto``: GLOBAL_POSITION_INT and GPS_RAW_INT), Hz.
         source_system: accept IMU data only from this system id; None = the
             first autopilot heartbeat's.
         source_component: … and this component id; None = the first
             autopilot heartbeat's (of ``source_system`` when given).
-        use_gnss_velocity: feed GLOBAL_POSITION_INT velocity to the filter
-            (acceleration compensation).
+        velocity_source: GNSS velocity fed to the filter (acceleration
+            compensation): ``auto`` (GLOBAL_POSITION_INT while it arrives, else
+            GPS_RAW_INT, else GPS2_RAW; switches down only when the source in
+            use has been silent for 2 s, never mixes two), ``global_position_int``,
+            ``gps_raw_int``, ``gps2_raw`` or ``none``
+            (:mod:`mavahrs.sensors.velocity`).  With
+            ``monitor.receiver_velocity_only``, ``auto`` uses only GPS_RAW_INT and
+            GPS2_RAW.
+        use_gnss_velocity: deprecated, kept for old configurations: False =
+            ``velocity_source = "none"`` whatever ``velocity_source`` says.
         heartbeat_timeout_s: no autopilot HEARTBEAT for this long = link
             lost (stream requests restart when it returns), s.
         no_imu_warning_s: warn when no IMU sample arrived for this long, s.
@@ -210,6 +228,7 @@ class PipelineSettings:
     gnss_rate_hz: float = 10.0
     source_system: int | None = None
     source_component: int | None = None
+    velocity_source: str = "auto"
     use_gnss_velocity: bool = True
     heartbeat_timeout_s: float = 5.0
     no_imu_warning_s: float = 3.0
@@ -245,8 +264,27 @@ class PipelineSettings:
             v = getattr(self, name)
             if v is not None and not 0 <= v <= 255:
                 raise ConfigError(f"{name} must be 0…255 or None, got {v!r}")
+        if self.velocity_source not in VELOCITY_SOURCES:
+            raise ConfigError(
+                f"velocity_source must be one of {', '.join(VELOCITY_SOURCES)}, got {self.velocity_source!r}"
+            )
+        if self.monitor.receiver_velocity_only and self.velocity_source == "global_position_int":
+            raise ConfigError(
+                "velocity_source = global_position_int contradicts monitor.receiver_velocity_only "
+                "(the receiver's GPS_RAW_INT / GPS2_RAW only): choose auto, gps_raw_int, gps2_raw or none"
+            )
         # validated by ImuSelectSettings
         replace(self.selection, imu=self.imu)
+
+    @property
+    def effective_velocity_source(self) -> str:
+        """``velocity_source``, or ``none`` when the deprecated ``use_gnss_velocity`` is False."""
+        return self.velocity_source if self.use_gnss_velocity else "none"
+
+    @property
+    def velocity_messages(self) -> tuple[str, ...]:
+        """The messages the velocity may come from, in order of preference."""
+        return source_messages(self.effective_velocity_source, self.monitor.receiver_velocity_only)
 
     @property
     def selection_settings(self) -> ImuSelectSettings:
@@ -293,7 +331,13 @@ class PipelineStatus:
         streams: stream-request state per wanted message.
         heading_reference: e.g. "true north (WMM-2025 D=+12.3°)".
         monitor: the comparison with the autopilot's attitude, e.g.
-            "AP cmp: tilt 0.8° hdg +1.2°".
+            "AP cmp: tilt 0.8° hdg +1.2° (vel GPI)".
+        velocity: the GNSS velocity source feeding the filter and the rate
+            of the fixes fed, e.g. "vel GPI 10 Hz", "vel GPS_RAW 5 Hz" or
+            "vel none" (setting ``none``, or no source arriving).
+        velocity_fixes: fixes fed so far, per message.
+        velocity_skipped: velocity messages not fed, by reason (``no_fix``,
+            ``unknown_velocity``, ``repeated``, ``reordered``, ``standby``).
     """
 
     connected: bool
@@ -325,16 +369,19 @@ class PipelineStatus:
     streams: tuple[StreamState, ...]
     heading_reference: str
     monitor: str = ""
+    velocity: str = "vel none"
+    velocity_fixes: Mapping[str, int] = field(default_factory=dict)
+    velocity_skipped: Mapping[str, int] = field(default_factory=dict)
 
     def line(self) -> str:
-        """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | …``."""
+        """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | … | vel GPI 10 Hz | …``."""
         drops = self.samples_dropped
         imu = "none" if self.imu_in_use is None else str(self.imu_in_use)
         rej = ("A" if self.accel_rejected else "") + ("M" if self.mag_rejected else "")
         b = self.bias_deg_s
         return (
             f"in {self.input_rate_hz:.0f} Hz → filter {self.filter_rate_hz:.0f} Hz → out {self.output_rate_hz:.0f} Hz"
-            f" | drops {drops} | imu {imu} ({self.imu_reason}) | gain {self.gain:.3g}"
+            f" | drops {drops} | imu {imu} ({self.imu_reason}) | {self.velocity} | gain {self.gain:.3g}"
             f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
             f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
             + (f" | {self.monitor}" if self.monitor else "")
@@ -376,7 +423,14 @@ class Pipeline:
         self._decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
         self._monitor = AttitudeMonitor(s.monitor)
         self._monitor_on = s.monitor.enabled
+        self._velocity = VelocitySelector(s.effective_velocity_source, s.monitor.receiver_velocity_only)
+        self._vel_meter = RateMeter()
+        self._vel_meter_source: str | None = None
         self._notices = Notices()
+        if not s.use_gnss_velocity:
+            self._notices.warning(
+                "deprecated", "pipeline.use_gnss_velocity = false is deprecated: set velocity_source = \"none\"", 0
+            )
         self._to_master = s.send_to_master
         self._out_period_us = int(round(1e6 / s.out_rate_hz)) if s.out_rate_hz > 0 else 0
         self._out_tol_us = min(self._out_period_us // 4, 1000)
@@ -387,8 +441,9 @@ class Pipeline:
         self._low_rate_since_us: int | None = None
         self._handlers: dict[str, Callable[[Any, int], list[Outgoing]]] = {
             "HEARTBEAT": self._on_heartbeat,
-            "GLOBAL_POSITION_INT": self._on_global_position,
-            "GPS_RAW_INT": self._on_position_only,
+            "GLOBAL_POSITION_INT": self._on_velocity,
+            "GPS_RAW_INT": self._on_velocity,
+            "GPS2_RAW": self._on_velocity,
             "HOME_POSITION": self._on_position_only,
             "SYSTEM_TIME": self._on_position_only,
             "COMMAND_ACK": self._on_command_ack,
@@ -475,8 +530,11 @@ class Pipeline:
         self._last_fed_imu: int | None = None
         self._last_fed_t: int | None = None
         self._next_out_t: int | None = None
-        self._vel: tuple[float, float, float] | None = None
+        #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
+        self._vel: tuple[float, float, float, int | None] | None = None
         self._vel_written = True  # row's velocity columns hold NaN already
+        if hasattr(self, "_velocity"):
+            self._velocity.reset()
         self._norm_sum = 0.0
         self._norm_n = 0
         self._row[:] = _NAN
@@ -608,13 +666,14 @@ class Pipeline:
                 name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, MAV_DATA_STREAM_RAW_SENSORS,
                 warn_low_rate=imu_id == current,  # a board may have no second or third IMU
             )  # fmt: skip
-        self._requester.want(
-            "GLOBAL_POSITION_INT",
-            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-            s.gnss_rate_hz if s.use_gnss_velocity else 0.0,
-            MAV_DATA_STREAM_POSITION,
-            warn_low_rate=False,  # PX4 sends it only with a position estimate
-        )
+        wanted = s.velocity_messages
+        if s.effective_velocity_source == "auto":
+            wanted = wanted[:2]  # GLOBAL_POSITION_INT and GPS_RAW_INT (receiver-only: GPS_RAW_INT and GPS2_RAW)
+        for name, group in _VELOCITY_STREAMS.items():
+            # no low-rate warning: PX4 sends GLOBAL_POSITION_INT only with a position estimate, and
+            # GPS2_RAW needs a second receiver
+            rate = s.gnss_rate_hz if name in wanted else 0.0
+            self._requester.want(name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, group, warn_low_rate=False)
 
     def _on_imu(self, msg: Any, now_us: int) -> list[Outgoing]:
         hdr = msg.get_header()
@@ -719,11 +778,12 @@ class Pipeline:
         write_row(row, dt, v[2], v[3], v[4], v[5], v[6], v[7], v[8], v[9], v[10], v[12], v[13])
         vel = self._vel
         if vel is not None:
-            row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2] = vel
+            row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], fix_t = vel
+            row[IN_VEL_AGE] = fix_age_s(t, fix_t)
             self._vel = None
             self._vel_written = False
         elif not self._vel_written:
-            row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = _NAN
+            row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = _NAN
             self._vel_written = True
         cal = self._calibrators[name]
         if cal.active:
@@ -788,21 +848,25 @@ class Pipeline:
         self._out_meter.add(now_us)
         return frames
 
-    def _on_global_position(self, msg: Any, now_us: int) -> list[Outgoing]:
+    def _on_velocity(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """GLOBAL_POSITION_INT / GPS_RAW_INT / GPS2_RAW: the position feeds the magnetic model; the velocity
+        of the source in use (:class:`~mavahrs.sensors.velocity.VelocitySelector`) waits for the next sample."""
         if not self._from_source(msg):
             return []
         if self._decl.handle(msg):
             self._field_changed()
-        meter = self._requester.meters.get("GLOBAL_POSITION_INT")
+        meter = self._requester.meters.get(msg.get_type())
         if meter is not None:
             meter.add(now_us)
-        if not self.settings.use_gnss_velocity or (msg.lat == 0 and msg.lon == 0):
-            return []  # no fix yet: autopilots send zeros
-        vn, ve, vd = msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01
-        f = self._decl.field
-        if f is not None:  # the filter's earth frame is magnetic NED; GNSS velocity is true NED
-            vn, ve = rotate_true_to_magnetic(vn, ve, f.declination_rad)
-        self._vel = (vn, ve, vd)
+        f = self._decl.field  # the filter's earth frame is magnetic NED; GNSS velocity is true NED
+        got = self._velocity.offer(msg, now_us, f.declination_rad if f is not None else None)
+        if got is not None:
+            fix, vn, ve, vd = got
+            self._vel = (vn, ve, vd, fix.fix_time_us)
+            if fix.message != self._vel_meter_source:  # the rate shown is the source in use's
+                self._vel_meter.reset()
+                self._vel_meter_source = fix.message
+            self._vel_meter.add(now_us)
         return []
 
     def _on_position_only(self, msg: Any, now_us: int) -> list[Outgoing]:
@@ -1048,6 +1112,10 @@ class Pipeline:
         mag_pct = 100.0 * (self._mag_rejected_n - m0) / n if n else 0.0
         self._status_mark = (self.samples_filtered, self._accel_rejected_n, self._mag_rejected_n)
         connected = self._last_hb_us is not None and not self._link_lost and now - self._last_hb_us <= self._hb_timeout_us
+        vs = self._velocity
+        vel_in_use = vs.in_use(now)
+        vel_label = LABELS[vel_in_use] if vel_in_use is not None else "none"
+        self._monitor.velocity_source = vel_label
         return PipelineStatus(
             connected=connected,
             vehicle=self._source,
@@ -1078,5 +1146,13 @@ class Pipeline:
             streams=self._requester.states(now),
             heading_reference=self._decl.status(),
             monitor=self._monitor.status.text() if self._monitor_on else "",
+            velocity="vel none" if vel_in_use is None else f"vel {vel_label} {self._vel_meter.rate(now):.0f} Hz",
+            velocity_fixes={m: vs.used(m) for m in vs.messages},
+            velocity_skipped=dict(vs.counters),
         )
+
+    @property
+    def velocity_selector(self) -> VelocitySelector:
+        """The GNSS velocity source choice (counts of fixes fed and skipped)."""
+        return self._velocity
 

@@ -60,3 +60,19 @@ def test_errors_are_one_line_with_exit_codes(tmp_path: Path, capsys: pytest.Capt
     np.savetxt(csv, np.zeros((3, 7)), delimiter=",", comments="",
                header="time_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2")
     assert main(["evaluate", str(csv), "-f", "kalman"]) == 2
+
+
+def test_velocity_source_flag_reaches_the_tlog_inputs(sim_gps_raw_tlog: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import numpy as np
+
+    from mavahrs.evaluation.loaders import load_any
+
+    assert main(["evaluate", str(sim_gps_raw_tlog), "-f", "mahony", "--json", "--skip", "5",
+                 "--velocity-source", "gps_raw_int"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out)["filters"]["mahony"]["inclination_rms_deg"] < 5.0
+    rec = load_any(sim_gps_raw_tlog, velocity_source="gps_raw_int")[0]
+    vel, age = rec.extra["velocity_ned_m_s"], rec.extra["velocity_age_s"]
+    fed = np.isfinite(vel[:, 0])
+    assert fed.sum() > 50 and np.isnan(vel[fed, 2]).all() and (age[fed] > 0.1).all()  # the receiver's, with its age
+    assert np.isnan(age[~fed]).all()
+    assert load_any(sim_gps_raw_tlog, velocity_source="none")[0].extra["velocity_ned_m_s"] is None

@@ -115,3 +115,18 @@ def test_a_live_daemon_log_replays_to_identical_attitudes(tmp_path: Path) -> Non
     # bit for bit: this caught the daemon starting without a date for the magnetic model (replay
     # had one), which rotated the first GNSS velocity differently and the attitude by up to 3e-5
     assert mine == live32
+
+
+def test_replay_header_names_the_velocity_source(sim_hover_tlog: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for flag, text in (
+        ("none", "velocity: none (velocity_source none)"),
+        ("gps2_raw", "velocity: none (velocity_source gps2_raw: no usable fix in the log)"),
+    ):
+        assert main(["replay", str(sim_hover_tlog), "-f", "mahony", "--end", "3", "--velocity-source", flag]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert lines[0].startswith(f"{sim_hover_tlog.name}: ") and lines[1] == text
+    assert main(["replay", str(sim_hover_tlog), "-f", "mahony", "--end", "3"]) == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert line.startswith("velocity: GLOBAL_POSITION_INT, ") and line.endswith(" fixes (velocity_source auto)")
+    assert main(["replay", str(sim_hover_tlog), "--velocity-source", "gps"]) == 2
+    assert "invalid choice: 'gps'" in capsys.readouterr().err

@@ -269,3 +269,13 @@ def test_realtime_priority_out_of_range_is_a_usage_error(capsys: pytest.CaptureF
 
     with pytest.raises(ValueError, match="realtime_priority"):
         DaemonSettings(realtime_priority=True)
+
+
+def test_velocity_source_flag_and_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[pipeline]\nvelocity_source = "gps2_raw"\n[pipeline.monitor]\nreceiver_velocity_only = true\n')
+    assert main(["run", "--config", str(cfg), "--print-config"]) == EXIT_OK
+    data = tomllib.loads(capsys.readouterr().out)
+    assert data["pipeline"]["velocity_source"] == "gps2_raw" and data["pipeline"]["monitor"]["receiver_velocity_only"]
+    assert main(["run", "--config", str(cfg), "--velocity-source", "none", "--print-config"]) == EXIT_OK
+    assert tomllib.loads(capsys.readouterr().out)["pipeline"]["velocity_source"] == "none"  # the flag wins

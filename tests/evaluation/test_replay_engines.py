@@ -247,3 +247,85 @@ def test_a_log_with_an_autopilot_reboot_loads_through_the_pipeline(tmp_path: Pat
     np.testing.assert_allclose(np.delete(rec_.dt_s, gaps), 0.0025)
     ref = replay(path, ReplaySettings(filters=("madgwick",), engine="pipeline"))
     assert ref.inputs.n == rec_.n
+
+
+def _receiver_fixes(path: Path) -> int:
+    """Distinct GPS_RAW_INT fixes (3D, known speed) in a log, counted with pymavlink."""
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(str(path))
+    stamps = set()
+    while (m := conn.recv_match(type="GPS_RAW_INT")) is not None:
+        if m.fix_type >= 3 and m.vel != 65535:
+            stamps.add(m.time_usec)
+    conn.close()
+    return len(stamps)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("source", ["auto", "gps_raw_int"])
+def test_engines_identical_with_gps_raw_int(shared_data: Path, source: str) -> None:
+    """ArduCopter SITL at 400 Hz with GLOBAL_POSITION_INT and GPS_RAW_INT (each 5 Hz fix sent twice)."""
+    import dataclasses
+
+    from mavahrs.filters.layout import IN_VEL, IN_VEL_AGE
+    from mavahrs.replay import format_velocity
+    from mavahrs.service.pipeline import PipelineSettings
+
+    log = shared_data / "sitl" / "arducopter_400hz_gps.tlog"
+    if not log.exists():
+        pytest.skip(f"{log} not found")
+    ps = dataclasses.replace(PipelineSettings(), imu="0", velocity_source=source)
+    s = dict(filters=("mahony",), pipeline=ps, start_s=60.0, end_s=70.0)
+    fast = replay(log, ReplaySettings(engine="fast", **s))
+    ref = replay(log, ReplaySettings(engine="pipeline", **s))
+    assert fast.engine == "fast" and ref.engine == "pipeline"
+    np.testing.assert_array_equal(fast.inputs.t_us, ref.inputs.t_us)
+    np.testing.assert_array_equal(fast.inputs.rows, ref.inputs.rows)  # velocity, NaN vertical and age included
+    np.testing.assert_array_equal(fast.tracks["mahony"].out, ref.tracks["mahony"].out)
+    assert fast.inputs.velocity_fixes == ref.inputs.velocity_fixes
+    rows = fast.inputs.rows
+    fed = np.flatnonzero(~np.isnan(rows[:, IN_VEL]))
+    assert fed.size > 40
+    ages = rows[fed, IN_VEL_AGE]
+    assert np.all(np.isnan(rows[np.isnan(rows[:, IN_VEL]), IN_VEL_AGE]))
+    if source == "gps_raw_int":
+        assert np.isnan(rows[fed, IN_VEL + 2]).all()  # the receiver gives no vertical
+        fix_t = fast.inputs.t_us[fed] - np.round(ages * 1e6).astype(np.int64)
+        assert np.unique(fix_t).size == fed.size  # each fix once: the repeats are not fed
+        assert 0.05 < ages.min() and ages.max() < 0.3  # the receiver's fix is 50-300 ms old when it is sent
+        n = _receiver_fixes(log)
+        assert fast.inputs.velocity_fixes == {"GPS_RAW_INT": n}
+        assert format_velocity(fast.inputs) == f"velocity: GPS_RAW_INT, {n} fixes (velocity_source gps_raw_int)"
+    else:
+        assert np.isfinite(rows[fed, IN_VEL + 2]).all()  # GLOBAL_POSITION_INT all along
+        assert 0.0 <= ages.min() and ages.max() < 0.05
+        n = fast.inputs.velocity_fixes["GLOBAL_POSITION_INT"]
+        assert format_velocity(fast.inputs) == f"velocity: GLOBAL_POSITION_INT, {n} fixes (velocity_source auto)"
+
+
+@pytest.mark.parametrize("source", ["auto", "gps_raw_int"])
+def test_engines_identical_on_the_simulators_gps_raw_int(sim_gps_raw_tlog: Path, source: str) -> None:
+    """firmware_sim's ArduPilot GPS_RAW_INT: fixes taken at 5 Hz, sent at 10 Hz 120-320 ms later, each twice."""
+    from mavahrs.filters.layout import IN_VEL, IN_VEL_AGE
+    from mavahrs.replay import format_velocity
+    from mavahrs.service.pipeline import PipelineSettings
+
+    s = dict(filters=("mahony",), pipeline=PipelineSettings(velocity_source=source))
+    fast = replay(sim_gps_raw_tlog, ReplaySettings(engine="fast", **s))
+    ref = replay(sim_gps_raw_tlog, ReplaySettings(engine="pipeline", **s))
+    assert fast.engine == "fast" and ref.engine == "pipeline"
+    np.testing.assert_array_equal(fast.inputs.rows, ref.inputs.rows)
+    np.testing.assert_array_equal(fast.tracks["mahony"].out, ref.tracks["mahony"].out)
+    assert fast.frames("mahony") == ref.frames("mahony")
+    rows = fast.inputs.rows
+    fed = np.flatnonzero(~np.isnan(rows[:, IN_VEL]))
+    ages = rows[fed, IN_VEL_AGE]
+    if source == "gps_raw_int":
+        n = _receiver_fixes(sim_gps_raw_tlog)
+        assert fed.size == n > 50 and np.isnan(rows[fed, IN_VEL + 2]).all()
+        assert 0.12 <= ages.min() and ages.max() < 0.33
+        assert format_velocity(ref.inputs) == f"velocity: GPS_RAW_INT, {n} fixes (velocity_source gps_raw_int)"
+    else:  # GLOBAL_POSITION_INT arrives all along: GPS_RAW_INT stays unused
+        assert set(fast.inputs.velocity_fixes) == {"GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW"}
+        assert fast.inputs.velocity_fixes["GPS_RAW_INT"] == 0 and np.isfinite(rows[fed, IN_VEL + 2]).all()

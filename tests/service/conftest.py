@@ -115,6 +115,22 @@ class SyntheticAutopilot:
             self.codec.mav.global_position_int_encode(int(t_us) // 1000, lat_e7, lon_e7, 500000, 10000, vx, vy, vz, 0)
         )
 
+    def gps_raw_int(
+        self, time_usec: int, vel_cm_s: int, cog_cdeg: int, fix_type: int = 3, lat_e7: int = 473977420,
+        lon_e7: int = 85455940,
+    ) -> bytes:  # fmt: skip
+        """GPS_RAW_INT: ground speed and course over ground as the receiver gives them (UINT16_MAX = unknown)."""
+        return self.codec.encode(
+            self.codec.mav.gps_raw_int_encode(int(time_usec), fix_type, lat_e7, lon_e7, 500000, 80, 120,
+                                              vel_cm_s, cog_cdeg, 12)  # fmt: skip
+        )
+
+    def gps2_raw(self, time_usec: int, vel_cm_s: int, cog_cdeg: int, fix_type: int = 3) -> bytes:
+        return self.codec.encode(
+            self.codec.mav.gps2_raw_encode(int(time_usec), fix_type, 473977420, 85455940, 500000, 80, 120,
+                                           vel_cm_s, cog_cdeg, 12, 0, 0)  # fmt: skip
+        )
+
     def command_ack(self, result: int, target_system: int = 1, target_component: int = 191) -> bytes:
         return self.codec.encode(self.codec.mav.command_ack_encode(511, result, 0, 0, target_system, target_component))
 
