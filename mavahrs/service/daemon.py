@@ -876,6 +876,9 @@ class Daemon:
             f"; MAVLink signing on (link id {self._signing[0]}, unsigned input "
             f"{'rejected' if self._signing[1] else 'accepted'})",
         )
+        if getattr(getattr(self.pipeline, "settings", None), "out_identity", "component") == "none":
+            self.log.info("output identity none: no attitude and no HEARTBEAT are sent (the attitude shows in "
+                          "the status line and in the --log recording only)")
         next_tick = self._started_s
         master = self.master
         # Everything allocated so far (numba, numpy, pymavlink tables: hundreds of thousands of
