@@ -371,7 +371,9 @@ def test_the_real_daemon_points_true_north_without_system_time(gcs: socket.socke
 FIXED_WING, ARDUPILOT, GENERIC, INVALID, ONBOARD_CONTROLLER = 1, 3, 0, 8, 18  # MAV_TYPE_*, MAV_AUTOPILOT_*
 
 
-def _fly_identity(gcs: socket.socket, pipeline: Any, log: Any = None) -> tuple[Daemon, list[Any], list[Any]]:
+def _fly_identity(
+    gcs: socket.socket, pipeline: Any, log: Any = None, echo: Any = None
+) -> tuple[Daemon, list[Any], list[Any]]:
     """The real daemon and pipeline, 1.5 s of a level ArduPilot plane at 400 Hz: (daemon, at the GCS, at the autopilot)."""
     from mavahrs.service.daemon import build_daemon
 
@@ -390,6 +392,8 @@ def _fly_identity(gcs: socket.socket, pipeline: Any, log: Any = None) -> tuple[D
                 ap.sock.sendto(plane, ap.addr)
                 next_hb = time.monotonic() + 1.0
             ap.imu(8)
+            if echo is not None:
+                ap.sock.sendto(echo(), ap.addr)
             time.sleep(0.02)
         at_gcs = _drain(gcs, 0.3)
         at_ap = ap.received()
@@ -449,4 +453,22 @@ def test_out_identity_none_sends_nothing_but_records_the_attitude(gcs: socket.so
     assert d.counters.attitudes_out == 0 and d.counters.frames_to_outputs == 0
     assert d.pipeline.outputs_sent >= 40  # estimated all the same …
     assert len(list(read_tlog_messages(log, "ATTITUDE_QUATERNION"))) == d.pipeline.outputs_sent  # … and recorded
+
+
+def test_a_separate_vehicles_own_heartbeat_relayed_back_is_not_the_autopilots(gcs: socket.socket) -> None:
+    """A router that echoes our HEARTBEAT (MAV_AUTOPILOT_GENERIC, system 42) must not keep the autopilot 'alive'."""
+    from mavahrs.service.pipeline import PipelineSettings
+
+    ours = MavCodec(42, 1)
+    echoes: list[bytes] = []
+
+    def echo() -> bytes:  # each with the next sequence number, as relayed frames have
+        echoes.append(ours.encode(ours.mav.heartbeat_encode(FIXED_WING, GENERIC, 0, 0, 4)))
+        return echoes[-1]
+
+    d, _, _ = _fly_identity(gcs, PipelineSettings(filter_name="mahony", out_identity="separate-vehicle"), echo=echo)
+    assert len(echoes) > 40
+    assert d._heartbeats == 2  # noqa: SLF001 - the plane's, at 0 s and 1 s; none of the echoes
+    assert d.pipeline.source == (1, 1)
+    assert "other_autopilot_heartbeats" not in d.pipeline.status().counters
 
