@@ -582,14 +582,14 @@ class Pipeline:
             if not self._sysid_known:
                 self._codec.system_id = src[0]
                 self._sysid_known = True
-            if s.out_identity == "separate-vehicle":
-                self._become_separate_vehicle(src, int(msg.type), now_us)
             self._notices.info(
                 "source",
                 f"autopilot found: system {src[0]}, component {src[1]} ({profile.description}); "
                 f"IMU data accepted only from it, scaling profile {profile.name}",
                 now_us,
             )
+            if s.out_identity == "separate-vehicle":
+                self._become_separate_vehicle(src, int(msg.type), now_us)
         if src != self._source:
             self._count(self._counters, "other_autopilot_heartbeats")
             self._notices.info(
