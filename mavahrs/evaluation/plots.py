@@ -169,7 +169,7 @@ def plot_attitude(
         gridspec_kw={"height_ratios": [h for _, h in rows]},
     )  # fmt: skip
     axes = np.atleast_1d(axes)
-    ax_of = {name: ax for (name, _), ax in zip(rows, axes)}
+    ax_of = {name: ax for (name, _), ax in zip(rows, axes, strict=True)}
     ref_e = euler_deg(reference_q)[idx] if has_err and reference_q is not None else None
     est_e = {name: euler_deg(_quats(est)[idx]) for name, est in estimates.items()}
     for k, a in enumerate(ANGLES):
@@ -280,7 +280,7 @@ def _plot_bias(result: StudyResult, path: str | Path) -> Path:
     step = max(1, t.size // 20000)
     s = slice(None, None, step)
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8), gridspec_kw={"height_ratios": [2, 2, 1.4]})
-    for k, (ax, axis) in enumerate(zip(axes[:2], "xy")):
+    for k, (ax, axis) in enumerate(zip(axes[:2], "xy", strict=True)):
         ax.plot(t[s], d["injected_deg_s"][s, k], color="black", lw=1.5, label=f"injected bias {axis}")
         ax.plot(t[s], d["estimate_deg_s"][s, k], color="tab:red", lw=1.0, label=f"estimated bias {axis}")
         ax.axvline(d["zeta_on_s"], color="grey", ls=":", lw=1)
