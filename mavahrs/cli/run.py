@@ -46,6 +46,7 @@ _OVERRIDES = {
     "rate": "pipeline.stream_rate_hz",
     "sysid": "pipeline.system_id",
     "compid": "pipeline.component_id",
+    "out_identity": "pipeline.out_identity",
     "euler": "pipeline.send_attitude_euler",
     "request_streams": "pipeline.request_streams",
     "signing_key": "daemon.signing_key_path",
@@ -105,6 +106,13 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     out.add_argument(
         "--compid", type=int, metavar="N",
         help="component id of our messages; 191 = MAV_COMP_ID_ONBOARD_COMPUTER (default: {pipeline.component_id})",
+    )
+    out.add_argument(
+        "--out-identity", choices=("component", "separate-vehicle", "none"),
+        help="how the attitude presents itself: component = component --compid of the vehicle; "
+        "separate-vehicle = a vehicle of its own (--sysid, default 42, component 1), for QGroundControl "
+        "before 4.2, which would draw our attitude on the autopilot's HUD; none = send no attitude "
+        "(status line and --log only) (default: {pipeline.out_identity})",
     )
     out.add_argument(
         "--euler", action="store_const", const=True,

@@ -64,6 +64,25 @@ def _save(fig: Any, path: str | Path) -> Path:
     return path
 
 
+def _fitted_legend(fig: Any, ax: Any, *, loc: str, fontsize: float) -> Any:
+    """The axes' legend in as many columns as fit inside its width (one row if they can, else more).
+
+    A legend wider than its axes would run out of the figure and over the axis label
+    (``replay --filter all --plot`` drew ten entries in one row under a 12-inch-wide panel).
+    """
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return None
+    renderer = fig.canvas.get_renderer()
+    width = ax.get_window_extent(renderer).width
+    for ncol in range(len(handles), 0, -1):
+        leg = ax.legend(handles, labels, loc=loc, fontsize=fontsize, ncol=ncol)
+        if leg.get_window_extent(renderer).width <= width or ncol == 1:
+            return leg
+        leg.remove()
+    return None  # pragma: no cover - the loop always returns
+
+
 def _unwrap(y: Array, like: Array | None = None) -> Array:
     """Unwrap an angle in degrees (no ±180° jumps drawn as lines), NaN kept.
 
@@ -150,7 +169,7 @@ def plot_attitude(
         gridspec_kw={"height_ratios": [h for _, h in rows]},
     )  # fmt: skip
     axes = np.atleast_1d(axes)
-    ax_of = {name: ax for (name, _), ax in zip(rows, axes)}
+    ax_of = {name: ax for (name, _), ax in zip(rows, axes, strict=True)}
     ref_e = euler_deg(reference_q)[idx] if has_err and reference_q is not None else None
     est_e = {name: euler_deg(_quats(est)[idx]) for name, est in estimates.items()}
     for k, a in enumerate(ANGLES):
@@ -178,8 +197,8 @@ def plot_attitude(
             axe.axhline(0, color="grey", lw=0.6)
             axe.set_ylabel(f"{a} err (°)")
             axe.grid(alpha=0.3)
-            axe.legend(loc="upper right", fontsize=7, ncol=len(estimates))
-    ax_of["roll"].legend(loc="upper right", fontsize=8, ncol=len(estimates) + 1 + len(others or {}))
+            _fitted_legend(fig, axe, loc="upper right", fontsize=7)
+    _fitted_legend(fig, ax_of["roll"], loc="upper right", fontsize=8)
     if has_diag:
         axg, axw = ax_of["gain"], ax_of["trust"]
         for j, (name, est) in enumerate(estimates.items()):
@@ -188,16 +207,20 @@ def plot_attitude(
                 continue
             c = _COLORS[j % len(_COLORS)]
             axg.plot(t[idx], est[idx, OUT_GAIN], color=c, lw=0.9, label=name)
-            axw.plot(t[idx], est[idx, OUT_ACCEL_WEIGHT], color=c, lw=0.9, label=f"{name} accel")
-            axw.plot(t[idx], est[idx, OUT_MAG_WEIGHT], color=c, lw=0.9, ls=":", label=f"{name} mag")
+            axw.plot(t[idx], est[idx, OUT_ACCEL_WEIGHT], color=c, lw=0.9)
+            axw.plot(t[idx], est[idx, OUT_MAG_WEIGHT], color=c, lw=0.9, ls=":")
         axg.set_ylabel("gain")
         axg.set_yscale("symlog", linthresh=0.01)
         axg.grid(alpha=0.3)
-        axg.legend(loc="upper right", fontsize=7, ncol=len(estimates))
+        _fitted_legend(fig, axg, loc="upper right", fontsize=7)
         axw.set_ylabel("trust\n(0 = rejected)")
         axw.set_ylim(-0.05, 1.1)
         axw.grid(alpha=0.3)
-        axw.legend(loc="lower right", fontsize=7, ncol=2 * len(estimates))
+        # the colours are the filters' (named in the gain panel above): here only the two line styles,
+        # so the legend stays two entries wide however many filters there are
+        axw.plot([], [], color="grey", lw=0.9, label="accelerometer")
+        axw.plot([], [], color="grey", lw=0.9, ls=":", label="magnetometer")
+        _fitted_legend(fig, axw, loc="lower right", fontsize=7)
     axes[-1].set_xlabel("time (s)")
     if title:
         fig.suptitle(title, fontsize=11)
@@ -257,7 +280,7 @@ def _plot_bias(result: StudyResult, path: str | Path) -> Path:
     step = max(1, t.size // 20000)
     s = slice(None, None, step)
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8), gridspec_kw={"height_ratios": [2, 2, 1.4]})
-    for k, (ax, axis) in enumerate(zip(axes[:2], "xy")):
+    for k, (ax, axis) in enumerate(zip(axes[:2], "xy", strict=True)):
         ax.plot(t[s], d["injected_deg_s"][s, k], color="black", lw=1.5, label=f"injected bias {axis}")
         ax.plot(t[s], d["estimate_deg_s"][s, k], color="tab:red", lw=1.0, label=f"estimated bias {axis}")
         ax.axvline(d["zeta_on_s"], color="grey", ls=":", lw=1)

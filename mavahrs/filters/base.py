@@ -538,14 +538,20 @@ class AttitudeFilter(ABC):
         *,
         dt_s: float,
         velocity_ned_m_s: ArrayLike | None = None,
+        velocity_age_s: float | None = None,
     ) -> Array:
-        """Process one sample; return the new ``q_body_to_ned`` (a copy)."""
+        """Process one sample; return the new ``q_body_to_ned`` (a copy).
+
+        ``velocity_age_s``: how old the velocity is at this sample's time, s
+        (sample time − the fix's own time; None = not known).
+        """
         row = self._row
         row[IN_DT] = dt_s
         row[IN_GYRO : IN_GYRO + 3] = gyro_rad_s
         row[IN_ACCEL : IN_ACCEL + 3] = accel_m_s2
         row[IN_MAG : IN_MAG + 3] = np.nan if mag_ut is None else mag_ut
         row[IN_VEL : IN_VEL + 3] = np.nan if velocity_ned_m_s is None else velocity_ned_m_s
+        row[IN_VEL_AGE] = np.nan if velocity_ned_m_s is None or velocity_age_s is None else velocity_age_s
         self._kernel(self._state, self._params, row, self._out)
         return self._out[OUT_Q : OUT_Q + 4].copy()
 

@@ -566,7 +566,7 @@ class Daemon:
                 c.messages_in += 1
                 if sink is not None:
                     sink.write(wall_us, msg.get_msgbuf(), now_s)
-                if type(msg) is hb_type and msg.autopilot != _MAV_AUTOPILOT_INVALID:
+                if type(msg) is hb_type and msg.autopilot != _MAV_AUTOPILOT_INVALID and not self._own(msg):
                     self._on_heartbeat(now_s)
                 try:
                     outgoing = handle(msg, now_us)
@@ -592,6 +592,14 @@ class Daemon:
                 self.latency.add(perf() - t_rx_ns)
             if self._lane is not None:
                 self._lane.refresh()
+
+    def _own(self, msg: Any) -> bool:
+        """Our own message relayed back (a separate vehicle's HEARTBEAT names an autopilot: not the autopilot's)."""
+        codec = getattr(self.pipeline, "codec", None)
+        if codec is None:
+            return False
+        ours = (codec.system_id, codec.component_id)
+        return (msg.get_srcSystem(), msg.get_srcComponent()) == ours and ours != getattr(self.pipeline, "source", None)
 
     def _lane_call(self, method: Any, arg: Any) -> Any:
         """A fast-lane call; an exception switches the lane off (the Python path answers), never the daemon."""
@@ -877,6 +885,9 @@ class Daemon:
             f"; MAVLink signing on (link id {self._signing[0]}, unsigned input "
             f"{'rejected' if self._signing[1] else 'accepted'})",
         )
+        if getattr(getattr(self.pipeline, "settings", None), "out_identity", "component") == "none":
+            self.log.info("output identity none: no attitude and no HEARTBEAT are sent (the attitude shows in "
+                          "the status line and in the --log recording only)")
         next_tick = self._started_s
         master = self.master
         # Everything allocated so far (numba, numpy, pymavlink tables: hundreds of thousands of

@@ -53,6 +53,7 @@ IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_
 STANDARD_BAUDS = (57600, 115200, 230400, 460800, 921600, 1500000, 2000000)
 _MAV_AUTOPILOT = {3: "ArduPilot", 12: "PX4", 0: "generic", 8: "none (not an autopilot)"}
 _ARDUPILOT, _PX4 = 3, 12
+_MAV_TYPE_GCS = 6
 _FW_TYPES = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
 _VEHICLE = {  # MAV_TYPE → (vehicle, ArduPilot firmware)
     1: ("fixed wing", "Plane"), 2: ("quadrotor", "Copter"), 3: ("coaxial", "Copter"), 4: ("helicopter", "Copter"),
@@ -504,6 +505,9 @@ def diagnose(obs: LinkObserver, link: LinkFacts, settings: DoctorSettings | None
                     "so its commands are accepted when the autopilot requires signed input")
     else:
         signing = f"{obs.signed} of {obs.messages} frames signed"
+    gcs_note = _ground_station_note(obs)
+    if gcs_note:
+        notes.append(gcs_note)
     if obs.mavlink1:
         notes.append(f"{obs.mavlink1} MAVLink 1 frames: the port runs MAVLink 1 (ArduPilot SERIALn_PROTOCOL = 1); "
                      "use 2 (MAVLink 2) for smaller frames and the message extensions")
@@ -556,6 +560,21 @@ def _component_text(src: tuple[int, int], info: tuple[int, int]) -> str:
     what = names.get(mav_type, f"MAV_TYPE {mav_type}")
     extra = " (mavahrs run, or another companion program, is already on this link)" if src[1] == 191 else ""
     return f"system {src[0]} component {src[1]}: {what}{extra}"
+
+
+def _ground_station_note(obs: LinkObserver) -> str | None:
+    """A ground station's HEARTBEAT on the link: which QGroundControl draws mavahrs's attitude on its HUD."""
+    gcs = sorted(src for src, (mav_type, _) in obs.components.items() if mav_type == _MAV_TYPE_GCS)
+    if not gcs:
+        return None
+    who = ", ".join(f"system {s} component {c}" for s, c in gcs)
+    return (
+        f"a ground station is on this link ({who}); its HEARTBEAT does not say which program or version it is. "
+        "QGroundControl 4.1 and older draws any component's ATTITUDE_QUATERNION of the vehicle on its HUD: there "
+        "mavahrs run's attitude (component 191 of the vehicle) would replace the autopilot's. For such a ground "
+        "station run mavahrs with --out-identity separate-vehicle (a vehicle of its own, system 42) or "
+        "--out-identity none (QGroundControl 4.2 and later draws only the autopilot's attitude)"
+    )
 
 
 def _no_autopilot_hint(link: LinkFacts, obs: LinkObserver) -> str:

@@ -316,6 +316,8 @@ class FastLane:
             return
         if not p._fast_encode or p._mav.signing.sign_outgoing or p.settings.send_attitude_euler:
             return
+        if not p._to_outputs:  # out_identity "none" (or a separate vehicle without a system id of its own)
+            return
         if self._rx is not None and getattr(self._rx, "_signing", None) is not None:
             return
         ms = scaler.profile.messages.get("RAW_IMU")

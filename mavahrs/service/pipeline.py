@@ -102,9 +102,15 @@ from mavahrs.service.stream_requests import (
     StreamState,
 )
 
-__all__ = ["PipelineSettings", "Pipeline", "PipelineStatus", "Outgoing"]
+__all__ = ["PipelineSettings", "Pipeline", "PipelineStatus", "Outgoing", "OUT_IDENTITIES", "SEPARATE_VEHICLE_SYSTEM_ID"]
 
+#: how the output presents itself (:attr:`PipelineSettings.out_identity`)
+OUT_IDENTITIES = ("component", "separate-vehicle", "none")
+#: our system id as a separate vehicle when ``system_id`` is not set (``replay --stream``'s default too)
+SEPARATE_VEHICLE_SYSTEM_ID = 42
 _MAV_AUTOPILOT_INVALID = 8
+_MAV_AUTOPILOT_GENERIC = 0
+_MAV_TYPE_QUADROTOR = 2
 _MAV_TYPE_ONBOARD_CONTROLLER = 18
 _MAV_STATE_ACTIVE = 4
 _NAN = math.nan
@@ -163,8 +169,18 @@ class PipelineSettings:
         out_rate_hz: ATTITUDE_QUATERNION rate, Hz of sample time; 0 = one
             per IMU sample.
         system_id: our MAVLink system id; None = the vehicle's (from its
-            HEARTBEAT).
-        component_id: our component id (191 = MAV_COMP_ID_ONBOARD_COMPUTER).
+            HEARTBEAT), or 42 with ``out_identity = "separate-vehicle"``.
+        component_id: our component id (191 = MAV_COMP_ID_ONBOARD_COMPUTER);
+            used with ``out_identity = "component"`` only.
+        out_identity: how the attitude presents itself to ground stations:
+            ``component`` = a component of the vehicle (its system id,
+            ``component_id``, HEARTBEAT as an onboard controller);
+            ``separate-vehicle`` = a vehicle of its own (``system_id``, default
+            42, component 1, HEARTBEAT with the autopilot's vehicle type and
+            MAV_AUTOPILOT_GENERIC), which QGroundControl before 4.2 shows as a
+            second vehicle instead of drawing it on the autopilot's HUD;
+            ``none`` = send nothing but the stream requests (the attitude is
+            in the status line and the ``--log`` recording only).
         heartbeat_hz: our HEARTBEAT rate, Hz (0 = none).
         send_attitude_euler: also send ATTITUDE (roll/pitch/yaw) with each
             ATTITUDE_QUATERNION.
@@ -218,6 +234,7 @@ class PipelineSettings:
     out_rate_hz: float = 50.0
     system_id: int | None = None
     component_id: int = 191
+    out_identity: str = "component"
     heartbeat_hz: float = 1.0
     send_attitude_euler: bool = False
     send_to_master: bool = True
@@ -246,6 +263,8 @@ class PipelineSettings:
             raise ConfigError(
                 f"autopilot_profile must be auto or one of {', '.join(PROFILE_NAMES)}, got {self.autopilot_profile!r}"
             )
+        if self.out_identity not in OUT_IDENTITIES:
+            raise ConfigError(f"out_identity must be one of {', '.join(OUT_IDENTITIES)}, got {self.out_identity!r}")
         if self.filter_name not in _filters.NAMES + _filters.ALIASES:
             raise ConfigError(f"unknown filter {self.filter_name!r}; choose one of {', '.join(_filters.NAMES + _filters.ALIASES)}")
         for name in ("out_rate_hz", "heartbeat_hz", "secondary_imu_rate_hz", "gnss_rate_hz", "low_imu_rate_hz"):
@@ -413,7 +432,11 @@ class Pipeline:
         self._filter_name = getattr(self._filter, "name", s.filter_name)
         #: a dt the filter surely treats as a gap (re-initialise): twice its max_gap_s
         self._gap_dt_s = 2.0 * float(getattr(getattr(self._filter, "settings", None), "max_gap_s", 1.0) or 1.0)
-        self._codec = MavCodec(system_id=s.system_id or 1, component_id=s.component_id)
+        separate = s.out_identity == "separate-vehicle"
+        self._codec = MavCodec(
+            system_id=(s.system_id or SEPARATE_VEHICLE_SYSTEM_ID) if separate else (s.system_id or 1),
+            component_id=1 if separate else s.component_id,
+        )
         self._mav = self._codec.mav
         #: the fast encoder applies: MAVLink 2, and the encoder state is the pymavlink MAVLink object's
         self._fast_encode = float(mavlink.WIRE_PROTOCOL_VERSION) == 2.0 and hasattr(self._mav, "signing")
@@ -431,10 +454,15 @@ class Pipeline:
             self._notices.warning(
                 "deprecated", "pipeline.use_gnss_velocity = false is deprecated: set velocity_source = \"none\"", 0
             )
-        self._to_master = s.send_to_master
+        # where our frames go (stream requests always go to the autopilot); out_identity "none": nowhere
+        self._to_master = s.send_to_master and s.out_identity != "none"
+        self._to_outputs = s.out_identity != "none"
+        #: our HEARTBEAT's (MAV_TYPE, MAV_AUTOPILOT); as a separate vehicle the type is the autopilot's
+        self._hb_kind = (_MAV_TYPE_QUADROTOR if separate else _MAV_TYPE_ONBOARD_CONTROLLER,
+                         _MAV_AUTOPILOT_GENERIC if separate else _MAV_AUTOPILOT_INVALID)  # fmt: skip
         self._out_period_us = int(round(1e6 / s.out_rate_hz)) if s.out_rate_hz > 0 else 0
         self._out_tol_us = min(self._out_period_us // 4, 1000)
-        self._hb_period_us = int(round(1e6 / s.heartbeat_hz)) if s.heartbeat_hz > 0 else 0
+        self._hb_period_us = int(round(1e6 / s.heartbeat_hz)) if s.heartbeat_hz > 0 and self._to_outputs else 0
         self._hb_timeout_us = int(s.heartbeat_timeout_s * 1e6)
         self._no_imu_us = int(s.no_imu_warning_s * 1e6)
         self._low_rate_window_us = int(s.stream_settings.rate_window_s * 1e6)
@@ -463,7 +491,7 @@ class Pipeline:
         self._profile: AutopilotProfile | None = None
         self._scaler: Scaler | None = None
         self._calibrators: dict[str, Calibrator] = {}
-        self._sysid_known = s.system_id is not None
+        self._sysid_known = s.system_id is not None or separate
         self._last_hb_us: int | None = None
         self._link_lost = False
         if self._source is not None:
@@ -471,6 +499,8 @@ class Pipeline:
             if not self._sysid_known:
                 self._codec.system_id = self._source[0]
                 self._sysid_known = True
+            if separate:  # no HEARTBEAT awaited: a quadrotor, like replay --stream's
+                self._become_separate_vehicle(self._source, _MAV_TYPE_QUADROTOR, 0)
         # counters and meters
         self._drops: dict[str, int] = {}
         self._counters: dict[str, int] = {}
@@ -563,9 +593,9 @@ class Pipeline:
         """Timers: HEARTBEAT, stream requests, link and rate checks; call a few times per second or more."""
         out: list[Outgoing] = []
         self._last_tick_us = now_us
-        if self._hb_period_us and self._sysid_known:
+        if self._hb_period_us and self._sysid_known and (self._source is not None or self._hb_kind[1] == _MAV_AUTOPILOT_INVALID):
             if self._next_hb_us is None or now_us >= self._next_hb_us:
-                out.append(Outgoing(self._heartbeat_frame(), self._to_master, True))
+                out.append(Outgoing(self._heartbeat_frame(), self._to_master, self._to_outputs))
                 nxt = (self._next_hb_us or now_us) + self._hb_period_us
                 self._next_hb_us = nxt if nxt > now_us else now_us + self._hb_period_us
         if self._source is not None:
@@ -582,7 +612,7 @@ class Pipeline:
                 out.append(Outgoing(self._request_frame(req), True, False))
             if self._monitor_on:
                 for m in self._monitor.tick(now_us):
-                    out.append(Outgoing(self._codec.encode(m), self._to_master, True))
+                    out.append(Outgoing(self._codec.encode(m), self._to_master, self._to_outputs))
             self._check_input(now_us)
         return out
 
@@ -596,6 +626,8 @@ class Pipeline:
         src = (hdr.srcSystem, hdr.srcComponent)
         if msg.autopilot == _MAV_AUTOPILOT_INVALID:
             return []  # a ground station, a companion (us), a gimbal…
+        if self._source is not None and src != self._source and src == (self._codec.system_id, self._codec.component_id):
+            return []  # our own HEARTBEAT as a separate vehicle (sent once the autopilot is known), relayed back
         s = self.settings
         if self._source is None:
             if s.source_system is not None and src[0] != s.source_system:
@@ -614,6 +646,8 @@ class Pipeline:
                 f"IMU data accepted only from it, scaling profile {profile.name}",
                 now_us,
             )
+            if s.out_identity == "separate-vehicle":
+                self._become_separate_vehicle(src, int(msg.type), now_us)
         if src != self._source:
             self._count(self._counters, "other_autopilot_heartbeats")
             self._notices.info(
@@ -629,6 +663,28 @@ class Pipeline:
             self._requester.start()
             self._notices.info("hb-back", "autopilot HEARTBEAT back: requesting the IMU stream again", now_us)
         return []
+
+    def _become_separate_vehicle(self, autopilot: tuple[int, int], mav_type: int, now_us: int) -> None:
+        """As a vehicle of our own: the autopilot's vehicle type in our HEARTBEAT, and never its system id."""
+        self._hb_kind = (mav_type, _MAV_AUTOPILOT_GENERIC)
+        ours = self._codec.system_id
+        if ours == autopilot[0]:
+            self._to_master = self._to_outputs = False
+            self._hb_period_us = 0
+            self._notices.warning(
+                "separate-sysid",
+                f"out_identity separate-vehicle: system id {ours} is the autopilot's own, so a ground station "
+                "would take our attitude for the autopilot's; sending nothing (set pipeline.system_id, "
+                "--sysid, to a free system id)",
+                now_us,
+            )
+            return
+        self._notices.info(
+            "separate",
+            f"attitude sent as a separate vehicle: system {ours}, component {self._codec.component_id} "
+            f"(the autopilot is system {autopilot[0]})",
+            now_us,
+        )
 
     def _set_profile(self, profile: AutopilotProfile) -> None:
         self._profile = profile
@@ -832,10 +888,11 @@ class Pipeline:
         frame = self._frame(_AQ_ID, _AQ_CRC, _AQ_PAYLOAD.pack(t_ms, qw, qx, qy, qz, p, q, r))
         if frame is None:
             frame = self._codec.encode(self._mav.attitude_quaternion_encode(t_ms, qw, qx, qy, qz, p, q, r, _ZERO_Q))
-        frames = [Outgoing(frame, self._to_master, True)]
+        to_master, to_outputs = self._to_master, self._to_outputs
+        frames = [Outgoing(frame, to_master, to_outputs)]
         if self._monitor_on:
             for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz)):
-                frames.append(Outgoing(self._codec.encode(m), self._to_master, True))
+                frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
             roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
             pitch = math.asin(max(-1.0, min(1.0, 2.0 * (qw * qy - qz * qx))))
@@ -843,7 +900,7 @@ class Pipeline:
             frame = self._frame(_ATT_ID, _ATT_CRC, _ATT_PAYLOAD.pack(t_ms, roll, pitch, yaw, p, q, r))
             if frame is None:
                 frame = self._codec.encode(self._mav.attitude_encode(t_ms, roll, pitch, yaw, p, q, r))
-            frames.append(Outgoing(frame, self._to_master, True))
+            frames.append(Outgoing(frame, to_master, to_outputs))
         self.outputs_sent += 1
         self._out_meter.add(now_us)
         return frames
@@ -886,7 +943,7 @@ class Pipeline:
         """The autopilot's own ATTITUDE / ATTITUDE_QUATERNION: compared with ours (issue 9, second opinion)."""
         if not self._monitor_on or not self._from_source(msg):
             return []
-        return [Outgoing(self._codec.encode(m), self._to_master, True) for m in self._monitor.handle(msg, now_us)]
+        return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._monitor.handle(msg, now_us)]
 
     def _on_command_ack(self, msg: Any, now_us: int) -> list[Outgoing]:
         if not self._from_source(msg):
@@ -1058,13 +1115,11 @@ class Pipeline:
         return frame
 
     def _heartbeat_frame(self) -> bytes:
-        frame = self._frame(_HB_ID, _HB_CRC, _HB_PAYLOAD.pack(0, _MAV_TYPE_ONBOARD_CONTROLLER, _MAV_AUTOPILOT_INVALID,
-                                                               0, _MAV_STATE_ACTIVE, 3))  # fmt: skip
+        mav_type, autopilot = self._hb_kind
+        frame = self._frame(_HB_ID, _HB_CRC, _HB_PAYLOAD.pack(0, mav_type, autopilot, 0, _MAV_STATE_ACTIVE, 3))
         if frame is not None:
             return frame
-        msg = self._mav.heartbeat_encode(
-            _MAV_TYPE_ONBOARD_CONTROLLER, _MAV_AUTOPILOT_INVALID, 0, 0, _MAV_STATE_ACTIVE
-        )
+        msg = self._mav.heartbeat_encode(mav_type, autopilot, 0, 0, _MAV_STATE_ACTIVE)
         return self._codec.encode(msg)
 
     def _request_frame(self, req: Any) -> bytes:

@@ -362,3 +362,113 @@ def test_the_real_daemon_points_true_north_without_system_time(gcs: socket.socke
     yaw_deg = math.degrees(math.atan2(2 * (m.q1 * m.q4 + m.q2 * m.q3), 1 - 2 * (m.q3**2 + m.q4**2)))
     assert abs(want_deg) > 5  # the test means something only where the declination is large
     assert yaw_deg == pytest.approx(want_deg, abs=1.0)
+
+
+# ---------------------------------------------------------------------------- pipeline.out_identity
+# QGroundControl before 4.2 draws any component's ATTITUDE_QUATERNION of the vehicle's system on its
+# HUD (docs/ecosystem.md#qgroundcontrol): there the default (component 191 of the vehicle) would
+# replace the autopilot's attitude; `separate-vehicle` sends as a vehicle of its own, `none` nothing.
+FIXED_WING, ARDUPILOT, GENERIC, INVALID, ONBOARD_CONTROLLER = 1, 3, 0, 8, 18  # MAV_TYPE_*, MAV_AUTOPILOT_*
+
+
+def _fly_identity(
+    gcs: socket.socket, pipeline: Any, log: Any = None, echo: Any = None
+) -> tuple[Daemon, list[Any], list[Any]]:
+    """The real daemon and pipeline, 1.5 s of a level ArduPilot plane at 400 Hz: (daemon, at the GCS, at the autopilot)."""
+    from mavahrs.service.daemon import build_daemon
+
+    d = build_daemon(DaemonSettings(
+        master="udpin:127.0.0.1:0", outputs=(f"udpout:127.0.0.1:{gcs.getsockname()[1]}",), status_interval_s=0.0,
+        log_path=str(log) if log else None,
+    ), pipeline)  # fmt: skip
+    ap = Autopilot(d.master.local_address[1])
+    plane = ap.codec.encode(ap.codec.mav.heartbeat_encode(FIXED_WING, ARDUPILOT, 0, 0, 4))
+    thread, box = _start(d)
+    try:
+        end = time.monotonic() + 1.5
+        next_hb = 0.0
+        while time.monotonic() < end:
+            if time.monotonic() >= next_hb:
+                ap.sock.sendto(plane, ap.addr)
+                next_hb = time.monotonic() + 1.0
+            ap.imu(8)
+            if echo is not None:
+                ap.sock.sendto(echo(), ap.addr)
+            time.sleep(0.02)
+        at_gcs = _drain(gcs, 0.3)
+        at_ap = ap.received()
+    finally:
+        d.stop()
+        thread.join(5)
+        ap.close()
+    assert box["result"].reason == "stopped"
+    return d, at_gcs, at_ap
+
+
+def _senders(msgs: list[Any], kind: str) -> set[tuple[int, int]]:
+    return {(m.get_srcSystem(), m.get_srcComponent()) for m in msgs if m.get_type() == kind}
+
+
+def test_out_identity_default_is_component_191_of_the_vehicle(gcs: socket.socket) -> None:
+    from mavahrs.service.pipeline import PipelineSettings
+
+    _, at_gcs, at_ap = _fly_identity(gcs, PipelineSettings(filter_name="mahony"))
+    assert _senders(at_gcs, "ATTITUDE_QUATERNION") == {(1, 191)}
+    assert _senders(at_ap, "ATTITUDE_QUATERNION") == {(1, 191)}  # routed on by the autopilot
+    assert {(m.type, m.autopilot) for m in at_gcs if m.get_type() == "HEARTBEAT"} == {(ONBOARD_CONTROLLER, INVALID)}
+
+
+def test_out_identity_separate_vehicle_is_a_system_of_its_own(gcs: socket.socket) -> None:
+    from mavahrs.service.pipeline import PipelineSettings
+
+    _, at_gcs, at_ap = _fly_identity(gcs, PipelineSettings(filter_name="mahony", out_identity="separate-vehicle"))
+    assert sum(m.get_type() == "ATTITUDE_QUATERNION" for m in at_gcs) >= 40  # 50 Hz for about 1.5 s
+    for msgs in (at_gcs, at_ap):
+        assert _senders(msgs, "ATTITUDE_QUATERNION") == {(42, 1)}
+        assert _senders(msgs, "HEARTBEAT") == {(42, 1)}
+        # nothing claims the autopilot's system: its HUD keeps the autopilot's attitude
+        assert all(m.get_srcSystem() != 1 for m in msgs if m.get_type() != "COMMAND_LONG")
+    # a vehicle to a ground station (the autopilot's vehicle type), not an onboard controller
+    assert {(m.type, m.autopilot) for m in at_gcs if m.get_type() == "HEARTBEAT"} == {(FIXED_WING, GENERIC)}
+    requests = [m for m in at_ap if m.get_type() == "COMMAND_LONG"]
+    assert requests and all((m.target_system, m.target_component) == (1, 1) for m in requests)
+
+
+def test_out_identity_separate_vehicle_with_a_chosen_system_id(gcs: socket.socket) -> None:
+    from mavahrs.service.pipeline import PipelineSettings
+
+    settings = PipelineSettings(filter_name="mahony", out_identity="separate-vehicle", system_id=7)
+    _, at_gcs, _ = _fly_identity(gcs, settings)
+    assert _senders(at_gcs, "ATTITUDE_QUATERNION") == {(7, 1)}
+
+
+def test_out_identity_none_sends_nothing_but_records_the_attitude(gcs: socket.socket, tmp_path: Any) -> None:
+    from mavahrs.protocol.tlog import read_tlog_messages
+    from mavahrs.service.pipeline import PipelineSettings
+
+    log = tmp_path / "flight.tlog"
+    d, at_gcs, at_ap = _fly_identity(gcs, PipelineSettings(filter_name="mahony", out_identity="none"), log)
+    assert at_gcs == []
+    assert {m.get_type() for m in at_ap} == {"COMMAND_LONG"}  # the stream requests only
+    assert d.counters.attitudes_out == 0 and d.counters.frames_to_outputs == 0
+    assert d.pipeline.outputs_sent >= 40  # estimated all the same …
+    assert len(list(read_tlog_messages(log, "ATTITUDE_QUATERNION"))) == d.pipeline.outputs_sent  # … and recorded
+
+
+def test_a_separate_vehicles_own_heartbeat_relayed_back_is_not_the_autopilots(gcs: socket.socket) -> None:
+    """A router that echoes our HEARTBEAT (MAV_AUTOPILOT_GENERIC, system 42) must not keep the autopilot 'alive'."""
+    from mavahrs.service.pipeline import PipelineSettings
+
+    ours = MavCodec(42, 1)
+    echoes: list[bytes] = []
+
+    def echo() -> bytes:  # each with the next sequence number, as relayed frames have
+        echoes.append(ours.encode(ours.mav.heartbeat_encode(FIXED_WING, GENERIC, 0, 0, 4)))
+        return echoes[-1]
+
+    d, _, _ = _fly_identity(gcs, PipelineSettings(filter_name="mahony", out_identity="separate-vehicle"), echo=echo)
+    assert len(echoes) > 40
+    assert d._heartbeats == 2  # noqa: SLF001 - the plane's, at 0 s and 1 s; none of the echoes
+    assert d.pipeline.source == (1, 1)
+    assert "other_autopilot_heartbeats" not in d.pipeline.status().counters
+

@@ -203,3 +203,27 @@ def test_no_autopilot_heard() -> None:
     assert any("no autopilot HEARTBEAT" in r for r in report.recommendations)
     report = diagnose(LinkObserver(), LinkFacts("/dev/ttyUSB0", "serial", 57600, 0, 3.0))
     assert any("nothing received on the serial port" in r for r in report.recommendations)
+
+
+QGC_NOTE = (
+    "a ground station is on this link (system 255 component 190); its HEARTBEAT does not say which program or "
+    "version it is. QGroundControl 4.1 and older draws any component's ATTITUDE_QUATERNION of the vehicle on its "
+    "HUD: there mavahrs run's attitude (component 191 of the vehicle) would replace the autopilot's. For such a "
+    "ground station run mavahrs with --out-identity separate-vehicle (a vehicle of its own, system 42) or "
+    "--out-identity none (QGroundControl 4.2 and later draws only the autopilot's attitude)"
+)
+
+
+def test_a_ground_station_on_the_link_gets_the_hud_note() -> None:
+    link = Link()
+    link.heartbeat()
+    link.stream("raw_imu", 50.0, 0.0, 1.0)
+    quiet = diagnose(link.obs, link.facts(1.0), DoctorSettings(rate_hz=50, request_streams=False))
+    assert not any("ground station is on this link" in n for n in quiet.notes)
+    qgc = MavCodec(255, 190)  # QGroundControl's ids and HEARTBEAT (MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID)
+    for m in link.rx.receive_datagram(qgc.encode(qgc.mav.heartbeat_encode(6, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 4))):
+        link.obs.on_message(m, T0 + 500_000)
+    report = diagnose(link.obs, link.facts(1.0), DoctorSettings(rate_hz=50, request_streams=False))
+    assert QGC_NOTE in report.notes
+    assert f"note: {QGC_NOTE}" in report.lines()
+    assert "also heard: system 255 component 190: ground station" in report.lines()
