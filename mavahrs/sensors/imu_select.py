@@ -10,8 +10,13 @@ decides, per sample, whether it goes to the filter.  An instance is
   fed to a filter, whatever the mode;
 * **stale** — no sample for ``stale_s`` while other instances keep arriving;
 * **frozen** — identical accel and gyro values for ``freeze_s`` (and at least
-  ``freeze_min_samples`` samples) while another instance still changes (a
-  noiseless simulator at rest freezes all of them, which is no fault);
+  ``freeze_min_samples`` samples) while another live instance changed in at
+  least ``freeze_other_change_fraction`` of *its* samples over the same stretch.
+  A working sensor's noise changes almost every sample, and so does a
+  noiseless one's reading while the vehicle moves; a noiseless simulator in a
+  steady state (ArduPilot SITL on the ground, in the hover) repeats values in
+  every instance, the other one flickering by one unit now and then — no fault,
+  and no reason to switch (it once flapped between instances every 2 s);
 * **saturated** — an axis at its limit within the last ``saturation_hold_s``;
 * **disagreeing** — its smoothed gyro or accel differs from the median of
   three or more instances by more than a threshold for ``disagree_s`` (with
@@ -50,6 +55,12 @@ class ImuSelectSettings:
             while others arrive) is stale, s.
         freeze_s: identical accel+gyro values for this long = frozen, s.
         freeze_min_samples: … and for at least this many samples.
+        freeze_other_change_fraction: … while another instance's values
+            changed in at least this share of its samples over that time (its
+            noise or the vehicle's motion: evidence that a working sensor would
+            have changed too); 0.5 between a live sensor's ≈ 1 and the few
+            one-unit flickers of a noiseless simulator at rest (≈ 0.07 in
+            ArduPilot SITL).
         zero_samples: this many consecutive all-zero samples mark an instance
             absent (the first sample decides at start-up).
         saturation_hold_s: an instance stays "saturated" this long after its
@@ -67,6 +78,7 @@ class ImuSelectSettings:
     stale_s: float = 0.25
     freeze_s: float = 0.5
     freeze_min_samples: int = 5
+    freeze_other_change_fraction: float = 0.5
     zero_samples: int = 3
     saturation_hold_s: float = 1.0
     disagree_gyro_rad_s: float = math.radians(15.0)
@@ -85,6 +97,10 @@ class ImuSelectSettings:
                 raise ConfigError(f"IMU selection setting {name} must be a positive number, got {v!r}")
         if self.freeze_min_samples < 2 or self.zero_samples < 1:
             raise ConfigError("freeze_min_samples must be ≥ 2 and zero_samples ≥ 1")
+        if not 0.0 < self.freeze_other_change_fraction <= 1.0:
+            raise ConfigError(
+                f"freeze_other_change_fraction must be in (0, 1], got {self.freeze_other_change_fraction!r}"
+            )
 
     @property
     def fixed(self) -> int | None:
@@ -130,6 +146,10 @@ class _Inst:
     prev: tuple[float, ...] = ()
     same_count: int = 0
     same_since_us: int = 0
+    #: samples whose accel+gyro differed from the previous one's
+    changes: int = 0
+    #: the other instances' (samples, changes) when this instance's current run of identical values began
+    run_marks: dict[int, tuple[int, int]] = field(default_factory=dict)
     last_sat_us: int = -(10**18)
     sat_since_us: int = -(10**18)
     ema: list[float] = field(default_factory=lambda: [0.0] * 6)
@@ -202,10 +222,13 @@ class ImuSelector:
         cur = (gx, gy, gz, ax, ay, az)
         if cur == inst.prev:
             inst.same_count += 1
+            if inst.same_count == 2:  # a run of identical values begins: how far have the others got?
+                inst.run_marks = {o.imu_id: (o.samples, o.changes) for o in self._inst.values() if o is not inst}
         else:
             inst.prev = cur
             inst.same_count = 1
             inst.same_since_us = t
+            inst.changes += 1
         if v[S_SAT] & (GYRO | ACCEL):
             if t - inst.last_sat_us > self._sat_us:
                 inst.sat_since_us = t  # a new saturation episode
@@ -226,7 +249,7 @@ class ImuSelector:
         return imu_id == self.selected and not inst.absent
 
     # ------------------------------------------------------------------ decisions
-    def _problems(self, inst: _Inst, others_changing: bool) -> str:
+    def _problems(self, inst: _Inst) -> str:
         t = self._t_latest
         if inst.absent:
             return "absent (all-zero)"
@@ -235,7 +258,7 @@ class ImuSelector:
         if (
             inst.same_count >= self.settings.freeze_min_samples
             and t - inst.same_since_us >= self._freeze_us
-            and others_changing
+            and self._others_changed(inst)
         ):
             return "frozen"
         if t - inst.last_sat_us <= self._sat_us:
@@ -243,6 +266,19 @@ class ImuSelector:
         if inst.disagree_since_us is not None and t - inst.disagree_since_us >= self._disagree_us:
             return "disagrees"
         return ""
+
+    def _others_changed(self, inst: _Inst) -> bool:
+        """Did another live instance change in most of its samples while ``inst`` repeated its values?"""
+        t = self._t_latest
+        s = self.settings
+        for o in self._inst.values():
+            if o is inst or o.absent or t - o.last_t_us > self._stale_us:
+                continue
+            n0, c0 = inst.run_marks.get(o.imu_id, (0, 0))  # (0, 0): it appeared during the run
+            n = o.samples - n0
+            if n >= s.freeze_min_samples and o.changes - c0 >= s.freeze_other_change_fraction * n:
+                return True
+        return False
 
     def _update_disagreement(self) -> None:
         t = self._t_latest
@@ -268,12 +304,9 @@ class ImuSelector:
         t = self._t_latest
         self._last_eval_us = t
         self._update_disagreement()
-        fr = self.settings.freeze_min_samples
-        changing = {i.imu_id for i in self._inst.values()
-                    if not i.absent and i.same_count < fr and t - i.last_t_us <= self._stale_us}  # fmt: skip
         problems = {}
         for inst in self._inst.values():
-            p = self._problems(inst, bool(changing - {inst.imu_id}))
+            p = self._problems(inst)
             problems[inst.imu_id] = p
             if p:
                 inst.healthy_since_us = None
@@ -339,12 +372,8 @@ class ImuSelector:
 
     def instances(self) -> tuple[InstanceStatus, ...]:
         """Every instance seen, with its state as of the last sample (read-only: no re-evaluation)."""
-        fr = self.settings.freeze_min_samples
-        t = self._t_latest
-        changing = {i.imu_id for i in self._inst.values()
-                    if not i.absent and i.same_count < fr and t - i.last_t_us <= self._stale_us}  # fmt: skip
         return tuple(
-            InstanceStatus(i.imu_id, i.source, i.samples, self._problems(i, bool(changing - {i.imu_id})) or "ok",
+            InstanceStatus(i.imu_id, i.source, i.samples, self._problems(i) or "ok",
                            i.imu_id == self.selected)  # fmt: skip
             for i in sorted(self._inst.values(), key=lambda i: i.imu_id)
         )
