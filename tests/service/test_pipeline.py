@@ -208,7 +208,7 @@ def test_non_autopilot_heartbeats_do_not_become_the_source(make_autopilot):
 
 
 def test_duplicates_and_reordering_dropped_and_counted(autopilot, trajectory):
-    """A sample sent twice (a new frame with the same time_usec) and swapped pairs."""
+    """A sample sent twice (a new frame with the same time_usec and values) and swapped pairs."""
     order = []
     dup = reo = 0
     k = 0
@@ -232,7 +232,11 @@ def test_duplicates_and_reordering_dropped_and_counted(autopilot, trajectory):
     att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
     st = pipe.status()
     dropped = {k: v for k, v in st.drops.items() if k != "filter_not_initialised"}
-    assert sum(dropped.values()) == dup + reo and len(dropped) == 2
+    assert dropped == {"reordered": reo}
+    # the re-sends are not losses: counted apart, shown on the status line, never a notice
+    assert st.counters["exact_duplicates"] == dup and st.counters["same_stamp_changed"] == 0
+    assert f"| drops {st.samples_dropped} (+{dup} re-sent) |" in st.line()
+    assert not any("duplicate" in m or "re-sent" in m for _, m in pipe.drain_notices())
     assert st.samples_filtered == 2000 - reo  # each sample once; the late one of a swapped pair is dropped
     times = [a.time_boot_ms for a in att]
     assert times == sorted(times) and len(set(times)) == len(times)
@@ -285,7 +289,9 @@ def test_all_zero_scaled_imu2_never_reaches_the_filter(autopilot, trajectory):
     assert zero_rows == []
     st = pipe.status()
     assert st.samples_filtered == 800
-    assert st.counters["absent_instance_samples"] == n2 and st.samples_dropped == 0
+    # (a heartbeat shares an IMU frame's arrival time twice: that SCALED_IMU2 went out twice, same stamp and values)
+    assert st.counters["absent_instance_samples"] + st.counters["exact_duplicates"] == n2 and st.samples_dropped == 0
+    assert st.counters["exact_duplicates"] == 1
     assert {s.imu_id: s.state for s in st.imu_instances}[1] == "absent (all-zero)"
 
 
