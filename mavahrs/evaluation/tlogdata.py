@@ -940,7 +940,14 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
             continue
         t, q = t[good], q[good]
         order = np.argsort(t, kind="stable")
-        out[k] = (t[order], q[order] / np.linalg.norm(q[order], axis=1, keepdims=True))
+        t, q = t[order], q[order]
+        # a message the autopilot sent twice in one pass (same time, same values: ArduPilot's telemetry catching
+        # up at SCHED_LOOP_RATE 800) is one reference sample, not two
+        again = np.zeros(t.shape[0], bool)
+        again[1:] = (t[1:] == t[:-1]) & np.all(q[1:] == q[:-1], axis=1)
+        if again.any():
+            t, q = t[~again], q[~again]
+        out[k] = (t, q / np.linalg.norm(q, axis=1, keepdims=True))
     return out
 
 

@@ -72,7 +72,15 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.protocol.codec import MavCodec, mavlink
-from mavahrs.protocol.timeline import DROP_KINDS, GAP, REBOOT, RESENT, ResendFilter, Timeline, TimelineSettings
+from mavahrs.protocol.timeline import (
+    DROP_KINDS,
+    GAP,
+    REBOOT,
+    RESENT,
+    ResendFilter,
+    Timeline,
+    TimelineSettings,
+)
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
 from mavahrs.sensors.geomag import (
     DeclinationSource,

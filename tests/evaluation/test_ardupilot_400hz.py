@@ -40,7 +40,7 @@ def test_bulk_path_drops_the_resends_keeps_repeats_and_never_fails_over(log_data
     assert prep.n == RAW_IMU_UNIQUE and prep.counts["dropped_timeline"] == 0
     # every fed sample has its own stamp, 2.5 or 3.125 ms apart (README: 60,425 and 15,869) …
     steps, counts = np.unique(np.diff(prep.t_us), return_counts=True)
-    assert dict(zip(steps.tolist(), counts.tolist())) == {2500: 60_425, 3125: 15_869}
+    assert dict(zip(steps.tolist(), counts.tolist(), strict=True)) == {2500: 60_425, 3125: 15_869}
     # … and the genuine repeats (new stamp, same nine values: a noiseless sensor in a steady state) are kept
     nine = prep.rows[:, IN_GYRO : IN_MAG + 3]
     assert np.count_nonzero(np.all(nine[1:] == nine[:-1], axis=1)) == 29_627
