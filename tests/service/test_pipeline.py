@@ -242,6 +242,24 @@ def test_duplicates_and_reordering_dropped_and_counted(autopilot, trajectory):
     assert times == sorted(times) and len(set(times)) == len(times)
 
 
+def test_same_stamp_with_other_values_is_counted_apart_and_dropped_as_stale(autopilot, trajectory):
+    """Not a re-send: a sender that stamps two different samples alike. Today's handling (the timeline drops the
+    second as ``stale``) is kept, and counted apart from the harmless re-sends."""
+    frames = [(0, autopilot.heartbeat())]
+    clash = 0
+    for k in range(1200):
+        t = int(trajectory.t_us[k])
+        frames.append((t + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k)))
+        if k % 100 == 60:  # other values (gyro 50 mrad/s off) under this sample's stamp
+            frames.append((t + ARRIVAL_US, autopilot.raw_imu(t, trajectory.q_body_to_ned[k], trajectory.gyro_rad_s[k] + 0.05)))
+            clash += 1
+    pipe = Pipeline(settings())
+    feed(pipe, frames)
+    st = pipe.status()
+    assert st.counters["same_stamp_changed"] == clash and st.counters["exact_duplicates"] == 0
+    assert st.drops.get("stale") == clash and st.samples_filtered == 1200
+
+
 def test_reboot_resets_and_carries_on(autopilot, trajectory, make_autopilot):
     first = imu_frames(autopilot, trajectory, 0, 2000)
     # the autopilot reboots: its clock restarts near zero, its sequence numbers too
