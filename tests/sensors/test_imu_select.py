@@ -157,6 +157,25 @@ def test_freeze_of_a_noiseless_imu_caught_while_the_vehicle_turns():
     assert "instance 0 frozen" in b.sel.reason
 
 
+def test_freeze_during_a_long_steady_hover_caught_as_soon_as_the_vehicle_moves():
+    """Noiseless IMUs through 20 s of steady hover (IMU 1 flickering by one unit now and then); IMU 0 sticks at
+    10 s, unnoticeable while nothing changes; the vehicle starts turning at 20 s: caught within 1 s."""
+    b = Bench()
+
+    def hover_then_turn(v):
+        imu, t = v[0], v[1]
+        flick = 0.00980665 if imu == 1 and (t // DT_US) % 15 == 7 else 0.0
+        r = 0.0 if t < 20e6 else 0.5 + 0.3 * math.sin(t * 1e-6)
+        return _noiseless(imu, t, (0.0, 0.0, r), (0.05, -0.02, -9.80665 + flick))
+
+    b.run(0, 10, override={0: hover_then_turn, 1: hover_then_turn})
+    stuck = _noiseless(0, 0, (0.0, 0.0, 0.0), (0.05, -0.02, -9.80665))
+    b.run(10, 22, override={0: lambda v: (0, v[1], *stuck[2:]), 1: hover_then_turn})
+    t_switch = b.first_fed_from(1)
+    assert 20.0e6 < t_switch <= 21.0e6
+    assert "instance 0 frozen" in b.sel.reason
+
+
 def test_frozen_instance_taken_back_only_after_recover_s_of_health():
     """Hysteresis: an instance that freezes again within ``recover_s`` is not switched back to."""
     b = Bench(ImuSelectSettings(recover_s=1.0))
