@@ -179,8 +179,8 @@ def measure(label: str, path: Path, folder: Path, filters: list[str], skip_s: fl
 def format_rows(rows: list[dict[str, object]], filters: list[str]) -> str:
     lines = []
     for r in rows:
-        lines += ["", f"{r['flight']}  (left out of the stripped copy: "
-                      + ", ".join(f"{n} {k}" for n, k in r["stripped_per_type"].items()) + ")"]  # type: ignore[union-attr]
+        left = ", ".join(f"{n} {k}" for n, k in r["stripped_per_type"].items()) or "nothing"  # type: ignore[union-attr]
+        lines += ["", f"{r['flight']}  (left out of the stripped copy: {left})"]
         head = f"{'':10s}{'fail-overs':>11s}{'re-sends dropped':>18s}{'samples fed':>13s}  " + "".join(
             f"{n:>22s}" for n in filters)
         lines += [head, f"{'':10s}{'':42s}  " + "".join(f"{'incl / head / total':>22s}" for _ in filters),
