@@ -101,8 +101,9 @@ class ImuSelectSettings:
     def __post_init__(self) -> None:
         if self.imu != "auto" and self.imu not in {str(i) for i in range(MAX_INSTANCES)}:
             raise ConfigError(f"imu must be auto, 0, 1 or 2, got {self.imu!r}")
-        for name in ("stale_s", "freeze_s", "freeze_motion_gyro_rad_s", "freeze_motion_accel_m_s2", "saturation_hold_s", "disagree_gyro_rad_s",
-                     "disagree_accel_m_s2", "disagree_s", "smoothing_s", "recover_s"):  # fmt: skip
+        for name in ("stale_s", "freeze_s", "freeze_motion_gyro_rad_s", "freeze_motion_accel_m_s2",
+                     "saturation_hold_s", "disagree_gyro_rad_s", "disagree_accel_m_s2", "disagree_s", "smoothing_s",
+                     "recover_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"IMU selection setting {name} must be a positive number, got {v!r}")
