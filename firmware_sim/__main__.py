@@ -132,6 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--imu2-saturate-at", type=float, metavar="S", help="second IMU reads full scale from S s")
     se.add_argument("--no-sensor-errors", action="store_true",
                     help="perfect IMU and compass (no noise, bias, scale, quantisation, vibration; low-pass kept)")
+    se.add_argument("--noiseless", action="store_true",
+                    help="no sensor noise, bias random walk or vibration (biases, scale, quantisation kept): "
+                         "steady states repeat the same whole mG and mrad/s, as ArduPilot's SITL")
     se.add_argument("--gyro-lowpass-hz", type=float, default=ImuErrorSettings.gyro_lowpass_hz, metavar="HZ",
                     help="INS_GYRO_FILTER, Hz; 0 = off (default %(default)s)")
     se.add_argument("--accel-lowpass-hz", type=float, default=ImuErrorSettings.accel_lowpass_hz, metavar="HZ",
@@ -160,6 +163,8 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
     imu = ImuErrorSettings.ideal(lowpass=True) if args.no_sensor_errors else ImuErrorSettings()
     imu = replace(imu, gyro_lowpass_hz=args.gyro_lowpass_hz, accel_lowpass_hz=args.accel_lowpass_hz)
     mag = MagSettings.ideal() if args.no_sensor_errors else MagSettings()
+    if args.noiseless:
+        imu, mag = imu.noiseless(), mag.noiseless()
     if args.mag_hard_iron_ut is not None:
         mag = replace(mag, hard_iron_ut=args.mag_hard_iron_ut)
     if args.mag_soft_iron is not None:

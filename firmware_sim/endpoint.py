@@ -7,10 +7,16 @@ read here: time is the simulation's tick time.
 
 ArduPilot behaviour modelled (``autopilot="ardupilot"``, the default):
 
-* **Stream scheduling** in the scheduler loop: a stream with interval ``T`` is
-  due at ``t₀ + n·T`` and goes out in the first loop tick at or after that
-  time, so the average rate is exact while single intervals are whole loop
-  periods (at 400 Hz, 250 Hz comes out as 5 ms, 5 ms, 2.5 ms, …).
+* **Stream scheduling** in the telemetry task: a stream with interval ``T`` is
+  due at ``t₀ + n·T`` and goes out in the first pass of the task at or after
+  that time, so the average rate is exact while single intervals are whole
+  pass periods (at 400 Hz, 250 Hz comes out as 5 ms, 5 ms, 2.5 ms, …).  The
+  task runs every loop tick up to ``telemetry_rate_hz`` (400 Hz, ArduCopter's
+  ``GCS::update_send``); at a faster ``SCHED_LOOP_RATE`` it runs every few
+  ticks, and a stream due more often than that is **sent twice in one pass**:
+  the same stamp and values again (ArduCopter at ``SCHED_LOOP_RATE`` 800 asked
+  for RAW_IMU at 400 Hz keeps 2 ms and sends one message in five twice;
+  the real one, whose passes slip now and then, about one in four).
 * ``RAW_IMU.time_usec`` (and ``time_boot_ms`` elsewhere) is the **send time**
   (tick time plus a small, seeded jitter), not the sample time.
 * **MAV_CMD_SET_MESSAGE_INTERVAL** (511): ``-1`` stops, ``0`` restores the
@@ -18,6 +24,8 @@ ArduPilot behaviour modelled (``autopilot="ardupilot"``, the default):
   satisfy ``interval_ms · 800 < loop_period_us`` is **DENIED** with a STATUSTEXT
   "Requested rate too fast. Increase SCHED_LOOP_RATE" — at the default 400 Hz
   loop the fastest accepted interval is 4 ms (250 Hz), at 800 Hz it is 2 ms.
+  An accepted interval is kept in **whole milliseconds** (ArduPilot stores
+  ``interval_ms``): 2500 µs (400 Hz) becomes 2000 µs, and reads back so.
 * **MAV_CMD_REQUEST_MESSAGE** (512), **MAV_CMD_GET_MESSAGE_INTERVAL** (510),
   **MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES** (520): ACK + the message;
   other commands are ACKed UNSUPPORTED.  COMMAND_LONG and COMMAND_INT.
@@ -118,6 +126,11 @@ class EndpointSettings:
             UNSUPPORTED (clients must fall back to REQUEST_DATA_STREAM).
         link_bytes_per_s: link capacity (bytes/s, e.g. baud/10); frames that do not fit are
             deferred to a later tick, as ArduPilot does; None = unlimited.
+        telemetry_rate_hz: ArduPilot's telemetry task (``GCS::update_send``, 400 Hz in
+            ArduCopter): streams go out in its passes, every loop tick up to this rate and every
+            few ticks at a faster loop, where a stream due more often than the task runs is
+            sent twice in one pass (an exact duplicate: same stamp, same values).  Not used
+            with ``ideal`` or PX4.
         block_ticks: ticks simulated at a time (latency vs. throughput).
     """
 
@@ -133,6 +146,7 @@ class EndpointSettings:
     support_message_interval: bool = True
     link_bytes_per_s: float | None = None
     block_ticks: int = 40
+    telemetry_rate_hz: float = 400.0
 
     def __post_init__(self) -> None:
         Autopilot(self.autopilot)
@@ -149,6 +163,8 @@ class EndpointSettings:
             raise ValueError("EndpointSettings: default_stream_hz, send_jitter_us must be >= 0, block_ticks >= 1")
         if self.link_bytes_per_s is not None and not self.link_bytes_per_s > 0.0:
             raise ValueError("EndpointSettings.link_bytes_per_s must be > 0 or None")
+        if not (math.isfinite(self.telemetry_rate_hz) and self.telemetry_rate_hz > 0.0):
+            raise ValueError(f"EndpointSettings.telemetry_rate_hz must be > 0, got {self.telemetry_rate_hz!r}")
 
 
 @dataclass
@@ -201,6 +217,10 @@ class Endpoint:
         self.codec = MavCodec(s.system_id, s.component_id)
         self.encoder = FrameEncoder(self.codec, self.autopilot)
         self.loop_period_us = 1e6 / sim.settings.loop_rate_hz
+        ardupilot = self.autopilot.name == "ardupilot" and not s.ideal
+        #: the telemetry task's period (µs): every tick unless the loop is faster than the task (ArduPilot)
+        self.pass_period_us = max(self.loop_period_us, 1e6 / s.telemetry_rate_hz) if ardupilot else self.loop_period_us
+        self._next_pass_us = 0.0
         self._rng = np.random.default_rng(np.random.SeedSequence([int(sim.settings.seed), 0xE4D]))
         self._streams = {name: _Stream(name) for name in STREAMABLE}
         self._defaults_us: dict[str, int] = {}
@@ -211,6 +231,7 @@ class Endpoint:
         self._tokens = 0.0
         self.stats: dict[str, Counter[str]] = {
             "received": Counter(), "commands": Counter(), "acks": Counter(), "sent": Counter(), "deferred": Counter(),
+            "resent": Counter(),
         }
         self._gps = _GpsReceiver()
         self._produce = self._producers()
@@ -266,9 +287,10 @@ class Endpoint:
             return interval_us if interval_us >= self.min_interval_us else 0
         if self.autopilot.name == "px4":
             return max(interval_us, self.min_interval_us)
-        if (interval_us // 1000) * 800 < self.loop_period_us:  # ArduPilot's check, on whole ms
+        interval_ms = interval_us // 1000  # ArduPilot keeps whole milliseconds
+        if interval_ms * 800 < self.loop_period_us:  # … and checks them against the loop period
             return 0
-        return interval_us
+        return interval_ms * 1000
 
     def interval_us(self, name: str) -> int:
         """Current interval of a stream (µs; −1 = off)."""
@@ -313,8 +335,13 @@ class Endpoint:
         out: list[tuple[int, bytes]] = []
         if self._streams["GPS_RAW_INT"].interval_us > 0:
             self._gps.observe(w, i, tick_us)
+        period = self.pass_period_us
+        in_pass = period <= self.loop_period_us or tick_us >= self._next_pass_us
+        if in_pass and period > self.loop_period_us:
+            nxt = self._next_pass_us + period
+            self._next_pass_us = nxt if nxt > tick_us else tick_us + period  # (resynchronised after a start-up)
         for name, st in self._streams.items():
-            if st.interval_us <= 0 or tick_us < st.next_due_us:
+            if not in_pass or st.interval_us <= 0 or tick_us < st.next_due_us:
                 continue
             if budget is not None and _MAX_FRAME[name] > budget:
                 self.stats["deferred"][name] += 1
@@ -329,6 +356,17 @@ class Endpoint:
             out.append((send_us, frame))
             self.stats["sent"][name] += 1
             st.next_due_us += st.interval_us
+            if st.next_due_us <= tick_us and st.interval_us < period:
+                # due again within this pass (interval shorter than the task's period): ArduPilot sends it
+                # again at once — the same stamp and the same sample, a new sequence number
+                again = self._produce[name](w, i, send_us, tick_us)
+                if again is not None and (budget is None or len(again) <= budget):
+                    if budget is not None:
+                        budget -= len(again)
+                    out.append((send_us, again))
+                    self.stats["sent"][name] += 1
+                    self.stats["resent"][name] += 1
+                    st.next_due_us += st.interval_us
             if st.next_due_us <= tick_us:  # fell behind (e.g. link full): resynchronise
                 st.next_due_us = tick_us + st.interval_us
         for name in self._one_shots:

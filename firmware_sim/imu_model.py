@@ -26,7 +26,7 @@ one-sided: per-sample σ = density · √(fs / 2).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -88,6 +88,19 @@ class ImuErrorSettings:
                 raise ValueError(f"ImuErrorSettings.{name} must be finite and >= 0, got {value!r}")
         if self.gyro_range_rad_s <= 0.0 or self.accel_range_m_s2 <= 0.0:
             raise ValueError("ImuErrorSettings: ranges must be > 0")
+
+    def noiseless(self) -> ImuErrorSettings:
+        """These errors without the random ones: no white noise, no bias random walk, no vibration (as
+        ArduPilot's SITL with ``SIM_ACC*_RND`` and ``SIM_GYR*_RND`` at 0).  Turn-on bias, scale, cross-axis,
+        quantisation and the low-pass stay, so a steady state repeats the same whole mG and mrad/s on the wire."""
+        return replace(
+            self,
+            gyro_noise_density_rad_s_rthz=0.0,
+            accel_noise_density_m_s2_rthz=0.0,
+            gyro_bias_walk_rad_s_rts=0.0,
+            accel_bias_walk_m_s2_rts=0.0,
+            vibration=False,
+        )
 
     @classmethod
     def ideal(cls, *, lowpass: bool = False) -> ImuErrorSettings:
@@ -178,6 +191,10 @@ class MagSettings:
     @classmethod
     def ideal(cls) -> MagSettings:
         return cls(noise_ut=0.0, lsb_ut=0.0)
+
+    def noiseless(self) -> MagSettings:
+        """This compass without its white noise (quantisation and update rate kept)."""
+        return replace(self, noise_ut=0.0)
 
 
 @dataclass

@@ -381,7 +381,7 @@ def replay(
     finally:
         if sink is not None:
             sink.close()
-    result.notes = notes + result.inputs.notes + result.notes
+    result.notes = notes + result.inputs.notes + result.notes + _resend_notes(result.inputs.counts)
     rate = result.inputs.rate_hz()
     if rate < LOW_RATE_HZ:
         result.notes.append(
@@ -390,6 +390,20 @@ def replay(
             "see docs/daemon.md). The comparison below is coarse."
         )
     return result
+
+
+def _resend_notes(counts: Mapping[str, int]) -> list[str]:
+    """What the replay's header says about messages sent twice (ArduPilot's 400 Hz stream)."""
+    out = []
+    n = counts.get("exact_duplicates", 0)
+    if n:
+        out.append(f"{n} exact duplicate IMU messages (same time stamp and values as the message before: "
+                   "sent twice by the autopilot) dropped")  # fmt: skip
+    n = counts.get("same_stamp_changed", 0)
+    if n:
+        out.append(f"{n} IMU messages repeat the previous message's time stamp with other values "
+                   "(the filtered instance's are dropped as stale)")  # fmt: skip
+    return out
 
 
 def _progress_bar(total: int, enabled: bool, unit: str) -> Any:

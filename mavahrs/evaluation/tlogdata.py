@@ -9,6 +9,9 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
   configured one); IMU messages before it, or from elsewhere, are not used;
 * scaling with the profile's units, saturation and validity checks
   (:class:`mavahrs.sensors.scaling.Scaler`, mirrored element by element);
+* exact re-sends (same stamp and values as the previous message of the same
+  kind and instance, :class:`~mavahrs.protocol.timeline.ResendFilter`) dropped
+  before anything else and counted (``counts["exact_duplicates"]``);
 * the IMU instance the selector (:class:`~mavahrs.sensors.imu_select.ImuSelector`)
   would feed: instances whose accelerometer and gyro are all zero are absent
   (an ArduSub SCALED_IMU2); all-zero samples are never fed;
@@ -495,6 +498,28 @@ def _timeline(
     return keep, dt
 
 
+def _resends(mg: dict[str, Any]) -> tuple[NDArray[np.bool_], int]:
+    """:class:`mavahrs.protocol.timeline.ResendFilter` over the merged messages, per (message, instance):
+    which are exact re-sends of the previous one (dropped), and how many repeat its stamp with new values."""
+    n = mg["t_us"].shape[0]
+    resent = np.zeros(n, bool)
+    restamped = 0
+    use = mg["use"]
+    kind = mg["kind"].astype(np.int64) * 256 + mg["imu"].astype(np.int64)
+    for k in np.unique(kind[use]).tolist():
+        idx = np.flatnonzero(use & (kind == k))
+        t = mg["t_us"][idx]
+        same_t = t[1:] == t[:-1]
+        if not same_t.any():
+            continue
+        v = np.concatenate([mg["gyro"][idx], mg["accel"][idx], mg["mag"][idx]], axis=1)
+        a, b = v[1:], v[:-1]
+        same_v = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+        resent[idx[1:][same_t & same_v]] = True
+        restamped += int(np.count_nonzero(same_t & ~same_v))
+    return resent, restamped
+
+
 def _run_selector(mg: dict[str, Any], names: list[str], settings: Any) -> NDArray[np.bool_]:
     """The pipeline's own ImuSelector over every message (several live instances, ``imu=auto``)."""
     from mavahrs.sensors.imu_select import ImuSelector
@@ -578,6 +603,9 @@ def prepare_inputs(
         order = np.argsort(mg["pos"], kind="stable")
         mg = {k: v[order] for k, v in mg.items()}
     names = [sc["name"] for sc in parts]
+    resent, restamped = _resends(mg)
+    if resent.any():
+        mg["use"] = mg["use"] & ~resent
     mg["zero"] = mg["zero"] & mg["use"]
     # --- which samples the selector feeds
     carriers: dict[int, set[int]] = {}
@@ -696,6 +724,8 @@ def prepare_inputs(
         "imu_messages": int(mg["pos"].shape[0]),
         "fed": m,
         "dropped_timeline": int((~keep).sum()),
+        "exact_duplicates": int(resent.sum()),
+        "same_stamp_changed": restamped,
     }
     return PreparedInputs(
         rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,
@@ -835,6 +865,7 @@ def run_pipelines(
     if m == 0:
         raise DataError(f"{td.path}: no IMU sample reached the filter (no autopilot heartbeat or IMU data)")
     src = p0.source or (0, 0)
+    counters = p0.status().counters
     prep = PreparedInputs(
         rows=np.vstack(rows) if rows else np.zeros((0, IN_WIDTH)),
         t_us=np.asarray(t_list, np.int64),
@@ -847,10 +878,11 @@ def run_pipelines(
         source=(int(src[0]), int(src[1])),
         profile=p0.profile.name if p0.profile else "?",
         engine="pipeline",
-        counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()}},
+        counts={"fed": m, **{f"fed_{k}": v for k, v in names_fed.items()},
+                **{k: int(counters.get(k, 0)) for k in ("exact_duplicates", "same_stamp_changed")}},
         velocity_source=_velocity_setting(settings),
         velocity_fixes={k: p0.velocity_selector.used(k) for k in p0.velocity_selector.messages},
-    )
+    )  # fmt: skip
     for kind, text in p0.drain_notices():
         if kind >= logging.WARNING:
             prep.notes.append(text)
@@ -941,7 +973,14 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
             continue
         t, q = t[good], q[good]
         order = np.argsort(t, kind="stable")
-        out[k] = (t[order], q[order] / np.linalg.norm(q[order], axis=1, keepdims=True))
+        t, q = t[order], q[order]
+        # a message the autopilot sent twice in one pass (same time, same values: ArduPilot's telemetry catching
+        # up at SCHED_LOOP_RATE 800) is one reference sample, not two
+        again = np.zeros(t.shape[0], bool)
+        again[1:] = (t[1:] == t[:-1]) & np.all(q[1:] == q[:-1], axis=1)
+        if again.any():
+            t, q = t[~again], q[~again]
+        out[k] = (t, q / np.linalg.norm(q, axis=1, keepdims=True))
     return out
 
 

@@ -10,8 +10,18 @@ decides, per sample, whether it goes to the filter.  An instance is
   fed to a filter, whatever the mode;
 * **stale** — no sample for ``stale_s`` while other instances keep arriving;
 * **frozen** — identical accel and gyro values for ``freeze_s`` (and at least
-  ``freeze_min_samples`` samples) while another instance still changes (a
-  noiseless simulator at rest freezes all of them, which is no fault);
+  ``freeze_min_samples`` samples) while another live instance shows that a
+  working sensor would have changed: it changes in at least
+  ``freeze_other_change_fraction`` of its recent samples (its noise; a running
+  share, time constant ``freeze_s``/2), or its smoothed gyro or accelerometer
+  has moved by more than ``freeze_motion_gyro_rad_s`` /
+  ``freeze_motion_accel_m_s2`` since this instance's values stopped changing
+  (the vehicle moved: a noiseless reading changes by whole units only, not in
+  every sample, while the vehicle turns slowly).  A noiseless simulator in a
+  steady state (ArduPilot SITL on the ground, in the hover) repeats values in
+  every instance, the other one flickering by one unit now and then — no
+  fault, and no reason to switch (judged by "the other changed at all", it
+  made ``auto`` flap between IMU 0 and IMU 1 every 2 s);
 * **saturated** — an axis at its limit within the last ``saturation_hold_s``;
 * **disagreeing** — its smoothed gyro or accel differs from the median of
   three or more instances by more than a threshold for ``disagree_s`` (with
@@ -50,6 +60,16 @@ class ImuSelectSettings:
             while others arrive) is stale, s.
         freeze_s: identical accel+gyro values for this long = frozen, s.
         freeze_min_samples: … and for at least this many samples.
+        freeze_other_change_fraction: … while another instance's values
+            change in at least this share of its recent samples (running
+            share, time constant ``freeze_s``/2): 0.5 lies between a live
+            sensor's ≈ 1 and the few one-unit flickers of a noiseless
+            simulator at rest (≈ 0.07 in ArduPilot SITL); or
+        freeze_motion_gyro_rad_s: … another instance's smoothed gyro moved by
+            more than this since the values stopped changing, rad/s (the
+            vehicle turns; far above a one-unit flicker, 0.001 rad/s);
+        freeze_motion_accel_m_s2: … or its smoothed accelerometer by more
+            than this, m/s² (one unit is 0.0098 m/s²).
         zero_samples: this many consecutive all-zero samples mark an instance
             absent (the first sample decides at start-up).
         saturation_hold_s: an instance stays "saturated" this long after its
@@ -67,6 +87,9 @@ class ImuSelectSettings:
     stale_s: float = 0.25
     freeze_s: float = 0.5
     freeze_min_samples: int = 5
+    freeze_other_change_fraction: float = 0.5
+    freeze_motion_gyro_rad_s: float = 0.05
+    freeze_motion_accel_m_s2: float = 0.5
     zero_samples: int = 3
     saturation_hold_s: float = 1.0
     disagree_gyro_rad_s: float = math.radians(15.0)
@@ -78,13 +101,18 @@ class ImuSelectSettings:
     def __post_init__(self) -> None:
         if self.imu != "auto" and self.imu not in {str(i) for i in range(MAX_INSTANCES)}:
             raise ConfigError(f"imu must be auto, 0, 1 or 2, got {self.imu!r}")
-        for name in ("stale_s", "freeze_s", "saturation_hold_s", "disagree_gyro_rad_s",
-                     "disagree_accel_m_s2", "disagree_s", "smoothing_s", "recover_s"):  # fmt: skip
+        for name in ("stale_s", "freeze_s", "freeze_motion_gyro_rad_s", "freeze_motion_accel_m_s2",
+                     "saturation_hold_s", "disagree_gyro_rad_s", "disagree_accel_m_s2", "disagree_s", "smoothing_s",
+                     "recover_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"IMU selection setting {name} must be a positive number, got {v!r}")
         if self.freeze_min_samples < 2 or self.zero_samples < 1:
             raise ConfigError("freeze_min_samples must be ≥ 2 and zero_samples ≥ 1")
+        if not 0.0 < self.freeze_other_change_fraction <= 1.0:
+            raise ConfigError(
+                f"freeze_other_change_fraction must be in (0, 1], got {self.freeze_other_change_fraction!r}"
+            )
 
     @property
     def fixed(self) -> int | None:
@@ -130,6 +158,10 @@ class _Inst:
     prev: tuple[float, ...] = ()
     same_count: int = 0
     same_since_us: int = 0
+    #: running share of recent samples whose accel+gyro differed from the previous one's (time constant freeze_s/2)
+    change_rate: float = 0.0
+    #: the other instances' smoothed values when this instance's current run of identical values began
+    run_marks: dict[int, tuple[float, ...]] = field(default_factory=dict)
     last_sat_us: int = -(10**18)
     sat_since_us: int = -(10**18)
     ema: list[float] = field(default_factory=lambda: [0.0] * 6)
@@ -146,6 +178,7 @@ class ImuSelector:
         s = self.settings
         self._stale_us = int(s.stale_s * 1e6)
         self._freeze_us = int(s.freeze_s * 1e6)
+        self._change_tau_us = 0.5 * s.freeze_s * 1e6
         self._sat_us = int(s.saturation_hold_s * 1e6)
         self._disagree_us = int(s.disagree_s * 1e6)
         self._recover_us = int(s.recover_s * 1e6)
@@ -200,12 +233,18 @@ class ImuSelector:
             inst.healthy_since_us = None
         # frozen: identical values
         cur = (gx, gy, gz, ax, ay, az)
-        if cur == inst.prev:
+        same = cur == inst.prev
+        if same:
             inst.same_count += 1
+            if inst.same_count == 2:  # a run of identical values begins: where are the others?
+                inst.run_marks = {o.imu_id: tuple(o.ema) for o in self._inst.values() if o is not inst and o.ema_ready}
         else:
             inst.prev = cur
             inst.same_count = 1
             inst.same_since_us = t
+        if dt_us > 0:
+            a = dt_us / (self._change_tau_us + dt_us)
+            inst.change_rate += a * ((0.0 if same else 1.0) - inst.change_rate)
         if v[S_SAT] & (GYRO | ACCEL):
             if t - inst.last_sat_us > self._sat_us:
                 inst.sat_since_us = t  # a new saturation episode
@@ -226,7 +265,7 @@ class ImuSelector:
         return imu_id == self.selected and not inst.absent
 
     # ------------------------------------------------------------------ decisions
-    def _problems(self, inst: _Inst, others_changing: bool) -> str:
+    def _problems(self, inst: _Inst) -> str:
         t = self._t_latest
         if inst.absent:
             return "absent (all-zero)"
@@ -235,7 +274,7 @@ class ImuSelector:
         if (
             inst.same_count >= self.settings.freeze_min_samples
             and t - inst.same_since_us >= self._freeze_us
-            and others_changing
+            and self._others_changed(inst)
         ):
             return "frozen"
         if t - inst.last_sat_us <= self._sat_us:
@@ -243,6 +282,25 @@ class ImuSelector:
         if inst.disagree_since_us is not None and t - inst.disagree_since_us >= self._disagree_us:
             return "disagrees"
         return ""
+
+    def _others_changed(self, inst: _Inst) -> bool:
+        """While ``inst`` repeats its values: does another live instance change in most of its recent samples
+        (noise), or have its smoothed values moved clearly since the repeats began (motion)?"""
+        t = self._t_latest
+        s = self.settings
+        for o in self._inst.values():
+            if o is inst or o.absent or t - o.last_t_us > self._stale_us or o.samples < s.freeze_min_samples:
+                continue
+            if o.change_rate >= s.freeze_other_change_fraction:
+                return True
+            mark = inst.run_marks.get(o.imu_id)
+            if mark is not None and o.ema_ready:
+                e = o.ema
+                dg = math.sqrt((e[0] - mark[0]) ** 2 + (e[1] - mark[1]) ** 2 + (e[2] - mark[2]) ** 2)
+                da = math.sqrt((e[3] - mark[3]) ** 2 + (e[4] - mark[4]) ** 2 + (e[5] - mark[5]) ** 2)
+                if dg > s.freeze_motion_gyro_rad_s or da > s.freeze_motion_accel_m_s2:
+                    return True
+        return False
 
     def _update_disagreement(self) -> None:
         t = self._t_latest
@@ -268,12 +326,9 @@ class ImuSelector:
         t = self._t_latest
         self._last_eval_us = t
         self._update_disagreement()
-        fr = self.settings.freeze_min_samples
-        changing = {i.imu_id for i in self._inst.values()
-                    if not i.absent and i.same_count < fr and t - i.last_t_us <= self._stale_us}  # fmt: skip
         problems = {}
         for inst in self._inst.values():
-            p = self._problems(inst, bool(changing - {inst.imu_id}))
+            p = self._problems(inst)
             problems[inst.imu_id] = p
             if p:
                 inst.healthy_since_us = None
@@ -339,12 +394,8 @@ class ImuSelector:
 
     def instances(self) -> tuple[InstanceStatus, ...]:
         """Every instance seen, with its state as of the last sample (read-only: no re-evaluation)."""
-        fr = self.settings.freeze_min_samples
-        t = self._t_latest
-        changing = {i.imu_id for i in self._inst.values()
-                    if not i.absent and i.same_count < fr and t - i.last_t_us <= self._stale_us}  # fmt: skip
         return tuple(
-            InstanceStatus(i.imu_id, i.source, i.samples, self._problems(i, bool(changing - {i.imu_id})) or "ok",
+            InstanceStatus(i.imu_id, i.source, i.samples, self._problems(i) or "ok",
                            i.imu_id == self.selected)  # fmt: skip
             for i in sorted(self._inst.values(), key=lambda i: i.imu_id)
         )

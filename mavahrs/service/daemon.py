@@ -776,6 +776,7 @@ class Daemon:
             "out_hz": p.get("output_rate_hz"),
             "drops": (sum(drops.values()) if isinstance(drops, dict) else 0) + link_drops,
             "drops_by_reason": dict(drops) if isinstance(drops, dict) else {},
+            "exact_duplicates": int((p.get("counters") or {}).get("exact_duplicates", 0)),
             "link_drops": link_drops,
             "imu": p.get("imu_in_use"),
             "imu_reason": p.get("imu_reason"),

@@ -15,7 +15,9 @@ Per message from the master link (:meth:`Pipeline.handle`):
   (ArduPilot/PX4/generic), our system id (the vehicle's) and starts the
   stream requests.  A heartbeat returning after silence restarts them.
 * IMU messages (RAW_IMU, SCALED_IMU/2/3, HIGHRES_IMU) — scaled to SI
-  (:mod:`mavahrs.sensors.scaling`), offered to the IMU selector
+  (:mod:`mavahrs.sensors.scaling`); an exact re-send of the previous message
+  (same stamp, same values: ArduPilot's 400 Hz telemetry catching up) is
+  dropped and counted (``exact_duplicates``); the rest is offered to the IMU selector
   (:mod:`mavahrs.sensors.imu_select`); the selected instance's samples are
   timed by the timeline (duplicates and reordered samples dropped and counted,
   a reboot resets everything, a gap reaches the filter as a long ``dt`` so it
@@ -71,7 +73,15 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.protocol.codec import MavCodec, mavlink
-from mavahrs.protocol.timeline import DROP_KINDS, GAP, REBOOT, Timeline, TimelineSettings
+from mavahrs.protocol.timeline import (
+    DROP_KINDS,
+    GAP,
+    REBOOT,
+    RESENT,
+    ResendFilter,
+    Timeline,
+    TimelineSettings,
+)
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
 from mavahrs.sensors.geomag import (
     DeclinationSource,
@@ -331,7 +341,12 @@ class PipelineStatus:
         outputs_sent: ATTITUDE_QUATERNION messages produced.
         drops: samples not filtered, by reason.
         samples_dropped: their total.
-        counters: other events (saturation, invalid vectors, reboots, …).
+        counters: other events (saturation, invalid vectors, reboots, …);
+            ``exact_duplicates``: IMU messages the autopilot sent twice (same
+            stamp and values; dropped, not counted as drops),
+            ``same_stamp_changed``: messages repeating the previous stamp with
+            other values (the timeline drops those of the filtered instance as
+            ``stale``).
         initialised: the filter has an attitude.
         gain: current correction gain (after boost and rejection).
         accel_weight: trust in the accelerometer 0…1.
@@ -395,12 +410,14 @@ class PipelineStatus:
     def line(self) -> str:
         """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | … | vel GPI 10 Hz | …``."""
         drops = self.samples_dropped
+        resent = self.counters.get("exact_duplicates", 0)
         imu = "none" if self.imu_in_use is None else str(self.imu_in_use)
         rej = ("A" if self.accel_rejected else "") + ("M" if self.mag_rejected else "")
         b = self.bias_deg_s
         return (
             f"in {self.input_rate_hz:.0f} Hz → filter {self.filter_rate_hz:.0f} Hz → out {self.output_rate_hz:.0f} Hz"
-            f" | drops {drops} | imu {imu} ({self.imu_reason}) | {self.velocity} | gain {self.gain:.3g}"
+            f" | drops {drops}{f' (+{resent} re-sent)' if resent else ''} | imu {imu} ({self.imu_reason})"
+            f" | {self.velocity} | gain {self.gain:.3g}"
             f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
             f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
             + (f" | {self.monitor}" if self.monitor else "")
@@ -442,6 +459,7 @@ class Pipeline:
         self._fast_encode = float(mavlink.WIRE_PROTOCOL_VERSION) == 2.0 and hasattr(self._mav, "signing")
         self._row = np.full(IN_WIDTH, _NAN)
         self._selector = ImuSelector(s.selection_settings)
+        self._resends = ResendFilter()
         self._requester = StreamRequester(s.stream_settings)
         self._decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
         self._monitor = AttitudeMonitor(s.monitor)
@@ -756,6 +774,8 @@ class Pipeline:
         if v is None:
             self._count(self._drops, "no_new_gyro")
             return []
+        if self._resends.check((name, v[0]), v[1], v[2:11]) == RESENT:
+            return []  # the autopilot sent the same sample twice: not a loss, counted, no notice
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
@@ -995,6 +1015,7 @@ class Pipeline:
         self._count(self._counters, "reboots")
         self._filter.reset()
         self._selector.reset()
+        self._resends.reset()
         self._monitor.reset()
         self._reset_stream_state()
         self._requester.start()
@@ -1141,6 +1162,8 @@ class Pipeline:
 
     def _timeline_counts(self) -> dict[str, int]:
         out = dict(self._timeline_totals)
+        out["exact_duplicates"] = self._resends.resent
+        out["same_stamp_changed"] = self._resends.restamped
         for tl in self._timelines.values():
             c = tl.counters
             out["lost_samples"] += c.lost_samples

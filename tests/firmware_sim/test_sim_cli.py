@@ -29,10 +29,22 @@ def test_help_lists_options_with_units_and_defaults(capsys: pytest.CaptureFixtur
     assert exc.value.code == 0
     out = capsys.readouterr().out
     for text in ("--out", "--tlog", "--fast", "--scenario", "--loop-rate", "--ideal", "--declination-deg",
-                 "--autopilot", "--sysid", "--lat", "--imu2-freeze-at", "(default 400.0)", "uT", "Hz", "exit codes"):
+                 "--autopilot", "--sysid", "--lat", "--imu2-freeze-at", "--noiseless", "(default 400.0)", "uT", "Hz",
+                 "exit codes"):
         assert text in out, text
     for name in SCENARIOS:
         assert name in out
+
+
+def test_noiseless_option_removes_only_the_random_sensor_errors() -> None:
+    from firmware_sim.__main__ import build_parser, settings_from_args
+    from firmware_sim.imu_model import ImuErrorSettings, MagSettings
+
+    sim, _ = settings_from_args(build_parser().parse_args(["--tlog", "x.tlog", "--fast", "--noiseless"]))
+    assert sim.imu == ImuErrorSettings().noiseless() and sim.mag == MagSettings().noiseless()
+    assert sim.imu.accel_noise_density_m_s2_rthz == 0.0 and sim.imu.gyro_bias_walk_rad_s_rts == 0.0
+    assert sim.mag.noise_ut == 0.0 and sim.mag.lsb_ut == MagSettings().lsb_ut
+    assert sim.imu.accel_bias_sigma_m_s2 == ImuErrorSettings().accel_bias_sigma_m_s2
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from firmware_sim.endpoint import DENIED_TEXT, Endpoint, EndpointSettings
-from firmware_sim.imu_model import ImuErrorSettings
+from firmware_sim.imu_model import ImuErrorSettings, MagSettings
 from firmware_sim.simulation import AttitudeFault, ImuFault, SimSettings, Simulation
 from mavahrs.geometry import quaternion as quat
 from mavahrs.geometry.rotation import from_euler_rad
@@ -109,8 +109,69 @@ def test_400_hz_denied_at_default_loop_with_statustext_and_accepted_at_800() -> 
 
     fast = Peer(_endpoint(SimSettings(jit=True, loop_rate_hz=800.0), default_stream_hz=0.0))
     assert _ack(fast.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 400.0)).result == mavlink.MAV_RESULT_ACCEPTED
-    assert len(_of(fast.run(2.0), "RAW_IMU")) == 800
+    raw = _of(fast.run(2.0), "RAW_IMU")
+    assert len({m.time_usec for m in raw}) == 800  # 400 samples a second (and re-sends, see below)
     assert _ack(fast.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 27, 1000)).result == mavlink.MAV_RESULT_DENIED
+
+
+def _nine(m: object) -> tuple[int, ...]:
+    return tuple(getattr(m, f) for f in ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"))
+
+
+def test_ardupilot_800_hz_loop_keeps_whole_ms_and_resends_from_its_400_hz_telemetry_task() -> None:
+    """What ArduCopter SITL does (../shared/data/sitl/arducopter_400hz_gps.tlog): 400 Hz asked at SCHED_LOOP_RATE
+    800 reads back 2000 µs; the 400 Hz telemetry task catches up by sending the message twice in one pass — same
+    time_usec, same values — so one message in five is an exact duplicate (the real log: one in four)."""
+    peer = Peer(_endpoint(SimSettings(jit=True, loop_rate_hz=800.0, scenario="aggressive", seed=2),
+                          default_stream_hz=0.0))  # fmt: skip
+    assert _ack(peer.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 400.0)).result == mavlink.MAV_RESULT_ACCEPTED
+    back = peer.command(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_RAW_IMU)
+    assert [m.interval_us for m in back if m.get_type() == "MESSAGE_INTERVAL"] == [2000]
+    raw = _of(peer.run(4.0), "RAW_IMU")
+    assert len(raw) == pytest.approx(2000, abs=2)  # every 2 ms on average
+    t = np.array([m.time_usec for m in raw])
+    same_t = t[1:] == t[:-1]
+    same_v = np.array([_nine(a) == _nine(b) for a, b in zip(raw[:-1], raw[1:], strict=True)])
+    assert np.count_nonzero(same_t) == pytest.approx(400, abs=2)  # 20 % of the messages
+    assert not np.any(same_t & ~same_v)  # a re-send is exact: the same sample, the same stamp
+    assert not np.any(same_t[1:] & same_t[:-1])  # never more than two in a row
+    assert peer.ep.summary()["resent"] == {"RAW_IMU": int(np.count_nonzero(same_t))}
+    # the unique samples come from the task's passes: 2.5 ms apart (send-time jitter aside), 400 a second
+    steps = np.diff(np.unique(t))
+    assert np.abs(steps - 2500).max() < 400 and len(steps) == pytest.approx(1600, abs=2)
+
+
+def test_no_resends_when_the_telemetry_task_keeps_pace() -> None:
+    # the default 400 Hz loop: 250 Hz at most, one message per pass
+    peer = Peer(_endpoint(default_stream_hz=0.0))
+    assert _ack(peer.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 250.0)).result == mavlink.MAV_RESULT_ACCEPTED
+    t = [m.time_usec for m in _of(peer.run(2.0), "RAW_IMU")]
+    assert len(t) == len(set(t)) == 500
+    # a telemetry task as fast as the 800 Hz loop: 2 ms kept, 500 distinct samples a second
+    peer = Peer(_endpoint(SimSettings(jit=True, loop_rate_hz=800.0), default_stream_hz=0.0, telemetry_rate_hz=800.0))
+    assert _ack(peer.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 400.0)).result == mavlink.MAV_RESULT_ACCEPTED
+    t = [m.time_usec for m in _of(peer.run(2.0), "RAW_IMU")]
+    assert len(t) == len(set(t)) == pytest.approx(1000, abs=1)
+    assert peer.ep.summary()["resent"] == {}
+
+
+def test_noiseless_sensors_repeat_whole_units_in_steady_states() -> None:
+    """``ImuErrorSettings.noiseless()`` / ``--noiseless`` (ArduPilot SITL's SIM_*_RND = 0): on the ground every new
+    sample carries the previous one's nine values; with the default noise most change."""
+
+    def repeats(imu: ImuErrorSettings, mag: MagSettings) -> float:
+        sim = SimSettings(jit=True, loop_rate_hz=800.0, scenario="hover", seed=3, imu=imu, mag=mag)
+        peer = Peer(_endpoint(sim, preset="none", streams_hz=(("RAW_IMU", 400.0),)))
+        raw = _of(peer.run(2.5), "RAW_IMU")  # the vehicle stands for its first 3 s
+        new = [m for a, m in zip(raw[:-1], raw[1:], strict=True) if m.time_usec != a.time_usec]
+        prev = {m.time_usec: _nine(a) for a, m in zip(raw[:-1], raw[1:], strict=True)}
+        return sum(_nine(m) == prev[m.time_usec] for m in new) / len(new)
+
+    assert repeats(ImuErrorSettings().noiseless(), MagSettings().noiseless()) == 1.0
+    assert repeats(ImuErrorSettings(), MagSettings()) < 0.5
+    quiet = ImuErrorSettings().noiseless()
+    assert quiet.gyro_noise_density_rad_s_rthz == 0.0 and not quiet.vibration
+    assert quiet.gyro_scale_sigma == ImuErrorSettings().gyro_scale_sigma  # the deterministic errors stay
 
 
 def test_ideal_mode_streams_every_400_hz_sample_with_sample_time_stamps() -> None:
@@ -130,11 +191,11 @@ def test_interval_special_values_and_unknown_messages() -> None:
     assert peer.ep.interval_us("RAW_IMU") == 1_000_000  # back to the default
     assert _ack(peer.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 27, -5)).result == mavlink.MAV_RESULT_DENIED
     assert _ack(peer.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 10000)).result == mavlink.MAV_RESULT_DENIED
-    peer.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 120.0)
-    assert peer.ep.interval_us("RAW_IMU") == 8333
+    peer.set_interval(mavlink.MAVLINK_MSG_ID_RAW_IMU, 120.0)  # 8333 µs, kept as ArduPilot does: 8 whole ms
+    assert peer.ep.interval_us("RAW_IMU") == 8000
     replies = peer.command(mavlink.MAV_CMD_GET_MESSAGE_INTERVAL, 27)
     assert _ack(replies).result == mavlink.MAV_RESULT_ACCEPTED
-    assert [m.interval_us for m in replies if m.get_type() == "MESSAGE_INTERVAL"] == [8333]
+    assert [m.interval_us for m in replies if m.get_type() == "MESSAGE_INTERVAL"] == [8000]
     assert _ack(peer.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4)).result == mavlink.MAV_RESULT_UNSUPPORTED
 
 

@@ -103,7 +103,9 @@ def test_timestamp_faults_are_counted_and_recovered_with_a_full_disk(rt) -> None
           f"{len(answered)} answered of {len(sent_ms)} stamps; log {fields['log']}")
     # counted
     assert cc.duplicates == 10  # the byte-identical repeats, dropped by the decoder
-    assert drops.get("duplicate") == 20  # the re-encoded repeats, dropped by the timeline
+    # the re-encoded repeats (same stamp, same values): dropped as re-sends before the IMU selection, not drops
+    assert counters.get("exact_duplicates") == 20 and "duplicate" not in drops
+    assert fields["exact_duplicates"] == 20  # in the status line's JSON form
     assert drops.get("reordered") == 10 + 1 and cc.out_of_order == 10  # + the first sample after the reboot
     assert drops.get("held_jump") == 2  # the corrupt stamp, and the first sample of the real jump until confirmed
     assert counters.get("reboots") == 1 and counters.get("gaps", 0) >= 2  # the gap and the jump

@@ -117,6 +117,82 @@ def test_noiseless_rest_freezes_everything_and_is_not_a_fault():
     assert b.sel.selected == 0 and {i for i, _ in b.fed} == {0}
 
 
+def _noiseless(imu, t_us, gyro, accel, lsb_g=0.001, lsb_a=0.00980665):
+    """What ArduPilot's simulator sends: no noise, whole mrad/s and mG."""
+    g = tuple(round(x / lsb_g) * lsb_g for x in gyro)
+    a = tuple(round(x / lsb_a) * lsb_a for x in accel)
+    return sample(imu, t_us, g, a)
+
+
+def test_noiseless_steady_state_with_one_unit_flickers_does_not_flap():
+    """ArduPilot SITL on the ground: RAW_IMU identical for 1.6 s while SCALED_IMU2's z accel flickers by 1 mG in
+    about one sample in fifteen. Judged by "the other one changed at all", IMU 0 was "frozen" and ``auto`` flapped
+    between IMU 0 and IMU 1 every 2 s."""
+    b = Bench()
+
+    def still(v):
+        imu, t = v[0], v[1]
+        flick = 0.00980665 if imu == 1 and (t // DT_US) % 15 == 7 else 0.0
+        return _noiseless(imu, t, (0.0, 0.0, 0.0), (0.05, -0.02, -9.80665 + flick))
+
+    b.run(0, 6, override={0: still, 1: still})
+    assert b.sel.selected == 0 and {i for i, _ in b.fed} == {0}
+    assert [s.state for s in b.sel.instances()] == ["ok", "ok"]
+    assert b.sel.pop_changes()[-1].new == 0 and len(b.sel.pop_changes()) == 0
+
+
+def test_freeze_of_a_noiseless_imu_caught_while_the_vehicle_turns():
+    """Both IMUs noiseless (a simulator); the vehicle yaws at a slowly changing rate: IMU 0 sticks at 2 s."""
+    b = Bench()
+
+    def turning(v):
+        t = v[1] * 1e-6
+        return _noiseless(v[0], v[1], (0.0, 0.0, 0.5 + 0.3 * math.sin(t)), (0.0, 0.0, -9.80665))
+
+    b.run(0, 2, override={0: turning, 1: turning})
+    stuck = _noiseless(0, 0, (0.0, 0.0, 0.5 + 0.3 * math.sin(2.0)), (0.0, 0.0, -9.80665))
+    b.run(2, 4, override={0: lambda v: (0, v[1], *stuck[2:]), 1: turning})
+    t_switch = b.first_fed_from(1)
+    assert 2.0e6 < t_switch <= 3.0e6
+    assert "instance 0 frozen" in b.sel.reason
+
+
+def test_freeze_during_a_long_steady_hover_caught_as_soon_as_the_vehicle_moves():
+    """Noiseless IMUs through 20 s of steady hover (IMU 1 flickering by one unit now and then); IMU 0 sticks at
+    10 s, unnoticeable while nothing changes; the vehicle starts turning at 20 s: caught within 1 s."""
+    b = Bench()
+
+    def hover_then_turn(v):
+        imu, t = v[0], v[1]
+        flick = 0.00980665 if imu == 1 and (t // DT_US) % 15 == 7 else 0.0
+        r = 0.0 if t < 20e6 else 0.5 + 0.3 * math.sin(t * 1e-6)
+        return _noiseless(imu, t, (0.0, 0.0, r), (0.05, -0.02, -9.80665 + flick))
+
+    b.run(0, 10, override={0: hover_then_turn, 1: hover_then_turn})
+    stuck = _noiseless(0, 0, (0.0, 0.0, 0.0), (0.05, -0.02, -9.80665))
+    b.run(10, 22, override={0: lambda v: (0, v[1], *stuck[2:]), 1: hover_then_turn})
+    t_switch = b.first_fed_from(1)
+    assert 20.0e6 < t_switch <= 21.0e6
+    assert "instance 0 frozen" in b.sel.reason
+
+
+def test_frozen_instance_taken_back_only_after_recover_s_of_health():
+    """Hysteresis: an instance that freezes again within ``recover_s`` is not switched back to."""
+    b = Bench(ImuSelectSettings(recover_s=1.0))
+    b.run(0, 1)
+    frozen = {0: lambda v: sample(0, v[1], (0.001, 0.002, 0.003), (0.1, 0.2, -9.7))}
+    b.run(1, 2, override=frozen)
+    assert b.sel.selected == 1
+    for t0 in (2.0, 3.5, 5.0):  # alive for 0.5 s, frozen again for 1 s: never healthy long enough
+        b.run(t0, t0 + 0.5)
+        b.run(t0 + 0.5, t0 + 1.5, override=frozen)
+        assert b.sel.selected == 1
+    b.run(6.5, 9)  # healthy for good: back to 0 after recover_s (1 s)
+    assert b.sel.selected == 0
+    back = next(t for i, t in b.fed if i == 0 and t > 6.5e6)
+    assert 7.5e6 <= back <= 7.6e6
+
+
 def test_fail_over_on_saturation_and_back_after_recovery():
     s = ImuSelectSettings(recover_s=1.0)
     b = Bench(s)

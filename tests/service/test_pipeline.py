@@ -208,7 +208,7 @@ def test_non_autopilot_heartbeats_do_not_become_the_source(make_autopilot):
 
 
 def test_duplicates_and_reordering_dropped_and_counted(autopilot, trajectory):
-    """A sample sent twice (a new frame with the same time_usec) and swapped pairs."""
+    """A sample sent twice (a new frame with the same time_usec and values) and swapped pairs."""
     order = []
     dup = reo = 0
     k = 0
@@ -232,10 +232,32 @@ def test_duplicates_and_reordering_dropped_and_counted(autopilot, trajectory):
     att = decoded(feed(pipe, frames), "ATTITUDE_QUATERNION")
     st = pipe.status()
     dropped = {k: v for k, v in st.drops.items() if k != "filter_not_initialised"}
-    assert sum(dropped.values()) == dup + reo and len(dropped) == 2
+    assert dropped == {"reordered": reo}
+    # the re-sends are not losses: counted apart, shown on the status line, never a notice
+    assert st.counters["exact_duplicates"] == dup and st.counters["same_stamp_changed"] == 0
+    assert f"| drops {st.samples_dropped} (+{dup} re-sent) |" in st.line()
+    assert not any("duplicate" in m or "re-sent" in m for _, m in pipe.drain_notices())
     assert st.samples_filtered == 2000 - reo  # each sample once; the late one of a swapped pair is dropped
     times = [a.time_boot_ms for a in att]
     assert times == sorted(times) and len(set(times)) == len(times)
+
+
+def test_same_stamp_with_other_values_is_counted_apart_and_dropped_as_stale(autopilot, trajectory):
+    """Not a re-send: a sender that stamps two different samples alike. Today's handling (the timeline drops the
+    second as ``stale``) is kept, and counted apart from the harmless re-sends."""
+    frames = [(0, autopilot.heartbeat())]
+    clash = 0
+    for k in range(1200):
+        t = int(trajectory.t_us[k])
+        frames.append((t + ARRIVAL_US, autopilot.raw_imu_k(trajectory, k)))
+        if k % 100 == 60:  # other values (gyro 50 mrad/s off) under this sample's stamp
+            frames.append((t + ARRIVAL_US, autopilot.raw_imu(t, trajectory.q_body_to_ned[k], trajectory.gyro_rad_s[k] + 0.05)))
+            clash += 1
+    pipe = Pipeline(settings())
+    feed(pipe, frames)
+    st = pipe.status()
+    assert st.counters["same_stamp_changed"] == clash and st.counters["exact_duplicates"] == 0
+    assert st.drops.get("stale") == clash and st.samples_filtered == 1200
 
 
 def test_reboot_resets_and_carries_on(autopilot, trajectory, make_autopilot):
@@ -285,7 +307,9 @@ def test_all_zero_scaled_imu2_never_reaches_the_filter(autopilot, trajectory):
     assert zero_rows == []
     st = pipe.status()
     assert st.samples_filtered == 800
-    assert st.counters["absent_instance_samples"] == n2 and st.samples_dropped == 0
+    # (a heartbeat shares an IMU frame's arrival time twice: that SCALED_IMU2 went out twice, same stamp and values)
+    assert st.counters["absent_instance_samples"] + st.counters["exact_duplicates"] == n2 and st.samples_dropped == 0
+    assert st.counters["exact_duplicates"] == 1
     assert {s.imu_id: s.state for s in st.imu_instances}[1] == "absent (all-zero)"
 
 
@@ -573,6 +597,29 @@ def test_simulated_imu0_freeze_then_saturation_fails_over_within_1_s():
     assert np.sqrt(np.mean(tilt**2)) < 1.5 and tilt.max() < 3.0
     s1 = next(s for s in st.streams if s.message == "SCALED_IMU2")
     assert s1.wanted_hz == 400.0
+
+
+@pytest.mark.slow
+def test_simulated_ardupilot_at_800_hz_loop_resends_and_noiseless_repeats_are_handled():
+    """Issue 16 item 5 in process: ArduPilot at SCHED_LOOP_RATE 800 keeps our 400 Hz as 2 ms and re-sends one RAW_IMU in
+    five; noiseless sensors repeat exact values on the ground and in the hover. Every re-send is dropped and counted,
+    every genuine sample filtered, no IMU fail-over, and the attitude stays accurate."""
+    fs = pytest.importorskip("firmware_sim")
+    ss = fs.SimSettings(scenario="hover", seed=4, loop_rate_hz=800.0, imu=fs.ImuErrorSettings().noiseless(),
+                        mag=fs.MagSettings().noiseless())  # fmt: skip
+    es = fs.EndpointSettings(streams_hz=(("SIMSTATE", 50.0),), default_stream_hz=0.0)
+    fed: list = []
+    pipe, ep, att, truth, now = _fly_sim(6.0, sim_settings=ss, endpoint_settings=es, fed=fed)
+    st = pipe.status(now)
+    resent = ep.summary()["resent"]
+    assert resent.get("RAW_IMU", 0) > 300  # 400 Hz asked, 2 ms kept: one message in five sent twice …
+    assert st.counters["exact_duplicates"] == sum(resent.values())  # … each dropped, SCALED_IMU2's (50 Hz) none
+    assert st.counters.get("imu_switches", 0) == 0 and st.imu_in_use == 0
+    raw = [t for name, t in fed if name == "RAW_IMU"]
+    assert len(raw) == len(set(raw)) and len(raw) > 0.95 * 400 * 5  # every distinct sample filtered, once
+    assert "duplicate" not in st.drops and "stale" not in st.drops
+    tilt = _tilt_errors_deg(att, truth, after_ms=3000)
+    assert np.sqrt(np.mean(tilt**2)) < 1.0
 
 
 def _rate_hz(times_us, start_s, end_s):
