@@ -50,7 +50,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.service.demo import DemoSettings, format_summary, run_demo
+    from mavahrs.demo import DemoSettings, format_summary, run_demo
 
     settings = DemoSettings(
         duration_s=args.duration, scenario=args.scenario, filter_name=args.filter, outdir=args.outdir,

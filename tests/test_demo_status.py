@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from mavahrs.geometry.rotation import from_euler_rad
-from mavahrs.service.demo import TruthTap, _Live
+from mavahrs.demo import TruthTap, _Live
 
 
 class _Gcs:
