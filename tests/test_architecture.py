@@ -30,6 +30,7 @@ RANK = {
     "evaluation": 6,
     "replay": 7,
     "demo": 7,
+    "warmup": 7,
     "cli": 8,
     "__main__": 9,
     "__init__": 9,

@@ -40,6 +40,9 @@ __all__ = [
     "fail",
     "prefer_small_pages",
     "start_kernels",
+    "COMPILE_NOTICE",
+    "announce_compiles",
+    "stop_announcing",
 ]
 
 EXIT_OK = 0
@@ -99,10 +102,47 @@ def prefer_small_pages() -> None:
 
 
 def start_kernels() -> None:
-    """Load numba's compiler without its BLAS probe (:func:`mavahrs.filters.jit.quick_start`; 0.15 s sooner)."""
+    """Load numba's compiler without its BLAS probe (:func:`mavahrs.filters.jit.quick_start`; 0.15 s sooner),
+    and announce a first compilation (:func:`announce_compiles`)."""
     from mavahrs.filters.jit import quick_start
 
     quick_start()
+    announce_compiles()
+
+
+#: printed once, just before the first compilation of the filter kernels in a process (a cold cache)
+COMPILE_NOTICE = (
+    "preparing the filters: compiling them once for this machine "
+    "(about 20–30 s; later runs start at once; `mavahrs warm-up` does it ahead of time) …"
+)
+
+
+def announce_compiles() -> None:
+    """Log :data:`COMPILE_NOTICE` when this process starts compiling a filter kernel (never on a warm cache).
+
+    Called by every subcommand that runs filters, before it does (numba gets
+    imported here).  Detection is numba's own
+    (:func:`mavahrs.filters.jit.on_first_compile`): it compiles only what its
+    disk cache cannot supply.  Idempotent; :func:`stop_announcing` (called by
+    ``main`` when the command ends) removes the listener.
+    """
+    if _ANNOUNCER:
+        return
+    from mavahrs.filters.jit import on_first_compile
+
+    def announce(_kernel: str) -> None:
+        logging.getLogger(_LOGGER_NAME).info("%s", COMPILE_NOTICE)
+
+    _ANNOUNCER.append(on_first_compile(announce))
+
+
+def stop_announcing() -> None:
+    """Undo :func:`announce_compiles` (no-op when it was not called)."""
+    while _ANNOUNCER:
+        _ANNOUNCER.pop()()
+
+
+_ANNOUNCER: list[Any] = []
 
 
 # --------------------------------------------------------------------------- logging

@@ -48,6 +48,9 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from mavahrs.cli.common import announce_compiles
+
+    announce_compiles()
     path = Path(args.input)
     if not path.exists():
         raise FileNotFoundError(2, "no such file", str(path))

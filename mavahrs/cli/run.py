@@ -8,7 +8,7 @@ import signal
 import threading
 from typing import Any
 
-from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter
+from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter, announce_compiles
 
 __all__ = ["register", "run"]
 
@@ -190,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         print(config.to_toml(), end="")
         return EXIT_OK
+    announce_compiles()
     # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
     # the daemon installs its own handlers for the loop and restores these afterwards.
     in_main = threading.current_thread() is threading.main_thread()

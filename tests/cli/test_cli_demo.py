@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mavahrs.demo import SCENARIOS, DemoSettings, TruthTap, format_summary, score
 from mavahrs.geometry.rotation import from_euler_rad
 from mavahrs.protocol.codec import MavCodec
-from mavahrs.demo import SCENARIOS, DemoSettings, TruthTap, format_summary, score
 
 REPO = Path(__file__).resolve().parents[2]
 # The demo flies 5 s (mostly the scenario's hover-in) on a machine shared with other jobs:
@@ -101,8 +101,8 @@ def test_score_against_a_known_tilt_offset() -> None:
 
 
 def test_summary_says_what_the_numbers_mean(tmp_path: Path) -> None:
-    from mavahrs.evaluation.metrics import AttitudeErrorSummary
     from mavahrs.demo import DemoResult
+    from mavahrs.evaluation.metrics import AttitudeErrorSummary
 
     s = AttitudeErrorSummary(total_rms_deg=2.0, heading_rms_deg=1.5, inclination_rms_deg=1.2, samples=850)
     result = DemoResult(s, 250.0, 50.0, 1000, 4000, tmp_path / "a.tlog", tmp_path / "a.png", False, 20.0)
