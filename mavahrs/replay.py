@@ -48,6 +48,7 @@ from mavahrs.evaluation.tlogdata import (
     prepare_inputs,
     read_tlog_data,
     references,
+    resolve_source,
     run_pipelines,
 )
 from mavahrs.filters.jit import kernel
@@ -351,10 +352,11 @@ def replay(
     s = settings or ReplaySettings()
     ps = s.pipeline_settings()
     td = read_tlog_data(path)
+    ps, source_note = resolve_source(td, ps)
     dy = decimal_year_of_log(td)
     filters = [(n, s.filter_settings.get(n)) for n in s.filters]
     sink = None
-    notes: list[str] = []
+    notes: list[str] = [] if source_note is None else [source_note]
     try:
         prep: PreparedInputs | None = None
         if s.engine in ("auto", "fast"):

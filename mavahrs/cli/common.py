@@ -43,6 +43,8 @@ __all__ = [
     "COMPILE_NOTICE",
     "announce_compiles",
     "stop_announcing",
+    "add_source_option",
+    "parse_source",
 ]
 
 EXIT_OK = 0
@@ -239,6 +241,32 @@ def add_logging_options(parser: argparse.ArgumentParser, *, suppress: bool = Fal
         help="log line format: text, or json (one object per line, for journald and log collectors); "
         "default text",
     )
+
+
+# --------------------------------------------------------------------------- options
+
+
+def parse_source(text: str) -> tuple[int, int | None]:
+    """``SYSID`` or ``SYSID:COMPID`` (MAVLink ids 1–255) → (system, component or None)."""
+    parts = text.split(":")
+    try:
+        if len(parts) > 2:
+            raise ValueError
+        ids = [int(x) for x in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SYSID or SYSID:COMPID, e.g. 1 or 1:1; got {text!r}") from None
+    if not all(1 <= i <= 255 for i in ids):
+        raise argparse.ArgumentTypeError(f"MAVLink system and component ids are 1–255; got {text!r}")
+    return ids[0], (ids[1] if len(ids) == 2 else None)
+
+
+def add_source_option(parser: Any) -> None:
+    """``--source SYSID[:COMPID]``: whose IMU data to use (replay, evaluate, tune, plot, run)."""
+    parser.add_argument(
+        "--source", type=parse_source, metavar="SYSID[:COMPID]",
+        help="use the IMU data of this system (and component) only, e.g. 1 or 1:1 (default: the first "
+        "autopilot HEARTBEAT's; in a log without HEARTBEAT, the only sender of IMU data)",
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- help

@@ -8,7 +8,13 @@ import signal
 import threading
 from typing import Any
 
-from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter, announce_compiles
+from mavahrs.cli.common import (
+    EXIT_CODES_HELP,
+    EXIT_OK,
+    LazyDefaultsFormatter,
+    announce_compiles,
+    parse_source,
+)
 
 __all__ = ["register", "run"]
 
@@ -82,6 +88,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     est.add_argument(
         "--imu", metavar="0|1|2|auto",
         help="IMU instance to use; auto picks one and fails over when it goes stale (default: {pipeline.imu})",
+    )
+    est.add_argument(
+        "--source", type=parse_source, metavar="SYSID[:COMPID]",
+        help="take the IMU data from this autopilot only, e.g. 1 or 1:1 (several autopilots on one link); "
+        "sets pipeline.source_system and pipeline.source_component (default: the first autopilot HEARTBEAT's)",
     )
     est.add_argument(
         "--rate", type=float, metavar="HZ",
@@ -171,6 +182,11 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
         if attr == "imu":
             value = str(value)
         out[dotted] = list(value) if isinstance(value, list) else value
+    source = getattr(args, "source", None)
+    if source is not None:
+        out["pipeline.source_system"] = source[0]
+        if source[1] is not None:
+            out["pipeline.source_component"] = source[1]
     return out
 
 

@@ -27,6 +27,8 @@ temperature_c).  Writes a TOML file `mavahrs run --config` reads."""
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.common import add_source_option
+
     p: argparse.ArgumentParser = subparsers.add_parser(
         "tune", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -38,6 +40,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--start", type=float, metavar="S", help="use the recording from S seconds")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds")
     p.add_argument("--json", action="store_true", help="print the fitted figures as JSON")
+    add_source_option(p)
     p.set_defaults(func=run)
     return p
 
@@ -71,7 +74,7 @@ def _run(args: argparse.Namespace) -> int:
     if path.suffix.lower() == ".tlog":
         from mavahrs.evaluation.tlogdata import load_tlog_recording
 
-        rec = load_tlog_recording(path, imu=args.imu, reference=False)
+        rec = load_tlog_recording(path, imu=args.imu, reference=False, source=args.source)
     else:
         rec = load_one(path)
     rec = cut_recording(rec, args.start, args.end)

@@ -91,6 +91,15 @@ def test_print_config_is_the_effective_toml(tmp_path: Path, capsys: pytest.Captu
     assert tomllib.loads(capsys.readouterr().out)["daemon"]["fast_lane"] is False
 
 
+def test_source_option_sets_the_pipeline_source(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--source", "3:1", "--print-config"]) == EXIT_OK
+    pipeline = tomllib.loads(capsys.readouterr().out)["pipeline"]
+    assert (pipeline["source_system"], pipeline["source_component"]) == (3, 1)
+    assert main(["run", "--source", "7", "--set", "pipeline.source_component=2", "--print-config"]) == EXIT_OK
+    pipeline = tomllib.loads(capsys.readouterr().out)["pipeline"]
+    assert (pipeline["source_system"], pipeline["source_component"]) == (7, 2)
+
+
 @pytest.mark.parametrize(
     ("argv", "code", "needle"),
     [

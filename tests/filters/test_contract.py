@@ -17,7 +17,7 @@ import pytest
 
 import mavahrs
 from mavahrs.evaluation.metrics import attitude_errors_rad
-from mavahrs.filters import NAMES, create, filter_class
+from mavahrs.filters import NAMES, create
 from mavahrs.filters.base import make_inputs
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
