@@ -195,3 +195,28 @@ def test_source_option_rejects_what_is_no_mavlink_id(capsys: pytest.CaptureFixtu
     err = capsys.readouterr().err
     assert "argument --source: expected SYSID or SYSID:COMPID, e.g. 1 or 1:1; got 'x'" in err
     assert "argument --source: MAVLink system and component ids are 1–255; got '1:256'" in err
+
+
+def test_replay_notes_a_hole_in_the_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from mavahrs.warmup import synthetic_frames
+
+    frames = synthetic_frames(10.0)  # records from 1.0 s (Unix time) on: log time = t − 1 s
+    whole = _write_tlog(tmp_path / "whole.tlog", frames)
+    holed = _write_tlog(tmp_path / "holed.tlog", [(t, f) for t, f in frames if not 3_000_000 <= t < 6_000_000])
+    twice = _write_tlog(tmp_path / "twice.tlog", [(t, f) for t, f in frames
+                                                  if not (3_000_000 <= t < 4_000_000 or 7_000_000 <= t < 9_000_000)])
+    for engine in ("fast", "pipeline"):
+        assert main(["replay", str(whole), "-f", "madgwick", "--engine", engine]) == 0
+        assert not any("gap" in line for line in capsys.readouterr().out.splitlines())
+        assert main(["replay", str(holed), "-f", "madgwick", "--engine", engine]) == 0
+        notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note: ")]
+        assert notes == [
+            "note: gap in the IMU data: no samples for 3.0 s, from 2.0 s to 5.0 s of the log; the filters start "
+            "again after it (their re-convergence is in the comparison below)"
+        ]
+    assert main(["replay", str(twice), "-f", "madgwick"]) == 0
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note: ")]
+    assert notes == [
+        "note: 2 gaps in the IMU data, 3.0 s without samples in all: 2.0–3.0 s, 6.0–8.0 s of the log; the "
+        "filters start again after each (their re-convergence is in the comparison below)"
+    ]
