@@ -11,7 +11,9 @@ Exit codes (documented in docs/daemon.md and ``mavahrs --help``):
 2     usage or configuration error (bad option, config file, connection string)
 3     connection failure: a link cannot be opened (port busy, permission
       denied, no such device, address in use) or no autopilot heartbeat
-130   interrupted (Ctrl-C outside ``run``'s own signal handling)
+130   interrupted: Ctrl-C before the command finished (``demo`` still
+      scores the part flown, and exits 130); ``run`` is meant to run until
+      stopped, so SIGINT/SIGTERM end it with 0
 ====  ======================================================================
 """
 
@@ -55,7 +57,8 @@ EXIT_INTERRUPTED = 130
 
 EXIT_CODES_HELP = (
     "exit codes: 0 ok, 1 runtime failure, 2 usage/config error, "
-    "3 connection failure or no heartbeat, 130 interrupted"
+    "3 connection failure or no heartbeat, 130 interrupted by Ctrl-C before finishing "
+    "(`run` exits 0 when SIGINT or SIGTERM stops it: that is how a service ends)"
 )
 
 _LOGGER_NAME = "mavahrs"

@@ -181,6 +181,13 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
     assert math.isfinite(heading) and n >= 50, text  # 2 s scored at 50 Hz
     assert re.search(r"rates: IMU in [12][0-9]{2}\.\d Hz", r.stdout), text  # 250 Hz accepted by the simulated ArduPilot
     assert "meaning:" in r.stdout
+    # the simulator simply stops at the end: no stream-rate warnings about it
+    assert "fell to" not in text and "reset the stream rates" not in text, text
+    # the daemon's own start line names the port the demo says it listens on; the stop line reads well
+    port = re.search(r"daemon: listening on udpin:127\.0\.0\.1:(\d+),", r.stdout)
+    assert port and f"mavahrs running: master udpin:127.0.0.1:{port.group(1)};" in r.stdout, text
+    assert re.search(r"mavahrs stopped \(on request\) after [0-9.]+ s: .* log \d+ frames \(closed\)", r.stdout), text
+    assert len(re.findall(r"magnetic field from", r.stdout)) == 1, text
     tlog, png = outdir / "aggressive.tlog", outdir / "aggressive.png"
     assert f"tlog: {tlog}" in r.stdout and f"plot: {png}" in r.stdout
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

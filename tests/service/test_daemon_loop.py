@@ -199,9 +199,10 @@ def test_a_flood_is_bounded_and_drops_the_oldest(gcs: socket.socket) -> None:
 
 def test_no_heartbeat_is_a_transport_error_saying_what_arrived(gcs: socket.socket) -> None:
     d = _daemon(gcs, heartbeat_timeout_s=0.3)
+    port = d.master.local_address[1]  # the port udpin:…:0 got: the address to send to
     with pytest.raises(TransportError) as info:
         d.run()
-    assert "no heartbeat from udpin:127.0.0.1:0 within 0.3 s (nothing received" in str(info.value)
+    assert f"no heartbeat from udpin:127.0.0.1:{port} within 0.3 s (nothing received" in str(info.value)
 
     d = _daemon(gcs, heartbeat_timeout_s=0.5)
     port = d.master.local_address[1]
@@ -362,3 +363,31 @@ def test_the_real_daemon_points_true_north_without_system_time(gcs: socket.socke
     yaw_deg = math.degrees(math.atan2(2 * (m.q1 * m.q4 + m.q2 * m.q3), 1 - 2 * (m.q3**2 + m.q4**2)))
     assert abs(want_deg) > 5  # the test means something only where the declination is large
     assert yaw_deg == pytest.approx(want_deg, abs=1.0)
+
+
+def test_start_and_stop_lines_read_well(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The start line shows the port a ``udpin:…:0`` master got; the stop line says why and how the log ended."""
+    from mavahrs.service.sinks import TlogSink
+
+    records: list[logging.LogRecord] = []
+    log = logging.getLogger("mavahrs.test.daemon-lines")
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    handler = logging.Handler()
+    handler.emit = records.append  # type: ignore[method-assign]
+    log.addHandler(handler)
+    settings = DaemonSettings(master="udpin:127.0.0.1:0", status_interval_s=0.0)
+    master = open_transport(settings.master)
+    port = master.local_address[1]
+    sink = TlogSink(tmp_path / "d.tlog", 1.0)
+    d = Daemon(settings, FakePipeline(), master, [], sink=sink, logger=log)
+    thread, box = _start(d)
+    time.sleep(0.3)
+    d.stop()
+    thread.join(5)
+    log.removeHandler(handler)
+    assert box["result"].reason == "stopped"
+    lines = [r.getMessage() for r in records]
+    assert lines[0].startswith(f"mavahrs running: master udpin:127.0.0.1:{port}; outputs none; log {tmp_path / 'd.tlog'}")
+    assert lines[-1].startswith("mavahrs stopped (on request) after ")
+    assert lines[-1].endswith(" s: 0 messages in, 0 attitudes out, 0 dropped, log 0 frames (closed)")
