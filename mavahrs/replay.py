@@ -48,6 +48,7 @@ from mavahrs.evaluation.tlogdata import (
     prepare_inputs,
     read_tlog_data,
     references,
+    resolve_source,
     run_pipelines,
 )
 from mavahrs.filters.jit import kernel
@@ -79,6 +80,7 @@ __all__ = [
     "LOW_RATE_HZ",
     "stream",
     "StreamSettings",
+    "gap_note",
 ]
 
 log = logging.getLogger("mavahrs.replay")
@@ -352,10 +354,11 @@ def replay(
     s = settings or ReplaySettings()
     ps = s.pipeline_settings()
     td = read_tlog_data(path)
+    ps, source_note = resolve_source(td, ps)
     dy = decimal_year_of_log(td)
     filters = [(n, s.filter_settings.get(n)) for n in s.filters]
     sink = None
-    notes: list[str] = []
+    notes: list[str] = [] if source_note is None else [source_note]
     try:
         prep: PreparedInputs | None = None
         if s.engine in ("auto", "fast"):
@@ -382,6 +385,9 @@ def replay(
         if sink is not None:
             sink.close()
     result.notes = notes + result.inputs.notes + result.notes + _resend_notes(result.inputs.counts)
+    gaps = gap_note(result.inputs, int(td.t_us[0]) if td.frames else 0, ps.timeline.max_gap_s)
+    if gaps is not None:
+        result.notes.append(gaps)
     rate = result.inputs.rate_hz()
     if rate < LOW_RATE_HZ:
         result.notes.append(
@@ -404,6 +410,35 @@ def _resend_notes(counts: Mapping[str, int]) -> list[str]:
         out.append(f"{n} IMU messages repeat the previous message's time stamp with other values "
                    "(the filtered instance's are dropped as stale)")  # fmt: skip
     return out
+
+
+def gap_note(inputs: PreparedInputs, log_start_us: int, max_gap_s: float, *, listed: int = 5) -> str | None:
+    """A note on forward jumps of the IMU clock (holes in the log), or None when there are none.
+
+    A hole is a step between consecutive samples longer than both the
+    timeline's gap limit (``max_gap_s``: the filters start again after it)
+    and ten median steps (so a slow stream, noted on its own, is not a log
+    full of holes).  Positions are seconds from the log's first record, as
+    ``--start``/``--end`` count them.
+    """
+    if inputs.n < 3:
+        return None
+    step = np.diff(inputs.t_us)
+    limit = max(max_gap_s * 1e6, 10.0 * float(np.median(step[step > 0])) if (step > 0).any() else 0.0)
+    holes = np.flatnonzero(step > limit)
+    if holes.size == 0:
+        return None
+    at = (inputs.tlog_us.astype(np.float64) - log_start_us) * 1e-6
+    spans = [f"{at[i]:.1f}–{at[i + 1]:.1f} s" for i in holes[:listed]]
+    more = ", …" if holes.size > listed else ""
+    if holes.size == 1:
+        i = int(holes[0])
+        return (f"gap in the IMU data: no samples for {step[i] * 1e-6:.1f} s, from {at[i]:.1f} s to "
+                f"{at[i + 1]:.1f} s of the log; the filters start again after it (their re-convergence "
+                "is in the comparison below)")  # fmt: skip
+    return (f"{holes.size} gaps in the IMU data, {float(step[holes].sum()) * 1e-6:.1f} s without samples in "
+            f"all: {', '.join(spans)}{more} of the log; the filters start again after each (their "
+            "re-convergence is in the comparison below)")  # fmt: skip
 
 
 def _progress_bar(total: int, enabled: bool, unit: str) -> Any:

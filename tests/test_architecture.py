@@ -1,7 +1,8 @@
 """Layer direction: lower layers never import higher ones (architecture.md).
 
 geometry → filters → sensors → protocol → transports → service → cli, with
-evaluation/replay beside the service layer.  ``mavahrs`` never imports
+evaluation beside the service layer (it may use the service's pipeline; the
+service never imports evaluation), replay and demo above both.  ``mavahrs`` never imports
 ``firmware_sim``; the sans-I/O layers never touch sockets, files or clocks.
 """
 
@@ -28,10 +29,16 @@ RANK = {
     "service": 6,
     "evaluation": 6,
     "replay": 7,
+    "demo": 7,
+    "warmup": 7,
     "cli": 8,
     "__main__": 9,
     "__init__": 9,
 }
+
+#: imports forbidden between layers of the same rank: the daemon (service) never needs the
+#: evaluation tools (metrics, plots, truth loaders); evaluation may use the service's pipeline.
+FORBIDDEN_SIDEWAYS = {"service": {"evaluation"}}
 
 SANS_IO = ("geometry", "filters", "sensors", "protocol")
 FORBIDDEN_IN_SANS_IO = {"socket", "selectors", "serial", "subprocess", "threading", "asyncio", "time"}
@@ -69,6 +76,9 @@ def test_layers_only_import_downwards(path: Path) -> None:
         if target not in RANK:
             continue
         assert RANK[target] <= RANK[layer], f"{path} ({layer}) imports {name} ({target}): upward dependency"
+        assert target not in FORBIDDEN_SIDEWAYS.get(layer, ()), (
+            f"{path} ({layer}) imports {name} ({target}): {layer} must not depend on {target}"
+        )
 
 
 @pytest.mark.parametrize(

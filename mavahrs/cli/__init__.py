@@ -35,6 +35,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "plot",
     "calibrate_mag",
     "sim",
+    "warm_up",
 )
 
 
@@ -117,3 +118,5 @@ def main(argv: Sequence[str] | None = None) -> int:
                 exc_info=log.isEnabledFor(logging.DEBUG),
             )
         return code
+    finally:
+        common.stop_announcing()

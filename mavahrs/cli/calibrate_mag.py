@@ -52,6 +52,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mavahrs.cli.common import announce_compiles
     from mavahrs.errors import ConfigError, DataError
     from mavahrs.evaluation.magcal import (
         MagFitSettings,
@@ -64,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
 
     if (args.lat is None) != (args.lon is None):
         raise ConfigError("give both --lat and --lon")
+
+    announce_compiles()
     if args.lat is not None and not (-90.0 <= args.lat <= 90.0 and -180.0 <= args.lon <= 360.0):
         raise ConfigError(f"--lat {args.lat} / --lon {args.lon}: latitude must be within ±90°, longitude ±180°")
     if args.field_ut is not None and not 1.0 <= args.field_ut <= 200.0:

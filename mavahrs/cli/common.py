@@ -11,7 +11,9 @@ Exit codes (documented in docs/daemon.md and ``mavahrs --help``):
 2     usage or configuration error (bad option, config file, connection string)
 3     connection failure: a link cannot be opened (port busy, permission
       denied, no such device, address in use) or no autopilot heartbeat
-130   interrupted (Ctrl-C outside ``run``'s own signal handling)
+130   interrupted: Ctrl-C before the command finished (``demo`` still
+      scores the part flown, and exits 130); ``run`` is meant to run until
+      stopped, so SIGINT/SIGTERM end it with 0
 ====  ======================================================================
 """
 
@@ -40,6 +42,11 @@ __all__ = [
     "fail",
     "prefer_small_pages",
     "start_kernels",
+    "COMPILE_NOTICE",
+    "announce_compiles",
+    "stop_announcing",
+    "add_source_option",
+    "parse_source",
 ]
 
 EXIT_OK = 0
@@ -50,7 +57,8 @@ EXIT_INTERRUPTED = 130
 
 EXIT_CODES_HELP = (
     "exit codes: 0 ok, 1 runtime failure, 2 usage/config error, "
-    "3 connection failure or no heartbeat, 130 interrupted"
+    "3 connection failure or no heartbeat, 130 interrupted by Ctrl-C before finishing "
+    "(`run` exits 0 when SIGINT or SIGTERM stops it: that is how a service ends)"
 )
 
 _LOGGER_NAME = "mavahrs"
@@ -99,10 +107,47 @@ def prefer_small_pages() -> None:
 
 
 def start_kernels() -> None:
-    """Load numba's compiler without its BLAS probe (:func:`mavahrs.filters.jit.quick_start`; 0.15 s sooner)."""
+    """Load numba's compiler without its BLAS probe (:func:`mavahrs.filters.jit.quick_start`; 0.15 s sooner),
+    and announce a first compilation (:func:`announce_compiles`)."""
     from mavahrs.filters.jit import quick_start
 
     quick_start()
+    announce_compiles()
+
+
+#: printed once, just before the first compilation of the filter kernels in a process (a cold cache)
+COMPILE_NOTICE = (
+    "preparing the filters: compiling them once for this machine "
+    "(about 20–30 s; later runs start at once; `mavahrs warm-up` does it ahead of time) …"
+)
+
+
+def announce_compiles() -> None:
+    """Log :data:`COMPILE_NOTICE` when this process starts compiling a filter kernel (never on a warm cache).
+
+    Called by every subcommand that runs filters, before it does (numba gets
+    imported here).  Detection is numba's own
+    (:func:`mavahrs.filters.jit.on_first_compile`): it compiles only what its
+    disk cache cannot supply.  Idempotent; :func:`stop_announcing` (called by
+    ``main`` when the command ends) removes the listener.
+    """
+    if _ANNOUNCER:
+        return
+    from mavahrs.filters.jit import on_first_compile
+
+    def announce(_kernel: str) -> None:
+        logging.getLogger(_LOGGER_NAME).info("%s", COMPILE_NOTICE)
+
+    _ANNOUNCER.append(on_first_compile(announce))
+
+
+def stop_announcing() -> None:
+    """Undo :func:`announce_compiles` (no-op when it was not called)."""
+    while _ANNOUNCER:
+        _ANNOUNCER.pop()()
+
+
+_ANNOUNCER: list[Any] = []
 
 
 # --------------------------------------------------------------------------- logging
@@ -213,6 +258,32 @@ def add_velocity_source_option(parser: Any, *, default_text: str = "auto") -> No
         help="GNSS velocity for the filter: auto (GLOBAL_POSITION_INT while it arrives, else GPS_RAW_INT, "
         "else GPS2_RAW), global_position_int, gps_raw_int, gps2_raw (the receiver's own: independent of "
         f"the autopilot's EKF; no vertical) or none (default: {default_text})",
+    )  # fmt: skip
+
+
+# --------------------------------------------------------------------------- options
+
+
+def parse_source(text: str) -> tuple[int, int | None]:
+    """``SYSID`` or ``SYSID:COMPID`` (MAVLink ids 1–255) → (system, component or None)."""
+    parts = text.split(":")
+    try:
+        if len(parts) > 2:
+            raise ValueError
+        ids = [int(x) for x in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SYSID or SYSID:COMPID, e.g. 1 or 1:1; got {text!r}") from None
+    if not all(1 <= i <= 255 for i in ids):
+        raise argparse.ArgumentTypeError(f"MAVLink system and component ids are 1–255; got {text!r}")
+    return ids[0], (ids[1] if len(ids) == 2 else None)
+
+
+def add_source_option(parser: Any) -> None:
+    """``--source SYSID[:COMPID]``: whose IMU data to use (replay, evaluate, tune, plot, run)."""
+    parser.add_argument(
+        "--source", type=parse_source, metavar="SYSID[:COMPID]",
+        help="use the IMU data of this system (and component) only, e.g. 1 or 1:1 (default: the first "
+        "autopilot HEARTBEAT's; in a log without HEARTBEAT, the only sender of IMU data)",
     )  # fmt: skip
 
 

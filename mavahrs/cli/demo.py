@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_INTERRUPTED, EXIT_OK
+from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_INTERRUPTED, EXIT_OK, announce_compiles
 
 __all__ = ["register", "run"]
 
@@ -50,7 +50,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.service.demo import DemoSettings, format_summary, run_demo
+    from mavahrs.demo import DemoSettings, format_summary, run_demo
 
     settings = DemoSettings(
         duration_s=args.duration, scenario=args.scenario, filter_name=args.filter, outdir=args.outdir,
@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(text + end)
         sys.stdout.flush()
 
+    announce_compiles()
     result = run_demo(settings, out)
     if result.interrupted:
         out("interrupted: scoring what was flown")

@@ -10,7 +10,7 @@ import argparse
 import time
 from typing import Any
 
-from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_CONNECTION, EXIT_OK
+from mavahrs.cli.common import EXIT_CONNECTION, EXIT_OK
 
 __all__ = ["register", "run", "probe"]
 
@@ -45,7 +45,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "doctor",
         help="check an autopilot link: IMU messages and rates, firmware, magnetometer, what to change",
         description=_DESCRIPTION,
-        epilog=EXIT_CODES_HELP + " (3 also when no autopilot HEARTBEAT arrived); 0 = report printed",
+        epilog="exit codes: 0 report printed (an autopilot answered), 1 runtime failure, 2 usage error, "
+        "3 the link cannot be opened or no autopilot HEARTBEAT arrived, 130 interrupted by Ctrl-C",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--master", default="udpin:0.0.0.0:14550", metavar="URL",

@@ -30,7 +30,7 @@ gyro drift, Fig. 12), compare (Mahony, Madgwick, complementary side by side,
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import add_velocity_source_option
+    from mavahrs.cli.common import add_source_option, add_velocity_source_option
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         "evaluate", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -58,6 +58,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="rate study: gyro averaged over each block, or every signal picked (default average)")
     p.add_argument("--duration", type=float, metavar="S", help="bias study: use only the first S seconds")
     p.add_argument("--plot", metavar="PNG", help="write a plot (evaluation: the first recording; study: its figure)")
+    add_source_option(p)
     p.set_defaults(func=run)
     return p
 
@@ -86,7 +87,8 @@ def _run(args: argparse.Namespace) -> int:
     prefer_small_pages()
     start_kernels()
 
-    recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto")
+    recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto",
+                          source=args.source)
     if args.study:
         return _study(args, recordings)
     filters = resolve_filter_names(args.filters)

@@ -19,6 +19,8 @@ each filter's gain and accelerometer/magnetometer trust (0 = rejected)."""
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.common import add_source_option
+
     p: argparse.ArgumentParser = subparsers.add_parser(
         "plot", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -29,6 +31,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--no-mag", action="store_true", help="recordings: 6-axis (no magnetometer)")
     p.add_argument("--start", type=float, metavar="S", help="from S seconds")
     p.add_argument("--end", type=float, metavar="S", help="up to S seconds")
+    add_source_option(p)
     p.set_defaults(func=run)
     return p
 
@@ -48,14 +51,21 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from mavahrs.cli.common import announce_compiles
+
+    announce_compiles()
     path = Path(args.input)
     if not path.exists():
         raise FileNotFoundError(2, "no such file", str(path))
     if path.suffix.lower() == ".tlog":
         from mavahrs import replay as rp
         from mavahrs.evaluation.report import resolve_filter_names
+        from mavahrs.service.pipeline import PipelineSettings
 
-        res = rp.replay(path, rp.ReplaySettings(filters=tuple(resolve_filter_names(args.filters)),
+        ps = None
+        if args.source is not None:
+            ps = PipelineSettings(source_system=args.source[0], source_component=args.source[1])
+        res = rp.replay(path, rp.ReplaySettings(filters=tuple(resolve_filter_names(args.filters)), pipeline=ps,
                                                 start_s=args.start, end_s=args.end))  # fmt: skip
         out = rp.plot_replay(res, args.output)
     elif path.suffix.lower() == ".csv" and _is_replay_csv(path):

@@ -31,7 +31,7 @@ autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE truth)
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import add_velocity_source_option
+    from mavahrs.cli.common import add_source_option, add_velocity_source_option
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         "replay", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -51,6 +51,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     add_velocity_source_option(p, default_text="auto, or the --config file's")
     p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
                    help="scaling profile (default: from the autopilot's HEARTBEAT)")
+    add_source_option(p)
     p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline and filter settings)")
     p.add_argument("--engine", default="auto", choices=("auto", "fast", "pipeline"),
                    help="fast: bulk decode + batch filters; pipeline: the daemon's per-message path; "
@@ -106,6 +107,8 @@ def _settings(args: argparse.Namespace) -> Any:
         changes["autopilot_profile"] = args.profile
     if args.velocity_source is not None:
         changes["velocity_source"] = args.velocity_source
+    if args.source is not None:
+        changes["source_system"], changes["source_component"] = args.source
     ps = dataclasses.replace(ps, **changes)
     return ReplaySettings(
         filters=tuple(filters), pipeline=ps, filter_settings=filter_settings,
@@ -122,6 +125,9 @@ def _run(args: argparse.Namespace) -> int:
     prefer_small_pages()
     start_kernels()
 
+    if Path(args.tlog).is_dir():
+        raise ValueError(f"{args.tlog} is a directory: replay takes one .tlog file; "
+                         "for a folder of logs use `mavahrs evaluate FOLDER`")  # fmt: skip
     if not Path(args.tlog).is_file():
         raise FileNotFoundError(2, "no such file", args.tlog)
     settings = _settings(args)

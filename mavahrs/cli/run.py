@@ -8,7 +8,14 @@ import signal
 import threading
 from typing import Any
 
-from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK, LazyDefaultsFormatter, add_velocity_source_option
+from mavahrs.cli.common import (
+    EXIT_CODES_HELP,
+    EXIT_OK,
+    LazyDefaultsFormatter,
+    add_velocity_source_option,
+    announce_compiles,
+    parse_source,
+)
 
 __all__ = ["register", "run"]
 
@@ -86,6 +93,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         help="IMU instance to use; auto picks one and fails over when it goes stale (default: {pipeline.imu})",
     )
     add_velocity_source_option(est, default_text="{pipeline.velocity_source}")
+    est.add_argument(
+        "--source", type=parse_source, metavar="SYSID[:COMPID]",
+        help="take the IMU data from this autopilot only, e.g. 1 or 1:1 (several autopilots on one link); "
+        "sets pipeline.source_system and pipeline.source_component (default: the first autopilot HEARTBEAT's)",
+    )
     est.add_argument(
         "--rate", type=float, metavar="HZ",
         help="IMU message rate requested from the autopilot, Hz (default: {pipeline.stream_rate_hz} Hz)",
@@ -181,6 +193,11 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
         if attr == "imu":
             value = str(value)
         out[dotted] = list(value) if isinstance(value, list) else value
+    source = getattr(args, "source", None)
+    if source is not None:
+        out["pipeline.source_system"] = source[0]
+        if source[1] is not None:
+            out["pipeline.source_component"] = source[1]
     return out
 
 
@@ -200,6 +217,7 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         print(config.to_toml(), end="")
         return EXIT_OK
+    announce_compiles()
     # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
     # the daemon installs its own handlers for the loop and restores these afterwards.
     in_main = threading.current_thread() is threading.main_thread()

@@ -27,17 +27,22 @@ temperature_c).  Writes a TOML file `mavahrs run --config` reads."""
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.common import add_source_option
+
     p: argparse.ArgumentParser = subparsers.add_parser(
         "tune", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("input", metavar="STATIONARY", help="tlog or CSV recorded at rest")
     p.add_argument("--output", "-o", metavar="TOML", help="write the settings file here (default: print only)")
-    p.add_argument("--gains", choices=("spec", "ls"), default="spec",
-                   help="which beta/zeta to write: spec formulas or least squares (default spec)")
+    p.add_argument("--gains", choices=("flight", "spec", "ls"), default="flight",
+                   help="flight: write no gains (the default filter keeps its flight gains), only the gyro "
+                   "temperature model; spec formulas or least squares: Madgwick's beta/zeta fitted at rest, "
+                   "for a bench only (default flight)")
     p.add_argument("--imu", default="auto", metavar="N", help="tlog: IMU instance 0, 1, 2 or auto (default auto)")
     p.add_argument("--start", type=float, metavar="S", help="use the recording from S seconds")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds")
     p.add_argument("--json", action="store_true", help="print the fitted figures as JSON")
+    add_source_option(p)
     p.set_defaults(func=run)
     return p
 
@@ -71,7 +76,7 @@ def _run(args: argparse.Namespace) -> int:
     if path.suffix.lower() == ".tlog":
         from mavahrs.evaluation.tlogdata import load_tlog_recording
 
-        rec = load_tlog_recording(path, imu=args.imu, reference=False)
+        rec = load_tlog_recording(path, imu=args.imu, reference=False, source=args.source)
     else:
         rec = load_one(path)
     rec = cut_recording(rec, args.start, args.end)
@@ -80,8 +85,20 @@ def _run(args: argparse.Namespace) -> int:
         print(json.dumps(result.to_dict(), indent=2, default=float))
     else:
         print(result.format())
+    warning = result.flight_warning(args.gains)
+    if warning is not None:
+        import logging
+
+        logging.getLogger("mavahrs").warning("%s", warning)
     if args.output:
         out = Path(args.output)
         out.write_text(result.to_toml(gains=args.gains), encoding="utf-8")
-        print(f"wrote {out} (use: mavahrs run --config {out})", file=sys.stderr)
+        temp = "the gyro temperature model" if result.temperature_model else "no temperature model (no spread)"
+        if args.gains == "flight":
+            what = f"{temp}; no gains: the filter keeps its flight gains"
+        else:
+            beta, zeta = result.gains(args.gains)
+            fit = "NOT fit to fly with" if warning is not None else "fit to fly with"
+            what = f"{temp}; Madgwick β = {beta:.3g} rad/s, ζ = {zeta:.3g} rad/s² ({args.gains}, {fit})"
+        print(f"wrote {out}: {what}; use: mavahrs run --config {out}", file=sys.stderr)
     return 0

@@ -42,7 +42,9 @@ def load_one(path: Path, **kwargs: Any) -> Recording:
     if suffix == ".tlog":
         from mavahrs.evaluation.tlogdata import load_tlog_recording
 
-        return load_tlog_recording(path, **{k: v for k, v in kwargs.items() if k in ("imu", "skip_s", "velocity_source")})
+        return load_tlog_recording(
+            path, **{k: v for k, v in kwargs.items() if k in ("imu", "skip_s", "velocity_source", "source")}
+        )
     raise DataError(f"{path}: unknown input type {suffix!r}; use .mat (BROAD), .csv or .tlog")
 
 

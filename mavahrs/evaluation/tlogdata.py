@@ -283,11 +283,91 @@ def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], i
         return (int(s.source_system), int(s.source_component)), -1, s.autopilot_profile
     idx = np.flatnonzero(ok)
     if idx.size == 0:
-        raise DataError(f"{td.path}: no autopilot HEARTBEAT: cannot tell whose IMU data to use (set the source)")
+        raise DataError(_no_source_message(td, s))
     k = int(idx[0])
     src = (int(hb["sysid"][k]), int(hb["compid"][k]))
     prof = profile_for_autopilot(int(hb["autopilot"][k])).name if s.autopilot_profile == "auto" else s.autopilot_profile
     return src, int(hpos[k]), prof
+
+
+SOURCE_HINT = "--source SYSID[:COMPID], or source_system/source_component in the config"
+
+
+def imu_senders(td: TlogData, settings: Any = None) -> list[tuple[int, int]]:
+    """(system, component) of every sender of IMU messages in the log (within the settings' source), sorted."""
+    found: set[tuple[int, int]] = set()
+    for name in IMU_TYPES:
+        a = td.arrays[name]
+        if a.shape[0]:
+            found.update(zip(a["sysid"].tolist(), a["compid"].tolist(), strict=True))
+    if settings is not None and settings.source_system is not None:
+        found = {x for x in found if x[0] == settings.source_system}
+    if settings is not None and settings.source_component is not None:
+        found = {x for x in found if x[1] == settings.source_component}
+    return sorted(found)
+
+
+def _has_autopilot_heartbeat(td: TlogData, s: Any) -> bool:
+    hb = td.arrays["HEARTBEAT"]
+    ok = hb["autopilot"] != _MAV_AUTOPILOT_INVALID
+    if s.source_system is not None:
+        ok &= hb["sysid"] == s.source_system
+    if s.source_component is not None:
+        ok &= hb["compid"] == s.source_component
+    return bool(ok.any())
+
+
+def resolve_source(td: TlogData, settings: Any) -> tuple[Any, str | None]:
+    """The pipeline settings to read ``td`` with, and a note when the source was chosen automatically.
+
+    The daemon takes its IMU data from the autopilot whose HEARTBEAT it sees
+    first.  Logs exported without HEARTBEATs (``mavlogdump.py --types``, some
+    ground stations' exports) have none: when the IMU messages there (within
+    ``source_system``/``source_component`` when set) all come from one
+    system/component, that one is the source, with the scaling profile
+    ``autopilot_profile`` (``generic`` when ``auto``: nothing says which
+    autopilot it is).  Otherwise the settings are returned unchanged (and
+    reading the log fails with a message naming ``--source``).
+    """
+    import dataclasses
+
+    s = settings
+    if s.source_system is not None and s.source_component is not None and s.autopilot_profile != "auto":
+        return s, None
+    if _has_autopilot_heartbeat(td, s):
+        return s, None
+    senders = imu_senders(td, s)
+    if len(senders) != 1:
+        return s, None
+    (sysid, compid), = senders
+    profile = "generic" if s.autopilot_profile == "auto" else s.autopilot_profile
+    chosen = dataclasses.replace(s, source_system=sysid, source_component=compid, autopilot_profile=profile)
+    why = "as --source asks" if s.source_system is not None else "its only sender"
+    note = (
+        f"no autopilot HEARTBEAT in the log: using the IMU data of system {sysid}, component {compid} "
+        f"({why}), with the {profile} scaling profile (--source and --profile choose otherwise)"
+    )
+    return chosen, note
+
+
+def _no_source_message(td: TlogData, s: Any) -> str:
+    """Why no source could be chosen: no MAVLink at all, no IMU data, or several senders."""
+    from mavahrs.protocol.fast_tlog import scan_tlog
+
+    senders = imu_senders(td, s)
+    wanted = ""
+    if s.source_system is not None:
+        wanted = f" from system {s.source_system}" + (
+            f", component {s.source_component}" if s.source_component is not None else ""
+        )
+    if len(senders) > 1:
+        listed = ", ".join(f"{a}:{b}" for a, b in senders)
+        return (f"{td.path}: no autopilot HEARTBEAT{wanted}, and IMU data from several senders "
+                f"(SYSID:COMPID {listed}): choose one with {SOURCE_HINT}")  # fmt: skip
+    if td.frames == 0 and scan_tlog(td.data, None).msgid.shape[0] == 0:
+        return (f"{td.path}: no MAVLink messages in this file: expected a telemetry log (.tlog, "
+                "as MAVProxy, QGroundControl, Mission Planner and mavahrs write them)")  # fmt: skip
+    return f"{td.path}: no autopilot HEARTBEAT{wanted} and no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU)"
 
 
 def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
@@ -1034,12 +1114,17 @@ def interpolate_attitude(t_ref: Array, q_ref: Array, t: Array, max_gap_s: float 
 def _inputs_for(td: TlogData, imu: str, settings: Any, velocity_source: str = "auto") -> PreparedInputs:
     from mavahrs.service.pipeline import PipelineSettings
 
-    s = settings if settings is not None else PipelineSettings(imu=imu, velocity_source=velocity_source)
+    s, note = resolve_source(
+        td, settings if settings is not None else PipelineSettings(imu=imu, velocity_source=velocity_source)
+    )
     dy = decimal_year_of_log(td)
     try:
-        return prepare_inputs(td, s, decimal_year=dy)
+        prep = prepare_inputs(td, s, decimal_year=dy)
     except FastPathUnsupported:
-        return pipeline_inputs(td, s, decimal_year=dy)
+        prep = pipeline_inputs(td, s, decimal_year=dy)
+    if note is not None:
+        prep.notes.insert(0, note)
+    return prep
 
 
 def load_tlog_recording(
@@ -1050,6 +1135,7 @@ def load_tlog_recording(
     skip_s: float = 0.0,
     settings: Any = None,
     velocity_source: str = "auto",
+    source: tuple[int, int | None] | None = None,
 ) -> Recording:
     """A tlog as an evaluation :class:`Recording`: the pipeline's filter inputs, SIM_STATE/SIMSTATE truth.
 
@@ -1060,9 +1146,16 @@ def load_tlog_recording(
     ``velocity_source`` (without ``settings``): the GNSS velocity the
     pipeline would feed (:mod:`mavahrs.sensors.velocity`); the velocity and
     its age are in ``extra["velocity_ned_m_s"]`` / ``extra["velocity_age_s"]``.
+    ``source`` = (system, component or None): take the IMU data from that
+    sender only (``--source``; ignored when ``settings`` are given).
     """
     from mavahrs.geometry.quaternion import multiply
 
+    if settings is None and source is not None:
+        from mavahrs.service.pipeline import PipelineSettings
+
+        settings = PipelineSettings(imu=imu, source_system=source[0], source_component=source[1],
+                                    velocity_source=velocity_source)
     td = read_tlog_data(path)
     prep = _inputs_for(td, imu, settings, velocity_source)
     n = prep.n

@@ -159,26 +159,66 @@ class TuneResult:
             out[k] = list(v) if isinstance(v, tuple) else v
         return out
 
-    def to_toml(self, *, gains: str = "spec") -> str:
+    def gains(self, which: str = "flight") -> tuple[float, float]:
+        """(β rad/s, ζ rad/s²) to write: ``"spec"`` (eq. 50–51), ``"ls"`` (least squares) or ``"flight"``.
+
+        ``flight``: Madgwick's default flight gains (:class:`MadgwickSettings`).
+        A recording at rest measures the gyro's noise only; in flight the gyro
+        error also holds vibration, scale and cross-axis errors and bias
+        changes, which the gains must correct, so bench gains are far too small
+        to fly with (:meth:`flight_warning`).  ``to_toml(gains="flight")``
+        writes no gains at all: the daemon's default filter runs with its own
+        flight defaults.
+        """
+        if which == "spec":
+            return self.beta_spec, self.zeta_spec
+        if which == "ls":
+            return self.beta_ls, self.zeta_ls
+        if which == "flight":
+            from mavahrs.filters.madgwick import MadgwickSettings
+
+            d = MadgwickSettings()
+            return d.beta_rad_s, d.zeta_rad_s
+        raise ValueError(f"gains must be 'flight', 'spec' or 'ls', got {which!r}")
+
+    def flight_warning(self, which: str) -> str | None:
+        """Why the ``which`` gains are not fit to fly with (None for ``flight``, or gains as large as those)."""
+        beta, zeta = self.gains(which)
+        f_beta, f_zeta = self.gains("flight")
+        if beta >= f_beta:
+            return None
+        ten_deg = math.radians(10.0)
+        zeta_text = "; ζ = 0 tracks no gyro-bias change at all" if zeta == 0 else ""
+        return (
+            f"β = {beta:.3g} rad/s ({which}) measures the gyro's noise at rest: the filter would take "
+            f"{_duration(ten_deg / beta)} to correct a 10° attitude error (flight gain {f_beta:.3g} rad/s: "
+            f"{_duration(ten_deg / f_beta)}){zeta_text}. Fine on a bench, not fit to fly with: for flight use "
+            "--gains flight (the default), which keeps this recording's gyro temperature model"
+        )
+
+    def to_toml(self, *, gains: str = "flight") -> str:
         """The settings file ``mavahrs run --config`` reads.
 
         Args:
-            gains: which β/ζ to write: ``"spec"`` (eq. 50–51) or ``"ls"``.
+            gains: ``"flight"`` (default): no gains, the daemon's default filter with its flight
+                defaults, plus the gyro temperature model; ``"spec"`` (eq. 50–51) or ``"ls"``: the
+                Madgwick gains fitted at rest (:meth:`gains`), with a comment when they are not fit to fly.
         """
-        if gains not in ("spec", "ls"):
-            raise ValueError(f"gains must be 'spec' or 'ls', got {gains!r}")
-        beta = self.beta_spec if gains == "spec" else self.beta_ls
-        zeta = self.zeta_spec if gains == "spec" else self.zeta_ls
-        other_beta = self.beta_ls if gains == "spec" else self.beta_spec
-        other_zeta = self.zeta_ls if gains == "spec" else self.zeta_spec
+        beta, zeta = self.gains(gains)
+        warning = self.flight_warning(gains)
+        if gains == "flight":
+            pipeline = ["# no filter_name: the daemon's default filter (best) with its own flight gains; the",
+                        "# Madgwick gains fitted at rest are below as comments (a bench's, not a flight's)"]
+        else:
+            pipeline = ["# the gains below are Madgwick's; pick another filter with --filter (its table is then unused)",
+                        'filter_name = "madgwick"']
         lines = [
             f"# Written by `mavahrs tune` from {self.name} ({self.samples} samples, "
             f"{self.duration_s:.0f} s).",
             "# Use with: mavahrs run --config THIS_FILE  (flags on the command line still override it).",
             "",
             "[pipeline]",
-            '# the gains below are Madgwick\'s; pick another filter with --filter (its table is then unused)',
-            'filter_name = "madgwick"',
+            *pipeline,
             "",
         ]
         if self.temperature_model:
@@ -198,19 +238,45 @@ class TuneResult:
                 f"# Mean gyro bias was {_toml_vec(self.b0_rad_s)} rad/s (not written: it changes per power-up).",
                 "",
             ]
+        if gains == "flight":
+            return "\n".join([
+                *lines,
+                "# Madgwick gains fitted at rest, NOT written (a bench's gains, not fit to fly with):",
+                f"#   spec beta = {self.beta_spec:.6g} rad/s, zeta = {self.zeta_spec:.6g} rad/s^2; "
+                f"least squares beta = {self.beta_ls:.6g}, zeta = {self.zeta_ls:.6g}",
+                f"#   omega_beta = {self.omega_beta_rad_s:.6g} rad/s (mean |gyro noise| per axis), "
+                f"omega_zeta = {self.omega_zeta_rad_s2:.6g} rad/s^2 (bias drift rate per axis).",
+                "# `mavahrs tune --gains spec` writes them, for bench tests.",
+                "",
+            ])
+        source = {
+            "spec": "the sensor-spec formulas, Madgwick 2010 eq. (50)-(51)",
+            "ls": "the least-squares method of Selezneva & Kumarin, eq. (5)",
+        }[gains]
         lines += [
-            f"# Madgwick gains from the {'sensor-spec formulas, Madgwick 2010 eq. (50)-(51)' if gains == 'spec' else 'least-squares method of Selezneva & Kumarin, eq. (5)'}:",
+            f"# Madgwick gains from {source}.",
             f"#   omega_beta = {self.omega_beta_rad_s:.6g} rad/s (mean |gyro noise| per axis), "
             f"omega_zeta = {self.omega_zeta_rad_s2:.6g} rad/s^2 (bias drift rate per axis).",
-            f"# The {'least-squares' if gains == 'spec' else 'spec-formula'} values were "
-            f"beta = {other_beta:.6g}, zeta = {other_zeta:.6g}.",
-            "# Noise-derived gains suit a vehicle at rest; a flying vehicle usually needs a larger beta.",
+            f"# Fitted at rest: spec beta = {self.beta_spec:.6g}, zeta = {self.zeta_spec:.6g}; "
+            f"least squares beta = {self.beta_ls:.6g}, zeta = {self.zeta_ls:.6g}.",
+        ]
+        if warning is not None:
+            lines += ["# NOT FIT TO FLY WITH: " + warning + "."]
+        lines += [
             "[filter.madgwick]",
             f"beta_rad_s = {beta:.6g}",
             f"zeta_rad_s = {zeta:.6g}",
             "",
         ]
         return "\n".join(lines)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.0f} h"
 
 
 def _three(v: Any, unit: str, digits: int) -> str:
@@ -307,6 +373,17 @@ def _bias_fit(
     return b0, k, resid
 
 
+def _quantum(x: Array) -> Array:
+    """Per column, the smallest step between distinct values (the sensor's resolution; 1e-12 for none)."""
+    out = np.full(x.shape[1], 1e-12)
+    for j in range(x.shape[1]):
+        d = np.diff(np.unique(x[:, j]))
+        d = d[d > 0]
+        if d.size:
+            out[j] = max(float(d.min()), 1e-12)
+    return out
+
+
 def _rms_rate(t: Array, x: Array, block_s: float) -> float:
     """RMS rate of change of a slowly varying, quantised signal, from block means."""
     duration = float(t[-1] - t[0])
@@ -359,15 +436,18 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
         )
     keep = ok.copy()
     dropped = 0
+    # A gyro at rest sends integers (ArduPilot RAW_IMU: mrad/s): most samples sit on one or two levels, and
+    # the MAD of such data can be far below one step.  No deviation within a step is an outlier.
+    step = _quantum(gyro[ok])
     for _ in range(2):
         b0, k, resid = _bias_fit(x_all - x0, gyro, keep, truth, t)
         mad = np.median(np.abs(resid[keep] - np.median(resid[keep], axis=0)), axis=0) * 1.4826
-        out = np.any(np.abs(resid) > s.outlier_sd * np.maximum(mad, 1e-12), axis=1) & ok
+        out = np.any(np.abs(resid) > s.outlier_sd * np.maximum(mad, step), axis=1) & ok
         new_keep = ok & ~out
-        dropped = int(out.sum())
-        if np.array_equal(new_keep, keep):
+        if np.array_equal(new_keep, keep) or new_keep.sum() < 100:
             break
         keep = new_keep
+        dropped = int(out.sum())
     moving = np.any(np.abs(resid[ok]) > s.max_motion_rad_s, axis=1)
     if moving.mean() > 0.01:
         raise DataError(

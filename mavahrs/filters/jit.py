@@ -12,7 +12,12 @@ file* is unchanged, but kernels bake in module-level constants of other files
 (the row layouts, ``P_FILTER`` = length of the gain-schedule block, …).  For
 kernels in this package the cache stamp therefore covers every ``.py`` file
 of ``mavahrs/filters`` (:class:`_FiltersCacheLocator`): editing one invalidates
-all, instead of silently running code compiled against an old layout.
+all, instead of silently running code compiled against an old layout.  The
+cache lives where numba would put it: ``NUMBA_CACHE_DIR`` when set (the
+systemd unit's ``/var/cache/mavahrs``), else ``mavahrs/filters/__pycache__``
+when writable, else the user's cache directory.  ``mavahrs warm-up``
+(:mod:`mavahrs.warmup`) fills it ahead of time; :func:`on_first_compile` tells
+the command line when a process is about to compile (a cold cache).
 
 Speed (``docs/performance.md``): kernels of ``mavahrs/filters`` work on
 arrays their caller owns and never allocate, so they are compiled without
@@ -33,7 +38,17 @@ import types
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "loop_kernel", "bound_loop", "pure_python", "prange", "quick_start", "HAVE_NUMBA"]
+__all__ = [
+    "kernel",
+    "loop_kernel",
+    "bound_loop",
+    "pure_python",
+    "prange",
+    "quick_start",
+    "on_first_compile",
+    "cache_location",
+    "HAVE_NUMBA",
+]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -62,8 +77,8 @@ def _filters_source_stamp() -> tuple[tuple[str, int, int], ...]:
 if HAVE_NUMBA:
     from numba.core import caching as _caching
 
-    class _FiltersCacheLocator(_caching.InTreeCacheLocator):  # type: ignore[misc]
-        """numba cache locator for kernels in ``mavahrs/filters``: stamp = all its sources."""
+    class _FiltersStamp:
+        """Cache-locator mixin for kernels in ``mavahrs/filters``: stamp = all its sources."""
 
         def get_source_stamp(self) -> Any:
             return _filters_source_stamp()
@@ -72,11 +87,20 @@ if HAVE_NUMBA:
         def from_function(cls, py_func: Any, py_file: str) -> Any:
             if os.path.dirname(os.path.abspath(py_file)) != _FILTERS_DIR:
                 return None  # not ours: numba's own locators decide
-            return super().from_function(py_func, py_file)
+            return super().from_function(py_func, py_file)  # type: ignore[misc]
+
+    class _FiltersUserCacheLocator(_FiltersStamp, _caching.UserProvidedCacheLocator):  # type: ignore[misc]
+        """``NUMBA_CACHE_DIR`` set (e.g. the systemd unit's /var/cache/mavahrs): the cache goes there."""
+
+    class _FiltersCacheLocator(_FiltersStamp, _caching.InTreeCacheLocator):  # type: ignore[misc]
+        """Otherwise ``mavahrs/filters/__pycache__`` (numba's own default place) if writable, …"""
+
+    class _FiltersUserWideCacheLocator(_FiltersStamp, _caching.UserWideCacheLocator):  # type: ignore[misc]
+        """… else the user's cache directory (an installation the user cannot write to)."""
 
     _locators = _caching.CacheImpl._locator_classes
-    if not any(getattr(c, "__name__", "") == "_FiltersCacheLocator" for c in _locators):
-        _locators.insert(0, _FiltersCacheLocator)  # idempotent across re-imports
+    _locators[:] = [c for c in _locators if not getattr(c, "__name__", "").startswith("_Filters")]
+    _locators[0:0] = [_FiltersUserCacheLocator, _FiltersCacheLocator, _FiltersUserWideCacheLocator]  # idempotent across re-imports
 
 
 class _Interpreted:
@@ -237,3 +261,72 @@ def quick_start() -> bool:
         if sys.modules.get("scipy.linalg", 0) is None:
             del sys.modules["scipy.linalg"]
     return True
+
+
+def on_first_compile(callback: Callable[[str], None]) -> Callable[[], None]:
+    """Call ``callback(kernel_name)`` once, when a cached kernel of mavahrs is first *compiled* in this process.
+
+    numba announces a compilation only when the on-disk cache has no usable
+    entry (a cold cache: first run on a machine, or sources changed); loading a
+    cached kernel is silent.  So the callback runs, just before the first
+    compilation starts, exactly when this process is about to spend the
+    20–30 s of a cold compile, and never on a warm cache.  Driver loops that
+    are compiled uncached in every process (:func:`loop_kernel`, ≈ 0.5 s) do
+    not count.  Returns a function that removes the listener.  Without numba:
+    never called.
+    """
+    if not HAVE_NUMBA:
+        return lambda: None
+    from numba.core import event as _event
+
+    listener = _FirstCompile(callback, _event.Listener)
+    _event.register("numba:compile", listener.numba_listener)
+    return lambda: _event.unregister("numba:compile", listener.numba_listener)
+
+
+class _FirstCompile:
+    """The numba event listener behind :func:`on_first_compile` (fires once).
+
+    numba announces compilations while holding its global compiler lock, so
+    two threads never get here at the same time.
+    """
+
+    def __init__(self, callback: Callable[[str], None], base: type) -> None:
+        self._callback = callback
+        self._fired = False
+        owner = self
+
+        class _Listener(base):  # type: ignore[misc, valid-type]
+            def on_start(self, event: Any) -> None:
+                owner.started(event.data.get("dispatcher") if isinstance(event.data, dict) else None)
+
+            def on_end(self, event: Any) -> None:
+                pass
+
+        self.numba_listener = _Listener()
+
+    def started(self, dispatcher: Any) -> None:
+        py = getattr(dispatcher, "py_func", None)
+        cache = getattr(dispatcher, "_cache", None)
+        if py is None or not str(getattr(py, "__module__", "")).startswith("mavahrs"):
+            return
+        if cache is None or type(cache).__name__ == "NullCache":  # uncached driver loop
+            return
+        if self._fired:
+            return
+        self._fired = True
+        self._callback(getattr(py, "__qualname__", repr(py)))
+
+
+def cache_location() -> str | None:
+    """Where numba caches the filter kernels: ``NUMBA_CACHE_DIR`` when set, else their directory (None without numba)."""
+    if not HAVE_NUMBA:
+        return None
+    if _numba.config.CACHE_DIR:
+        return str(_numba.config.CACHE_DIR)
+    from mavahrs.filters.kinematics import quat_multiply
+
+    try:
+        return str(quat_multiply._cache.cache_path)
+    except AttributeError:  # pragma: no cover - numba internals moved
+        return None

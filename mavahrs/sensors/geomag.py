@@ -335,6 +335,7 @@ class DeclinationSource:
         self._field: ExpectedField | None = None
         self._declination_rad = 0.0
         self._changes = 0
+        self._logged: tuple[str, str, str] | None = None  # the field as last logged (rounded text)
         if s.latitude_deg is not None and s.longitude_deg is not None:
             self._position = (s.latitude_deg, s.longitude_deg, s.altitude_m or 0.0)
             self._position_source = "settings"
@@ -419,12 +420,23 @@ class DeclinationSource:
         self._declination_rad = declination
         self._changes += 1
         if model is not None:
-            _log.info(
-                "magnetic field from %s at %.4f, %.4f: declination %.2f°, inclination %.2f°, %.1f µT",
-                model.source, self._computed_at[0], self._computed_at[1],  # type: ignore[index]
-                model.declination_deg, model.inclination_deg, model.strength_ut,
-            )  # fmt: skip
+            self._log_field(model)
         return True
+
+    def _log_field(self, model: ExpectedField) -> None:
+        """Log the field when its shown (rounded) value changes; a recomputation that rounds the same is DEBUG.
+
+        The daemon computes the field with today's date until the autopilot
+        sends its own (SYSTEM_TIME), and again when the vehicle moves: a few
+        hundredths of a degree apart, which the log would otherwise show as
+        two contradicting lines.
+        """
+        shown = (f"{model.declination_deg:.1f}", f"{model.inclination_deg:.1f}", f"{model.strength_ut:.1f}")
+        level = logging.DEBUG if shown == self._logged else logging.INFO
+        self._logged = shown
+        lat, lon = self._computed_at[0], self._computed_at[1]  # type: ignore[index]
+        _log.log(level, "magnetic field from %s at %.4f, %.4f: declination %s°, inclination %s°, %s µT",
+                 model.source, lat, lon, *shown)  # fmt: skip
 
     def _combine(self, model: ExpectedField | None) -> ExpectedField | None:
         """Model values with the manual ones substituted; None when incomplete."""

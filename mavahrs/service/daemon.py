@@ -932,7 +932,7 @@ class Daemon:
         run_s = stats["run_s"]
         self.log.info(
             "mavahrs stopped (%s) after %.1f s: %d messages in, %d attitudes out, %d dropped, log %s",
-            self._signal_name or result_reason,
+            self._signal_name or {"stopped": "on request"}.get(result_reason, result_reason),
             run_s,
             self.counters.messages_in,
             self.counters.attitudes_out,

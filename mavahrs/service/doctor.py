@@ -584,6 +584,11 @@ def _no_autopilot_hint(link: LinkFacts, obs: LinkObserver) -> str:
                     "runs MAVLink (ArduPilot SERIALn_PROTOCOL = 2, PX4 MAV_n_CONFIG)")
         if link.kind == "udpout":
             return "nothing received: nothing answers at that address (for a router, use udpin: and let it send to us)"
+        if link.kind == "udpin":
+            return (f"nothing received in {link.duration_s:g} s: check that the autopilot, mavlink-router or MAVProxy "
+                    f"sends to this address and port ({link.description}; e.g. MAVProxy --out udp:THIS_IP:PORT, "
+                    "mavlink-router [UdpEndpoint] Mode = Normal), that no firewall drops it, and that no other "
+                    "program already listens on the port")  # fmt: skip
         return "nothing received: is the autopilot or router sending to this address and port?"
     if obs.messages == 0:
         return (f"{link.bytes_in} bytes but no MAVLink frame: wrong baud rate, or the port does not run MAVLink"
@@ -691,6 +696,8 @@ def _rate_drop(obs: LinkObserver, name: str, expect: float) -> tuple[float, floa
 
 
 def _magnetometer(streams: Sequence[StreamReport], primary: str, is_ap: bool, is_px4: bool) -> tuple[str, list[str]]:
+    if not any(x.present for x in streams):  # nothing to judge by: say nothing about the compass
+        return "unknown: no IMU data received", []
     with_mag = [x for x in streams if x.mag_ut is not None]
     if not with_mag:
         hint = ("COMPASS_ENABLE = 1 and COMPASS_USE = 1 with a calibrated compass" if is_ap else

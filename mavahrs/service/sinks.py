@@ -69,8 +69,10 @@ class TlogSink:
 
     @property
     def state(self) -> str:
-        """``"ok"`` or ``"stopped: <reason>"`` for status lines."""
-        return f"stopped: {self.reason}" if self.stopped else "ok"
+        """``"ok"``, ``"closed"`` (closed and synced as it should be) or ``"stopped: <reason>"`` (an error)."""
+        if not self.stopped:
+            return "ok"
+        return "closed" if self.reason == "closed" else f"stopped: {self.reason}"
 
     def _fail(self, exc: OSError, what: str) -> None:
         self.stopped = True

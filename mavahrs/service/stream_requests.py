@@ -204,7 +204,7 @@ class _Want:
     __slots__ = ("name", "msg_id", "stream_id", "wanted_hz", "rates", "idx", "mode", "accepted_hz",
                  "due_us", "attempts", "requested_us", "detail", "meter", "denied_hz", "probe", "warn",
                  "judge_us", "next_quick_us", "backoff_us", "min_backoff_us", "quick_pending", "established",
-                 "failures", "stuck_warned")  # fmt: skip
+                 "failures", "stuck_warned", "drop_seen_us", "drop_seen_arrivals")  # fmt: skip
 
     def __init__(self, name: str, msg_id: int, stream_id: int, wanted_hz: float, ladder: tuple[float, ...],
                  meter: _Meter, min_backoff_us: int) -> None:  # fmt: skip
@@ -240,6 +240,8 @@ class _Want:
         self.established = False  # delivered at the accepted rate since it was accepted
         self.failures = 0  # quick re-requests in a row that did not restore the rate
         self.stuck_warned = False
+        self.drop_seen_us: int | None = None  # the rate collapsed then: a reset, or a link gone silent?
+        self.drop_seen_arrivals = 0  # arrivals of all wanted messages by then
 
     @property
     def rate_hz(self) -> float:
@@ -258,6 +260,7 @@ class StreamRequester:
         self._drop_grace_us = int(s.drop_grace_s * 1e6)
         self._rerequest_min_us = int(s.rerequest_min_s * 1e6)
         self._foreign_delay_us = int(s.foreign_request_delay_s * 1e6)
+        self._drop_window_us = int(s.drop_window_s * 1e6)
         self._wants: dict[str, _Want] = {}
         self._inflight: _Want | None = None
         self._inflight_us = 0
@@ -522,11 +525,37 @@ class StreamRequester:
             elif w.mode == "data_stream":
                 self._check_slow(w, w.wanted_hz, now_us)
 
+    def _arrivals(self) -> int:
+        return sum(w.meter.total for w in self._wants.values())
+
     def _check_drop(self, w: _Want, expected: float, now_us: int) -> None:
-        """The quick check: re-request at once when the delivered rate collapsed (with back-off)."""
+        """The quick check: re-request at once when the delivered rate collapsed (with back-off).
+
+        A collapse is acted on only once some wanted message has arrived after
+        it: a stream rate reset by another program leaves the link carrying
+        messages, slower; a link that falls silent (the autopilot or simulator
+        stopped, a cable or radio lost) carries none, and asking it again is
+        pointless (the heartbeat timeout reports a lost link).  When messages
+        come back after a silence longer than the drop window, the rate is
+        judged again once the window has refilled.
+        """
         if w.judge_us is None or now_us < w.judge_us:
             return
         got = w.meter.fast.rate(now_us)
+        if got < self.settings.low_rate_fraction * expected:
+            arrivals = self._arrivals()
+            if w.drop_seen_us is None:
+                w.drop_seen_us, w.drop_seen_arrivals = now_us, arrivals
+                return
+            if arrivals == w.drop_seen_arrivals:
+                return  # nothing arrived since: a silent link, not a rate reset
+            silent_us = now_us - w.drop_seen_us
+            w.drop_seen_us = None
+            if silent_us > self._drop_window_us:  # back after a silence: judge once the meter has refilled
+                w.judge_us = now_us + self._drop_window_us
+                return
+        else:
+            w.drop_seen_us = None
         if got >= self.settings.low_rate_fraction * expected:
             if w.stuck_warned:
                 self.notices.info(f"rate-back:{w.name}", f"{w.name} arrives at {got:.0f} Hz again", now_us)

@@ -85,8 +85,12 @@ class UdpTransport:
         return str(name[0]), int(name[1])
 
     def describe(self) -> str:
+        """The endpoint as given; a listening socket bound to port 0 shows the port it got."""
         peer = "" if self.peer is None else f" (peer {self.peer[0]}:{self.peer[1]})"
-        return f"{self.endpoint.text}{peer}"
+        text = self.endpoint.text
+        if self._listen and self._sock is not None and text.endswith(":0"):
+            text = f"{text[:-1]}{self.local_address[1]}"
+        return f"{text}{peer}"
 
     def fileno(self) -> int:
         return self._fds[0] if self._sock is not None else -1

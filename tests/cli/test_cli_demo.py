@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mavahrs.demo import SCENARIOS, DemoSettings, TruthTap, format_summary, score
 from mavahrs.geometry.rotation import from_euler_rad
 from mavahrs.protocol.codec import MavCodec
-from mavahrs.service.demo import SCENARIOS, DemoSettings, TruthTap, format_summary, score
 
 REPO = Path(__file__).resolve().parents[2]
 # The demo flies 5 s (mostly the scenario's hover-in) on a machine shared with other jobs:
@@ -101,8 +101,8 @@ def test_score_against_a_known_tilt_offset() -> None:
 
 
 def test_summary_says_what_the_numbers_mean(tmp_path: Path) -> None:
+    from mavahrs.demo import DemoResult
     from mavahrs.evaluation.metrics import AttitudeErrorSummary
-    from mavahrs.service.demo import DemoResult
 
     s = AttitudeErrorSummary(total_rms_deg=2.0, heading_rms_deg=1.5, inclination_rms_deg=1.2, samples=850)
     result = DemoResult(s, 250.0, 50.0, 1000, 4000, tmp_path / "a.tlog", tmp_path / "a.png", False, 20.0)
@@ -181,6 +181,13 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
     assert math.isfinite(heading) and n >= 50, text  # 2 s scored at 50 Hz
     assert re.search(r"rates: IMU in [12][0-9]{2}\.\d Hz", r.stdout), text  # 250 Hz accepted by the simulated ArduPilot
     assert "meaning:" in r.stdout
+    # the simulator simply stops at the end: no stream-rate warnings about it
+    assert "fell to" not in text and "reset the stream rates" not in text, text
+    # the daemon's own start line names the port the demo says it listens on; the stop line reads well
+    port = re.search(r"daemon: listening on udpin:127\.0\.0\.1:(\d+),", r.stdout)
+    assert port and f"mavahrs running: master udpin:127.0.0.1:{port.group(1)};" in r.stdout, text
+    assert re.search(r"mavahrs stopped \(on request\) after [0-9.]+ s: .* log \d+ frames \(closed\)", r.stdout), text
+    assert len(re.findall(r"magnetic field from", r.stdout)) == 1, text
     tlog, png = outdir / "aggressive.tlog", outdir / "aggressive.png"
     assert f"tlog: {tlog}" in r.stdout and f"plot: {png}" in r.stdout
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

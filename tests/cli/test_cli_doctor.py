@@ -141,3 +141,15 @@ def test_no_autopilot_is_exit_code_3(capsys: pytest.CaptureFixture[str]) -> None
     code, text = _doctor(capsys, "--master", f"udpin:127.0.0.1:{port}", "--duration", "1")
     assert code == 3 and time.monotonic() - t0 < 10
     assert "autopilot: none heard" in text and "nothing received" in text
+
+
+def test_doctor_help_states_the_exit_codes_once(capsys: pytest.CaptureFixture[str]) -> None:
+    from mavahrs.cli import main
+
+    assert main(["doctor", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert out.count("exit codes") == 1 and out.count("130") == 1
+    assert out.endswith(
+        "exit codes: 0 report printed (an autopilot answered), 1 runtime failure, 2 usage error, 3 the link "
+        "cannot be opened or no autopilot HEARTBEAT arrived, 130 interrupted by Ctrl-C"
+    )

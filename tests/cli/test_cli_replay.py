@@ -130,3 +130,108 @@ def test_replay_header_names_the_velocity_source(sim_hover_tlog: Path, capsys: p
     assert line.startswith("velocity: GLOBAL_POSITION_INT, ") and line.endswith(" fixes (velocity_source auto)")
     assert main(["replay", str(sim_hover_tlog), "--velocity-source", "gps"]) == 2
     assert "invalid choice: 'gps'" in capsys.readouterr().err
+
+
+def _err_lines(err: str) -> list[str]:
+    """The messages of the logged lines (after 'HH:MM:SS.mmm LEVEL ')."""
+    return [line.split(" ", 2)[2] for line in err.splitlines() if line[:2].isdigit()]
+
+
+def _write_tlog(path: Path, frames: list[tuple[int, bytes]]) -> Path:
+    from mavahrs.protocol.tlog import tlog_record
+
+    path.write_bytes(b"".join(tlog_record(t, f) for t, f in frames))
+    return path
+
+
+def _no_heartbeat(frames: list[tuple[int, bytes]]) -> list[tuple[int, bytes]]:
+    return [(t, f) for t, f in frames if f[7:10] != b"\x00\x00\x00"]  # MAVLink 2 msgid 0 = HEARTBEAT
+
+
+def test_replay_says_what_is_wrong_with_a_file_that_is_no_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = tmp_path / "passwd"
+    text.write_text("root:x:0:0:root:/root:/bin/bash\ndaemon:x:1:1:daemon:/usr/sbin:/usr/sbin/nologin\n")
+    assert main(["replay", str(text)]) == 1
+    assert main(["replay", str(tmp_path)]) == 2
+    assert [m for m in _err_lines(capsys.readouterr().err) if m.startswith("replay:")] == [
+        f"replay: {text}: no MAVLink messages in this file: expected a telemetry log (.tlog, as MAVProxy, "
+        "QGroundControl, Mission Planner and mavahrs write them)",
+        f"replay: {tmp_path} is a directory: replay takes one .tlog file; for a folder of logs use "
+        "`mavahrs evaluate FOLDER`",
+    ]
+
+
+def test_replay_without_heartbeat_takes_the_only_imu_sender_and_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.warmup import synthetic_frames
+
+    frames = synthetic_frames(3.0)
+    one = _write_tlog(tmp_path / "one.tlog", _no_heartbeat(frames))
+    for engine in ("fast", "pipeline"):
+        assert main(["replay", str(one), "-f", "madgwick", "--engine", engine]) == 0
+        out = capsys.readouterr().out.splitlines()
+        assert out[0] == (
+            f"one.tlog: 600 IMU samples of RAW_IMU (instance 0) from system 1/1 (generic scaling), 3.0 s at "
+            f"200.0 Hz; engine {engine}"
+        )
+        assert out[1] == (
+            "note: no autopilot HEARTBEAT in the log: using the IMU data of system 1, component 1 (its only "
+            "sender), with the generic scaling profile (--source and --profile choose otherwise)"
+        )
+    # a second sender of IMU data: no automatic choice; --source chooses
+    other = MavCodec(2, 1)
+    extra = [(t, other.encode(other.mav.raw_imu_encode(t, 0, 0, -1000, 0, 0, 0, 200, 30, 450, 0, 3500)))
+             for t, _ in frames[::10]]  # fmt: skip
+    two = _write_tlog(tmp_path / "two.tlog", sorted(_no_heartbeat(frames) + extra, key=lambda x: x[0]))
+    assert main(["replay", str(two), "-f", "madgwick"]) == 1
+    assert _err_lines(capsys.readouterr().err)[-1] == (
+        f"replay: {two}: no autopilot HEARTBEAT, and IMU data from several senders (SYSID:COMPID 1:1, "
+        "2:1): choose one with --source SYSID[:COMPID], or source_system/source_component in the config"
+    )
+    assert main(["replay", str(two), "-f", "madgwick", "--source", "1"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("two.tlog: 600 IMU samples of RAW_IMU (instance 0) from system 1/1 (generic scaling)")
+    assert out[1] == (
+        "note: no autopilot HEARTBEAT in the log: using the IMU data of system 1, component 1 (as --source "
+        "asks), with the generic scaling profile (--source and --profile choose otherwise)"
+    )
+    # all said on the command line: nothing to note
+    assert main(["replay", str(two), "-f", "madgwick", "--source", "2:1", "--profile", "ardupilot"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("two.tlog: 67 IMU samples of RAW_IMU (instance 0) from system 2/1 (ardupilot scaling)")
+    assert not any(line.startswith("note: no autopilot HEARTBEAT") for line in out)
+
+
+def test_source_option_rejects_what_is_no_mavlink_id(capsys: pytest.CaptureFixture[str]) -> None:
+    for bad in ("x", "1:2:3", "0", "1:256"):
+        assert main(["replay", "any.tlog", "--source", bad]) == 2
+    err = capsys.readouterr().err
+    assert "argument --source: expected SYSID or SYSID:COMPID, e.g. 1 or 1:1; got 'x'" in err
+    assert "argument --source: MAVLink system and component ids are 1–255; got '1:256'" in err
+
+
+def test_replay_notes_a_hole_in_the_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from mavahrs.warmup import synthetic_frames
+
+    frames = synthetic_frames(10.0)  # records from 1.0 s (Unix time) on: log time = t − 1 s
+    whole = _write_tlog(tmp_path / "whole.tlog", frames)
+    holed = _write_tlog(tmp_path / "holed.tlog", [(t, f) for t, f in frames if not 3_000_000 <= t < 6_000_000])
+    twice = _write_tlog(tmp_path / "twice.tlog", [(t, f) for t, f in frames
+                                                  if not (3_000_000 <= t < 4_000_000 or 7_000_000 <= t < 9_000_000)])
+    for engine in ("fast", "pipeline"):
+        assert main(["replay", str(whole), "-f", "madgwick", "--engine", engine]) == 0
+        assert not any("gap" in line for line in capsys.readouterr().out.splitlines())
+        assert main(["replay", str(holed), "-f", "madgwick", "--engine", engine]) == 0
+        notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note: ")]
+        assert notes == [
+            "note: gap in the IMU data: no samples for 3.0 s, from 2.0 s to 5.0 s of the log; the filters start "
+            "again after it (their re-convergence is in the comparison below)"
+        ]
+    assert main(["replay", str(twice), "-f", "madgwick"]) == 0
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note: ")]
+    assert notes == [
+        "note: 2 gaps in the IMU data, 3.0 s without samples in all: 2.0–3.0 s, 6.0–8.0 s of the log; the "
+        "filters start again after each (their re-convergence is in the comparison below)"
+    ]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -91,6 +92,15 @@ def test_print_config_is_the_effective_toml(tmp_path: Path, capsys: pytest.Captu
     assert tomllib.loads(capsys.readouterr().out)["daemon"]["fast_lane"] is False
 
 
+def test_source_option_sets_the_pipeline_source(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--source", "3:1", "--print-config"]) == EXIT_OK
+    pipeline = tomllib.loads(capsys.readouterr().out)["pipeline"]
+    assert (pipeline["source_system"], pipeline["source_component"]) == (3, 1)
+    assert main(["run", "--source", "7", "--set", "pipeline.source_component=2", "--print-config"]) == EXIT_OK
+    pipeline = tomllib.loads(capsys.readouterr().out)["pipeline"]
+    assert (pipeline["source_system"], pipeline["source_component"]) == (7, 2)
+
+
 @pytest.mark.parametrize(
     ("argv", "code", "needle"),
     [
@@ -122,7 +132,7 @@ def test_busy_port_and_missing_heartbeat_exit_3(capsys: pytest.CaptureFixture[st
         holder.close()
     assert main(["run", *QUICK, "--master", "udpin:127.0.0.1:0", "--heartbeat-timeout", "0.5"]) == EXIT_CONNECTION
     err = capsys.readouterr().err
-    assert "no heartbeat from udpin:127.0.0.1:0 within 0.5 s (nothing received" in err
+    assert re.search(r"no heartbeat from udpin:127\.0\.0\.1:[1-9][0-9]* within 0\.5 s \(nothing received", err), err
     assert "Traceback" not in err
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,9 @@ def test_tune_csv_to_toml(tmp_path: Path, rng: np.random.Generator, capsys: pyte
     cfg = load_run_config(toml)
     np.testing.assert_allclose(cfg.pipeline.calibration.gyro_temperature.k_rad_s_per_c, [4e-4, -3e-4, 2e-4],
                                rtol=0.05)  # fmt: skip
-    assert 0 < cfg.filter.beta_rad_s < 0.01
+    # the default writes flight settings: the temperature model, no bench gains, the default filter
+    assert cfg.pipeline.filter_name == "best" and cfg.filter is None
+    assert "Madgwick gains fitted at rest, NOT written" in toml.read_text()
 
 
 def test_tune_refuses_a_moving_recording(broad_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -54,3 +57,35 @@ def test_tune_a_simulator_tlog(
 
     k = load_run_config(toml).pipeline.calibration.gyro_temperature.k_rad_s_per_c
     np.testing.assert_allclose(k, tempco, rtol=0.10)
+
+
+def test_tune_on_a_rest_log_warns_that_bench_gains_are_not_fit_to_fly(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import subprocess
+    import sys
+    import warnings
+
+    from mavahrs.config import load_run_config
+
+    rest = tmp_path / "rest.tlog"
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--tlog", str(rest), "--fast", "-q", "--scenario", "rest",
+                    "--duration", "30", "--seed", "1"], check=True, timeout=120)  # fmt: skip
+    toml = tmp_path / "bench.toml"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "Mean of empty slice" & co. are bugs here, not output
+        assert main(["tune", str(rest), "-o", str(toml), "--gains", "spec"]) == 0
+    err = capsys.readouterr().err
+    cfg = load_run_config(toml)
+    beta = cfg.filter.beta_rad_s
+    assert 0 < beta < 0.005 and cfg.pipeline.filter_name == "madgwick"
+    minutes = round(math.radians(10.0) / beta / 60)
+    warning = (
+        f"β = {beta:.3g} rad/s (spec) measures the gyro's noise at rest: the filter would take {minutes} min to "
+        "correct a 10° attitude error (flight gain 0.041 rad/s: 4 s). Fine on a bench, not fit to fly with: for "
+        "flight use --gains flight (the default), which keeps this recording's gyro temperature model"
+    )
+    assert f" WARNING {warning}\n" in err
+    assert f"# NOT FIT TO FLY WITH: {warning}." in toml.read_text().splitlines()
+    assert "(spec, NOT fit to fly with); use: mavahrs run --config" in err
+    assert "site-packages" not in err and "RuntimeWarning" not in err

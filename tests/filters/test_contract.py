@@ -7,15 +7,17 @@ margin for filters tuned for real data (BROAD), not only for this case.
 
 from __future__ import annotations
 
-import importlib
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 import mavahrs
 from mavahrs.evaluation.metrics import attitude_errors_rad
-from mavahrs.filters import NAMES, create, filter_class
+from mavahrs.filters import NAMES, create
 from mavahrs.filters.base import make_inputs
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
@@ -40,25 +42,8 @@ from mavahrs.geometry.quaternion import from_axis_angle, multiply
 RATE_HZ = 200.0
 
 
-def _params() -> list[object]:
-    out: list[object] = []
-    for name in NAMES:
-        try:
-            filter_class(name)
-        except ImportError as exc:  # the module is being written by someone else
-            out.append(pytest.param(name, marks=pytest.mark.skip(reason=f"{name} not importable: {exc}")))
-        else:
-            out.append(name)
-    try:
-        importlib.import_module("mavahrs.filters.best")
-    except ImportError as exc:
-        out.append(pytest.param("best", marks=pytest.mark.skip(reason=f"best not importable: {exc}")))
-    else:
-        out.append("best")
-    return out
-
-
-FILTERS = _params()
+#: every registered filter and "best": a filter module that fails to import fails its tests (never a skip)
+FILTERS: list[str] = [*NAMES, "best"]
 
 
 def _flags(out: np.ndarray) -> np.ndarray:
@@ -302,3 +287,20 @@ def test_estimate_equals_batch(name: str, truth_9axis_noisy) -> None:  # type: i
     assert q.shape == (3000, 4)
     batch = create(name).run(make_inputs(tr.gyro_rad_s[sl], tr.accel_m_s2[sl], tr.mag_ut[sl], dt_s=tr.dt_s[sl]))
     np.testing.assert_array_equal(q, batch[:, OUT_Q : OUT_Q + 4])
+
+
+def test_a_filter_module_that_fails_to_import_fails_the_contract(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A broken import of a filter module is a failure of its contract tests, not a skip."""
+    code = (
+        "import sys; sys.modules['mavahrs.filters.mahony'] = None\n"  # import mavahrs.filters.mahony → ImportError
+        "import pytest\n"
+        f"sys.exit(pytest.main([{__file__!r}, '-q', '-n', '0', '-p', 'no:cacheprovider', '-rs',\n"
+        "                      '-k', 'test_bad_dt_is_skipped and mahony']))\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+        env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"},
+    )
+    assert proc.returncode == 1, proc.stdout + proc.stderr  # 1: tests failed (0 would be: skipped)
+    assert "1 failed" in proc.stdout, proc.stdout
+    assert "ImportError" in proc.stdout or "ModuleNotFoundError" in proc.stdout, proc.stdout

@@ -8,6 +8,7 @@ precision (half a unit of the last printed digit).
 
 from __future__ import annotations
 
+import logging
 import math
 from types import SimpleNamespace
 
@@ -311,3 +312,18 @@ def test_model_seeded_reference_rejects_a_disturbance_present_from_the_start() -
     assert filt.settings.schedule.mag_reference_norm_ut == f.strength_ut
     with pytest.raises(ValueError):
         filt.set_mag_reference(-1.0, 0.0)
+
+
+def test_field_is_logged_once_when_a_new_date_changes_it_by_hundredths(caplog: pytest.LogCaptureFixture) -> None:
+    # the daemon starts with today's date; the autopilot's SYSTEM_TIME (a year earlier) moves the
+    # declination at Canberra by ~0.03°: one line, with the value as it reads at 0.1°
+    caplog.set_level(logging.DEBUG, logger="mavahrs.sensors.geomag")
+    src = DeclinationSource(MagneticFieldSettings(), decimal_year=2026.9)
+    assert src.handle(_gpi(-35.3633, 149.1652, 584.0))
+    assert src.set_decimal_year(2025.9)
+    info = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
+    assert info == ["magnetic field from WMM-2025 at -35.3633, 149.1652: declination 12.7°, inclination -66.0°, 58.1 µT"]
+    assert len([r for r in caplog.records if r.levelno == logging.DEBUG and "magnetic field" in r.getMessage()]) == 1
+    # a real change (another place) is logged again
+    assert src.handle(_gpi(47.0, 8.0))
+    assert len([r for r in caplog.records if r.levelno == logging.INFO]) == 2

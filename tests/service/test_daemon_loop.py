@@ -199,9 +199,10 @@ def test_a_flood_is_bounded_and_drops_the_oldest(gcs: socket.socket) -> None:
 
 def test_no_heartbeat_is_a_transport_error_saying_what_arrived(gcs: socket.socket) -> None:
     d = _daemon(gcs, heartbeat_timeout_s=0.3)
+    port = d.master.local_address[1]  # the port udpin:…:0 got: the address to send to
     with pytest.raises(TransportError) as info:
         d.run()
-    assert "no heartbeat from udpin:127.0.0.1:0 within 0.3 s (nothing received" in str(info.value)
+    assert f"no heartbeat from udpin:127.0.0.1:{port} within 0.3 s (nothing received" in str(info.value)
 
     d = _daemon(gcs, heartbeat_timeout_s=0.5)
     port = d.master.local_address[1]
@@ -472,3 +473,30 @@ def test_a_separate_vehicles_own_heartbeat_relayed_back_is_not_the_autopilots(gc
     assert d.pipeline.source == (1, 1)
     assert "other_autopilot_heartbeats" not in d.pipeline.status().counters
 
+
+def test_start_and_stop_lines_read_well(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The start line shows the port a ``udpin:…:0`` master got; the stop line says why and how the log ended."""
+    from mavahrs.service.sinks import TlogSink
+
+    records: list[logging.LogRecord] = []
+    log = logging.getLogger("mavahrs.test.daemon-lines")
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    handler = logging.Handler()
+    handler.emit = records.append  # type: ignore[method-assign]
+    log.addHandler(handler)
+    settings = DaemonSettings(master="udpin:127.0.0.1:0", status_interval_s=0.0)
+    master = open_transport(settings.master)
+    port = master.local_address[1]
+    sink = TlogSink(tmp_path / "d.tlog", 1.0)
+    d = Daemon(settings, FakePipeline(), master, [], sink=sink, logger=log)
+    thread, box = _start(d)
+    time.sleep(0.3)
+    d.stop()
+    thread.join(5)
+    log.removeHandler(handler)
+    assert box["result"].reason == "stopped"
+    lines = [r.getMessage() for r in records]
+    assert lines[0].startswith(f"mavahrs running: master udpin:127.0.0.1:{port}; outputs none; log {tmp_path / 'd.tlog'}")
+    assert lines[-1].startswith("mavahrs stopped (on request) after ")
+    assert lines[-1].endswith(" s: 0 messages in, 0 attitudes out, 0 dropped, log 0 frames (closed)")

@@ -227,3 +227,15 @@ def test_a_ground_station_on_the_link_gets_the_hud_note() -> None:
     assert QGC_NOTE in report.notes
     assert f"note: {QGC_NOTE}" in report.lines()
     assert "also heard: system 255 component 190: ground station" in report.lines()
+
+
+def test_nothing_received_says_so_and_nothing_about_the_compass() -> None:
+    report = diagnose(LinkObserver(), LinkFacts("udpin:0.0.0.0:14550", "udpin", None, 0, 10.0))
+    lines = report.lines()
+    assert "magnetometer: unknown: no IMU data received" in lines
+    assert not any("magnetometer" in r or "compass" in r for r in report.recommendations)
+    assert report.recommendations == [
+        "nothing received in 10 s: check that the autopilot, mavlink-router or MAVProxy sends to this address and "
+        "port (udpin:0.0.0.0:14550; e.g. MAVProxy --out udp:THIS_IP:PORT, mavlink-router [UdpEndpoint] Mode = "
+        "Normal), that no firewall drops it, and that no other program already listens on the port"
+    ]

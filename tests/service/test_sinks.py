@@ -46,6 +46,7 @@ def test_records_reach_the_file_within_the_flush_interval(tmp_path: Path) -> Non
     sink.close()  # flush + fsync
     assert [fr for _, fr in iter_tlog(path)] == frames
     assert sink.frames == 30 and sink.frames_lost == 0
+    assert sink.state == "closed"  # closed as it should be: no "stopped: closed"
     sink.close()  # idempotent
 
 

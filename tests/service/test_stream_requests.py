@@ -276,6 +276,41 @@ def test_a_stream_rate_reset_is_undone_at_once_not_at_the_next_periodic_request(
     assert any("RAW_IMU fell to" in t for _, t in notes)
 
 
+def test_a_link_that_falls_silent_is_no_rate_reset():
+    # the simulator (or autopilot, or radio) stops at 5 s: every stream ends at once, nothing arrives
+    r = started(interval_s=30.0)
+    ap = FakeAutopilot(r)
+    ap.run(0, 5 * S)
+    assert ap.rate_hz == 250.0
+    r.drain_notices()
+    n_before = len(ap.requests())
+    ap.rate_hz = 0.0
+    ap.run(5 * S, 8 * S)
+    assert ap.requests(5 * S) == [] and r.rerequests == 0
+    assert not [t for _, t in r.drain_notices() if "fell to" in t or "arrives at" in t]
+    # it comes back at full rate after 3 s of silence: judged again once the window has refilled, nothing said
+    ap.rate_hz = 250.0
+    ap.run(8 * S, 12 * S)
+    assert len(ap.requests()) == n_before and r.rerequests == 0
+    assert [t for _, t in r.drain_notices() if "fell to" in t or "arrives at" in t] == []
+
+
+def test_a_reset_after_a_silence_is_still_undone():
+    r = started(interval_s=30.0)
+    ap = FakeAutopilot(r, resets=[10 * S])
+    ap.run(0, 5 * S)
+    ap.rate_hz = 0.0
+    ap.run(5 * S, 8 * S)
+    ap.rate_hz = 250.0
+    ap.run(8 * S, 13 * S)
+    after = ap.requests(10 * S)
+    assert after and after[0][1].interval_us == 4000 and after[0][0] - 10 * S <= 850_000
+    assert ap.rate_hz == 250.0 and r.rerequests == 1
+    assert [t for _, t in r.drain_notices() if "fell to" in t] == [
+        "RAW_IMU fell to 4 Hz (250 Hz accepted; another program may have reset the stream rates): requesting it again"
+    ]
+
+
 def test_repeated_resets_are_each_undone_but_no_faster_than_rerequest_min_s():
     r = started(interval_s=10.0, rerequest_min_s=1.0)
     ap = FakeAutopilot(r, resets=[4 * S, 4 * S + 300_000, 4 * S + 700_000, 15 * S])

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
+from mavahrs.demo import TruthTap, _Live
 from mavahrs.geometry.rotation import from_euler_rad
-from mavahrs.service.demo import TruthTap, _Live
 
 
 class _Gcs:

@@ -1,0 +1,55 @@
+"""``mavahrs warm-up``: compile every filter kernel now, so no later command (or flight) waits for it."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from mavahrs.cli.common import EXIT_CODES_HELP, EXIT_OK
+
+__all__ = ["register", "run"]
+
+_DESCRIPTION = """\
+Compile every filter kernel for this machine and cache the result on disk
+(numba; in mavahrs/filters/__pycache__ beside the code, or in NUMBA_CACHE_DIR
+when set).  Without it, the first command that runs a filter compiles what it
+needs then (20–30 s on a PC, longer on a Raspberry Pi) and says so.  Run it
+once after installing or upgrading mavahrs, before a flight, or from a
+systemd unit's ExecStartPre= (contrib/mavahrs.service).  With a warm cache it
+only loads the cached code and returns in a few seconds.
+
+example:
+  mavahrs warm-up
+  NUMBA_CACHE_DIR=/var/cache/mavahrs mavahrs warm-up   # the cache the systemd unit uses
+"""
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "warm-up",
+        help="compile every filter kernel ahead of time (once per machine and version)",
+        description=_DESCRIPTION,
+        epilog=EXIT_CODES_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from mavahrs.filters.jit import HAVE_NUMBA, cache_location, quick_start
+    from mavahrs.warmup import warm_up
+
+    if not HAVE_NUMBA:
+        print("warm-up: numba is not installed: the filters run interpreted (slowly); nothing to compile")
+        return EXIT_OK
+    quick_start()
+    print(f"warm-up: compiling every filter kernel for this machine, cached in {cache_location()} "
+          "(20–30 s the first time, a few seconds when already cached) …", flush=True)
+
+    def done(step: Any) -> None:
+        print(f"  {step.name}: {step.seconds:.1f} s", flush=True)
+
+    steps = warm_up(done)
+    total = sum(s.seconds for s in steps)
+    print(f"warm-up: done in {total:.1f} s; later commands start without compiling")
+    return EXIT_OK

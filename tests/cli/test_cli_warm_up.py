@@ -1,0 +1,70 @@
+"""The first-compile notice and ``mavahrs warm-up``, on an empty numba cache (``NUMBA_CACHE_DIR``).
+
+One cold compile for the whole module (20–30 s): a replay on the empty
+cache compiles what it needs and says so once; ``warm-up`` compiles the
+rest; afterwards no command compiles, and none says it does.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mavahrs.cli.common import COMPILE_NOTICE
+from mavahrs.protocol.tlog import tlog_record
+from mavahrs.warmup import STEPS, synthetic_frames
+
+pytestmark = pytest.mark.slow
+
+
+def _mavahrs(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "mavahrs", *args], env=env, capture_output=True, text=True, timeout=600
+    )
+
+
+def _notices(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if line.endswith(" INFO " + COMPILE_NOTICE)]
+
+
+def test_compile_notice_on_a_cold_cache_only_and_warm_up_compiles_everything(tmp_path: Path) -> None:
+    cache = tmp_path / "numba-cache"
+    cache.mkdir()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    tlog = tmp_path / "rest.tlog"
+    tlog.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames(3.0)))
+
+    cold = _mavahrs(env, "replay", str(tlog), "--filter", "madgwick")
+    assert cold.returncode == 0, cold.stderr
+    assert len(_notices(cold.stderr)) == 1, cold.stderr
+    assert COMPILE_NOTICE == (
+        "preparing the filters: compiling them once for this machine "
+        "(about 20–30 s; later runs start at once; `mavahrs warm-up` does it ahead of time) …"
+    )
+    assert cold.stderr.splitlines()[0].endswith(COMPILE_NOTICE), cold.stderr  # before anything else
+    assert any(cache.iterdir()), "the kernels were cached in NUMBA_CACHE_DIR"
+
+    warm = _mavahrs(env, "warm-up")
+    assert warm.returncode == 0, warm.stderr
+    lines = warm.stdout.splitlines()
+    assert lines[0] == (
+        f"warm-up: compiling every filter kernel for this machine, cached in {cache} "
+        "(20–30 s the first time, a few seconds when already cached) …"
+    )
+    assert [re.sub(r"\d+\.\d s$", "N s", x) for x in lines[1:-1]] == [f"  {s}: N s" for s in STEPS]
+    assert re.fullmatch(r"warm-up: done in \d+\.\d s; later commands start without compiling", lines[-1])
+    assert _notices(warm.stderr) == []
+
+    for args in (
+        ("replay", str(tlog), "--filter", "all", "--csv", str(tmp_path / "out.csv")),
+        ("replay", str(tlog), "--filter", "all", "--engine", "pipeline"),
+        ("tune", str(tlog)),
+    ):
+        again = _mavahrs(env, *args)
+        assert again.returncode == 0, again.stderr
+        assert _notices(again.stderr) == [], (args, again.stderr)
