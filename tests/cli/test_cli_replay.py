@@ -176,7 +176,8 @@ def test_replay_without_heartbeat_takes_the_only_imu_sender_and_says_so(
             f"one.tlog: 600 IMU samples of RAW_IMU (instance 0) from system 1/1 (generic scaling), 3.0 s at "
             f"200.0 Hz; engine {engine}"
         )
-        assert out[1] == (
+        assert out[1] == "velocity: GLOBAL_POSITION_INT, 30 fixes (velocity_source auto)"
+        assert out[2] == (
             "note: no autopilot HEARTBEAT in the log: using the IMU data of system 1, component 1 (its only "
             "sender), with the generic scaling profile (--source and --profile choose otherwise)"
         )
@@ -193,7 +194,8 @@ def test_replay_without_heartbeat_takes_the_only_imu_sender_and_says_so(
     assert main(["replay", str(two), "-f", "madgwick", "--source", "1"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("two.tlog: 600 IMU samples of RAW_IMU (instance 0) from system 1/1 (generic scaling)")
-    assert out[1] == (
+    assert out[1] == "velocity: GLOBAL_POSITION_INT, 30 fixes (velocity_source auto)"
+    assert out[2] == (
         "note: no autopilot HEARTBEAT in the log: using the IMU data of system 1, component 1 (as --source "
         "asks), with the generic scaling profile (--source and --profile choose otherwise)"
     )

@@ -66,7 +66,7 @@ CASES = [
     ("replay-garbage-tlog", ["replay", "{junk}"], EXIT_FAILURE, "junk.tlog"),
     ("replay-empty-tlog", ["replay", "{empty}"], EXIT_FAILURE, "empty.tlog"),
     ("replay-missing-tlog", ["replay", "{missing}"], EXIT_FAILURE, "missing.tlog"),
-    ("replay-a-directory", ["replay", "{dir}"], EXIT_FAILURE, "a_dir"),
+    ("replay-a-directory", ["replay", "{dir}"], EXIT_USAGE, "is a directory"),
     ("evaluate-garbage-tlog", ["evaluate", "{junk}"], EXIT_FAILURE, "junk.tlog"),
     ("calibrate-garbage-tlog", ["calibrate-mag", "{junk}"], EXIT_FAILURE, "junk.tlog"),
 ]
