@@ -449,7 +449,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     state[k + _CLK] += dt
     clk = state[k + _CLK]
     aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
-    if aided and accel_ok:
+    if accel_ok:  # also while not aided: a restart needs the velocity change since a late fix's time
         state[k + _V] += fn * dt
         state[k + _V + 1] += fe * dt
         state[k + _V + 2] += (fd + G_M_S2) * dt
@@ -494,18 +494,24 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         state[k + _PERIOD] = clk - state[k + _LAST_FIX]
     r_h = params[p + _R_VEL_H]
     r_v = params[p + _R_VEL_V]
+    age = row[IN_VEL_AGE]
+    if not (math.isfinite(age) and age > 0.0):
+        age = 0.0
+    t_fix = clk - age + params[p + _DELAY]
     if any_fix and not held:
         if not aided:
+            # the fix was taken ``age`` ago: carry it to now with the INS's own velocity change since
+            vh = state[k + _H : k + _H + 3]
+            if age > 0.0 and _history_velocity(state, k, t_fix, vh):
+                vn += state[k + _V] - vh[0]
+                ve += state[k + _V + 1] - vh[1]
+                vd += state[k + _V + 2] - vh[2]
             _restart_velocity(state, k, vn, ve, vd, r_h, r_v)
             # the first fixes tell the tilt within a second even from far off: let them
             eskf_reopen_attitude(state, k, params, _RESTART_TILT, _RESTART_HEADING)
             state[k + _LAST_FIX] = clk
             state[k + _PERIOD] = 0.0
         else:
-            age = row[IN_VEL_AGE]
-            if not (math.isfinite(age) and age > 0.0):
-                age = 0.0
-            t_fix = clk - age + params[p + _DELAY]
             vh = state[k + _H : k + _H + 3]  # borrow scratch h[0:3] for the historic velocity
             if _history_velocity(state, k, t_fix, vh):
                 y0, y1, y2 = vn - vh[0], ve - vh[1], vd - vh[2]
