@@ -136,22 +136,22 @@ def _sample_by_sample(
     return convert_earth_frame(q, frame, "NED")
 
 
-def vqf_reference() -> Reference:
+def vqf_reference(rate_hz: float = RATE_HZ) -> Reference:
     from vqf import VQF  # bench extra
 
     def run(rows: np.ndarray) -> np.ndarray:
-        v = VQF(1.0 / RATE_HZ)
+        v = VQF(1.0 / rate_hz)
         return _sample_by_sample(rows, v.update, v.getQuat9D, 1.0, 1.0, "ENU")
 
     return run
 
 
-def imufusion_reference() -> Reference:
+def imufusion_reference(rate_hz: float = RATE_HZ) -> Reference:
     import imufusion  # bench extra
 
     def run(rows: np.ndarray) -> np.ndarray:
         ahrs = imufusion.Ahrs()
-        ahrs.set_sample_period(1.0 / RATE_HZ)
+        ahrs.set_sample_period(1.0 / rate_hz)
         return _sample_by_sample(rows, ahrs.update, ahrs.get_quaternion, 180.0 / np.pi, 1.0 / G_M_S2, "NWU")
 
     return run
