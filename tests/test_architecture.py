@@ -28,6 +28,7 @@ RANK = {
     "service": 6,
     "evaluation": 6,
     "replay": 7,
+    "fleet": 7,
     "cli": 8,
     "__main__": 9,
     "__init__": 9,

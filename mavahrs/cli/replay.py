@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run", "settings_from_args"]
 
 HELP = "replay a tlog through the filters (CSV, tlog with ATTITUDE_QUATERNION, plot, QGC stream)"
 
@@ -76,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
         return fail(f"replay: {exc}", 2)
 
 
-def _settings(args: argparse.Namespace) -> Any:
+def settings_from_args(args: argparse.Namespace) -> Any:
+    """ReplaySettings from the options replay and audit share (--filter, --config, --imu, --profile,
+    and where present --out-rate, --start, --end, --engine)."""
     import dataclasses
 
     from mavahrs.evaluation.report import resolve_filter_names
@@ -96,7 +98,9 @@ def _settings(args: argparse.Namespace) -> Any:
             filters = [ps.filter_name]
     else:
         ps = PipelineSettings()
-    changes: dict[str, Any] = {"out_rate_hz": args.out_rate}
+    changes: dict[str, Any] = {}
+    if getattr(args, "out_rate", None) is not None:
+        changes["out_rate_hz"] = args.out_rate
     if args.imu is not None:
         changes["imu"] = args.imu
     if args.profile is not None:
@@ -104,7 +108,8 @@ def _settings(args: argparse.Namespace) -> Any:
     ps = dataclasses.replace(ps, **changes)
     return ReplaySettings(
         filters=tuple(filters), pipeline=ps, filter_settings=filter_settings,
-        start_s=args.start, end_s=args.end, engine=args.engine,
+        start_s=getattr(args, "start", None), end_s=getattr(args, "end", None),
+        engine=getattr(args, "engine", "auto"),
     )  # fmt: skip
 
 
@@ -119,7 +124,7 @@ def _run(args: argparse.Namespace) -> int:
 
     if not Path(args.tlog).is_file():
         raise FileNotFoundError(2, "no such file", args.tlog)
-    settings = _settings(args)
+    settings = settings_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
     result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)
     inp = result.inputs
