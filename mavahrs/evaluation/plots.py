@@ -358,11 +358,13 @@ def plot_fleet(
             y = np.maximum(col("heading_max_deg", sel), floor)
             ax.scatter(x, y, s=18 + 2 * np.nan_to_num(col("duration_s", sel)) ** 0.5 * 4, c=color, alpha=0.7,
                        edgecolors="none", label=f"{label} ({len(sel)})")  # fmt: skip
-    for r in flagged:
+    for k, r in enumerate(flagged[:12]):  # named, stacked so that neighbours stay legible
         t = r.get("first_alarm_s")
-        ax.annotate(f"{Path(str(r['path'])).name}\n@ {t:.1f} s" if t == t else Path(str(r["path"])).name,
+        name = Path(str(r["path"])).name
+        ax.annotate(f"{name} @ {t:.1f} s" if t == t else name,
                     (max(float(r["inclination_max_deg"]), floor), max(float(r["heading_max_deg"]), floor)),
-                    fontsize=7, xytext=(4, 4), textcoords="offset points", color="tab:red")  # fmt: skip
+                    fontsize=7, xytext=(-6, 10 + 11 * k), textcoords="offset points", ha="right", color="tab:red",
+                    arrowprops={"arrowstyle": "-", "color": "tab:red", "lw": 0.5})  # fmt: skip
     ax.axvline(tilt_threshold_deg, color="grey", ls="--", lw=0.8)
     ax.axhline(heading_threshold_deg, color="grey", ls="--", lw=0.8)
     ax.set_xscale("log")
@@ -384,12 +386,21 @@ def plot_fleet(
     ax.set_title("inclination divergence RMS")
     ax.grid(True, alpha=0.25)
     ax = axes[2]
-    vib = np.nanmax(np.vstack([col(f"vibration_{a}_m_s2", good) for a in "xyz"]), axis=0) if good else np.zeros(0)
-    clip = 100.0 * np.fmax(col("gyro_clip_fraction", good), col("accel_clip_fraction", good))
-    ax.scatter(vib, clip, s=18, c="tab:purple", alpha=0.7, edgecolors="none")
+    vib = np.full(len(good), np.nan)
+    for k, r in enumerate(good):
+        v = [float(r[f"vibration_{a}_m_s2"]) for a in "xyz" if r.get(f"vibration_{a}_m_s2") is not None]
+        v = [x for x in v if np.isfinite(x)]
+        vib[k] = max(v) if v else np.nan
+    clipped = np.fmax(col("gyro_clip_fraction", good), col("accel_clip_fraction", good)) > 0
+    fin = np.isfinite(vib)
+    if fin.any():
+        edges = np.linspace(0.0, max(float(vib[fin].max()) * 1.05, 0.1), 25)
+        ax.hist([vib[fin & ~clipped], vib[fin & clipped]], bins=edges, stacked=True, color=["tab:purple", "tab:orange"],
+                label=["no clipping", "clipping"])  # fmt: skip
+        ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("vibration, m/s² RMS (worst axis)")
-    ax.set_ylabel("samples clipped, %")
-    ax.set_title("vibration and clipping")
+    ax.set_ylabel("flights")
+    ax.set_title(f"vibration ({int(clipped.sum())} flights with clipped samples)")
     ax.grid(True, alpha=0.25)
     fig.suptitle(f"fleet audit: {len(rows)} logs, {len(flagged)} flagged, {bad} unreadable")
     fig.tight_layout()

@@ -350,9 +350,11 @@ def _vibration(prep: Any, window_s: float) -> dict[str, float]:
 def expand_logs(items: Sequence[str]) -> list[Path]:
     """Files as given; folders searched recursively for ``*.tlog``; globs (``**`` recursive) expanded.
 
-    Sorted, duplicates removed.  Raises FileNotFoundError for an item that
+    Sorted, duplicates removed.  Raises DataError for an item that
     matches nothing.
     """
+    from mavahrs.errors import DataError
+
     out: dict[str, Path] = {}
     for item in items:
         p = Path(item)
@@ -365,7 +367,7 @@ def expand_logs(items: Sequence[str]) -> list[Path]:
         else:
             found = []
         if not found and not p.is_dir():
-            raise FileNotFoundError(2, "no such log", item)
+            raise DataError(f"{item}: no such log (file, folder or glob)")
         for q in found:
             out.setdefault(str(q.absolute()), q.absolute())
     return [out[k] for k in sorted(out)]
