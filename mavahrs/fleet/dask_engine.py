@@ -85,6 +85,10 @@ class DaskEngine:
         where = f"the cluster at {self.scheduler}" if self.scheduler else "a local Dask cluster"
         return f"{where} ({n} worker{'s' if n != 1 else ''})"
 
+    def on_every_worker(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` once in every worker process (e.g. load the filter kernels before timing)."""
+        self._client.run(fn, *args)
+
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
         """(index, fn(item)) as each task completes; a task's exception is raised here."""
         from dask.distributed import as_completed
