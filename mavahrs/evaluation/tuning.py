@@ -344,6 +344,8 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
     t = np.asarray(t, dtype=np.float64) if t is not None else np.cumsum(np.nan_to_num(dt)) - np.nan_to_num(dt[0])
     temp_raw = rec.extra.get("temperature_c")
     temp = np.asarray(temp_raw, dtype=np.float64) if temp_raw is not None else None
+    if temp is not None and not np.isfinite(temp).any():
+        temp = None  # e.g. PX4's HIGHRES_IMU: no IMU temperature in the log (all NaN)
     if temp is not None:
         ok &= np.isfinite(temp)
     if ok.sum() < 100:

@@ -119,3 +119,12 @@ def test_one_set_of_gains_over_several_recordings(rng: np.random.Generator) -> N
     v1, w1, v2, w2 = (rng.normal(size=(50, 4)) for _ in range(4))
     a, b = least_squares_terms(v1, w1), least_squares_terms(v2, w2)
     assert (a[0] + b[0]) / (a[1] + b[1]) == pytest.approx(least_squares_gain(np.vstack([v1, v2]), np.vstack([w1, w2])))
+
+
+def test_a_temperature_column_without_values_is_no_temperature(rng: np.random.Generator) -> None:
+    """PX4's HIGHRES_IMU carries no IMU temperature: the recording's column is all NaN."""
+    rec = _bench(rng, n_s=60, temperature=False)
+    rec.extra["temperature_c"] = np.full(rec.gyro_rad_s.shape[0], np.nan)
+    r = tune(rec)
+    assert not r.temperature_model and r.samples > 5000
+    assert r.notes[0] == "no temperature in the recording: bias drift fitted against time, no temperature model"
