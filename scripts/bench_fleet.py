@@ -5,8 +5,9 @@ Dask cluster over loopback TCP, and the scaling ratio (issue 18: ≥ 1.8× from 
 The fleet: ``--distinct`` simulated ``hover`` flights of ``--duration`` s (firmware_sim, ArduPilot, RAW_IMU at
 250 Hz, ATTITUDE at 50 Hz; generated once into ``--workdir``), copied to ``--logs`` files — every copy is
 replayed and summarised in full (:func:`mavahrs.fleet.audit.summarise_log`, one Dask task per log).  Each
-engine first replays one log on every worker (the filter kernels load from numba's cache), then the fleet
-``--repeat`` times; the best wall time counts (the machine may be shared).  Cluster start-up is not timed.
+engine is started and replays one log on every worker first (the kernels load from numba's cache); then
+``--repeat`` rounds replay the fleet once on each engine in turn, and each engine's best wall time counts
+(on a shared machine a change of load then hits every engine alike).  Start-up is not timed.
 
 Engines: ``serial`` (this process, no Dask), ``local-1`` and ``local-2`` (a LocalCluster of 1 / 2 worker
 processes, one thread each), ``cluster`` (``dask scheduler`` + two ``dask worker --nworkers 1 --nthreads 1``
@@ -19,6 +20,7 @@ processes on 127.0.0.1, as ``audit --scheduler`` uses them).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import os
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--logs", type=int, default=16, help="logs in the fleet (default 16)")
     ap.add_argument("--distinct", type=int, default=4, help="distinct simulated flights copied to --logs files (4)")
     ap.add_argument("--duration", type=float, default=120.0, help="seconds per flight (default 120)")
-    ap.add_argument("--repeat", type=int, default=2, help="passes per engine, the best counts (default 2)")
+    ap.add_argument("--repeat", type=int, default=2, help="rounds over the engines, the best counts (default 2)")
     ap.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "mavahrs-bench-fleet")
     ap.add_argument("--skip", action="append", default=[], choices=("serial", "local-1", "local-2", "cluster"))
     ap.add_argument("--json", type=Path, help="also write the figures here")
@@ -131,33 +133,40 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet: {len(logs)} logs of {args.duration:g} s in {args.workdir} ({time.perf_counter() - t:.1f} s)",
           flush=True)  # fmt: skip
     results: dict[str, dict[str, float]] = {}
+    from mavahrs.fleet.audit import summarise_log
 
-    def record(name: str, wall: float, samples: int) -> None:
-        results[name] = {"wall_s": wall, "samples": samples, "samples_per_s": samples / wall}
-        print(f"{name:<10} {samples:>10} IMU samples in {wall:6.2f} s: {samples / wall:12.4g} samples/s", flush=True)
-
-    if "serial" not in args.skip:
-        from mavahrs.fleet.audit import summarise_log
-
-        summarise_log(logs[0])  # kernels loaded
-        record("serial", *timed(serial_map, logs, args.repeat))
-    for n in (1, 2):
-        if f"local-{n}" in args.skip:
-            continue
-        with DaskEngine(workers=n) as eng:
+    with contextlib.ExitStack() as stack:
+        # every engine up and warm first, then the passes interleaved round by round: on a shared machine
+        # a change of load then hits every engine alike, not the one that happened to run during it
+        engines: dict[str, object] = {}
+        if "serial" not in args.skip:
+            summarise_log(logs[0])  # kernels loaded
+            engines["serial"] = serial_map
+        for n in (1, 2):
+            if f"local-{n}" not in args.skip:
+                eng = stack.enter_context(DaskEngine(workers=n))
+                warm(eng, logs[0])
+                engines[f"local-{n}"] = eng.map
+        if "cluster" not in args.skip:
+            tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bench-fleet-")))
+            address, procs = start_cluster(tmp)
+            stack.callback(stop, procs)
+            with Client(address, timeout="60s") as c:
+                c.wait_for_workers(2, timeout=120)
+            eng = stack.enter_context(DaskEngine(scheduler=address))
             warm(eng, logs[0])
-            record(f"local-{n}", *timed(eng.map, logs, args.repeat))
-    if "cluster" not in args.skip:
-        with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
-            address, procs = start_cluster(Path(tmp))
-            try:
-                with Client(address, timeout="60s") as c:
-                    c.wait_for_workers(2, timeout=120)
-                with DaskEngine(scheduler=address) as eng:
-                    warm(eng, logs[0])
-                    record("cluster", *timed(eng.map, logs, args.repeat))
-            finally:
-                stop(procs)
+            engines["cluster"] = eng.map
+        best: dict[str, tuple[float, int]] = {}
+        for _ in range(args.repeat):
+            for name, mapper in engines.items():
+                wall, samples = timed(mapper, logs, 1)
+                if name not in best or wall < best[name][0]:
+                    best[name] = (wall, samples)
+        for name in engines:
+            wall, samples = best[name]
+            results[name] = {"wall_s": wall, "samples": samples, "samples_per_s": samples / wall}
+            print(f"{name:<10} {samples:>10} IMU samples in {wall:6.2f} s: {samples / wall:12.4g} samples/s",
+                  flush=True)  # fmt: skip
     one = results.get("local-1", {}).get("samples_per_s")
     if one:
         for name in ("local-2", "cluster"):

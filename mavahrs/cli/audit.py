@@ -37,7 +37,7 @@ so Ctrl-C loses nothing already summarised.
 
 examples:
   mavahrs audit flights/ -o fleet.parquet --plot fleet.png
-  mavahrs audit 'archive/**/2025-*.tlog' -o fleet.csv --scheduler tcp://10.0.0.5:8786
+  mavahrs audit 'archive/**/2025-*.tlog' -o fleet.csv --scheduler tcp://dask-head:8786
   mavahrs audit one.tlog two.tlog --serial"""
 
 

@@ -64,7 +64,7 @@ class DaskEngine:
             self._client = Client(self.scheduler, timeout="60s")
         else:
             self._cluster = LocalCluster(
-                n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                 silence_logs=logging.ERROR,
             )  # fmt: skip
             self._client = Client(self._cluster)
