@@ -25,7 +25,6 @@ import functools
 import json
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -78,40 +77,6 @@ def warm(engine, log: Path) -> None:  # type: ignore[no-untyped-def]
     engine.on_every_worker(summarise_log, log)
 
 
-def start_cluster(tmp: Path) -> tuple[str, list[subprocess.Popen[bytes]]]:
-    procs: list[subprocess.Popen[bytes]] = []
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-    sched = tmp / "scheduler.json"
-
-    def start(*args: str) -> None:
-        procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.DEVNULL, env=env, cwd=tmp))  # fmt: skip
-
-    start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file", str(sched))
-    deadline = time.monotonic() + 60
-    while not sched.exists():
-        if time.monotonic() > deadline or procs[0].poll() is not None:
-            stop(procs)
-            raise SystemExit("bench_fleet: the Dask scheduler did not start")
-        time.sleep(0.1)
-    address = json.loads(sched.read_text())["address"]
-    for k in range(2):
-        start("worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
-              "--local-directory", str(tmp / f"w{k}"))  # fmt: skip
-    return address, procs
-
-
-def stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    for p in reversed(procs):
-        p.terminate()
-    for p in reversed(procs):
-        try:
-            p.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--logs", type=int, default=16, help="logs in the fleet (default 16)")
@@ -123,10 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args(argv)
 
-    from dask.distributed import Client
-
     from mavahrs.fleet.audit import serial_map
-    from mavahrs.fleet.dask_engine import DaskEngine
+    from mavahrs.fleet.dask_engine import DaskEngine, loopback_cluster
 
     t = time.perf_counter()
     logs = make_fleet(args.workdir, args.logs, args.distinct, args.duration)
@@ -149,10 +112,8 @@ def main(argv: list[str] | None = None) -> int:
                 engines[f"local-{n}"] = eng.map
         if "cluster" not in args.skip:
             tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bench-fleet-")))
-            address, procs = start_cluster(tmp)
-            stack.callback(stop, procs)
-            with Client(address, timeout="60s") as c:
-                c.wait_for_workers(2, timeout=120)
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+            address = stack.enter_context(loopback_cluster(tmp, 2, env=env))
             eng = stack.enter_context(DaskEngine(scheduler=address))
             warm(eng, logs[0])
             engines["cluster"] = eng.map

@@ -42,6 +42,8 @@ examples:
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.replay import add_pipeline_options
+
     p: argparse.ArgumentParser = subparsers.add_parser(
         "audit", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -58,10 +60,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--serial", action="store_true", help="no Dask: replay the logs one after the other here")
     p.add_argument("--filter", "-f", dest="filters", action="append", metavar="NAME",
                    help="filter compared with the autopilot (default best)")
-    p.add_argument("--imu", default=None, metavar="N", help="IMU instance: auto, 0, 1 or 2 (default auto)")
-    p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
-                   help="scaling profile (default: from the autopilot's HEARTBEAT)")
-    p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline, monitor and filter settings)")
+    add_pipeline_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p

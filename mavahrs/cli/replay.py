@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-__all__ = ["register", "run", "settings_from_args"]
+__all__ = ["register", "run", "settings_from_args", "add_pipeline_options"]
 
 HELP = "replay a tlog through the filters (CSV, tlog with ATTITUDE_QUATERNION, plot, QGC stream)"
 
@@ -45,10 +45,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="ATTITUDE_QUATERNION rate in the output tlog, Hz of log time; 0 = every sample (default 0)")
     p.add_argument("--start", type=float, metavar="S", help="replay from S seconds after the log's start")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds after the log's start")
-    p.add_argument("--imu", default=None, metavar="N", help="IMU instance: auto, 0, 1 or 2 (default auto)")
-    p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
-                   help="scaling profile (default: from the autopilot's HEARTBEAT)")
-    p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline and filter settings)")
+    add_pipeline_options(p)
     p.add_argument("--engine", default="auto", choices=("auto", "fast", "pipeline"),
                    help="fast: bulk decode + batch filters; pipeline: the daemon's per-message path; "
                    "auto: fast when it can mirror the log (default)")
@@ -74,6 +71,14 @@ def run(args: argparse.Namespace) -> int:
         return fail(f"replay: {exc}", 1)
     except ValueError as exc:
         return fail(f"replay: {exc}", 2)
+
+
+def add_pipeline_options(p: argparse.ArgumentParser) -> None:
+    """--imu, --profile and --config: how the daemon's pipeline reads the log (replay and audit)."""
+    p.add_argument("--imu", default=None, metavar="N", help="IMU instance: auto, 0, 1 or 2 (default auto)")
+    p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
+                   help="scaling profile (default: from the autopilot's HEARTBEAT)")
+    p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline, monitor and filter settings)")
 
 
 def settings_from_args(args: argparse.Namespace) -> Any:

@@ -19,10 +19,15 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable, Iterator, Sequence
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
-__all__ = ["available", "DaskEngine"]
+__all__ = ["available", "DaskEngine", "loopback_cluster"]
 
 #: Connection/heartbeat time-outs while a worker may be compiling kernels.
 _TIMEOUTS = {
@@ -102,3 +107,54 @@ class DaskEngine:
         finally:
             self._client.cancel(futures)
 
+
+
+@contextmanager
+def loopback_cluster(
+    workdir: str | Path, workers: int = 2, *, env: Mapping[str, str] | None = None, timeout_s: float = 120.0
+) -> Iterator[str]:
+    """A Dask scheduler and ``workers`` worker processes (one thread each) on 127.0.0.1, started with the
+    ``dask`` command as one would on a cluster; yields the scheduler's address, stops them all on exit.
+
+    For trying ``--scheduler`` on one machine, the tests and ``scripts/bench_fleet.py``.  ``env`` is the
+    processes' environment (their PYTHONPATH must find mavahrs); their output goes to ``workdir/*.log``.
+    """
+    import json
+
+    from dask.distributed import Client
+
+    work = Path(workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    sched_file = work / "scheduler.json"
+    sched_file.unlink(missing_ok=True)
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start(name: str, *args: str) -> None:
+        with open(work / f"{name}.log", "wb") as log:
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=log, stderr=subprocess.STDOUT,
+                                          env=dict(env) if env is not None else None, cwd=work))  # fmt: skip
+
+    try:
+        start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--scheduler-file", str(sched_file))  # fmt: skip
+        deadline = time.monotonic() + timeout_s
+        while not sched_file.exists():
+            if procs[0].poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the Dask scheduler did not start: {(work / 'scheduler.log').read_text()[-2000:]}")
+            time.sleep(0.1)
+        address = str(json.loads(sched_file.read_text())["address"])
+        for k in range(workers):
+            start(f"worker{k}", "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
+                  "--local-directory", str(work / f"worker{k}"), "--name", f"worker{k}")  # fmt: skip
+        with Client(address, timeout=f"{timeout_s:g}s") as client:
+            client.wait_for_workers(workers, timeout=timeout_s)
+        yield address
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)

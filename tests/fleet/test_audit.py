@@ -8,13 +8,11 @@ random bytes and one empty file.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +32,8 @@ from mavahrs.fleet.audit import (
 from mavahrs.service.monitor import MonitorSettings
 
 pytestmark = pytest.mark.slow
+for _module in ("distributed", "pyarrow"):
+    pytest.importorskip(_module, reason="the fleet extra is not installed: pip install '.[fleet]'")
 
 REPO = Path(__file__).resolve().parents[2]
 N_SIM = 38
@@ -183,51 +183,25 @@ def test_without_dask_audit_runs_serially_and_says_how_to_get_parallelism(fleet,
 
 def test_a_dask_cluster_over_loopback_gives_the_same_rows(fleet, local_run, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1; ``audit --scheduler`` sends them the logs."""
+    import psutil
+
+    from mavahrs.fleet.dask_engine import loopback_cluster
+
     folder, _ = fleet
     _, out = local_run
-    sched_file = tmp_path / "scheduler.json"
-    env = _env()
-    procs: list[subprocess.Popen[bytes]] = []
-    logs = []
-
-    def start(*args: str) -> None:
-        log = open(tmp_path / f"proc{len(procs)}.log", "wb")
-        logs.append(log)
-        procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=log, stderr=subprocess.STDOUT,
-                                      env=env, cwd=tmp_path))  # fmt: skip
-
-    try:
-        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file))
-        deadline = time.monotonic() + 60
-        while not sched_file.exists() and time.monotonic() < deadline:
-            assert procs[0].poll() is None, (tmp_path / "proc0.log").read_text()
-            time.sleep(0.1)
-        address = json.loads(sched_file.read_text())["address"]
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
+    with loopback_cluster(tmp_path / "cluster", 2, env=_env()) as address:
         assert address.startswith("tcp://127.0.0.1:")
-        for k in range(2):
-            start("worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
-                  "--local-directory", str(tmp_path / f"w{k}"), "--name", f"w{k}")  # fmt: skip
-        from dask.distributed import Client
-
-        with Client(address, timeout="60s") as client:
-            client.wait_for_workers(2, timeout=120)
+        daemons = [p for p in psutil.Process().children(recursive=True) if p.pid not in before]
+        assert len(daemons) >= 3  # the scheduler, two workers (and their nannies' children)
         res = _audit(str(folder), "--scheduler", address, "-o", str(tmp_path / "cluster.parquet"))
         assert res.returncode == 0, res.stderr
         assert f"on the cluster at {address} (2 workers)" in res.stdout.splitlines()[0]
         cluster = read_table(tmp_path / "cluster.parquet")
         assert [_fixed(r) for r in cluster] == [_fixed(r) for r in read_table(out / "fleet.parquet")]
         assert len({r.worker for r in cluster}) == 2  # both workers took tasks
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(timeout=10)
-        for log in logs:
-            log.close()
+        assert {r.worker.rsplit(":", 1)[1] for r in cluster} <= {str(p.pid) for p in daemons}
+    assert not [p for p in daemons if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]  # all stopped
 
 
 def test_resumable_table_skips_what_is_summarised_and_survives_an_interruption(fleet, local_run, tmp_path: Path,

@@ -10,6 +10,8 @@ import pytest
 from mavahrs.cli import main
 
 pytestmark = pytest.mark.slow
+for _module in ("distributed", "pyarrow"):
+    pytest.importorskip(_module, reason="the fleet extra is not installed: pip install '.[fleet]'")
 
 
 @pytest.fixture(scope="module")
