@@ -104,15 +104,16 @@ def _run(args: argparse.Namespace) -> int:
     settings = fa.AuditSettings(replay=settings_from_args(args))
     fn = functools.partial(fa.summarise_log, settings=settings)
     scheduler = args.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+    plan = fa.plan_audit(logs, args.output, args.force)
     with ExitStack() as stack:
         mapper: Any = fa.serial_map
-        where = "one process, serially"
-        if not args.serial:
+        where = "one process, serially" if plan.todo else ""
+        if not args.serial and plan.todo:  # (nothing to replay: no cluster to start)
             from mavahrs.fleet import dask_engine
 
             if dask_engine.available():
                 eng = stack.enter_context(dask_engine.DaskEngine(scheduler, args.workers))
-                mapper, where = eng.map, eng.describe()
+                mapper, where = functools.partial(eng.map, on_error=fa.lost_row), eng.describe()
             elif scheduler:
                 raise ValueError("--scheduler needs Dask: pip install 'mavahrs[fleet]'")
             else:
@@ -121,9 +122,9 @@ def _run(args: argparse.Namespace) -> int:
         if not args.no_progress and sys.stderr.isatty():
             from tqdm import tqdm
 
-            bar = stack.enter_context(tqdm(total=len(logs), unit="log", desc="audit", leave=False))
+            bar = stack.enter_context(tqdm(total=len(plan.todo), unit="log", desc="audit", leave=False))
         result = fa.run_audit(
-            logs, fn, mapper, tables=args.output, force=args.force,
+            logs, fn, mapper, tables=args.output, plan=plan,
             on_row=(lambda _row: bar.update(1)) if bar is not None else None,
         )  # fmt: skip
     print(fa.format_summary(result, top=args.top, engine=where))

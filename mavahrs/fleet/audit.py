@@ -43,6 +43,9 @@ __all__ = [
     "write_table",
     "serial_map",
     "AuditRun",
+    "AuditPlan",
+    "plan_audit",
+    "lost_row",
     "run_audit",
     "format_summary",
     "SERIAL_HINT",
@@ -495,24 +498,18 @@ class AuditRun:
         return self.samples / self.wall_s if self.wall_s > 0 else math.nan
 
 
-def run_audit(
-    logs: Sequence[Path],
-    fn: Callable[[Any], FleetRow],
-    mapper: Callable[[Callable[[Any], Any], Sequence[Any]], Iterator[tuple[int, Any]]] = serial_map,
-    *,
-    tables: Sequence[str | Path] = (),
-    force: bool = False,
-    flush_every_s: float = 2.0,
-    on_row: Callable[[FleetRow], None] | None = None,
-) -> AuditRun:
-    """Summarise ``logs`` with ``fn`` (:func:`summarise_log` bound to its settings) through ``mapper``.
+@dataclass
+class AuditPlan:
+    """Which logs a run replays.  known: the rows of the first existing table, by path; done: rows reused
+    (index into the logs → row); todo: indices of the logs to replay."""
 
-    Rows already in the first existing table for the same (path, size,
-    mtime) are reused unless ``force``; every table keeps the rows of other
-    logs it held.  Tables are rewritten at most every ``flush_every_s`` and
-    once more at the end, also on an interruption (KeyboardInterrupt).
-    """
-    t0 = time.perf_counter()
+    known: dict[str, FleetRow]
+    done: dict[int, FleetRow]
+    todo: list[int]
+
+
+def plan_audit(logs: Sequence[Path], tables: Sequence[str | Path] = (), force: bool = False) -> AuditPlan:
+    """Rows already in the first existing table for the same (path, size, mtime) are reused unless ``force``."""
     known: dict[str, FleetRow] = {}
     for t in tables:
         rows = read_table(t)
@@ -528,6 +525,41 @@ def run_audit(
             done[i] = prev
         else:
             todo.append(i)
+    return AuditPlan(known, done, todo)
+
+
+def lost_row(path: str | Path, exc: BaseException) -> FleetRow:
+    """The row of a log whose task failed outside :func:`summarise_log` (e.g. its worker process died)."""
+    p = Path(path).absolute()
+    try:
+        st = p.stat()
+        size, mtime = int(st.st_size), int(st.st_mtime_ns)
+    except OSError:
+        size = mtime = -1
+    return FleetRow(str(p), size, mtime, error=f"the task replaying this log failed: {type(exc).__name__}: {exc}")
+
+
+def run_audit(
+    logs: Sequence[Path],
+    fn: Callable[[Any], FleetRow],
+    mapper: Callable[[Callable[[Any], Any], Sequence[Any]], Iterator[tuple[int, Any]]] = serial_map,
+    *,
+    tables: Sequence[str | Path] = (),
+    force: bool = False,
+    flush_every_s: float = 2.0,
+    on_row: Callable[[FleetRow], None] | None = None,
+    plan: AuditPlan | None = None,
+) -> AuditRun:
+    """Summarise ``logs`` with ``fn`` (:func:`summarise_log` bound to its settings) through ``mapper``.
+
+    What to replay is :func:`plan_audit` (or ``plan``, made by the caller):
+    every table keeps the rows of other logs it held.  Tables are rewritten at
+    most every ``flush_every_s`` and once more at the end, also on an
+    interruption (KeyboardInterrupt).
+    """
+    t0 = time.perf_counter()
+    plan = plan if plan is not None else plan_audit(logs, tables, force)
+    known, done, todo = plan.known, dict(plan.done), plan.todo
     reused = len(done)
     samples = 0
     last = time.monotonic()

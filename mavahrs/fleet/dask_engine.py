@@ -94,15 +94,31 @@ class DaskEngine:
         """Run ``fn(*args)`` once in every worker process (e.g. load the filter kernels before timing)."""
         self._client.run(fn, *args)
 
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
-        """(index, fn(item)) as each task completes; a task's exception is raised here."""
+    def map(
+        self, fn: Callable[[Any], Any], items: Sequence[Any], *,
+        on_error: Callable[[Any, BaseException], Any] | None = None,
+    ) -> Iterator[tuple[int, Any]]:  # fmt: skip
+        """(index, fn(item)) as each task completes.
+
+        A task that failed — ``fn`` raised, or its worker died more often than
+        Dask's ``allowed-failures`` (KilledWorker) — gives ``on_error(item,
+        exception)`` instead, or raises here without ``on_error``.
+        """
         from dask.distributed import as_completed
 
-        futures = self._client.map(fn, list(items), pure=False)
+        items = list(items)
+        futures = self._client.map(fn, items, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut in as_completed(futures):
-                yield index[fut.key], fut.result()
+                i = index[fut.key]
+                try:
+                    result = fut.result()
+                except Exception as exc:  # noqa: BLE001 - handed to on_error: one task never stops the rest
+                    if on_error is None:
+                        raise
+                    result = on_error(items[i], exc)
+                yield i, result
                 fut.release()
         finally:
             self._client.cancel(futures)
