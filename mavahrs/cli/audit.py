@@ -67,19 +67,9 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.cli.common import fail
-    from mavahrs.errors import ConfigError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except BrokenPipeError:
-        raise  # `mavahrs audit … | head`: main() exits quietly
-    except ConfigError as exc:
-        return fail(f"audit: {exc}", 2)
-    except (MavahrsError, OSError) as exc:
-        return fail(f"audit: {exc}", 1)
-    except ValueError as exc:
-        return fail(f"audit: {exc}", 2)
+    return report_errors("audit", _run, args)
 
 
 def _run(args: argparse.Namespace) -> int:

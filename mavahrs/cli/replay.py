@@ -60,17 +60,9 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.cli.common import fail
-    from mavahrs.errors import ConfigError, DataError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except ConfigError as exc:
-        return fail(f"replay: {exc}", 2)
-    except (DataError, MavahrsError, OSError) as exc:
-        return fail(f"replay: {exc}", 1)
-    except ValueError as exc:
-        return fail(f"replay: {exc}", 2)
+    return report_errors("replay", _run, args)
 
 
 def add_pipeline_options(p: argparse.ArgumentParser) -> None:

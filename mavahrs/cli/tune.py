@@ -54,15 +54,9 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.cli.common import fail
-    from mavahrs.errors import DataError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except (DataError, MavahrsError, OSError) as exc:
-        return fail(f"tune: {exc}", 1)
-    except ValueError as exc:
-        return fail(f"tune: {exc}", 2)
+    return report_errors("tune", _run, args)
 
 
 def _run(args: argparse.Namespace) -> int:
