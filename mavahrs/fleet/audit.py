@@ -448,10 +448,11 @@ def read_table(path: str | Path) -> list[FleetRow]:
     """The rows of a table written by :func:`write_table` ([] if it does not exist)."""
     path = Path(path)
     fmt = _table_format(path)
+    if fmt == "parquet":
+        _arrow_schema()  # pyarrow missing: said now, also for a table still to be written
     if not path.exists():
         return []
     if fmt == "parquet":
-        _arrow_schema()
         import pyarrow.parquet as pq
 
         dicts = pq.read_table(path).to_pylist()

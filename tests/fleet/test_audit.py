@@ -179,6 +179,12 @@ def test_without_dask_audit_runs_serially_and_says_how_to_get_parallelism(fleet,
     assert len({r.worker for r in serial}) == 1
     res = _audit(str(folder), "--scheduler", "tcp://127.0.0.1:1", env=env)
     assert res.returncode == 2 and "audit: --scheduler needs Dask: pip install 'mavahrs[fleet]'" in res.stderr
+    # without pyarrow: CSV only, and a Parquet table is refused before anything is replayed
+    (blocker.parent / "pyarrow").mkdir()
+    (blocker.parent / "pyarrow" / "__init__.py").write_text("raise ImportError('pyarrow is not installed here')\n")
+    res = _audit(str(folder), "-o", str(tmp_path / "fleet.parquet"), env=env)
+    assert res.returncode == 2 and res.stdout == ""
+    assert res.stderr.strip().endswith("audit: Parquet needs pyarrow: pip install 'mavahrs[fleet]' (or write a .csv)")
 
 
 def test_a_dask_cluster_over_loopback_gives_the_same_rows(fleet, local_run, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
