@@ -168,6 +168,8 @@ class ReplayResult:
     settings: ReplaySettings
     references: dict[str, tuple[Array, Array]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: the decoded log (:class:`~mavahrs.evaluation.tlogdata.TlogData`): HEARTBEATs, positions … for summaries
+    tlog: TlogData | None = field(default=None, repr=False)
 
     @property
     def engine(self) -> str:
@@ -381,6 +383,7 @@ def replay(
         if sink is not None:
             sink.sync_behind()  # the CSV's last block and fsync go on while the references are read
         result.references = references(td, result.inputs)
+        result.tlog = td
     finally:
         if sink is not None:
             sink.close()

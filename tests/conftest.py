@@ -27,6 +27,7 @@ LIVE_TESTS = (
     "tests/cli/test_cli_run.py",
     "tests/evaluation/test_replay_engines.py",
     "tests/firmware_sim/test_sim_cli.py",
+    "tests/fleet/",
     "tests/firmware_sim/test_sim_live.py",
     "tests/service/test_daemon_e2e.py",
     "tests/service/test_daemon_loop.py",

@@ -31,6 +31,7 @@ RANK = {
     "replay": 7,
     "demo": 7,
     "warmup": 7,
+    "fleet": 7,
     "cli": 8,
     "__main__": 9,
     "__init__": 9,

@@ -30,6 +30,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "demo",
     "doctor",
     "replay",
+    "audit",
     "evaluate",
     "tune",
     "plot",

@@ -40,6 +40,7 @@ __all__ = [
     "LazyDefaultsFormatter",
     "add_logging_options",
     "fail",
+    "report_errors",
     "prefer_small_pages",
     "start_kernels",
     "COMPILE_NOTICE",
@@ -81,6 +82,27 @@ def fail(message: str, code: int = EXIT_FAILURE) -> int:
     """Log ``message`` as one error line and return ``code`` (for ``return fail(...)`` in ``run``)."""
     logging.getLogger(_LOGGER_NAME).error("%s", message)
     return code
+
+
+def report_errors(command: str, run: Any, args: argparse.Namespace) -> int:
+    """``run(args)`` with its errors as one line and the documented exit code.
+
+    ConfigError and ValueError (bad options, settings) → 2; DataError, any
+    other MavahrsError and OSError (unreadable input, missing file) → 1; a
+    broken pipe (``mavahrs … | head``) is left to ``main``, which exits quietly.
+    """
+    from mavahrs.errors import ConfigError, MavahrsError
+
+    try:
+        return int(run(args))
+    except BrokenPipeError:
+        raise
+    except ConfigError as exc:
+        return fail(f"{command}: {exc}", EXIT_USAGE)
+    except (MavahrsError, OSError) as exc:
+        return fail(f"{command}: {exc}", EXIT_FAILURE)
+    except ValueError as exc:
+        return fail(f"{command}: {exc}", EXIT_USAGE)
 
 
 def prefer_small_pages() -> None:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run", "settings_from_args", "add_pipeline_options"]
 
 HELP = "replay a tlog through the filters (CSV, tlog with ATTITUDE_QUATERNION, plot, QGC stream)"
 
@@ -47,12 +47,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="ATTITUDE_QUATERNION rate in the output tlog, Hz of log time; 0 = every sample (default 0)")
     p.add_argument("--start", type=float, metavar="S", help="replay from S seconds after the log's start")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds after the log's start")
-    p.add_argument("--imu", default=None, metavar="N", help="IMU instance: auto, 0, 1 or 2 (default auto)")
-    add_velocity_source_option(p, default_text="auto, or the --config file's")
-    p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
-                   help="scaling profile (default: from the autopilot's HEARTBEAT)")
-    add_source_option(p)
-    p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline and filter settings)")
+    add_pipeline_options(p)
     p.add_argument("--engine", default="auto", choices=("auto", "fast", "pipeline"),
                    help="fast: bulk decode + batch filters; pipeline: the daemon's per-message path; "
                    "auto: fast when it can mirror the log (default)")
@@ -67,20 +62,27 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.cli.common import fail
-    from mavahrs.errors import ConfigError, DataError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except ConfigError as exc:
-        return fail(f"replay: {exc}", 2)
-    except (DataError, MavahrsError, OSError) as exc:
-        return fail(f"replay: {exc}", 1)
-    except ValueError as exc:
-        return fail(f"replay: {exc}", 2)
+    return report_errors("replay", _run, args)
 
 
-def _settings(args: argparse.Namespace) -> Any:
+def add_pipeline_options(p: argparse.ArgumentParser) -> None:
+    """--imu, --velocity-source, --profile, --source and --config: how the daemon's pipeline reads the log
+    (replay and audit)."""
+    from mavahrs.cli.common import add_source_option, add_velocity_source_option
+
+    p.add_argument("--imu", default=None, metavar="N", help="IMU instance: auto, 0, 1 or 2 (default auto)")
+    add_velocity_source_option(p, default_text="auto, or the --config file's")
+    p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
+                   help="scaling profile (default: from the autopilot's HEARTBEAT)")
+    add_source_option(p)
+    p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline, monitor and filter settings)")
+
+
+def settings_from_args(args: argparse.Namespace) -> Any:
+    """ReplaySettings from the options replay and audit share (--filter, --config, --imu, --profile,
+    --velocity-source, --source, and where present --out-rate, --start, --end, --engine)."""
     import dataclasses
 
     from mavahrs.evaluation.report import resolve_filter_names
@@ -100,7 +102,9 @@ def _settings(args: argparse.Namespace) -> Any:
             filters = [ps.filter_name]
     else:
         ps = PipelineSettings()
-    changes: dict[str, Any] = {"out_rate_hz": args.out_rate}
+    changes: dict[str, Any] = {}
+    if getattr(args, "out_rate", None) is not None:
+        changes["out_rate_hz"] = args.out_rate
     if args.imu is not None:
         changes["imu"] = args.imu
     if args.profile is not None:
@@ -112,7 +116,8 @@ def _settings(args: argparse.Namespace) -> Any:
     ps = dataclasses.replace(ps, **changes)
     return ReplaySettings(
         filters=tuple(filters), pipeline=ps, filter_settings=filter_settings,
-        start_s=args.start, end_s=args.end, engine=args.engine,
+        start_s=getattr(args, "start", None), end_s=getattr(args, "end", None),
+        engine=getattr(args, "engine", "auto"),
     )  # fmt: skip
 
 
@@ -130,7 +135,7 @@ def _run(args: argparse.Namespace) -> int:
                          "for a folder of logs use `mavahrs evaluate FOLDER`")  # fmt: skip
     if not Path(args.tlog).is_file():
         raise FileNotFoundError(2, "no such file", args.tlog)
-    settings = _settings(args)
+    settings = settings_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
     result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)
     inp = result.inputs

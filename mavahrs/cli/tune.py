@@ -23,7 +23,15 @@ change, e.g. a warm-up after power-on):
 
 INPUT is a tlog (the daemon's scaling and timing) or a CSV with the columns in
 docs/evaluation.md (time_s, gyro_*_rad_s, accel_*_m_s2, optional mag_*_ut and
-temperature_c).  Writes a TOML file `mavahrs run --config` reads."""
+temperature_c).  Writes a TOML file `mavahrs run --config` reads.
+
+Several INPUTs (e.g. an airframe's last hundred flights with the simulator's
+or a reference's rates, or its pre-flight rests) give one set of gains over
+all of them: the least-squares terms tr(V'W) and tr(V'V) of every recording
+are summed before the ratio, the noise figures averaged by samples; no
+temperature model is combined (the gyro bias differs per power-up).  With
+--dask (or --scheduler) each recording is one Dask task: the fleet extra,
+pip install 'mavahrs[fleet]'."""
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
@@ -32,7 +40,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "tune", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("input", metavar="STATIONARY", help="tlog or CSV recorded at rest")
+    p.add_argument("inputs", nargs="+", metavar="STATIONARY", help="tlog or CSV recorded at rest (one or more)")
     p.add_argument("--output", "-o", metavar="TOML", help="write the settings file here (default: print only)")
     p.add_argument("--gains", choices=("flight", "spec", "ls"), default="flight",
                    help="flight: write no gains (the default filter keeps its flight gains), only the gyro "
@@ -43,44 +51,45 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds")
     p.add_argument("--json", action="store_true", help="print the fitted figures as JSON")
     add_source_option(p)
+    p.add_argument("--dask", action="store_true", help="several inputs: one Dask task each on a local cluster")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="… or on an existing Dask cluster (tcp://HOST:8786)")
+    p.add_argument("--workers", type=int, metavar="N", help="local cluster: worker processes (default: one per core)")
     p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.cli.common import fail
-    from mavahrs.errors import DataError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except (DataError, MavahrsError, OSError) as exc:
-        return fail(f"tune: {exc}", 1)
-    except ValueError as exc:
-        return fail(f"tune: {exc}", 2)
+    return report_errors("tune", _run, args)
 
 
 def _run(args: argparse.Namespace) -> int:
+    import functools
     import json
     from pathlib import Path
 
     from mavahrs.cli.common import prefer_small_pages, start_kernels
-    from mavahrs.evaluation.loaders import load_one
-    from mavahrs.evaluation.tlogdata import cut_recording
-    from mavahrs.evaluation.tuning import tune
+    from mavahrs.evaluation.tuning import combine, tune_file
 
     prefer_small_pages()
     start_kernels()
-    path = Path(args.input)
-    if not path.is_file():
-        raise FileNotFoundError(2, "no such file", str(path))
-    if path.suffix.lower() == ".tlog":
-        from mavahrs.evaluation.tlogdata import load_tlog_recording
+    paths = [Path(p) for p in args.inputs]
+    for path in paths:
+        if not path.is_file():
+            raise FileNotFoundError(2, "no such file", str(path))
+    fn = functools.partial(tune_file, imu=args.imu, start_s=args.start, end_s=args.end, source=args.source)
+    if len(paths) > 1 and (args.dask or args.scheduler):
+        from mavahrs.fleet.dask_engine import DaskEngine, available
 
-        rec = load_tlog_recording(path, imu=args.imu, reference=False, source=args.source)
+        if not available():
+            raise ValueError("--dask needs Dask: pip install 'mavahrs[fleet]'")
+        with DaskEngine(args.scheduler, args.workers) as eng:
+            done = dict(eng.map(fn, paths))
+        results = [done[i] for i in range(len(paths))]
     else:
-        rec = load_one(path)
-    rec = cut_recording(rec, args.start, args.end)
-    result = tune(rec)
+        results = [fn(p) for p in paths]
+    result = combine(results, name=paths[0].name if len(paths) == 1 else f"{len(paths)} recordings")
     if args.json:
         print(json.dumps(result.to_dict(), indent=2, default=float))
     else:

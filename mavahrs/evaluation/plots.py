@@ -27,7 +27,7 @@ from mavahrs.filters.layout import OUT_ACCEL_WEIGHT, OUT_GAIN, OUT_MAG_WEIGHT, O
 if TYPE_CHECKING:  # pragma: no cover
     from mavahrs.evaluation.studies import StudyResult
 
-__all__ = ["plot_attitude", "plot_study", "PlotError"]
+__all__ = ["plot_attitude", "plot_study", "plot_fleet", "PlotError"]
 
 Array = NDArray[np.float64]
 ANGLES = ("roll", "pitch", "yaw")
@@ -344,5 +344,87 @@ def _plot_comparison(result: StudyResult, path: str | Path) -> Path:
         for j in range(len(names)):
             axes[2 * k + 1, j].set_ylim(lo, hi)
     fig.suptitle(result.title, fontsize=11)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_fleet(
+    path: str | Path,
+    rows: list[Mapping[str, Any]],
+    *,
+    tilt_threshold_deg: float = 10.0,
+    heading_threshold_deg: float = 25.0,
+) -> Path:
+    """The fleet overview of ``mavahrs audit``: one point per flight.
+
+    Left, each flight's largest inclination vs heading divergence from the
+    autopilot's own attitude (log scales, the monitor's thresholds dashed),
+    flights the monitor flagged in red and named; middle, the distribution of
+    the inclination RMS; right, vibration vs clipping.  ``rows`` are
+    :class:`mavahrs.fleet.audit.FleetRow` fields as mappings.
+    """
+    plt = _pyplot()
+
+    def col(name: str, sel: list[Mapping[str, Any]]) -> Array:
+        return np.array([np.nan if r.get(name) is None else float(r[name]) for r in sel], dtype=float)
+
+    good = [r for r in rows if not r.get("error")]
+    bad = len(rows) - len(good)
+    flagged = [r for r in good if r.get("alarms")]
+    clean = [r for r in good if not r.get("alarms")]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5), gridspec_kw={"width_ratios": [1.4, 1.0, 1.0]})
+    ax = axes[0]
+    floor = 0.05  # deg: divergences below this are drawn on the axis
+    for sel, color, label in ((clean, "tab:blue", "agrees"), (flagged, "tab:red", "monitor WARNING")):
+        if sel:
+            x = np.maximum(col("inclination_max_deg", sel), floor)
+            y = np.maximum(col("heading_max_deg", sel), floor)
+            ax.scatter(x, y, s=18 + 2 * np.nan_to_num(col("duration_s", sel)) ** 0.5 * 4, c=color, alpha=0.7,
+                       edgecolors="none", label=f"{label} ({len(sel)})")  # fmt: skip
+    for k, r in enumerate(flagged[:12]):  # named, stacked so that neighbours stay legible
+        t = r.get("first_alarm_s")
+        name = Path(str(r["path"])).name
+        ax.annotate(f"{name} @ {t:.1f} s" if t == t else name,
+                    (max(float(r["inclination_max_deg"]), floor), max(float(r["heading_max_deg"]), floor)),
+                    fontsize=7, xytext=(-6, 10 + 11 * k), textcoords="offset points", ha="right", color="tab:red",
+                    arrowprops={"arrowstyle": "-", "color": "tab:red", "lw": 0.5})  # fmt: skip
+    ax.axvline(tilt_threshold_deg, color="grey", ls="--", lw=0.8)
+    ax.axhline(heading_threshold_deg, color="grey", ls="--", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("largest inclination divergence, deg")
+    ax.set_ylabel("largest heading divergence, deg")
+    ax.set_title("mavahrs vs the autopilot's attitude, per flight")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(True, which="both", alpha=0.25)
+    ax = axes[1]
+    incl = col("inclination_rms_deg", good)
+    incl = incl[np.isfinite(incl)]
+    if incl.size:
+        edges = np.linspace(0.0, max(float(incl.max()) * 1.05, 1.0), 25)
+        ax.hist([col("inclination_rms_deg", clean), col("inclination_rms_deg", flagged)], bins=edges, stacked=True,
+                color=["tab:blue", "tab:red"], label=["agrees", "WARNING"])  # fmt: skip
+    ax.set_xlabel("inclination divergence RMS, deg")
+    ax.set_ylabel("flights")
+    ax.set_title("inclination divergence RMS")
+    ax.grid(True, alpha=0.25)
+    ax = axes[2]
+    vib = np.full(len(good), np.nan)
+    for k, r in enumerate(good):
+        v = [float(r[f"vibration_{a}_m_s2"]) for a in "xyz" if r.get(f"vibration_{a}_m_s2") is not None]
+        v = [x for x in v if np.isfinite(x)]
+        vib[k] = max(v) if v else np.nan
+    clipped = np.fmax(col("gyro_clip_fraction", good), col("accel_clip_fraction", good)) > 0
+    fin = np.isfinite(vib)
+    if fin.any():
+        edges = np.linspace(0.0, max(float(vib[fin].max()) * 1.05, 0.1), 25)
+        ax.hist([vib[fin & ~clipped], vib[fin & clipped]], bins=edges, stacked=True, color=["tab:purple", "tab:orange"],
+                label=["no clipping", "clipping"])  # fmt: skip
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_xlabel("vibration, m/s² RMS (worst axis)")
+    ax.set_ylabel("flights")
+    ax.set_title(f"vibration ({int(clipped.sum())} flights with clipped samples)")
+    ax.grid(True, alpha=0.25)
+    fig.suptitle(f"fleet audit: {len(rows)} logs, {len(flagged)} flagged, {bad} unreadable")
     fig.tight_layout()
     return _save(fig, path)

@@ -60,7 +60,7 @@ from mavahrs.evaluation.datasets import Recording
 from mavahrs.geometry.quaternion import conjugate, from_rotation_vector, multiply
 from mavahrs.geometry.rotation import from_matrix
 
-__all__ = ["TuneSettings", "TuneResult", "tune", "least_squares_gain", "SPEC_FACTOR"]
+__all__ = ["TuneSettings", "TuneResult", "tune", "tune_file", "combine", "least_squares_gain", "least_squares_terms", "SPEC_FACTOR"]
 
 Array = NDArray[np.float64]
 
@@ -121,6 +121,9 @@ class TuneResult:
     zeta_ls: float
     dropped_samples: int
     notes: list[str] = field(default_factory=list)
+    #: (tr(VᵀW), tr(VᵀV)) of the β and ζ least-squares fits: they add up over recordings (:func:`combine`)
+    beta_ls_terms: tuple[float, float] = (math.nan, math.nan)
+    zeta_ls_terms: tuple[float, float] = (math.nan, math.nan)
 
     def format(self) -> str:
         d3 = np.degrees
@@ -287,14 +290,22 @@ def _toml_vec(v: Any) -> str:
     return "[" + ", ".join(f"{float(x):.9g}" for x in v) + "]"
 
 
-def least_squares_gain(v: Array, w: Array) -> float:
-    """The scalar μ minimising Σ‖μ·v_t − w_t‖²: ``tr(VᵀW)/tr(VᵀV)`` (004, eq. (5))."""
+def least_squares_terms(v: Array, w: Array) -> tuple[float, float]:
+    """``(tr(VᵀW), tr(VᵀV))``: the sums whose ratio is the least-squares gain; over several
+    recordings the sums add up (one gain fitting all their samples)."""
     v = np.asarray(v, dtype=np.float64)
     w = np.asarray(w, dtype=np.float64)
-    den = float(np.sum(v * v))  # tr(VᵀV)
-    if den <= 0:
-        return float("nan")
-    return float(np.sum(v * w)) / den  # tr(VᵀW)
+    return float(np.sum(v * w)), float(np.sum(v * v))
+
+
+def _ratio(terms: tuple[float, float]) -> float:
+    num, den = terms
+    return num / den if den > 0 else float("nan")
+
+
+def least_squares_gain(v: Array, w: Array) -> float:
+    """The scalar μ minimising Σ‖μ·v_t − w_t‖²: ``tr(VᵀW)/tr(VᵀV)`` (004, eq. (5))."""
+    return _ratio(least_squares_terms(v, w))
 
 
 # --------------------------------------------------------------------------- Madgwick objective
@@ -410,6 +421,8 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
     t = np.asarray(t, dtype=np.float64) if t is not None else np.cumsum(np.nan_to_num(dt)) - np.nan_to_num(dt[0])
     temp_raw = rec.extra.get("temperature_c")
     temp = np.asarray(temp_raw, dtype=np.float64) if temp_raw is not None else None
+    if temp is not None and not np.isfinite(temp).any():
+        temp = None  # e.g. PX4's HIGHRES_IMU: no IMU temperature in the log (all NaN)
     if temp is not None:
         ok &= np.isfinite(temp)
     if ok.sum() < 100:
@@ -503,7 +516,8 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
     zeros = np.zeros((sel.size, 1))
     w_beta = 0.5 * multiply(q_rest, np.hstack([zeros, theta]))  # eq. (2): ½ q ⊗ [0, ϑ]
     v_beta = perturbed_gradient(theta)
-    beta_ls = least_squares_gain(v_beta, w_beta)
+    beta_terms = least_squares_terms(v_beta, w_beta)
+    beta_ls = _ratio(beta_terms)
 
     # ζ: A_t = α(T_t) − α(T_start), its uncorrected integral sets the gradient direction
     order = np.flatnonzero(keep)
@@ -515,7 +529,8 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
     v_z = perturbed_gradient(err[sub])
     omega_eps = 2.0 * multiply(conjugate(q_rest), v_z)[:, 1:]  # eq. (47)
     u_t = np.cumsum(omega_eps * (dtk[sub] * step)[:, None], axis=0)  # eq. (48) without ζ
-    zeta_ls = least_squares_gain(u_t, a_t[sub]) if np.any(a_t) else 0.0
+    zeta_terms = least_squares_terms(u_t, a_t[sub]) if np.any(a_t) else (0.0, 0.0)
+    zeta_ls = _ratio(zeta_terms) if np.any(a_t) else 0.0
 
     dur = float(t[ok][-1] - t[ok][0])
     return TuneResult(
@@ -543,4 +558,85 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
         zeta_ls=float(zeta_ls),
         dropped_samples=dropped,
         notes=notes,
+        beta_ls_terms=beta_terms,
+        zeta_ls_terms=zeta_terms,
+    )
+
+
+def tune_file(
+    path: Any, *, imu: str = "auto", start_s: float | None = None, end_s: float | None = None,
+    settings: TuneSettings | None = None, source: tuple[int, int | None] | None = None,
+) -> TuneResult:
+    """:func:`tune` on a tlog (the daemon's scaling and timing) or a CSV, cut to ``start_s``…``end_s``.
+
+    ``source`` = (system, component or None): a tlog's IMU data from that sender only (``--source``).
+
+    One task of a multi-recording fit (a module-level function: Dask sends it to its workers).
+    """
+    from pathlib import Path
+
+    from mavahrs.evaluation.loaders import load_one
+    from mavahrs.evaluation.tlogdata import cut_recording, load_tlog_recording
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(2, "no such file", str(p))
+    rec = load_tlog_recording(p, imu=imu, reference=False, source=source) if p.suffix.lower() == ".tlog" else load_one(p)
+    return tune(cut_recording(rec, start_s, end_s), settings)
+
+
+def combine(results: list[TuneResult], name: str = "") -> TuneResult:
+    """One set of gains over several recordings (e.g. an airframe's last flights).
+
+    The least-squares gains fit all the recordings' samples at once: their
+    terms ``tr(VᵀW)`` and ``tr(VᵀV)`` are summed before the ratio (004,
+    eq. (5)).  The spec-formula gains use the noise figures averaged with the
+    samples as weights (ω̃_ζ as an RMS).  The gyro bias is per power-up, so no
+    temperature model is combined: its per-recording fits are in each result.
+    """
+    if not results:
+        raise DataError("no recordings to tune over")
+    if len(results) == 1:
+        return results[0]
+    w = np.array([r.samples for r in results], dtype=np.float64)
+    w /= w.sum()
+
+    def mean3(attr: str) -> tuple[float, float, float]:
+        return tuple(float(v) for v in np.average([getattr(r, attr) for r in results], axis=0, weights=w))  # type: ignore[return-value]
+
+    beta_terms = (sum(r.beta_ls_terms[0] for r in results), sum(r.beta_ls_terms[1] for r in results))
+    zeta_terms = (sum(r.zeta_ls_terms[0] for r in results), sum(r.zeta_ls_terms[1] for r in results))
+    omega_beta = float(np.average([r.omega_beta_rad_s for r in results], weights=w))
+    omega_zeta = float(np.sqrt(np.average([r.omega_zeta_rad_s2**2 for r in results], weights=w)))
+    dur = sum(r.duration_s for r in results)
+    samples = sum(r.samples for r in results)
+    variances = np.average([np.square(r.noise_sd_rad_s) for r in results], axis=0, weights=w)
+    notes = [f"one set of gains over {len(results)} recordings ({', '.join(r.name for r in results)}): least-squares "
+             "terms summed, noise figures averaged by samples; no temperature model (the bias differs per power-up)"]
+    return TuneResult(
+        name=name or f"{len(results)} recordings",
+        samples=samples,
+        duration_s=dur,
+        rate_hz=float(np.average([r.rate_hz for r in results], weights=w)),
+        axes=min(r.axes for r in results),
+        temperature_model=False,
+        t0_c=math.nan,
+        temperature_range_c=(min(r.temperature_range_c[0] for r in results),
+                             max(r.temperature_range_c[1] for r in results)),
+        b0_rad_s=mean3("b0_rad_s"),
+        k_rad_s_per_c=(0.0, 0.0, 0.0),
+        drift_rad_s2=mean3("drift_rad_s2"),
+        noise_sd_rad_s=tuple(float(v) for v in np.sqrt(variances)),  # type: ignore[arg-type]
+        noise_mean_abs_rad_s=mean3("noise_mean_abs_rad_s"),
+        omega_beta_rad_s=omega_beta,
+        omega_zeta_rad_s2=omega_zeta,
+        temperature_rate_c_s=float(np.average([r.temperature_rate_c_s for r in results], weights=w)),
+        beta_spec=SPEC_FACTOR * omega_beta,
+        zeta_spec=SPEC_FACTOR * omega_zeta,
+        beta_ls=_ratio(beta_terms),
+        zeta_ls=_ratio(zeta_terms) if zeta_terms[1] > 0 else 0.0,
+        dropped_samples=sum(r.dropped_samples for r in results),
+        notes=notes,
+        beta_ls_terms=beta_terms,
+        zeta_ls_terms=zeta_terms,
     )

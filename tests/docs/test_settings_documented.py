@@ -31,6 +31,8 @@ SETTINGS = [
     ("mavahrs.sensors.scaling", "ScalingSettings"),
     ("mavahrs.sensors.imu_select", "ImuSelectSettings"),
     ("mavahrs.protocol.timeline", "TimelineSettings"),
+    ("mavahrs.fleet.audit", "AuditSettings"),
+    ("mavahrs.fleet.audit", "FleetRow"),  # the audit table's columns
 ]
 
 

@@ -1,0 +1,127 @@
+"""``mavahrs audit``: replay a fleet's logs as the daemon would, one summary row per flight."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+__all__ = ["register", "run"]
+
+HELP = "replay many tlogs (files, folders, globs) and summarise each flight in one row (Parquet/CSV)"
+
+DESCRIPTION = """\
+Replay every log with the daemon's own decoding, scaling, IMU selection and
+filter (exactly as `mavahrs replay`), and summarise each flight in one row:
+vehicle (system id, autopilot, type), start time, duration, IMU message and
+rate, GNSS, mavahrs vs the log's own ATTITUDE (or AHRS2) -- RMS and maximum
+of the inclination and heading divergence, the second-opinion monitor's
+WARNINGs and their times (autopilot boot clock) --, gyro/accelerometer
+clipping, vibration, replay notes (reboots, gaps, low rate), and an error for a
+log that cannot be read (one bad log never stops the batch).  Prints the
+worst flights first.
+
+LOGS are files, folders (searched recursively for *.tlog) and globs
+(quote them; ** is recursive).
+
+Engine: Dask (the fleet extra, pip install 'mavahrs[fleet]'): by default a
+local cluster, one worker process per core; --scheduler tcp://HOST:8786 (or
+DASK_SCHEDULER_ADDRESS) sends the same tasks, one per log, to an existing
+cluster whose workers can import mavahrs and read the paths.  Without Dask
+(or with --serial) the logs are replayed one after the other.
+
+--output fleet.parquet (or .csv; repeatable) is resumable: logs already in it
+with the same path, size and modification time are not replayed again unless
+--force.  The table is replaced atomically every few seconds and at the end,
+so Ctrl-C loses nothing already summarised.
+
+examples:
+  mavahrs audit flights/ -o fleet.parquet --plot fleet.png
+  mavahrs audit 'archive/**/2025-*.tlog' -o fleet.csv --scheduler tcp://dask-head:8786
+  mavahrs audit one.tlog two.tlog --serial"""
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.replay import add_pipeline_options
+
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "audit", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("logs", nargs="+", metavar="LOGS", help="tlog files, folders, globs")
+    p.add_argument("--output", "-o", action="append", default=[], metavar="TABLE",
+                   help="write the rows to TABLE.parquet or TABLE.csv (repeatable); resumable")
+    p.add_argument("--force", action="store_true", help="replay logs already summarised in --output")
+    p.add_argument("--plot", metavar="PNG", help="draw the fleet overview (needs matplotlib)")
+    p.add_argument("--top", type=int, default=10, metavar="N", help="flights listed in the summary (default 10)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="an existing Dask scheduler, e.g. tcp://HOST:8786 (default: DASK_SCHEDULER_ADDRESS, "
+                        "else a local cluster)")  # fmt: skip
+    p.add_argument("--workers", type=int, metavar="N", help="local cluster: worker processes (default: one per core)")
+    p.add_argument("--serial", action="store_true", help="no Dask: replay the logs one after the other here")
+    p.add_argument("--filter", "-f", dest="filters", action="append", metavar="NAME",
+                   help="filter compared with the autopilot (default best)")
+    add_pipeline_options(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from mavahrs.cli.common import report_errors
+
+    return report_errors("audit", _run, args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    import functools
+    import logging
+    import os
+    from contextlib import ExitStack
+
+    from mavahrs.cli.common import prefer_small_pages, start_kernels
+    from mavahrs.cli.replay import settings_from_args
+    from mavahrs.fleet import audit as fa
+
+    prefer_small_pages()
+    start_kernels()
+    if not getattr(args, "verbose", 0):  # per-log INFO lines (magnetic model …) are noise over a fleet
+        logging.getLogger("mavahrs").setLevel(logging.WARNING)
+    if args.filters and len(args.filters) > 1:
+        raise ValueError("audit compares one filter with the autopilot: give --filter once")
+    for t in args.output:
+        fa.read_table(t)  # a bad suffix or a missing pyarrow fails now, not after the replays
+    logs = fa.expand_logs(args.logs)
+    settings = fa.AuditSettings(replay=settings_from_args(args))
+    fn = functools.partial(fa.summarise_log, settings=settings)
+    scheduler = args.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+    plan = fa.plan_audit(logs, args.output, args.force)
+    with ExitStack() as stack:
+        mapper: Any = fa.serial_map
+        where = "one process, serially" if plan.todo else ""
+        if not args.serial and plan.todo:  # (nothing to replay: no cluster to start)
+            from mavahrs.fleet import dask_engine
+
+            if dask_engine.available():
+                eng = stack.enter_context(dask_engine.DaskEngine(scheduler, args.workers))
+                mapper, where = functools.partial(eng.map, on_error=fa.lost_row), eng.describe()
+            elif scheduler:
+                raise ValueError("--scheduler needs Dask: pip install 'mavahrs[fleet]'")
+            else:
+                print(fa.SERIAL_HINT, file=sys.stderr)
+        bar = None
+        if not args.no_progress and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            bar = stack.enter_context(tqdm(total=len(plan.todo), unit="log", desc="audit", leave=False))
+        result = fa.run_audit(
+            logs, fn, mapper, tables=args.output, plan=plan,
+            on_row=(lambda _row: bar.update(1)) if bar is not None else None,
+        )  # fmt: skip
+    print(fa.format_summary(result, top=args.top, engine=where))
+    for t in args.output:
+        print(f"wrote {t}", file=sys.stderr)
+    if args.plot:
+        from mavahrs.evaluation.plots import plot_fleet
+
+        print(f"wrote {plot_fleet(args.plot, [r.as_dict() for r in result.rows])}", file=sys.stderr)
+    return 0

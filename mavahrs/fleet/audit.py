@@ -1,0 +1,640 @@
+r"""``mavahrs audit``'s work: one row per flight log, a resumable table, the printed summary.
+
+:func:`summarise_log` replays a log with :func:`mavahrs.replay.replay` — the
+daemon's decoding, scaling, IMU selection, timing and filter, exactly as
+``mavahrs replay`` does — then runs the daemon's second-opinion monitor
+(:func:`mavahrs.service.monitor.monitor_series`, the live monitor's state
+machine) over the estimates the daemon would have published and the log's own
+ATTITUDE (or AHRS2), and measures clipping and vibration on the samples the
+filter was fed.  It is a pure function of the path, the file and the settings;
+it never raises: a log that cannot be read gives a row whose ``error`` says why.
+
+The rows go to Parquet (pyarrow, the ``fleet`` extra) and/or CSV.  A table is
+rewritten whole to a temporary file that then replaces it (``os.replace``), at
+most every ``flush_every_s`` and once more when the run ends or is interrupted,
+so an interruption loses nothing already summarised and never leaves a
+half-written table.  A later run skips the logs whose (path, size,
+modification time) are already in the table unless ``force``.
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import math
+import os
+import socket
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "AuditSettings",
+    "FleetRow",
+    "TIMING_FIELDS",
+    "LOG_SUFFIXES",
+    "summarise_log",
+    "expand_logs",
+    "read_table",
+    "write_table",
+    "serial_map",
+    "AuditRun",
+    "AuditPlan",
+    "plan_audit",
+    "lost_row",
+    "run_audit",
+    "format_summary",
+    "SERIAL_HINT",
+]
+
+#: What a folder is searched for (recursively).
+LOG_SUFFIXES = (".tlog",)
+#: Printed (stderr) when Dask is not installed and the logs are replayed one after the other.
+SERIAL_HINT = (
+    "audit: Dask is not installed: replaying the logs one after the other on one core "
+    "(for all cores or a cluster: pip install 'mavahrs[fleet]')"
+)
+#: Fields that depend on when and where the row was computed, not on the log.
+TIMING_FIELDS = ("replay_s", "worker")
+_MAV_SEVERITY_WARNING = 4
+
+
+def _default_replay() -> Any:
+    from mavahrs.replay import ReplaySettings
+    from mavahrs.service.pipeline import PipelineSettings
+
+    return ReplaySettings(pipeline=PipelineSettings())
+
+
+@dataclass(frozen=True)
+class AuditSettings:
+    """How each log is replayed and judged.
+
+    Attributes:
+        replay: the replay (first filter, pipeline settings: IMU, profile,
+            calibration, out-rate, monitor thresholds).  Default: filter
+            ``best`` with the daemon's own defaults (ATTITUDE_QUATERNION at
+            50 Hz, which is what its monitor compares).
+        vibration_window_s: the vibration figure is the RMS of the
+            accelerometer minus its centred moving average over this window
+            (a high-pass at about 1/window Hz), m/s².
+    """
+
+    replay: Any = field(default_factory=_default_replay)
+    vibration_window_s: float = 0.2
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.vibration_window_s) and self.vibration_window_s > 0):
+            raise ValueError(f"vibration_window_s must be > 0, got {self.vibration_window_s!r}")
+
+
+@dataclass(frozen=True)
+class FleetRow:
+    """One flight log's summary.  Units in the names; NaN / None / "" where the log does not tell.
+
+    Attributes:
+        path: the log, absolute.
+        size_bytes: its size, bytes.
+        mtime_ns: its modification time, ns since the epoch (with ``path`` and
+            ``size_bytes``: what a later run compares to skip it).
+        error: why the log could not be replayed ("" when it was).
+        system_id: the autopilot's MAVLink system id.
+        component_id: its component id.
+        autopilot: MAV_AUTOPILOT of its first HEARTBEAT (``ARDUPILOTMEGA``, ``PX4`` …).
+        vehicle_type: MAV_TYPE of that HEARTBEAT (``QUADROTOR``, ``FIXED_WING`` …).
+        start_utc: the first record's time, ISO 8601 UTC ("" if the tlog's clock is implausible).
+        duration_s: from the first to the last IMU sample fed to the filter, s.
+        imu_message: the IMU message fed (``RAW_IMU``, ``SCALED_IMU2``, ``HIGHRES_IMU`` …).
+        imu_instance: its IMU instance.
+        imu_samples: samples fed to the filter.
+        imu_rate_hz: their mean rate, Hz.
+        gnss: the log has a position fix (GLOBAL_POSITION_INT or a 3D GPS_RAW_INT):
+            the declination is known and headings are true north.
+        engine: the replay engine used (``fast`` or ``pipeline``).
+        reference: the log's own attitude compared with (``autopilot ATTITUDE``,
+            else ``autopilot AHRS2``; "" = none).
+        compared_s: autopilot time covered by the comparison after the monitor's
+            start-up grace, s.
+        inclination_rms_deg, inclination_max_deg: tilt divergence between
+            mavahrs and the reference (BROAD's inclination), RMS and maximum, deg.
+        heading_rms_deg, heading_max_deg: heading divergence (absolute), deg.
+        alarms: WARNINGs the second-opinion monitor raised (divergence above its
+            threshold for its trigger time).
+        first_alarm_s: autopilot boot time of the first WARNING, s (NaN: none).
+        alarm_times_s: boot times of every WARNING, s, ``;``-separated.
+        gyro_clip_fraction: fed samples with a gyro axis at ≥ the saturation
+            fraction of the sensor's full scale (0–1).
+        accel_clip_fraction: fed samples whose accelerometer was at its limit
+            (or dropped as saturated/invalid by the scaling) (0–1).
+        vibration_x_m_s2, vibration_y_m_s2, vibration_z_m_s2: accelerometer
+            vibration per body axis, m/s² RMS (see ``vibration_window_s``).
+        notes: replay's notes (reboots, gaps, absent IMUs, low rate …), `` | ``-separated.
+        replay_s: wall time this row took, s (timing: differs run to run).
+        worker: host:pid that computed it (timing).
+    """
+
+    path: str
+    size_bytes: int
+    mtime_ns: int
+    error: str = ""
+    system_id: int | None = None
+    component_id: int | None = None
+    autopilot: str = ""
+    vehicle_type: str = ""
+    start_utc: str = ""
+    duration_s: float = math.nan
+    imu_message: str = ""
+    imu_instance: int | None = None
+    imu_samples: int | None = None
+    imu_rate_hz: float = math.nan
+    gnss: bool | None = None
+    engine: str = ""
+    reference: str = ""
+    compared_s: float = math.nan
+    inclination_rms_deg: float = math.nan
+    inclination_max_deg: float = math.nan
+    heading_rms_deg: float = math.nan
+    heading_max_deg: float = math.nan
+    alarms: int | None = None
+    first_alarm_s: float = math.nan
+    alarm_times_s: str = ""
+    gyro_clip_fraction: float = math.nan
+    accel_clip_fraction: float = math.nan
+    vibration_x_m_s2: float = math.nan
+    vibration_y_m_s2: float = math.nan
+    vibration_z_m_s2: float = math.nan
+    notes: str = ""
+    replay_s: float = math.nan
+    worker: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+    @property
+    def flagged(self) -> bool:
+        """The monitor raised at least one WARNING."""
+        return bool(self.alarms)
+
+    def key(self) -> tuple[str, int, int]:
+        return (self.path, self.size_bytes, self.mtime_ns)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+#: Column kinds for the tables (the dataclass's annotations, by field).
+_KINDS: dict[str, str] = {
+    f.name: ("bool" if "bool" in str(f.type) else "int" if "int" in str(f.type)
+             else "float" if "float" in str(f.type) else "str")
+    for f in fields(FleetRow)
+}  # fmt: skip
+
+
+# --------------------------------------------------------------------------- one log
+
+
+def summarise_log(path: str | Path, settings: AuditSettings | None = None) -> FleetRow:
+    """Replay one log as ``mavahrs replay`` does and summarise it (never raises)."""
+    s = settings if settings is not None else AuditSettings()
+    t0 = time.perf_counter()
+    p = Path(path).absolute()
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    try:
+        st = p.stat()
+    except OSError as exc:
+        return FleetRow(str(p), -1, -1, error=f"cannot read: {exc.strerror or exc}", worker=worker)
+    base = FleetRow(str(p), int(st.st_size), int(st.st_mtime_ns))
+    try:
+        row = _summarise(p, base, s)
+    except Exception as exc:  # noqa: BLE001 - one bad log never stops the batch: its row says why
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = msg.replace(f"{p}: ", "")
+        from mavahrs.errors import MavahrsError
+
+        if not isinstance(exc, (MavahrsError, OSError)):
+            msg = f"{type(exc).__name__}: {msg}"
+        row = _replace(base, error=msg)
+    return _replace(row, replay_s=time.perf_counter() - t0, worker=worker)
+
+
+def _replace(row: FleetRow, **changes: Any) -> FleetRow:
+    from dataclasses import replace
+
+    return replace(row, **changes)
+
+
+def _enum_name(enum: str, value: int) -> str:
+    from mavahrs.protocol.codec import mavlink
+
+    entry = mavlink.enums.get(enum, {}).get(int(value))
+    name = entry.name if entry is not None else str(int(value))
+    return name.removeprefix(enum + "_")
+
+
+def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
+    from mavahrs.filters.layout import OUT_Q
+    from mavahrs.replay import replay
+    from mavahrs.service.monitor import monitor_series
+
+    result = replay(p, s.replay)
+    td = result.tlog
+    prep = result.inputs
+    ps = s.replay.pipeline_settings()
+    src = prep.source
+    hb = td.arrays["HEARTBEAT"]
+    hb = hb[(hb["sysid"] == src[0]) & (hb["compid"] == src[1])]
+    autopilot = _enum_name("MAV_AUTOPILOT", hb["autopilot"][0]) if hb.shape[0] else ""
+    vtype = _enum_name("MAV_TYPE", hb["type"][0]) if hb.shape[0] else ""
+    start = ""
+    if td.frames:
+        unix_s = float(td.t_us[0]) * 1e-6
+        if 946684800.0 <= unix_s <= 4102444800.0:  # 2000 … 2100, as decimal_year_of_log
+            import datetime
+
+            start = datetime.datetime.fromtimestamp(unix_s, datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    n = prep.n
+    dur = float(prep.t_us[-1] - prep.t_us[0]) * 1e-6 if n > 1 else 0.0
+    row = _replace(
+        base, system_id=int(src[0]), component_id=int(src[1]), autopilot=autopilot, vehicle_type=vtype,
+        start_utc=start, duration_s=dur, imu_message=prep.message, imu_instance=int(prep.instance), imu_samples=n,
+        imu_rate_hz=float(prep.rate_hz()), gnss=_has_fix(td, src), engine=result.engine,
+        notes=" | ".join(result.notes),
+    )  # fmt: skip
+    row = _replace(row, **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
+    # --- the second opinion: what the daemon would have published vs the log's own attitude
+    ref = next((k for k in ("autopilot ATTITUDE", "autopilot AHRS2") if k in result.references), "")
+    if not ref:
+        return row
+    track = next(iter(result.tracks.values()))
+    sent = np.flatnonzero(track.sent)
+    t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
+    q_est = track.out[sent, OUT_Q : OUT_Q + 4]
+    t_ref_us, q_ref = result.references[ref]
+    mon = ps.monitor
+    heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
+    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid)
+    warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING]
+    judged = np.isfinite(series.tilt_deg)
+    if t_est_ms.size:
+        judged &= series.t_ms >= t_est_ms[0] + mon.startup_grace_s * 1000.0
+    tilt, hdg = series.tilt_deg[judged], np.abs(series.heading_deg[judged])
+    tj = series.t_ms[judged]
+    times = [e.t_ms / 1000.0 for e in warns]
+    return _replace(
+        row, reference=ref, compared_s=float(tj[-1] - tj[0]) / 1000.0 if tj.size > 1 else 0.0,
+        inclination_rms_deg=_rms(tilt), inclination_max_deg=_max(tilt),
+        heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
+        alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
+        alarm_times_s=";".join(f"{t:.3f}" for t in times),
+    )  # fmt: skip
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x * x))) if x.size else math.nan
+
+
+def _max(x: np.ndarray) -> float:
+    return float(np.max(x)) if x.size else math.nan
+
+
+def _has_fix(td: Any, src: tuple[int, int]) -> bool:
+    gpi = td.arrays["GLOBAL_POSITION_INT"]
+    gpi = gpi[(gpi["sysid"] == src[0]) & (gpi["compid"] == src[1])]
+    if gpi.shape[0] and np.any((gpi["lat"] != 0) | (gpi["lon"] != 0)):
+        return True
+    raw = td.arrays["GPS_RAW_INT"]
+    raw = raw[(raw["sysid"] == src[0]) & (raw["compid"] == src[1])]
+    return bool(raw.shape[0] and np.any(raw["fix_type"] >= 3))
+
+
+def _clipping(prep: Any, ps: Any) -> dict[str, float]:
+    """Fractions of the fed samples at the sensor's limit, by the scaling's own saturation rule."""
+    from mavahrs.filters.layout import IN_ACCEL, IN_GYRO
+    from mavahrs.sensors.profiles import get_profile
+
+    n = prep.n
+    if n == 0:
+        return {}
+    scale = get_profile(prep.profile).scale_for(prep.message)
+    frac = ps.scaling.saturation_fraction
+    gyro = prep.rows[:, IN_GYRO : IN_GYRO + 3]
+    accel = prep.rows[:, IN_ACCEL : IN_ACCEL + 3]
+    with np.errstate(invalid="ignore"):
+        g = np.any(np.abs(gyro) >= frac * scale.gyro_range_rad_s, axis=1)
+        a = np.any(np.abs(accel) >= frac * scale.accel_range_m_s2, axis=1) | ~np.all(np.isfinite(accel), axis=1)
+    return {"gyro_clip_fraction": float(g.mean()), "accel_clip_fraction": float(a.mean())}
+
+
+def _vibration(prep: Any, window_s: float) -> dict[str, float]:
+    """Per axis RMS of the accelerometer minus its centred moving average (finite samples), m/s²."""
+    from mavahrs.filters.layout import IN_ACCEL
+
+    accel = prep.rows[:, IN_ACCEL : IN_ACCEL + 3]
+    accel = accel[np.all(np.isfinite(accel), axis=1)]
+    rate = prep.rate_hz()
+    k = max(3, int(round(window_s * rate)) | 1)  # odd window, samples
+    if accel.shape[0] < 2 * k or rate <= 0:
+        return {}
+    c = np.cumsum(np.vstack([np.zeros((1, 3)), accel]), axis=0)
+    mean = (c[k:] - c[:-k]) / k  # mean of accel[i : i + k]
+    hp = accel[k // 2 : k // 2 + mean.shape[0]] - mean
+    v = np.sqrt(np.mean(hp * hp, axis=0))
+    return {"vibration_x_m_s2": float(v[0]), "vibration_y_m_s2": float(v[1]), "vibration_z_m_s2": float(v[2])}
+
+
+# --------------------------------------------------------------------------- which logs
+
+
+def expand_logs(items: Sequence[str]) -> list[Path]:
+    """Files as given; folders searched recursively for ``*.tlog``; globs (``**`` recursive) expanded.
+
+    Sorted, duplicates removed.  Raises DataError for an item that
+    matches nothing.
+    """
+    from mavahrs.errors import DataError
+
+    out: dict[str, Path] = {}
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            found = [q for q in p.rglob("*") if q.suffix.lower() in LOG_SUFFIXES and q.is_file()]
+        elif p.exists():
+            found = [p]
+        elif glob.has_magic(item):
+            found = [Path(q) for q in glob.glob(item, recursive=True) if Path(q).is_file()]
+        else:
+            found = []
+        if not found and not p.is_dir():
+            raise DataError(f"{item}: no such log (file, folder or glob)")
+        for q in found:
+            out.setdefault(str(q.absolute()), q.absolute())
+    return [out[k] for k in sorted(out)]
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def _table_format(path: Path) -> str:
+    suf = path.suffix.lower()
+    if suf in (".parquet", ".pq"):
+        return "parquet"
+    if suf == ".csv":
+        return "csv"
+    raise ValueError(f"{path}: the table must be .parquet or .csv")
+
+
+def _arrow_schema() -> Any:
+    try:
+        import pyarrow as pa
+    except ImportError as exc:
+        from mavahrs.errors import ConfigError
+
+        raise ConfigError("Parquet needs pyarrow: pip install 'mavahrs[fleet]' (or write a .csv)") from exc
+    types = {"str": pa.string(), "int": pa.int64(), "float": pa.float64(), "bool": pa.bool_()}
+    return pa.schema([(name, types[kind]) for name, kind in _KINDS.items()])
+
+
+def write_table(path: str | Path, rows: Iterable[FleetRow]) -> None:
+    """Write the rows (sorted by path) to a temporary file beside ``path``, then replace it."""
+    path = Path(path)
+    fmt = _table_format(path)
+    rows = sorted(rows, key=lambda r: r.path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        if fmt == "parquet":
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+
+            schema = _arrow_schema()
+            pq.write_table(pa.Table.from_pylist([r.as_dict() for r in rows], schema=schema), tmp)
+        else:
+            with open(tmp, "w", newline="", encoding="utf-8") as f:
+                w = csv.writer(f)
+                w.writerow(list(_KINDS))
+                for r in rows:
+                    w.writerow([_csv_cell(v) for v in r.as_dict().values()])
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _csv_cell(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v)  # shortest text that reads back to the same float
+    return str(v)
+
+
+def _from_text(kind: str, text: str) -> Any:
+    if kind == "str":
+        return text
+    if text == "":
+        return math.nan if kind == "float" else None
+    if kind == "int":
+        return int(text)
+    if kind == "float":
+        return float(text)
+    return text == "True"
+
+
+def read_table(path: str | Path) -> list[FleetRow]:
+    """The rows of a table written by :func:`write_table` ([] if it does not exist)."""
+    path = Path(path)
+    fmt = _table_format(path)
+    if fmt == "parquet":
+        _arrow_schema()  # pyarrow missing: said now, also for a table still to be written
+    if not path.exists():
+        return []
+    if fmt == "parquet":
+        import pyarrow.parquet as pq
+
+        dicts = pq.read_table(path).to_pylist()
+        for d in dicts:
+            for k, kind in _KINDS.items():
+                if kind == "float" and d.get(k) is None:
+                    d[k] = math.nan
+    else:
+        with open(path, newline="", encoding="utf-8") as f:
+            dicts = [{k: _from_text(_KINDS[k], v) for k, v in d.items() if k in _KINDS} for d in csv.DictReader(f)]
+    names = set(_KINDS)
+    return [FleetRow(**{k: v for k, v in d.items() if k in names}) for d in dicts]
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def serial_map(fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
+    """(index, fn(item)) one after the other, in this process: the engine without Dask."""
+    for i, item in enumerate(items):
+        yield i, fn(item)
+
+
+@dataclass
+class AuditRun:
+    """What :func:`run_audit` did.
+
+    Attributes:
+        rows: one per log of this run, in the order given.
+        replayed: logs replayed now; reused: logs whose row was already in the table.
+        samples: IMU samples fed to the filter in the logs replayed now.
+        wall_s: wall time of the run, s.
+    """
+
+    rows: list[FleetRow]
+    replayed: int
+    reused: int
+    samples: int
+    wall_s: float
+
+    @property
+    def samples_per_s(self) -> float:
+        """IMU samples replayed per second of wall time."""
+        return self.samples / self.wall_s if self.wall_s > 0 else math.nan
+
+
+@dataclass
+class AuditPlan:
+    """Which logs a run replays.  known: the rows of the first existing table, by path; done: rows reused
+    (index into the logs → row); todo: indices of the logs to replay."""
+
+    known: dict[str, FleetRow]
+    done: dict[int, FleetRow]
+    todo: list[int]
+
+
+def plan_audit(logs: Sequence[Path], tables: Sequence[str | Path] = (), force: bool = False) -> AuditPlan:
+    """Rows already in the first existing table for the same (path, size, mtime) are reused unless ``force``."""
+    known: dict[str, FleetRow] = {}
+    for t in tables:
+        rows = read_table(t)
+        if rows:
+            known = {r.path: r for r in rows}
+            break
+    done: dict[int, FleetRow] = {}
+    todo: list[int] = []
+    for i, p in enumerate(logs):
+        prev = known.get(str(p))
+        st = p.stat() if p.exists() else None
+        if not force and prev is not None and st is not None and prev.key() == (str(p), st.st_size, st.st_mtime_ns):
+            done[i] = prev
+        else:
+            todo.append(i)
+    return AuditPlan(known, done, todo)
+
+
+def lost_row(path: str | Path, exc: BaseException) -> FleetRow:
+    """The row of a log whose task failed outside :func:`summarise_log` (e.g. its worker process died)."""
+    p = Path(path).absolute()
+    try:
+        st = p.stat()
+        size, mtime = int(st.st_size), int(st.st_mtime_ns)
+    except OSError:
+        size = mtime = -1
+    return FleetRow(str(p), size, mtime, error=f"the task replaying this log failed: {type(exc).__name__}: {exc}")
+
+
+def run_audit(
+    logs: Sequence[Path],
+    fn: Callable[[Any], FleetRow],
+    mapper: Callable[[Callable[[Any], Any], Sequence[Any]], Iterator[tuple[int, Any]]] = serial_map,
+    *,
+    tables: Sequence[str | Path] = (),
+    force: bool = False,
+    flush_every_s: float = 2.0,
+    on_row: Callable[[FleetRow], None] | None = None,
+    plan: AuditPlan | None = None,
+) -> AuditRun:
+    """Summarise ``logs`` with ``fn`` (:func:`summarise_log` bound to its settings) through ``mapper``.
+
+    What to replay is :func:`plan_audit` (or ``plan``, made by the caller):
+    every table keeps the rows of other logs it held.  Tables are rewritten at
+    most every ``flush_every_s`` and once more at the end, also on an
+    interruption (KeyboardInterrupt).
+    """
+    t0 = time.perf_counter()
+    plan = plan if plan is not None else plan_audit(logs, tables, force)
+    known, done, todo = plan.known, dict(plan.done), plan.todo
+    reused = len(done)
+    samples = 0
+    last = time.monotonic()
+
+    def flush() -> None:
+        if tables:
+            merged = dict(known)
+            merged.update({r.path: r for r in done.values()})
+            for t in tables:
+                write_table(t, merged.values())
+
+    try:
+        for k, row in mapper(fn, [logs[i] for i in todo]):
+            done[todo[k]] = row
+            samples += row.imu_samples or 0
+            if on_row is not None:
+                on_row(row)
+            if tables and time.monotonic() - last >= flush_every_s:
+                flush()
+                last = time.monotonic()
+    finally:
+        flush()
+    return AuditRun([done[i] for i in sorted(done)], len(todo), reused, samples, time.perf_counter() - t0)
+
+
+# --------------------------------------------------------------------------- summary
+
+
+def _severity(r: FleetRow) -> tuple[float, ...]:
+    """Sort key, worst first: alarms, then the largest inclination and heading divergences."""
+
+    def neg(x: float) -> float:
+        return -x if math.isfinite(x) else math.inf
+
+    return (-(r.alarms or 0), neg(r.inclination_max_deg), neg(r.heading_max_deg), 0.0)
+
+
+def _f(x: float, fmt: str, width: int) -> str:
+    return f"{x:{width}{fmt}}" if math.isfinite(x) else f"{'–':>{width}}"
+
+
+def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
+    """The printed summary: counts, then the worst flights first, then the unreadable logs."""
+    rows = run.rows
+    bad = [r for r in rows if not r.ok]
+    good = [r for r in rows if r.ok]
+    flagged = [r for r in good if r.flagged]
+    lines = [
+        f"audited {len(rows)} logs ({run.replayed} replayed, {run.reused} already in the table) in "
+        f"{run.wall_s:.1f} s{(' on ' + engine) if engine else ''}: {len(flagged)} flagged, {len(bad)} unreadable"
+    ]
+    if run.samples:
+        lines[0] += f"; {run.samples} IMU samples, {run.samples_per_s:.3g} samples/s"
+    if flagged:
+        lines.append("flagged: the autopilot's attitude disagreed with mavahrs (second-opinion monitor WARNING) in "
+                     + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s" for r in flagged))  # fmt: skip
+    if good:
+        head = (f"{'log':<26}{'dur s':>7}{'IMU Hz':>8}{'incl rms':>9}{'max':>7}{'hdg rms':>9}{'max':>7}"
+                f"{'alarms':>7}{'first s':>9}{'vib m/s²':>9}{'clip %':>7}")  # fmt: skip
+        lines += ["", f"worst flights first (divergence from the log's own attitude, deg; top {min(top, len(good))} "
+                  f"of {len(good)}):", head, "─" * len(head)]  # fmt: skip
+        for r in sorted(good, key=_severity)[:top]:
+            name = Path(r.path).name
+            name = name if len(name) <= 25 else name[:24] + "…"
+            vib = max((v for v in (r.vibration_x_m_s2, r.vibration_y_m_s2, r.vibration_z_m_s2) if math.isfinite(v)),
+                      default=math.nan)  # fmt: skip
+            clip = 100.0 * max(r.gyro_clip_fraction, r.accel_clip_fraction)
+            lines.append(
+                f"{name:<26}{_f(r.duration_s, '.1f', 7)}{_f(r.imu_rate_hz, '.0f', 8)}"
+                f"{_f(r.inclination_rms_deg, '.2f', 9)}{_f(r.inclination_max_deg, '.1f', 7)}"
+                f"{_f(r.heading_rms_deg, '.2f', 9)}{_f(r.heading_max_deg, '.1f', 7)}{r.alarms if r.alarms is not None else '–':>7}"
+                f"{_f(r.first_alarm_s, '.1f', 9)}{_f(vib, '.2f', 9)}{_f(clip, '.2f', 7)}"
+            )
+    if bad:
+        lines += ["", "unreadable:"] + [f"  {Path(r.path).name}: {r.error}" for r in bad]
+    return "\n".join(lines)
+

@@ -1,0 +1,176 @@
+r"""The fleet tasks on Dask: one task per log, results gathered as they complete.
+
+Imported only by ``mavahrs audit`` and ``mavahrs tune`` when they run on Dask
+(the optional ``fleet`` extra: ``pip install 'mavahrs[fleet]'``).
+
+* no address: a :class:`distributed.LocalCluster` of ``workers`` processes
+  (default: one per core) with one thread each — the filters are compiled
+  numba kernels holding the GIL, so processes, not threads, scale;
+* ``scheduler="tcp://HOST:8786"`` (or ``DASK_SCHEDULER_ADDRESS``, read by the
+  CLI): an existing cluster; its workers must be able to import mavahrs and
+  read the logs' paths.
+
+Each worker process loads the filter kernels from numba's on-disk cache (or
+compiles them once, 20–30 s); the connection time-outs are raised so that a
+worker busy compiling is not taken for a dead one.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+__all__ = ["available", "DaskEngine", "loopback_cluster"]
+
+#: Connection/heartbeat time-outs while a worker may be compiling kernels.
+_TIMEOUTS = {
+    "distributed.comm.timeouts.connect": "120s",
+    "distributed.comm.timeouts.tcp": "300s",
+    "distributed.scheduler.worker-ttl": "600s",
+}
+
+
+def available() -> bool:
+    """Dask's distributed scheduler can be imported."""
+    try:
+        import dask.distributed  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+class DaskEngine:
+    """A Dask client, local or remote, mapping a function over items (one task each).
+
+    Use as a context manager; :meth:`map` yields ``(index, result)`` in completion order.
+    """
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None) -> None:
+        self.scheduler = scheduler
+        self.workers = workers if workers is not None else (os.cpu_count() or 1)
+        self._client: Any = None
+        self._cluster: Any = None
+        self._config: Any = None
+
+    def __enter__(self) -> DaskEngine:
+        import dask
+        from dask.distributed import Client, LocalCluster
+
+        self._config = dask.config.set(_TIMEOUTS)
+        self._config.__enter__()
+        if self.scheduler:
+            self._client = Client(self.scheduler, timeout="60s")
+        else:
+            self._cluster = LocalCluster(
+                n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )  # fmt: skip
+            self._client = Client(self._cluster)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            if self._client is not None:
+                self._client.close()
+            if self._cluster is not None:
+                self._cluster.close()
+        finally:
+            if self._config is not None:
+                self._config.__exit__(None, None, None)
+
+    def describe(self) -> str:
+        n = len(self._client.scheduler_info().get("workers", {})) if self._client is not None else 0
+        where = f"the cluster at {self.scheduler}" if self.scheduler else "a local Dask cluster"
+        return f"{where} ({n} worker{'s' if n != 1 else ''})"
+
+    def on_every_worker(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn(*args)`` once in every worker process (e.g. load the filter kernels before timing)."""
+        self._client.run(fn, *args)
+
+    def map(
+        self, fn: Callable[[Any], Any], items: Sequence[Any], *,
+        on_error: Callable[[Any, BaseException], Any] | None = None,
+    ) -> Iterator[tuple[int, Any]]:  # fmt: skip
+        """(index, fn(item)) as each task completes.
+
+        A task that failed — ``fn`` raised, or its worker died more often than
+        Dask's ``allowed-failures`` (KilledWorker) — gives ``on_error(item,
+        exception)`` instead, or raises here without ``on_error``.
+        """
+        from dask.distributed import as_completed
+
+        items = list(items)
+        futures = self._client.map(fn, items, pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        try:
+            for fut in as_completed(futures):
+                i = index[fut.key]
+                try:
+                    result = fut.result()
+                except Exception as exc:  # noqa: BLE001 - handed to on_error: one task never stops the rest
+                    if on_error is None:
+                        raise
+                    result = on_error(items[i], exc)
+                yield i, result
+                fut.release()
+        finally:
+            self._client.cancel(futures)
+
+
+
+@contextmanager
+def loopback_cluster(
+    workdir: str | Path, workers: int = 2, *, env: Mapping[str, str] | None = None, timeout_s: float = 120.0
+) -> Iterator[str]:
+    """A Dask scheduler and ``workers`` worker processes (one thread each) on 127.0.0.1, started with the
+    ``dask`` command as one would on a cluster; yields the scheduler's address, stops them all on exit.
+
+    For trying ``--scheduler`` on one machine, the tests and ``scripts/bench_fleet.py``.  ``env`` is the
+    processes' environment (their PYTHONPATH must find mavahrs); their output goes to ``workdir/*.log``.
+    """
+    import json
+
+    from dask.distributed import Client
+
+    work = Path(workdir)
+    work.mkdir(parents=True, exist_ok=True)
+    sched_file = work / "scheduler.json"
+    sched_file.unlink(missing_ok=True)
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start(name: str, *args: str) -> None:
+        with open(work / f"{name}.log", "wb") as log:
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=log, stderr=subprocess.STDOUT,
+                                          env=dict(env) if env is not None else None, cwd=work))  # fmt: skip
+
+    try:
+        start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--scheduler-file", str(sched_file))  # fmt: skip
+        deadline = time.monotonic() + timeout_s
+        while not sched_file.exists():
+            if procs[0].poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the Dask scheduler did not start: {(work / 'scheduler.log').read_text()[-2000:]}")
+            time.sleep(0.1)
+        address = str(json.loads(sched_file.read_text())["address"])
+        for k in range(workers):
+            start(f"worker{k}", "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
+                  "--local-directory", str(work / f"worker{k}"), "--name", f"worker{k}")  # fmt: skip
+        with Client(address, timeout=f"{timeout_s:g}s") as client:
+            client.wait_for_workers(workers, timeout=timeout_s)
+        yield address
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)

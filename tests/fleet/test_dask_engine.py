@@ -1,0 +1,41 @@
+"""The Dask engine: a task whose worker process dies gives its own error result; the other tasks go on."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+for _module in ("distributed", "pyarrow"):
+    pytest.importorskip(_module, reason="the fleet extra is not installed: pip install '.[fleet]'")
+
+
+def _double_or_die(x: int) -> int:
+    if x == 3:
+        os._exit(13)  # the worker process dies, as on a crash in compiled code
+    return 2 * x
+
+
+def test_a_dead_worker_costs_one_task_not_the_batch(tmp_path: Path) -> None:
+    import cloudpickle
+    import dask
+
+    from mavahrs.fleet.audit import lost_row
+    from mavahrs.fleet.dask_engine import DaskEngine
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this test module
+    # a task whose worker died is given up (KilledWorker) after allowed-failures retries; with one task per
+    # worker at a time (saturation 1) no other task is on the dying worker
+    cfg = {"distributed.scheduler.allowed-failures": 0, "distributed.scheduler.worker-saturation": 1.0}
+    with dask.config.set(cfg), DaskEngine(workers=2) as eng:
+        out = dict(eng.map(_double_or_die, range(8), on_error=lambda item, exc: f"{item}: {type(exc).__name__}"))
+        assert out == {i: "3: KilledWorker" if i == 3 else 2 * i for i in range(8)}
+        with pytest.raises(ZeroDivisionError):  # without on_error the task's exception is raised
+            list(eng.map(lambda x: 1 // x, [1, 0]))
+    log = tmp_path / "a.tlog"
+    log.write_bytes(b"x" * 10)
+    row = lost_row(log, RuntimeError("worker gone"))
+    assert (row.path, row.size_bytes, row.error) == (str(log), 10, "the task replaying this log failed: RuntimeError: worker gone")
