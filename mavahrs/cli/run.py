@@ -135,7 +135,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     )
     web.add_argument(
         "--http-token", metavar="TOKEN",
-        help="require TOKEN on every request (?token=TOKEN or 'Authorization: Bearer TOKEN'; not on /healthz "
+        help="require TOKEN on every request (query token=TOKEN or header 'Authorization: Bearer TOKEN'; not on /healthz "
         "and /register_service); without it a non-loopback HOST is served with a warning. Visible in the "
         "process list: prefer daemon.http_token in --config (default: none)",
     )
