@@ -1,22 +1,24 @@
 r"""The status page: a small read-only web server beside the daemon (``mavahrs run --http``).
 
 The daemon's loop never waits for it.  The loop *publishes*: every timer tick
-(``tick_hz``, 20 Hz by default) :class:`StatusPublisher` builds a small
-immutable attitude snapshot (our quaternion and Euler angles, the autopilot's
-own ATTITUDE, their difference, the times the last input and the last
-attitude output were seen), and once a second a status snapshot (rates,
-drops, CRC errors, gain, sensor trust and rejection, gyro bias, GNSS, the IMU
-in use, the second-opinion comparison, latency, uptime).  Each is a new
-``dict`` stored into :class:`StatusBoard` with one reference assignment: the
-server thread reads whichever snapshot is current, no lock, no queue, nothing
-the IMU path could block on.
+(``tick_hz``, 20 Hz by default) :class:`StatusPublisher` stores a
+:class:`LiveSample` — a tuple of what it has at hand: our latest quaternion
+and its sample time, the autopilot's last ATTITUDE message as received, and
+when input and attitude output were last seen (about 5 µs) — and once a
+second a status snapshot (rates, drops, CRC errors, gain, sensor trust and
+rejection, gyro bias, GNSS, the IMU in use, the second-opinion comparison,
+latency, uptime; a ``dict``).  Each is a new immutable object stored into
+:class:`StatusBoard` with one reference assignment: the server thread reads
+whichever is current, no lock, no queue, nothing the IMU path could block on.
+Euler angles, the autopilot's quaternion and the differences are worked out
+by the server's thread, only for the samples it sends (:func:`attitude_fields`).
 
 :class:`StatusServer` runs aiohttp on its own thread and event loop
 (``pip install 'mavahrs[http]'``; imported only when ``--http`` is given):
 
 * ``/`` — the page (``mavahrs/service/web/``: HTML, CSS, JavaScript shipped in
   the package, no CDN), fed by ``/events`` (Server-Sent Events: the newest
-  attitude at 12.5 Hz, the status once a second);
+  attitude at 11 Hz, the status once a second);
 * ``/status.json`` — both snapshots (fields in docs/status-page.md);
 * ``/metrics`` — the Prometheus text format (``prometheus_client``);
 * ``/healthz`` — 200 while datagrams arrive from the autopilot link and
@@ -41,13 +43,15 @@ import threading
 import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from mavahrs.errors import ConfigError, TransportError
 
 __all__ = [
     "StatusBoard",
     "StatusPublisher",
+    "LiveSample",
+    "attitude_fields",
     "StatusServer",
     "parse_http_address",
     "is_loopback",
@@ -70,10 +74,10 @@ OPEN_TO_NETWORK_TEXT = (
     "--http-token (daemon.http_token) or bind to 127.0.0.1"
 )
 _STATUS_PERIOD_S = 1.0  # status snapshot (and its Server-Sent Event) period
-# How often an event stream sends the newest attitude: 12.5 Hz (the page wants ≥ 10 Hz).  Each event is a
-# socket write and a wake-up of the server's thread, whose CPU counts as the daemon's: at 20 Hz one open
-# page cost the daemon ~5 % more CPU at 400 Hz input on the test machine (bench_live.py --with-page).
-_EVENT_PERIOD_S = 0.08
+# How often an event stream sends the newest attitude: 11 Hz (the page wants ≥ 10 Hz).  Each event is a
+# wake-up of the server's event loop and a socket write, about 0.2 ms of CPU on the test machine, which
+# counts as the daemon's (~75 ms/s at 400 Hz input there): at 20 Hz one open page cost ~5 %.
+_EVENT_PERIOD_S = 0.09
 _R2D = 180.0 / math.pi
 
 
@@ -131,8 +135,32 @@ class StatusBoard:
     """
 
     def __init__(self) -> None:
-        self.attitude: Mapping[str, Any] | None = None
+        self.live: LiveSample | None = None
         self.status: Mapping[str, Any] | None = None
+
+
+class LiveSample(NamedTuple):
+    """What the daemon's loop publishes every tick (immutable; see :func:`attitude_fields`).
+
+    Attributes:
+        t_s: when, ``time.monotonic()`` s.
+        started_s: when the daemon started, s (same clock).
+        last_input_s: when input from the autopilot link was last seen (None: never).
+        last_attitude_s: when an attitude last went out (None: never).
+        time_boot_ms: the autopilot's time of the sample our estimate belongs to.
+        q_body_to_ned: our latest estimate (None before the filter has one).
+        autopilot_msg: the autopilot's last ATTITUDE / ATTITUDE_QUATERNION as received, or None.
+        autopilot_rx_s: when it arrived, s.
+    """
+
+    t_s: float
+    started_s: float
+    last_input_s: float | None
+    last_attitude_s: float | None
+    time_boot_ms: int | None
+    q_body_to_ned: tuple[float, float, float, float] | None
+    autopilot_msg: Any
+    autopilot_rx_s: float
 
 
 def _euler_deg(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
@@ -146,6 +174,15 @@ def _euler_deg(q: tuple[float, float, float, float]) -> tuple[float, float, floa
 
 def _finite(v: Any) -> Any:
     return v if not isinstance(v, float) or math.isfinite(v) else None
+
+
+def _finite_fields(value: Any) -> Any:
+    """Non-finite floats → None, through dicts and lists (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _finite_fields(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_fields(v) for v in value]
+    return _finite(value)
 
 
 class StatusPublisher:
@@ -166,9 +203,7 @@ class StatusPublisher:
         self._next_status_s = 0.0
 
     def tick(self, daemon: Any, now_s: float) -> None:
-        """Publish the attitude snapshot, and the status one when due."""
-        from mavahrs.service.monitor import attitude_divergence_rad, attitude_of_message
-
+        """Publish a :class:`LiveSample`, and the status snapshot when due."""
         c = daemon.counters
         if c.datagrams_in != self._datagrams:
             self._datagrams = c.datagrams_in
@@ -180,30 +215,9 @@ class StatusPublisher:
                 self._last_attitude_s = now_s
         live = getattr(daemon.pipeline, "live_attitude", None)
         t_ms, q, ap_msg, ap_us = live() if live is not None else (None, None, None, 0)
-        att: dict[str, Any] = {
-            "t_s": now_s,
-            "uptime_s": now_s - self.started_s,
-            "time_boot_ms": t_ms,
-            "q": list(q) if q is not None else None,
-            "last_input_s": self._last_input_s,
-            "last_attitude_s": self._last_attitude_s,
-            "autopilot": None,
-            "difference": None,
-        }
-        if q is not None:
-            att["roll_deg"], att["pitch_deg"], att["yaw_deg"] = _euler_deg(q)
-        ap = attitude_of_message(ap_msg) if ap_msg is not None else None
-        if ap is not None:
-            ap_t_ms, ap_q = ap
-            r, p, y = _euler_deg(ap_q)
-            att["autopilot"] = {
-                "time_boot_ms": int(ap_t_ms), "q": list(ap_q), "roll_deg": r, "pitch_deg": p, "yaw_deg": y,
-                "age_s": now_s - ap_us * 1e-6,
-            }
-            if q is not None:
-                tilt, heading = attitude_divergence_rad(q, ap_q)
-                att["difference"] = {"tilt_deg": tilt * _R2D, "heading_deg": heading * _R2D}
-        self.board.attitude = att
+        self.board.live = LiveSample(
+            now_s, self.started_s, self._last_input_s, self._last_attitude_s, t_ms, q, ap_msg, ap_us * 1e-6
+        )
         if now_s >= self._next_status_s:
             self._next_status_s = now_s + _STATUS_PERIOD_S
             self.board.status = self._status(daemon, now_s)
@@ -241,22 +255,71 @@ class StatusPublisher:
         return _jsonable(out)
 
 
-def health(attitude: Mapping[str, Any] | None, now_s: float, timeout_s: float) -> tuple[bool, str]:
+class _AutopilotCache:
+    """The autopilot's last message converted once (it arrives at 10 Hz or so; samples at 20 Hz)."""
+
+    def __init__(self) -> None:
+        self.msg: Any = None
+        self.value: tuple[tuple[float, float, float, float], dict[str, Any]] | None = None
+
+    def get(self, msg: Any) -> tuple[tuple[float, float, float, float], dict[str, Any]] | None:
+        from mavahrs.service.monitor import attitude_of_message
+
+        if msg is not self.msg:
+            self.msg = msg
+            ap = attitude_of_message(msg) if msg is not None else None
+            self.value = None
+            if ap is not None:
+                t_ms, q = ap
+                r, p, y = _euler_deg(q)
+                self.value = (q, {"time_boot_ms": int(t_ms), "q": list(q), "roll_deg": r, "pitch_deg": p,
+                                  "yaw_deg": y})
+        return self.value
+
+
+def attitude_fields(live: LiveSample, autopilot: _AutopilotCache | None = None) -> dict[str, Any]:
+    """The ``attitude`` object of ``/status.json`` and the page's events (docs/status-page.md)."""
+    from mavahrs.service.monitor import attitude_divergence_rad
+
+    q = live.q_body_to_ned
+    att: dict[str, Any] = {
+        "t_s": live.t_s,
+        "uptime_s": live.t_s - live.started_s,
+        "time_boot_ms": live.time_boot_ms,
+        "q": list(q) if q is not None else None,
+        "last_input_s": live.last_input_s,
+        "last_attitude_s": live.last_attitude_s,
+        "autopilot": None,
+        "difference": None,
+    }
+    if q is not None:
+        att["roll_deg"], att["pitch_deg"], att["yaw_deg"] = _euler_deg(q)
+    ap = (autopilot or _AutopilotCache()).get(live.autopilot_msg)
+    if ap is not None:
+        ap_q, ap_fields = ap
+        att["autopilot"] = {**ap_fields, "age_s": live.t_s - live.autopilot_rx_s}
+        if q is not None:
+            tilt, heading = attitude_divergence_rad(q, ap_q)
+            att["difference"] = {"tilt_deg": tilt * _R2D, "heading_deg": heading * _R2D}
+    return att
+
+
+def health(live: LiveSample | None, now_s: float, timeout_s: float) -> tuple[bool, str]:
     """``(healthy, why)``: input from the autopilot and attitudes out, both within ``timeout_s``.
 
     ``now_s`` is ``time.monotonic()``; a snapshot older than ``timeout_s`` (the daemon's loop
     stalled) is unhealthy too.
     """
-    if attitude is None:
+    if live is None:
         return False, "starting"
-    if now_s - attitude["t_s"] > timeout_s:
-        return False, f"the daemon's loop has not published for {now_s - attitude['t_s']:.1f} s"
-    last_in = attitude.get("last_input_s")
+    if now_s - live.t_s > timeout_s:
+        return False, f"the daemon's loop has not published for {now_s - live.t_s:.1f} s"
+    last_in = live.last_input_s
     if last_in is None:
         return False, "nothing received from the autopilot yet"
     if now_s - last_in > timeout_s:
         return False, f"nothing received from the autopilot for {now_s - last_in:.1f} s"
-    last_out = attitude.get("last_attitude_s")
+    last_out = live.last_attitude_s
     if last_out is None:
         return False, "no attitude sent yet"
     if now_s - last_out > timeout_s:
@@ -418,7 +481,8 @@ class StatusServer:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self.requests = 0
-        self._cache: dict[str, tuple[Any, str]] = {}
+        self._cache: dict[str, tuple[Any, Any]] = {}
+        self._autopilot = _AutopilotCache()
 
     @property
     def url(self) -> str:
@@ -534,19 +598,31 @@ class StatusServer:
 
         return web.FileResponse(WEB_DIR / "index.html")
 
+    def _attitude(self, live: LiveSample | None) -> dict[str, Any] | None:
+        """:func:`attitude_fields` of a sample, worked out once per sample (every client shares it)."""
+        if live is None:
+            return None
+        cached = self._cache.get("attitude-fields")
+        if cached is not None and cached[0] is live:
+            return cached[1]
+        fields = _finite_fields(attitude_fields(live, self._autopilot))
+        self._cache["attitude-fields"] = (live, fields)
+        return fields
+
     def _json(self, key: str, snapshot: Any) -> str:
-        """The JSON text of a snapshot, made once per snapshot (every client shares it)."""
+        """The JSON text of a snapshot (a :class:`LiveSample` for ``"attitude"``), made once per snapshot."""
         cached = self._cache.get(key)
         if cached is not None and cached[0] is snapshot:
             return cached[1]
-        text = json.dumps(snapshot, separators=(",", ":"))
+        value = self._attitude(snapshot) if key == "attitude" else snapshot
+        text = json.dumps(value, separators=(",", ":"))
         self._cache[key] = (snapshot, text)
         return text
 
     async def _status_json(self, request: Any) -> Any:
         from aiohttp import web
 
-        att, status = self.board.attitude, self.board.status
+        att, status = self.board.live, self.board.status
         ok, why = health(att, time.monotonic(), self.health_timeout_s)
         body = (
             f'{{"healthy":{"true" if ok else "false"},"health":{json.dumps(why)},'
@@ -559,16 +635,16 @@ class StatusServer:
         from aiohttp import web
         from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
-        att, status = self.board.attitude, self.board.status
-        ok, _ = health(att, time.monotonic(), self.health_timeout_s)
+        live, status = self.board.live, self.board.status
+        ok, _ = health(live, time.monotonic(), self.health_timeout_s)
         registry = CollectorRegistry(auto_describe=False)
-        registry.register(_Families(metric_families(att, status, ok, self.version)))
+        registry.register(_Families(metric_families(self._attitude(live), status, ok, self.version)))
         return web.Response(body=generate_latest(registry), headers={"Content-Type": CONTENT_TYPE_LATEST})
 
     async def _healthz(self, request: Any) -> Any:
         from aiohttp import web
 
-        ok, why = health(self.board.attitude, time.monotonic(), self.health_timeout_s)
+        ok, why = health(self.board.live, time.monotonic(), self.health_timeout_s)
         return web.Response(status=200 if ok else 503, text=("ok" if ok else f"unhealthy: {why}") + "\n")
 
     async def _register_service(self, request: Any) -> Any:
@@ -577,7 +653,7 @@ class StatusServer:
         return web.json_response(register_service_info(self.version))
 
     async def _events(self, request: Any) -> Any:
-        """Server-Sent Events: the newest ``attitude`` every 80 ms (12.5 Hz), ``status`` once a second."""
+        """Server-Sent Events: the newest ``attitude`` every 90 ms (11 Hz), ``status`` once a second."""
         from aiohttp import web
 
         resp = web.StreamResponse(headers={
@@ -591,7 +667,7 @@ class StatusServer:
         try:
             await resp.write(b"retry: 1000\n\n")
             while not stop.is_set():
-                att, status = self.board.attitude, self.board.status
+                att, status = self.board.live, self.board.status
                 chunks = []
                 if status is not None and status is not sent_status:
                     sent_status = status

@@ -1056,7 +1056,7 @@ class Pipeline:
         ap = self._ap_attitude_msg
         if out is None or int(out[OUT_FLAGS]) & FLAG_NOT_INITIALISED or self._last_fed_t is None:
             return None, None, ap, self._ap_attitude_us
-        q = (float(out[OUT_Q]), float(out[OUT_Q + 1]), float(out[OUT_Q + 2]), float(out[OUT_Q + 3]))
+        q = tuple(out[OUT_Q : OUT_Q + 4].tolist())
         d = self._decl.declination_rad
         if d:
             q = apply_declination_wxyz(*q, d)

@@ -15,8 +15,10 @@ from mavahrs.errors import ConfigError
 from mavahrs.service.daemon import DaemonSettings
 from mavahrs.service.http import (
     MISSING_EXTRA_TEXT,
+    LiveSample,
     StatusBoard,
     StatusServer,
+    attitude_fields,
     health,
     is_loopback,
     metric_families,
@@ -66,16 +68,36 @@ def test_loopback() -> None:
 
 def test_health_rule() -> None:
     t = 100.0
-    snap = {"t_s": t, "last_input_s": t - 0.2, "last_attitude_s": t - 0.2}
+    live = LiveSample(t, 0.0, t - 0.2, t - 0.2, 1000, (1.0, 0.0, 0.0, 0.0), None, 0.0)
     assert health(None, t, 1.0) == (False, "starting")
-    assert health(snap, t + 0.5, 1.0) == (True, "ok")
-    assert health({**snap, "last_input_s": None}, t, 1.0) == (False, "nothing received from the autopilot yet")
-    assert health({**snap, "last_input_s": t - 1.5}, t, 1.0) == (
+    assert health(live, t + 0.5, 1.0) == (True, "ok")
+    assert health(live._replace(last_input_s=None), t, 1.0) == (False, "nothing received from the autopilot yet")
+    assert health(live._replace(last_input_s=t - 1.5), t, 1.0) == (
         False, "nothing received from the autopilot for 1.5 s")
-    assert health({**snap, "last_attitude_s": None}, t, 1.0) == (False, "no attitude sent yet")
-    assert health({**snap, "last_attitude_s": t - 3.0}, t, 1.0) == (False, "no attitude sent for 3.0 s")
-    # the loop stopped publishing: whatever the last snapshot said
-    assert health(snap, t + 2.0, 1.0) == (False, "the daemon's loop has not published for 2.0 s")
+    assert health(live._replace(last_attitude_s=None), t, 1.0) == (False, "no attitude sent yet")
+    assert health(live._replace(last_attitude_s=t - 3.0), t, 1.0) == (False, "no attitude sent for 3.0 s")
+    # the loop stopped publishing: whatever the last sample said
+    assert health(live, t + 2.0, 1.0) == (False, "the daemon's loop has not published for 2.0 s")
+
+
+def test_attitude_fields_from_a_sample() -> None:
+    """Euler angles of both attitudes and their difference, worked out from what the loop published."""
+    from mavahrs.geometry.rotation import from_euler_rad
+    from mavahrs.protocol.codec import mavlink
+
+    ours = tuple(from_euler_rad(math.radians(20.0), math.radians(-5.0), math.radians(350.0)).tolist())
+    ap = mavlink.MAVLink_attitude_message(4950, math.radians(18.0), math.radians(-5.0), math.radians(-8.0), 0, 0, 0)
+    live = LiveSample(12.0, 2.0, 11.99, 11.99, 5000, ours, ap, 11.9)
+    f = attitude_fields(live)
+    assert f["uptime_s"] == 10.0 and f["time_boot_ms"] == 5000
+    assert (f["roll_deg"], f["pitch_deg"], f["yaw_deg"]) == pytest.approx((20.0, -5.0, 350.0))
+    a = f["autopilot"]
+    assert a["time_boot_ms"] == 4950 and a["age_s"] == pytest.approx(0.1)
+    assert (a["roll_deg"], a["pitch_deg"], a["yaw_deg"]) == pytest.approx((18.0, -5.0, 352.0))
+    assert f["difference"]["heading_deg"] == pytest.approx(-2.0, abs=0.2)
+    assert 1.5 < f["difference"]["tilt_deg"] < 2.5
+    none = attitude_fields(live._replace(q_body_to_ned=None, autopilot_msg=None))
+    assert none["q"] is None and none["autopilot"] is None and none["difference"] is None and "roll_deg" not in none
 
 
 def test_register_service_has_the_fields_blueos_reads() -> None:
