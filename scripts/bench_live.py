@@ -169,6 +169,22 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / ticks
 
 
+def _thread_cpu_ns(pid: int) -> dict[int, int]:
+    """CPU time (ns, /proc/PID/task/TID/schedstat) of each thread of a process."""
+    out: dict[int, int] = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
+                out[int(tid)] = int(f.read().split()[0])
+        except (OSError, ValueError, IndexError):
+            pass
+    return out
+
+
 def _cpu_times() -> tuple[int, int] | None:
     """(all ticks, steal ticks) of the machine from ``/proc/stat``; None where it is not readable.
 
@@ -387,6 +403,7 @@ def bench_one(
             measuring = k >= n_warm
             if k == n_warm:
                 cpu0 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+                threads0, t_threads0 = _thread_cpu_ns(daemon.pid), time.monotonic()
                 machine0 = _cpu_times()
                 for p in peers:
                     p.answered_in_window = 0
@@ -421,7 +438,15 @@ def bench_one(
                 if p.sock.fileno() in ready:
                     p.drain(codec, True)
         cpu1 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+        threads1, t_threads1 = _thread_cpu_ns(daemon.pid), time.monotonic()
         machine1 = _cpu_times()
+        # the daemon's loop (its main thread, TID = PID) and its other threads (the status page's server)
+        spent = {tid: ns - threads0.get(tid, 0) for tid, ns in threads1.items()}
+        span_s = max(1e-9, t_threads1 - t_threads0)
+        daemon_threads = {
+            "loop": spent.pop(daemon.pid, 0) / 1e6 / span_s,
+            "other": sum(spent.values()) / 1e6 / span_s,
+        }
         n_window = n_total - n_warm
         if page is not None:
             page_updates = (page.execute_script(_PAGE_UPDATES) - updates0) / (time.monotonic() - t_page0)
@@ -456,6 +481,8 @@ def bench_one(
         "scheduling": wanted,
         "stagger": stagger,
         "with_page": with_page,
+        # CPU of the daemon's threads over the window, ms per second
+        "daemon_threads_ms_per_s": daemon_threads,
         "page_attitude_updates_hz": page_updates,
         "cpus": None if placement is None else {"sender": sorted(placement[0]), "servers": sorted(placement[1])},
         "rate_hz": rate_hz,
@@ -531,6 +558,8 @@ def _report(r: dict[str, Any]) -> str:
             f"({k.get('fast_lane_chained', 0)} chained over queued datagrams), "
             f"{k.get('fast_lane_mismatches', 0)} mismatches",
         ]
+        + [f"  daemon CPU by thread: loop {r['daemon_threads_ms_per_s']['loop']:.1f} ms/s, other threads "
+           f"{r['daemon_threads_ms_per_s']['other']:.2f} ms/s"]
         + ([f"  status page open in headless Chromium throughout: {r['page_attitude_updates_hz']:.1f} attitude "
             "updates/s on the page"] if r.get("with_page") else [])
     )
