@@ -207,16 +207,8 @@ def _pct(values: list[float], p: float) -> float:
     return s[min(len(s) - 1, max(0, math.ceil(p / 100.0 * len(s)) - 1))]
 
 
-def _free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def _free_tcp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    s = socket.socket(socket.AF_INET, kind)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
@@ -341,7 +333,7 @@ def bench_one(
     echo_stats_path = tmp / "echo.json"
     d_port, e_port = _free_port(), _free_port()
     ring = int(rate_hz * (duration_s + warmup_s + 5)) + 1024
-    http_port = _free_tcp_port() if with_page else None
+    http_port = _free_port(socket.SOCK_STREAM) if with_page else None
     daemon = subprocess.Popen(
         [sys.executable, "-m", "mavahrs", "run", "--master", f"udpin:127.0.0.1:{d_port}", "--filter", filter_name,
          "--out-rate", "0", "--no-stream-requests", "--heartbeat-timeout", "0", "--status-interval", "0",

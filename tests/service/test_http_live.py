@@ -53,41 +53,32 @@ def _env() -> dict[str, str]:
 
 
 def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    s = socket.socket(socket.AF_INET, kind)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 class Proc:
-    """A subprocess (``python -m MODULE ARGS``) with its stderr lines collected by a thread."""
+    """``python -m MODULE ARGS`` with its stderr in ``cwd/NAME.log`` (read back for what it said)."""
 
-    def __init__(self, module: str, args: list[str], cwd: Path) -> None:
-        self.lines: list[str] = []
+    def __init__(self, module: str, args: list[str], cwd: Path, name: str) -> None:
+        self.log_path = cwd / f"{name}.log"
+        self._log_file = open(self.log_path, "w", encoding="utf-8")  # noqa: SIM115 - closed by stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", module, *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+            [sys.executable, "-m", module, *args], stdout=subprocess.DEVNULL, stderr=self._log_file,
             env=_env(), cwd=cwd,
         )
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stderr is not None
-        for line in self.proc.stderr:
-            self.lines.append(line.rstrip("\n"))
 
     @property
     def log(self) -> str:
-        return "\n".join(self.lines)
+        return self.log_path.read_text(encoding="utf-8", errors="replace")
 
     def wait_for(self, pattern: str, timeout_s: float = 60.0) -> re.Match[str]:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            for line in self.lines:
-                m = re.search(pattern, line)
-                if m:
-                    return m
+            m = re.search(pattern, self.log)
+            if m:
+                return m
             if self.proc.poll() is not None:
                 break
             time.sleep(0.05)
@@ -102,12 +93,12 @@ class Proc:
             if self.proc.poll() is None:
                 self.proc.kill()
                 self.proc.wait()
-            self._reader.join(5)
+            self._log_file.close()
 
 
 def _sim(port: int, cwd: Path, *extra: str) -> Proc:
     return Proc("firmware_sim", ["--ideal", "--stream", "SIMSTATE=400", "--stream", "ATTITUDE=10", "-q",
-                                 "--out", f"udpout:127.0.0.1:{port}", *extra], cwd)
+                                 "--out", f"udpout:127.0.0.1:{port}", *extra], cwd, f"sim-{port}")
 
 
 def _daemon(port: int, cwd: Path, *extra: str) -> tuple[Proc, str]:
@@ -115,7 +106,7 @@ def _daemon(port: int, cwd: Path, *extra: str) -> tuple[Proc, str]:
     args = ["run", "--master", f"udpin:127.0.0.1:{port}", "--heartbeat-timeout", "0", "--status-interval", "0"]
     if not any(a.startswith("--http") for a in extra):
         args += ["--http", "127.0.0.1:0"]
-    d = Proc("mavahrs", [*args, *extra], cwd)
+    d = Proc("mavahrs", [*args, *extra], cwd, f"daemon-{port}")
     m = d.wait_for(r"status page on (http://\S+/)")
     return d, m.group(1)
 
