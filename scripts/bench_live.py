@@ -61,12 +61,21 @@ processing.  Back to back for ``best`` on the 2-core test machine
 CPU, 266 µs left to the scheduler.  The placement is the same for both
 servers, so the echo comparison stays fair; the JSON records it.
 
+The status page (``--with-page``): the daemon also serves ``--http`` and a
+headless Chromium (the distribution's ``chromium`` and ``chromedriver``,
+through selenium) keeps the page open for the whole run, receiving its live
+attitude (20 Hz) and status (1 Hz) events; the browser — a ground station's,
+in a real installation — runs on this script's CPU.  Run once with and once
+without to see what serving the page costs the daemon (latency, CPU per
+message); the report adds the page's attitude update rate over the window.
+
 Usage::
 
     python3 scripts/bench_live.py                      # the default filter (best)
     python3 scripts/bench_live.py --filter all         # every filter in turn
     python3 scripts/bench_live.py --filter madgwick --duration 30 --json out.json
     sudo python3 scripts/bench_live.py --filter all --realtime-priority 20
+    python3 scripts/bench_live.py --with-page          # the same with the status page open in a browser
 """
 
 from __future__ import annotations
@@ -160,6 +169,22 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / ticks
 
 
+def _thread_cpu_ns(pid: int) -> dict[int, int]:
+    """CPU time (ns, /proc/PID/task/TID/schedstat) of each thread of a process."""
+    out: dict[int, int] = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
+                out[int(tid)] = int(f.read().split()[0])
+        except (OSError, ValueError, IndexError):
+            pass
+    return out
+
+
 def _cpu_times() -> tuple[int, int] | None:
     """(all ticks, steal ticks) of the machine from ``/proc/stat``; None where it is not readable.
 
@@ -182,12 +207,43 @@ def _pct(values: list[float], p: float) -> float:
     return s[min(len(s) - 1, max(0, math.ceil(p / 100.0 * len(s)) - 1))]
 
 
-def _free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    s = socket.socket(socket.AF_INET, kind)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
     return port
+
+
+_PAGE_UPDATES = "return Number(document.body.dataset.attitudeUpdates)"
+
+
+def _open_page(url: str) -> Any:
+    """Headless Chromium showing ``url`` (selenium + the system chromedriver); RuntimeError if unavailable."""
+    import shutil
+
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError as exc:
+        raise RuntimeError("--with-page needs selenium (pip install 'mavahrs[test]')") from exc
+    browser = next((p for p in map(shutil.which, ("chromium", "chromium-browser")) if p), None)
+    driver = shutil.which("chromedriver")
+    if browser is None or driver is None:
+        raise RuntimeError("--with-page needs chromium and chromedriver (apt-get install chromium chromium-driver)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = browser
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1100,800"):
+        options.add_argument(arg)
+    page = webdriver.Chrome(service=Service(driver), options=options)
+    page.get(url)
+    deadline = time.monotonic() + 30
+    while page.execute_script(_PAGE_UPDATES) < 10:
+        if time.monotonic() > deadline:
+            page.quit()
+            raise RuntimeError(f"the status page at {url} shows no live data")
+        time.sleep(0.1)
+    return page
 
 
 def _env() -> dict[str, str]:
@@ -255,12 +311,13 @@ def _placement(pin: bool) -> tuple[set[int], set[int]] | None:
 
 def bench_one(
     filter_name: str, rate_hz: float, warmup_s: float, duration_s: float, verbose: bool, realtime_priority: int = 0,
-    stagger: bool = True, pin: bool = True,
+    stagger: bool = True, pin: bool = True, with_page: bool = False,
 ) -> dict[str, Any]:
     """One filter: the daemon and the echo server on the same stream; ``realtime_priority`` > 0: both SCHED_FIFO.
 
     ``stagger``: the echo's copy of each sample leaves half a period after the daemon's (False: both
     in the same instant, the order alternating: the servers then compete for the cores).
+    ``with_page``: the daemon serves the status page and a headless browser shows it throughout.
     """
     from mavahrs.protocol.codec import MavCodec
 
@@ -276,11 +333,13 @@ def bench_one(
     echo_stats_path = tmp / "echo.json"
     d_port, e_port = _free_port(), _free_port()
     ring = int(rate_hz * (duration_s + warmup_s + 5)) + 1024
+    http_port = _free_port(socket.SOCK_STREAM) if with_page else None
     daemon = subprocess.Popen(
         [sys.executable, "-m", "mavahrs", "run", "--master", f"udpin:127.0.0.1:{d_port}", "--filter", filter_name,
          "--out-rate", "0", "--no-stream-requests", "--heartbeat-timeout", "0", "--status-interval", "0",
          "--stats-json", str(stats_path), "--set", f"daemon.latency_ring={ring}", "-q",
-         "--realtime-priority", str(realtime_priority)],
+         "--realtime-priority", str(realtime_priority),
+         *(["--http", f"127.0.0.1:{http_port}"] if http_port else [])],
         env=_env(), stderr=None if verbose else subprocess.DEVNULL, preexec_fn=on_server_cpus,
     )
     echo = subprocess.Popen(
@@ -290,6 +349,8 @@ def bench_one(
     )
     if placement is not None:
         os.sched_setaffinity(0, placement[0])
+    page: Any = None
+    page_updates: float | None = None
     try:
         assert echo.stdout is not None
         said = echo.stdout.readline().strip()
@@ -315,6 +376,11 @@ def bench_one(
                 p.drain(codec, False)
         if peers[0].answered == 0:
             raise RuntimeError("mavahrs run never answered")
+        if http_port:  # the browser inherits this script's CPU (placement[0]), like the sender
+            page = _open_page(f"http://127.0.0.1:{http_port}/")
+            for p in peers:
+                p.drain(codec, False)
+            updates0, t_page0 = page.execute_script(_PAGE_UPDATES), time.monotonic()
         # paced stream: warm-up, then the measured window
         period_ns = int(1e9 / rate_hz)
         start = time.perf_counter_ns()
@@ -329,6 +395,7 @@ def bench_one(
             measuring = k >= n_warm
             if k == n_warm:
                 cpu0 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+                threads0, t_threads0 = _thread_cpu_ns(daemon.pid), time.monotonic()
                 machine0 = _cpu_times()
                 for p in peers:
                     p.answered_in_window = 0
@@ -363,9 +430,21 @@ def bench_one(
                 if p.sock.fileno() in ready:
                     p.drain(codec, True)
         cpu1 = {"mavahrs": _cpu_s(daemon.pid), "echo": _cpu_s(echo.pid)}
+        threads1, t_threads1 = _thread_cpu_ns(daemon.pid), time.monotonic()
         machine1 = _cpu_times()
+        # the daemon's loop (its main thread, TID = PID) and its other threads (the status page's server)
+        spent = {tid: ns - threads0.get(tid, 0) for tid, ns in threads1.items()}
+        span_s = max(1e-9, t_threads1 - t_threads0)
+        daemon_threads = {
+            "loop": spent.pop(daemon.pid, 0) / 1e6 / span_s,
+            "other": sum(spent.values()) / 1e6 / span_s,
+        }
         n_window = n_total - n_warm
+        if page is not None:
+            page_updates = (page.execute_script(_PAGE_UPDATES) - updates0) / (time.monotonic() - t_page0)
     finally:
+        if page is not None:
+            page.quit()
         for proc in (daemon, echo):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
@@ -393,6 +472,10 @@ def bench_one(
         "filter": filter_name,
         "scheduling": wanted,
         "stagger": stagger,
+        "with_page": with_page,
+        # CPU of the daemon's threads over the window, ms per second
+        "daemon_threads_ms_per_s": daemon_threads,
+        "page_attitude_updates_hz": page_updates,
         "cpus": None if placement is None else {"sender": sorted(placement[0]), "servers": sorted(placement[1])},
         "rate_hz": rate_hz,
         "window_s": duration_s,
@@ -467,6 +550,10 @@ def _report(r: dict[str, Any]) -> str:
             f"({k.get('fast_lane_chained', 0)} chained over queued datagrams), "
             f"{k.get('fast_lane_mismatches', 0)} mismatches",
         ]
+        + [f"  daemon CPU by thread: loop {r['daemon_threads_ms_per_s']['loop']:.1f} ms/s, other threads "
+           f"{r['daemon_threads_ms_per_s']['other']:.2f} ms/s"]
+        + ([f"  status page open in headless Chromium throughout: {r['page_attitude_updates_hz']:.1f} attitude "
+            "updates/s on the page"] if r.get("with_page") else [])
     )
 
 
@@ -487,6 +574,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-pin", dest="pin", action="store_false",
                     help="leave CPU placement to the scheduler instead of this script on the first usable CPU "
                     "and both servers on the others")
+    ap.add_argument("--with-page", action="store_true",
+                    help="the daemon serves --http and headless Chromium keeps the status page open throughout "
+                    "(needs selenium, chromium, chromedriver)")
     ap.add_argument("-v", "--verbose", action="store_true", help="show the daemon's log")
     ap.add_argument("--echo-server", type=int, metavar="PORT", help=argparse.SUPPRESS)
     ap.add_argument("--echo-stats", metavar="FILE", help=argparse.SUPPRESS)
@@ -508,7 +598,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         try:
             r = bench_one(name, args.rate, args.warmup, args.duration, args.verbose, args.realtime_priority,
-                          args.stagger, args.pin)
+                          args.stagger, args.pin, args.with_page)
         except RuntimeError as exc:
             print(f"bench_live: {name}: {exc}", file=sys.stderr)
             return 2

@@ -31,6 +31,7 @@ LIVE_TESTS = (
     "tests/firmware_sim/test_sim_live.py",
     "tests/service/test_daemon_e2e.py",
     "tests/service/test_daemon_loop.py",
+    "tests/service/test_http_live.py",
 )
 
 

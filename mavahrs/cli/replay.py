@@ -31,8 +31,6 @@ autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE truth)
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import add_source_option, add_velocity_source_option
-
     p: argparse.ArgumentParser = subparsers.add_parser(
         "replay", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )

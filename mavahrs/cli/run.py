@@ -34,6 +34,7 @@ examples:
   mavahrs run --master /dev/ttyACM0 --baud 921600 --out udpout:127.0.0.1:14551
   mavahrs run --master udpin:0.0.0.0:14550 --out udpout:192.168.1.10:14550 --log flight.tlog
   mavahrs run --master tcp:127.0.0.1:5760 --filter madgwick --out-rate 0
+  mavahrs run --master udpin:0.0.0.0:14550 --http 8088   # then open http://127.0.0.1:8088/
 """
 
 # CLI option -> dotted setting (value conversions happen in mavahrs.config).
@@ -61,6 +62,8 @@ _OVERRIDES = {
     "signing_link_id": "daemon.signing_link_id",
     "realtime_priority": "daemon.realtime_priority",
     "fast_lane": "daemon.fast_lane",
+    "http": "daemon.http",
+    "http_token": "daemon.http_token",
 }
 
 
@@ -145,6 +148,18 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     sec.add_argument(
         "--signing-link-id", type=int, metavar="N",
         help="link id 0-255 written into our signatures (default: {daemon.signing_link_id})",
+    )
+    web = p.add_argument_group("status page (pip install 'mavahrs[http]'; docs/status-page.md)")
+    web.add_argument(
+        "--http", metavar="[HOST:]PORT",
+        help="serve a read-only status page (attitude, link and filter health), /status.json, /metrics, "
+        "/healthz and /register_service on PORT; HOST defaults to 127.0.0.1 (default: off)",
+    )
+    web.add_argument(
+        "--http-token", metavar="TOKEN",
+        help="require TOKEN on every request (query token=TOKEN or header 'Authorization: Bearer TOKEN'; not on /healthz "
+        "and /register_service); without it a non-loopback HOST is served with a warning. Visible in the "
+        "process list: prefer daemon.http_token in --config (default: none)",
     )
     ops = p.add_argument_group("operation")
     ops.add_argument("--config", metavar="FILE", help="TOML settings file (see contrib/mavahrs.example.toml)")

@@ -40,20 +40,36 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "tune", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("inputs", nargs="+", metavar="STATIONARY", help="tlog or CSV recorded at rest (one or more)")
-    p.add_argument("--output", "-o", metavar="TOML", help="write the settings file here (default: print only)")
-    p.add_argument("--gains", choices=("flight", "spec", "ls"), default="flight",
-                   help="flight: write no gains (the default filter keeps its flight gains), only the gyro "
-                   "temperature model; spec formulas or least squares: Madgwick's beta/zeta fitted at rest, "
-                   "for a bench only (default flight)")
-    p.add_argument("--imu", default="auto", metavar="N", help="tlog: IMU instance 0, 1, 2 or auto (default auto)")
+    p.add_argument(
+        "inputs", nargs="+", metavar="STATIONARY", help="tlog or CSV recorded at rest (one or more)"
+    )
+    p.add_argument(
+        "--output", "-o", metavar="TOML", help="write the settings file here (default: print only)"
+    )
+    p.add_argument(
+        "--gains",
+        choices=("flight", "spec", "ls"),
+        default="flight",
+        help="flight: write no gains (the default filter keeps its flight gains), only the gyro "
+        "temperature model; spec formulas or least squares: Madgwick's beta/zeta fitted at rest, "
+        "for a bench only (default flight)",
+    )
+    p.add_argument(
+        "--imu", default="auto", metavar="N", help="tlog: IMU instance 0, 1, 2 or auto (default auto)"
+    )
     p.add_argument("--start", type=float, metavar="S", help="use the recording from S seconds")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds")
     p.add_argument("--json", action="store_true", help="print the fitted figures as JSON")
     add_source_option(p)
-    p.add_argument("--dask", action="store_true", help="several inputs: one Dask task each on a local cluster")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="… or on an existing Dask cluster (tcp://HOST:8786)")
-    p.add_argument("--workers", type=int, metavar="N", help="local cluster: worker processes (default: one per core)")
+    p.add_argument(
+        "--dask", action="store_true", help="several inputs: one Dask task each on a local cluster"
+    )
+    p.add_argument(
+        "--scheduler", metavar="ADDRESS", help="… or on an existing Dask cluster (tcp://HOST:8786)"
+    )
+    p.add_argument(
+        "--workers", type=int, metavar="N", help="local cluster: worker processes (default: one per core)"
+    )
     p.set_defaults(func=run)
     return p
 
@@ -102,7 +118,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.output:
         out = Path(args.output)
         out.write_text(result.to_toml(gains=args.gains), encoding="utf-8")
-        temp = "the gyro temperature model" if result.temperature_model else "no temperature model (no spread)"
+        temp = (
+            "the gyro temperature model" if result.temperature_model else "no temperature model (no spread)"
+        )
         if args.gains == "flight":
             what = f"{temp}; no gains: the filter keeps its flight gains"
         else:

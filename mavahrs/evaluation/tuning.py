@@ -60,7 +60,16 @@ from mavahrs.evaluation.datasets import Recording
 from mavahrs.geometry.quaternion import conjugate, from_rotation_vector, multiply
 from mavahrs.geometry.rotation import from_matrix
 
-__all__ = ["TuneSettings", "TuneResult", "tune", "tune_file", "combine", "least_squares_gain", "least_squares_terms", "SPEC_FACTOR"]
+__all__ = [
+    "TuneSettings",
+    "TuneResult",
+    "tune",
+    "tune_file",
+    "combine",
+    "least_squares_gain",
+    "least_squares_terms",
+    "SPEC_FACTOR",
+]
 
 Array = NDArray[np.float64]
 
@@ -143,9 +152,7 @@ class TuneResult:
             lines.append("  drift in time   " + _three(d3(self.drift_rad_s2), "°/s per s", 6))
         lines.append("  noise SD        " + _three(d3(self.noise_sd_rad_s), "°/s", 4))
         lines.append("  noise mean |ϑ|  " + _three(d3(self.noise_mean_abs_rad_s), "°/s", 4))
-        lines.append(
-            f"ω̃_β = {self.omega_beta_rad_s:.6f} rad/s, ω̃_ζ = {self.omega_zeta_rad_s2:.3e} rad/s²"
-        )
+        lines.append(f"ω̃_β = {self.omega_beta_rad_s:.6f} rad/s, ω̃_ζ = {self.omega_zeta_rad_s2:.3e} rad/s²")
         lines.append(f"{'':24}{'spec (eq. 50–51)':>18}{'least squares (004)':>22}")
         lines.append(f"{'β  (rad/s)':24}{self.beta_spec:18.6f}{self.beta_ls:22.6f}")
         lines.append(f"{'ζ  (rad/s²)':24}{self.zeta_spec:18.3e}{self.zeta_ls:22.3e}")
@@ -210,11 +217,15 @@ class TuneResult:
         beta, zeta = self.gains(gains)
         warning = self.flight_warning(gains)
         if gains == "flight":
-            pipeline = ["# no filter_name: the daemon's default filter (best) with its own flight gains; the",
-                        "# Madgwick gains fitted at rest are below as comments (a bench's, not a flight's)"]
+            pipeline = [
+                "# no filter_name: the daemon's default filter (best) with its own flight gains; the",
+                "# Madgwick gains fitted at rest are below as comments (a bench's, not a flight's)",
+            ]
         else:
-            pipeline = ["# the gains below are Madgwick's; pick another filter with --filter (its table is then unused)",
-                        'filter_name = "madgwick"']
+            pipeline = [
+                "# the gains below are Madgwick's; pick another filter with --filter (its table is then unused)",
+                'filter_name = "madgwick"',
+            ]
         lines = [
             f"# Written by `mavahrs tune` from {self.name} ({self.samples} samples, "
             f"{self.duration_s:.0f} s).",
@@ -242,16 +253,18 @@ class TuneResult:
                 "",
             ]
         if gains == "flight":
-            return "\n".join([
-                *lines,
-                "# Madgwick gains fitted at rest, NOT written (a bench's gains, not fit to fly with):",
-                f"#   spec beta = {self.beta_spec:.6g} rad/s, zeta = {self.zeta_spec:.6g} rad/s^2; "
-                f"least squares beta = {self.beta_ls:.6g}, zeta = {self.zeta_ls:.6g}",
-                f"#   omega_beta = {self.omega_beta_rad_s:.6g} rad/s (mean |gyro noise| per axis), "
-                f"omega_zeta = {self.omega_zeta_rad_s2:.6g} rad/s^2 (bias drift rate per axis).",
-                "# `mavahrs tune --gains spec` writes them, for bench tests.",
-                "",
-            ])
+            return "\n".join(
+                [
+                    *lines,
+                    "# Madgwick gains fitted at rest, NOT written (a bench's gains, not fit to fly with):",
+                    f"#   spec beta = {self.beta_spec:.6g} rad/s, zeta = {self.zeta_spec:.6g} rad/s^2; "
+                    f"least squares beta = {self.beta_ls:.6g}, zeta = {self.zeta_ls:.6g}",
+                    f"#   omega_beta = {self.omega_beta_rad_s:.6g} rad/s (mean |gyro noise| per axis), "
+                    f"omega_zeta = {self.omega_zeta_rad_s2:.6g} rad/s^2 (bias drift rate per axis).",
+                    "# `mavahrs tune --gains spec` writes them, for bench tests.",
+                    "",
+                ]
+            )
         source = {
             "spec": "the sensor-spec formulas, Madgwick 2010 eq. (50)-(51)",
             "ls": "the least-squares method of Selezneva & Kumarin, eq. (5)",
@@ -418,7 +431,11 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
     ok &= np.linalg.norm(accel, axis=1) > 0
     dt = np.asarray(rec.dt_s, dtype=np.float64)
     t = rec.extra.get("time_s")
-    t = np.asarray(t, dtype=np.float64) if t is not None else np.cumsum(np.nan_to_num(dt)) - np.nan_to_num(dt[0])
+    t = (
+        np.asarray(t, dtype=np.float64)
+        if t is not None
+        else np.cumsum(np.nan_to_num(dt)) - np.nan_to_num(dt[0])
+    )
     temp_raw = rec.extra.get("temperature_c")
     temp = np.asarray(temp_raw, dtype=np.float64) if temp_raw is not None else None
     if temp is not None and not np.isfinite(temp).any():
@@ -564,8 +581,13 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
 
 
 def tune_file(
-    path: Any, *, imu: str = "auto", start_s: float | None = None, end_s: float | None = None,
-    settings: TuneSettings | None = None, source: tuple[int, int | None] | None = None,
+    path: Any,
+    *,
+    imu: str = "auto",
+    start_s: float | None = None,
+    end_s: float | None = None,
+    settings: TuneSettings | None = None,
+    source: tuple[int, int | None] | None = None,
 ) -> TuneResult:
     """:func:`tune` on a tlog (the daemon's scaling and timing) or a CSV, cut to ``start_s``…``end_s``.
 
@@ -581,7 +603,11 @@ def tune_file(
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(2, "no such file", str(p))
-    rec = load_tlog_recording(p, imu=imu, reference=False, source=source) if p.suffix.lower() == ".tlog" else load_one(p)
+    rec = (
+        load_tlog_recording(p, imu=imu, reference=False, source=source)
+        if p.suffix.lower() == ".tlog"
+        else load_one(p)
+    )
     return tune(cut_recording(rec, start_s, end_s), settings)
 
 
@@ -611,8 +637,10 @@ def combine(results: list[TuneResult], name: str = "") -> TuneResult:
     dur = sum(r.duration_s for r in results)
     samples = sum(r.samples for r in results)
     variances = np.average([np.square(r.noise_sd_rad_s) for r in results], axis=0, weights=w)
-    notes = [f"one set of gains over {len(results)} recordings ({', '.join(r.name for r in results)}): least-squares "
-             "terms summed, noise figures averaged by samples; no temperature model (the bias differs per power-up)"]
+    notes = [
+        f"one set of gains over {len(results)} recordings ({', '.join(r.name for r in results)}): least-squares "
+        "terms summed, noise figures averaged by samples; no temperature model (the bias differs per power-up)"
+    ]
     return TuneResult(
         name=name or f"{len(results)} recordings",
         samples=samples,
@@ -621,8 +649,10 @@ def combine(results: list[TuneResult], name: str = "") -> TuneResult:
         axes=min(r.axes for r in results),
         temperature_model=False,
         t0_c=math.nan,
-        temperature_range_c=(min(r.temperature_range_c[0] for r in results),
-                             max(r.temperature_range_c[1] for r in results)),
+        temperature_range_c=(
+            min(r.temperature_range_c[0] for r in results),
+            max(r.temperature_range_c[1] for r in results),
+        ),
         b0_rad_s=mean3("b0_rad_s"),
         k_rad_s_per_c=(0.0, 0.0, 0.0),
         drift_rad_s2=mean3("drift_rad_s2"),

@@ -110,6 +110,16 @@ class DaemonSettings:
             the same frame and checks it byte for byte
             (:mod:`mavahrs.service.fastlane`; a difference is logged, counted
             and switches the lane off).  False = the Python path only.
+        http: serve the status page, ``/status.json``, ``/metrics``,
+            ``/healthz`` and ``/register_service`` on ``[HOST:]PORT`` (host
+            127.0.0.1 when omitted; needs ``pip install 'mavahrs[http]'``;
+            docs/status-page.md).  None = no web server.
+        http_token: a token every status-page request must carry (``?token=``
+            or ``Authorization: Bearer``), except ``/healthz`` and
+            ``/register_service``.  Without one, an address beyond this machine
+            is served with a warning in the log.  None = no token.
+        http_health_timeout_s: ``/healthz`` answers 503 when nothing came from
+            the autopilot link, or no attitude went out, for this long, s.
     """
 
     master: str = "udpin:0.0.0.0:14550"
@@ -133,6 +143,9 @@ class DaemonSettings:
     signing_link_id: int = 0
     realtime_priority: int = 0
     fast_lane: bool = True
+    http: str | None = None
+    http_token: str | None = None
+    http_health_timeout_s: float = 1.0
 
     def __post_init__(self) -> None:
         def positive(name: str, value: float) -> None:
@@ -166,6 +179,11 @@ class DaemonSettings:
             raise ValueError(f"daemon.realtime_priority must be 0 (normal) or 1…99 (SCHED_FIFO), got {self.realtime_priority!r}")
         if not isinstance(self.fast_lane, bool):
             raise ValueError(f"daemon.fast_lane must be true or false, got {self.fast_lane!r}")
+        if self.http is not None:
+            from mavahrs.service.http import parse_http_address
+
+            parse_http_address(self.http)  # ConfigError with the accepted forms
+        positive("http_health_timeout_s", self.http_health_timeout_s)
 
 
 def _load_filter_kernel(pipeline: Any) -> None:
@@ -393,10 +411,13 @@ class Daemon:
         self._heartbeats = 0
         self._link_silent = False
         self._last_status_s = 0.0
-        self._status_latency_count = 0  # latency samples at the previous status line
         self._status_line = ""
         self._master_reconnects = 0
         self.last_status: dict[str, Any] = {}
+        self.last_pipeline_status: Any = None  # the pipeline's status object behind the last status_fields()
+        self._status_latency_counts: dict[str, int] = {}  # latency samples at the previous status, per window
+        self.http_server: Any = None  # a listening StatusServer (build_daemon), stopped by close()
+        self.http_publisher: Any = None  # its StatusPublisher, ticked with the timer from run()
         self._decode: Callable[[bytes], list[Any]] = (
             codec.receive_datagram if master.datagram else codec.receive_stream
         )
@@ -702,6 +723,11 @@ class Daemon:
         for level, message in self._notices.drain():
             self.log.log(level, "%s", message)
         self._watchdog(now_s)
+        if self.http_publisher is not None:
+            try:
+                self.http_publisher.tick(self, now_s)
+            except Exception as exc:  # noqa: BLE001 - the status page never stops the daemon
+                self._notices.warning(f"http:{type(exc).__name__}", f"status page snapshot failed: {exc}", now_us)
         s = self.settings
         if s.status_interval_s and now_s - self._last_status_s >= s.status_interval_s:
             self._last_status_s = now_s
@@ -752,20 +778,23 @@ class Daemon:
         return f"no heartbeat from {where} within {timeout:g} s ({hint})"
 
     # ------------------------------------------------------------------ reporting
-    def status_fields(self, now_s: float | None = None) -> dict[str, Any]:
+    def status_fields(self, now_s: float | None = None, *, window: str = "log") -> dict[str, Any]:
         """The status-line fields (also logged as JSON with ``--log-format json``).
 
         Rates, gain, accelerometer/magnetometer weights and rejection, bias and
         the IMU in use come from the pipeline; decoder counters (CRC errors,
         bad data, sequence gaps), the loop's drops and the processing latency
-        (since the previous status) from here.
+        (since the previous status) from here.  ``window``: the status line
+        and the status page each have their own "since the previous status".
         """
         now_s = time.monotonic() if now_s is None else now_s
-        status = self.pipeline.status(int(now_s * 1e6))
+        now_us = int(now_s * 1e6)
+        status = self.pipeline.status(now_us) if window == "log" else self.pipeline.status(now_us, window=window)
+        self.last_pipeline_status = status
         p = _status_dict(status)
         cc = self.codec.counters
-        latency = LatencyRing.summary_us(self.latency.values(self._status_latency_count))
-        self._status_latency_count = self.latency.count
+        latency = LatencyRing.summary_us(self.latency.values(self._status_latency_counts.get(window, 0)))
+        self._status_latency_counts[window] = self.latency.count
         link_drops = self.counters.input_dropped + sum(
             link.counters.writes_dropped for link in (self.master, *self.outputs)
         )
@@ -875,6 +904,10 @@ class Daemon:
                 )
         self._scheduling = scheduling_description()
         self._started_s = time.monotonic()
+        if self.http_server is not None:
+            from mavahrs.service.http import StatusPublisher
+
+            self.http_publisher = StatusPublisher(self.http_server.board, self._started_s)
         self._last_status_s = self._started_s
         self.log.info(
             "mavahrs running: master %s; outputs %s; log %s; scheduling %s%s",
@@ -952,6 +985,8 @@ class Daemon:
         if self._closed:
             return
         self._closed = True
+        if self.http_server is not None:
+            self.http_server.stop()
         if self.sink is not None:
             self.sink.close()
         for link in (self.master, *self.outputs):
@@ -1037,6 +1072,15 @@ def build_daemon(
 
     master_ep = parse_connection_string(settings.master, settings.baud)
     output_eps = [parse_connection_string(text, settings.baud) for text in settings.outputs]
+    server = None
+    if settings.http is not None:  # the optional extra is checked before anything opens (ConfigError)
+        from mavahrs.service.http import StatusBoard, StatusServer, parse_http_address
+
+        host, port = parse_http_address(settings.http)
+        server = StatusServer(
+            StatusBoard(), host, port, token=settings.http_token,
+            health_timeout_s=settings.http_health_timeout_s, logger=logger,
+        )
     signing_key = None
     if settings.require_signing and not settings.signing_key_path:
         raise ConfigError("--require-signing needs a key: --signing-key FILE (daemon.signing_key_path)")
@@ -1071,14 +1115,19 @@ def build_daemon(
         warm_up = getattr(getattr(pipeline, "filter", None), "warm_up", None)
         if warm_up is not None:  # compile/load the filter kernel before serving, not on the first sample
             warm_up()
+        if server is not None:
+            server.start()
     except BaseException:
         for link in opened:
             link.close()
         if sink is not None:
             sink.close()
+        if server is not None:
+            server.stop()
         raise
     # A decoding codec for the master link (the pipeline encodes with its own ids).
     daemon = Daemon(settings, pipeline, opened[0], opened[1:], codec=MavCodec(), sink=sink, logger=logger)
+    daemon.http_server = server
     if signing_key is not None:
         try:
             daemon.enable_signing(signing_key, link_id=settings.signing_link_id, require=settings.require_signing)

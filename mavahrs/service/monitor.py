@@ -54,6 +54,7 @@ __all__ = [
     "align_attitudes",
     "monitor_series",
     "attitude_of_message",
+    "attitude_divergence_rad",
     "WARNING_TEXT",
     "CLEARED_TEXT",
 ]
@@ -214,6 +215,11 @@ def _divergence(a: Sequence[float], b: Sequence[float]) -> tuple[float, float]:
     tilt = 2.0 * math.acos(min(1.0, math.sqrt(w * w + z * z)))
     heading = 2.0 * math.atan2(z, w)
     return tilt, heading
+
+
+def attitude_divergence_rad(a: Sequence[float], b: Sequence[float]) -> tuple[float, float]:
+    """(tilt, heading) of ``a`` relative to ``b`` (both ``q_body_to_ned``), rad; heading signed (−π, π]."""
+    return _divergence(a, b)
 
 
 def _nlerp(a: Sequence[float], b: Sequence[float], f: float) -> tuple[float, float, float, float]:

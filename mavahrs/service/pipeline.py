@@ -99,7 +99,7 @@ from mavahrs.sensors.profiles import (
 from mavahrs.sensors.sample import ACCEL, GYRO, MAG, write_row
 from mavahrs.sensors.scaling import Scaler, ScalingSettings
 from mavahrs.sensors.velocity import LABELS, VELOCITY_SOURCES, VelocitySelector, fix_age_s, source_messages
-from mavahrs.service.monitor import AttitudeMonitor, MonitorSettings
+from mavahrs.service.monitor import AttitudeMonitor, MonitorSettings, MonitorStatus
 from mavahrs.service.stats import Notices, RateMeter
 from mavahrs.service.stream_requests import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
@@ -129,6 +129,7 @@ _RAD2DEG = 180.0 / math.pi
 _BACKLOG = 1024  # samples kept per unselected IMU instance for a seamless fail-over (2.5 s at 400 Hz)
 _SNAPSHOT_US = 100_000  # filter state kept every 0.1 s of sample time …
 _SNAPSHOTS = 30  # … for 3 s, to undo samples of an IMU found frozen/saturated/disagreeing
+_GNSS_FRESH_US = 2_000_000  # a GNSS fix this recent counts as "in use" on the status page
 _G = 9.80665
 # Fast encoding of the fixed-layout messages sent per sample (see Pipeline._frame): MAVLink 2 header,
 # payload as pymavlink packs it (common.xml field order: largest types first), CRC-16/MCRF4XX with CRC_EXTRA.
@@ -372,6 +373,10 @@ class PipelineStatus:
         velocity_fixes: fixes fed so far, per message.
         velocity_skipped: velocity messages not fed, by reason (``no_fix``,
             ``unknown_velocity``, ``repeated``, ``reordered``, ``standby``).
+        monitor_state: the same as figures (None when the comparison is off).
+        gnss_velocity: GNSS velocity aiding: ``"in use"`` (a fix fed within
+            the last 2 s), ``"no fix"``, ``"none"`` (no velocity message from
+            the source yet) or ``"off"`` (``velocity_source = "none"``).
     """
 
     connected: bool
@@ -406,6 +411,8 @@ class PipelineStatus:
     velocity: str = "vel none"
     velocity_fixes: Mapping[str, int] = field(default_factory=dict)
     velocity_skipped: Mapping[str, int] = field(default_factory=dict)
+    monitor_state: MonitorStatus | None = None
+    gnss_velocity: str = "none"
 
     def line(self) -> str:
         """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | … | vel GPI 10 Hz | …``."""
@@ -530,7 +537,12 @@ class Pipeline:
         self.outputs_sent = 0
         self._accel_rejected_n = 0
         self._mag_rejected_n = 0
-        self._status_mark = (0, 0, 0)  # (samples filtered, accel rejected, mag rejected) at the last status()
+        # (samples filtered, accel rejected, mag rejected) at the last status() of each window
+        self._status_marks: dict[str, tuple[int, int, int]] = {}
+        self._gnss_seen_us: int | None = None  # last GNSS velocity message from the source
+        self._gnss_fix_us: int | None = None  # … of those, the last with a fix
+        self._ap_attitude_msg: Any = None  # the source's last ATTITUDE / ATTITUDE_QUATERNION (for the status page)
+        self._ap_attitude_us = 0
         self._source_since_us: int | None = None
         #: called as ``hook(message, t_us, input_row, output_row)`` after every sample the filter ran on
         #: (replay/CSV writers; the rows are reused: copy what you keep).  None = nothing (the daemon).
@@ -935,10 +947,12 @@ class Pipeline:
         meter = self._requester.meters.get(msg.get_type())
         if meter is not None:
             meter.add(now_us)
+        self._gnss_seen_us = now_us
         f = self._decl.field  # the filter's earth frame is magnetic NED; GNSS velocity is true NED
         got = self._velocity.offer(msg, now_us, f.declination_rad if f is not None else None)
         if got is not None:
             fix, vn, ve, vd = got
+            self._gnss_fix_us = now_us
             self._vel = (vn, ve, vd, fix.fix_time_us)
             if fix.message != self._vel_meter_source:  # the rate shown is the source in use's
                 self._vel_meter.reset()
@@ -961,7 +975,10 @@ class Pipeline:
 
     def _on_autopilot_attitude(self, msg: Any, now_us: int) -> list[Outgoing]:
         """The autopilot's own ATTITUDE / ATTITUDE_QUATERNION: compared with ours (issue 9, second opinion)."""
-        if not self._monitor_on or not self._from_source(msg):
+        if not self._from_source(msg):
+            return []
+        self._ap_attitude_msg, self._ap_attitude_us = msg, now_us  # converted only when asked for
+        if not self._monitor_on:
             return []
         return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._monitor.handle(msg, now_us)]
 
@@ -1171,8 +1188,37 @@ class Pipeline:
             out["jumps_rejected"] += c.jumps_rejected
         return out
 
-    def status(self, now_us: int | None = None) -> PipelineStatus:
-        """A snapshot; ``now_us`` defaults to the last tick's time (for the rates)."""
+    def live_attitude(self) -> tuple[int | None, tuple[float, float, float, float] | None, Any, int]:
+        """Cheap, for a display: ``(time_boot_ms, q_body_to_ned, autopilot message, its receipt µs)``.
+
+        The latest filter output (declination applied as in the output) and the sample time it
+        belongs to, or ``(None, None, …)`` before the filter has an attitude; the source's last
+        ATTITUDE / ATTITUDE_QUATERNION as received (None before one), unconverted (see
+        :func:`~mavahrs.service.monitor.attitude_of_message`).
+        """
+        out = self._filter._out if hasattr(self._filter, "_out") else None
+        ap = self._ap_attitude_msg
+        if out is None or int(out[OUT_FLAGS]) & FLAG_NOT_INITIALISED or self._last_fed_t is None:
+            return None, None, ap, self._ap_attitude_us
+        q = tuple(out[OUT_Q : OUT_Q + 4].tolist())
+        d = self._decl.declination_rad
+        if d:
+            q = apply_declination_wxyz(*q, d)
+        return (self._last_fed_t // 1000) & 0xFFFFFFFF, q, ap, self._ap_attitude_us
+
+    def _gnss_state(self, now_us: int) -> str:
+        if self.settings.effective_velocity_source == "none":
+            return "off"
+        if self._gnss_seen_us is None:
+            return "none"
+        fix = self._gnss_fix_us
+        return "in use" if fix is not None and now_us - fix <= _GNSS_FRESH_US else "no fix"
+
+    def status(self, now_us: int | None = None, *, window: str = "log") -> PipelineStatus:
+        """A snapshot; ``now_us`` defaults to the last tick's time (for the rates).
+
+        ``window``: the rejection shares are over the samples since the previous call with the
+        same window (the status line and the status page each have their own)."""
         now = now_us if now_us is not None else (self._last_tick_us or 0)
         diag = self._filter.diagnostics
         out = self._filter._out if hasattr(self._filter, "_out") else None
@@ -1184,11 +1230,11 @@ class Pipeline:
             if d:
                 q = apply_declination_wxyz(*q, d)
         b = diag.gyro_bias_rad_s
-        n0, a0, m0 = self._status_mark
+        n0, a0, m0 = self._status_marks.get(window, (0, 0, 0))
         n = self.samples_filtered - n0
         acc_pct = 100.0 * (self._accel_rejected_n - a0) / n if n else 0.0
         mag_pct = 100.0 * (self._mag_rejected_n - m0) / n if n else 0.0
-        self._status_mark = (self.samples_filtered, self._accel_rejected_n, self._mag_rejected_n)
+        self._status_marks[window] = (self.samples_filtered, self._accel_rejected_n, self._mag_rejected_n)
         connected = self._last_hb_us is not None and not self._link_lost and now - self._last_hb_us <= self._hb_timeout_us
         vs = self._velocity
         vel_in_use = vs.in_use(now)
@@ -1227,6 +1273,8 @@ class Pipeline:
             velocity="vel none" if vel_in_use is None else f"vel {vel_label} {self._vel_meter.rate(now):.0f} Hz",
             velocity_fixes={m: vs.used(m) for m in vs.messages},
             velocity_skipped=dict(vs.counters),
+            monitor_state=self._monitor.status if self._monitor_on else None,
+            gnss_velocity=self._gnss_state(now),
         )
 
     @property

@@ -1,0 +1,164 @@
+// mavahrs status page: reads /events (Server-Sent Events) and draws; sends nothing back.
+"use strict";
+(function () {
+  const PX_PER_DEG = 2;  // pitch ladder scale, SVG units per degree
+  const SVG = "http://www.w3.org/2000/svg";
+  const token = new URLSearchParams(location.search).get("token");
+  const query = token ? "?token=" + encodeURIComponent(token) : "";
+  const $ = (id) => document.getElementById(id);
+
+  function el(name, attrs, parent, text) {
+    const e = document.createElementNS(SVG, name);
+    for (const k in attrs) e.setAttribute(k, attrs[k]);
+    if (text !== undefined) e.textContent = text;
+    parent.appendChild(e);
+    return e;
+  }
+
+  // static drawing: pitch ladder, roll scale, compass rose
+  const ladder = $("ladder");
+  ladder.setAttribute("class", "ladder");
+  for (let p = -60; p <= 60; p += 5) {
+    if (p === 0) continue;
+    const y = -p * PX_PER_DEG, w = p % 10 === 0 ? 22 : 10;
+    el("line", { x1: -w, x2: w, y1: y, y2: y }, ladder);
+    if (p % 10 === 0) {
+      el("text", { x: -w - 9, y: y }, ladder, Math.abs(p));
+      el("text", { x: w + 9, y: y }, ladder, Math.abs(p));
+    }
+  }
+  const scale = $("roll-scale");
+  scale.setAttribute("class", "scale");
+  for (const a of [-60, -45, -30, -20, -10, 0, 10, 20, 30, 45, 60]) {
+    const len = a % 30 === 0 ? 10 : 6;
+    el("line", { x1: 0, x2: 0, y1: -94, y2: -94 + len, transform: "rotate(" + a + ")" }, scale);
+  }
+  const rose = $("rose");
+  for (let d = 0; d < 360; d += 5) {
+    const major = d % 30 === 0;
+    el("line", { x1: 0, x2: 0, y1: -92, y2: major ? -80 : (d % 10 === 0 ? -85 : -88),
+      class: major ? "major" : "", transform: "rotate(" + d + ")" }, rose);
+    if (major) {
+      const names = { 0: "N", 90: "E", 180: "S", 270: "W" };
+      const label = names[d] || String(d / 10);
+      el("text", { x: 0, y: -68, transform: "rotate(" + d + ")", class: d === 0 ? "north" : "" }, rose, label);
+    }
+  }
+
+  const fmt = (v, digits) => (v === null || v === undefined || !isFinite(v)) ? "–" : Number(v).toFixed(digits);
+  const signed = (v, digits) => (v === null || v === undefined || !isFinite(v)) ? "–" : (v >= 0 ? "+" : "") + Number(v).toFixed(digits);
+  const set = (id, text) => { const e = $(id); if (e.textContent !== text) e.textContent = text; };
+  const horizonTransform = (roll, pitch) => "rotate(" + (-roll).toFixed(2) + ") translate(0 " + (pitch * PX_PER_DEG).toFixed(2) + ")";
+
+  function badge(id, cls, text) {
+    const e = $(id);
+    e.className = "badge " + cls;
+    e.textContent = text;
+  }
+
+  function onAttitude(msg) {
+    const a = msg.attitude;
+    const body = document.body;
+    body.dataset.attitudeUpdates = String(Number(body.dataset.attitudeUpdates) + 1);
+    badge("health", msg.healthy ? "ok" : "bad", msg.healthy ? "link OK" : msg.health);
+    set("uptime", formatDuration(a.uptime_s));
+    const horizon = $("horizon");
+    if (a.q) {
+      $("sky-ground").setAttribute("transform", horizonTransform(a.roll_deg, a.pitch_deg));
+      $("roll-pointer").setAttribute("transform", "rotate(" + (-a.roll_deg).toFixed(2) + ")");
+      $("rose").setAttribute("transform", "rotate(" + (-a.yaw_deg).toFixed(2) + ")");
+      horizon.dataset.rollDeg = a.roll_deg.toFixed(3);
+      horizon.dataset.pitchDeg = a.pitch_deg.toFixed(3);
+      horizon.dataset.timeBootMs = String(a.time_boot_ms);
+      $("compass").dataset.yawDeg = a.yaw_deg.toFixed(3);
+      set("roll", signed(a.roll_deg, 1));
+      set("pitch", signed(a.pitch_deg, 1));
+      set("yaw", fmt(a.yaw_deg, 0).padStart(3, "0"));
+    }
+    const ap = a.autopilot;
+    const ghost = $("ap-ghost"), apHeading = $("ap-heading");
+    if (ap && a.q) {
+      ghost.setAttribute("visibility", "visible");
+      apHeading.setAttribute("visibility", "visible");
+      // the autopilot's horizon drawn in the same frame as ours: rotated by its roll, shifted by its pitch
+      ghost.setAttribute("transform", horizonTransform(ap.roll_deg, ap.pitch_deg));
+      apHeading.setAttribute("transform", "rotate(" + (ap.yaw_deg - a.yaw_deg).toFixed(2) + ")");
+      set("ap-roll", signed(ap.roll_deg, 1));
+      set("ap-pitch", signed(ap.pitch_deg, 1));
+      set("ap-yaw", fmt(ap.yaw_deg, 0));
+    } else {
+      ghost.setAttribute("visibility", "hidden");
+      apHeading.setAttribute("visibility", "hidden");
+    }
+    const d = a.difference;
+    set("diff-tilt", d ? fmt(d.tilt_deg, 1) : "–");
+    set("diff-heading", d ? signed(d.heading_deg, 1) : "–");
+  }
+
+  function formatDuration(s) {
+    if (s === null || s === undefined) return "–";
+    s = Math.floor(s);
+    const h = Math.floor(s / 3600), m = Math.floor(s / 60) % 60, sec = s % 60;
+    return (h ? h + " h " : "") + (h || m ? m + " min " : "") + sec + " s";
+  }
+
+  function bar(id, weight) {
+    const e = $(id);
+    const w = isFinite(weight) && weight !== null ? Math.max(0, Math.min(1, weight)) : 0;
+    e.style.width = (w * 100).toFixed(0) + "%";
+    e.className = w < 0.5 ? "low" : "";
+  }
+
+  function onStatus(s) {
+    const body = document.body;
+    body.dataset.statusUpdates = String(Number(body.dataset.statusUpdates) + 1);
+    set("master", s.master || "");
+    set("in-hz", fmt(s.in_hz, 0));
+    set("filter-hz", fmt(s.filter_hz, 0));
+    set("out-hz", fmt(s.out_hz, 0));
+    set("drops", String(s.drops ?? "–"));
+    set("link-drops", String(s.link_drops ?? "–"));
+    set("crc", String(s.crc_errors ?? "–"));
+    set("bad", String(s.bad_data ?? "–"));
+    set("gaps", String(s.seq_gaps ?? "–"));
+    set("filter", s.filter || "–");
+    set("gain", fmt(s.gain, 3));
+    bar("accel-bar", s.accel_weight);
+    bar("mag-bar", s.mag_weight);
+    set("accel-weight", fmt(s.accel_weight, 2) + (s.accel_rejected ? " rejecting" : ""));
+    set("mag-weight", fmt(s.mag_weight, 2) + (s.mag_rejected ? " rejecting" : ""));
+    set("accel-rej", fmt(s.accel_rejection_pct, 0));
+    set("mag-rej", fmt(s.mag_rejection_pct, 0));
+    set("bias", s.bias_deg_s ? s.bias_deg_s.map((v) => signed(v, 2)).join("  ") : "–");
+    set("gnss", s.gnss_velocity || "–");
+    set("imu", s.imu === null || s.imu === undefined ? "none" : String(s.imu));
+    set("imu-reason", s.imu_reason || "");
+    set("lat50", fmt(s.latency_p50_us, 0));
+    set("lat99", fmt(s.latency_p99_us, 0));
+    set("msgs", String(s.messages_in ?? "–"));
+    set("atts", String(s.attitudes_out ?? "–"));
+    set("profile", s.autopilot_profile || "–");
+    set("vehicle", s.vehicle ? "(system " + s.vehicle[0] + ", component " + s.vehicle[1] + ")" : "");
+    set("heading-ref", s.heading_reference || "");
+    const so = s.second_opinion;
+    if (so) {
+      set("so-tilt", fmt(so.tilt_deg, 1));
+      set("so-heading", signed(so.heading_deg, 1));
+      set("so-comparisons", String(so.comparisons));
+      set("so-episodes", String(so.episodes));
+      if (so.comparisons === 0) badge("so-alarm", "unknown", "no autopilot attitude");
+      else badge("so-alarm", so.warning ? "warn" : "ok", so.warning ? "DIFFERS" : "agrees");
+    } else {
+      badge("so-alarm", "unknown", "off");
+    }
+  }
+
+  $("json-link").setAttribute("href", "status.json" + query);
+  $("metrics-link").setAttribute("href", "metrics" + query);
+  fetch("register_service").then((r) => r.json()).then((info) => set("version", info.version)).catch(() => {});
+
+  const events = new EventSource("events" + query);
+  events.addEventListener("attitude", (e) => onAttitude(JSON.parse(e.data)));
+  events.addEventListener("status", (e) => onStatus(JSON.parse(e.data)));
+  events.onerror = () => badge("health", "unknown", "no connection to mavahrs");
+})();
