@@ -117,7 +117,9 @@ _BIAS_LIMIT = 14  # rad/s per axis
 _VEL_RESET = 15  # s of rejected velocity before the velocity is reset to the fix
 _MAG_STALE = 16  # s: assumed age spread of a magnetometer reading (heading noise grows with the yaw rate)
 _REJECT_RESET = 17  # s of rejected attitude measurements before the attitude covariance is re-opened
-_N_PARAMS = 18
+_VEL_GATE = 18  # χ gate of the velocity fixes (σ)
+_NOISE_TAU = 19  # s: time constant of the measured sensor noise (0: fixed noise densities)
+_N_PARAMS = 20
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 
@@ -132,9 +134,11 @@ _PREV_VEL = _CLK + 4  # the previous row's velocity (3): a held value is not a n
 _PREV_MAG = _CLK + 7  # the previous row's magnetometer (3): a repeated reading is not a new one
 _GREJ = _CLK + 10  # how long every gravity / heading measurement has been rejected, s
 _PERIOD = _CLK + 11  # interval between the last two changes of the velocity, s (0: not known)
-_HPOS = _CLK + 12  # next history slot
-_HCOUNT = _CLK + 13  # filled history slots
-_DX = _CLK + 14  # accumulated error-state correction (N)
+_VIB = _CLK + 12  # running mean of ½‖Δω‖², ½‖Δf‖² between samples (2): the sensors' noise now
+_PREV_IMU = _CLK + 14  # the previous sample's gyro and specific force (6; NaN: none)
+_HPOS = _CLK + 20  # next history slot
+_HCOUNT = _CLK + 21  # filled history slots
+_DX = _CLK + 22  # accumulated error-state correction (N)
 _PH = _DX + N  # scratch: P·hᵀ (N)
 _H = _PH + N  # scratch: h (N)
 _C = _H + N  # scratch: C_body_to_ned (9)
@@ -163,7 +167,14 @@ class EskfSettings(FilterSettings):
         gravity_noise_m_s2: 1-σ noise of the accelerometer as a gravity
             measurement while not velocity-aided, m/s² (divided by the
             schedule's accelerometer trust).
-        gate_sigma: an innovation beyond this many σ is rejected.
+        gate_sigma: a magnetometer or gravity innovation beyond this many σ
+            is rejected.
+        velocity_gate_sigma: … a velocity innovation (each component).
+        measured_noise_tau_s: the gyro and accelerometer noise densities
+            are raised to what the stream shows (½ the mean square
+            difference of consecutive samples × dt, averaged over this time
+            constant, s): vibration aliased into a 100–400 Hz telemetry
+            stream is noise the fixed densities do not cover.  0 = fixed.
         aiding_timeout_s: no velocity fix fused for this long = not aided
             (the gravity measurement takes over; the next fix restarts the
             velocity).
@@ -200,6 +211,8 @@ class EskfSettings(FilterSettings):
     heading_noise_rad: float = math.radians(5.0)
     gravity_noise_m_s2: float = 1.0
     gate_sigma: float = 3.0
+    velocity_gate_sigma: float = 5.0
+    measured_noise_tau_s: float = 1.0
     aiding_timeout_s: float = 3.0
     sensor_delay_s: float = 0.0
     mag_rate_hz: float = 10.0
@@ -227,7 +240,7 @@ class EskfSettings(FilterSettings):
         super().__post_init__()
         for name in (
             "gyro_noise_rad_s", "accel_noise_m_s2", "bias_walk_rad_s2", "velocity_noise_m_s",
-            "vertical_velocity_noise_m_s", "heading_noise_rad", "gravity_noise_m_s2", "gate_sigma",
+            "vertical_velocity_noise_m_s", "heading_noise_rad", "gravity_noise_m_s2", "gate_sigma", "velocity_gate_sigma",
             "aiding_timeout_s", "mag_rate_hz", "initial_tilt_rad", "initial_heading_rad",
             "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s",
         ):  # fmt: skip
@@ -256,6 +269,8 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[k + _LAST_MAG] = -1.0e9
     for i in range(3):
         s[k + _PREV_VEL + i] = math.nan
+    for i in range(6):
+        s[k + _PREV_IMU + i] = math.nan
 
 
 @kernel
@@ -453,7 +468,23 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         state[k + _V] += fn * dt
         state[k + _V + 1] += fe * dt
         state[k + _V + 2] += (fd + G_M_S2) * dt
-    _propagate_covariance(state, k, dt, params[p + _Q_GYRO], params[p + _Q_ACCEL], params[p + _Q_BIAS])
+    q_gyro, q_accel = params[p + _Q_GYRO], params[p + _Q_ACCEL]
+    tau_n = params[p + _NOISE_TAU]
+    if tau_n > 0.0:
+        # noise as measured: half the mean square difference between consecutive samples is the
+        # per-sample variance of what is white in them (noise, aliased vibration); times dt, a density
+        kq = k + _PREV_IMU
+        if accel_ok and state[kq] == state[kq]:
+            dgx, dgy, dgz = row[IN_GYRO] - state[kq], row[IN_GYRO + 1] - state[kq + 1], row[IN_GYRO + 2] - state[kq + 2]
+            dax, day, daz = ax - state[kq + 3], ay - state[kq + 4], az - state[kq + 5]
+            w = min(dt / tau_n, 1.0)
+            state[k + _VIB] += (0.5 * (dgx * dgx + dgy * dgy + dgz * dgz) / 3.0 - state[k + _VIB]) * w
+            state[k + _VIB + 1] += (0.5 * (dax * dax + day * day + daz * daz) / 3.0 - state[k + _VIB + 1]) * w
+        state[kq], state[kq + 1], state[kq + 2] = row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2]
+        state[kq + 3], state[kq + 4], state[kq + 5] = (ax, ay, az) if accel_ok else (math.nan, math.nan, math.nan)
+        q_gyro = max(q_gyro, state[k + _VIB] * dt)
+        q_accel = max(q_accel, state[k + _VIB + 1] * dt)
+    _propagate_covariance(state, k, dt, q_gyro, q_accel, params[p + _Q_BIAS])
     integrate_body_rate(state, S_Q, gx, gy, gz, dt)
     # history of the INS velocity (the state after this sample, at its time)
     pos = int(state[k + _HPOS])
@@ -523,7 +554,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                     for i in range(N):
                         state[k + _H + i] = 0.0
                     state[k + _H + 3 + c] = 1.0
-                    if _scalar_update(state, k, y, r_h if c < 2 else r_v, gate):
+                    if _scalar_update(state, k, y, r_h if c < 2 else r_v, params[p + _VEL_GATE]):
                         accepted = True
                         updated = True
                 if accepted:
@@ -663,6 +694,8 @@ class Eskf(AttitudeFilter):
         p[_R_HEADING] = settings.heading_noise_rad**2
         p[_R_GRAVITY] = settings.gravity_noise_m_s2**2
         p[_GATE] = settings.gate_sigma
+        p[_VEL_GATE] = settings.velocity_gate_sigma
+        p[_NOISE_TAU] = settings.measured_noise_tau_s
         p[_AID_TIMEOUT] = settings.aiding_timeout_s
         p[_DELAY] = settings.sensor_delay_s
         p[_MAG_PERIOD] = 1.0 / settings.mag_rate_hz

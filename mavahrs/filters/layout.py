@@ -28,7 +28,8 @@ Output row (``OUT_WIDTH`` values): the attitude and the diagnostics.
 ===============  ==========================================================
 OUT_Q+k          q_body_to_ned, scalar first
 OUT_GAIN         current main correction gain (β, K_P, α or k_g), after the
-                 start-up boost and the rejection weights
+                 start-up boost and the rejection weights; ``eskf``: its
+                 1-σ tilt uncertainty, rad (the Kalman gain follows it)
 OUT_ACCEL_WEIGHT trust in the accelerometer this sample, 0 (rejected) … 1
 OUT_MAG_WEIGHT   trust in the magnetometer this sample, 0 … 1 (0 without one)
 OUT_BIAS+k       gyro bias estimate, body axes, rad/s
