@@ -125,7 +125,7 @@ def test_every_row_of_the_fleet(fleet, local_run) -> None:  # type: ignore[no-un
             assert r.alarm_times_s == f"{r.first_alarm_s:.3f}"
             assert 13.0 < r.inclination_max_deg < 17.0, name
     assert rows["empty.tlog"].error == "empty file"
-    assert rows["corrupt.tlog"].error == "no autopilot HEARTBEAT: cannot tell whose IMU data to use (set the source)"
+    assert rows["corrupt.tlog"].error == "no autopilot HEARTBEAT and no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU)"
     for name in ("empty.tlog", "corrupt.tlog"):
         r = rows[name]
         assert r.system_id is None and r.alarms is None and math.isnan(r.inclination_rms_deg)
@@ -146,8 +146,8 @@ def test_the_printed_summary_puts_the_worst_flights_first(fleet, local_run) -> N
     table = lines[head + 3 : head + 13]
     assert sorted(t.split()[0][:20] for t in table[:2]) == [n[:20] for n in faulted]
     assert all(t.split()[7] == "0" for t in table[2:])  # alarms column
-    assert lines[-3:] == ["unreadable:", "  corrupt.tlog: no autopilot HEARTBEAT: cannot tell whose IMU data to use "
-                          "(set the source)", "  empty.tlog: empty file"]  # fmt: skip
+    assert lines[-3:] == ["unreadable:", "  corrupt.tlog: no autopilot HEARTBEAT and no IMU messages (RAW_IMU, "
+                          "SCALED_IMU*, HIGHRES_IMU)", "  empty.tlog: empty file"]  # fmt: skip
     assert f"wrote {out / 'fleet.parquet'}" in res.stderr and f"wrote {out / 'fleet.png'}" in res.stderr
     assert (out / "fleet.png").stat().st_size > 30_000
 
