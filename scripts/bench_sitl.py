@@ -169,6 +169,8 @@ def table(results: dict[str, dict[str, tuple[float, float, float]]], names: list
     head = "| estimator | " + " | ".join(logs) + " |"
     lines = [head, "|---" * (len(logs) + 1) + "|"]
     for n in names:
+        if not any(n in results[log] for log in logs):
+            continue  # not run on this variant (the references: only on the logs as recorded)
         cells = []
         for log in logs:
             r = results[log].get(n)
