@@ -129,8 +129,8 @@ def _run(args: argparse.Namespace) -> int:
     start_kernels()
 
     if Path(args.tlog).is_dir():
-        raise ValueError(f"{args.tlog} is a directory: replay takes one .tlog file; "
-                         "for a folder of logs use `mavahrs evaluate FOLDER`")  # fmt: skip
+        raise ValueError(f"{args.tlog} is a directory: replay takes one .tlog file; for a folder of logs "
+                         "use `mavahrs audit FOLDER` (one row per flight)")  # fmt: skip
     if not Path(args.tlog).is_file():
         raise FileNotFoundError(2, "no such file", args.tlog)
     settings = settings_from_args(args)

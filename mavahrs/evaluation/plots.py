@@ -32,7 +32,16 @@ __all__ = ["plot_attitude", "plot_study", "plot_fleet", "PlotError"]
 Array = NDArray[np.float64]
 ANGLES = ("roll", "pitch", "yaw")
 _REF_COLOR = "black"
-_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:olive", "tab:cyan")
+#: ``best`` stands out: its own colour (no other filter gets it), a heavier line, drawn on top
+_BEST_COLOR = "tab:red"
+
+
+def _style(name: str, j: int, lw: float) -> dict[str, Any]:
+    """Line style of estimate ``name``, the ``j``-th of its plot."""
+    if name == "best":
+        return {"color": _BEST_COLOR, "lw": lw * 1.7, "zorder": 5}
+    return {"color": _COLORS[j % len(_COLORS)], "lw": lw}
 
 
 class PlotError(MavahrsError):
@@ -181,7 +190,7 @@ def plot_attitude(
         for j, (name, e) in enumerate(est_e.items()):
             y = _angle(e[:, k], k, like)
             like = y if like is None else like
-            ax.plot(t[idx], y, color=_COLORS[j % len(_COLORS)], lw=0.9, label=name)
+            ax.plot(t[idx], y, label=name, **_style(name, j, 0.9))
         for j, (name, (t_o, q_o)) in enumerate((others or {}).items()):
             e = euler_deg(q_o)
             y = _angle(e[:, k], k, np.interp(t_o, t[idx], like) if like is not None else None)
@@ -193,7 +202,7 @@ def plot_attitude(
             for j, (name, est) in enumerate(estimates.items()):
                 err = np.degrees(euler_errors_rad(_quats(est)[idx], reference_q[idx]))  # type: ignore[index]
                 rms = float(np.sqrt(np.nanmean(err[:, k] ** 2))) if np.isfinite(err[:, k]).any() else np.nan
-                axe.plot(t[idx], err[:, k], color=_COLORS[j % len(_COLORS)], lw=0.8, label=f"{name} RMS {rms:.2f}°")
+                axe.plot(t[idx], err[:, k], label=f"{name} RMS {rms:.2f}°", **_style(name, j, 0.8))
             axe.axhline(0, color="grey", lw=0.6)
             axe.set_ylabel(f"{a} err (°)")
             axe.grid(alpha=0.3)
@@ -205,10 +214,10 @@ def plot_attitude(
             est = np.asarray(est)
             if est.shape[1] != OUT_WIDTH:
                 continue
-            c = _COLORS[j % len(_COLORS)]
-            axg.plot(t[idx], est[idx, OUT_GAIN], color=c, lw=0.9, label=name)
-            axw.plot(t[idx], est[idx, OUT_ACCEL_WEIGHT], color=c, lw=0.9)
-            axw.plot(t[idx], est[idx, OUT_MAG_WEIGHT], color=c, lw=0.9, ls=":")
+            st = _style(name, j, 0.9)
+            axg.plot(t[idx], est[idx, OUT_GAIN], label=name, **st)
+            axw.plot(t[idx], est[idx, OUT_ACCEL_WEIGHT], **st)
+            axw.plot(t[idx], est[idx, OUT_MAG_WEIGHT], ls=":", **st)
         axg.set_ylabel("gain")
         axg.set_yscale("symlog", linthresh=0.01)
         axg.grid(alpha=0.3)

@@ -157,7 +157,7 @@ def test_replay_says_what_is_wrong_with_a_file_that_is_no_log(tmp_path: Path, ca
         f"replay: {text}: no MAVLink messages in this file: expected a telemetry log (.tlog, as MAVProxy, "
         "QGroundControl, Mission Planner and mavahrs write them)",
         f"replay: {tmp_path} is a directory: replay takes one .tlog file; for a folder of logs use "
-        "`mavahrs evaluate FOLDER`",
+        "`mavahrs audit FOLDER` (one row per flight)",
     ]
 
 
