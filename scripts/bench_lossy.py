@@ -197,7 +197,7 @@ def format_live(rows: list[dict[str, Any]], target: float) -> str:
     lines = [
         f"Live: mavahrs run (filter {rows[0]['filter']}) behind a UDP relay, firmware_sim "
         f"{rows[0]['scenario']} {rows[0]['duration_s']:g} s; RMS vs SIMSTATE truth, degrees "
-        "(inclination / heading); replay = the same flight's simulator tlog replayed with best, no link; "
+        "(inclination / heading); replay = the same flight's simulator tlog replayed with the same filter, no link; "
         "answered = samples answered / samples the simulator sent; lost = datagrams dropped / relayed; "
         "GNSS = velocity fixes the filter used; gaps, reinit = the daemon's counters",
         f"{'seed':>4} {'loss':>5} {'incl':>6} {'head':>6} {'replay':>13} {'answered':>13} {'lost fwd':>13} "
