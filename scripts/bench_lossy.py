@@ -4,10 +4,11 @@ with GNSS messages removed (issue 16's "lossy links" targets).
 
 Usage::
 
-    python3 scripts/bench_lossy.py                                  # live 3 seeds x 40 s x 2 runs + replays
+    python3 scripts/bench_lossy.py                  # live 3 seeds x 40 s x 2 runs (~4.5 min) + 18 replays (~40 s)
     python3 scripts/bench_lossy.py --live-seeds 1 2 3 4 5 6 --live-duration 60
-    python3 scripts/bench_lossy.py --no-replay                      # live part only (or --no-live)
-    python3 scripts/bench_lossy.py --replay-scenarios aggressive --replay-seeds 1 2 --json out.json
+    python3 scripts/bench_lossy.py --no-replay      # live part only (or --no-live)
+    python3 scripts/bench_lossy.py --no-live --replay-source gps_raw_int
+    python3 scripts/bench_lossy.py --filter madgwick --keep DIR --json out.json
 
 **Live** (real time, every process real, all on loopback)::
 
@@ -18,7 +19,7 @@ The simulator flies ``--live-scenario`` (default ``aggressive``) for
 ``--live-duration`` seconds per seed and streams what the daemon asks for:
 RAW_IMU at 400 Hz, GLOBAL_POSITION_INT and GPS_RAW_INT at 10 Hz (the
 daemon's defaults, ``velocity_source = auto``); the daemon runs with its
-defaults (filter ``best``) and answers every sample.  Each seed flies twice:
+defaults (filter ``best``; ``--filter``) and answers every sample.  Each seed flies twice:
 through the relay with no faults (the clean run) and with ``--loss`` (default
 10 %) of all datagrams dropped at random in both directions (the simulator's
 telemetry, and the daemon's heartbeats, stream requests and attitudes back to
@@ -28,7 +29,7 @@ ATTITUDE_QUATERNION the daemon sent (its tlog; stamped with the sample's
 SIMSTATE truth of the simulator's own tlog (complete whatever the link lost),
 after ``--skip`` seconds (default 10), with
 ``bench_sim_accuracy.score``: inclination and heading (true north) RMS.  The
-simulator's tlog is also replayed with ``best`` (``mavahrs.replay``, no link):
+simulator's tlog is also replayed with the same filter (``mavahrs.replay``, no link):
 the "replay" column, the same flight offline.  Target: the lossy run's
 inclination within ``--live-target`` (0.3°) of the clean run's, every seed.
 
@@ -38,9 +39,13 @@ with ``--fast`` exactly as ``scripts/bench_sim_accuracy.py`` writes them
 (``write_flight``: 400 Hz RAW_IMU, GLOBAL_POSITION_INT 10 Hz, SIMSTATE), and a
 copy with ``--gnss-drop`` (30 %) of the GNSS messages (GLOBAL_POSITION_INT,
 GPS_RAW_INT, GPS2_RAW) removed at random (seeded per flight); both replayed
-through the daemon's pipeline with ``best`` and scored the same way (declination
+through the daemon's pipeline with the filter and scored the same way (declination
 0 in simulator and pipeline, as bench_sim_accuracy).  Target: inclination
 within ``--replay-target`` (0.2°) of the complete log's, every flight.
+``--replay-source gps_raw_int`` flies the same flights with the receiver's
+GPS_RAW_INT (10 Hz) instead of GLOBAL_POSITION_INT.
+
+Results and their reading: docs/reliability.md, "Lossy links".
 
 Exit code 1 when a target is missed, 2 on a setup error (the daemon or the
 simulator did not start or died).
