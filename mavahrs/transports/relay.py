@@ -218,7 +218,8 @@ class _Leg:
         self.sock = _udp_socket()
         self.state = _FaultState(faults, seed, record)
         #: faults on the way back (target → upstream peer); its own draws, no records
-        self.reply_state = _FaultState(reply_faults or FaultSettings(), None if seed is None else seed + _REPLY_SEED, False)
+        reply_seed = None if seed is None else seed + _REPLY_SEED
+        self.reply_state = _FaultState(reply_faults or FaultSettings(), reply_seed, False)
 
     def send(self, items: list[tuple[bytes, RelayRecord | None]]) -> None:
         for data, rec in items:
