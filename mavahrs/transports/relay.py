@@ -11,7 +11,8 @@ damaged ones:
   datagram to one or more *legs*, each its own socket towards its own target
   with its own :class:`FaultSettings` (so one leg can stay clean while another
   is damaged: the same bytes, a paired comparison).  Replies arriving on a leg
-  with ``reply=True`` go back to the upstream peer unchanged.
+  with ``reply=True`` go back to the upstream peer, unchanged or, with the
+  relay's ``reply_faults``, with faults of their own (a lossy link both ways).
 * :class:`PtyFaultRelay` — a UDP-to-serial bridge: datagrams from upstream are
   written, with faults, into a pseudo-terminal whose slave side is reachable
   at a fixed path (a symlink, as udev's ``/dev/serial/by-id/…``); what the
@@ -40,12 +41,13 @@ import selectors
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 __all__ = ["FaultSettings", "RelayRecord", "LegCounters", "UdpFaultRelay", "PtyFaultRelay"]
 
 _RCVBUF_BYTES = 4 << 20  # a relay must not add losses of its own when its thread is late
+_REPLY_SEED = 1_000_003  # offset of a leg's reply-direction seed from its forward seed
 
 
 def _udp_socket() -> socket.socket:
@@ -208,13 +210,16 @@ class _FaultState:
 class _Leg:
     def __init__(
         self, target: tuple[str, int], faults: FaultSettings, seed: int | None, reply: bool, record: bool,
-        observer: Callable[[bytes], None] | None = None,
+        observer: Callable[[bytes], None] | None = None, reply_faults: FaultSettings | None = None,
     ) -> None:
         self.target = target
         self.observer = observer
         self.reply = reply
         self.sock = _udp_socket()
         self.state = _FaultState(faults, seed, record)
+        #: faults on the way back (target → upstream peer); its own draws, no records
+        reply_seed = None if seed is None else seed + _REPLY_SEED
+        self.reply_state = _FaultState(reply_faults or FaultSettings(), reply_seed, False)
 
     def send(self, items: list[tuple[bytes, RelayRecord | None]]) -> None:
         for data, rec in items:
@@ -255,6 +260,9 @@ class UdpFaultRelay:
             every datagram a leg is about to send (e.g. to follow a long run
             without records; called before ``sendto``, so an answer cannot
             overtake it).
+        reply_faults: per leg (by index; missing or None = clean), the faults
+            applied to what the leg's target sends back (legs with ``reply``),
+            drawn with their own seed; see :meth:`reply_counters`.
     """
 
     def __init__(
@@ -265,10 +273,14 @@ class UdpFaultRelay:
         record: bool = True,
         max_hold_s: float = 0.05,
         observer: Callable[[int, bytes], None] | None = None,
+        reply_faults: Sequence[FaultSettings | None] = (),
     ) -> None:
+        if len(reply_faults) > len(legs):
+            raise ValueError(f"reply_faults has {len(reply_faults)} entries for {len(legs)} legs")
         self._up = _udp_socket()
         self._legs = [
-            _Leg(target, faults, None if seed is None else seed + i, reply, record, _leg_observer(observer, i))
+            _Leg(target, faults, None if seed is None else seed + i, reply, record, _leg_observer(observer, i),
+                 reply_faults[i] if i < len(reply_faults) else None)
             for i, (target, faults, reply) in enumerate(legs)
         ]
         self._peer: tuple[str, int] | None = None
@@ -311,6 +323,12 @@ class UdpFaultRelay:
             c = self._legs[leg].state.counters
             return LegCounters(**vars(c))
 
+    def reply_counters(self, leg: int = 0) -> LegCounters:
+        """Totals of the leg's reply direction (``datagrams``: replies that reached the relay)."""
+        with self._lock:
+            c = self._legs[leg].reply_state.counters
+            return LegCounters(**vars(c))
+
     def _run(self) -> None:
         sel = selectors.DefaultSelector()
         sel.register(self._up, selectors.EVENT_READ, None)
@@ -328,6 +346,7 @@ class UdpFaultRelay:
                 with self._lock:
                     for leg in self._legs:
                         leg.send(leg.state.overdue(now, self._max_hold_s))
+                        self._reply(leg, leg.reply_state.overdue(now, self._max_hold_s))
         finally:
             sel.close()
 
@@ -355,10 +374,17 @@ class UdpFaultRelay:
                 return
             if leg.reply and self._peer is not None:
                 leg.state.counters.replies += 1
-                try:
-                    self._up.sendto(data, self._peer)
-                except OSError:
-                    pass
+                with self._lock:
+                    self._reply(leg, leg.reply_state.apply(data, time.monotonic()))
+
+    def _reply(self, leg: _Leg, items: list[tuple[bytes, RelayRecord | None]]) -> None:
+        if self._peer is None:
+            return
+        for data, _ in items:
+            try:
+                self._up.sendto(data, self._peer)
+            except OSError:
+                leg.reply_state.counters.write_errors += 1
 
     def close(self) -> None:
         """Stop the thread and close the sockets (idempotent)."""

@@ -127,6 +127,43 @@ def test_phases_switch_faults_at_run_time() -> None:
     assert all(r.faults == ("loss",) for r in recs[20:40]) and len(got) == 40
 
 
+def test_replies_get_faults_of_their_own_per_leg() -> None:
+    """``reply_faults``: what a leg's target sends back is lost at its own rate; a leg without stays exact."""
+    targets = [_sink(), _sink()]
+    n = 2000
+    relay = UdpFaultRelay(
+        [(t.getsockname(), FaultSettings(), True) for t in targets], seed=3,
+        reply_faults=[FaultSettings(loss=0.1)],
+    )
+    src = _sink()  # the upstream peer: its first datagram makes it the peer replies go to
+    try:
+        src.sendto(b"hello", relay.address)
+        for t in targets:
+            assert t.recv(100) == b"hello"
+        got: dict[int, list[bytes]] = {}
+        for leg, t in enumerate(targets):
+            reader = _Reader(src, 1)
+            sent = [f"reply {leg} {i:05d}".encode() for i in range(n)]
+            for i, d in enumerate(sent):
+                t.sendto(d, relay.leg_address(leg))
+                if i % 20 == 19:
+                    time.sleep(0.005)
+            got[leg] = reader.result()
+        lossy, clean = relay.reply_counters(0), relay.reply_counters(1)
+    finally:
+        relay.close()
+        src.close()
+        for t in targets:
+            t.close()
+    assert got[1] == [f"reply 1 {i:05d}".encode() for i in range(n)] and clean.lost == 0
+    assert lossy.datagrams == n and len(got[0]) == n - lossy.lost
+    assert abs(lossy.lost - 0.1 * n) < 5 * (0.1 * n * 0.9) ** 0.5, lossy.lost  # binomial, 5 sigma
+    kept = [int(d.split()[-1]) for d in got[0]]
+    assert kept == sorted(kept) and len(set(kept)) == len(kept)  # only losses: no duplicates, no reordering
+    with pytest.raises(ValueError, match="reply_faults has 2 entries for 1 legs"):
+        UdpFaultRelay([(("127.0.0.1", 9), FaultSettings(), True)], reply_faults=[None, None])
+
+
 def test_invalid_probabilities_are_refused() -> None:
     with pytest.raises(ValueError, match="loss"):
         FaultSettings(loss=1.5)
