@@ -179,6 +179,21 @@ class MadgwickSettings(FilterSettings):
             (:mod:`mavahrs.filters.prefilter`), 2 = second-order Butterworth
             with cut-off √2/(2π·τ) (VQF's choice; attenuates motion
             accelerations of a few tenths of a hertz ten times more).
+        accel_lowpass_adapt_ratio: adaptive low-pass time constant, off
+            (0) by default.  The low-pass trades two errors: the motion
+            acceleration it leaves shrinks as τ grows, while the error of its
+            stored average grows with τ and the rotation rate (the average
+            is carried along by the gyro, whose scale and misalignment errors
+            accumulate with the angle turned).  The optimum τ therefore grows
+            as √(ā/ω̄), with ā the motion acceleration the low-pass removes
+            (‖f − f̄‖, m/s²) and ω̄ the rotation rate (rad/s), each averaged
+            over ``accel_lowpass_adapt_avg_s`` and held at detected rest.
+            With this ratio r > 0 (m/s² per rad/s) the time constant is
+            ``accel_lowpass_s``·√(ā/(r·ω̄)) where that exceeds
+            ``accel_lowpass_s``, at most ``accel_lowpass_max_s``: sustained
+            translations get a longer average, rotations keep the short one.
+        accel_lowpass_max_s: the adaptive time constant's upper limit, s.
+        accel_lowpass_adapt_avg_s: averaging time constant of ā and ω̄, s.
         rest: gyro-bias estimation at detected rest
             (:mod:`mavahrs.filters.rest`); ``RestBiasSettings(bias_tau_s=0)``
             turns it off.
@@ -236,6 +251,9 @@ class MadgwickSettings(FilterSettings):
     distortion_compensation: bool = True
     accel_lowpass_s: float = 0.0
     accel_lowpass_order: int = 2
+    accel_lowpass_adapt_ratio: float = 0.0
+    accel_lowpass_max_s: float = 4.0
+    accel_lowpass_adapt_avg_s: float = 5.0
     large_error_tau_s: float = 0.0
     large_heading_error_tau_s: float = 0.0
     lowpass_norm_tolerance: float = 0.0
@@ -252,7 +270,7 @@ class MadgwickSettings(FilterSettings):
         super().__post_init__()
         for name in ("beta_rad_s", "zeta_rad_s", "zeta_spin_limit_rad_s", "accel_lowpass_s", "bias_limit_rad_s",
                      "large_error_tau_s", "large_heading_error_tau_s", "lowpass_norm_tolerance", "velocity_tau_s",
-                     "gnss_fade_s"):
+                     "gnss_fade_s", "accel_lowpass_adapt_ratio"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (
                 isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
@@ -266,6 +284,10 @@ class MadgwickSettings(FilterSettings):
             raise ConfigError(
                 f"MadgwickSettings.beta_heading_rad_s must be a number ≥ 0 or None, got {self.beta_heading_rad_s!r}"
             )
+        for name in ("accel_lowpass_max_s", "accel_lowpass_adapt_avg_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"MadgwickSettings.{name} must be a time > 0 s, got {value!r}")
         if not (isinstance(self.velocity_max_age_s, (int, float)) and math.isfinite(self.velocity_max_age_s)
                 and self.velocity_max_age_s > 0):
             raise ConfigError(
@@ -313,7 +335,10 @@ PM_GNSS_FADE = 15
 PM_NORM_TOL = 16
 PM_NORM_MIN_WEIGHT = 17
 PM_REST = 18  # rest detector block (rest.RP_LEN)
-PM_LEN = PM_REST + RP_LEN
+PM_ACC_ADAPT = PM_REST + RP_LEN  # adaptive low-pass: reference ratio ā/ω̄ (0 = off)
+PM_ACC_TAU_MAX = PM_ACC_ADAPT + 1
+PM_ACC_ADAPT_TAU = PM_ACC_ADAPT + 2
+PM_LEN = PM_ACC_ADAPT + 3
 
 # --- state block after S_FILTER --------------------------------------------------
 FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (prefilter.BW_LEN)
@@ -321,7 +346,8 @@ FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
 FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
 FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
 FM_VLP = FM_MAG_AGE + 1  # the subtracted GNSS acceleration, low-passed like the specific force (BW_LEN)
-FM_LEN = FM_VLP + BW_LEN
+FM_ADAPT = FM_VLP + BW_LEN  # adaptive low-pass: averaged motion acceleration ā and rotation rate ω̄
+FM_LEN = FM_ADAPT + 2
 
 #: the first GNSS v̇ this soon after a (re)initialisation re-aligns the estimate (TRIAD); a first fix
 #: later than this meets an estimate that has converged, which one noisy sample would only disturb
@@ -330,6 +356,8 @@ REALIGN_WINDOW_S = 5.0
 #: only while the magnetometer has corrected the heading within this many seconds
 HEADING_HOLD_S = 60.0
 _NEVER_S = 1e9
+#: the adaptive low-pass takes slower rotation than this as this (rad/s): at rest ā/ω̄ is noise over noise
+_ADAPT_MIN_RATE = 0.1
 
 
 # --------------------------------------------------------------------------- objective functions
@@ -414,6 +442,24 @@ def _large_error_factor(theta, beta, tau, weight):  # type: ignore[no-untyped-de
     return k, True
 
 
+@kernel(inline=True)
+def _adaptive_tau(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # type: ignore[no-untyped-def]
+    """The accelerometer low-pass time constant for this sample (``accel_lowpass_adapt_ratio``).
+
+    τ·√(ā / (ratio·ω̄)), at least τ and at most ``accel_lowpass_max_s``: ``state[k]`` holds the
+    averaged motion acceleration ā (m/s², updated after the low-pass), ``state[k+1]`` the
+    averaged rotation rate ω̄ (rad/s, updated here; neither is updated at rest: ``dt`` = 0).
+    """
+    t_avg = params[p + PM_ACC_ADAPT_TAU]
+    k_w = dt / t_avg if dt < t_avg else 1.0
+    state[k + 1] += k_w * (math.sqrt(wx * wx + wy * wy + wz * wz) - state[k + 1])
+    w_bar = state[k + 1] if state[k + 1] > _ADAPT_MIN_RATE else _ADAPT_MIN_RATE
+    x = state[k] / (ratio * w_bar)
+    if x <= 1.0:
+        return tau_acc
+    return min(tau_acc * math.sqrt(x), params[p + PM_ACC_TAU_MAX])
+
+
 @kernel
 def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     """Reset the filter-specific block at ``state[k:k + FM_LEN]`` (on (re)initialisation)."""
@@ -424,6 +470,8 @@ def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     state[k + FM_MAG_AGE] = _NEVER_S
     nav_lowpass_reset(state, k + FM_VLP)
     nav_lowpass_reset(state, k + FM_VLP + LP_LEN)
+    state[k + FM_ADAPT] = 0.0
+    state[k + FM_ADAPT + 1] = 0.0
 
 
 # --------------------------------------------------------------------------- the step
@@ -449,7 +497,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     mag_ok = params[p + PM_USE_MAG] > 0.0 and vector_ok(mx, my, mz)
 
     # ---- gyro bias at rest (shared detector, optional) ------------------------
-    rest_step(
+    at_rest = rest_step(
         state, f + FM_REST, state, S_BIAS, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
         ax, ay, az, accel_ok, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params, p + PM_REST,
     )  # fmt: skip
@@ -504,6 +552,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             an = ae = 0.0  # the horizontal part needs a heading reference to be put in body axes
     ux, uy, uz = ax, ay, az
     tau_acc = params[p + PM_ACC_TAU]
+    adapt = params[p + PM_ACC_ADAPT]
+    if adapt > 0.0 and tau_acc > 0.0:
+        tau_acc = _adaptive_tau(state, f + FM_ADAPT, params, p, wx, wy, wz, 0.0 if at_rest else dt, tau_acc, adapt)
     ntol = params[p + PM_NORM_TOL]
     # f̄ and the GNSS acceleration v̄ are low-passed separately and subtracted afterwards: f̄ is
     # kept in the estimate's NED frame (each correction rotates its state, below) while v̇ is
@@ -531,6 +582,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 fn, fe, fd = vector_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
                 if gnss_lp:
                     vn_lp, ve_lp, vd_lp = vector_lowpass_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
+            if adapt > 0.0 and not at_rest:  # the motion acceleration the low-pass removed, averaged
+                fr0, fr1, fr2 = body_to_ned(q0, q1, q2, q3, ax, ay, az)
+                d = math.sqrt((fr0 - fn) ** 2 + (fr1 - fe) ** 2 + (fr2 - fd) ** 2)
+                k_a = dt / params[p + PM_ACC_ADAPT_TAU] if dt < params[p + PM_ACC_ADAPT_TAU] else 1.0
+                state[f + FM_ADAPT] += k_a * (d - state[f + FM_ADAPT])
         else:
             vn_lp, ve_lp, vd_lp = an, ae, ad  # no low-pass
         ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn - vn_lp, fe - ve_lp, fd - vd_lp)
@@ -701,6 +757,9 @@ class Madgwick(AttitudeFilter):
         p[PM_NORM_TOL] = s.lowpass_norm_tolerance
         p[PM_NORM_MIN_WEIGHT] = s.lowpass_norm_min_weight
         p[PM_REST : PM_REST + RP_LEN] = s.rest.to_params()
+        p[PM_ACC_ADAPT] = s.accel_lowpass_adapt_ratio
+        p[PM_ACC_TAU_MAX] = s.accel_lowpass_max_s
+        p[PM_ACC_ADAPT_TAU] = s.accel_lowpass_adapt_avg_s
         return p
 
     def initial_internal(self) -> np.ndarray:
