@@ -190,8 +190,14 @@ class MadgwickSettings(FilterSettings):
             over ``accel_lowpass_adapt_avg_s`` and held at detected rest.
             With this ratio r > 0 (m/s² per rad/s) the time constant is
             ``accel_lowpass_s``·√(ā/(r·ω̄)) where that exceeds
-            ``accel_lowpass_s``, at most ``accel_lowpass_max_s``: sustained
-            translations get a longer average, rotations keep the short one.
+            ``accel_lowpass_s``, at most ``accel_lowpass_max_s``: translations
+            get a longer average, rotations keep the short one.  Only motion
+            that averages out gains from a longer average: the lengthening is
+            scaled by the manoeuvre weight of ``lowpass_norm_tolerance``
+            (averaged likewise), so a sustained acceleration (‖f̄‖ ≠ g, a
+            vehicle in a manoeuvre) keeps the short one too.  The time
+            constant changes smoothly (averaged inputs): the Butterworth's
+            state is only valid for slowly changing coefficients.
         accel_lowpass_max_s: the adaptive time constant's upper limit, s.
         accel_lowpass_adapt_avg_s: averaging time constant of ā and ω̄, s.
         rest: gyro-bias estimation at detected rest
@@ -346,8 +352,8 @@ FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
 FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
 FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
 FM_VLP = FM_MAG_AGE + 1  # the subtracted GNSS acceleration, low-passed like the specific force (BW_LEN)
-FM_ADAPT = FM_VLP + BW_LEN  # adaptive low-pass: averaged motion acceleration ā and rotation rate ω̄
-FM_LEN = FM_ADAPT + 2
+FM_ADAPT = FM_VLP + BW_LEN  # adaptive low-pass: ā, ω̄ and the last manoeuvre weight
+FM_LEN = FM_ADAPT + 3
 
 #: the first GNSS v̇ this soon after a (re)initialisation re-aligns the estimate (TRIAD); a first fix
 #: later than this meets an estimate that has converged, which one noisy sample would only disturb
@@ -446,9 +452,11 @@ def _large_error_factor(theta, beta, tau, weight):  # type: ignore[no-untyped-de
 def _adaptive_tau(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # type: ignore[no-untyped-def]
     """The accelerometer low-pass time constant for this sample (``accel_lowpass_adapt_ratio``).
 
-    τ·√(ā / (ratio·ω̄)), at least τ and at most ``accel_lowpass_max_s``: ``state[k]`` holds the
-    averaged motion acceleration ā (m/s², updated after the low-pass), ``state[k+1]`` the
-    averaged rotation rate ω̄ (rad/s, updated here; neither is updated at rest: ``dt`` = 0).
+    τ·√(ā / (ratio·ω̄)), at least τ and at most ``accel_lowpass_max_s``, the lengthening scaled
+    by the averaged manoeuvre weight: ``state[k]`` holds the averaged motion acceleration ā
+    (m/s², updated after the low-pass), ``state[k+1]`` the averaged rotation rate ω̄ (rad/s,
+    updated here; neither is updated at rest: ``dt`` = 0), ``state[k+2]`` the averaged
+    manoeuvre weight (1 while ``lowpass_norm_tolerance`` is 0).
     """
     t_avg = params[p + PM_ACC_ADAPT_TAU]
     k_w = dt / t_avg if dt < t_avg else 1.0
@@ -457,7 +465,8 @@ def _adaptive_tau(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # type:
     x = state[k] / (ratio * w_bar)
     if x <= 1.0:
         return tau_acc
-    return min(tau_acc * math.sqrt(x), params[p + PM_ACC_TAU_MAX])
+    # lengthened only as far as the last sample's manoeuvre weight trusts f̄ (1 without the weight)
+    return tau_acc + state[k + 2] * (min(tau_acc * math.sqrt(x), params[p + PM_ACC_TAU_MAX]) - tau_acc)
 
 
 @kernel
@@ -472,6 +481,7 @@ def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     nav_lowpass_reset(state, k + FM_VLP + LP_LEN)
     state[k + FM_ADAPT] = 0.0
     state[k + FM_ADAPT + 1] = 0.0
+    state[k + FM_ADAPT + 2] = 1.0
 
 
 # --------------------------------------------------------------------------- the step
@@ -625,6 +635,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 ratio = math.sqrt(fn * fn + fe * fe + fd * fd) / ref
             large_w = 1.0 - abs(ratio - 1.0) / ntol
             large_w = large_w if large_w > 0.0 else 0.0
+            if adapt > 0.0:  # averaged like ā and ω̄: a τ that jumps every sample upsets the recursion
+                k_w = dt / params[p + PM_ACC_ADAPT_TAU] if dt < params[p + PM_ACC_ADAPT_TAU] else 1.0
+                state[f + FM_ADAPT + 2] += k_w * (large_w - state[f + FM_ADAPT + 2])
             norm_w = max(large_w, params[p + PM_NORM_MIN_WEIGHT])
     sm0 = sm1 = sm2 = sm3 = 0.0  # magnetic part (unnormalised J_bᵀ f_b)
     nm = 0.0
