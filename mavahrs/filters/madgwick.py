@@ -352,8 +352,10 @@ FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
 FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
 FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
 FM_VLP = FM_MAG_AGE + 1  # the subtracted GNSS acceleration, low-passed like the specific force (BW_LEN)
-FM_ADAPT = FM_VLP + BW_LEN  # adaptive low-pass: ā, ω̄ and the last manoeuvre weight
-FM_LEN = FM_ADAPT + 3
+FM_ADAPT = FM_VLP + BW_LEN  # adaptive low-pass: ā, ω̄ and the averaged manoeuvre weight
+FM_NAVLP2 = FM_ADAPT + 3  # adaptive low-pass: f̄ with the longest time constant (BW_LEN)
+FM_VLP2 = FM_NAVLP2 + BW_LEN  # … and the GNSS acceleration with it (BW_LEN)
+FM_LEN = FM_VLP2 + BW_LEN
 
 #: the first GNSS v̇ this soon after a (re)initialisation re-aligns the estimate (TRIAD); a first fix
 #: later than this meets an estimate that has converged, which one noisy sample would only disturb
@@ -449,24 +451,55 @@ def _large_error_factor(theta, beta, tau, weight):  # type: ignore[no-untyped-de
 
 
 @kernel(inline=True)
-def _adaptive_tau(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # type: ignore[no-untyped-def]
-    """The accelerometer low-pass time constant for this sample (``accel_lowpass_adapt_ratio``).
+def _adaptive_blend(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # type: ignore[no-untyped-def]
+    """The weight λ (0–1) of the long low-pass for this sample (``accel_lowpass_adapt_ratio``).
 
-    τ·√(ā / (ratio·ω̄)), at least τ and at most ``accel_lowpass_max_s``, the lengthening scaled
-    by the averaged manoeuvre weight: ``state[k]`` holds the averaged motion acceleration ā
-    (m/s², updated after the low-pass), ``state[k+1]`` the averaged rotation rate ω̄ (rad/s,
-    updated here; neither is updated at rest: ``dt`` = 0), ``state[k+2]`` the averaged
-    manoeuvre weight (1 while ``lowpass_norm_tolerance`` is 0).
+    The wanted time constant is τ·√(ā / (ratio·ω̄)), at least τ and at most
+    ``accel_lowpass_max_s``; λ places it between the two, scaled by the averaged manoeuvre
+    weight.  ``state[k]`` holds the averaged motion acceleration ā (m/s², updated after the
+    low-pass), ``state[k+1]`` the averaged rotation rate ω̄ (rad/s, updated here; neither is
+    updated at rest: ``dt`` = 0), ``state[k+2]`` the averaged manoeuvre weight (1 while
+    ``lowpass_norm_tolerance`` is 0).
     """
     t_avg = params[p + PM_ACC_ADAPT_TAU]
     k_w = dt / t_avg if dt < t_avg else 1.0
     state[k + 1] += k_w * (math.sqrt(wx * wx + wy * wy + wz * wz) - state[k + 1])
     w_bar = state[k + 1] if state[k + 1] > _ADAPT_MIN_RATE else _ADAPT_MIN_RATE
     x = state[k] / (ratio * w_bar)
-    if x <= 1.0:
-        return tau_acc
-    # lengthened only as far as the last sample's manoeuvre weight trusts f̄ (1 without the weight)
-    return tau_acc + state[k + 2] * (min(tau_acc * math.sqrt(x), params[p + PM_ACC_TAU_MAX]) - tau_acc)
+    tau_max = params[p + PM_ACC_TAU_MAX]
+    if x <= 1.0 or tau_max <= tau_acc:
+        return 0.0
+    lam = (tau_acc * math.sqrt(x) - tau_acc) / (tau_max - tau_acc)
+    return state[k + 2] * (lam if lam < 1.0 else 1.0)
+
+
+@kernel(inline=True)
+def _long_lowpass_blend(state, f, params, p, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt, lam,
+                        fn, fe, fd, vn, ve, vd):  # type: ignore[no-untyped-def]  # fmt: skip
+    """Advance the long low-passes (τ = ``accel_lowpass_max_s``) of f and v̇; return both blends, λ of the long."""
+    tau2 = params[p + PM_ACC_TAU_MAX]
+    if gnss_lp and state[f + FM_VLP2 + 3] == 0.0:  # as for the short pair: start with f̄'s phase
+        state[f + FM_VLP2 + 3] = state[f + FM_NAVLP2 + 3]
+        state[f + FM_VLP2 + 7] = state[f + FM_NAVLP2 + 7]
+    g0 = g1 = g2 = h0 = h1 = h2 = 0.0
+    if params[p + PM_ACC_ORDER] > 1.0:
+        g0, g1, g2 = ned_butterworth_step(state, f + FM_NAVLP2, fr0, fr1, fr2, dt, tau2)
+        if gnss_lp:
+            h0, h1, h2 = ned_butterworth_step(state, f + FM_VLP2, an, ae, ad, dt, tau2)
+    else:
+        g0, g1, g2 = vector_lowpass_step(state, f + FM_NAVLP2, fr0, fr1, fr2, dt, tau2)
+        if gnss_lp:
+            h0, h1, h2 = vector_lowpass_step(state, f + FM_VLP2, an, ae, ad, dt, tau2)
+    ntol = params[p + PM_NORM_TOL]
+    if ntol > 0.0 and lam > 0.0:
+        # the long average is used only as far as its own norm says it is gravity (a sustained
+        # acceleration stays in it longer than in the short one)
+        ref = math.sqrt(h0 * h0 + h1 * h1 + (h2 - G_M_S2) * (h2 - G_M_S2)) if gnss_lp else G_M_S2
+        wl = 1.0 - abs(math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) / ref - 1.0) / ntol
+        lam = lam * wl if wl > 0.0 else 0.0
+    if gnss_lp:
+        vn, ve, vd = vn + lam * (h0 - vn), ve + lam * (h1 - ve), vd + lam * (h2 - vd)
+    return fn + lam * (g0 - fn), fe + lam * (g1 - fe), fd + lam * (g2 - fd), vn, ve, vd
 
 
 @kernel
@@ -482,6 +515,9 @@ def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     state[k + FM_ADAPT] = 0.0
     state[k + FM_ADAPT + 1] = 0.0
     state[k + FM_ADAPT + 2] = 1.0
+    for base in (FM_NAVLP2, FM_VLP2):
+        nav_lowpass_reset(state, k + base)
+        nav_lowpass_reset(state, k + base + LP_LEN)
 
 
 # --------------------------------------------------------------------------- the step
@@ -557,14 +593,17 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for i in range(BW_LEN):
                     state[f + FM_NAVLP + i] = 0.0
                     state[f + FM_VLP + i] = 0.0
+                    state[f + FM_NAVLP2 + i] = 0.0
+                    state[f + FM_VLP2 + i] = 0.0
                 state[f + FM_MAG_AGE] = 0.0  # the heading is the magnetometer's now
         if state[f + FM_MAG_AGE] > HEADING_HOLD_S:
             an = ae = 0.0  # the horizontal part needs a heading reference to be put in body axes
     ux, uy, uz = ax, ay, az
     tau_acc = params[p + PM_ACC_TAU]
-    adapt = params[p + PM_ACC_ADAPT]
-    if adapt > 0.0 and tau_acc > 0.0:
-        tau_acc = _adaptive_tau(state, f + FM_ADAPT, params, p, wx, wy, wz, 0.0 if at_rest else dt, tau_acc, adapt)
+    adapt = params[p + PM_ACC_ADAPT] if tau_acc > 0.0 else 0.0
+    lam = 0.0
+    if adapt > 0.0:
+        lam = _adaptive_blend(state, f + FM_ADAPT, params, p, wx, wy, wz, 0.0 if at_rest else dt, tau_acc, adapt)
     ntol = params[p + PM_NORM_TOL]
     # f̄ and the GNSS acceleration v̄ are low-passed separately and subtracted afterwards: f̄ is
     # kept in the estimate's NED frame (each correction rotates its state, below) while v̇ is
@@ -584,6 +623,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 # or running) and its nominal step, so that both average over the same samples
                 state[f + FM_VLP + 3] = state[f + FM_NAVLP + 3]
                 state[f + FM_VLP + 7] = state[f + FM_NAVLP + 7]
+            fr0, fr1, fr2 = fn, fe, fd
             if params[p + PM_ACC_ORDER] > 1.0:
                 fn, fe, fd = ned_butterworth_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
                 if gnss_lp:
@@ -592,11 +632,16 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 fn, fe, fd = vector_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
                 if gnss_lp:
                     vn_lp, ve_lp, vd_lp = vector_lowpass_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
-            if adapt > 0.0 and not at_rest:  # the motion acceleration the low-pass removed, averaged
-                fr0, fr1, fr2 = body_to_ned(q0, q1, q2, q3, ax, ay, az)
-                d = math.sqrt((fr0 - fn) ** 2 + (fr1 - fe) ** 2 + (fr2 - fd) ** 2)
-                k_a = dt / params[p + PM_ACC_ADAPT_TAU] if dt < params[p + PM_ACC_ADAPT_TAU] else 1.0
-                state[f + FM_ADAPT] += k_a * (d - state[f + FM_ADAPT])
+            if adapt > 0.0:
+                # the long low-pass runs beside it, blended in by λ: each is a fixed filter (a Butterworth
+                # whose τ changes under it does not keep a constant input's norm, which ‖f̄‖ must)
+                fn, fe, fd, vn_lp, ve_lp, vd_lp = _long_lowpass_blend(
+                    state, f, params, p, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt, lam, fn, fe, fd, vn_lp, ve_lp, vd_lp
+                )
+                if not at_rest:  # the motion acceleration the low-pass removed, averaged
+                    d = math.sqrt((fr0 - fn) ** 2 + (fr1 - fe) ** 2 + (fr2 - fd) ** 2)
+                    k_a = dt / params[p + PM_ACC_ADAPT_TAU] if dt < params[p + PM_ACC_ADAPT_TAU] else 1.0
+                    state[f + FM_ADAPT] += k_a * (d - state[f + FM_ADAPT])
         else:
             vn_lp, ve_lp, vd_lp = an, ae, ad  # no low-pass
         ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn - vn_lp, fe - ve_lp, fd - vd_lp)
@@ -732,6 +777,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         r1, r2, r3 = r1 / nn, r2 / nn, r3 / nn
         nav_lowpass_rotate(state, f + FM_NAVLP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
         nav_lowpass_rotate(state, f + FM_NAVLP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+        if adapt > 0.0:
+            nav_lowpass_rotate(state, f + FM_NAVLP2, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+            nav_lowpass_rotate(state, f + FM_NAVLP2 + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
     state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = n0, n1, n2, n3
     finish_step(state, out, gain, w_a * norm_w, w_m if mag_ok else 0.0)
 
