@@ -179,27 +179,31 @@ class MadgwickSettings(FilterSettings):
             (:mod:`mavahrs.filters.prefilter`), 2 = second-order Butterworth
             with cut-off √2/(2π·τ) (VQF's choice; attenuates motion
             accelerations of a few tenths of a hertz ten times more).
-        accel_lowpass_adapt_ratio: adaptive low-pass time constant, off
-            (0) by default.  The low-pass trades two errors: the motion
-            acceleration it leaves shrinks as τ grows, while the error of its
-            stored average grows with τ and the rotation rate (the average
-            is carried along by the gyro, whose scale and misalignment errors
-            accumulate with the angle turned).  The optimum τ therefore grows
-            as √(ā/ω̄), with ā the motion acceleration the low-pass removes
-            (‖f − f̄‖, m/s²) and ω̄ the rotation rate (rad/s), each averaged
-            over ``accel_lowpass_adapt_avg_s`` and held at detected rest.
-            With this ratio r > 0 (m/s² per rad/s) the time constant is
-            ``accel_lowpass_s``·√(ā/(r·ω̄)) where that exceeds
-            ``accel_lowpass_s``, at most ``accel_lowpass_max_s``: translations
-            get a longer average, rotations keep the short one.  Only motion
-            that averages out gains from a longer average: the lengthening is
-            scaled by the manoeuvre weight of ``lowpass_norm_tolerance``
-            (averaged likewise), so a sustained acceleration (‖f̄‖ ≠ g, a
-            vehicle in a manoeuvre) keeps the short one too.  The time
-            constant changes smoothly (averaged inputs): the Butterworth's
-            state is only valid for slowly changing coefficients.
-        accel_lowpass_max_s: the adaptive time constant's upper limit, s.
-        accel_lowpass_adapt_avg_s: averaging time constant of ā and ω̄, s.
+        accel_lowpass_adapt_ratio: adaptive low-pass, off (0) by default.
+            The low-pass trades two errors: the motion acceleration it
+            leaves shrinks as τ grows, while the error of its stored average
+            grows with τ and the rotation rate (the average is carried along
+            by the gyro, whose scale and misalignment errors accumulate with
+            the angle turned).  The best τ therefore grows as √(ā/ω̄), with ā
+            the motion acceleration the low-pass removes (‖f − f̄‖, m/s²) and
+            ω̄ the rotation rate (rad/s), each averaged over
+            ``accel_lowpass_adapt_avg_s`` and held at detected rest.  With
+            this ratio r > 0 (m/s² per rad/s), a second low-pass of time
+            constant ``accel_lowpass_max_s`` runs beside the first and is
+            blended in by λ = (τ_w − τ)/(τ_max − τ), τ_w =
+            ``accel_lowpass_s``·√(ā/(r·ω̄)) clipped to [τ, τ_max]: translations
+            get the longer average, rotations keep the short one.  (Two
+            fixed filters, not one whose τ changes: a Butterworth whose
+            coefficients change under it does not keep a constant input's
+            norm, which the manoeuvre weight reads.)  Only motion that
+            averages out gains from a longer average: λ is scaled by the
+            averaged manoeuvre weight of ``lowpass_norm_tolerance`` and by
+            the long average's own norm weight, so a sustained acceleration
+            (‖f̄‖ ≠ g, a vehicle in a manoeuvre) keeps the short one.  Costs
+            a second low-pass while on; off, the filter is unchanged.
+        accel_lowpass_max_s: the long low-pass's time constant, s.
+        accel_lowpass_adapt_avg_s: averaging time constant of ā, ω̄ and the
+            manoeuvre weight, s.
         rest: gyro-bias estimation at detected rest
             (:mod:`mavahrs.filters.rest`); ``RestBiasSettings(bias_tau_s=0)``
             turns it off.
