@@ -478,22 +478,33 @@ def _adaptive_blend(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # typ
 
 
 @kernel(inline=True)
+def _lowpass_pair(state, kf, kv, fn, fe, fd, an, ae, ad, gnss_lp, dt, tau, order2):  # type: ignore[no-untyped-def]
+    """Advance the low-pass of f (at ``kf``) and, with ``gnss_lp``, of v̇ (at ``kv``); return both (v̄ = 0 without)."""
+    if gnss_lp and state[kv + 3] == 0.0:
+        # start as if fed zeros since f̄'s low-pass started: its phase (the time averaged so far,
+        # or running) and its nominal step, so that both average over the same samples
+        state[kv + 3] = state[kf + 3]
+        state[kv + 7] = state[kf + 7]
+    vn = ve = vd = 0.0
+    if order2:
+        fn, fe, fd = ned_butterworth_step(state, kf, fn, fe, fd, dt, tau)
+        if gnss_lp:
+            vn, ve, vd = ned_butterworth_step(state, kv, an, ae, ad, dt, tau)
+    else:
+        fn, fe, fd = vector_lowpass_step(state, kf, fn, fe, fd, dt, tau)
+        if gnss_lp:
+            vn, ve, vd = vector_lowpass_step(state, kv, an, ae, ad, dt, tau)
+    return fn, fe, fd, vn, ve, vd
+
+
+@kernel(inline=True)
 def _long_lowpass_blend(state, f, params, p, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt, lam,
                         fn, fe, fd, vn, ve, vd):  # type: ignore[no-untyped-def]  # fmt: skip
     """Advance the long low-passes (τ = ``accel_lowpass_max_s``) of f and v̇; return both blends, λ of the long."""
-    tau2 = params[p + PM_ACC_TAU_MAX]
-    if gnss_lp and state[f + FM_VLP2 + 3] == 0.0:  # as for the short pair: start with f̄'s phase
-        state[f + FM_VLP2 + 3] = state[f + FM_NAVLP2 + 3]
-        state[f + FM_VLP2 + 7] = state[f + FM_NAVLP2 + 7]
-    g0 = g1 = g2 = h0 = h1 = h2 = 0.0
-    if params[p + PM_ACC_ORDER] > 1.0:
-        g0, g1, g2 = ned_butterworth_step(state, f + FM_NAVLP2, fr0, fr1, fr2, dt, tau2)
-        if gnss_lp:
-            h0, h1, h2 = ned_butterworth_step(state, f + FM_VLP2, an, ae, ad, dt, tau2)
-    else:
-        g0, g1, g2 = vector_lowpass_step(state, f + FM_NAVLP2, fr0, fr1, fr2, dt, tau2)
-        if gnss_lp:
-            h0, h1, h2 = vector_lowpass_step(state, f + FM_VLP2, an, ae, ad, dt, tau2)
+    g0, g1, g2, h0, h1, h2 = _lowpass_pair(
+        state, f + FM_NAVLP2, f + FM_VLP2, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt,
+        params[p + PM_ACC_TAU_MAX], params[p + PM_ACC_ORDER] > 1.0,
+    )  # fmt: skip
     ntol = params[p + PM_NORM_TOL]
     if ntol > 0.0 and lam > 0.0:
         # the long average is used only as far as its own norm says it is gravity (a sustained
@@ -622,20 +633,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # would bias it: motion accelerations are zero-mean only as a whole).
         if tau_acc > 0.0:
             gnss_lp = an != 0.0 or ae != 0.0 or ad != 0.0 or state[f + FM_VLP + 3] != 0.0
-            if gnss_lp and state[f + FM_VLP + 3] == 0.0:
-                # start as if fed zeros since f̄'s low-pass started: its phase (the time averaged so far,
-                # or running) and its nominal step, so that both average over the same samples
-                state[f + FM_VLP + 3] = state[f + FM_NAVLP + 3]
-                state[f + FM_VLP + 7] = state[f + FM_NAVLP + 7]
             fr0, fr1, fr2 = fn, fe, fd
-            if params[p + PM_ACC_ORDER] > 1.0:
-                fn, fe, fd = ned_butterworth_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
-                if gnss_lp:
-                    vn_lp, ve_lp, vd_lp = ned_butterworth_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
-            else:
-                fn, fe, fd = vector_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
-                if gnss_lp:
-                    vn_lp, ve_lp, vd_lp = vector_lowpass_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
+            fn, fe, fd, vn_lp, ve_lp, vd_lp = _lowpass_pair(
+                state, f + FM_NAVLP, f + FM_VLP, fn, fe, fd, an, ae, ad, gnss_lp, dt, tau_acc,
+                params[p + PM_ACC_ORDER] > 1.0,
+            )  # fmt: skip
             if adapt > 0.0:
                 # the long low-pass runs beside it, blended in by λ: each is a fixed filter (a Butterworth
                 # whose τ changes under it does not keep a constant input's norm, which ‖f̄‖ must)
