@@ -27,7 +27,8 @@ shared gain schedule (start-up boost, magnetometer rejection by norm and dip,
 :mod:`mavahrs.filters.gains`) and gyro-bias learning at detected rest
 (:mod:`mavahrs.filters.rest`), both on by default; optionally the
 accelerometer low-pass filtered in a quasi-inertial frame before it enters
-the gradient, and a heading-only magnetometer objective (the horizontal field,
+the gradient (with a longer average blended in where motion acceleration
+outweighs rotation), and a heading-only magnetometer objective (the horizontal field,
 whose gradient is a pure rotation about the vertical) with its own β.  These
 follow Laidig & Seel 2023 (VQF); ``mavahrs.filters.best`` uses them.
 """
