@@ -27,7 +27,8 @@ shared gain schedule (start-up boost, magnetometer rejection by norm and dip,
 :mod:`mavahrs.filters.gains`) and gyro-bias learning at detected rest
 (:mod:`mavahrs.filters.rest`), both on by default; optionally the
 accelerometer low-pass filtered in a quasi-inertial frame before it enters
-the gradient, and a heading-only magnetometer objective (the horizontal field,
+the gradient (with a longer average blended in where motion acceleration
+outweighs rotation), and a heading-only magnetometer objective (the horizontal field,
 whose gradient is a pure rotation about the vertical) with its own β.  These
 follow Laidig & Seel 2023 (VQF); ``mavahrs.filters.best`` uses them.
 """
@@ -179,6 +180,31 @@ class MadgwickSettings(FilterSettings):
             (:mod:`mavahrs.filters.prefilter`), 2 = second-order Butterworth
             with cut-off √2/(2π·τ) (VQF's choice; attenuates motion
             accelerations of a few tenths of a hertz ten times more).
+        accel_lowpass_adapt_ratio: adaptive low-pass, off (0) by default.
+            The low-pass trades two errors: the motion acceleration it
+            leaves shrinks as τ grows, while the error of its stored average
+            grows with τ and the rotation rate (the average is carried along
+            by the gyro, whose scale and misalignment errors accumulate with
+            the angle turned).  The best τ therefore grows as √(ā/ω̄), with ā
+            the motion acceleration the low-pass removes (‖f − f̄‖, m/s²) and
+            ω̄ the rotation rate (rad/s), each averaged over
+            ``accel_lowpass_adapt_avg_s`` and held at detected rest.  With
+            this ratio r > 0 (m/s² per rad/s), a second low-pass of time
+            constant ``accel_lowpass_max_s`` runs beside the first and is
+            blended in by λ = (τ_w − τ)/(τ_max − τ), τ_w =
+            ``accel_lowpass_s``·√(ā/(r·ω̄)) clipped to [τ, τ_max]: translations
+            get the longer average, rotations keep the short one.  (Two
+            fixed filters, not one whose τ changes: a Butterworth whose
+            coefficients change under it does not keep a constant input's
+            norm, which the manoeuvre weight reads.)  Only motion that
+            averages out gains from a longer average: λ is scaled by the
+            averaged manoeuvre weight of ``lowpass_norm_tolerance`` and by
+            the long average's own norm weight, so a sustained acceleration
+            (‖f̄‖ ≠ g, a vehicle in a manoeuvre) keeps the short one.  Costs
+            a second low-pass while on; off, the filter is unchanged.
+        accel_lowpass_max_s: the long low-pass's time constant, s.
+        accel_lowpass_adapt_avg_s: averaging time constant of ā, ω̄ and the
+            manoeuvre weight, s.
         rest: gyro-bias estimation at detected rest
             (:mod:`mavahrs.filters.rest`); ``RestBiasSettings(bias_tau_s=0)``
             turns it off.
@@ -236,6 +262,9 @@ class MadgwickSettings(FilterSettings):
     distortion_compensation: bool = True
     accel_lowpass_s: float = 0.0
     accel_lowpass_order: int = 2
+    accel_lowpass_adapt_ratio: float = 0.0
+    accel_lowpass_max_s: float = 4.0
+    accel_lowpass_adapt_avg_s: float = 5.0
     large_error_tau_s: float = 0.0
     large_heading_error_tau_s: float = 0.0
     lowpass_norm_tolerance: float = 0.0
@@ -252,7 +281,7 @@ class MadgwickSettings(FilterSettings):
         super().__post_init__()
         for name in ("beta_rad_s", "zeta_rad_s", "zeta_spin_limit_rad_s", "accel_lowpass_s", "bias_limit_rad_s",
                      "large_error_tau_s", "large_heading_error_tau_s", "lowpass_norm_tolerance", "velocity_tau_s",
-                     "gnss_fade_s"):
+                     "gnss_fade_s", "accel_lowpass_adapt_ratio"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (
                 isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
@@ -266,6 +295,10 @@ class MadgwickSettings(FilterSettings):
             raise ConfigError(
                 f"MadgwickSettings.beta_heading_rad_s must be a number ≥ 0 or None, got {self.beta_heading_rad_s!r}"
             )
+        for name in ("accel_lowpass_max_s", "accel_lowpass_adapt_avg_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"MadgwickSettings.{name} must be a time > 0 s, got {value!r}")
         if not (isinstance(self.velocity_max_age_s, (int, float)) and math.isfinite(self.velocity_max_age_s)
                 and self.velocity_max_age_s > 0):
             raise ConfigError(
@@ -313,7 +346,10 @@ PM_GNSS_FADE = 15
 PM_NORM_TOL = 16
 PM_NORM_MIN_WEIGHT = 17
 PM_REST = 18  # rest detector block (rest.RP_LEN)
-PM_LEN = PM_REST + RP_LEN
+PM_ACC_ADAPT = PM_REST + RP_LEN  # adaptive low-pass: reference ratio ā/ω̄ (0 = off)
+PM_ACC_TAU_MAX = PM_ACC_ADAPT + 1
+PM_ACC_ADAPT_TAU = PM_ACC_ADAPT + 2
+PM_LEN = PM_ACC_ADAPT + 3
 
 # --- state block after S_FILTER --------------------------------------------------
 FM_NAVLP = 0  # accelerometer low-pass in the estimated NED frame (prefilter.BW_LEN)
@@ -321,7 +357,10 @@ FM_REST = FM_NAVLP + BW_LEN  # rest detector (rest.REST_LEN)
 FM_GNSS = FM_REST + REST_LEN  # GNSS acceleration compensation (gnss.GC_LEN)
 FM_MAG_AGE = FM_GNSS + GC_LEN  # time since the magnetometer last corrected the heading, s
 FM_VLP = FM_MAG_AGE + 1  # the subtracted GNSS acceleration, low-passed like the specific force (BW_LEN)
-FM_LEN = FM_VLP + BW_LEN
+FM_ADAPT = FM_VLP + BW_LEN  # adaptive low-pass: ā, ω̄ and the averaged manoeuvre weight
+FM_NAVLP2 = FM_ADAPT + 3  # adaptive low-pass: f̄ with the longest time constant (BW_LEN)
+FM_VLP2 = FM_NAVLP2 + BW_LEN  # … and the GNSS acceleration with it (BW_LEN)
+FM_LEN = FM_VLP2 + BW_LEN
 
 #: the first GNSS v̇ this soon after a (re)initialisation re-aligns the estimate (TRIAD); a first fix
 #: later than this meets an estimate that has converged, which one noisy sample would only disturb
@@ -330,6 +369,8 @@ REALIGN_WINDOW_S = 5.0
 #: only while the magnetometer has corrected the heading within this many seconds
 HEADING_HOLD_S = 60.0
 _NEVER_S = 1e9
+#: the adaptive low-pass takes slower rotation than this as this (rad/s): at rest ā/ω̄ is noise over noise
+_ADAPT_MIN_RATE = 0.1
 
 
 # --------------------------------------------------------------------------- objective functions
@@ -414,6 +455,69 @@ def _large_error_factor(theta, beta, tau, weight):  # type: ignore[no-untyped-de
     return k, True
 
 
+@kernel(inline=True)
+def _adaptive_blend(state, k, params, p, wx, wy, wz, dt, tau_acc, ratio):  # type: ignore[no-untyped-def]
+    """The weight λ (0–1) of the long low-pass for this sample (``accel_lowpass_adapt_ratio``).
+
+    The wanted time constant is τ·√(ā / (ratio·ω̄)), at least τ and at most
+    ``accel_lowpass_max_s``; λ places it between the two, scaled by the averaged manoeuvre
+    weight.  ``state[k]`` holds the averaged motion acceleration ā (m/s², updated after the
+    low-pass), ``state[k+1]`` the averaged rotation rate ω̄ (rad/s, updated here; neither is
+    updated at rest: ``dt`` = 0), ``state[k+2]`` the averaged manoeuvre weight (1 while
+    ``lowpass_norm_tolerance`` is 0).
+    """
+    t_avg = params[p + PM_ACC_ADAPT_TAU]
+    k_w = dt / t_avg if dt < t_avg else 1.0
+    state[k + 1] += k_w * (math.sqrt(wx * wx + wy * wy + wz * wz) - state[k + 1])
+    w_bar = state[k + 1] if state[k + 1] > _ADAPT_MIN_RATE else _ADAPT_MIN_RATE
+    x = state[k] / (ratio * w_bar)
+    tau_max = params[p + PM_ACC_TAU_MAX]
+    if x <= 1.0 or tau_max <= tau_acc:
+        return 0.0
+    lam = (tau_acc * math.sqrt(x) - tau_acc) / (tau_max - tau_acc)
+    return state[k + 2] * (lam if lam < 1.0 else 1.0)
+
+
+@kernel(inline=True)
+def _lowpass_pair(state, kf, kv, fn, fe, fd, an, ae, ad, gnss_lp, dt, tau, order2):  # type: ignore[no-untyped-def]
+    """Advance the low-pass of f (at ``kf``) and, with ``gnss_lp``, of v̇ (at ``kv``); return both (v̄ = 0 without)."""
+    if gnss_lp and state[kv + 3] == 0.0:
+        # start as if fed zeros since f̄'s low-pass started: its phase (the time averaged so far,
+        # or running) and its nominal step, so that both average over the same samples
+        state[kv + 3] = state[kf + 3]
+        state[kv + 7] = state[kf + 7]
+    vn = ve = vd = 0.0
+    if order2:
+        fn, fe, fd = ned_butterworth_step(state, kf, fn, fe, fd, dt, tau)
+        if gnss_lp:
+            vn, ve, vd = ned_butterworth_step(state, kv, an, ae, ad, dt, tau)
+    else:
+        fn, fe, fd = vector_lowpass_step(state, kf, fn, fe, fd, dt, tau)
+        if gnss_lp:
+            vn, ve, vd = vector_lowpass_step(state, kv, an, ae, ad, dt, tau)
+    return fn, fe, fd, vn, ve, vd
+
+
+@kernel(inline=True)
+def _long_lowpass_blend(state, f, params, p, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt, lam,
+                        fn, fe, fd, vn, ve, vd):  # type: ignore[no-untyped-def]  # fmt: skip
+    """Advance the long low-passes (τ = ``accel_lowpass_max_s``) of f and v̇; return both blends, λ of the long."""
+    g0, g1, g2, h0, h1, h2 = _lowpass_pair(
+        state, f + FM_NAVLP2, f + FM_VLP2, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt,
+        params[p + PM_ACC_TAU_MAX], params[p + PM_ACC_ORDER] > 1.0,
+    )  # fmt: skip
+    ntol = params[p + PM_NORM_TOL]
+    if ntol > 0.0 and lam > 0.0:
+        # the long average is used only as far as its own norm says it is gravity (a sustained
+        # acceleration stays in it longer than in the short one)
+        ref = math.sqrt(h0 * h0 + h1 * h1 + (h2 - G_M_S2) * (h2 - G_M_S2)) if gnss_lp else G_M_S2
+        wl = 1.0 - abs(math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) / ref - 1.0) / ntol
+        lam = lam * wl if wl > 0.0 else 0.0
+    if gnss_lp:
+        vn, ve, vd = vn + lam * (h0 - vn), ve + lam * (h1 - ve), vd + lam * (h2 - vd)
+    return fn + lam * (g0 - fn), fe + lam * (g1 - fe), fd + lam * (g2 - fd), vn, ve, vd
+
+
 @kernel
 def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     """Reset the filter-specific block at ``state[k:k + FM_LEN]`` (on (re)initialisation)."""
@@ -424,6 +528,12 @@ def _reset_internal(state, k):  # type: ignore[no-untyped-def]
     state[k + FM_MAG_AGE] = _NEVER_S
     nav_lowpass_reset(state, k + FM_VLP)
     nav_lowpass_reset(state, k + FM_VLP + LP_LEN)
+    state[k + FM_ADAPT] = 0.0
+    state[k + FM_ADAPT + 1] = 0.0
+    state[k + FM_ADAPT + 2] = 1.0
+    for base in (FM_NAVLP2, FM_VLP2):
+        nav_lowpass_reset(state, k + base)
+        nav_lowpass_reset(state, k + base + LP_LEN)
 
 
 # --------------------------------------------------------------------------- the step
@@ -449,7 +559,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     mag_ok = params[p + PM_USE_MAG] > 0.0 and vector_ok(mx, my, mz)
 
     # ---- gyro bias at rest (shared detector, optional) ------------------------
-    rest_step(
+    at_rest = rest_step(
         state, f + FM_REST, state, S_BIAS, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
         ax, ay, az, accel_ok, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params, p + PM_REST,
     )  # fmt: skip
@@ -499,11 +609,17 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for i in range(BW_LEN):
                     state[f + FM_NAVLP + i] = 0.0
                     state[f + FM_VLP + i] = 0.0
+                    state[f + FM_NAVLP2 + i] = 0.0
+                    state[f + FM_VLP2 + i] = 0.0
                 state[f + FM_MAG_AGE] = 0.0  # the heading is the magnetometer's now
         if state[f + FM_MAG_AGE] > HEADING_HOLD_S:
             an = ae = 0.0  # the horizontal part needs a heading reference to be put in body axes
     ux, uy, uz = ax, ay, az
     tau_acc = params[p + PM_ACC_TAU]
+    adapt = params[p + PM_ACC_ADAPT] if tau_acc > 0.0 else 0.0
+    lam = 0.0
+    if adapt > 0.0:
+        lam = _adaptive_blend(state, f + FM_ADAPT, params, p, wx, wy, wz, 0.0 if at_rest else dt, tau_acc, adapt)
     ntol = params[p + PM_NORM_TOL]
     # f̄ and the GNSS acceleration v̄ are low-passed separately and subtracted afterwards: f̄ is
     # kept in the estimate's NED frame (each correction rotates its state, below) while v̇ is
@@ -518,19 +634,21 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # would bias it: motion accelerations are zero-mean only as a whole).
         if tau_acc > 0.0:
             gnss_lp = an != 0.0 or ae != 0.0 or ad != 0.0 or state[f + FM_VLP + 3] != 0.0
-            if gnss_lp and state[f + FM_VLP + 3] == 0.0:
-                # start as if fed zeros since f̄'s low-pass started: its phase (the time averaged so far,
-                # or running) and its nominal step, so that both average over the same samples
-                state[f + FM_VLP + 3] = state[f + FM_NAVLP + 3]
-                state[f + FM_VLP + 7] = state[f + FM_NAVLP + 7]
-            if params[p + PM_ACC_ORDER] > 1.0:
-                fn, fe, fd = ned_butterworth_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
-                if gnss_lp:
-                    vn_lp, ve_lp, vd_lp = ned_butterworth_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
-            else:
-                fn, fe, fd = vector_lowpass_step(state, f + FM_NAVLP, fn, fe, fd, dt, tau_acc)
-                if gnss_lp:
-                    vn_lp, ve_lp, vd_lp = vector_lowpass_step(state, f + FM_VLP, an, ae, ad, dt, tau_acc)
+            fr0, fr1, fr2 = fn, fe, fd
+            fn, fe, fd, vn_lp, ve_lp, vd_lp = _lowpass_pair(
+                state, f + FM_NAVLP, f + FM_VLP, fn, fe, fd, an, ae, ad, gnss_lp, dt, tau_acc,
+                params[p + PM_ACC_ORDER] > 1.0,
+            )  # fmt: skip
+            if adapt > 0.0:
+                # the long low-pass runs beside it, blended in by λ: each is a fixed filter (a Butterworth
+                # whose τ changes under it does not keep a constant input's norm, which ‖f̄‖ must)
+                fn, fe, fd, vn_lp, ve_lp, vd_lp = _long_lowpass_blend(
+                    state, f, params, p, fr0, fr1, fr2, an, ae, ad, gnss_lp, dt, lam, fn, fe, fd, vn_lp, ve_lp, vd_lp
+                )
+                if not at_rest:  # the motion acceleration the low-pass removed, averaged
+                    d = math.sqrt((fr0 - fn) ** 2 + (fr1 - fe) ** 2 + (fr2 - fd) ** 2)
+                    k_a = dt / params[p + PM_ACC_ADAPT_TAU] if dt < params[p + PM_ACC_ADAPT_TAU] else 1.0
+                    state[f + FM_ADAPT] += k_a * (d - state[f + FM_ADAPT])
         else:
             vn_lp, ve_lp, vd_lp = an, ae, ad  # no low-pass
         ux, uy, uz = ned_to_body(q0, q1, q2, q3, fn - vn_lp, fe - ve_lp, fd - vd_lp)
@@ -569,6 +687,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 ratio = math.sqrt(fn * fn + fe * fe + fd * fd) / ref
             large_w = 1.0 - abs(ratio - 1.0) / ntol
             large_w = large_w if large_w > 0.0 else 0.0
+            if adapt > 0.0:  # averaged like ā and ω̄: a τ that jumps every sample upsets the recursion
+                k_w = dt / params[p + PM_ACC_ADAPT_TAU] if dt < params[p + PM_ACC_ADAPT_TAU] else 1.0
+                state[f + FM_ADAPT + 2] += k_w * (large_w - state[f + FM_ADAPT + 2])
             norm_w = max(large_w, params[p + PM_NORM_MIN_WEIGHT])
     sm0 = sm1 = sm2 = sm3 = 0.0  # magnetic part (unnormalised J_bᵀ f_b)
     nm = 0.0
@@ -663,6 +784,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         r1, r2, r3 = r1 / nn, r2 / nn, r3 / nn
         nav_lowpass_rotate(state, f + FM_NAVLP, 2.0 * r1, 2.0 * r2, 2.0 * r3)
         nav_lowpass_rotate(state, f + FM_NAVLP + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+        if adapt > 0.0:
+            nav_lowpass_rotate(state, f + FM_NAVLP2, 2.0 * r1, 2.0 * r2, 2.0 * r3)
+            nav_lowpass_rotate(state, f + FM_NAVLP2 + LP_LEN, 2.0 * r1, 2.0 * r2, 2.0 * r3)
     state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = n0, n1, n2, n3
     finish_step(state, out, gain, w_a * norm_w, w_m if mag_ok else 0.0)
 
@@ -701,6 +825,9 @@ class Madgwick(AttitudeFilter):
         p[PM_NORM_TOL] = s.lowpass_norm_tolerance
         p[PM_NORM_MIN_WEIGHT] = s.lowpass_norm_min_weight
         p[PM_REST : PM_REST + RP_LEN] = s.rest.to_params()
+        p[PM_ACC_ADAPT] = s.accel_lowpass_adapt_ratio
+        p[PM_ACC_TAU_MAX] = s.accel_lowpass_max_s
+        p[PM_ACC_ADAPT_TAU] = s.accel_lowpass_adapt_avg_s
         return p
 
     def initial_internal(self) -> np.ndarray:

@@ -7,7 +7,8 @@ trials.  Bounds, in degrees:
 * issue 2: ``best`` ≤ 3.0 total and ≤ 1.0 inclination (9-axis); the default
   ``madgwick`` better than the ``ahrs`` package's Madgwick (5.3 / 2.4);
 * regression bounds with ≈ 15 % margin over what was measured when the
-  settings were chosen (``docs/accuracy.md``: best 1.88 / 0.72, 6-axis 0.72;
+  settings were chosen (``docs/accuracy.md``: best 1.88 / 0.72, 6-axis 0.72; with the adaptive
+  low-pass 1.88 / 0.70, 6-axis 0.70;
   madgwick 2.77 / 1.66, 6-axis 1.80), below VQF's 2.46 total.
 """
 

@@ -248,8 +248,9 @@ def test_losing_the_fix_fades_the_compensation_out() -> None:
     """GNSS lost at 20 s, mid-acceleration: compensation held for ``velocity_max_age_s``, then faded out.
 
     One second after the loss the tilt is still right (the last v̇ is still
-    valid); five seconds after it the filter has gone over to the
-    uncompensated specific force (17° off), as it must.
+    valid); five seconds after it the filter is on its way to the
+    uncompensated specific force (17° off), as it must: ≈ 1.9° then (the
+    manoeuvre weight, ‖f̄‖ beyond 3 % of g, slows it down; 2.7° at 5 %).
     """
     rows, q = _accelerating_north("nan")
     lost = int(20 * RATE_HZ)
@@ -257,7 +258,7 @@ def test_losing_the_fix_fades_the_compensation_out() -> None:
     incl = _inclination_deg(rows, q)
     assert incl[lost - 1] < 0.3
     assert incl[lost + int(1.0 * RATE_HZ)] < 0.3
-    assert incl[lost + int(5.0 * RATE_HZ)] > 2.0
+    assert incl[lost + int(5.0 * RATE_HZ)] > 1.5
 
 
 def test_compensation_kernel_starts_in_full_then_fades_out_and_in_linearly() -> None:
