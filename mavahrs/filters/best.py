@@ -22,9 +22,9 @@ are in ``docs/accuracy.md``:
                                 BROAD 9-axis          ``aggressive`` flight
                                 total / incl. °       incl. ° GPS / no GPS
 ==============================  ====================  =====================
-``best``                        1.88 / 0.72           0.8 / 3.2
+``best``                        1.88 / 0.70           0.35 / 2.3
 VQF 2.x (causal, defaults)      2.46 / 0.71           9.1 (no velocity input)
-``mahony`` defaults             2.14 / 0.75           0.8 / 5.9
+``mahony`` defaults             2.14 / 0.75           0.74 / 6.0
 ``ahrs`` Madgwick / imufusion   5.3 / 2.4             10.7 (imufusion)
 ==============================  ====================  =====================
 
@@ -43,10 +43,14 @@ then checked on the data; nothing is chosen per trial or per flight):
   accelerometer reads thrust and drag, not gravity, for as long as it
   accelerates, and no amount of averaging removes a sustained acceleration;
 * without velocity, the norm of the low-passed specific force tells a
-  manoeuvre: beyond 5 % from g the gravity correction falls to 20 % and the
+  manoeuvre: beyond 3 % from g the gravity correction falls to 20 % and the
   large-error speed-up is off (a sustained tilted acceleration looks exactly
   like a large tilt error); on BROAD this changes nothing (its low-passed
   norm stays within a few per cent of g);
+* without velocity, a 3 s low-pass is blended in beside the 2 s one as far
+  as the motion acceleration outweighs the rotation rate and the manoeuvre
+  weight allows: hand-held translation is averaged longer, rotation and
+  sustained acceleration keep 2 s (BROAD inclination 0.715 → 0.703°);
 * the magnetometer corrects heading only, at its own slower β = 0.005
   (0.57°/s): the field in a room (and a calibration error) deflects the
   measured heading by several degrees in some orientations, which a slow,
