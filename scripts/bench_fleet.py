@@ -4,10 +4,12 @@ Dask cluster over loopback TCP, and the scaling ratio (issue 18: ≥ 1.8× from 
 
 The fleet: ``--distinct`` simulated ``hover`` flights of ``--duration`` s (firmware_sim, ArduPilot, RAW_IMU at
 250 Hz, ATTITUDE at 50 Hz; generated once into ``--workdir``), copied to ``--logs`` files — every copy is
-replayed and summarised in full (:func:`mavahrs.fleet.audit.summarise_log`, one Dask task per log).  Each
-engine is started and replays one log on every worker first (the kernels load from numba's cache); then
-``--repeat`` rounds replay the fleet once on each engine in turn, and each engine's best wall time counts
-(on a shared machine a change of load then hits every engine alike).  Start-up is not timed.
+replayed and summarised in full (:func:`mavahrs.fleet.audit.summarise_log`, one Dask task per log).  In each of
+``--repeat`` rounds every engine in turn is started, replays one log on every worker (the kernels load from
+numba's cache), replays the fleet (timed) and is stopped; each engine's best wall time counts.  One engine
+runs at a time (on 2 cores another engine's idle Dask processes would take time from the timed one), and
+the rounds interleave them (on a shared machine a change of load hits every engine alike).  Start-up is
+not timed.
 
 Engines: ``serial`` (this process, no Dask), ``local-1`` and ``local-2`` (a LocalCluster of 1 / 2 worker
 processes, one thread each), ``cluster`` (``dask scheduler`` + two ``dask worker --nworkers 1 --nthreads 1``
@@ -80,11 +82,17 @@ def warm(engine, log: Path) -> None:  # type: ignore[no-untyped-def]
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--logs", type=int, default=16, help="logs in the fleet (default 16)")
-    ap.add_argument("--distinct", type=int, default=4, help="distinct simulated flights copied to --logs files (4)")
+    ap.add_argument(
+        "--distinct", type=int, default=4, help="distinct simulated flights copied to --logs files (4)"
+    )
     ap.add_argument("--duration", type=float, default=120.0, help="seconds per flight (default 120)")
-    ap.add_argument("--repeat", type=int, default=2, help="rounds over the engines, the best counts (default 2)")
+    ap.add_argument(
+        "--repeat", type=int, default=2, help="rounds over the engines, the best counts (default 2)"
+    )
     ap.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "mavahrs-bench-fleet")
-    ap.add_argument("--skip", action="append", default=[], choices=("serial", "local-1", "local-2", "cluster"))
+    ap.add_argument(
+        "--skip", action="append", default=[], choices=("serial", "local-1", "local-2", "cluster")
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args(argv)
 
@@ -98,36 +106,38 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, dict[str, float]] = {}
     from mavahrs.fleet.audit import summarise_log
 
-    with contextlib.ExitStack() as stack:
-        # every engine up and warm first, then the passes interleaved round by round: on a shared machine
-        # a change of load then hits every engine alike, not the one that happened to run during it
-        engines: dict[str, object] = {}
-        if "serial" not in args.skip:
-            summarise_log(logs[0])  # kernels loaded
-            engines["serial"] = serial_map
-        for n in (1, 2):
-            if f"local-{n}" not in args.skip:
-                eng = stack.enter_context(DaskEngine(workers=n))
-                warm(eng, logs[0])
-                engines[f"local-{n}"] = eng.map
-        if "cluster" not in args.skip:
-            tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bench-fleet-")))
-            env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-            address = stack.enter_context(loopback_cluster(tmp, 2, env=env))
-            eng = stack.enter_context(DaskEngine(scheduler=address))
-            warm(eng, logs[0])
-            engines["cluster"] = eng.map
-        best: dict[str, tuple[float, int]] = {}
-        for _ in range(args.repeat):
-            for name, mapper in engines.items():
+    names = [n for n in ("serial", "local-1", "local-2", "cluster") if n not in args.skip]
+    best: dict[str, tuple[float, int]] = {}
+    # one engine at a time (started, warmed, timed, stopped): on 2 cores the idle processes of another
+    # engine (Dask workers tick every few ms) would take time from the one being timed; the rounds are
+    # interleaved, so a change of load on a shared machine hits every engine alike
+    for _ in range(args.repeat):
+        for name in names:
+            with contextlib.ExitStack() as stack:
+                if name == "serial":
+                    summarise_log(logs[0])  # kernels loaded
+                    mapper = serial_map
+                elif name.startswith("local-"):
+                    eng = stack.enter_context(DaskEngine(workers=int(name[-1])))
+                    warm(eng, logs[0])
+                    mapper = eng.map
+                else:
+                    tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bench-fleet-")))
+                    env = dict(
+                        os.environ,
+                        PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
+                    )
+                    address = stack.enter_context(loopback_cluster(tmp, 2, env=env))
+                    eng = stack.enter_context(DaskEngine(scheduler=address))
+                    warm(eng, logs[0])
+                    mapper = eng.map
                 wall, samples = timed(mapper, logs, 1)
-                if name not in best or wall < best[name][0]:
-                    best[name] = (wall, samples)
-        for name in engines:
-            wall, samples = best[name]
-            results[name] = {"wall_s": wall, "samples": samples, "samples_per_s": samples / wall}
-            print(f"{name:<10} {samples:>10} IMU samples in {wall:6.2f} s: {samples / wall:12.4g} samples/s",
-                  flush=True)  # fmt: skip
+            if name not in best or wall < best[name][0]:
+                best[name] = (wall, samples)
+    for name in names:
+        wall, samples = best[name]
+        results[name] = {"wall_s": wall, "samples": samples, "samples_per_s": samples / wall}
+        print(f"{name:<10} {samples:>10} IMU samples in {wall:6.2f} s: {samples / wall:12.4g} samples/s", flush=True)
     one = results.get("local-1", {}).get("samples_per_s")
     if one:
         for name in ("local-2", "cluster"):

@@ -34,6 +34,10 @@ _TIMEOUTS = {
     "distributed.comm.timeouts.connect": "120s",
     "distributed.comm.timeouts.tcp": "300s",
     "distributed.scheduler.worker-ttl": "600s",
+    # one log per worker process is the parallelism: numba's own thread pool (started when a batch path
+    # loads its parallel sweep loop) only competes with the other workers for the cores (measured: 2 local
+    # workers on 2 cores 1.2x one worker with it, 1.8x without); Dask already sets OMP_NUM_THREADS=1 so
+    "distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": 1,
 }
 
 
@@ -145,10 +149,13 @@ def loopback_cluster(
     sched_file.unlink(missing_ok=True)
     procs: list[subprocess.Popen[bytes]] = []
 
+    # one numba thread per worker process (see _TIMEOUTS): what a real cluster's workers should be given too
+    penv = dict(env if env is not None else os.environ, NUMBA_NUM_THREADS="1")
+
     def start(name: str, *args: str) -> None:
         with open(work / f"{name}.log", "wb") as log:
             procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=log, stderr=subprocess.STDOUT,
-                                          env=dict(env) if env is not None else None, cwd=work))  # fmt: skip
+                                          env=penv, cwd=work))  # fmt: skip
 
     try:
         start("scheduler", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
