@@ -95,8 +95,8 @@ from mavahrs.filters.base import (
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
 from mavahrs.filters.eskf import Eskf, EskfSettings, eskf_aided
 from mavahrs.filters.eskf import step as _eskf_step
-from mavahrs.filters.jit import kernel
 from mavahrs.filters.gnss import gnss_compensation_fresh
+from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_DT, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_BIAS, OUT_Q, OUT_WIDTH
 from mavahrs.filters.madgwick import FM_GNSS, PM_GNSS, Madgwick, MadgwickSettings
 from mavahrs.filters.madgwick import step as _madgwick_step

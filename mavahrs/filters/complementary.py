@@ -50,7 +50,7 @@ from mavahrs.filters.base import (
 from mavahrs.filters.gains import GainScheduleSettings, schedule_step
 from mavahrs.filters.gnss import VD_LEN, velocity_derivative_reset, velocity_derivative_step
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body, quat_multiply
+from mavahrs.filters.kinematics import integrate_body_rate, ned_to_body, quat_multiply
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_MAG_INVALID,

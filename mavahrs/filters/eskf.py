@@ -597,7 +597,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     if mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
         hn = state[kc + 0] * mx + state[kc + 1] * my + state[kc + 2] * mz
         he = state[kc + 3] * mx + state[kc + 4] * my + state[kc + 5] * mz
-        hd = state[kc + 6] * mx + state[kc + 7] * my + state[kc + 8] * mz
         bh = math.sqrt(hn * hn + he * he)
         if bh > 0.05 * math.sqrt(mx * mx + my * my + mz * mz):
             psi = math.atan2(he, hn)  # the estimate's heading error (magnetic north = 0)

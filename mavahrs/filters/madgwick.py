@@ -58,10 +58,16 @@ from mavahrs.filters.base import (
     vector_ok,
 )
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
-from mavahrs.filters.jit import kernel, pure_python
-from mavahrs.filters.gnss import GC_LEN, gnss_compensation_fresh, gnss_compensation_reset, gnss_compensation_step
+from mavahrs.filters.gnss import (
+    GC_LEN,
+    gnss_compensation_fresh,
+    gnss_compensation_reset,
+    gnss_compensation_step,
+)
 from mavahrs.filters.initial import triad_attitude
+from mavahrs.filters.jit import kernel, pure_python
 from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body, quat_multiply
+from mavahrs.filters.layout import FLAG_STARTUP, IN_ACCEL, IN_GYRO, IN_MAG, IN_VEL, OUT_FLAGS
 from mavahrs.filters.prefilter import (
     BW_LEN,
     LP_LEN,
@@ -71,7 +77,6 @@ from mavahrs.filters.prefilter import (
     vector_lowpass_step,
 )
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
-from mavahrs.filters.layout import FLAG_STARTUP, IN_ACCEL, IN_GYRO, IN_MAG, IN_VEL, OUT_FLAGS
 
 __all__ = [
     "MadgwickSettings",

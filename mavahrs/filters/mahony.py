@@ -49,8 +49,6 @@ from mavahrs.filters.gains import GainScheduleSettings, schedule_step
 from mavahrs.filters.gnss import VD_LEN, velocity_derivative_reset, velocity_derivative_step
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body
-from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
-from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_rotate, nav_lowpass_step
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_MAG_INVALID,
@@ -61,6 +59,8 @@ from mavahrs.filters.layout import (
     IN_VEL,
     OUT_FLAGS,
 )
+from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_rotate, nav_lowpass_step
+from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
 __all__ = ["MahonySettings", "Mahony", "step"]
 
