@@ -85,6 +85,7 @@ import json
 import math
 import os
 import select
+import shutil
 import signal
 import socket
 import subprocess
@@ -233,9 +234,20 @@ def _open_page(url: str) -> Any:
         raise RuntimeError("--with-page needs chromium and chromedriver (apt-get install chromium chromium-driver)")
     options = webdriver.ChromeOptions()
     options.binary_location = browser
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1100,800"):
+    scratch = tempfile.mkdtemp(prefix="bench_live_chromium_")  # its profile and temporary files; removed on quit
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1100,800",
+                f"--user-data-dir={scratch}/profile"):
         options.add_argument(arg)
-    page = webdriver.Chrome(service=Service(driver), options=options)
+    page = webdriver.Chrome(service=Service(driver, env=dict(os.environ, TMPDIR=scratch)), options=options)
+    quit_page = page.quit
+
+    def quit_and_clean() -> None:
+        try:
+            quit_page()
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+    page.quit = quit_and_clean
     page.get(url)
     deadline = time.monotonic() + 30
     while page.execute_script(_PAGE_UPDATES) < 10:
@@ -458,15 +470,19 @@ def bench_one(
             echo.stdout.close()
         if own_cpus is not None:
             os.sched_setaffinity(0, own_cpus)
-    stats = json.loads(stats_path.read_text())
+    try:
+        stats = json.loads(stats_path.read_text())
+        try:
+            echo_ns = json.loads(echo_stats_path.read_text())
+        except (OSError, ValueError):
+            echo_ns = []
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)  # the two statistics files: read, not kept
     wanted = f"SCHED_FIFO priority {realtime_priority}" if realtime_priority else "normal"
     if stats.get("scheduling", "normal") != wanted:
         raise RuntimeError(f"mavahrs run ran under {stats.get('scheduling')!r} scheduling, not {wanted!r}")
     processing = [ns / 1000.0 for ns in stats["latency_ns"]][-n_window:]  # the window's samples (the last ones)
-    try:
-        echo_processing = [ns / 1000.0 for ns in json.loads(echo_stats_path.read_text())][-n_window:]
-    except (OSError, ValueError):
-        echo_processing = []
+    echo_processing = [ns / 1000.0 for ns in echo_ns][-n_window:]
     d, e = peers
     result: dict[str, Any] = {
         "filter": filter_name,

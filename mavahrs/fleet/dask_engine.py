@@ -34,11 +34,13 @@ _TIMEOUTS = {
     "distributed.comm.timeouts.connect": "120s",
     "distributed.comm.timeouts.tcp": "300s",
     "distributed.scheduler.worker-ttl": "600s",
-    # one log per worker process is the parallelism: numba's own thread pool (started when a batch path
-    # loads its parallel sweep loop) only competes with the other workers for the cores (measured: 2 local
-    # workers on 2 cores 1.2x one worker with it, 1.8x without); Dask already sets OMP_NUM_THREADS=1 so
-    "distributed.nanny.pre-spawn-environ.NUMBA_NUM_THREADS": 1,
 }
+#: set in each local worker process (not in this one: Dask's "pre-spawn-environ" would set it here too, where
+#: numba then refuses other thread counts): one log per worker process is the parallelism, and numba's own
+#: thread pool (started when a batch path loads its parallel sweep loop) only competes with the other workers
+#: for the cores (measured: 2 local workers on 2 cores 1.2x one worker with it, 1.9x without); Dask already
+#: gives its workers OMP_NUM_THREADS=1 for the same reason
+_WORKER_ENV = {"NUMBA_NUM_THREADS": "1"}
 
 
 def available() -> bool:
@@ -74,7 +76,7 @@ class DaskEngine:
         else:
             self._cluster = LocalCluster(
                 n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                silence_logs=logging.ERROR,
+                silence_logs=logging.ERROR, env=_WORKER_ENV,
             )  # fmt: skip
             self._client = Client(self._cluster)
         return self
@@ -149,8 +151,8 @@ def loopback_cluster(
     sched_file.unlink(missing_ok=True)
     procs: list[subprocess.Popen[bytes]] = []
 
-    # one numba thread per worker process (see _TIMEOUTS): what a real cluster's workers should be given too
-    penv = dict(env if env is not None else os.environ, NUMBA_NUM_THREADS="1")
+    # one numba thread per worker process (see _WORKER_ENV): what a real cluster's workers should be given too
+    penv = {**(env if env is not None else os.environ), **_WORKER_ENV}
 
     def start(name: str, *args: str) -> None:
         with open(work / f"{name}.log", "wb") as log:

@@ -39,3 +39,19 @@ def test_a_dead_worker_costs_one_task_not_the_batch(tmp_path: Path) -> None:
     log.write_bytes(b"x" * 10)
     row = lost_row(log, RuntimeError("worker gone"))
     assert (row.path, row.size_bytes, row.error) == (str(log), 10, "the task replaying this log failed: RuntimeError: worker gone")
+
+
+def _numba_threads() -> str | None:
+    return os.environ.get("NUMBA_NUM_THREADS")
+
+
+def test_local_workers_run_one_numba_thread_and_this_process_is_left_alone() -> None:
+    """One log per worker process is the parallelism: each local worker gets NUMBA_NUM_THREADS=1 (its own
+    thread pool would compete with the other workers for the cores), and the calling process keeps its
+    environment (numba refuses another thread count once its pool runs, so a leak breaks later sweeps)."""
+    from mavahrs.fleet.dask_engine import DaskEngine
+
+    before = os.environ.get("NUMBA_NUM_THREADS")
+    with DaskEngine(workers=2) as eng:
+        assert set(eng._client.run(_numba_threads).values()) == {"1"}
+    assert os.environ.get("NUMBA_NUM_THREADS") == before

@@ -123,7 +123,8 @@ def _get(url: str, headers: dict[str, str] | None = None, method: str = "GET") -
 # --------------------------------------------------------------------------- the browser
 
 
-def _chrome() -> Any:
+def _chrome(scratch: Path) -> Any:
+    """Headless Chromium; its profile and temporary files go to ``scratch`` (a test's tmp_path), not /tmp."""
     webdriver = pytest.importorskip(
         "selenium.webdriver", reason="selenium is not installed (pip install 'mavahrs[test]')")
     from selenium.webdriver.chrome.service import Service
@@ -136,9 +137,10 @@ def _chrome() -> Any:
     options = webdriver.ChromeOptions()
     options.binary_location = browser
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                "--window-size=1100,800", "--hide-scrollbars"):
+                "--window-size=1100,800", "--hide-scrollbars", f"--user-data-dir={scratch / 'profile'}"):
         options.add_argument(arg)
-    return webdriver.Chrome(service=Service(driver), options=options)
+    env = dict(os.environ, TMPDIR=str(scratch))  # Chromium's own org.chromium.* scratch folders
+    return webdriver.Chrome(service=Service(driver, env=env), options=options)
 
 
 _READ_DOM = """
@@ -180,7 +182,7 @@ def _pixels(png: Path, rgb: tuple[int, int, int]) -> float:
 
 
 def test_page_in_a_browser_draws_the_true_roll(tmp_path: Path) -> None:
-    browser = _chrome()
+    browser = _chrome(tmp_path)
     port = _free_port()
     daemon, url = _daemon(port, tmp_path, "--log", "daemon.tlog", "--out-rate", "50")
     sim = _sim(port, tmp_path, "--scenario", "aggressive", "--duration", "0", "--seed", "7")
