@@ -238,7 +238,11 @@ def _open_page(url: str) -> Any:
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1100,800",
                 f"--user-data-dir={scratch}/profile"):
         options.add_argument(arg)
-    page = webdriver.Chrome(service=Service(driver, env=dict(os.environ, TMPDIR=scratch)), options=options)
+    try:
+        page = webdriver.Chrome(service=Service(driver, env=dict(os.environ, TMPDIR=scratch)), options=options)
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
     quit_page = page.quit
 
     def quit_and_clean() -> None:

@@ -27,6 +27,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.error
@@ -123,8 +124,13 @@ def _get(url: str, headers: dict[str, str] | None = None, method: str = "GET") -
 # --------------------------------------------------------------------------- the browser
 
 
-def _chrome(scratch: Path) -> Any:
-    """Headless Chromium; its profile and temporary files go to ``scratch`` (a test's tmp_path), not /tmp."""
+def _chrome() -> Any:
+    """Headless Chromium; its profile and temporary files go to a folder of its own, removed on ``quit()``.
+
+    The folder is a short one in the system's temporary directory, not the test's tmp_path: Chromium puts
+    its singleton socket there, and a Unix socket's path may not exceed 107 bytes (pytest-xdist's
+    tmp_paths are longer: the browser then exits at start).
+    """
     webdriver = pytest.importorskip(
         "selenium.webdriver", reason="selenium is not installed (pip install 'mavahrs[test]')")
     from selenium.webdriver.chrome.service import Service
@@ -137,10 +143,26 @@ def _chrome(scratch: Path) -> Any:
     options = webdriver.ChromeOptions()
     options.binary_location = browser
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                "--window-size=1100,800", "--hide-scrollbars", f"--user-data-dir={scratch / 'profile'}"):
+                "--window-size=1100,800", "--hide-scrollbars"):
         options.add_argument(arg)
-    env = dict(os.environ, TMPDIR=str(scratch))  # Chromium's own org.chromium.* scratch folders
-    return webdriver.Chrome(service=Service(driver, env=env), options=options)
+    scratch = tempfile.mkdtemp(prefix="mavahrs-chromium-")
+    options.add_argument(f"--user-data-dir={scratch}/profile")
+    env = dict(os.environ, TMPDIR=scratch)  # Chromium's own org.chromium.* scratch folders
+    try:
+        browser = webdriver.Chrome(service=Service(driver, env=env), options=options)
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
+    quit_browser = browser.quit
+
+    def quit_and_clean() -> None:
+        try:
+            quit_browser()
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+    browser.quit = quit_and_clean
+    return browser
 
 
 _READ_DOM = """
@@ -182,7 +204,7 @@ def _pixels(png: Path, rgb: tuple[int, int, int]) -> float:
 
 
 def test_page_in_a_browser_draws_the_true_roll(tmp_path: Path) -> None:
-    browser = _chrome(tmp_path)
+    browser = _chrome()
     port = _free_port()
     daemon, url = _daemon(port, tmp_path, "--log", "daemon.tlog", "--out-rate", "50")
     sim = _sim(port, tmp_path, "--scenario", "aggressive", "--duration", "0", "--seed", "7")
