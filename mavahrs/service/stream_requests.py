@@ -93,7 +93,10 @@ class StreamRequestSettings:
             below ``low_rate_fraction`` × the accepted rate, or when another
             node is seen changing the autopilot's stream rates (False: only the
             periodic re-request every ``interval_s``).
-        drop_window_s: window of the quick delivered-rate check, s.
+        drop_window_s: window of the quick delivered-rate check, s (a stream
+            expecting fewer than 20 messages in it — e.g. GNSS at 10 Hz — is
+            judged over ``rate_window_s`` instead, so that random loss on a
+            radio link is not taken for a rate reset).
         drop_grace_s: time after a request's COMMAND_ACK (or the request, for
             REQUEST_DATA_STREAM) before the quick check judges the rate, s.
         rerequest_min_s: quick re-requests of one message are at least this
@@ -173,6 +176,10 @@ class StreamState:
     delivered_hz: float
     mode: str
     detail: str
+
+
+#: the quick rate check needs this many expected messages in its window, else the status window is used
+_QUICK_MIN_MESSAGES = 20
 
 
 class _Meter:
@@ -261,6 +268,7 @@ class StreamRequester:
         self._rerequest_min_us = int(s.rerequest_min_s * 1e6)
         self._foreign_delay_us = int(s.foreign_request_delay_s * 1e6)
         self._drop_window_us = int(s.drop_window_s * 1e6)
+        self._rate_window_us = int(s.rate_window_s * 1e6)
         self._wants: dict[str, _Want] = {}
         self._inflight: _Want | None = None
         self._inflight_us = 0
@@ -344,7 +352,7 @@ class StreamRequester:
             w.attempts = 0
             w.detail = f"accepted at {rate:g} Hz"
             w.due_us = now_us + self._interval_us
-            w.judge_us = now_us + self._drop_grace_us  # the new rate takes effect from now
+            w.judge_us = now_us + self._grace_for(rate)  # the new rate takes effect from now
             if w.denied_hz is not None:
                 self.notices.warning(
                     f"stepdown:{w.name}",
@@ -489,7 +497,7 @@ class StreamRequester:
         if w.requested_us is None:
             w.requested_us = now_us
         if w.accepted_hz is not None:
-            w.judge_us = now_us + self._drop_grace_us  # (again from the ACK)
+            w.judge_us = now_us + self._grace_for(w.accepted_hz)  # (again from the ACK)
         return SetMessageInterval(w.msg_id, w.name, int(round(1e6 / w.rate_hz)), min(conf, 255))
 
     def _fallback(self, w: _Want, now_us: int, why: str, quiet: bool = False) -> None:
@@ -528,6 +536,14 @@ class StreamRequester:
     def _arrivals(self) -> int:
         return sum(w.meter.total for w in self._wants.values())
 
+    def _quick_window(self, expected_hz: float) -> bool:
+        """Whether a stream at ``expected_hz`` is judged over the quick window (else over the status window)."""
+        return expected_hz * self.settings.drop_window_s >= _QUICK_MIN_MESSAGES
+
+    def _grace_for(self, expected_hz: float) -> int:
+        """µs after a request before the quick check judges: at least the window it is judged over (refilled)."""
+        return self._drop_grace_us if self._quick_window(expected_hz) else max(self._drop_grace_us, self._rate_window_us)
+
     def _check_drop(self, w: _Want, expected: float, now_us: int) -> None:
         """The quick check: re-request at once when the delivered rate collapsed (with back-off).
 
@@ -541,7 +557,12 @@ class StreamRequester:
         """
         if w.judge_us is None or now_us < w.judge_us:
             return
-        got = w.meter.fast.rate(now_us)
+        # the quick window holds 125 RAW_IMU at 250 Hz but 5 GLOBAL_POSITION_INT at 10 Hz: with 10 % of a
+        # lossy radio's datagrams lost, 2 of 5 arriving (a "collapse") happens about once a minute; a slow
+        # stream is judged over the status window instead (20 at 10 Hz: the same loss then never trips it)
+        fast = self._quick_window(expected)
+        got = (w.meter.fast if fast else w.meter.slow).rate(now_us)
+        window_us = self._drop_window_us if fast else self._rate_window_us
         if got < self.settings.low_rate_fraction * expected:
             arrivals = self._arrivals()
             if w.drop_seen_us is None:
@@ -551,8 +572,8 @@ class StreamRequester:
                 return  # nothing arrived since: a silent link, not a rate reset
             silent_us = now_us - w.drop_seen_us
             w.drop_seen_us = None
-            if silent_us > self._drop_window_us:  # back after a silence: judge once the meter has refilled
-                w.judge_us = now_us + self._drop_window_us
+            if silent_us > window_us:  # back after a silence: judge once the meter has refilled
+                w.judge_us = now_us + window_us
                 return
         else:
             w.drop_seen_us = None
