@@ -132,7 +132,7 @@ _LAST_MAG = _CLK + 2  # clock time of the last magnetometer update
 _VREJ = _CLK + 3  # how long every velocity fix has been rejected, s
 _PREV_VEL = _CLK + 4  # the previous row's velocity (3): a held value is not a new fix
 _PREV_MAG = _CLK + 7  # the previous row's magnetometer (3): a repeated reading is not a new one
-_GREJ = _CLK + 10  # how long every gravity / heading measurement has been rejected, s
+_GREJ = _CLK + 10  # clock time since when every gravity / heading measurement was rejected (−1: none)
 _PERIOD = _CLK + 11  # interval between the last two changes of the velocity, s (0: not known)
 _VIB = _CLK + 12  # running mean of ½‖Δω‖², ½‖Δf‖² between samples (2): the sensors' noise now
 _PREV_IMU = _CLK + 14  # the previous sample's gyro and specific force (6; NaN: none)
@@ -267,6 +267,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         s[kp + i * N + i] = params[p + _P0_BIAS]
     s[k + _LAST_FIX] = -1.0
     s[k + _LAST_MAG] = -1.0e9
+    s[k + _GREJ] = -1.0
     for i in range(3):
         s[k + _PREV_VEL + i] = math.nan
     for i in range(6):
@@ -616,14 +617,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[k + _LAST_MAG] = clk
     if tried:
         if passed:
-            state[k + _GREJ] = 0.0
-        else:
-            state[k + _GREJ] += dt
-            if state[k + _GREJ] > params[p + _REJECT_RESET]:
-                # consistently refused: the estimate, not every sensor, is wrong (a bad start, a
-                # disturbance learned as the reference): re-open the attitude covariance
-                eskf_reopen_attitude(state, k, params, _REOPEN_TILT, _REOPEN_HEADING)
-                state[k + _GREJ] = 0.0
+            state[k + _GREJ] = -1.0
+        elif state[k + _GREJ] < 0.0:
+            state[k + _GREJ] = clk  # a streak of rejections starts
+        elif clk - state[k + _GREJ] > params[p + _REJECT_RESET]:
+            # consistently refused (elapsed time: the magnetometer is offered at 10 Hz, not every sample):
+            # the estimate, not every sensor, is wrong (a bad start, a state set from outside, a heading
+            # pulled off after a restart): re-open the attitude covariance
+            eskf_reopen_attitude(state, k, params, _REOPEN_TILT, _REOPEN_HEADING)
+            state[k + _GREJ] = -1.0
 
     # ---- inject ------------------------------------------------------------------------------
     if updated:

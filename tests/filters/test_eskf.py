@@ -190,3 +190,20 @@ def test_output_is_advanced_by_the_sensor_delay() -> None:
     qa, qb = plain[-1, OUT_Q : OUT_Q + 4], lead[-1, OUT_Q : OUT_Q + 4]
     ang = math.degrees(2 * math.acos(min(1.0, abs(float(np.dot(qa, qb))))))
     assert ang == pytest.approx(90 * 0.011, rel=0.05)
+
+
+def test_a_heading_gone_wrong_is_recovered_within_seconds_when_velocity_aided() -> None:
+    """Velocity-aided at rest (no gravity updates then), the heading set 40° off with a small covariance:
+    every magnetometer reading is refused by the gate, and after 2 s of refusals (elapsed time: readings
+    come at 10 Hz) the attitude covariance re-opens and the heading comes back within 2° 6 s later."""
+    rows, q, t = _flight(40.0, lambda t: np.zeros((3, t.size)))
+    f = create("eskf")
+    k = int(10 * RATE_HZ)
+    f.run(rows[:k])
+    s = f.state
+    h = math.radians(40.0) / 2
+    s.q_body_to_ned = np.array([math.cos(h), 0.0, 0.0, math.sin(h)])
+    f.state = s
+    _, head = _errors_deg(f.run(rows[k:]), q[k:])
+    assert head[0] > 39.0
+    assert head[int(6 * RATE_HZ) :].max() < 2.0
