@@ -411,6 +411,14 @@ def run_demo(
         raise ConfigError(f"cannot create the output directory {outdir}: {exc.strerror or exc}") from None
     tlog_path = outdir / f"{settings.scenario}.tlog"
     png_path = outdir / f"{settings.scenario}.png"
+    # Each demo records a fresh tlog: the daemon's --log appends (as MAVProxy does, for a restarted
+    # service), but a second demo appended to the first would read as one flight with a reboot.
+    replaced = tlog_path.exists()
+    if replaced:
+        try:
+            tlog_path.unlink()
+        except OSError as exc:
+            raise ConfigError(f"cannot replace the previous demo's tlog {tlog_path}: {exc.strerror or exc}") from None
     pipeline_settings = PipelineSettings(filter_name=settings.filter_name, out_rate_hz=settings.out_rate_hz)
 
     out(f"mavahrs demo: a simulated ArduPilot flies '{settings.scenario}' for {settings.duration_s:g} s; "
@@ -463,7 +471,8 @@ def run_demo(
     err_file = tempfile.TemporaryFile()
     cmd = _sim_command(settings, port)
     out(f"daemon: listening on udpin:127.0.0.1:{port}, attitude to udpout:127.0.0.1:{gcs.port} "
-        f"(this program's ground-station view), recording {tlog_path}")
+        f"(this program's ground-station view), recording {tlog_path}"
+        + (" (overwriting the previous demo's tlog)" if replaced else " (a new file)"))
     out(f"simulator: {' '.join(['python', *cmd[1:]])}")
     sim = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_file)
     live = _Live(tap, gcs)

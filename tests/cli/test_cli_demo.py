@@ -257,3 +257,31 @@ def test_ctrl_c_stops_simulator_and_daemon_and_still_scores(tmp_path: Path) -> N
     assert SUMMARY.search(text), text
     assert not Path(f"/proc/{sims[0]}").exists() or "zombie" in Path(f"/proc/{sims[0]}/status").read_text()
     assert (tmp_path / "aggressive.tlog").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_a_second_demo_starts_a_fresh_tlog(tmp_path: Path) -> None:
+    """Two demos into the same folder: the second tlog holds one flight, not both (it appended before)."""
+    outdir = tmp_path / "demo"
+    cmd = [sys.executable, "-m", "mavahrs", "demo", "--duration", "2", "--no-plot", "--outdir", str(outdir)]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    first = _run(cmd, timeout=300, env=env, cwd=tmp_path)
+    assert first.returncode == 0, first.stdout + first.stderr
+    tlog = outdir / "aggressive.tlog"
+    size1 = tlog.stat().st_size
+    second = _run(cmd, timeout=300, env=env, cwd=tmp_path)
+    assert second.returncode == 0, second.stdout + second.stderr
+    # one flight: the simulated autopilot's boot clock never steps back (a second flight appended
+    # restarts it at 0), and the size is that of one 2 s flight, not two
+    from pymavlink import mavutil
+
+    mlog = mavutil.mavlink_connection(str(tlog), dialect="ardupilotmega")
+    boot_us: list[int] = []
+    while (msg := mlog.recv_match(type="RAW_IMU")) is not None:
+        boot_us.append(int(msg.time_usec))
+    mlog.close()
+    assert boot_us and all(b > a for a, b in zip(boot_us[:-1], boot_us[1:], strict=True)), "the tlog holds more than one flight"
+    assert tlog.stat().st_size < 1.5 * size1
+    # and the output says which: a new file, then the previous one overwritten
+    assert "(a new file)" in first.stdout, first.stdout
+    assert "(overwriting the previous demo's tlog)" in second.stdout, second.stdout
