@@ -432,15 +432,23 @@ def gap_note(inputs: PreparedInputs, log_start_us: int, max_gap_s: float, *, lis
     if holes.size == 0:
         return None
     at = (inputs.tlog_us.astype(np.float64) - log_start_us) * 1e-6
+    where = "of the log"
+    # A hole the log's own clock does not show (the samples before and after it were received
+    # within less than half its length: queued data delivered in a burst) is placed on the
+    # autopilot's clock instead, so its times are not all the same.
+    if bool(np.any(np.diff(inputs.tlog_us)[holes] * 2 < step[holes])):
+        at = inputs.t_us.astype(np.float64) * 1e-6
+        where = ("of the autopilot's clock (time since boot: the log received these samples in bursts, "
+                 "its own times do not show the gaps)")  # fmt: skip
     spans = [f"{at[i]:.1f}–{at[i + 1]:.1f} s" for i in holes[:listed]]
     more = ", …" if holes.size > listed else ""
     if holes.size == 1:
         i = int(holes[0])
         return (f"gap in the IMU data: no samples for {step[i] * 1e-6:.1f} s, from {at[i]:.1f} s to "
-                f"{at[i + 1]:.1f} s of the log; the filters start again after it (their re-convergence "
+                f"{at[i + 1]:.1f} s {where}; the filters start again after it (their re-convergence "
                 "is in the comparison below)")  # fmt: skip
     return (f"{holes.size} gaps in the IMU data, {float(step[holes].sum()) * 1e-6:.1f} s without samples in "
-            f"all: {', '.join(spans)}{more} of the log; the filters start again after each (their "
+            f"all: {', '.join(spans)}{more} {where}; the filters start again after each (their "
             "re-convergence is in the comparison below)")  # fmt: skip
 
 
@@ -470,7 +478,7 @@ def _replay_fast(
     try:
         for a in range(0, m, _CHUNK):
             b = min(m, a + _CHUNK)
-            for f, out, sent, st in zip(filts, outs, sents, states):
+            for f, out, sent, st in zip(filts, outs, sents, states, strict=True):
                 prep.run_filter(f, a, b, out[a:b])
                 _out_rate(prep.t_us[a:b], out[a:b, OUT_FLAGS], period, tol, st, sent[a:b])
                 out[a:b, OUT_Q : OUT_Q + 4] = _declinate(out[a:b, OUT_Q : OUT_Q + 4], prep.declination_rad[a:b])

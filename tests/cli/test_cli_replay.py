@@ -206,6 +206,24 @@ def test_replay_without_heartbeat_takes_the_only_imu_sender_and_says_so(
     assert not any(line.startswith("note: no autopilot HEARTBEAT") for line in out)
 
 
+def test_a_hole_in_data_received_in_a_burst_is_placed_on_the_autopilots_clock(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Queued data delivered at once (all tlog stamps within a few ms): the hole's times are real ones
+    (the autopilot's boot time), not "from 0.0 s to 0.0 s of the log"."""
+    from mavahrs.warmup import synthetic_frames
+
+    frames = [(t, f) for t, f in synthetic_frames(10.0) if not 3_000_000 <= t < 6_000_000]
+    burst = _write_tlog(tmp_path / "burst.tlog", [(1_000_000 + k, f) for k, (_, f) in enumerate(frames)])
+    assert main(["replay", str(burst), "-f", "madgwick"]) == 0
+    notes = [line for line in capsys.readouterr().out.splitlines() if line.startswith("note: gap")]
+    assert notes == [
+        "note: gap in the IMU data: no samples for 3.0 s, from 3.0 s to 6.0 s of the autopilot's clock (time "
+        "since boot: the log received these samples in bursts, its own times do not show the gaps); the "
+        "filters start again after it (their re-convergence is in the comparison below)"
+    ]
+
+
 def test_source_option_rejects_what_is_no_mavlink_id(capsys: pytest.CaptureFixture[str]) -> None:
     for bad in ("x", "1:2:3", "0", "1:256"):
         assert main(["replay", "any.tlog", "--source", bad]) == 2
