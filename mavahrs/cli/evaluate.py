@@ -30,16 +30,15 @@ gyro drift, Fig. 12), compare (Mahony, Madgwick, complementary side by side,
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import add_source_option, add_velocity_source_option
+    from mavahrs.cli.common import LazyDefaultsFormatter, add_source_option, add_velocity_source_option
 
     p: argparse.ArgumentParser = subparsers.add_parser(
-        "evaluate", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+        "evaluate", help=HELP, description=DESCRIPTION, formatter_class=LazyDefaultsFormatter
     )
     p.add_argument("input", metavar="INPUT", help=".mat, .csv, .tlog file or a folder of them")
     p.add_argument(
         "--filter", "-f", dest="filters", action="append", metavar="NAME",
-        help="filter to run (repeatable): madgwick, mahony, complementary, gyroplatform, best, "
-        "or all (default: best; studies: their own defaults)",
+        help="filter to run (repeatable): {filters}, or all (default: best; studies: their own defaults)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of tables")
     add_velocity_source_option(p, default_text="auto; tlogs only")

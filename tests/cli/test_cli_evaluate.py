@@ -76,3 +76,18 @@ def test_velocity_source_flag_reaches_the_tlog_inputs(sim_gps_raw_tlog: Path, ca
     assert fed.sum() > 50 and np.isnan(vel[fed, 2]).all() and (age[fed] > 0.1).all()  # the receiver's, with its age
     assert np.isnan(age[~fed]).all()
     assert load_any(sim_gps_raw_tlog, velocity_source="none")[0].extra["velocity_ned_m_s"] is None
+
+
+@pytest.mark.parametrize("command", ["replay", "evaluate"])
+def test_help_lists_every_registered_filter(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--help` names the filters from the registry (it listed them by hand and left out eskf)."""
+    import re
+
+    from mavahrs.filters import ALIASES, NAMES
+
+    assert main([command, "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    m = re.search(r"--filter NAME, -f NAME (.*?)\(default", text)
+    assert m, text
+    listed = re.findall(r"[a-z]+", m.group(1).split(":", 1)[1])
+    assert sorted(listed) == sorted([*NAMES, *ALIASES, "or", "all"]), m.group(0)
