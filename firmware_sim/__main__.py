@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -175,7 +176,7 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         if not 1 <= len(vals) <= 5:
             raise ValueError("--attitude-fault takes 1 to 5 comma-separated numbers")
         names = ("start_s", "duration_s", "roll_deg", "pitch_deg", "yaw_deg")
-        fault = AttitudeFault(**dict(zip(names, vals)))
+        fault = AttitudeFault(**dict(zip(names, vals, strict=False)))
     imu_fault = None
     if args.imu2_freeze_at is not None or args.imu2_saturate_at is not None:
         imu_fault = ImuFault(instance=1, freeze_at_s=args.imu2_freeze_at, saturate_at_s=args.imu2_saturate_at)
@@ -250,8 +251,10 @@ def _main(argv: Sequence[str] | None) -> int:
 
     if args.fast:
         stats = write_tlog(endpoint, args.tlog, args.duration, blackouts=args.blackout)
+        # the file's size (MAVLink frames plus the tlog's 8-byte time stamps), in MiB as computers count
+        size = os.path.getsize(args.tlog)
         print(f"wrote {args.tlog}: {args.duration:g} s simulated, {stats.frames} frames, "
-              f"{stats.bytes / 1e6:.1f} MB in {stats.wall_s:.2f} s", flush=True)
+              f"{size / 2**20:.1f} MiB ({size} bytes) in {stats.wall_s:.2f} s", flush=True)
         if args.stats_json:
             write_stats_json(args.stats_json, endpoint, stats, f"tlog {args.tlog}")
         return EXIT_OK

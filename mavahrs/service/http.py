@@ -45,7 +45,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from mavahrs.errors import ConfigError, TransportError
+from mavahrs.errors import ConfigError
 
 __all__ = [
     "StatusBoard",
@@ -493,7 +493,8 @@ class StatusServer:
         """Listen (in the server's thread) and return once listening.
 
         Raises:
-            TransportError: the address cannot be bound (in use, not this machine's, no permission).
+            ConfigError: the address cannot be bound (in use, not this machine's, no permission):
+                a local set-up mistake (exit code 2), not a lost autopilot link.
         """
         self._thread = threading.Thread(target=self._run, name="mavahrs-http", daemon=True)
         self._thread.start()
@@ -501,8 +502,9 @@ class StatusServer:
         if self._error is not None:
             self._thread.join(5)
             err = self._error
-            raise TransportError(
-                f"status page: cannot listen on {self.host}:{self.port}: {getattr(err, 'strerror', None) or err}"
+            raise ConfigError(
+                f"status page: cannot listen on {self.host}:{self.port}: {getattr(err, 'strerror', None) or err} "
+                "(--http: choose another port, or stop the program using it)"
             ) from err
         where = self.url.removeprefix("http://").rstrip("/")
         self.log.info("status page on %s%s", self.url, " (token required)" if self.token else "")

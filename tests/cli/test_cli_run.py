@@ -136,6 +136,24 @@ def test_busy_port_and_missing_heartbeat_exit_3(capsys: pytest.CaptureFixture[st
     assert "Traceback" not in err
 
 
+def test_status_page_port_taken_is_a_set_up_error_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    """`--http PORT` on a port another program holds: exit 2 (set-up/config), not 3 (a lost autopilot link)."""
+    pytest.importorskip("aiohttp")
+    holder = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    holder.bind(("127.0.0.1", 0))
+    holder.listen(1)
+    try:
+        port = holder.getsockname()[1]
+        rc = main(["run", *QUICK, "--master", "udpin:127.0.0.1:0", "--heartbeat-timeout", "0",
+                   "--http", f"127.0.0.1:{port}"])  # fmt: skip
+        err = capsys.readouterr().err
+    finally:
+        holder.close()
+    assert rc == EXIT_USAGE, err
+    assert f"status page: cannot listen on 127.0.0.1:{port}" in err and "choose another port" in err, err
+    assert "Traceback" not in err
+
+
 def test_json_log_lines_carry_the_status(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     stats = tmp_path / "stats.json"
     rc = main(["--log-format", "json", "run", "--filter", "mahony", "--master", "udpin:127.0.0.1:0",

@@ -149,3 +149,18 @@ def test_duration_ends_a_live_run(tmp_path: Path, sim_env_vars: dict[str, str], 
     data = json.loads(stats.read_text())
     assert data["ticks"] == 400
     assert data["sent"]["HIGHRES_IMU"] == 50  # PX4 default stream
+
+
+def test_fast_tlog_reports_the_files_size_in_mib(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The size printed is the file's (frames plus the 8-byte stamps), in MiB with the unit said
+    (it printed the frames' bytes / 10^6 as "MB": 66.1 MB for a 77 957 898-byte file)."""
+    import re
+
+    path = tmp_path / "hover.tlog"
+    assert main(["--tlog", str(path), "--fast", "--scenario", "hover", "--duration", "2", "-q"]) == 0
+    out = capsys.readouterr().out
+    m = re.search(r", ([0-9.]+) MiB \((\d+) bytes\) in ", out)
+    assert m, out
+    size = path.stat().st_size
+    assert int(m.group(2)) == size
+    assert float(m.group(1)) == pytest.approx(size / 2**20, abs=0.05)
