@@ -99,8 +99,11 @@ def report_errors(command: str, run: Any, args: argparse.Namespace) -> int:
         raise
     except ConfigError as exc:
         return fail(f"{command}: {exc}", EXIT_USAGE)
-    except (MavahrsError, OSError) as exc:
+    except MavahrsError as exc:
         return fail(f"{command}: {exc}", EXIT_FAILURE)
+    except OSError as exc:  # the file and the reason, not Python's "[Errno 2] …" form
+        what = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else (exc.strerror or str(exc))
+        return fail(f"{command}: {what}", EXIT_FAILURE)
     except ValueError as exc:
         return fail(f"{command}: {exc}", EXIT_USAGE)
 

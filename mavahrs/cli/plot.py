@@ -52,11 +52,14 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mavahrs.cli.common import announce_compiles
+    from mavahrs.errors import DataError
 
     announce_compiles()
     path = Path(args.input)
+    if path.is_dir():
+        raise DataError(f"{path} is a directory: plot takes one file (.tlog, .mat or .csv)")
     if not path.exists():
-        raise FileNotFoundError(2, "no such file", str(path))
+        raise DataError(f"{path}: no such file")
     if path.suffix.lower() == ".tlog":
         from mavahrs import replay as rp
         from mavahrs.evaluation.report import resolve_filter_names

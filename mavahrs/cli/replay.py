@@ -125,15 +125,17 @@ def _run(args: argparse.Namespace) -> int:
 
     from mavahrs import replay as rp
     from mavahrs.cli.common import prefer_small_pages, start_kernels
+    from mavahrs.errors import DataError
 
     prefer_small_pages()
     start_kernels()
 
+    # the same exit code (1, a runtime failure, as for an unreadable log) for both, a clear message
     if Path(args.tlog).is_dir():
-        raise ValueError(f"{args.tlog} is a directory: replay takes one .tlog file; for a folder of logs "
-                         "use `mavahrs audit FOLDER` (one row per flight)")  # fmt: skip
+        raise DataError(f"{args.tlog} is a directory: replay takes one .tlog file; for a folder of logs "
+                        "use `mavahrs audit FOLDER` (one row per flight)")  # fmt: skip
     if not Path(args.tlog).is_file():
-        raise FileNotFoundError(2, "no such file", args.tlog)
+        raise DataError(f"{args.tlog}: no such file")
     settings = settings_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
     result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)

@@ -86,14 +86,17 @@ def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mavahrs.cli.common import prefer_small_pages, start_kernels
+    from mavahrs.errors import DataError
     from mavahrs.evaluation.tuning import combine, tune_file
 
     prefer_small_pages()
     start_kernels()
     paths = [Path(p) for p in args.inputs]
     for path in paths:
+        if path.is_dir():
+            raise DataError(f"{path} is a directory: tune takes .tlog files (for a folder: {path}/*.tlog)")
         if not path.is_file():
-            raise FileNotFoundError(2, "no such file", str(path))
+            raise DataError(f"{path}: no such file")
     fn = functools.partial(tune_file, imu=args.imu, start_s=args.start, end_s=args.end, source=args.source)
     if len(paths) > 1 and (args.dask or args.scheduler):
         from mavahrs.fleet.dask_engine import DaskEngine, available

@@ -514,6 +514,8 @@ def load_mag_recording(path: str, *, message: str | None = None, profile: str = 
 
     if not os.path.exists(path):
         raise DataError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise DataError(f"{path} is a directory: calibrate-mag takes one .tlog or .csv file")
     if path.lower().endswith(".csv"):
         return _read_csv(path)
 

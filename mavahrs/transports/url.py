@@ -132,6 +132,14 @@ def parse_connection_string(text: str, baud: int | None = None) -> Endpoint:
             raise ConfigError(f"baud rate must be positive, got {b}")
         return Endpoint(kind="serial", text=text, device=device, baud=b)
     if ":" in s:  # mavutil: a bare HOST:PORT is UDP, listening
+        word, _, rest = s.partition(":")
+        if ":" in rest and re.fullmatch(r"[A-Za-z][A-Za-z0-9+.-]*", word) and not re.fullmatch(r"[0-9A-Fa-f]+", word):
+            # PREFIX:HOST:PORT with a prefix this program does not know (a typo, or another tool's)
+            known = ", ".join(p[:-1] for p in _PREFIXES)
+            raise ConfigError(
+                f"connection string {text!r}: {word!r} is no known prefix; known prefixes: {known} "
+                f"(or a bare HOST:PORT, a serial device path; {_EXAMPLES})"
+            )
         host, port = _host_port(s, text, allow_zero=True)
         return Endpoint(kind="udpin", text=text, host=host, port=port)
     raise ConfigError(f"connection string {text!r} is not a serial device path or a network address ({_EXAMPLES})")

@@ -66,7 +66,14 @@ CASES = [
     ("replay-garbage-tlog", ["replay", "{junk}"], EXIT_FAILURE, "junk.tlog"),
     ("replay-empty-tlog", ["replay", "{empty}"], EXIT_FAILURE, "empty.tlog"),
     ("replay-missing-tlog", ["replay", "{missing}"], EXIT_FAILURE, "missing.tlog"),
-    ("replay-a-directory", ["replay", "{dir}"], EXIT_USAGE, "is a directory"),
+    # a missing file and a directory: the same code (1, as documented in docs/reliability.md), said plainly
+    ("replay-a-directory", ["replay", "{dir}"], EXIT_FAILURE, "a_dir is a directory: replay takes one .tlog file"),
+    ("tune-a-directory", ["tune", "{dir}"], EXIT_FAILURE, "a_dir is a directory: tune takes .tlog files"),
+    ("tune-missing-tlog", ["tune", "{missing}"], EXIT_FAILURE, "missing.tlog: no such file"),
+    ("plot-a-directory", ["plot", "-o", "{dir}/p.png", "{dir}"], EXIT_FAILURE, "a_dir is a directory: plot takes"),
+    ("calibrate-a-directory", ["calibrate-mag", "{dir}"], EXIT_FAILURE, "a_dir is a directory: calibrate-mag takes"),
+    ("unknown-master-prefix", ["run", *QUICK, "--master", "foo:bar:baz"], EXIT_USAGE,
+     "'foo' is no known prefix; known prefixes: udpin, udp, udpout, udpbcast, tcp, tcpin"),
     ("evaluate-garbage-tlog", ["evaluate", "{junk}"], EXIT_FAILURE, "junk.tlog"),
     ("calibrate-garbage-tlog", ["calibrate-mag", "{junk}"], EXIT_FAILURE, "junk.tlog"),
 ]
@@ -81,6 +88,7 @@ def _check_output(err: str, code: int, expected: int, words: str) -> None:
     errors = [line for line in err.splitlines() if " ERROR " in line or line.startswith("mavahrs")]
     assert code == expected, (code, err)
     assert len(errors) == 1 and words in errors[0], err
+    assert "[Errno" not in err and "unknown input type ''" not in err, err  # Python's words, not ours
 
 
 @pytest.mark.parametrize(("argv", "code", "words"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
