@@ -8,7 +8,7 @@ from typing import Any
 
 __all__ = ["register", "run"]
 
-HELP = "fit beta, zeta and the gyro temperature-bias model from a stationary recording"
+HELP = "from a recording at rest: the gyro temperature-bias model (and bench-only beta, zeta: --gains)"
 
 DESCRIPTION = """\
 Fit, from a recording of the IMU at rest (ideally through a temperature
@@ -23,7 +23,10 @@ change, e.g. a warm-up after power-on):
 
 INPUT is a tlog (the daemon's scaling and timing) or a CSV with the columns in
 docs/evaluation.md (time_s, gyro_*_rad_s, accel_*_m_s2, optional mag_*_ut and
-temperature_c).  Writes a TOML file `mavahrs run --config` reads.
+temperature_c).  Writes a TOML file `mavahrs run --config` reads: by default
+(--gains flight) the temperature model only, no gains (beta and zeta fitted at
+rest measure the gyro's noise only; they are printed, and written as comments);
+--gains spec or ls writes them too, for bench tests.
 
 Several INPUTs (e.g. an airframe's last hundred flights with the simulator's
 or a reference's rates, or its pre-flight rests) give one set of gains over

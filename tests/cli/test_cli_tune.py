@@ -89,3 +89,56 @@ def test_tune_on_a_rest_log_warns_that_bench_gains_are_not_fit_to_fly(
     assert f"# NOT FIT TO FLY WITH: {warning}." in toml.read_text().splitlines()
     assert "(spec, NOT fit to fly with); use: mavahrs run --config" in err
     assert "site-packages" not in err and "RuntimeWarning" not in err
+
+
+def _keys(table: dict) -> set[str]:  # type: ignore[type-arg]
+    out: set[str] = set()
+    for k, v in table.items():
+        out.add(k)
+        if isinstance(v, dict):
+            out |= _keys(v)
+    return out
+
+
+def test_the_readmes_tune_examples_write_what_they_say(
+    tmp_path: Path, rng: np.random.Generator, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Each README `mavahrs tune …  # comment`, run on recordings at rest: β in the comment if and only
+    if the file holds gains, "temperature model" if and only if it holds one (the README promised β and ζ
+    from a command that by default writes none, and asked for "a log that moves like your flights",
+    which tune refuses)."""
+    import re
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    examples = re.findall(r"^mavahrs tune (.+?)\s+# (.+)$", readme, flags=re.M)
+    assert len(examples) >= 2, examples
+    rest = _csv(tmp_path, rng)
+    for k, (args, comment) in enumerate(examples):
+        toml = tmp_path / f"ex{k}.toml"
+        argv: list[str] = []
+        words = args.split()
+        i = 0
+        while i < len(words):
+            w = words[i]
+            if w in ("-o", "--output"):
+                argv += [w, str(toml)]
+                i += 2
+                continue
+            if w == "--dask":  # one process here: the same fit (tests/fleet runs it on Dask)
+                i += 1
+                continue
+            argv.append(str(rest) if w.endswith((".tlog", ".csv")) else w)
+            i += 1
+        assert main(["tune", *argv]) == 0, (args, capsys.readouterr().err)
+        capsys.readouterr()
+        keys = _keys(tomllib.loads(toml.read_text()))
+        assert ("β" in comment) == any("beta" in key for key in keys), (args, comment, keys)
+        assert ("temperature model" in comment) == ("gyro_temperature" in keys), (args, comment, keys)
+    assert "moves like your flights" not in readme
+    assert main(["tune", "--help"]) == 0
+    assert "at rest" in " ".join(capsys.readouterr().out.split())
