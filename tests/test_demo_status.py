@@ -60,3 +60,25 @@ def test_no_error_without_any_truth_near_the_attitudes() -> None:
     line = _Live(_tap_with_truth([1000], (0.0, 0.0, 0.0)), gcs).line(4.0)  # type: ignore[arg-type]
     assert "error vs truth" not in line
     assert "roll" in line
+
+
+def test_the_input_rate_is_counted_over_a_window_not_between_two_lines(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A 250 Hz stream delivered in bursts (100 then 150 messages between lines 0.5 s apart, as on a
+    busy machine) reads 250 Hz once the window is full; between two lines it read 200 and 300 Hz."""
+    import re
+    import types
+
+    import mavahrs.demo as demo
+
+    clock = [100.0]
+    monkeypatch.setattr(demo, "time", types.SimpleNamespace(monotonic=lambda: clock[0]))
+    tap = types.SimpleNamespace(imu_messages=0, truth_by_ms={})
+    live = _Live(tap, _Gcs())  # type: ignore[arg-type]
+    shown: list[float] = []
+    for k in range(16):  # 8 s of lines every 0.5 s
+        clock[0] += 0.5
+        tap.imu_messages += 100 if k % 2 == 0 else 150
+        m = re.search(r"\| in +([0-9]+) Hz", live.line(0.5 * (k + 1)))
+        assert m, k
+        shown.append(float(m.group(1)))
+    assert all(240 <= hz <= 260 for hz in shown[3:]), shown  # from a full 2 s window on
