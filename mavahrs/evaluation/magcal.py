@@ -530,6 +530,14 @@ def load_mag_recording(path: str, *, message: str | None = None, profile: str = 
         arrays = read_tlog_arrays(path, types)
     except (OSError, ValueError) as exc:
         raise DataError(f"{path}: cannot read as a tlog ({exc})") from None
+    if all(len(a) == 0 for a in arrays.values()):  # say what the file is before what it lacks
+        from mavahrs.protocol.fast_tlog import scan_tlog
+
+        if os.path.getsize(path) == 0:
+            raise DataError(f"{path}: the file is empty: expected a telemetry log (.tlog) or a CSV")
+        if scan_tlog(path, None).msgid.shape[0] == 0:
+            raise DataError(f"{path}: no MAVLink messages in this file: expected a telemetry log (.tlog, "
+                            "as MAVProxy, QGroundControl, Mission Planner and mavahrs write them) or a CSV")  # fmt: skip
     if profile == "auto":
         hb = arrays["HEARTBEAT"]
         hb = hb[hb["autopilot"] != _MAV_AUTOPILOT_INVALID]

@@ -37,13 +37,15 @@ def files(tmp_path: Path) -> dict[str, Path]:
     typo_toml.write_text('[pipeline]\nout_rate = 50\n')
     empty = tmp_path / "empty.tlog"
     empty.write_bytes(b"")
+    text = tmp_path / "text.tlog"
+    text.write_text("root:x:0:0:root:/root:/bin/bash\ndaemon:x:1:1:daemon:/usr/sbin:/usr/sbin/nologin\n")
     a_dir = tmp_path / "a_dir"
     a_dir.mkdir()
     key = tmp_path / "key.txt"
     key.write_text("x" * 64)
     key.chmod(0o600)
     return {"junk": junk, "garbage_toml": garbage_toml, "bad_toml": bad_toml, "typo_toml": typo_toml,
-            "empty": empty, "dir": a_dir, "missing": tmp_path / "missing.tlog", "key": key}
+            "empty": empty, "text": text, "dir": a_dir, "missing": tmp_path / "missing.tlog", "key": key}
 
 
 CASES = [
@@ -71,6 +73,8 @@ CASES = [
     ("tune-a-directory", ["tune", "{dir}"], EXIT_FAILURE, "a_dir is a directory: tune takes .tlog files"),
     ("tune-missing-tlog", ["tune", "{missing}"], EXIT_FAILURE, "missing.tlog: no such file"),
     ("plot-a-directory", ["plot", "-o", "{dir}/p.png", "{dir}"], EXIT_FAILURE, "a_dir is a directory: plot takes"),
+    ("calibrate-empty-tlog", ["calibrate-mag", "{empty}"], EXIT_FAILURE, "empty.tlog: the file is empty"),
+    ("calibrate-text-file", ["calibrate-mag", "{text}"], EXIT_FAILURE, "text.tlog: no MAVLink messages in this file"),
     ("calibrate-a-directory", ["calibrate-mag", "{dir}"], EXIT_FAILURE, "a_dir is a directory: calibrate-mag takes"),
     ("unknown-master-prefix", ["run", *QUICK, "--master", "foo:bar:baz"], EXIT_USAGE,
      "'foo' is no known prefix; known prefixes: udpin, udp, udpout, udpbcast, tcp, tcpin"),
