@@ -470,7 +470,7 @@ def _replay_fast(
     try:
         for a in range(0, m, _CHUNK):
             b = min(m, a + _CHUNK)
-            for f, out, sent, st in zip(filts, outs, sents, states):
+            for f, out, sent, st in zip(filts, outs, sents, states, strict=True):
                 prep.run_filter(f, a, b, out[a:b])
                 _out_rate(prep.t_us[a:b], out[a:b, OUT_FLAGS], period, tol, st, sent[a:b])
                 out[a:b, OUT_Q : OUT_Q + 4] = _declinate(out[a:b, OUT_Q : OUT_Q + 4], prep.declination_rad[a:b])
