@@ -130,10 +130,11 @@ def test_stream_chunking_does_not_change_the_messages(specs, garbage, cuts):
 def test_fast_reader_returns_exactly_the_records_written(specs, stamps):
     src = MavCodec(9, 1)
     frames = [_encode(src, s) for s in specs]
-    data = b"".join(tlog_record(t, f) for t, f in zip(stamps, frames, strict=True))
+    # 10 stamps for up to 10 frames: the first len(frames) are used
+    data = b"".join(tlog_record(t, f) for t, f in zip(stamps, frames, strict=False))
     arrays = read_tlog_arrays(data, ["RAW_IMU", "SCALED_IMU2", "ATTITUDE", "HEARTBEAT", "HIGHRES_IMU"])
     for kind in ("raw_imu", "scaled_imu2", "attitude", "heartbeat", "highres_imu"):
-        want = [(t, s[1]) for t, s in zip(stamps, specs, strict=True) if s[0] == kind]
+        want = [(t, s[1]) for t, s in zip(stamps, specs, strict=False) if s[0] == kind]
         got = arrays[kind.upper()]
         assert got["t_us"].tolist() == [t for t, _ in want]
         if kind in ("raw_imu", "scaled_imu2"):
