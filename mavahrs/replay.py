@@ -10,7 +10,7 @@ sample).  Writers put them into a CSV (one row per IMU sample, flushed as it
 goes), a copy of the tlog with the frames inserted after the IMU message they
 were computed from, and a plot; :func:`compare` scores them against what the
 log already holds (the autopilot's ATTITUDE and AHRS2, the simulator's
-SIM_STATE/SIMSTATE truth).
+SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION truth).
 
 Two engines, one result:
 
@@ -599,7 +599,7 @@ def compare(result: ReplayResult) -> list[ComparisonRow]:
 
 def format_comparison(rows: Sequence[ComparisonRow]) -> str:
     if not rows:
-        return "no attitude in the log to compare with (no ATTITUDE, AHRS2, SIM_STATE or SIMSTATE)"
+        return "no attitude in the log to compare with (no ATTITUDE, AHRS2, SIM_STATE, SIMSTATE or HIL_STATE_QUATERNION)"
     head = (f"{'filter':<14}{'vs':<22}{'samples':>8}{'total':>8}{'head':>8}{'incl':>8}"
             f"{'roll':>8}{'pitch':>8}{'yaw':>8}")  # fmt: skip
     lines = ["RMS difference, degrees (heading/inclination as BROAD defines them; roll/pitch/yaw of q_ref*⊗q):",

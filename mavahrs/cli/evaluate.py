@@ -9,7 +9,7 @@ from typing import Any
 
 __all__ = ["register", "run"]
 
-HELP = "score filters against ground truth (BROAD .mat, RepoIMU/CSV, tlog with SIMSTATE)"
+HELP = "score filters against ground truth (BROAD .mat, RepoIMU/CSV, tlog with SIMSTATE or HIL_STATE_QUATERNION truth)"
 
 DESCRIPTION = """\
 Run filters over recordings with a reference attitude and print the papers'
@@ -19,7 +19,7 @@ scored samples, RMS of roll, pitch and yaw at rest (< 5 deg/s) and in motion
 (Ermakov & Gogolev 2022 Table 2).  All figures in degrees.
 
 INPUT is a BROAD .mat trial, a RepoIMU T-stick CSV, a CSV with the columns
-documented in docs/evaluation.md, a tlog with SIMSTATE truth, or a folder of
+documented in docs/evaluation.md, a tlog with SIMSTATE (or HIL_STATE_QUATERNION) truth, or a folder of
 them (the mean over recordings is BROAD's plain mean of per-trial figures).
 
 --study runs one of the papers' studies on INPUT instead, prints its table and,

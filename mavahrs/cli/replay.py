@@ -14,7 +14,7 @@ DESCRIPTION = """\
 Read the IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) and the GNSS velocity
 (GLOBAL_POSITION_INT, GPS_RAW_INT, GPS2_RAW: --velocity-source) of a tlog with the daemon's own scaling, IMU selection and timing, run the
 filters, and compare them with the attitude the log already holds (the
-autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE truth).
+autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE/HIL_STATE_QUATERNION truth).
 
   --output   the input tlog with ATTITUDE_QUATERNION inserted after each IMU
              message, exactly as `mavahrs run` would have sent it (vehicle

@@ -3,7 +3,7 @@ r"""Pick the right loader for an input path (file or folder).
 * ``*.mat`` — a BROAD trial (:func:`~mavahrs.evaluation.datasets.load_broad_trial`);
 * ``*.csv`` — a RepoIMU T-stick file (recognised by its ``Time (s);`` header)
   or a CSV with the documented columns (:data:`~mavahrs.evaluation.datasets.CSV_COLUMNS`);
-* ``*.tlog`` — a MAVLink telemetry log whose reference is SIMSTATE
+* ``*.tlog`` — a MAVLink telemetry log whose reference is SIMSTATE (or SIM_STATE, HIL_STATE_QUATERNION)
   (:func:`~mavahrs.evaluation.tlogdata.load_tlog_recording`);
 * a folder — every such file inside it (not recursive), sorted by name.
 """

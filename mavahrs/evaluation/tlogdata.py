@@ -81,7 +81,7 @@ Array = NDArray[np.float64]
 
 IMU_TYPES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 POSITION_TYPES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW", "HOME_POSITION", "SYSTEM_TIME")
-REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE")
+REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE", "HIL_STATE_QUATERNION")
 #: What replay reads from a log.
 REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT",) + POSITION_TYPES + REFERENCE_TYPES
 
@@ -1017,9 +1017,11 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     """Attitudes the log already holds, name → (autopilot time µs, (K, 4) q_body_to_ned, true north).
 
     ``autopilot ATTITUDE`` (its ``time_boot_ms``), ``autopilot AHRS2`` and the
-    simulator truth ``SIMSTATE`` (Euler) or ``SIM_STATE`` (quaternion), the
-    more frequent of the two, which carry no time: their tlog timestamps are mapped onto the autopilot clock
-    through the IMU messages' (tlog time, sample time) pairs.
+    simulator truth ``SIMSTATE`` (Euler), ``SIM_STATE`` (quaternion) or
+    ``HIL_STATE_QUATERNION`` (PX4's simulators), the most frequent of them.  SIMSTATE and
+    SIM_STATE carry no time: their tlog timestamps are mapped onto the autopilot clock
+    through the IMU messages' (tlog time, sample time) pairs; HIL_STATE_QUATERNION's
+    ``time_usec`` is used when every message has one (else the same mapping).
     """
     from mavahrs.geometry.rotation import from_euler_rad
 
@@ -1037,11 +1039,23 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     if ahrs2.shape[0]:
         q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
         out["autopilot AHRS2"] = (_tlog_to_autopilot(td, prep, ahrs2["t_us"]), q)
-    # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler) or SIM_STATE (quaternion), whichever
-    # comes more often (slerping a 10 Hz truth through fast manoeuvres would add its own error)
+    # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler), SIM_STATE (quaternion) or
+    # HIL_STATE_QUATERNION (PX4's simulators), whichever comes most often (slerping a 10 Hz truth
+    # through fast manoeuvres would add its own error)
     sim = of_source(td.arrays["SIM_STATE"])
     ss = of_source(td.arrays["SIMSTATE"])
-    if sim.shape[0] and sim.shape[0] >= ss.shape[0]:
+    hil = of_source(td.arrays["HIL_STATE_QUATERNION"])
+    most = max(sim.shape[0], ss.shape[0], hil.shape[0])
+    if hil.shape[0] and hil.shape[0] == most:
+        # attitude_quaternion (w, x, y, z); time_usec is the sample's time on the autopilot's boot
+        # clock (0 when the firmware leaves it unset, as upstream PX4 does: then the tlog time)
+        q = hil["attitude_quaternion"].astype(float).reshape(-1, 4)
+        t_hil = hil["time_usec"].astype(np.float64)
+        if np.all(t_hil > 0):
+            out["HIL_STATE_QUATERNION truth"] = (t_hil, q)
+        else:
+            out["HIL_STATE_QUATERNION truth"] = (_tlog_to_autopilot(td, prep, hil["t_us"]), q)
+    elif sim.shape[0] and sim.shape[0] == most:
         q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
         out["SIM_STATE truth"] = (_tlog_to_autopilot(td, prep, sim["t_us"]), q)
     elif ss.shape[0]:
@@ -1173,7 +1187,7 @@ def load_tlog_recording(
             q_ref = multiply(q_dec, q_true)
             notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame)")
         else:
-            notes.append("no simulator truth (SIM_STATE/SIMSTATE) in this log: nothing to score against")
+            notes.append("no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this log: nothing to score against")
     rate = prep.rate_hz()
     if 0 < rate < 50:
         notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
