@@ -176,6 +176,7 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         if not 1 <= len(vals) <= 5:
             raise ValueError("--attitude-fault takes 1 to 5 comma-separated numbers")
         names = ("start_s", "duration_s", "roll_deg", "pitch_deg", "yaw_deg")
+        # 1 to 5 numbers given: the fields after them keep their defaults
         fault = AttitudeFault(**dict(zip(names, vals, strict=False)))
     imu_fault = None
     if args.imu2_freeze_at is not None or args.imu2_saturate_at is not None:

@@ -161,7 +161,7 @@ def _format_slow(v: NDArray[np.float64], d: NDArray[np.int64]) -> bytes:
     lines = []
     for row in v:
         cells = []
-        for x, dj in zip(row, d):
+        for x, dj in zip(row, d, strict=True):
             if math.isnan(x):
                 cells.append("nan")
             elif math.isinf(x):

@@ -255,7 +255,7 @@ def load_csv(
                 raise DataError(f"{path}: missing columns {', '.join(keys)} (see CSV_COLUMNS)")
             return None
         if not all(present):
-            missing = [k for k, p in zip(keys, present) if not p]
+            missing = [k for k, p in zip(keys, present, strict=True) if not p]
             raise DataError(f"{path}: incomplete column group, missing {', '.join(missing)}")
         return np.ascontiguousarray(data[:, [col[k] for k in keys]])
 

@@ -18,6 +18,7 @@ mean over recordings of each per-recording figure.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass, field
@@ -118,7 +119,7 @@ def run_filter(
     # a tlog: seed the magnetometer rejection where the daemon's pipeline would (WMM field known)
     out = np.empty((inputs.shape[0], OUT_WIDTH))
     cuts = sorted({0, inputs.shape[0], *(min(max(int(i), 0), inputs.shape[0]) for i, _, _ in events)})
-    for lo, hi in zip(cuts[:-1], cuts[1:]):
+    for lo, hi in itertools.pairwise(cuts):
         for i, norm, dip in events:
             if max(int(i), 0) == lo:
                 f.set_mag_reference(norm, dip)
@@ -382,7 +383,7 @@ def _table(rows: dict[str, dict[str, Any]], title: str) -> list[str]:
     lines.append("─" * len(head))
     for name, d in rows.items():
 
-        def three(kind: str) -> str:
+        def three(kind: str, d: dict[str, Any] = d) -> str:
             return " ".join(_f(d.get(f"{a}_{kind}")) for a in ANGLES)
 
         lines.append(

@@ -93,10 +93,11 @@ class StudyResult:
         for row in self.rows:
             for i, v in enumerate(row):
                 widths[i] = max(widths[i], len(_cell(v)))
-        lines = [self.title, "  ".join(c.rjust(w) for c, w in zip(self.columns, widths))]
+        lines = [self.title, "  ".join(c.rjust(w) for c, w in zip(self.columns, widths, strict=True))]
         lines.append("  ".join("─" * w for w in widths))
         for row in self.rows:
-            lines.append("  ".join(_cell(v).rjust(w) for v, w in zip(row, widths)))
+            # a row shorter than the header leaves its last columns blank
+            lines.append("  ".join(_cell(v).rjust(w) for v, w in zip(row, widths, strict=False)))
         lines += [f"note: {n}" for n in self.notes]
         return "\n".join(lines)
 

@@ -43,6 +43,7 @@ simulator's truth (SIM_STATE quaternion, else SIMSTATE Euler angles).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -241,7 +242,7 @@ class PreparedInputs:
         if set_delay is not None:  # Pipeline._set_profile does the same
             set_delay(self.sensor_delay_s)
         cuts = [a] + sorted({i for i, _, _ in self.mag_reference_events if a < i < b}) + [b]
-        for lo, hi in zip(cuts[:-1], cuts[1:]):
+        for lo, hi in itertools.pairwise(cuts):
             for i, norm, dip in self.mag_reference_events:
                 if i == lo or (lo == 0 and i <= 0):
                     f.set_mag_reference(norm, dip)

@@ -68,10 +68,10 @@ def _build_remaps() -> dict[str, Array]:
     for perm in itertools.permutations(range(3)):
         for signs in itertools.product((1.0, -1.0), repeat=3):
             m = np.zeros((3, 3))
-            for row, (col, s) in enumerate(zip(perm, signs)):
+            for row, (col, s) in enumerate(zip(perm, signs, strict=True)):
                 m[row, col] = s
             if np.linalg.det(m) > 0:
-                name = "".join(("+" if s > 0 else "-") + names[c] for c, s in zip(perm, signs))
+                name = "".join(("+" if s > 0 else "-") + names[c] for c, s in zip(perm, signs, strict=True))
                 m.setflags(write=False)
                 out[name] = m
     return out

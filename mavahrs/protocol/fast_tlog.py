@@ -703,7 +703,7 @@ def _wire_dtype(cls: Any) -> np.dtype:
     formats: list[Any] = []
     offsets = []
     off = 0
-    for (count_s, ch), _name in zip(tokens, names):
+    for (count_s, ch), _name in zip(tokens, names, strict=True):
         count = int(count_s) if count_s else 1
         if ch == "s":
             formats.append(f"S{count}")

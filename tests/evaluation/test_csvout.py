@@ -14,13 +14,13 @@ def test_matches_python_formatting(rng: np.random.Generator) -> None:
     v = rng.normal(size=(500, 5)) * np.array([1.0, 100.0, 1e4, 0.01, 3.0])
     dec = [7, 3, 0, 6, 2]
     got = format_rows(v, dec).decode().splitlines()
-    want = [",".join(f"{x:.{d}f}" for x, d in zip(row, dec)) for row in v]
+    want = [",".join(f"{x:.{d}f}" for x, d in zip(row, dec, strict=True)) for row in v]
     # Python rounds half to even on exact binary ties and writes "-0.000"; compare numerically there
-    for g, w in zip(got, want):
+    for g, w in zip(got, want, strict=True):
         if g != w:
             np.testing.assert_allclose([float(x) for x in g.split(",")], [float(x) for x in w.split(",")],
                                        atol=10.0 ** -min(dec))  # fmt: skip
-    assert sum(g == w for g, w in zip(got, want)) > 490
+    assert sum(g == w for g, w in zip(got, want, strict=True)) > 490
 
 
 def test_specials_and_huge_values() -> None:

@@ -229,7 +229,7 @@ def test_a_log_with_an_autopilot_reboot_loads_through_the_pipeline(tmp_path: Pat
         out.extend(struct.pack(">Q", wall_us))
         out.extend(ap.encode(msg))
 
-    for boot in range(2):  # the second boot's clock starts again near zero
+    for _boot in range(2):  # the second boot's clock starts again near zero
         rec(mavlink.MAVLink_heartbeat_message(2, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3))
         for k in range(800):
             wall_us += 2500

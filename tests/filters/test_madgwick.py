@@ -92,7 +92,7 @@ def test_gravity_gradient_matches_finite_differences(compiled: bool, rng: np.ran
     for q in random_unit(50, rng):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
-        fd = _fd_gradient(lambda *qq: obj(*qq, *d), q)
+        fd = _fd_gradient(lambda *qq, d=d: obj(*qq, *d), q)
         np.testing.assert_allclose(grad(*q, *d), fd, atol=1e-7)
 
 
@@ -105,7 +105,7 @@ def test_field_gradient_matches_finite_differences(compiled: bool, rng: np.rando
         m /= np.linalg.norm(m)
         dip = rng.uniform(-1.4, 1.4)
         bx, bz = math.cos(dip), math.sin(dip)
-        fd = _fd_gradient(lambda *qq: obj(*qq, bx, bz, *m), q)
+        fd = _fd_gradient(lambda *qq, bx=bx, bz=bz, m=m: obj(*qq, bx, bz, *m), q)
         np.testing.assert_allclose(grad(*q, bx, bz, *m), fd, atol=1e-7)
 
 
@@ -118,7 +118,7 @@ def test_stacked_marg_gradient_is_sum_of_parts(rng: np.random.Generator) -> None
         m /= np.linalg.norm(m)
         bx, bz = 0.4, 0.9
 
-        def stacked(*qq: float) -> np.ndarray:
+        def stacked(*qq: float, d: np.ndarray = d, bx: float = bx, bz: float = bz, m: np.ndarray = m) -> np.ndarray:
             return np.concatenate([gravity_objective.py_func(*qq, *d), field_objective.py_func(*qq, bx, bz, *m)])
 
         analytic = np.add(gravity_gradient(*q, *d), field_gradient(*q, bx, bz, *m))
@@ -469,7 +469,7 @@ def test_run_many_equals_run(synthetic) -> None:  # type: ignore[no-untyped-def]
     filters = [Madgwick(s) for s in settings]
     q = run_many(filters, rows[:1000])
     q2 = run_many(filters, rows[1000:])
-    for s, qm, qm2 in zip(settings, q, q2):
+    for s, qm, qm2 in zip(settings, q, q2, strict=True):
         out = Madgwick(s).run(rows)
         np.testing.assert_array_equal(qm, out[:1000, OUT_Q : OUT_Q + 4])
         np.testing.assert_array_equal(qm2, out[1000:, OUT_Q : OUT_Q + 4])

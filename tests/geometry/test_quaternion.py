@@ -87,7 +87,7 @@ def test_integrate_is_exact_for_a_constant_rate(qs: np.ndarray, rng: np.random.G
     # per-sample dt array
     dts = rng.uniform(0.001, 0.1, N)
     np.testing.assert_allclose(
-        qm.integrate(qs, omega, dts), np.array([qm.integrate(q, w, d) for q, w, d in zip(qs, omega, dts)]), atol=1e-15
+        qm.integrate(qs, omega, dts), np.array([qm.integrate(q, w, d) for q, w, d in zip(qs, omega, dts, strict=True)]), atol=1e-15
     )
 
 

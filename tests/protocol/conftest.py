@@ -228,7 +228,7 @@ def arrays_match_messages() -> Callable[[dict[str, Any], list[Any], list[str]], 
             a, r = arrays[t], by[t]
             if len(a) != len(r):
                 return f"{t}: {len(a)} rows, pymavlink {len(r)}"
-            for i, (row, msg) in enumerate(zip(a, r)):
+            for i, (row, msg) in enumerate(zip(a, r, strict=True)):
                 if (int(row["t_us"]) % 2**64) * 1e-6 != msg._timestamp:
                     return f"{t}[{i}]: t_us {int(row['t_us'])} vs _timestamp {msg._timestamp!r}"
                 if (row["sysid"], row["compid"]) != (msg.get_srcSystem(), msg.get_srcComponent()):

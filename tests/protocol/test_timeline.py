@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -124,7 +125,7 @@ def test_reboot_confirmed_by_next_sample_and_monotonic_time_continues():
     assert kinds[10] == "reordered" and kinds[11] == "reboot" and kinds[12:] == ["ok"] * 3
     assert math.isnan(ev[11].dt_s) and ev[11].t_us == after[1]  # the autopilot's own new time
     mono = [e.t_mono_us for e in ev if e.kind not in DROP_KINDS]
-    assert all(b > a for a, b in zip(mono, mono[1:]))
+    assert all(b > a for a, b in itertools.pairwise(mono))
     assert ev[11].t_mono_us == before[-1] + 2500  # one median interval after the last sample
     c = tl.counters
     assert (c.reboots, c.reordered, c.held, c.accepted) == (1, 0, 1, 14)

@@ -165,7 +165,7 @@ def test_read_tlog_messages_equals_recv_match(tmp_path, make_tlog, pymavlink_ref
         ref = [m for m in pymavlink_ref.mmap(p, types) if m.get_type() != "BAD_DATA"]
         ours = list(read_tlog_messages(p, types))
         assert len(ours) == len(ref) > 0, types
-        for (t, m), r in zip(ours, ref):
+        for (t, m), r in zip(ours, ref, strict=True):
             assert t * 1e-6 == r._timestamp and m.get_type() == r.get_type() and m.get_msgbuf() == r.get_msgbuf()
         if types == "SCALED_IMU2":
             assert [m.to_dict() for _, m in ours] == [r.to_dict() for r in ref]  # integer fields only
@@ -178,7 +178,7 @@ def test_readers_equal_pymavlink_on_real_log(mavlink_logs_dir, pymavlink_ref):
     ref = pymavlink_ref.seq(p)
     ours = list(iter_tlog(p))
     assert len(ours) == len(ref) == 76791 - 1314
-    assert all(t * 1e-6 == m._timestamp and f == bytes(m.get_msgbuf()) for (t, f), m in zip(ours, ref))
+    assert all(t * 1e-6 == m._timestamp and f == bytes(m.get_msgbuf()) for (t, f), m in zip(ours, ref, strict=True))
     types = ["RAW_IMU", "GPS_RAW_INT"]
     ref = pymavlink_ref.mmap(p, types)
     ours2 = list(read_tlog_messages(p, types))

@@ -123,7 +123,7 @@ def _monitor(f: Flight, settings: MonitorSettings) -> tuple[list[tuple[float, ob
     mon = AttitudeMonitor(settings)
     events: list[tuple[float, object]] = []
     i = 0
-    for msg, t_us in zip(f.ap_msgs, f.ap_recv_us):
+    for msg, t_us in zip(f.ap_msgs, f.ap_recv_us, strict=True):
         while i < len(f.out_t_ms) and f.out_t_ms[i] <= t_us / 1000.0:
             events += [(f.out_t_ms[i], m) for m in mon.add_estimate(f.out_t_ms[i], f.out_q[i])]
             i += 1
