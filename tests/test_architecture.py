@@ -28,6 +28,7 @@ RANK = {
     "config": 6,
     "service": 6,
     "evaluation": 6,
+    "logs": 6,
     "replay": 7,
     "demo": 7,
     "warmup": 7,
