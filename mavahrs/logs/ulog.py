@@ -132,9 +132,26 @@ def _open(path: Path) -> tuple[Any, list[str]]:
     except ULogException as exc:
         raise DataError(f"{path}: not a readable PX4 ULog ({exc})") from None
     except (OSError, ValueError, IndexError, KeyError, struct.error, UnicodeDecodeError, MemoryError) as exc:
-        raise DataError(f"{path}: the ULog is damaged and cannot be parsed ({type(exc).__name__}: {exc})") from None
+        raise DataError(f"{path}: the ULog is damaged (its definitions or a record cannot be parsed: {type(exc).__name__}: {exc})") from None
     complaints = [ln.strip() for ln in printed.getvalue().splitlines() if ln.strip()]
     return ulog, complaints
+
+
+def _all_topics(path: Path, listed: int = 40) -> str:
+    """Every topic the log holds data for (a second, unfiltered read: only on the error path)."""
+    from pyulog import ULog
+
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            ulog = ULog(str(path))
+    except Exception:  # the first read succeeded; this one is only for the message
+        return "unknown (the log cannot be read again)"
+    names = sorted({f"{d.name}" + (f"[{d.multi_id}]" if d.multi_id else "") for d in ulog.data_list
+                    if len(d.data.get("timestamp", ()))})  # fmt: skip
+    if not names:
+        return "none (the log holds no data records: cut short after its definitions?)"
+    more = f", … ({len(names)} in all)" if len(names) > listed else ""
+    return ", ".join(names[:listed]) + more
 
 
 def _topics(ulog: Any) -> dict[str, dict[int, dict[str, np.ndarray]]]:
@@ -181,9 +198,8 @@ def _imu(topics: dict[str, Any], s: Any, path: Path) -> tuple[str, int, dict[str
     if sc is not None and not (_has_vec(sc, "gyro_rad") and _has_vec(sc, "accelerometer_m_s2")):
         sc = None
     if not vimu and sc is None:
-        names = sorted(n for n in topics if n in TOPICS) or ["none of " + ", ".join(TOPICS)]
         raise DataError(f"{path}: no IMU topic (vehicle_imu or sensor_combined with gyro and accelerometer) "
-                        f"in the log; topics read: {', '.join(names)}")  # fmt: skip
+                        f"in the log; topics logged: {_all_topics(path)}")  # fmt: skip
     sc_rate = _rate_hz(np.asarray(sc["timestamp"], np.int64)) if sc is not None else 0.0
     rates = {i: _rate_hz(np.asarray(d["timestamp"], np.int64)) for i, d in vimu.items()}
     fixed = s.selection_settings.fixed
@@ -227,13 +243,32 @@ def _imu(topics: dict[str, Any], s: Any, path: Path) -> tuple[str, int, dict[str
 
 
 def _timeline(t_us: NDArray[np.int64], max_gap_s: float) -> tuple[NDArray[np.bool_], Array]:
-    """Keep strictly increasing stamps (a corrupted or repeated stamp is dropped); dt, s; a gap → a long dt."""
+    """Which samples to keep and their dt, s.
+
+    Kept: strictly increasing stamps.  A lone stamp far ahead of both its
+    neighbours (a damaged record: the next one is back on the clock) is
+    dropped first, so it does not hide the samples after it; repeated and
+    backward stamps are dropped.  A real gap (the clock stays ahead) reaches the
+    filter as a long dt, as on the pipeline: the filters re-initialise.
+    """
     from mavahrs.evaluation.tlogdata import _GAP_DT_S
 
-    keep = np.ones(t_us.shape[0], bool)
-    if t_us.shape[0] > 1:
-        run = np.maximum.accumulate(t_us)
-        keep[1:] = t_us[1:] > run[:-1]
+    n = t_us.shape[0]
+    keep = np.ones(n, bool)
+    if n > 2:
+        t = t_us.astype(np.float64)
+        far = max_gap_s * 1e6
+        spike = np.zeros(n, bool)
+        spike[1:-1] = (t[1:-1] - t[:-2] > far) & (t[1:-1] - t[2:] > far)
+        spike[-1] = t[-1] - t[-2] > 100 * far  # the last record: only an absurd jump
+        keep &= ~spike
+    if n > 1:
+        idx = np.flatnonzero(keep)
+        tk = t_us[idx]
+        run = np.maximum.accumulate(tk)
+        ok = np.ones(idx.shape[0], bool)
+        ok[1:] = tk[1:] > run[:-1]
+        keep[idx[~ok]] = False
     t = t_us[keep]
     dt = np.full(t.shape[0], _NAN)
     if t.shape[0] > 1:
