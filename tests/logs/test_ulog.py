@@ -315,3 +315,34 @@ def test_garbage_after_a_valid_header(good_log: Path, tmp_path: Path) -> None:
     p.write_bytes(data[:16] + np.random.default_rng(5).integers(0, 256, 5000, dtype=np.uint8).tobytes())
     with pytest.raises(DataError):
         read_ulog(p)
+
+
+VIMU_FIELDS = [("uint64_t", "timestamp"), ("uint64_t", "timestamp_sample"), ("uint32_t", "accel_device_id"),
+               ("uint32_t", "gyro_device_id"), ("float[3]", "delta_angle"), ("float[3]", "delta_velocity"),
+               ("uint16_t", "delta_angle_dt"), ("uint16_t", "delta_velocity_dt"), ("uint8_t", "delta_angle_clipping"),
+               ("uint8_t", "delta_velocity_clipping")]  # fmt: skip
+
+
+def test_vehicle_imu_at_the_loop_rate_is_preferred_and_its_integrals_are_divided_by_their_dt(tmp_path: Path) -> None:
+    topics = _turning(4.0, rate_z=0.5)
+    ts = [r["timestamp"] for r in topics["sensor_combined"][1]]
+    # intervals of 5000 µs but stamps every 4000 µs: the mean rate is the integral over *its own* dt
+    vimu = [{"timestamp": t + 200, "timestamp_sample": t, "accel_device_id": 1, "gyro_device_id": 2,
+             "delta_angle": [0.0, 0.001, 0.5 * 0.005], "delta_velocity": [0.0, 0.0, -G * 0.005],
+             "delta_angle_dt": 5000, "delta_velocity_dt": 5000, "delta_angle_clipping": 0,
+             "delta_velocity_clipping": 1 if k == 100 else 0} for k, t in enumerate(ts)]  # fmt: skip
+    topics["vehicle_imu"] = (VIMU_FIELDS, vimu)
+    path = tmp_path / "vimu.ulg"
+    write_ulog(path, topics)
+    li = read_ulog(path)
+    prep = li.inputs
+    assert prep.message == "vehicle_imu" and prep.n == len(ts)
+    assert prep.t_us[0] == ts[0] + 200  # the ULog timestamp
+    assert prep.sensor_delay_s == pytest.approx(200e-6)
+    r = prep.rows
+    assert np.allclose(r[:, IN_GYRO : IN_GYRO + 3], [0.0, 0.2, 0.5], atol=1e-6)
+    ok = np.all(np.isfinite(r[:, IN_ACCEL : IN_ACCEL + 3]), axis=1)
+    assert np.flatnonzero(~ok).tolist() == [100]  # the clipped interval: accelerometer not used
+    assert np.allclose(r[ok, IN_ACCEL : IN_ACCEL + 3], [0.0, 0.0, -G], atol=1e-5)
+    assert any(line.startswith("IMU: vehicle_imu[0]") for line in li.found)
+    assert any(line.startswith("sensor_combined:") and "not used" in line for line in li.found)
