@@ -38,10 +38,16 @@ after it; in logs older than ``vehicle_magnetometer`` (PX4 ≤ 1.10) the
 used: it is the raw field in the chip's own axes, before calibration and before
 the rotation into the board frame.
 
-GNSS velocity: ``vehicle_gps_position`` (else ``sensor_gps``): ``vel_n/e/d_m_s``
-(true NED) of fixes with ``fix_type`` ≥ 3 and ``vel_ned_valid``, into the first
-IMU row at or after the message's ``timestamp`` (when the pipeline would have
-it), rotated into magnetic NED, aged from ``timestamp_sample``.
+GNSS velocity, as the ``velocity_source`` setting means it on the MAVLink path (PX4 fills
+GLOBAL_POSITION_INT's velocity from ``vehicle_local_position`` and GPS_RAW_INT from
+``vehicle_gps_position``): ``auto`` and ``global_position_int`` = EKF2's ``vehicle_local_position``
+``vx/vy/vz`` (valid and GNSS-referenced: ``v_xy_valid``, ``xy_global``), taken at ``gnss_rate_hz``
+(the rate the daemon asks for; the log has it at the estimator's 100+ Hz), else the receiver;
+``auto`` with the monitor's ``receiver_velocity_only``, ``gps_raw_int`` and ``gps2_raw`` = the
+receiver, ``vehicle_gps_position`` (else ``sensor_gps``): ``vel_n/e/d_m_s`` of fixes with
+``fix_type`` ≥ 3 and ``vel_ned_valid``; ``none`` = no velocity.  Each fix goes into the first IMU
+row at or after the message's ``timestamp`` (when the pipeline would have it), rotated from true
+into magnetic NED, aged from its ``timestamp_sample``.
 
 Declination (applied to the outputs, as on the tlog path): the World Magnetic
 Model (:class:`~mavahrs.sensors.geomag.DeclinationSource`, the pipeline's own) at
@@ -54,6 +60,11 @@ References (``LogInputs.references``): ``"EKF2"`` = ``vehicle_attitude.q``
 ``q_body_to_ned``), ``"SIH truth"`` = ``vehicle_attitude_groundtruth`` (the
 simulator's state; named ``"groundtruth truth"`` when the log is not from SIH),
 each at its ``timestamp_sample`` (the IMU sample it describes) where logged.
+
+The other :class:`~mavahrs.evaluation.tlogdata.PreparedInputs` fields: ``frame_pos`` is the
+sample's index, ``tlog_us`` = ``t_us`` (a ULog has one clock), ``temperature_c`` the gyro's from
+``vehicle_imu_status`` (about 1 Hz, held; NaN before it or without it), ``source`` the ids in
+``vehicle_status`` (else PX4's 1/1), ``engine`` ``fast`` (built over arrays, filtered in blocks).
 
 Bad input raises :class:`~mavahrs.errors.DataError` naming what is wrong: an
 empty or non-ULog file, a header or definitions cut short, no IMU topic (the
@@ -94,6 +105,7 @@ TOPICS = (
     "vehicle_attitude",
     "vehicle_attitude_groundtruth",
     "vehicle_local_position",
+    "vehicle_status",
 )
 #: vehicle_imu is used when logged at ≥ this share of sensor_combined's rate (else sensor_combined)
 VEHICLE_IMU_MIN_SHARE = 0.8
@@ -275,6 +287,16 @@ def _timeline(t_us: NDArray[np.int64], max_gap_s: float) -> tuple[NDArray[np.boo
         dt[1:] = np.diff(t) * 1e-6
         dt[1:][dt[1:] > max_gap_s] = _GAP_DT_S  # as the pipeline: the filters re-initialise after a gap
     return keep, dt
+
+
+def _source(topics: dict[str, Any]) -> tuple[int, int]:
+    """(system, component) of the vehicle: vehicle_status' ids (MAV_SYS_ID), else PX4's defaults (1, 1)."""
+    vs = topics.get("vehicle_status", {}).get(0)
+    if vs is not None and "system_id" in vs and "component_id" in vs:
+        sysid, compid = int(vs["system_id"][0]), int(vs["component_id"][0])
+        if 0 < sysid < 256 and 0 < compid < 256:
+            return sysid, compid
+    return 1, 1
 
 
 def _decimal_year(gps: dict[str, np.ndarray] | None, s: Any) -> tuple[float, str]:
@@ -465,7 +487,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     prep = PreparedInputs(
         rows=rows, t_us=t_us.astype(np.int64), frame_pos=np.arange(m, dtype=np.int64),
         tlog_us=t_us.astype(np.int64), temperature_c=temp, declination_rad=decl_at, message=topic,
-        instance=inst, source=(1, 1), profile="px4", engine="ulog", notes=notes, counts=counts,
+        instance=inst, source=_source(topics), profile="px4", engine="fast", notes=notes, counts=counts,
         velocity_source=str(s.effective_velocity_source), velocity_fixes={vel[0]: vel_used} if vel is not None else {},
         mag_reference_events=mag_events, sensor_delay_s=delay,
     )  # fmt: skip
