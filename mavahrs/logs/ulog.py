@@ -1,0 +1,614 @@
+r"""PX4 ULog (``.ulg``) as filter inputs, through pyulog.
+
+:func:`read_ulog` reads only the topics it needs (pyulog's
+``message_name_filter_list``) and builds the filter's input rows
+(:class:`~mavahrs.evaluation.tlogdata.PreparedInputs`, layout of
+:mod:`mavahrs.filters.layout`) on the log's own clock: ``t_us`` is the ULog
+``timestamp`` of the IMU topic (µs since PX4 booted).
+
+IMU, in this order of preference:
+
+* ``vehicle_imu`` (one instance per IMU): ``delta_angle`` and ``delta_velocity``
+  are the integrals over ``delta_angle_dt`` / ``delta_velocity_dt`` (µs);
+  divided by them they give the *mean* angular rate and the mean specific force
+  over the interval, which is what the filter integrates (a snapshot would
+  alias the vibration).  Used when it is logged at the loop rate (at least
+  :data:`VEHICLE_IMU_MIN_SHARE` of ``sensor_combined``'s rate): PX4's default
+  logger profile keeps it at 2 Hz, useless for attitude.
+* ``sensor_combined`` (the voted primary IMU): PX4's ``VotedSensorsUpdate``
+  fills ``gyro_rad`` and ``accelerometer_m_s2`` from ``vehicle_imu`` as
+  ``delta_angle / delta_angle_dt`` and ``delta_velocity / delta_velocity_dt`` —
+  the same interval means — at the gyro sample's time (``timestamp``); the
+  accelerometer's own time is ``timestamp + accelerometer_timestamp_relative``.
+
+Both are in the board's FRD frame (the sensor rotation and ``SENS_BOARD_ROT`` /
+``SENS_BOARD_*_OFF`` applied), and corrected with the *static* calibration
+(``CAL_GYRO*``/``CAL_ACC*`` offsets and scales, thermal calibration when enabled).
+They are **not** corrected with EKF2's in-flight bias estimates (unlike the
+MAVLink ``HIGHRES_IMU`` stream, which subtracts them): the gyro bias seen here
+is what the filter's own bias estimate has to find, as on the live path.
+Clipped samples (``accelerometer_clipping`` / ``delta_velocity_clipping``) blank
+the accelerometer of that row, as a saturated accelerometer does on the MAVLink path.
+
+Magnetometer: ``vehicle_magnetometer.magnetometer_ga`` (calibrated, board FRD;
+gauss × 100 = µT) at its ``timestamp_sample``, into the first IMU row at or
+after it; in logs older than ``vehicle_magnetometer`` (PX4 ≤ 1.10) the
+``magnetometer_ga`` of ``sensor_combined`` (a new sample when
+``timestamp + magnetometer_timestamp_relative`` changes).  ``sensor_mag`` is not
+used: it is the raw field in the chip's own axes, before calibration and before
+the rotation into the board frame.
+
+GNSS velocity, as the ``velocity_source`` setting means it on the MAVLink path (PX4 fills
+GLOBAL_POSITION_INT's velocity from ``vehicle_local_position`` and GPS_RAW_INT from
+``vehicle_gps_position``): ``auto`` and ``global_position_int`` = EKF2's ``vehicle_local_position``
+``vx/vy/vz`` (valid and GNSS-referenced: ``v_xy_valid``, ``xy_global``), taken at ``gnss_rate_hz``
+(the rate the daemon asks for; the log has it at the estimator's 100+ Hz), else the receiver;
+``auto`` with the monitor's ``receiver_velocity_only``, ``gps_raw_int`` and ``gps2_raw`` = the
+receiver, ``vehicle_gps_position`` (else ``sensor_gps``): ``vel_n/e/d_m_s`` of fixes with
+``fix_type`` ≥ 3 and ``vel_ned_valid``; ``none`` = no velocity.  Each fix goes into the first IMU
+row at or after the message's ``timestamp`` (when the pipeline would have it), rotated from true
+into magnetic NED, aged from its ``timestamp_sample``.
+
+Declination (applied to the outputs, as on the tlog path): the World Magnetic
+Model (:class:`~mavahrs.sensors.geomag.DeclinationSource`, the pipeline's own) at
+the first GNSS fix, from that sample on, dated by the receiver's UTC time
+(today's date when the log has none); without a fix the log's ``EKF2_MAG_DECL``
+(PX4's own, degrees); the settings' manual values override both.
+
+References (``LogInputs.references``): ``"EKF2"`` = ``vehicle_attitude.q``
+(PX4: rotation from FRD body to NED earth, Hamilton, w first — the project's
+``q_body_to_ned``), ``"SIH truth"`` = ``vehicle_attitude_groundtruth`` (the
+simulator's state; named ``"groundtruth truth"`` when the log is not from SIH),
+each at its ``timestamp_sample`` (the IMU sample it describes) where logged.
+
+The other :class:`~mavahrs.evaluation.tlogdata.PreparedInputs` fields: ``frame_pos`` is the
+sample's index, ``tlog_us`` = ``t_us`` (a ULog has one clock), ``temperature_c`` the gyro's from
+``vehicle_imu_status`` (about 1 Hz, held; NaN before it or without it), ``source`` the ids in
+``vehicle_status`` (else PX4's 1/1), ``engine`` ``fast`` (built over arrays, filtered in blocks).
+
+Bad input raises :class:`~mavahrs.errors.DataError` naming what is wrong: an
+empty or non-ULog file, a header or definitions cut short, no IMU topic (the
+topics found are listed).  A log cut short in its data section (power lost
+in flight) or with corrupted records is read as far as pyulog can, and says so
+in ``found``; topics and fields this reader does not know are ignored.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import io
+import math
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavahrs.errors import DataError
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+from mavahrs.logs import LogInputs
+
+__all__ = ["read_ulog", "TOPICS", "VEHICLE_IMU_MIN_SHARE", "GAUSS_TO_UT"]
+
+Array = NDArray[np.float64]
+
+#: the only topics read (pyulog skips every other data record)
+TOPICS = (
+    "vehicle_imu",
+    "sensor_combined",
+    "vehicle_imu_status",
+    "vehicle_magnetometer",
+    "vehicle_gps_position",
+    "sensor_gps",
+    "vehicle_attitude",
+    "vehicle_attitude_groundtruth",
+    "vehicle_local_position",
+    "vehicle_status",
+)
+#: vehicle_imu is used when logged at ≥ this share of sensor_combined's rate (else sensor_combined)
+VEHICLE_IMU_MIN_SHARE = 0.8
+GAUSS_TO_UT = 100.0
+#: PX4's "relative timestamp invalid" marker (SensorCombined.msg RELATIVE_TIMESTAMP_INVALID)
+_REL_INVALID = 2147483647
+_GPS_FIX_3D = 3
+_NAN = math.nan
+_MIN_UTC_US = 1262304000 * 10**6  # 2010-01-01: earlier UTC means the receiver has no time yet
+
+
+def _settings(settings: Any) -> Any:
+    from mavahrs.service.pipeline import PipelineSettings
+
+    if settings is None:
+        return PipelineSettings()
+    ps = getattr(settings, "pipeline_settings", None)  # a ReplaySettings
+    return ps() if callable(ps) else settings
+
+
+def _open(path: Path) -> tuple[Any, list[str]]:
+    """The ULog read with pyulog (only :data:`TOPICS`), and pyulog's own complaints (it prints them)."""
+    from pyulog import ULog
+    from pyulog.core import ULogException
+
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read the log ({exc.strerror or exc})") from None
+    if size == 0:
+        raise DataError(f"{path}: the file is empty (0 bytes), not a PX4 ULog")
+    printed = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(printed):
+            ulog = ULog(str(path), list(TOPICS), disable_str_exceptions=True)
+    except ULogException as exc:
+        raise DataError(f"{path}: not a readable PX4 ULog ({exc})") from None
+    except (OSError, ValueError, IndexError, KeyError, struct.error, UnicodeDecodeError, MemoryError) as exc:
+        raise DataError(f"{path}: the ULog is damaged (its definitions or a record cannot be parsed: {type(exc).__name__}: {exc})") from None
+    complaints = [ln.strip() for ln in printed.getvalue().splitlines() if ln.strip()]
+    return ulog, complaints
+
+
+def _all_topics(path: Path, listed: int = 40) -> str:
+    """Every topic the log holds data for (a second, unfiltered read: only on the error path)."""
+    from pyulog import ULog
+
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            ulog = ULog(str(path))
+    except Exception:  # the first read succeeded; this one is only for the message
+        return "unknown (the log cannot be read again)"
+    names = sorted({f"{d.name}" + (f"[{d.multi_id}]" if d.multi_id else "") for d in ulog.data_list
+                    if len(d.data.get("timestamp", ()))})  # fmt: skip
+    if not names:
+        return "none (the log holds no data records: cut short after its definitions?)"
+    more = f", … ({len(names)} in all)" if len(names) > listed else ""
+    return ", ".join(names[:listed]) + more
+
+
+def _topics(ulog: Any) -> dict[str, dict[int, dict[str, np.ndarray]]]:
+    out: dict[str, dict[int, dict[str, np.ndarray]]] = {}
+    for d in ulog.data_list:
+        if len(d.data.get("timestamp", ())) == 0:
+            continue
+        out.setdefault(d.name, {})[int(d.multi_id)] = d.data
+    return out
+
+
+def _rate_hz(t_us: np.ndarray) -> float:
+    if t_us.shape[0] < 2:
+        return 0.0
+    span = float(t_us[-1]) - float(t_us[0])
+    return (t_us.shape[0] - 1) / span * 1e6 if span > 0 else 0.0
+
+
+def _vec(d: dict[str, np.ndarray], name: str) -> Array:
+    return np.column_stack([np.asarray(d[f"{name}[{k}]"], np.float64) for k in range(3)])
+
+
+def _has_vec(d: dict[str, np.ndarray], name: str) -> bool:
+    return all(f"{name}[{k}]" in d for k in range(3))
+
+
+def _sample_time(d: dict[str, np.ndarray]) -> NDArray[np.int64]:
+    """``timestamp_sample`` where logged and non-zero, else ``timestamp``."""
+    t = np.asarray(d["timestamp"], np.int64)
+    ts = d.get("timestamp_sample")
+    if ts is None:
+        return t
+    ts = np.asarray(ts, np.int64)
+    return np.where(ts > 0, ts, t)
+
+
+def _imu(topics: dict[str, Any], s: Any, path: Path) -> tuple[str, int, dict[str, Any], list[str]]:
+    """(topic, instance, columns t_us/gyro/accel/clip, header lines) of the IMU to feed."""
+    lines: list[str] = []
+    vimu = {i: d for i, d in topics.get("vehicle_imu", {}).items()
+            if _has_vec(d, "delta_angle") and _has_vec(d, "delta_velocity")
+            and "delta_angle_dt" in d and "delta_velocity_dt" in d}  # fmt: skip
+    sc = topics.get("sensor_combined", {}).get(0)
+    if sc is not None and not (_has_vec(sc, "gyro_rad") and _has_vec(sc, "accelerometer_m_s2")):
+        sc = None
+    if not vimu and sc is None:
+        raise DataError(f"{path}: no IMU topic (vehicle_imu or sensor_combined with gyro and accelerometer) "
+                        f"in the log; topics logged: {_all_topics(path)}")  # fmt: skip
+    sc_rate = _rate_hz(np.asarray(sc["timestamp"], np.int64)) if sc is not None else 0.0
+    rates = {i: _rate_hz(np.asarray(d["timestamp"], np.int64)) for i, d in vimu.items()}
+    fixed = s.selection_settings.fixed
+    if fixed is not None and vimu and fixed not in vimu:
+        raise DataError(f"{path}: IMU instance {fixed} is not in the log (vehicle_imu instances: {sorted(vimu)})")
+    usable = {i for i, r in rates.items() if r >= VEHICLE_IMU_MIN_SHARE * sc_rate and r > 0}
+    for i in sorted(vimu):
+        tag = "used" if (i in usable and i == (fixed if fixed is not None else min(usable))) else "not used"
+        why = "" if i in usable else f" (below {VEHICLE_IMU_MIN_SHARE:.0%} of sensor_combined's {sc_rate:.1f} Hz)"
+        lines.append(f"vehicle_imu[{i}]: {rates[i]:.1f} Hz, {len(vimu[i]['timestamp'])} samples — {tag}{why}")
+    if usable and (fixed is None or fixed in usable):
+        inst = fixed if fixed is not None else min(usable)
+        d = vimu[inst]
+        t = np.asarray(d["timestamp"], np.int64)
+        dta = np.asarray(d["delta_angle_dt"], np.float64) * 1e-6
+        dtv = np.asarray(d["delta_velocity_dt"], np.float64) * 1e-6
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gyro = _vec(d, "delta_angle") / np.where(dta > 0, dta, _NAN)[:, None]
+            accel = _vec(d, "delta_velocity") / np.where(dtv > 0, dtv, _NAN)[:, None]
+        clip = np.asarray(d.get("delta_velocity_clipping", np.zeros(t.shape[0])), np.int64) != 0
+        if sc is not None:
+            lines.append(f"sensor_combined: {sc_rate:.1f} Hz — not used (vehicle_imu at the loop rate instead)")
+        lines.insert(0, f"IMU: vehicle_imu[{inst}] at {rates[inst]:.1f} Hz: delta angle / velocity over their "
+                        "intervals (mean rate and specific force), board FRD, static calibration applied")  # fmt: skip
+        return "vehicle_imu", inst, {"t_us": t, "gyro": gyro, "accel": accel, "clip": clip}, lines
+    if fixed is not None and fixed != 0:
+        raise DataError(f"{path}: IMU instance {fixed} is not logged at the loop rate "
+                        f"(vehicle_imu[{fixed}] at {rates.get(fixed, 0.0):.1f} Hz; sensor_combined is the voted IMU)")  # fmt: skip
+    if sc is None:
+        raise DataError(f"{path}: vehicle_imu is logged at only {max(rates.values()):.1f} Hz and there is no "
+                        "sensor_combined: too slow for attitude filtering")  # fmt: skip
+    t = np.asarray(sc["timestamp"], np.int64)
+    clip = np.asarray(sc.get("accelerometer_clipping", np.zeros(t.shape[0])), np.int64) != 0
+    rel = np.asarray(sc.get("accelerometer_timestamp_relative", np.zeros(t.shape[0])), np.int64)
+    accel = _vec(sc, "accelerometer_m_s2")
+    accel[rel == _REL_INVALID] = _NAN
+    lines.insert(0, f"IMU: sensor_combined at {sc_rate:.1f} Hz ({t.shape[0]} samples; PX4's voted IMU: "
+                    "mean rate and specific force over each interval, board FRD, static calibration "
+                    "applied, not EKF2's bias estimates)")  # fmt: skip
+    return "sensor_combined", 0, {"t_us": t, "gyro": _vec(sc, "gyro_rad"), "accel": accel, "clip": clip}, lines
+
+
+def _timeline(t_us: NDArray[np.int64], max_gap_s: float) -> tuple[NDArray[np.bool_], Array]:
+    """Which samples to keep and their dt, s.
+
+    Kept: strictly increasing stamps.  A lone stamp far ahead of both its
+    neighbours (a damaged record: the next one is back on the clock) is
+    dropped first, so it does not hide the samples after it; repeated and
+    backward stamps are dropped.  A real gap (the clock stays ahead) reaches the
+    filter as a long dt, as on the pipeline: the filters re-initialise.
+    """
+    from mavahrs.evaluation.tlogdata import _GAP_DT_S
+
+    n = t_us.shape[0]
+    keep = np.ones(n, bool)
+    if n > 2:
+        t = t_us.astype(np.float64)
+        far = max_gap_s * 1e6
+        spike = np.zeros(n, bool)
+        spike[1:-1] = (t[1:-1] - t[:-2] > far) & (t[1:-1] - t[2:] > far)
+        spike[-1] = t[-1] - t[-2] > 100 * far  # the last record: only an absurd jump
+        keep &= ~spike
+    if n > 1:
+        idx = np.flatnonzero(keep)
+        tk = t_us[idx]
+        run = np.maximum.accumulate(tk)
+        ok = np.ones(idx.shape[0], bool)
+        ok[1:] = tk[1:] > run[:-1]
+        keep[idx[~ok]] = False
+    t = t_us[keep]
+    dt = np.full(t.shape[0], _NAN)
+    if t.shape[0] > 1:
+        dt[1:] = np.diff(t) * 1e-6
+        dt[1:][dt[1:] > max_gap_s] = _GAP_DT_S  # as the pipeline: the filters re-initialise after a gap
+    return keep, dt
+
+
+def _source(topics: dict[str, Any]) -> tuple[int, int]:
+    """(system, component) of the vehicle: vehicle_status' ids (MAV_SYS_ID), else PX4's defaults (1, 1)."""
+    vs = topics.get("vehicle_status", {}).get(0)
+    if vs is not None and "system_id" in vs and "component_id" in vs:
+        sysid, compid = int(vs["system_id"][0]), int(vs["component_id"][0])
+        if 0 < sysid < 256 and 0 < compid < 256:
+            return sysid, compid
+    return 1, 1
+
+
+def _decimal_year(gps: dict[str, np.ndarray] | None, s: Any) -> tuple[float, str]:
+    from mavahrs.sensors.geomag import decimal_year_from_unix_s
+
+    if s.magnetic.decimal_year is not None:
+        return float(s.magnetic.decimal_year), "settings"
+    if gps is not None and "time_utc_usec" in gps:
+        utc = np.asarray(gps["time_utc_usec"], np.int64)
+        ok = utc > _MIN_UTC_US
+        if ok.any():
+            return decimal_year_from_unix_s(float(utc[ok][0]) * 1e-6), "GNSS UTC time"
+    now = _dt.datetime.now(tz=_dt.timezone.utc).timestamp()
+    return decimal_year_from_unix_s(now), "today (no UTC time in the log)"
+
+
+def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None = None,
+              end_s: float | None = None) -> LogInputs:  # fmt: skip
+    """A PX4 ULog's filter inputs, references and parameters (see the module doc).
+
+    Args:
+        settings: ``PipelineSettings`` (or ``ReplaySettings``); defaults if None.
+            Used: calibration, magnetic (declination, date), scaling (limits),
+            timeline (gap), ``velocity_source`` (``none`` = no GNSS velocity),
+            IMU instance (``imu``).
+        start_s, end_s: keep IMU samples in this window, seconds from the log's start.
+
+    Raises:
+        DataError: empty, not a ULog, damaged beyond reading, no IMU data.
+    """
+    from mavahrs.evaluation.tlogdata import PreparedInputs, _calibrate
+    from mavahrs.sensors.calibration import Calibrator
+    from mavahrs.sensors.geomag import DeclinationSource
+    from mavahrs.sensors.profiles import get_profile
+
+    p = Path(path)
+    s = _settings(settings)
+    ulog, complaints = _open(p)
+    topics = _topics(ulog)
+    found: list[str] = []
+    notes: list[str] = []
+    info = ulog.msg_info_dict
+    found.append(f"PX4 ULog: {info.get('sys_name', 'PX4')} {info.get('ver_hw', '?')}, "
+                 f"software {str(info.get('ver_sw', '?'))[:12]}, {len(ulog.initial_parameters)} parameters")  # fmt: skip
+    if complaints:
+        notes.append(f"the log has damaged records ({len(complaints)} skipped by the reader, e.g. "
+                     f"'{complaints[0]}'): read as far as possible")  # fmt: skip
+    if getattr(ulog, "file_corruption", False) and not complaints:
+        notes.append("the log has damaged records: read as far as possible")
+    if ulog.dropouts:
+        lost = sum(int(d.duration) for d in ulog.dropouts)
+        notes.append(f"{len(ulog.dropouts)} logger dropouts ({lost} ms of data not written by PX4)")
+    topic, inst, imu, imu_lines = _imu(topics, s, p)
+    found.extend(imu_lines)
+    t0 = int(ulog.start_timestamp)
+    t_all = imu["t_us"]
+    win = np.ones(t_all.shape[0], bool)
+    if start_s is not None:
+        win &= t_all >= t0 + int(start_s * 1e6)
+    if end_s is not None:
+        win &= t_all <= t0 + int(end_s * 1e6)
+    keep, dt = _timeline(t_all[win], s.timeline.max_gap_s)
+    sel = np.flatnonzero(win)[keep]
+    m = sel.shape[0]
+    if m == 0:
+        raise DataError(f"{p}: no IMU sample of {topic} in the requested window" if (start_s or end_s)
+                        else f"{p}: {topic} has no usable samples")  # fmt: skip
+    dropped = int(win.sum()) - m
+    if dropped:
+        notes.append(f"{dropped} IMU samples with a time stamp not after the previous one dropped")
+    t_us = t_all[sel]
+    gyro, accel, clip = imu["gyro"][sel], imu["accel"][sel], imu["clip"][sel]
+    # --- validity as the MAVLink scaler judges it (the px4 profile's full scales, the scaling settings)
+    ms = get_profile("px4").scale_for("HIGHRES_IMU")
+    sc_set = s.scaling
+    a_fs = sc_set.accel_range_g * 9.80665 if sc_set.accel_range_g is not None else ms.accel_range_m_s2
+    g_fs = math.radians(sc_set.gyro_range_deg_s) if sc_set.gyro_range_deg_s is not None else ms.gyro_range_rad_s
+    with np.errstate(invalid="ignore"):
+        g_bad = ~np.all(np.isfinite(gyro), axis=1) | np.any(np.abs(gyro) > g_fs * sc_set.implausible_factor, axis=1)
+        a_bad = ~np.all(np.isfinite(accel), axis=1) | np.any(np.abs(accel) > a_fs * sc_set.implausible_factor, axis=1)
+        a_sat = np.any(np.abs(accel) >= a_fs * sc_set.saturation_fraction, axis=1) | clip
+    rows = np.full((m, IN_WIDTH), _NAN)
+    rows[:, IN_DT] = dt
+    rows[:, IN_GYRO : IN_GYRO + 3] = gyro
+    rows[:, IN_ACCEL : IN_ACCEL + 3] = accel
+    rows[g_bad, IN_GYRO : IN_GYRO + 3] = _NAN
+    rows[a_bad | a_sat, IN_ACCEL : IN_ACCEL + 3] = _NAN
+    counts = {"imu_messages": int(t_all.shape[0]), "fed": m, "dropped_timeline": dropped,
+              "invalid_gyro": int(g_bad.sum()), "invalid_accel": int(a_bad.sum()),
+              "saturated_accel": int((a_sat & ~a_bad).sum())}  # fmt: skip
+    if counts["invalid_gyro"] or counts["invalid_accel"]:
+        notes.append(f"{counts['invalid_gyro']} gyro and {counts['invalid_accel']} accelerometer samples "
+                     "non-finite or beyond twice the full scale: blanked")  # fmt: skip
+    if counts["saturated_accel"]:
+        notes.append(f"{counts['saturated_accel']} accelerometer samples clipped or at full scale: not used")
+    # --- magnetometer
+    mag_line = _magnetometer(topics, t_us, rows, float(getattr(ms, "mag_plausible_max_ut", 1000.0)))
+    found.append(mag_line)
+    # --- temperature: vehicle_imu_status (about 1 Hz) of the gyro fed, held
+    temp = np.full(m, _NAN)
+    st = topics.get("vehicle_imu_status", {}).get(inst)
+    if st is not None and "temperature_gyro" in st:
+        ts = np.asarray(st["timestamp"], np.int64)
+        tv = np.asarray(st["temperature_gyro"], np.float64)
+        j = np.searchsorted(ts, t_us, side="right") - 1
+        ok = j >= 0
+        temp[ok] = tv[j[ok]]
+        temp[~np.isfinite(temp)] = _NAN
+    # --- GNSS: declination (WMM at the first fix) and velocity
+    gps_name = next((n for n in ("vehicle_gps_position", "sensor_gps") if 0 in topics.get(n, {})), None)
+    gps = topics[gps_name][0] if gps_name else None
+    year, year_src = _decimal_year(gps, s)
+    decl = DeclinationSource(s.magnetic, decimal_year=year)
+    decl_at = np.full(m, decl.declination_rad)
+    mag_events: list[tuple[int, float, float]] = []
+    ref0 = decl.mag_reference()
+    if ref0 is not None:
+        mag_events.append((0, float(ref0[0]), float(ref0[1])))
+    params = {str(k): float(v) for k, v in ulog.initial_parameters.items()
+              if isinstance(v, (int, float)) and math.isfinite(float(v))}  # fmt: skip
+    vel_used = 0
+    if gps is not None:
+        g_t = np.asarray(gps["timestamp"], np.int64)
+        fix_type = np.asarray(gps.get("fix_type", np.zeros(g_t.shape[0])), np.int64)
+        lat = np.asarray(gps.get("latitude_deg", gps.get("lat", np.zeros(g_t.shape[0]))), np.float64)
+        lon = np.asarray(gps.get("longitude_deg", gps.get("lon", np.zeros(g_t.shape[0]))), np.float64)
+        if "lat" in gps and "latitude_deg" not in gps:  # PX4 ≤ 1.13: degrees × 1e7
+            lat, lon = lat * 1e-7, lon * 1e-7
+        alt = np.asarray(gps.get("altitude_ellipsoid_m", np.zeros(g_t.shape[0])), np.float64)
+        pos_ok = (fix_type >= 2) & np.isfinite(lat) & np.isfinite(lon) & ~((lat == 0) & (lon == 0))
+        if pos_ok.any() and decl.settings.declination_deg is None:
+            k = int(np.flatnonzero(pos_ok)[0])
+            i = int(np.searchsorted(t_us, g_t[k], side="left"))
+            if decl.set_position(float(lat[k]), float(lon[k]), float(alt[k]) if np.isfinite(alt[k]) else 0.0,
+                                 gps_name):  # fmt: skip
+                decl_at[i:] = decl.declination_rad
+                ref = decl.mag_reference()
+                if ref is not None and i < m:
+                    mag_events.append((i, float(ref[0]), float(ref[1])))
+            f = decl.field
+            if f is not None:
+                found.append(f"declination: {f.source} at {lat[k]:.5f}, {lon[k]:.5f} (first {gps_name} fix, "
+                             f"date from {year_src}): {f.declination_deg:+.2f}°, inclination "
+                             f"{f.inclination_deg:+.1f}°, {f.strength_ut:.1f} µT")  # fmt: skip
+    vel = _velocity_source(topics, s)
+    if vel is None:
+        vel_line = ("GNSS velocity: not fed (velocity_source = none)" if s.effective_velocity_source == "none"
+                    else "GNSS velocity: none in the log")  # fmt: skip
+    else:
+        vname, v_t, v_ts, v, fix_ok, what = vel
+        fresh = np.ones(v_t.shape[0], bool)
+        fresh[1:] = v_ts[1:] != v_ts[:-1]  # a repeated fix is not fed again
+        use = np.flatnonzero(fix_ok & fresh)
+        if vname in _EKF_VELOCITY and s.gnss_rate_hz > 0:
+            use = _decimate(v_t, use, s.gnss_rate_hz)
+        at = np.searchsorted(t_us, v_t[use], side="left")
+        inside = at < m
+        use, at = use[inside], at[inside]
+        d = decl_at[at]
+        c, sn = np.cos(d), np.sin(d)  # geomag.rotate_true_to_magnetic over the rows
+        rows[at, IN_VEL] = c * v[use, 0] + sn * v[use, 1]
+        rows[at, IN_VEL + 1] = -sn * v[use, 0] + c * v[use, 1]
+        rows[at, IN_VEL + 2] = v[use, 2]
+        rows[at, IN_VEL_AGE] = (t_us[at] - v_ts[use]) * 1e-6
+        vel_used = int(np.unique(at).size)
+        every = "" if vname not in _EKF_VELOCITY or s.gnss_rate_hz <= 0 else f" taken at {s.gnss_rate_hz:g} Hz"
+        vel_line = (f"GNSS velocity: {vname} ({what}) at {_rate_hz(v_t):.1f} Hz{every}, {vel_used} fixes fed "
+                    f"({int((~fix_ok).sum())} without a valid velocity)")  # fmt: skip
+    found.append(vel_line)
+    if not decl.known and s.magnetic.true_north and "EKF2_MAG_DECL" in params:
+        d_deg = params["EKF2_MAG_DECL"]
+        decl_at[:] = math.radians(d_deg)
+        found.append(f"declination: EKF2_MAG_DECL = {d_deg:+.2f}° (no GNSS position in the log)")
+    elif not decl.known:
+        found.append("declination: unknown (no GNSS position, no EKF2_MAG_DECL): outputs on magnetic north")
+    # --- calibration (Calibrator.apply_row over all rows); the magnetometer is PX4-calibrated
+    cal = Calibrator(s.calibration, mag_already_calibrated=True)
+    if cal.active:
+        _calibrate(rows, temp, cal)
+    references = _references(topics, ulog, found)
+    delay = 0.0
+    if topic == "vehicle_imu":
+        d = topics["vehicle_imu"][inst]
+        lag = np.asarray(d["timestamp"], np.int64) - _sample_time(d)
+        delay = max(0.0, float(np.median(lag)) * 1e-6) if lag.size else 0.0
+    found.append(f"time: ULog timestamp (µs since boot), {t_us[0] * 1e-6:.3f}–{t_us[-1] * 1e-6:.3f} s; "
+                 f"log starts at {t0 * 1e-6:.3f} s")  # fmt: skip
+    prep = PreparedInputs(
+        rows=rows, t_us=t_us.astype(np.int64), frame_pos=np.arange(m, dtype=np.int64),
+        tlog_us=t_us.astype(np.int64), temperature_c=temp, declination_rad=decl_at, message=topic,
+        instance=inst, source=_source(topics), profile="px4", engine="fast", notes=notes, counts=counts,
+        velocity_source=str(s.effective_velocity_source), velocity_fixes={vel[0]: vel_used} if vel is not None else {},
+        mag_reference_events=mag_events, sensor_delay_s=delay,
+    )  # fmt: skip
+    return LogInputs(path=str(p), format="ulog", inputs=prep, references=references, found=found,
+                     parameters=params)  # fmt: skip
+
+
+#: the ``velocity_source`` setting → the ULog topics it means, in order (the MAVLink messages'
+#: own origins in PX4: GLOBAL_POSITION_INT carries EKF2's velocity = vehicle_local_position
+#: vx/vy/vz; GPS_RAW_INT the receiver's = vehicle_gps_position / sensor_gps)
+_EKF_VELOCITY = ("vehicle_local_position",)
+_RECEIVER_VELOCITY = ("vehicle_gps_position", "sensor_gps")
+
+
+def _decimate(t_us: NDArray[np.int64], idx: NDArray[np.int64], rate_hz: float) -> NDArray[np.int64]:
+    """The entries of ``idx`` a stream at ``rate_hz`` would deliver: the first, then each one at least a
+    period (less 10 %, the sender's jitter) after the last kept — what the daemon gets when it asks
+    for GLOBAL_POSITION_INT at ``gnss_rate_hz``."""
+    period = 0.9e6 / rate_hz
+    out: list[int] = []
+    last = -math.inf
+    for j, tj in zip(idx.tolist(), t_us[idx].tolist(), strict=True):
+        if tj - last >= period:
+            out.append(j)
+            last = tj
+    return np.asarray(out, np.int64)
+
+
+def _velocity_source(topics: dict[str, Any], s: Any) -> tuple[str, Any, Any, Array, Any, str] | None:
+    """(topic, arrival µs, fix time µs, (N, 3) true-NED velocity, valid, what) for the setting, or None."""
+    src = str(s.effective_velocity_source)
+    if src == "none":
+        return None
+    if src == "auto":
+        order = _RECEIVER_VELOCITY if s.monitor.receiver_velocity_only else _EKF_VELOCITY + _RECEIVER_VELOCITY
+    elif src == "global_position_int":
+        order = _EKF_VELOCITY
+    else:  # gps_raw_int, gps2_raw: the receiver
+        order = _RECEIVER_VELOCITY
+    for name in order:
+        d = topics.get(name, {}).get(0)
+        if d is None:
+            continue
+        t = np.asarray(d["timestamp"], np.int64)
+        if name in _EKF_VELOCITY:
+            if not all(k in d for k in ("vx", "vy", "vz")):
+                continue
+            v = np.column_stack([np.asarray(d[k], np.float64) for k in ("vx", "vy", "vz")])
+            ok = np.asarray(d.get("v_xy_valid", np.ones(t.shape[0])), np.int64) != 0
+            ok &= np.asarray(d.get("xy_global", np.ones(t.shape[0])), np.int64) != 0  # a GNSS-referenced EKF
+            vz_ok = np.asarray(d.get("v_z_valid", np.ones(t.shape[0])), np.int64) != 0
+            v[~vz_ok, 2] = _NAN
+            what = "EKF2's velocity, as GLOBAL_POSITION_INT sends it"
+        else:
+            if not all(k in d for k in ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s")):
+                continue
+            v = np.column_stack([np.asarray(d[k], np.float64) for k in ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s")])
+            ok = np.asarray(d.get("vel_ned_valid", np.ones(t.shape[0])), np.int64) != 0
+            ok &= np.asarray(d.get("fix_type", np.zeros(t.shape[0])), np.int64) >= _GPS_FIX_3D
+            what = "the receiver's, 3D fix"
+        ok &= np.isfinite(v[:, 0]) & np.isfinite(v[:, 1])
+        return name, t, _sample_time(d), v, ok, what
+    return None
+
+
+def _magnetometer(topics: dict[str, Any], t_us: NDArray[np.int64], rows: Array, max_ut: float) -> str:
+    """Write the magnetometer samples into the first row at or after each one's time; the header line."""
+    m = t_us.shape[0]
+    vm = topics.get("vehicle_magnetometer", {})
+    inst = min(vm) if vm else None
+    if inst is not None and _has_vec(vm[inst], "magnetometer_ga"):
+        d = vm[inst]
+        ts = _sample_time(d)
+        b = _vec(d, "magnetometer_ga") * GAUSS_TO_UT
+        name = f"vehicle_magnetometer[{inst}]"
+        rate = _rate_hz(np.asarray(d["timestamp"], np.int64))
+    else:
+        sc = topics.get("sensor_combined", {}).get(0)
+        if sc is None or not _has_vec(sc, "magnetometer_ga") or "magnetometer_timestamp_relative" not in sc:
+            return "magnetometer: none in the log (vehicle_magnetometer absent): heading from the gyro only"
+        rel = np.asarray(sc["magnetometer_timestamp_relative"], np.int64)
+        ts_all = np.asarray(sc["timestamp"], np.int64) + rel
+        new = rel != _REL_INVALID
+        new[1:] &= ts_all[1:] != ts_all[:-1]
+        ts = ts_all[new]
+        b = _vec(sc, "magnetometer_ga")[new] * GAUSS_TO_UT
+        name = "sensor_combined magnetometer_ga"
+        rate = _rate_hz(ts)
+    n_all = ts.shape[0]
+    with np.errstate(invalid="ignore"):
+        norm = np.linalg.norm(b, axis=1)
+        ok = np.isfinite(norm) & (norm > 1.0) & (norm < max_ut)
+    at = np.searchsorted(t_us, ts[ok], side="left")
+    inside = at < m
+    rows[at[inside], IN_MAG : IN_MAG + 3] = b[ok][inside]
+    placed = int(np.unique(at[inside]).size)
+    return (f"magnetometer: {name} at {rate:.1f} Hz (calibrated by PX4, board FRD, gauss × 100 → µT), "
+            f"{placed} of {n_all} samples fed" + (f", {int((~ok).sum())} implausible" if (~ok).any() else ""))
+
+
+def _references(topics: dict[str, Any], ulog: Any, found: list[str]) -> dict[str, tuple[Array, Array]]:
+    refs: dict[str, tuple[Array, Array]] = {}
+    sih = str(ulog.msg_info_dict.get("ver_hw", "")).upper() in ("PX4_SITL", "SITL") or any(
+        k.startswith("SIH_") for k in ulog.initial_parameters
+    )
+    for topic, name in (("vehicle_attitude", "EKF2"),
+                        ("vehicle_attitude_groundtruth", "SIH truth" if sih else "groundtruth truth")):  # fmt: skip
+        d = topics.get(topic, {}).get(0)
+        if d is None or not all(f"q[{k}]" in d for k in range(4)):
+            found.append(f"{'truth' if name.endswith('truth') else 'reference'}: no {topic} in the log")
+            continue
+        t = _sample_time(d)
+        q = np.column_stack([np.asarray(d[f"q[{k}]"], np.float64) for k in range(4)])
+        with np.errstate(invalid="ignore"):
+            n = np.linalg.norm(q, axis=1)
+            ok = np.isfinite(n) & (n > 0.5) & (n < 1.5)
+        ok[1:] &= np.diff(t) > 0
+        t, q = t[ok], q[ok] / n[ok, None]
+        if t.shape[0] < 2:
+            continue
+        refs[name] = (t.astype(np.int64), q)
+        kind = "truth" if name.endswith(" truth") else "reference"
+        found.append(f"{kind}: {name} = {topic} at {_rate_hz(t):.1f} Hz ({t.shape[0]} samples)")
+    return refs
