@@ -221,37 +221,12 @@ _PAGE_UPDATES = "return Number(document.body.dataset.attitudeUpdates)"
 
 def _open_page(url: str) -> Any:
     """Headless Chromium showing ``url`` (selenium + the system chromedriver); RuntimeError if unavailable."""
-    import shutil
+    from mavahrs.evaluation.browser import BrowserUnavailable, start_chromium
 
     try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-    except ImportError as exc:
-        raise RuntimeError("--with-page needs selenium (pip install 'mavahrs[test]')") from exc
-    browser = next((p for p in map(shutil.which, ("chromium", "chromium-browser")) if p), None)
-    driver = shutil.which("chromedriver")
-    if browser is None or driver is None:
-        raise RuntimeError("--with-page needs chromium and chromedriver (apt-get install chromium chromium-driver)")
-    options = webdriver.ChromeOptions()
-    options.binary_location = browser
-    scratch = tempfile.mkdtemp(prefix="bench_live_chromium_")  # its profile and temporary files; removed on quit
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1100,800",
-                f"--user-data-dir={scratch}/profile"):
-        options.add_argument(arg)
-    try:
-        page = webdriver.Chrome(service=Service(driver, env=dict(os.environ, TMPDIR=scratch)), options=options)
-    except BaseException:
-        shutil.rmtree(scratch, ignore_errors=True)
-        raise
-    quit_page = page.quit
-
-    def quit_and_clean() -> None:
-        try:
-            quit_page()
-        finally:
-            shutil.rmtree(scratch, ignore_errors=True)
-
-    page.quit = quit_and_clean
+        page = start_chromium("--window-size=1100,800", scratch_prefix="bench_live_chromium_")
+    except BrowserUnavailable as exc:
+        raise RuntimeError(f"--with-page: {exc}") from exc
     page.get(url)
     deadline = time.monotonic() + 30
     while page.execute_script(_PAGE_UPDATES) < 10:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -56,6 +57,7 @@ _INSTALLED_BY_CI = (
     "selenium is not installed",
     "no Chromium/chromedriver",
     "MAVProxy is not installed",
+    "needs setuptools>=77 in the running environment",
 )
 
 
@@ -70,6 +72,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]):  
     if rep.skipped and isinstance(rep.longrepr, tuple) and _ci_requires(str(rep.longrepr[2])):
         rep.outcome = "failed"
         rep.longrepr = f"under CI a dependency .ci/run installs is missing: {rep.longrepr[2]}"
+    _count_off_loopback_attempts(item, call, rep)
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -79,6 +82,141 @@ def pytest_make_collect_report(collector: pytest.Collector):  # type: ignore[no-
     if rep.skipped and isinstance(rep.longrepr, tuple) and _ci_requires(str(rep.longrepr[2])):
         rep.outcome = "failed"
         rep.longrepr = f"under CI a dependency .ci/run installs is missing: {rep.longrepr[2]}"
+
+
+# --------------------------------------------------------------------------- loopback only
+
+#: Every test process runs in a network namespace of its own whose only interface is ``lo`` (as root,
+#: which CI is: ``unshare(CLONE_NEWNET)`` at start-up; the processes a test starts inherit it).  Nothing
+#: can leave the machine from there, and each attempt to reach an address beyond loopback — a connect,
+#: a datagram, a DNS query to the configured name server — fails with "network is unreachable" and is
+#: counted by the kernel (``OutNoRoutes`` in the namespace's /proc/net/snmp and snmp6).  A test during
+#: which that count grows fails, naming the count.  Elsewhere (not root) the tests run on the host's
+#: network and ``test_no_network.py`` skips.  MAVAHRS_TESTS_HOST_NETWORK=1 opts out.
+_CLONE_NEWNET = 0x40000000
+_loopback_ns: dict[str, object] = {}
+
+
+def _off_loopback_attempts() -> int:
+    """Sends/connects to non-loopback addresses that found no route, in this thread's network namespace."""
+    with open("/proc/thread-self/net/snmp", encoding="ascii") as f:
+        head, values = (line.split() for line in f.read().splitlines()[:2])
+    ipv4 = int(values[head.index("OutNoRoutes")])
+    ipv6 = 0
+    try:
+        with open("/proc/thread-self/net/snmp6", encoding="ascii") as f:
+            ipv6 = next((int(line.split()[1]) for line in f if line.startswith("Ip6OutNoRoutes")), 0)
+    except FileNotFoundError:  # IPv6 disabled
+        pass
+    return ipv4 + ipv6
+
+
+def socket_has_ipv6() -> bool:
+    return os.path.exists("/proc/thread-self/net/snmp6")
+
+
+def _bring_up_loopback() -> None:
+    import fcntl
+    import socket
+    import struct
+
+    siocgifflags, siocsifflags, iff_up = 0x8913, 0x8914, 0x1
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        ifreq = fcntl.ioctl(s, siocgifflags, struct.pack("16sH22x", b"lo", 0))
+        flags = struct.unpack("16sH22x", ifreq)[1]
+        fcntl.ioctl(s, siocsifflags, struct.pack("16sH22x", b"lo", flags | iff_up))
+
+
+#: Chromium and chromedriver ask whether IPv6 reaches the internet by connecting (without sending on) a
+#: UDP socket to this address (Google's public DNS): a blackhole route makes that connect fail without
+#: being counted (EINVAL instead of "no route"), and drops anything sent there.
+_IPV6_PROBE = "2001:4860:4860::8888"
+
+
+def _blackhole_route_ipv6(address: str) -> None:
+    """``ip -6 route add blackhole ADDRESS/128`` over rtnetlink (no iproute2 needed)."""
+    import socket
+    import struct
+
+    rtm_newroute, nlm_f_request, nlm_f_ack, nlm_f_create, rtn_blackhole, rta_dst = 24, 1, 4, 0x400, 6, 1
+    rtmsg = struct.pack("BBBBBBBBI", socket.AF_INET6, 128, 0, 0, 254, 3, 0, rtn_blackhole, 0)
+    attr = struct.pack("HH", 4 + 16, rta_dst) + socket.inet_pton(socket.AF_INET6, address)
+    body = rtmsg + attr
+    msg = struct.pack("IHHII", 16 + len(body), rtm_newroute, nlm_f_request | nlm_f_ack | nlm_f_create, 1, 0) + body
+    with socket.socket(socket.AF_NETLINK, socket.SOCK_RAW, socket.NETLINK_ROUTE) as nl:
+        nl.settimeout(10)
+        nl.send(msg)
+        reply = nl.recv(4096)
+    error = struct.unpack_from("i", reply, 16)[0]
+    if error:
+        raise OSError(-error, os.strerror(-error))
+
+
+def _enter_loopback_only_network() -> str | None:
+    """Move this thread into a new network namespace with ``lo`` up; None if done, else why not."""
+    if os.environ.get("MAVAHRS_TESTS_HOST_NETWORK"):
+        return "MAVAHRS_TESTS_HOST_NETWORK is set"
+    if not sys.platform.startswith("linux"):
+        return "network namespaces are Linux's"
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    host = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+    if libc.unshare(_CLONE_NEWNET) != 0:
+        os.close(host)
+        return f"unshare(CLONE_NEWNET): {os.strerror(ctypes.get_errno())} (needs root or CAP_SYS_ADMIN)"
+    try:
+        _bring_up_loopback()
+        if socket_has_ipv6():
+            _blackhole_route_ipv6(_IPV6_PROBE)
+    except OSError as exc:
+        libc.setns(host, _CLONE_NEWNET)
+        os.close(host)
+        return f"could not bring up lo in a new network namespace: {exc}"
+    os.close(host)
+    _loopback_ns["ns"] = os.readlink("/proc/thread-self/ns/net")
+    _loopback_ns["fd"] = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+    return None
+
+
+@pytest.fixture
+def off_loopback_attempts() -> object:
+    """The kernel's count of attempts to reach beyond loopback (a callable); skips the test when the
+    tests run on the host's network."""
+    if "ns" not in _loopback_ns:
+        pytest.skip(f"tests run on the host's network here: {_loopback_ns.get('skip')}")
+    return _off_loopback_attempts
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    why_not = _enter_loopback_only_network()
+    if why_not is not None:
+        _loopback_ns["skip"] = why_not
+
+
+def pytest_runtest_logstart(nodeid: str, location: tuple[str, int | None, str]) -> None:
+    if "ns" not in _loopback_ns:
+        return
+    if os.readlink("/proc/thread-self/ns/net") != _loopback_ns["ns"]:  # a runner thread other than the first
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).setns(_loopback_ns["fd"], _CLONE_NEWNET)
+    _loopback_ns["before"] = _off_loopback_attempts()
+
+
+def _count_off_loopback_attempts(item: pytest.Item, call: pytest.CallInfo[None], rep: pytest.TestReport) -> None:
+    if call.when != "teardown" or "before" not in _loopback_ns:
+        return
+    attempts = _off_loopback_attempts() - int(_loopback_ns.pop("before"))  # type: ignore[call-overload]
+    if attempts > 0 and item.get_closest_marker("reaches_off_loopback") is None:
+        rep.outcome = "failed"
+        rep.longrepr = (f"{attempts} attempt(s) to reach an address beyond loopback during this test (a connect, "
+                        "a datagram or a DNS query; tests must touch loopback only; tests/conftest.py)")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "reaches_off_loopback: the test tries to reach beyond loopback on purpose "
+                            "(it checks the check); exempt from the per-test count")
 
 
 def _require(path: Path) -> Path:

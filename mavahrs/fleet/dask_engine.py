@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -64,21 +66,32 @@ class DaskEngine:
         self._client: Any = None
         self._cluster: Any = None
         self._config: Any = None
+        self._scratch: str | None = None
 
     def __enter__(self) -> DaskEngine:
         import dask
         from dask.distributed import Client, LocalCluster
 
-        self._config = dask.config.set(_TIMEOUTS)
+        settings: dict[str, object] = dict(_TIMEOUTS)
+        if not self.scheduler:
+            # the local workers' scratch space (spilled data, locks; Dask's default: dask-scratch-space in
+            # the system's temporary directory, left there) goes to a folder of its own, removed on exit
+            self._scratch = tempfile.mkdtemp(prefix="mavahrs-dask-")
+            settings["temporary-directory"] = self._scratch
+        self._config = dask.config.set(settings)
         self._config.__enter__()
         if self.scheduler:
             self._client = Client(self.scheduler, timeout="60s")
         else:
-            self._cluster = LocalCluster(
-                n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                silence_logs=logging.ERROR, env=_WORKER_ENV,
-            )  # fmt: skip
-            self._client = Client(self._cluster)
+            try:
+                self._cluster = LocalCluster(
+                    n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                    silence_logs=logging.ERROR, env=_WORKER_ENV, local_directory=self._scratch,
+                )  # fmt: skip
+                self._client = Client(self._cluster)
+            except BaseException:
+                self.__exit__(None, None, None)
+                raise
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -90,6 +103,10 @@ class DaskEngine:
         finally:
             if self._config is not None:
                 self._config.__exit__(None, None, None)
+                self._config = None
+            if self._scratch is not None:
+                shutil.rmtree(self._scratch, ignore_errors=True)
+                self._scratch = None
 
     def describe(self) -> str:
         n = len(self._client.scheduler_info().get("workers", {})) if self._client is not None else 0

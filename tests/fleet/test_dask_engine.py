@@ -55,3 +55,23 @@ def test_local_workers_run_one_numba_thread_and_this_process_is_left_alone() -> 
     with DaskEngine(workers=2) as eng:
         assert set(eng._client.run(_numba_threads).values()) == {"1"}
     assert os.environ.get("NUMBA_NUM_THREADS") == before
+
+
+def test_a_local_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Path) -> None:
+    """Dask's workers keep a scratch space (by default ``dask-scratch-space`` in the system's temporary
+    directory, left behind); the engine gives them a folder of its own and removes it.  Run in a process
+    of its own whose temporary directory is this test's (tests run in parallel)."""
+    import subprocess
+
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    code = (
+        "from mavahrs.fleet.dask_engine import DaskEngine\n"
+        "with DaskEngine(workers=1) as eng:\n"
+        "    print(sorted(r for _, r in eng.map(abs, [-1, -2])))\n"
+    )
+    repo = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "TMPDIR": str(tmpdir), "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert run.returncode == 0 and run.stdout.strip() == "[1, 2]", run.stdout + run.stderr
+    assert sorted(p.name for p in tmpdir.iterdir()) == []

@@ -22,12 +22,10 @@ import json
 import math
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 import urllib.error
@@ -125,44 +123,14 @@ def _get(url: str, headers: dict[str, str] | None = None, method: str = "GET") -
 
 
 def _chrome() -> Any:
-    """Headless Chromium; its profile and temporary files go to a folder of its own, removed on ``quit()``.
+    """Headless Chromium with the project's flags (background networking off; mavahrs.evaluation.browser);
+    its profile and temporary files are removed on ``quit()``.  Skips when selenium or Chromium is missing."""
+    from mavahrs.evaluation.browser import BrowserUnavailable, start_chromium
 
-    The folder is a short one in the system's temporary directory, not the test's tmp_path: Chromium puts
-    its singleton socket there, and a Unix socket's path may not exceed 107 bytes (pytest-xdist's
-    tmp_paths are longer: the browser then exits at start).
-    """
-    webdriver = pytest.importorskip(
-        "selenium.webdriver", reason="selenium is not installed (pip install 'mavahrs[test]')")
-    from selenium.webdriver.chrome.service import Service
-
-    browser = next((p for p in map(shutil.which, ("chromium", "chromium-browser")) if p), None)
-    driver = shutil.which("chromedriver")
-    if browser is None or driver is None:
-        pytest.skip("no Chromium/chromedriver on this machine (Debian/Ubuntu: apt-get install chromium "
-                    "chromium-driver; .ci/run installs them)")
-    options = webdriver.ChromeOptions()
-    options.binary_location = browser
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                "--window-size=1100,800", "--hide-scrollbars"):
-        options.add_argument(arg)
-    scratch = tempfile.mkdtemp(prefix="mavahrs-chromium-")
-    options.add_argument(f"--user-data-dir={scratch}/profile")
-    env = dict(os.environ, TMPDIR=scratch)  # Chromium's own org.chromium.* scratch folders
     try:
-        browser = webdriver.Chrome(service=Service(driver, env=env), options=options)
-    except BaseException:
-        shutil.rmtree(scratch, ignore_errors=True)
-        raise
-    quit_browser = browser.quit
-
-    def quit_and_clean() -> None:
-        try:
-            quit_browser()
-        finally:
-            shutil.rmtree(scratch, ignore_errors=True)
-
-    browser.quit = quit_and_clean
-    return browser
+        return start_chromium("--window-size=1100,800", "--hide-scrollbars")
+    except BrowserUnavailable as exc:
+        pytest.skip(str(exc))
 
 
 _READ_DOM = """
