@@ -24,6 +24,7 @@ every --period-s).  --duration limits any of them (default: to the end).
 
 examples:
   mavahrs inject-fault flight.tlog roll2.tlog --at 100 --roll 2
+  mavahrs inject-fault flight.tlog tilt2.tlog --at 100 --tilt 2 --tilt-azimuth 90
   mavahrs inject-fault flight.tlog drift.tlog --at 100 --roll 10 --shape ramp --ramp-s 50   # 0.2 deg/s
   mavahrs inject-fault flight.tlog yaw6.tlog --at 100 --yaw 6 --shape intermittent --on-s 2 --period-s 5
   mavahrs inject-fault flight.tlog gyro.tlog --at 100 --imu SCALED_IMU2 --gyro-bias 0,0,0.5
@@ -60,6 +61,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     a.add_argument("--roll", type=float, default=0.0, metavar="DEG")
     a.add_argument("--pitch", type=float, default=0.0, metavar="DEG")
     a.add_argument("--yaw", type=float, default=0.0, metavar="DEG")
+    a.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
+                   help="an earth-frame tilt error: exactly DEG of inclination whatever the attitude")
+    a.add_argument("--tilt-azimuth", type=float, default=0.0, metavar="DEG",
+                   help="the tilt's rotation axis, from north (default 0: about north)")
+    a.add_argument("--heading", type=float, default=0.0, metavar="DEG", help="an earth-frame heading error")
     i = p.add_argument_group("an IMU (body axes)")
     i.add_argument("--imu", choices=IMU_FAULT_MESSAGES, metavar="MESSAGE",
                    help=f"the IMU message to bias ({', '.join(IMU_FAULT_MESSAGES)})")  # fmt: skip
@@ -81,14 +87,15 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
     faults: list[Any] = []
-    if args.roll or args.pitch or args.yaw:
-        faults.append(AttitudeFault(when, args.roll, args.pitch, args.yaw))
+    if args.roll or args.pitch or args.yaw or args.tilt or args.heading:
+        faults.append(AttitudeFault(when, args.roll, args.pitch, args.yaw, args.tilt, args.tilt_azimuth, args.heading))
     if args.imu or args.gyro_bias or args.accel_bias:
         if not args.imu or not (args.gyro_bias or args.accel_bias):
             raise ConfigError("an IMU fault needs --imu MESSAGE and --gyro-bias and/or --accel-bias")
         faults.append(ImuFault(args.imu, when, args.gyro_bias or (0.0, 0.0, 0.0), args.accel_bias or (0.0, 0.0, 0.0)))
     if not faults:
-        raise ConfigError("no fault given: --roll/--pitch/--yaw for the attitude, --imu with --gyro-bias/--accel-bias")
+        raise ConfigError("no fault given: --roll/--pitch/--yaw/--tilt/--heading for the attitude, "
+                          "--imu with --gyro-bias/--accel-bias")
     try:
         report = inject_faults(args.input, args.output, faults, system_id=args.system, component_id=args.component)
     except ValueError as exc:

@@ -8,7 +8,11 @@ only the messages a fault applies to:
 * :class:`AttitudeFault` — an error in the autopilot's own attitude: ATTITUDE
   (roll/pitch/yaw) and ATTITUDE_QUATERNION (the same attitude as a quaternion),
   both shifted by the same Euler-angle offsets (``roll_deg``, ``pitch_deg``,
-  ``yaw_deg``: added to the aerospace Z-Y-X angles, yaw wrapped to ±180°);
+  ``yaw_deg``: added to the aerospace Z-Y-X angles, yaw wrapped to ±180°)
+  and/or an earth-frame error: ``tilt_deg`` about the horizontal axis at
+  ``tilt_azimuth_deg`` from north (exactly that much inclination error,
+  whatever the attitude — an Euler roll offset is a tilt of only about
+  roll·cos(pitch)) and ``heading_deg`` about the vertical (a yaw offset);
 * :class:`ImuFault` — a bias on one IMU message's gyro and/or accelerometer
   (``RAW_IMU``, ``SCALED_IMU``, ``SCALED_IMU2``, ``SCALED_IMU3`` in their
   mrad/s and mG, rounded to the integer field; ``HIGHRES_IMU`` in rad/s and
@@ -113,9 +117,12 @@ class AttitudeFault:
     roll_deg: float = 0.0
     pitch_deg: float = 0.0
     yaw_deg: float = 0.0
+    tilt_deg: float = 0.0
+    tilt_azimuth_deg: float = 0.0
+    heading_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("roll_deg", "pitch_deg", "yaw_deg"):
+        for name in ("roll_deg", "pitch_deg", "yaw_deg", "tilt_deg", "tilt_azimuth_deg", "heading_deg"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"attitude fault {name} must be finite")
 
@@ -223,6 +230,37 @@ def _autopilot_source(path: Path) -> tuple[int, int]:
     return 1, 1
 
 
+def _qmul(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float, float]:
+    return (
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    )
+
+
+def _earth_error(f: AttitudeFault, k: float) -> tuple[float, float, float, float] | None:
+    """The earth-frame (NED) rotation of the tilt and heading parts, heading ⊗ tilt; None without them."""
+    if f.tilt_deg == 0.0 and f.heading_deg == 0.0:
+        return None
+    a = 0.5 * k * math.radians(f.tilt_deg)
+    az = math.radians(f.tilt_azimuth_deg)
+    tilt = (math.cos(a), math.sin(a) * math.cos(az), math.sin(a) * math.sin(az), 0.0)
+    h = 0.5 * k * math.radians(f.heading_deg)
+    return _qmul((math.cos(h), 0.0, 0.0, math.sin(h)), tilt)
+
+
+def _shift(q: Sequence[float], active: Sequence[tuple[AttitudeFault, float]]) -> tuple[float, float, float, float]:
+    w, x, y, z = q
+    for f, k in active:
+        if f.roll_deg or f.pitch_deg or f.yaw_deg:
+            w, x, y, z = _q_of_euler(*_shift_euler(*_euler_of_q(w, x, y, z), f, k))
+        e = _earth_error(f, k)
+        if e is not None:
+            w, x, y, z = _qmul(e, (w, x, y, z))
+    return w, x, y, z
+
+
 def _apply_attitude(msg: Any, faults: Sequence[AttitudeFault], t_s: float) -> bool:
     active = [(f, f.when.factor(t_s)) for f in faults]
     active = [(f, k) for f, k in active if k != 0.0]
@@ -230,14 +268,14 @@ def _apply_attitude(msg: Any, faults: Sequence[AttitudeFault], t_s: float) -> bo
         return False
     if msg.get_type() == "ATTITUDE":
         r, p, y = float(msg.roll), float(msg.pitch), float(msg.yaw)
-        for f, k in active:
-            r, p, y = _shift_euler(r, p, y, f, k)
+        if all(not (f.tilt_deg or f.heading_deg) for f, _k in active):  # Euler offsets only: exact in Euler
+            for f, k in active:
+                r, p, y = _shift_euler(r, p, y, f, k)
+        else:
+            r, p, y = _euler_of_q(*_shift(_q_of_euler(r, p, y), active))
         msg.roll, msg.pitch, msg.yaw = r, p, y
     else:
-        r, p, y = _euler_of_q(float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4))
-        for f, k in active:
-            r, p, y = _shift_euler(r, p, y, f, k)
-        w, x, yy, z = _q_of_euler(r, p, y)
+        w, x, yy, z = _shift((float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4)), active)
         if w * msg.q1 + x * msg.q2 + yy * msg.q3 + z * msg.q4 < 0.0:  # keep the sender's hemisphere
             w, x, yy, z = -w, -x, -yy, -z
         msg.q1, msg.q2, msg.q3, msg.q4 = w, x, yy, z
