@@ -122,6 +122,26 @@ class MonitorSettings:
             ``trigger_s``, twice the threshold after a third of it, a slow drift
             once the excess has built up.
         cusum_leak_per_s: see ``cusum_reference``, 1/s.
+        mag_norm_tolerance, mag_dip_tolerance_deg: who is likely wrong, the
+            magnetometer: with a WARNING, ``[mag]`` when the measured field
+            (median of the last 3 s) differs from the expected one (the
+            geomagnetic model's, as the filter's rejection uses it) by more
+            than this fraction of its strength or this much dip, deg.
+        gnss_window_s, gnss_ratio, gnss_min_m_s: … the GNSS velocity: the
+            specific force rotated into NED by each attitude and integrated
+            over ``gnss_window_s`` must match the GNSS velocity change (a tilt
+            error δ adds g·sin δ of horizontal acceleration, 1.0 m/s over 3 s
+            for 2°).  ``[AP?]`` when the autopilot's attitude misses it by more
+            than ``gnss_ratio`` × ours and at least ``gnss_min_m_s`` (m/s RMS
+            over the recent windows), ``[us?]`` the other way round.
+        learn_k, learn_s: ``uncertainty``: the thresholds are also at least
+            ``learn_k`` × the RMS of the divergence seen so far (a running
+            mean over the first ``learn_s`` of comparisons, then an
+            exponential one with that time constant; comparisons above the
+            threshold or during a warning are not learnt): where the two
+            estimators' errors are larger than the model says (an autopilot
+            whose own tilt error is 0.6° RMS), the test widens to what they
+            really are, s.
         tilt_threshold_deg: ``fixed``: tilt divergence that counts as a disagreement, deg.
         heading_threshold_deg: ``fixed``: heading divergence that counts, deg
             (0 = never alarm on heading, in either mode).
@@ -182,6 +202,13 @@ class MonitorSettings:
     min_heading_threshold_deg: float = 3.0
     cusum_reference: float = 0.5
     cusum_leak_per_s: float = 0.2
+    learn_k: float = 2.5
+    learn_s: float = 60.0
+    mag_norm_tolerance: float = 0.08
+    mag_dip_tolerance_deg: float = 6.0
+    gnss_window_s: float = 3.0
+    gnss_ratio: float = 2.0
+    gnss_min_m_s: float = 0.3
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -207,7 +234,7 @@ class MonitorSettings:
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
-                     "transition_s"):  # fmt: skip
+                     "transition_s", "learn_k", "learn_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -256,6 +283,10 @@ class MonitorStatus:
         phase: the flight's phase (:class:`FlightPhase`).
         ground_episodes: of ``episodes``, those raised on the ground, at
             take-off or touchdown.
+        cause: the evidence with the latest disagreement: ``mag`` (the
+            magnetometer's field is not the expected one), ``AP?`` / ``us?``
+            (the GNSS velocity agrees with ours / the autopilot's attitude);
+            "" = none.
     """
 
     tilt_deg: float
@@ -269,6 +300,7 @@ class MonitorStatus:
     heading_threshold_deg: float = math.nan
     phase: str = "unknown"
     ground_episodes: int = 0
+    cause: str = ""
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -485,6 +517,8 @@ class AttitudeMonitor:
         self.velocity_source = ""
         #: the phase in which the latest disagreement was raised
         self.last_phase = ""
+        #: the evidence of who is likely wrong with it: "mag", "AP?", "us?", "mag AP?" … ("" = none)
+        self.last_cause = ""
         self._comparisons = 0
         self._unmatched = 0
         self._episodes = 0
@@ -519,6 +553,8 @@ class AttitudeMonitor:
         self._tilt_thr_now = math.nan
         self._hdg_thr_now = math.nan
         self._cusum = 0.0
+        self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
+        self._evidence = _Evidence(self.settings)
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._fresh = False  # a comparison since the last publication
@@ -579,6 +615,27 @@ class AttitudeMonitor:
         if att is None:
             return []
         return self.add_autopilot(*att)
+
+    def add_sensors(
+        self,
+        t_boot_ms: float,
+        accel_body_m_s2: Sequence[float] | None = None,
+        mag_body_ut: Sequence[float] | None = None,
+        vel_ne_m_s: Sequence[float] | None = None,
+        vel_t_ms: float = math.nan,
+    ) -> None:
+        """The sample behind our next estimate, for the evidence of who is wrong (optional).
+
+        ``accel_body_m_s2``: specific force; ``mag_body_ut``: the calibrated
+        field; ``vel_ne_m_s``: the GNSS velocity (north, east; true north)
+        fixed at ``vel_t_ms`` (the same fix may come again: counted once).
+        """
+        if self.settings.enabled:
+            self._evidence.sensors(float(t_boot_ms), accel_body_m_s2, mag_body_ut, vel_ne_m_s, float(vel_t_ms))
+
+    def set_mag_reference(self, strength_ut: float, inclination_rad: float) -> None:
+        """The field the magnetometer should measure (the geomagnetic model at the vehicle)."""
+        self._evidence.mag_ref = (float(strength_ut), float(inclination_rad))
 
     def add_autopilot(self, t_boot_ms: float, q_body_to_ned: Sequence[float]) -> list[Any]:
         """The autopilot's attitude at ``t_boot_ms`` (what :meth:`handle` extracts); returns STATUSTEXTs."""
@@ -678,12 +735,27 @@ class AttitudeMonitor:
         k = self._k
         tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync2))
         hdg = max(self._min_thr[1], k * math.sqrt(s_h * s_h + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
+        n, m_t, m_h = self._learnt
+        if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
+            lk = self.settings.learn_k
+            tilt = max(tilt, lk * math.sqrt(m_t))
+            hdg = max(hdg, lk * math.sqrt(m_h)) if hdg_on else 0.0
         return tilt, hdg
+
+    def _learn(self, tilt: float, heading: float, dt_s: float) -> None:
+        """The divergence's mean square: running mean over the first ``learn_s``, then exponential."""
+        if not dt_s > 0.0:
+            return
+        n, m_t, m_h = self._learnt
+        n += dt_s
+        w = dt_s / min(n, self.settings.learn_s) if self.settings.learn_s > 0 else 1.0
+        self._learnt = [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
 
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         s = self.settings
         tilt, heading = _divergence(q_est, q_ap)
         self._tilt, self._heading = tilt, heading
+        self._evidence.compare(t_ms, q_est, q_ap)
         self._comparisons += 1
         self._fresh = True
         prev = self._last_cmp_ms
@@ -694,13 +766,15 @@ class AttitudeMonitor:
             self._cusum = 0.0
         t_thr, h_thr = self._thresholds()
         self._tilt_thr_now, self._hdg_thr_now = t_thr, h_thr
-        first = self._first_est_ms if self._first_est_ms is not None else t_ms
-        if t_ms - first < 1000.0 * s.startup_grace_s:
-            return []
         hdg_on = h_thr > 0.0
         z = tilt / t_thr
         if hdg_on:
             z = max(z, abs(heading) / h_thr)
+        if self._uncertainty and not self._warning and z <= 1.0 and prev is not None and not gap:
+            self._learn(tilt, heading if hdg_on else 0.0, 1e-3 * (t_ms - prev))  # also in the start-up grace
+        first = self._first_est_ms if self._first_est_ms is not None else t_ms
+        if t_ms - first < 1000.0 * s.startup_grace_s:
+            return []
         k = s.clear_fraction
         above = z > 1.0
         below = z < k
@@ -730,11 +804,13 @@ class AttitudeMonitor:
             self._episodes += 1
             self.last_phase = phase
             self._warned_in_flight = phase in FLIGHT_PHASES
+            cause = self._evidence.cause(tilt, heading)
+            self.last_cause = cause
             if self._warned_in_flight:
-                text = _fit(WARNING_TEXT, tilt, heading, "")
+                text = _fit(WARNING_TEXT, tilt, heading, "", cause)
                 return [_statustext(mavlink.MAV_SEVERITY_WARNING, text)]
             self._ground_episodes += 1
-            text = _fit(PHASE_TEXT, tilt, heading, PHASE_WORDS.get(phase, phase))
+            text = _fit(PHASE_TEXT, tilt, heading, PHASE_WORDS.get(phase, phase), cause)
             return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
         if self._warning and self._below_since_ms is not None and t_ms - self._below_since_ms >= 1000.0 * s.clear_s:
             self._warning = False
@@ -762,16 +838,115 @@ class AttitudeMonitor:
             heading_threshold_deg=math.degrees(self._hdg_thr_now),
             phase=self.phase.phase(self._last_cmp_ms) if self._last_cmp_ms is not None else self.phase.phase(0.0),
             ground_episodes=self._ground_episodes,
+            cause=self.last_cause if self._warning else "",
         )
 
 
-def _fit(template: str, tilt_rad: float, heading_rad: float, phase: str) -> str:
-    """The warning text, ≤ 50 bytes: one decimal while it fits, else whole degrees."""
+def _fit(template: str, tilt_rad: float, heading_rad: float, phase: str, cause: str = "") -> str:
+    """The warning text (+ `` [cause]``), ≤ 50 bytes: one decimal while it fits, else whole degrees."""
     t, h = math.degrees(tilt_rad), math.degrees(heading_rad)
-    text = template.format(tilt=t, heading=h, phase=phase)
+    tail = f" [{cause}]" if cause else ""
+    text = template.format(tilt=t, heading=h, phase=phase) + tail
     if len(text.encode()) > _STATUSTEXT_MAX:
-        text = template.replace(":.1f}", ":.0f}").replace(":+.1f}", ":+.0f}").format(tilt=t, heading=h, phase=phase)
+        short = template.replace(":.1f}", ":.0f}").replace(":+.1f}", ":+.0f}")
+        text = short.format(tilt=t, heading=h, phase=phase) + tail
     return text
+
+
+class _Evidence:
+    """Who is likely wrong: the magnetometer's field against the expected one, and which attitude turns the
+    specific force into the GNSS velocity change (pure; fed by the monitor)."""
+
+    def __init__(self, s: MonitorSettings) -> None:
+        self.s = s
+        self.mag_ref: tuple[float, float] | None = None
+        self._accel: tuple[float, float, float] | None = None
+        self._mag: deque[tuple[float, float, float]] = deque()  # (t_ms, |B|, B_body…) → (t, norm dev, dip dev)
+        self._mag_body: tuple[float, float, float] | None = None
+        self._vel: tuple[float, float, float] | None = None  # (fix t_ms, vn, ve), newest
+        self._last_ms: float | None = None
+        self._int = [0.0, 0.0, 0.0, 0.0]  # ∫ horizontal acceleration, ours (n, e), the autopilot's (n, e)
+        self._fixes: deque[tuple[float, float, float, float, float, float, float]] = deque()  # t, vn, ve, ∫…
+        self._res: deque[tuple[float, float, float]] = deque()  # (t, residual ours², autopilot's²)
+
+    def sensors(self, t: float, accel: Any, mag: Any, vel: Any, vel_t: float) -> None:
+        if accel is not None and all(math.isfinite(v) for v in accel):
+            self._accel = (float(accel[0]), float(accel[1]), float(accel[2]))
+        self._mag_body = (float(mag[0]), float(mag[1]), float(mag[2])) if (
+            mag is not None and all(math.isfinite(v) for v in mag)) else None  # fmt: skip
+        if vel is not None and math.isfinite(vel_t) and math.isfinite(vel[0]) and math.isfinite(vel[1]):
+            if self._vel is None or vel_t > self._vel[0]:
+                self._vel = (vel_t, float(vel[0]), float(vel[1]))
+                self._fix(vel_t)
+
+    def _fix(self, t: float) -> None:
+        assert self._vel is not None
+        i = self._int
+        self._fixes.append((t, self._vel[1], self._vel[2], i[0], i[1], i[2], i[3]))
+        w = 1000.0 * self.s.gnss_window_s
+        while len(self._fixes) > 1 and self._fixes[1][0] <= t - w:
+            self._fixes.popleft()
+        old = self._fixes[0]
+        if t - old[0] >= 0.8 * w:
+            dvn, dve = self._vel[1] - old[1], self._vel[2] - old[2]
+            ro = (i[0] - old[3] - dvn) ** 2 + (i[1] - old[4] - dve) ** 2
+            ra = (i[2] - old[5] - dvn) ** 2 + (i[3] - old[6] - dve) ** 2
+            self._res.append((t, ro, ra))
+        while self._res and self._res[0][0] < t - 3.0 * w:
+            self._res.popleft()
+
+    def compare(self, t: float, q_est: Sequence[float], q_ap: Sequence[float]) -> None:
+        last, self._last_ms = self._last_ms, t
+        f = self._accel
+        if f is not None and last is not None and 0.0 < t - last < 1000.0:
+            dt = 1e-3 * (t - last)
+            for k, q in ((0, q_est), (2, q_ap)):
+                an, ae = _rotate_ne(q, f)
+                self._int[k] += an * dt
+                self._int[k + 1] += ae * dt
+        elif last is not None and t - last >= 1000.0:
+            self._fixes.clear()  # a gap: the integrals no longer match the fixes
+        m = self._mag_body
+        if m is not None and self.mag_ref is not None:
+            n = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+            if n > 0.0:
+                down = _rotate_d(q_est, m)
+                dip = math.asin(max(-1.0, min(1.0, down / n)))
+                ref_n, ref_dip = self.mag_ref
+                self._mag.append((t, abs(n - ref_n) / ref_n if ref_n > 0 else 0.0, abs(dip - ref_dip)))
+        while self._mag and self._mag[0][0] < t - 3000.0:
+            self._mag.popleft()
+
+    def cause(self, tilt: float, heading: float) -> str:
+        s = self.s
+        out = []
+        if self._mag:
+            norm = sorted(x[1] for x in self._mag)[len(self._mag) // 2]
+            dip = sorted(x[2] for x in self._mag)[len(self._mag) // 2]
+            if norm > s.mag_norm_tolerance or dip > math.radians(s.mag_dip_tolerance_deg):
+                out.append("mag")
+        if self._res:
+            ro = math.sqrt(sum(r[1] for r in self._res) / len(self._res))
+            ra = math.sqrt(sum(r[2] for r in self._res) / len(self._res))
+            if ra > s.gnss_ratio * ro and ra > s.gnss_min_m_s:
+                out.append("AP?")
+            elif ro > s.gnss_ratio * ra and ro > s.gnss_min_m_s:
+                out.append("us?")
+        return " ".join(out)
+
+
+def _rotate_ne(q: Sequence[float], v: Sequence[float]) -> tuple[float, float]:
+    """North and east components of q ⊗ v ⊗ q* (body → NED)."""
+    w, x, y, z = q
+    n = (1 - 2 * (y * y + z * z)) * v[0] + 2 * (x * y - w * z) * v[1] + 2 * (x * z + w * y) * v[2]
+    e = 2 * (x * y + w * z) * v[0] + (1 - 2 * (x * x + z * z)) * v[1] + 2 * (y * z - w * x) * v[2]
+    return n, e
+
+
+def _rotate_d(q: Sequence[float], v: Sequence[float]) -> float:
+    """Down component of q ⊗ v ⊗ q*."""
+    w, x, y, z = q
+    return 2 * (x * z - w * y) * v[0] + 2 * (y * z + w * x) * v[1] + (1 - 2 * (x * x + y * y)) * v[2]
 
 
 def _statustext(severity: int, text: str) -> Any:
