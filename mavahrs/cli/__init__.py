@@ -31,6 +31,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "doctor",
     "replay",
     "audit",
+    "inject_fault",
     "evaluate",
     "tune",
     "plot",

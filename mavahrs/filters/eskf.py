@@ -76,6 +76,7 @@ from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_MAG_INVALID,
     FLAG_STARTUP,
+    FLAG_VELOCITY_AIDED,
     IN_ACCEL,
     IN_GYRO,
     IN_MAG,
@@ -673,6 +674,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     kp = k + _P
     tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
     finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_m)
+    if aided:
+        add_flag(out, FLAG_VELOCITY_AIDED)
     # output: advanced by the IMU data's delay (the state is not)
     tau = params[p + _DELAY]
     if tau > 0.0:

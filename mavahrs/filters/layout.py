@@ -71,5 +71,8 @@ FLAG_NOT_INITIALISED = 32
 FLAG_STARTUP = 64
 #: A sensor reading is at or beyond its saturation limit (caller-detected).
 FLAG_SATURATED = 128
+#: The attitude is GNSS-velocity-aided (``eskf``, and ``best`` while it sends the ESKF's): OUT_GAIN is then
+#: the filter's 1-σ tilt uncertainty, which the second-opinion monitor's thresholds use.
+FLAG_VELOCITY_AIDED = 256
 
 __all__ = [name for name in dir() if name.isupper()]

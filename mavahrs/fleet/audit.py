@@ -61,6 +61,7 @@ SERIAL_HINT = (
 #: Fields that depend on when and where the row was computed, not on the log.
 TIMING_FIELDS = ("replay_s", "worker")
 _MAV_SEVERITY_WARNING = 4
+_MAV_SEVERITY_NOTICE = 5
 
 
 def _default_replay() -> Any:
@@ -122,10 +123,13 @@ class FleetRow:
         inclination_rms_deg, inclination_max_deg: tilt divergence between
             mavahrs and the reference (BROAD's inclination), RMS and maximum, deg.
         heading_rms_deg, heading_max_deg: heading divergence (absolute), deg.
-        alarms: WARNINGs the second-opinion monitor raised (divergence above its
-            threshold for its trigger time).
+        alarms: in-flight WARNINGs the second-opinion monitor raised (the
+            divergence confirmed beyond its threshold; see ``MonitorSettings``).
         first_alarm_s: autopilot boot time of the first WARNING, s (NaN: none).
         alarm_times_s: boot times of every WARNING, s, ``;``-separated.
+        ground_alarms: disagreements it raised on the ground, at take-off or
+            touchdown (NOTICEs naming the phase; not counted in ``alarms``).
+        ground_alarm_times_s: their boot times and phases, ``12.345 touchdown;…``.
         gyro_clip_fraction: fed samples with a gyro axis at ≥ the saturation
             fraction of the sensor's full scale (0–1).
         accel_clip_fraction: fed samples whose accelerometer was at its limit
@@ -162,6 +166,8 @@ class FleetRow:
     alarms: int | None = None
     first_alarm_s: float = math.nan
     alarm_times_s: str = ""
+    ground_alarms: int | None = None
+    ground_alarm_times_s: str = ""
     gyro_clip_fraction: float = math.nan
     accel_clip_fraction: float = math.nan
     vibration_x_m_s2: float = math.nan
@@ -237,7 +243,7 @@ def _enum_name(enum: str, value: int) -> str:
 
 
 def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
-    from mavahrs.filters.layout import OUT_Q
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
     from mavahrs.replay import replay
     from mavahrs.service.monitor import monitor_series
 
@@ -277,8 +283,12 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
     t_ref_us, q_ref = result.references[ref]
     mon = ps.monitor
     heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
-    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid)
+    aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
+    sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
+    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
+                            tilt_sigma_rad=sigma, phase_events=_phase_events(td, prep, src))  # fmt: skip
     warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING]
+    ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE]
     judged = np.isfinite(series.tilt_deg)
     if t_est_ms.size:
         judged &= series.t_ms >= t_est_ms[0] + mon.startup_grace_s * 1000.0
@@ -290,8 +300,33 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
         inclination_rms_deg=_rms(tilt), inclination_max_deg=_max(tilt),
         heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
         alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
-        alarm_times_s=";".join(f"{t:.3f}" for t in times),
+        alarm_times_s=";".join(f"{t:.3f}" for t in times), ground_alarms=len(ground),
+        ground_alarm_times_s=";".join(f"{e.t_ms / 1000.0:.3f} {e.phase}" for e in ground),
     )  # fmt: skip
+
+
+def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:
+    """The flight's phase from the log's HEARTBEAT, EXTENDED_SYS_STATE and GLOBAL_POSITION_INT (boot ms)."""
+    from mavahrs.evaluation.tlogdata import _tlog_to_autopilot
+    from mavahrs.service.monitor import phase_events_of_arrays
+
+    def of_src(name: str) -> np.ndarray:
+        a = td.arrays.get(name) if hasattr(td.arrays, "get") else td.arrays[name]
+        if a is None or not a.shape[0]:
+            return np.zeros(0)
+        return a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+
+    hb, ess, gpi = of_src("HEARTBEAT"), of_src("EXTENDED_SYS_STATE"), of_src("GLOBAL_POSITION_INT")
+    hb_args = ess_args = pos_args = None
+    if hb.shape[0]:
+        hb_args = (_tlog_to_autopilot(td, prep, hb["t_us"]) / 1000.0, hb["base_mode"])
+    if ess.shape[0]:
+        ess_args = (_tlog_to_autopilot(td, prep, ess["t_us"]) / 1000.0, ess["landed_state"])
+    if gpi.shape[0]:
+        v = np.sqrt(gpi["vx"].astype(float) ** 2 + gpi["vy"].astype(float) ** 2 + gpi["vz"].astype(float) ** 2) * 0.01
+        pos_args = (gpi["time_boot_ms"].astype(float), gpi["relative_alt"].astype(float) * 1e-3, v)
+    ev = phase_events_of_arrays(hb_args, ess_args, pos_args)
+    return [e for e in ev if math.isfinite(e[0])]
 
 
 def _rms(x: np.ndarray) -> float:

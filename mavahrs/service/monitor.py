@@ -56,13 +56,22 @@ __all__ = [
     "attitude_of_message",
     "attitude_divergence_rad",
     "WARNING_TEXT",
+    "PHASE_TEXT",
     "CLEARED_TEXT",
+    "FlightPhase",
+    "phase_events_of_arrays",
 ]
 
 Array = NDArray[np.float64]
 
-#: STATUSTEXT raised when the divergence has lasted ``trigger_s`` (formatted with the values, ≤ 50 chars).
-WARNING_TEXT = "mavahrs: AP attitude differs: tilt {tilt:.0f} hdg {heading:.0f} deg"
+#: STATUSTEXT raised in flight when the divergence is confirmed (formatted with the values, deg; ≤ 50 chars).
+WARNING_TEXT = "mavahrs: AP attitude off: tilt {tilt:.1f} hdg {heading:+.1f}"
+#: The same on the ground, at take-off or touchdown (a NOTICE; ``phase`` from :data:`PHASE_WORDS`).
+PHASE_TEXT = "mavahrs {phase}: AP off: tilt {tilt:.1f} hdg {heading:+.1f}"
+#: How a phase is named in :data:`PHASE_TEXT`.
+PHASE_WORDS = {"disarmed": "disarmed", "ground": "on ground", "takeoff": "take-off", "touchdown": "touchdown"}
+#: Phases in which a disagreement is an in-flight WARNING ("unknown": the stream does not tell).
+FLIGHT_PHASES = ("air", "unknown")
 #: STATUSTEXT sent when it has cleared.
 CLEARED_TEXT = "mavahrs: AP attitude agrees again"
 
@@ -80,13 +89,65 @@ class MonitorSettings:
     Attributes:
         enabled: compare at all.
         rate_hz: NAMED_VALUE_FLOAT publication rate, Hz (1–5; 0 = do not publish).
-        tilt_threshold_deg: tilt divergence that counts as a disagreement, deg.
-            Good estimators agree within 2–3° in normal flight; mavahrs's
-            inclination error in aggressive flight is ≤ 3° (≤ 6° without GNSS).
-        heading_threshold_deg: heading divergence that counts, deg (0 = never
-            alarm on heading).  Magnetometer trouble gives 5–15°.
-        trigger_s: the divergence must last this long (continuously, in the
-            autopilot's time) before the WARNING, s.
+        mode: ``uncertainty`` (default): the thresholds follow what both
+            estimators' errors allow (below); ``fixed``: the fixed angles
+            ``tilt_threshold_deg`` / ``heading_threshold_deg``, a WARNING when
+            the divergence stays above one of them for ``trigger_s``.
+        sigma_k: ``uncertainty``: the threshold is this many times the combined
+            1-σ of the difference, ``k·√(σ_ours² + σ_autopilot² + (ω·sync_s)²)``
+            (tilt and heading each), and at least ``min_tilt_threshold_deg`` /
+            ``min_heading_threshold_deg``.  Our σ is the filter's own (the
+            ESKF's tilt covariance, while GNSS-velocity-aided) or the
+            ``unaided_*`` figure; the ESKF's σ is conservative (≈ 0.5° where its
+            error is 0.05–0.2°), hence a k of 2 (1.15° of tilt, 3° of heading
+            while aided).
+        autopilot_tilt_sigma_deg, autopilot_heading_sigma_deg: the autopilot's
+            typical 1-σ error (EKF3 on SITL: ≈ 0.25° inclination, ≈ 1° heading), deg.
+        heading_sigma_deg: our heading 1-σ while velocity-aided, deg.
+        unaided_tilt_sigma_deg, unaided_heading_sigma_deg: our 1-σ without
+            GNSS velocity (Madgwick configuration: ≈ 2° inclination RMS in
+            aggressive flight), deg.
+        sync_s: timing uncertainty between the two estimates (the autopilot's
+            attitude vs our sample of the same ``time_boot_ms``), s: at ω it
+            adds ω·sync_s of apparent divergence.
+        min_tilt_threshold_deg, min_heading_threshold_deg: floors of the
+            ``uncertainty`` thresholds, deg.
+        cusum_reference: ``uncertainty``: the sequential test (a one-sided
+            CUSUM, Page 1954) accumulates ``(z − cusum_reference)·Δt`` where
+            ``z`` = divergence / threshold (the larger of tilt and heading,
+            capped at 3); below the reference it leaks at most
+            ``cusum_leak_per_s`` per second, so repeated short excursions add
+            up (the sum is kept within twice the alarm level).  A WARNING when the sum reaches ``(1 − cusum_reference)·trigger_s``
+            while ``z ≥ 1``: a divergence at the threshold warns after
+            ``trigger_s``, twice the threshold after a third of it, a slow drift
+            once the excess has built up.
+        cusum_leak_per_s: see ``cusum_reference``, 1/s.
+        mag_norm_tolerance, mag_dip_tolerance_deg: who is likely wrong, the
+            magnetometer: with a WARNING, ``[mag]`` when the measured field
+            (median of the last 3 s) differs from the expected one (the
+            geomagnetic model's, as the filter's rejection uses it) by more
+            than this fraction of its strength or this much dip, deg.
+        gnss_window_s, gnss_ratio, gnss_min_m_s: … the GNSS velocity: the
+            specific force rotated into NED by each attitude and integrated
+            over ``gnss_window_s`` must match the GNSS velocity change (a tilt
+            error δ adds g·sin δ of horizontal acceleration, 1.0 m/s over 3 s
+            for 2°).  ``[AP?]`` when the autopilot's attitude misses it by more
+            than ``gnss_ratio`` × ours and at least ``gnss_min_m_s`` (m/s RMS
+            over the recent windows), ``[us?]`` the other way round.
+        learn_k, learn_s: ``uncertainty``: the thresholds are also at least
+            ``learn_k`` × the RMS of the divergence seen so far (a running
+            mean over the first ``learn_s`` of comparisons, then an
+            exponential one with that time constant; comparisons above the
+            threshold or during a warning are not learnt): where the two
+            estimators' errors are larger than the model says (an autopilot
+            whose own tilt error is 0.6° RMS), the test widens to what they
+            really are, s.
+        tilt_threshold_deg: ``fixed``: tilt divergence that counts as a disagreement, deg.
+        heading_threshold_deg: ``fixed``: heading divergence that counts, deg
+            (0 = never alarm on heading, in either mode).
+        trigger_s: ``fixed``: the divergence must last this long
+            (continuously, in the autopilot's time) before the WARNING;
+            ``uncertainty``: the CUSUM's scale (above), s.
         clear_s: it must stay below ``clear_fraction`` × threshold this long
             before the INFO "agrees again", s.
         clear_fraction: hysteresis factor on the thresholds for clearing.
@@ -98,9 +159,10 @@ class MonitorSettings:
             it are at most 2× this apart, else the nearest one within this, ms.
         max_gap_s: comparisons further apart than this — or than
             ``gap_intervals`` × the autopilot's typical attitude interval,
-            whichever is longer — break "continuously", s.  (ATTITUDE at 1 Hz,
-            as a ground station's stream rate may leave it, arrives every
-            1.000 ± 0.003 s: a fixed 1 s would break every other step.)
+            whichever is longer — break "continuously" (and restart the
+            CUSUM), s.  (ATTITUDE at 1 Hz, as a ground station's stream rate
+            may leave it, arrives every 1.000 ± 0.003 s: a fixed 1 s would
+            break every other step.)
         gap_intervals: see ``max_gap_s``; the typical interval is the median of
             the last few intervals between the autopilot's attitudes.
         history_s: how much of our estimate history is kept for alignment, s.
@@ -115,13 +177,41 @@ class MonitorSettings:
             makes the pipeline's ``velocity_source = auto`` use GPS_RAW_INT,
             else GPS2_RAW (and rejects ``global_position_int``).  The
             published attitude is then receiver-aided as well.
+        ground_alt_m, air_alt_m: the flight's phase where the stream has no
+            EXTENDED_SYS_STATE, from GLOBAL_POSITION_INT: on the ground below
+            ``ground_alt_m`` above home and slower than ``still_speed_m_s``,
+            airborne above ``air_alt_m`` (in between: unchanged), m.
+        still_speed_m_s: see ``ground_alt_m``, m/s.
+        transition_s: the take-off phase lasts this long after leaving the
+            ground, the touchdown phase this long after landing, s.  A
+            disagreement raised on the ground, at take-off or touchdown is a
+            NOTICE naming the phase, not an in-flight WARNING.
     """
 
     enabled: bool = True
     rate_hz: float = 2.0
+    mode: str = "uncertainty"
+    sigma_k: float = 2.0
+    autopilot_tilt_sigma_deg: float = 0.3
+    autopilot_heading_sigma_deg: float = 1.0
+    heading_sigma_deg: float = 1.0
+    unaided_tilt_sigma_deg: float = 1.5
+    unaided_heading_sigma_deg: float = 3.0
+    sync_s: float = 0.005
+    min_tilt_threshold_deg: float = 1.0
+    min_heading_threshold_deg: float = 3.0
+    cusum_reference: float = 0.5
+    cusum_leak_per_s: float = 0.2
+    learn_k: float = 2.5
+    learn_s: float = 60.0
+    mag_norm_tolerance: float = 0.08
+    mag_dip_tolerance_deg: float = 6.0
+    gnss_window_s: float = 3.0
+    gnss_ratio: float = 2.0
+    gnss_min_m_s: float = 0.3
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
-    trigger_s: float = 2.0
+    trigger_s: float = 1.5
     clear_s: float = 5.0
     clear_fraction: float = 0.7
     startup_grace_s: float = 10.0
@@ -133,8 +223,27 @@ class MonitorSettings:
     tilt_name: str = "AHRS_TILT"
     heading_name: str = "AHRS_HDG"
     receiver_velocity_only: bool = False
+    ground_alt_m: float = 1.0
+    air_alt_m: float = 2.0
+    still_speed_m_s: float = 0.5
+    transition_s: float = 5.0
 
     def __post_init__(self) -> None:
+        if self.mode not in ("uncertainty", "fixed"):
+            raise ValueError(f"monitor mode must be uncertainty or fixed, got {self.mode!r}")
+        for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
+                     "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
+                     "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
+                     "transition_s", "learn_k", "learn_s"):  # fmt: skip
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
+        if not 0.0 < self.cusum_reference < 1.0:
+            raise ValueError(f"monitor cusum_reference must be in (0, 1), got {self.cusum_reference!r}")
+        if not (self.sigma_k > 0 and self.min_tilt_threshold_deg + self.unaided_tilt_sigma_deg > 0):
+            raise ValueError("monitor sigma_k and the tilt thresholds must be > 0")
+        if not self.air_alt_m >= self.ground_alt_m:
+            raise ValueError("monitor air_alt_m must be ≥ ground_alt_m")
         if not (self.rate_hz == 0.0 or 1.0 <= self.rate_hz <= 5.0):
             raise ValueError(f"monitor rate_hz must be 1–5 Hz (or 0 = off), got {self.rate_hz!r}")
         for name in ("tilt_threshold_deg", "heading_threshold_deg", "trigger_s", "clear_s", "startup_grace_s"):
@@ -169,6 +278,15 @@ class MonitorStatus:
         velocity_source: the GNSS velocity aiding the estimate judged (the
             status line's short name: ``GPI``, ``GPS_RAW``, ``GPS2_RAW``,
             ``none``); "" = not told.
+        tilt_threshold_deg, heading_threshold_deg: the thresholds of the
+            latest comparison, deg (NaN before the first).
+        phase: the flight's phase (:class:`FlightPhase`).
+        ground_episodes: of ``episodes``, those raised on the ground, at
+            take-off or touchdown.
+        cause: the evidence with the latest disagreement: ``mag`` (the
+            magnetometer's field is not the expected one), ``AP?`` / ``us?``
+            (the GNSS velocity agrees with ours / the autopilot's attitude);
+            "" = none.
     """
 
     tilt_deg: float
@@ -178,6 +296,11 @@ class MonitorStatus:
     unmatched: int
     episodes: int
     velocity_source: str = ""
+    tilt_threshold_deg: float = math.nan
+    heading_threshold_deg: float = math.nan
+    phase: str = "unknown"
+    ground_episodes: int = 0
+    cause: str = ""
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -185,7 +308,9 @@ class MonitorStatus:
             return "AP cmp: none"
         flag = " WARN" if self.warning else ""
         vel = f" (vel {self.velocity_source})" if self.velocity_source else ""
-        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{flag}{vel}"
+        thr = f" (thr {self.tilt_threshold_deg:.1f}°/{self.heading_threshold_deg:.1f}°)" if math.isfinite(
+            self.tilt_threshold_deg) else ""  # fmt: skip
+        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{thr}{flag}{vel}"
 
 
 # --------------------------------------------------------------------------- scalar maths
@@ -249,6 +374,121 @@ def attitude_of_message(msg: Any) -> tuple[float, tuple[float, float, float, flo
     return float(msg.time_boot_ms), q
 
 
+# --------------------------------------------------------------------------- flight phase
+
+
+class FlightPhase:
+    """The flight's phase from what the autopilot streams (pure: times are the autopilot's ms).
+
+    * HEARTBEAT's ``MAV_MODE_FLAG_SAFETY_ARMED``: ``disarmed`` when clear;
+    * EXTENDED_SYS_STATE's ``landed_state`` (PX4, ArduPilot when streamed):
+      on ground, in air, taking off, landing;
+    * else GLOBAL_POSITION_INT (altitude above home and speed), see
+      :class:`MonitorSettings` ``ground_alt_m``;
+    * ``takeoff`` for ``transition_s`` after leaving the ground and
+      ``touchdown`` for ``transition_s`` after landing.
+
+    :meth:`phase` is one of ``unknown`` (nothing said yet), ``disarmed``,
+    ``ground``, ``takeoff``, ``air``, ``touchdown``.
+    """
+
+    def __init__(self, settings: MonitorSettings | None = None) -> None:
+        s = settings if settings is not None else MonitorSettings()
+        self._ground_alt = s.ground_alt_m
+        self._air_alt = s.air_alt_m
+        self._still = s.still_speed_m_s
+        self._transition_ms = 1000.0 * s.transition_s
+        self.armed: bool | None = None
+        self.landed: bool | None = None
+        self._ess = False  # EXTENDED_SYS_STATE seen with a defined landed state: it decides
+        self._ess_state = 0
+        self._since_ms: float | None = None  # when ``landed`` last changed
+        self._last_ms = 0.0
+
+    def _set_landed(self, landed: bool, t_ms: float) -> None:
+        if self.landed is not None and landed != self.landed:
+            self._since_ms = t_ms
+        self.landed = landed
+
+    def on_heartbeat(self, base_mode: int, t_ms: float | None = None) -> None:
+        """The autopilot's HEARTBEAT (``base_mode``); ``t_ms`` (default: the latest time seen)."""
+        t = self._last_ms if t_ms is None else float(t_ms)
+        armed = bool(int(base_mode) & 128)
+        if self.armed and not armed and self.landed is False:
+            self._set_landed(True, t)  # disarmed in the air is a crash or a kill: either way, not flying
+        self.armed = armed
+
+    def on_landed_state(self, landed_state: int, t_ms: float | None = None) -> None:
+        """EXTENDED_SYS_STATE ``landed_state`` (MAV_LANDED_STATE: 1 ground, 2 air, 3 take-off, 4 landing)."""
+        t = self._last_ms if t_ms is None else float(t_ms)
+        st = int(landed_state)
+        if st == 0:
+            return
+        self._ess = True
+        self._ess_state = st
+        self._set_landed(st == 1, t)
+
+    def on_position(self, t_ms: float, relative_alt_m: float, speed_m_s: float) -> None:
+        """GLOBAL_POSITION_INT: altitude above home, m, and speed (3-D), m/s."""
+        self._last_ms = max(self._last_ms, float(t_ms))
+        if self._ess or not (math.isfinite(relative_alt_m) and math.isfinite(speed_m_s)):
+            return
+        if relative_alt_m < self._ground_alt and speed_m_s < self._still:
+            self._set_landed(True, t_ms)
+        elif relative_alt_m > self._air_alt:
+            self._set_landed(False, t_ms)
+
+    def handle(self, msg: Any) -> None:
+        """HEARTBEAT / EXTENDED_SYS_STATE / GLOBAL_POSITION_INT from the autopilot (others ignored)."""
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            self.on_heartbeat(msg.base_mode)
+        elif kind == "EXTENDED_SYS_STATE":
+            self.on_landed_state(msg.landed_state)
+        elif kind == "GLOBAL_POSITION_INT":
+            v = math.sqrt(msg.vx * msg.vx + msg.vy * msg.vy + msg.vz * msg.vz) * 0.01
+            self.on_position(float(msg.time_boot_ms), msg.relative_alt * 1e-3, v)
+
+    def phase(self, t_ms: float) -> str:
+        """The phase at ``t_ms`` (the latest information)."""
+        self._last_ms = max(self._last_ms, float(t_ms))
+        if self.armed is False:
+            return "disarmed"
+        if self._ess and self._ess_state in (3, 4):
+            return "takeoff" if self._ess_state == 3 else "touchdown"
+        if self.landed is None:
+            return "unknown" if self.armed is None else "air"
+        recent = self._since_ms is not None and t_ms - self._since_ms < self._transition_ms
+        if self.landed:
+            return "touchdown" if recent else "ground"
+        return "takeoff" if recent else "air"
+
+
+def phase_events_of_arrays(
+    heartbeat: tuple[ArrayLike, ArrayLike] | None = None,
+    extended_sys_state: tuple[ArrayLike, ArrayLike] | None = None,
+    position: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+) -> list[tuple[float, str, float]]:
+    """``(t_ms, kind, value)`` for :func:`monitor_series`, sorted by time.
+
+    Args:
+        heartbeat: (times ms, base_mode) of the autopilot's HEARTBEATs.
+        extended_sys_state: (times ms, landed_state).
+        position: (times ms, altitude above home m, speed m/s).
+    """
+    ev: list[tuple[float, str, float]] = []
+    if heartbeat is not None:
+        ev += [(float(t), "heartbeat", float(b)) for t, b in zip(*heartbeat, strict=True)]
+    if extended_sys_state is not None:
+        ev += [(float(t), "landed", float(b)) for t, b in zip(*extended_sys_state, strict=True)]
+    if position is not None:
+        t, alt, v = position
+        ev += [(float(a), "position", float(b)) for a, b in zip(t, alt, strict=True)]
+        ev = ev + [(float(a), "speed", float(b)) for a, b in zip(t, v, strict=True)]
+    ev.sort(key=lambda e: (e[0], e[1] != "speed"))  # the speed just before its altitude
+    return ev
+
+
 # --------------------------------------------------------------------------- monitor
 
 
@@ -275,11 +515,25 @@ class AttitudeMonitor:
         self.heading_valid = True
         #: the GNSS velocity aiding our estimate, as the owner (the pipeline) tells it; shown in the status
         self.velocity_source = ""
+        #: the phase in which the latest disagreement was raised
+        self.last_phase = ""
+        #: the evidence of who is likely wrong with it: "mag", "AP?", "us?", "mag AP?" … ("" = none)
+        self.last_cause = ""
         self._comparisons = 0
         self._unmatched = 0
         self._episodes = 0
+        self._ground_episodes = 0
         self._next_publish_us: int | None = None
         self._quaternion_source = False
+        self.phase = FlightPhase(s)
+        u = s.mode == "uncertainty"
+        self._k = s.sigma_k
+        self._sig_ap = (math.radians(s.autopilot_tilt_sigma_deg), math.radians(s.autopilot_heading_sigma_deg))
+        self._sig_unaided = (math.radians(s.unaided_tilt_sigma_deg), math.radians(s.unaided_heading_sigma_deg))
+        self._sig_hdg = math.radians(s.heading_sigma_deg)
+        self._min_thr = (math.radians(s.min_tilt_threshold_deg), math.radians(s.min_heading_threshold_deg))
+        self._uncertainty = u
+        self._h = (1.0 - s.cusum_reference) * s.trigger_s
         self.reset()
 
     def reset(self) -> None:
@@ -293,15 +547,31 @@ class AttitudeMonitor:
         self._above_since_ms: float | None = None
         self._below_since_ms: float | None = None
         self._warning = False
+        self._warned_in_flight = False
         self._tilt = math.nan
         self._heading = math.nan
+        self._tilt_thr_now = math.nan
+        self._hdg_thr_now = math.nan
+        self._cusum = 0.0
+        self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
+        self._evidence = _Evidence(self.settings)
+        self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
+        self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._fresh = False  # a comparison since the last publication
 
     # ------------------------------------------------------------------ inputs
-    def add_estimate(self, t_boot_ms: float, q_body_to_ned: Sequence[float]) -> list[Any]:
-        """Our published attitude at ``t_boot_ms``; returns STATUSTEXTs this resolves (usually none)."""
+    def add_estimate(
+        self, t_boot_ms: float, q_body_to_ned: Sequence[float], tilt_sigma_rad: float = math.nan
+    ) -> list[Any]:
+        """Our published attitude at ``t_boot_ms``; returns STATUSTEXTs this resolves (usually none).
+
+        ``tilt_sigma_rad``: our filter's 1-σ tilt uncertainty with this
+        estimate (the ESKF's, while velocity-aided: ``OUT_GAIN`` when
+        ``FLAG_VELOCITY_AIDED``); NaN = not known (the ``unaided`` figure is used).
+        """
         if not self.settings.enabled:
             return []
+        self._sigma = float(tilt_sigma_rad)
         est = self._estimates
         t = float(t_boot_ms)
         if est and t < est[-1][0]:
@@ -310,6 +580,10 @@ class AttitudeMonitor:
             else:
                 return []  # out of order: ignore
         q = (float(q_body_to_ned[0]), float(q_body_to_ned[1]), float(q_body_to_ned[2]), float(q_body_to_ned[3]))
+        if est and t > est[-1][0]:
+            p = est[-1][1]
+            dot = abs(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3])
+            self._rate = 2.0 * math.acos(min(1.0, dot)) / (1e-3 * (t - est[-1][0]))
         est.append((t, q))
         if self._first_est_ms is None:
             self._first_est_ms = t
@@ -325,10 +599,13 @@ class AttitudeMonitor:
         if not self.settings.enabled:
             return []
         kind = msg.get_type()
-        if kind not in ("ATTITUDE", "ATTITUDE_QUATERNION"):
+        if kind not in ("ATTITUDE", "ATTITUDE_QUATERNION", "HEARTBEAT", "EXTENDED_SYS_STATE", "GLOBAL_POSITION_INT"):
             return []
         comp = self.settings.autopilot_component_id
         if comp and getattr(msg, "get_srcComponent", None) is not None and msg.get_srcComponent() != comp:
+            return []
+        if kind[0] != "A":
+            self.phase.handle(msg)
             return []
         if kind == "ATTITUDE_QUATERNION":
             self._quaternion_source = True
@@ -338,6 +615,27 @@ class AttitudeMonitor:
         if att is None:
             return []
         return self.add_autopilot(*att)
+
+    def add_sensors(
+        self,
+        t_boot_ms: float,
+        accel_body_m_s2: Sequence[float] | None = None,
+        mag_body_ut: Sequence[float] | None = None,
+        vel_ne_m_s: Sequence[float] | None = None,
+        vel_t_ms: float = math.nan,
+    ) -> None:
+        """The sample behind our next estimate, for the evidence of who is wrong (optional).
+
+        ``accel_body_m_s2``: specific force; ``mag_body_ut``: the calibrated
+        field; ``vel_ne_m_s``: the GNSS velocity (north, east; true north)
+        fixed at ``vel_t_ms`` (the same fix may come again: counted once).
+        """
+        if self.settings.enabled:
+            self._evidence.sensors(float(t_boot_ms), accel_body_m_s2, mag_body_ut, vel_ne_m_s, float(vel_t_ms))
+
+    def set_mag_reference(self, strength_ut: float, inclination_rad: float) -> None:
+        """The field the magnetometer should measure (the geomagnetic model at the vehicle)."""
+        self._evidence.mag_ref = (float(strength_ut), float(inclination_rad))
 
     def add_autopilot(self, t_boot_ms: float, q_body_to_ned: Sequence[float]) -> list[Any]:
         """The autopilot's attitude at ``t_boot_ms`` (what :meth:`handle` extracts); returns STATUSTEXTs."""
@@ -377,9 +675,9 @@ class AttitudeMonitor:
 
     # ------------------------------------------------------------------ internals
     def _restart(self) -> None:
-        warning, episodes = self._warning, self._episodes
+        warning, episodes, flight = self._warning, self._episodes, self._warned_in_flight
         self.reset()
-        self._warning, self._episodes = warning, episodes  # an episode outlives a reboot
+        self._warning, self._episodes, self._warned_in_flight = warning, episodes, flight  # it outlives a reboot
 
     def _resolve(self) -> list[Any]:
         out: list[Any] = []
@@ -424,23 +722,62 @@ class AttitudeMonitor:
         typical = sorted(iv)[len(iv) // 2]
         return max(self._max_gap_ms, self.settings.gap_intervals * typical)
 
+    def _thresholds(self) -> tuple[float, float]:
+        """(tilt, heading) thresholds now, rad (heading 0 = not judged)."""
+        hdg_on = self.heading_valid and self._hdg_thr > 0.0
+        if not self._uncertainty:
+            return self._tilt_thr, (self._hdg_thr if hdg_on else 0.0)
+        sig = self._sigma
+        aided = math.isfinite(sig) and sig > 0.0
+        s_t = sig if aided else self._sig_unaided[0]
+        s_h = self._sig_hdg if aided else self._sig_unaided[1]
+        sync2 = (self._rate * self.settings.sync_s) ** 2
+        k = self._k
+        tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync2))
+        hdg = max(self._min_thr[1], k * math.sqrt(s_h * s_h + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
+        n, m_t, m_h = self._learnt
+        if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
+            lk = self.settings.learn_k
+            tilt = max(tilt, lk * math.sqrt(m_t))
+            hdg = max(hdg, lk * math.sqrt(m_h)) if hdg_on else 0.0
+        return tilt, hdg
+
+    def _learn(self, tilt: float, heading: float, dt_s: float) -> None:
+        """The divergence's mean square: running mean over the first ``learn_s``, then exponential."""
+        if not dt_s > 0.0:
+            return
+        n, m_t, m_h = self._learnt
+        n += dt_s
+        w = dt_s / min(n, self.settings.learn_s) if self.settings.learn_s > 0 else 1.0
+        self._learnt = [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
+
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         s = self.settings
         tilt, heading = _divergence(q_est, q_ap)
         self._tilt, self._heading = tilt, heading
+        self._evidence.compare(t_ms, q_est, q_ap)
         self._comparisons += 1
         self._fresh = True
-        gap = self._last_cmp_ms is not None and t_ms - self._last_cmp_ms > self._gap_ms()
+        prev = self._last_cmp_ms
+        gap = prev is not None and t_ms - prev > self._gap_ms()
         self._last_cmp_ms = t_ms
         if gap:
             self._above_since_ms = self._below_since_ms = None
+            self._cusum = 0.0
+        t_thr, h_thr = self._thresholds()
+        self._tilt_thr_now, self._hdg_thr_now = t_thr, h_thr
+        hdg_on = h_thr > 0.0
+        z = tilt / t_thr
+        if hdg_on:
+            z = max(z, abs(heading) / h_thr)
+        if self._uncertainty and not self._warning and z <= 1.0 and prev is not None and not gap:
+            self._learn(tilt, heading if hdg_on else 0.0, 1e-3 * (t_ms - prev))  # also in the start-up grace
         first = self._first_est_ms if self._first_est_ms is not None else t_ms
         if t_ms - first < 1000.0 * s.startup_grace_s:
             return []
-        hdg_on = self.heading_valid and self._hdg_thr > 0.0
-        above = tilt > self._tilt_thr or (hdg_on and abs(heading) > self._hdg_thr)
         k = s.clear_fraction
-        below = tilt < k * self._tilt_thr and (not hdg_on or abs(heading) < k * self._hdg_thr)
+        above = z > 1.0
+        below = z < k
         if above:
             self._below_since_ms = None
             if self._above_since_ms is None:
@@ -451,13 +788,33 @@ class AttitudeMonitor:
                 self._below_since_ms = t_ms
         else:  # between the clear and trigger thresholds: neither timer runs
             self._above_since_ms = self._below_since_ms = None
-        if not self._warning and self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s:
+        if self._uncertainty:
+            dt = 0.0 if (prev is None or gap) else 1e-3 * (t_ms - prev)
+            step = (min(z, 3.0) - s.cusum_reference) * dt
+            self._cusum = min(2.0 * self._h, max(0.0, self._cusum + max(step, -s.cusum_leak_per_s * dt)))
+            confirmed = above and self._cusum >= self._h
+        else:
+            confirmed = self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s
+        # an episode raised on the ground that is still on once airborne is raised again, in flight
+        if confirmed and (not self._warning or not self._warned_in_flight):
+            phase = self.phase.phase(t_ms)
+            if self._warning and phase not in FLIGHT_PHASES:
+                return []
             self._warning = True
             self._episodes += 1
-            text = WARNING_TEXT.format(tilt=math.degrees(tilt), heading=math.degrees(heading))
-            return [_statustext(mavlink.MAV_SEVERITY_WARNING, text)]
+            self.last_phase = phase
+            self._warned_in_flight = phase in FLIGHT_PHASES
+            cause = self._evidence.cause(tilt, heading)
+            self.last_cause = cause
+            if self._warned_in_flight:
+                text = _fit(WARNING_TEXT, tilt, heading, "", cause)
+                return [_statustext(mavlink.MAV_SEVERITY_WARNING, text)]
+            self._ground_episodes += 1
+            text = _fit(PHASE_TEXT, tilt, heading, PHASE_WORDS.get(phase, phase), cause)
+            return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
         if self._warning and self._below_since_ms is not None and t_ms - self._below_since_ms >= 1000.0 * s.clear_s:
             self._warning = False
+            self._cusum = 0.0
             return [_statustext(mavlink.MAV_SEVERITY_INFO, CLEARED_TEXT)]
         return []
 
@@ -477,7 +834,119 @@ class AttitudeMonitor:
             unmatched=self._unmatched,
             episodes=self._episodes,
             velocity_source=self.velocity_source,
+            tilt_threshold_deg=math.degrees(self._tilt_thr_now),
+            heading_threshold_deg=math.degrees(self._hdg_thr_now),
+            phase=self.phase.phase(self._last_cmp_ms) if self._last_cmp_ms is not None else self.phase.phase(0.0),
+            ground_episodes=self._ground_episodes,
+            cause=self.last_cause if self._warning else "",
         )
+
+
+def _fit(template: str, tilt_rad: float, heading_rad: float, phase: str, cause: str = "") -> str:
+    """The warning text (+ `` [cause]``), ≤ 50 bytes: one decimal while it fits, else whole degrees."""
+    t, h = math.degrees(tilt_rad), math.degrees(heading_rad)
+    tail = f" [{cause}]" if cause else ""
+    text = template.format(tilt=t, heading=h, phase=phase) + tail
+    if len(text.encode()) > _STATUSTEXT_MAX:
+        short = template.replace(":.1f}", ":.0f}").replace(":+.1f}", ":+.0f}")
+        text = short.format(tilt=t, heading=h, phase=phase) + tail
+    return text
+
+
+class _Evidence:
+    """Who is likely wrong: the magnetometer's field against the expected one, and which attitude turns the
+    specific force into the GNSS velocity change (pure; fed by the monitor)."""
+
+    def __init__(self, s: MonitorSettings) -> None:
+        self.s = s
+        self.mag_ref: tuple[float, float] | None = None
+        self._accel: tuple[float, float, float] | None = None
+        self._mag: deque[tuple[float, float, float]] = deque()  # (t_ms, |B|, B_body…) → (t, norm dev, dip dev)
+        self._mag_body: tuple[float, float, float] | None = None
+        self._vel: tuple[float, float, float] | None = None  # (fix t_ms, vn, ve), newest
+        self._last_ms: float | None = None
+        self._int = [0.0, 0.0, 0.0, 0.0]  # ∫ horizontal acceleration, ours (n, e), the autopilot's (n, e)
+        self._fixes: deque[tuple[float, float, float, float, float, float, float]] = deque()  # t, vn, ve, ∫…
+        self._res: deque[tuple[float, float, float]] = deque()  # (t, residual ours², autopilot's²)
+
+    def sensors(self, t: float, accel: Any, mag: Any, vel: Any, vel_t: float) -> None:
+        if accel is not None and all(math.isfinite(v) for v in accel):
+            self._accel = (float(accel[0]), float(accel[1]), float(accel[2]))
+        self._mag_body = (float(mag[0]), float(mag[1]), float(mag[2])) if (
+            mag is not None and all(math.isfinite(v) for v in mag)) else None  # fmt: skip
+        if vel is not None and math.isfinite(vel_t) and math.isfinite(vel[0]) and math.isfinite(vel[1]):
+            if self._vel is None or vel_t > self._vel[0]:
+                self._vel = (vel_t, float(vel[0]), float(vel[1]))
+                self._fix(vel_t)
+
+    def _fix(self, t: float) -> None:
+        assert self._vel is not None
+        i = self._int
+        self._fixes.append((t, self._vel[1], self._vel[2], i[0], i[1], i[2], i[3]))
+        w = 1000.0 * self.s.gnss_window_s
+        while len(self._fixes) > 1 and self._fixes[1][0] <= t - w:
+            self._fixes.popleft()
+        old = self._fixes[0]
+        if t - old[0] >= 0.8 * w:
+            dvn, dve = self._vel[1] - old[1], self._vel[2] - old[2]
+            ro = (i[0] - old[3] - dvn) ** 2 + (i[1] - old[4] - dve) ** 2
+            ra = (i[2] - old[5] - dvn) ** 2 + (i[3] - old[6] - dve) ** 2
+            self._res.append((t, ro, ra))
+        while self._res and self._res[0][0] < t - 3.0 * w:
+            self._res.popleft()
+
+    def compare(self, t: float, q_est: Sequence[float], q_ap: Sequence[float]) -> None:
+        last, self._last_ms = self._last_ms, t
+        f = self._accel
+        if f is not None and last is not None and 0.0 < t - last < 1000.0:
+            dt = 1e-3 * (t - last)
+            for k, q in ((0, q_est), (2, q_ap)):
+                an, ae = _rotate_ne(q, f)
+                self._int[k] += an * dt
+                self._int[k + 1] += ae * dt
+        elif last is not None and t - last >= 1000.0:
+            self._fixes.clear()  # a gap: the integrals no longer match the fixes
+        m = self._mag_body
+        if m is not None and self.mag_ref is not None:
+            n = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+            if n > 0.0:
+                down = _rotate_d(q_est, m)
+                dip = math.asin(max(-1.0, min(1.0, down / n)))
+                ref_n, ref_dip = self.mag_ref
+                self._mag.append((t, abs(n - ref_n) / ref_n if ref_n > 0 else 0.0, abs(dip - ref_dip)))
+        while self._mag and self._mag[0][0] < t - 3000.0:
+            self._mag.popleft()
+
+    def cause(self, tilt: float, heading: float) -> str:
+        s = self.s
+        out = []
+        if self._mag:
+            norm = sorted(x[1] for x in self._mag)[len(self._mag) // 2]
+            dip = sorted(x[2] for x in self._mag)[len(self._mag) // 2]
+            if norm > s.mag_norm_tolerance or dip > math.radians(s.mag_dip_tolerance_deg):
+                out.append("mag")
+        if self._res:
+            ro = math.sqrt(sum(r[1] for r in self._res) / len(self._res))
+            ra = math.sqrt(sum(r[2] for r in self._res) / len(self._res))
+            if ra > s.gnss_ratio * ro and ra > s.gnss_min_m_s:
+                out.append("AP?")
+            elif ro > s.gnss_ratio * ra and ro > s.gnss_min_m_s:
+                out.append("us?")
+        return " ".join(out)
+
+
+def _rotate_ne(q: Sequence[float], v: Sequence[float]) -> tuple[float, float]:
+    """North and east components of q ⊗ v ⊗ q* (body → NED)."""
+    w, x, y, z = q
+    n = (1 - 2 * (y * y + z * z)) * v[0] + 2 * (x * y - w * z) * v[1] + 2 * (x * z + w * y) * v[2]
+    e = 2 * (x * y + w * z) * v[0] + (1 - 2 * (x * x + z * z)) * v[1] + 2 * (y * z - w * x) * v[2]
+    return n, e
+
+
+def _rotate_d(q: Sequence[float], v: Sequence[float]) -> float:
+    """Down component of q ⊗ v ⊗ q*."""
+    w, x, y, z = q
+    return 2 * (x * z - w * y) * v[0] + 2 * (y * z + w * x) * v[1] + (1 - 2 * (x * x + y * y)) * v[2]
 
 
 def _statustext(severity: int, text: str) -> Any:
@@ -559,11 +1028,17 @@ def align_attitudes(t_ms: ArrayLike, q: ArrayLike, t_query_ms: ArrayLike, *, tol
 
 @dataclass(frozen=True)
 class MonitorEvent:
-    """A STATUSTEXT the monitor raised: autopilot time (ms), severity, text."""
+    """A STATUSTEXT the monitor raised: autopilot time (ms), severity, text, the flight's phase then."""
 
     t_ms: float
     severity: int
     text: str
+    phase: str = ""
+
+    @property
+    def in_flight(self) -> bool:
+        """A disagreement raised in flight (WARNING), not on the ground, at take-off or touchdown."""
+        return self.severity == mavlink.MAV_SEVERITY_WARNING
 
 
 @dataclass(frozen=True)
@@ -584,16 +1059,40 @@ def monitor_series(
     settings: MonitorSettings | None = None,
     *,
     heading_valid: bool = True,
+    tilt_sigma_rad: ArrayLike | None = None,
+    phase_events: Sequence[tuple[float, str, float]] = (),
 ) -> MonitorSeries:
     """Run :class:`AttitudeMonitor` over whole arrays (replay): which warnings, when.
 
     Inputs as :func:`divergence_series`; samples are merged in time order, our
     estimate first on equal times.  The divergence columns come from
-    :func:`divergence_series` (NaN where unmatched).
+    :func:`divergence_series` (NaN where unmatched).  ``tilt_sigma_rad``: (N,)
+    our 1-σ tilt per estimate (NaN: not velocity-aided; see
+    :meth:`AttitudeMonitor.add_estimate`); ``phase_events``: the flight's phase
+    (:func:`phase_events_of_arrays`), applied in time order.
     """
     s = settings if settings is not None else MonitorSettings()
     mon = AttitudeMonitor(s)
     mon.heading_valid = heading_valid
+    sig = np.full(len(np.asarray(t_ms)), np.nan) if tilt_sigma_rad is None else np.asarray(tilt_sigma_rad, float)
+    ph = mon.phase
+    speed = math.nan
+    k, n_ph = 0, len(phase_events)
+
+    def phase_until(t: float) -> None:
+        nonlocal k, speed
+        while k < n_ph and phase_events[k][0] <= t:
+            te, kind, v = phase_events[k]
+            if kind == "heartbeat":
+                ph.on_heartbeat(int(v), te)
+            elif kind == "landed":
+                ph.on_landed_state(int(v), te)
+            elif kind == "speed":
+                speed = v
+            elif kind == "position":
+                ph.on_position(te, v, speed)
+            k += 1
+
     t = np.asarray(t_ms, dtype=np.float64)
     q = np.asarray(q_est, dtype=np.float64).reshape(-1, 4)
     ta = np.asarray(t_att_ms, dtype=np.float64)
@@ -603,13 +1102,18 @@ def monitor_series(
     n, m = len(t), len(ta)
     while i < n or j < m:
         if j >= m or (i < n and t[i] <= ta[j]):
-            out = mon.add_estimate(t[i], q[i])
+            if n_ph:
+                phase_until(t[i])
+            out = mon.add_estimate(t[i], q[i], sig[i])
             i += 1
         else:
+            if n_ph:
+                phase_until(ta[j])
             out = mon.add_autopilot(ta[j], qa[j])
             j += 1
         for msg in out:
-            events.append(MonitorEvent(mon.last_comparison_ms, int(msg.severity), _text(msg)))
+            phase = mon.last_phase if int(msg.severity) != mavlink.MAV_SEVERITY_INFO else ""
+            events.append(MonitorEvent(mon.last_comparison_ms, int(msg.severity), _text(msg), phase))
     tilt, heading = divergence_series(t, q, ta, qa, tolerance_ms=s.align_tolerance_ms)
     return MonitorSeries(ta, tilt, heading, tuple(events))
 

@@ -62,6 +62,7 @@ from mavahrs.filters.layout import (
     FLAG_MAG_INVALID,
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
+    FLAG_VELOCITY_AIDED,
     IN_GYRO,
     IN_VEL,
     IN_VEL_AGE,
@@ -69,6 +70,7 @@ from mavahrs.filters.layout import (
     OUT_ACCEL_WEIGHT,
     OUT_BIAS,
     OUT_FLAGS,
+    OUT_GAIN,
     OUT_MAG_WEIGHT,
     OUT_Q,
 )
@@ -506,6 +508,7 @@ class Pipeline:
             "COMMAND_INT": self._on_foreign_stream_request,
             "ATTITUDE": self._on_autopilot_attitude,
             "ATTITUDE_QUATERNION": self._on_autopilot_attitude,
+            "EXTENDED_SYS_STATE": self._on_flight_phase,
         }
         for name in IMU_MESSAGES:
             self._handlers[name] = self._on_imu
@@ -686,6 +689,7 @@ class Pipeline:
             return []
         first = self._last_hb_us is None
         self._last_hb_us = now_us
+        self._monitor.phase.handle(msg)  # armed / disarmed: the flight's phase
         if first:
             self._requester.start()
         elif self._link_lost:
@@ -923,7 +927,8 @@ class Pipeline:
         to_master, to_outputs = self._to_master, self._to_outputs
         frames = [Outgoing(frame, to_master, to_outputs)]
         if self._monitor_on:
-            for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz)):
+            sigma = float(out[OUT_GAIN]) if int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED else math.nan
+            for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma):
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
             roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
@@ -944,6 +949,8 @@ class Pipeline:
             return []
         if self._decl.handle(msg):
             self._field_changed()
+        if msg.get_type() == "GLOBAL_POSITION_INT":
+            self._monitor.phase.handle(msg)  # altitude above home and speed: landed or flying
         meter = self._requester.meters.get(msg.get_type())
         if meter is not None:
             meter.add(now_us)
@@ -981,6 +988,12 @@ class Pipeline:
         if not self._monitor_on:
             return []
         return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._monitor.handle(msg, now_us)]
+
+    def _on_flight_phase(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """EXTENDED_SYS_STATE: the autopilot's landed state, for the monitor's flight phase."""
+        if self._from_source(msg):
+            self._monitor.phase.handle(msg)
+        return []
 
     def _on_command_ack(self, msg: Any, now_us: int) -> list[Outgoing]:
         if not self._from_source(msg):

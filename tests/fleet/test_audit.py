@@ -263,7 +263,7 @@ def test_one_log_summary_is_a_pure_function_of_the_file(fleet) -> None:  # type:
     from mavahrs.replay import ReplaySettings
     from mavahrs.service.pipeline import PipelineSettings
 
-    lax = AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=MonitorSettings(tilt_threshold_deg=20.0))))
+    lax = AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=MonitorSettings(mode="fixed", tilt_threshold_deg=20.0))))
     assert summarise_log(log, lax).alarms == 0
     missing = summarise_log(folder / "no-such.tlog")
     assert missing.error == "cannot read: No such file or directory" and missing.size_bytes == -1

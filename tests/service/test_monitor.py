@@ -27,6 +27,12 @@ ATT_DT_MS = 100.0  # the autopilot's ATTITUDE at 10 Hz
 DURATION_S = 60.0
 
 
+def _fixed(**kw: object) -> MonitorSettings:
+    """The fixed-angle mode (10° tilt, 25° heading, 2 s continuously): what these synthetic timings test."""
+    kw.setdefault("trigger_s", 2.0)
+    return MonitorSettings(mode="fixed", **kw)  # type: ignore[arg-type]
+
+
 def _truth(t_s: np.ndarray) -> np.ndarray:
     """A lively flight: ±25° roll, ±15° pitch, yaw sweeping through all headings."""
     roll = np.radians(25.0) * np.sin(2 * np.pi * 0.23 * t_s)
@@ -118,12 +124,12 @@ def _run_live(f: Flight, settings: MonitorSettings, q_est: np.ndarray | None = N
 
 
 def test_injected_roll_fault_raises_one_warning_in_time_and_clears(rng: np.random.Generator) -> None:
-    s = MonitorSettings()
+    s = _fixed()
     f = _flight(rng, fault=(30.0, 35.0, 15.0))
     events, named = _run_live(f, s)
     assert len(events) == 2, [(t, e.text) for t, e in events]
     (t_warn, warn), (t_clear, clear) = events
-    assert warn.severity == mavlink.MAV_SEVERITY_WARNING and warn.text.startswith("mavahrs: AP attitude differs")
+    assert warn.severity == mavlink.MAV_SEVERITY_WARNING and warn.text.startswith("mavahrs: AP attitude off")
     assert 30.0 + s.trigger_s <= t_warn <= 30.0 + s.trigger_s + 0.25  # within the configured time (+ 2 samples)
     assert "tilt 1" in warn.text and len(warn.text) <= 50
     assert clear.severity == mavlink.MAV_SEVERITY_INFO and clear.text == CLEARED_TEXT
@@ -143,7 +149,7 @@ def test_injected_roll_fault_raises_one_warning_in_time_and_clears(rng: np.rando
 def test_no_warning_without_a_fault(seed: int) -> None:
     """Normal noise, lively motion, declination applied: never a STATUSTEXT."""
     f = _flight(np.random.default_rng(seed))
-    events, named = _run_live(f, MonitorSettings(heading_threshold_deg=8.0))
+    events, named = _run_live(f, _fixed(heading_threshold_deg=8.0))
     assert events == []
     hdg = np.array([m.value for t, m in named if m.name == "AHRS_HDG"])
     assert np.all(np.abs(hdg) < 6.0)  # ours is 1° biased + noise: small
@@ -152,7 +158,7 @@ def test_no_warning_without_a_fault(seed: int) -> None:
 @pytest.mark.parametrize("att_hz", [1.0, 2.0, 4.0, 10.0, 25.0, 50.0])
 def test_any_attitude_rate_from_1_to_50_hz_warns_in_time_and_never_without_a_fault(att_hz: float) -> None:
     """ATTITUDE at the rates ground stations leave it at (MAVProxy --streamrate=4, SRn_EXTRA1 = 1 …)."""
-    s = MonitorSettings(heading_threshold_deg=8.0)
+    s = _fixed(heading_threshold_deg=8.0)
     period_s = 1.0 / att_hz
     for seed in (1, 2):
         events, _ = _run_live(_flight(np.random.default_rng(seed), att_hz=att_hz), s)
@@ -171,14 +177,14 @@ def test_any_attitude_rate_from_1_to_50_hz_warns_in_time_and_never_without_a_fau
 def test_without_declination_the_heading_disagrees_by_the_declination(rng: np.random.Generator) -> None:
     """The reason outputs must be true-north referenced: a 12° heading 'divergence' that is no fault."""
     f = _flight(rng)
-    events, named = _run_live(f, MonitorSettings(heading_threshold_deg=8.0), q_est=f.q_est_magnetic)
+    events, named = _run_live(f, _fixed(heading_threshold_deg=8.0), q_est=f.q_est_magnetic)
     assert len(events) == 1 and events[0][1].severity == mavlink.MAV_SEVERITY_WARNING
     hdg = np.array([m.value for t, m in named if m.name == "AHRS_HDG"])
     assert np.median(hdg) == pytest.approx(-13.0, abs=1.0)  # −D − 1° bias
     # The same comparison with heading declared invalid (no declination known) stays quiet.
     mon = monitor_series(
         f.t_est_ms, f.q_est_magnetic, f.t_att_ms, from_euler_rad(*f.att_euler.T),
-        MonitorSettings(heading_threshold_deg=8.0), heading_valid=False,
+        _fixed(heading_threshold_deg=8.0), heading_valid=False,
     )  # fmt: skip
     assert mon.events == ()
 
@@ -186,7 +192,7 @@ def test_without_declination_the_heading_disagrees_by_the_declination(rng: np.ra
 def test_short_disagreements_do_not_warn(rng: np.random.Generator) -> None:
     """A 1.5 s excursion is shorter than trigger_s = 2 s: no warning (continuity is required)."""
     f = _flight(rng, fault=(30.0, 31.5, 20.0))
-    res = monitor_series(f.t_est_ms, f.q_est_true_north, f.t_att_ms, from_euler_rad(*f.att_euler.T))
+    res = monitor_series(f.t_est_ms, f.q_est_true_north, f.t_att_ms, from_euler_rad(*f.att_euler.T), _fixed())
     assert res.events == ()
     assert np.nanmax(res.tilt_deg) > 15.0
 
@@ -194,8 +200,8 @@ def test_short_disagreements_do_not_warn(rng: np.random.Generator) -> None:
 def test_monitor_series_matches_the_live_monitor(rng: np.random.Generator) -> None:
     f = _flight(rng, fault=(20.0, 28.0, -12.0))
     q_ap = from_euler_rad(*f.att_euler.T)
-    res = monitor_series(f.t_est_ms, f.q_est_true_north, f.t_att_ms, q_ap)
-    events, _ = _run_live(f, MonitorSettings())
+    res = monitor_series(f.t_est_ms, f.q_est_true_north, f.t_att_ms, q_ap, _fixed())
+    events, _ = _run_live(f, _fixed())
     assert [e.text for e in res.events] == [e.text for _, e in events]
     assert [e.t_ms / 1000.0 for e in res.events] == pytest.approx([t for t, _ in events], abs=0.11)
 
@@ -228,7 +234,7 @@ def test_divergence_series_agrees_with_the_metrics(rng: np.random.Generator) -> 
 
 
 def test_quaternion_messages_components_and_reboot(rng: np.random.Generator) -> None:
-    mon = AttitudeMonitor(MonitorSettings(startup_grace_s=0.0, trigger_s=0.5))
+    mon = AttitudeMonitor(_fixed(startup_grace_s=0.0, trigger_s=0.5))
     q_ok = (1.0, 0.0, 0.0, 0.0)
     q_bad = tuple(from_euler_rad(math.radians(30.0), 0.0, 0.0))
     ap = MavCodec(system_id=1, component_id=1)
@@ -262,7 +268,7 @@ def test_quaternion_messages_components_and_reboot(rng: np.random.Generator) -> 
 
 
 def test_startup_grace_and_unmatched() -> None:
-    mon = AttitudeMonitor(MonitorSettings(startup_grace_s=5.0, trigger_s=0.5))
+    mon = AttitudeMonitor(_fixed(startup_grace_s=5.0, trigger_s=0.5))
     q_bad = tuple(from_euler_rad(math.radians(30.0), 0.0, 0.0))
     out = []
     for k in range(400):  # 4 s of disagreement inside the 5 s grace period
@@ -317,7 +323,7 @@ def sim_flight() -> SimFlight:
     ss = fs.SimSettings(scenario="aggressive", seed=7, attitude_fault=fs.AttitudeFault(**SIM_FAULT))
     ep = fs.Endpoint(fs.Simulation(ss), fs.EndpointSettings(preset="none", block_ticks=400, streams_hz=(
         ("RAW_IMU", math.inf), ("ATTITUDE", 50.0), ("GLOBAL_POSITION_INT", 5.0), ("SYSTEM_TIME", 1.0))))  # fmt: skip
-    pipe = Pipeline(PipelineSettings(out_rate_hz=50.0))
+    pipe = Pipeline(PipelineSettings(out_rate_hz=50.0, monitor=_fixed()))
     rx, ours = MavCodec(255, 190), MavCodec(255, 190)
     events: list = []
     texts: list = []
@@ -341,7 +347,7 @@ def sim_flight() -> SimFlight:
 def _monitor_at(f: SimFlight, att_hz: float) -> list[tuple[float, int, str]]:
     """The pipeline's monitor fed as live, with the autopilot's ATTITUDE thinned to ``att_hz`` the way
     ArduPilot's scheduler sends a slower stream (the first message at or after each due time)."""
-    mon = AttitudeMonitor(MonitorSettings())
+    mon = AttitudeMonitor(_fixed())
     out: list[tuple[float, int, str]] = []
     due_ms = -math.inf
     for kind, a, b in f.events:
@@ -359,7 +365,7 @@ def _monitor_at(f: SimFlight, att_hz: float) -> list[tuple[float, int, str]]:
 
 def _check_fault_events(events: list[tuple[float, int, str]], att_hz: float) -> None:
     """Exactly one WARNING, in time, and one INFO when it has cleared: nothing before, between or after."""
-    s = MonitorSettings()
+    s = _fixed()
     assert [e[1] for e in events] == [mavlink.MAV_SEVERITY_WARNING, mavlink.MAV_SEVERITY_INFO], (att_hz, events)
     (t_warn, _, text), (t_ok, _, _) = events
     assert "tilt 1" in text

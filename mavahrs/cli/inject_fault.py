@@ -1,0 +1,106 @@
+"""``mavahrs inject-fault``: a copy of a tlog with a known error in the autopilot's attitude or an IMU."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+__all__ = ["register", "run"]
+
+HELP = "copy a tlog with a step, ramp or intermittent error added to the autopilot's attitude or an IMU"
+
+DESCRIPTION = """\
+Write OUT, a copy of the tlog IN in which the autopilot's own attitude
+(ATTITUDE and ATTITUDE_QUATERNION, the same Euler-angle offsets in both) or
+one IMU message's gyro / accelerometer is off by a known amount from a known
+time, to test the second-opinion monitor (mavahrs replay / audit / run) or
+your own settings for it.  Everything else is copied byte for byte.
+
+Times are the autopilot's boot clock (time_boot_ms), as audit reports them.
+Shapes: step (the full offset at --at), ramp (from 0 at --at to the full
+offset --ramp-s later, then held), intermittent (the full offset for --on-s of
+every --period-s).  --duration limits any of them (default: to the end).
+
+examples:
+  mavahrs inject-fault flight.tlog roll2.tlog --at 100 --roll 2
+  mavahrs inject-fault flight.tlog tilt2.tlog --at 100 --tilt 2 --tilt-azimuth 90
+  mavahrs inject-fault flight.tlog drift.tlog --at 100 --roll 10 --shape ramp --ramp-s 50   # 0.2 deg/s
+  mavahrs inject-fault flight.tlog yaw6.tlog --at 100 --yaw 6 --shape intermittent --on-s 2 --period-s 5
+  mavahrs inject-fault flight.tlog gyro.tlog --at 100 --imu SCALED_IMU2 --gyro-bias 0,0,0.5
+  mavahrs audit roll2.tlog drift.tlog"""
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z, got {text!r}")
+    try:
+        x, y, z = (float(p) for p in parts)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}") from exc
+    return x, y, z
+
+
+def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.evaluation.faults import IMU_FAULT_MESSAGES
+
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "inject-fault", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("input", metavar="IN", help="the tlog to copy")
+    p.add_argument("output", metavar="OUT", help="the faulty copy (must differ from IN)")
+    g = p.add_argument_group("when")
+    g.add_argument("--at", type=float, required=True, metavar="S", help="boot time the fault begins, s")
+    g.add_argument("--shape", choices=("step", "ramp", "intermittent"), default="step", help="default step")
+    g.add_argument("--duration", type=float, default=float("inf"), metavar="S", help="how long it lasts (default: to the end)")
+    g.add_argument("--ramp-s", type=float, default=10.0, metavar="S", help="ramp: time to the full offset (default 10)")
+    g.add_argument("--period-s", type=float, default=4.0, metavar="S", help="intermittent: period (default 4)")
+    g.add_argument("--on-s", type=float, default=1.0, metavar="S", help="intermittent: on time per period (default 1)")
+    a = p.add_argument_group("the autopilot's attitude (degrees, added to its Euler angles)")
+    a.add_argument("--roll", type=float, default=0.0, metavar="DEG")
+    a.add_argument("--pitch", type=float, default=0.0, metavar="DEG")
+    a.add_argument("--yaw", type=float, default=0.0, metavar="DEG")
+    a.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
+                   help="an earth-frame tilt error: exactly DEG of inclination whatever the attitude")
+    a.add_argument("--tilt-azimuth", type=float, default=0.0, metavar="DEG",
+                   help="the tilt's rotation axis, from north (default 0: about north)")
+    a.add_argument("--heading", type=float, default=0.0, metavar="DEG", help="an earth-frame heading error")
+    i = p.add_argument_group("an IMU (body axes)")
+    i.add_argument("--imu", choices=IMU_FAULT_MESSAGES, metavar="MESSAGE",
+                   help=f"the IMU message to bias ({', '.join(IMU_FAULT_MESSAGES)})")  # fmt: skip
+    i.add_argument("--gyro-bias", type=_triple, metavar="X,Y,Z", help="gyro bias, deg/s")
+    i.add_argument("--accel-bias", type=_triple, metavar="X,Y,Z", help="accelerometer bias, m/s²")
+    p.add_argument("--system", type=int, metavar="ID", help="the autopilot's system id (default: from its HEARTBEAT)")
+    p.add_argument("--component", type=int, default=1, metavar="ID", help="its component id (default 1)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    from mavahrs.errors import ConfigError
+    from mavahrs.evaluation.faults import AttitudeFault, FaultShape, ImuFault, inject_faults
+
+    try:
+        when = FaultShape(args.shape, args.at, args.duration, args.ramp_s, args.period_s, args.on_s)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+    faults: list[Any] = []
+    if args.roll or args.pitch or args.yaw or args.tilt or args.heading:
+        faults.append(AttitudeFault(when, args.roll, args.pitch, args.yaw, args.tilt, args.tilt_azimuth, args.heading))
+    if args.imu or args.gyro_bias or args.accel_bias:
+        if not args.imu or not (args.gyro_bias or args.accel_bias):
+            raise ConfigError("an IMU fault needs --imu MESSAGE and --gyro-bias and/or --accel-bias")
+        faults.append(ImuFault(args.imu, when, args.gyro_bias or (0.0, 0.0, 0.0), args.accel_bias or (0.0, 0.0, 0.0)))
+    if not faults:
+        raise ConfigError("no fault given: --roll/--pitch/--yaw/--tilt/--heading for the attitude, "
+                          "--imu with --gyro-bias/--accel-bias")
+    try:
+        report = inject_faults(args.input, args.output, faults, system_id=args.system, component_id=args.component)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+    print(f"{args.output}: {report.text()}", file=sys.stdout)
+    if not report.modified:
+        logging.getLogger("mavahrs").warning("no message was rewritten: is --at within the log's boot times?")
+    return 0

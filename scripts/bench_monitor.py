@@ -1,0 +1,221 @@
+#!/usr/bin/env python3
+r"""The second-opinion monitor against known faults: detection latency per fault size, false warnings per flight-hour.
+
+What users do, on every flight: ``mavahrs inject-fault`` (:func:`mavahrs.evaluation.faults.inject_faults`)
+copies the log with a fault in the autopilot's own ATTITUDE/ATTITUDE_QUATERNION, then ``mavahrs
+audit`` (:func:`mavahrs.fleet.audit.summarise_log`, the daemon's replay and its monitor) judges
+the copy.  The fault starts at boot time 100 s, or, where the vehicle is not airborne then, in
+the middle of its airborne time, and lasts to the end of the log.
+
+Per flight and fault: the latency of the first in-flight WARNING after the onset (``–`` = none
+within the time the vehicle stays airborne), and for the ramp the fault's size by then.  The
+unfaulted flights: in-flight WARNINGs, NOTICEs (ground / take-off / touchdown), and how many
+WARNINGs came while the autopilot was within 1° tilt and 3° heading of the simulator's truth
+(false warnings), per flight-hour airborne.  Beside them the same with the fixed thresholds
+mavahrs had before (tilt 10°, heading 25°, 2 s).
+
+Flights: ``../shared/data/sitl/*.tlog``, ``px4_sitl/px4_aggressive.tlog`` and ``firmware_sim``
+flights written on the fly (``--sim``).  One flight at a time (the machine is shared).
+
+    python scripts/bench_monitor.py                      # all shared flights + 2 simulated
+    python scripts/bench_monitor.py --flights gentle --faults roll2,yaw6
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from mavahrs.evaluation.faults import AttitudeFault, FaultShape, inject_faults  # noqa: E402
+from mavahrs.fleet.audit import AuditSettings, summarise_log  # noqa: E402
+from mavahrs.replay import ReplaySettings  # noqa: E402
+from mavahrs.service.monitor import MonitorSettings  # noqa: E402
+from mavahrs.service.pipeline import PipelineSettings  # noqa: E402
+
+DATA = REPO.parent / "shared" / "data"
+
+
+@dataclass(frozen=True)
+class Fault:
+    name: str
+    label: str
+    tilt: float = 0.0  # earth-frame, deg
+    azimuth: float = 0.0  # the tilt's axis from north, deg
+    heading: float = 0.0
+    roll: float = 0.0  # Euler offsets, deg
+    shape: str = "step"
+    ramp_s: float = 10.0
+    limit_s: float = 0.0  # the latency that passes (0: not a criterion)
+
+
+FAULTS = (
+    Fault("tilt1", "tilt 1° step", tilt=1.0),
+    Fault("tilt1.5", "tilt 1.5° step", tilt=1.5),
+    Fault("tilt2", "tilt 2° step (about north)", tilt=2.0, limit_s=2.0),
+    Fault("tilt2e", "tilt 2° step (about east)", tilt=2.0, azimuth=90.0, limit_s=2.0),
+    Fault("tilt2s", "tilt 2° step (about south)", tilt=2.0, azimuth=180.0, limit_s=2.0),
+    Fault("tilt3", "tilt 3° step", tilt=3.0, limit_s=2.0),
+    Fault("tilt10", "tilt 10° step", tilt=10.0, limit_s=2.0),
+    Fault("roll3", "roll +3° (Euler) step", roll=3.0),
+    Fault("hdg3", "heading +3° step", heading=3.0),
+    Fault("hdg6", "heading +6° step", heading=6.0, limit_s=3.0),
+    Fault("hdg-6", "heading −6° step", heading=-6.0, limit_s=3.0),
+    Fault("hdg10", "heading +10° step", heading=10.0, limit_s=3.0),
+    Fault("ramp", "tilt ramp 0.2°/s", tilt=10.0, shape="ramp", ramp_s=50.0, limit_s=15.0),  # 3° after 15 s
+    Fault("blink", "tilt 2°, 1 s of every 4 s", tilt=2.0, shape="intermittent"),
+)
+FIXED = MonitorSettings(mode="fixed", tilt_threshold_deg=10.0, heading_threshold_deg=25.0, trigger_s=2.0)
+
+
+def shared_flights() -> list[Path]:
+    return sorted((DATA / "sitl").glob("*.tlog")) + sorted((DATA / "px4_sitl").glob("*.tlog"))
+
+
+def sim_flights(tmp: Path, n: int) -> list[Path]:
+    out = []
+    for i, scen in enumerate(("aggressive", "hover", "magnetic")[:n]):
+        p = tmp / f"sim_{scen}.tlog"
+        subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(p), "--scenario", scen,
+                        "--duration", "150", "--seed", str(11 + i), "-q"], check=True, cwd=REPO)  # fmt: skip
+        out.append(p)
+    return out
+
+
+def audit(path: Path, mon: MonitorSettings) -> object:
+    return summarise_log(path, AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=mon))))
+
+
+def airborne(path: Path) -> tuple[float, float, dict]:
+    """(first, last) boot time airborne, s, and the data to judge the autopilot against the truth."""
+    from mavahrs.fleet.audit import _phase_events
+    from mavahrs.replay import replay
+    from mavahrs.service.monitor import FlightPhase, align_attitudes, divergence_series
+
+    res = replay(path, ReplaySettings(pipeline=PipelineSettings()))
+    ev = _phase_events(res.tlog, res.inputs, res.inputs.source)
+    ph = FlightPhase(MonitorSettings())
+    speed = math.nan
+    air = []
+    for t, kind, v in ev:
+        if kind == "heartbeat":
+            ph.on_heartbeat(int(v), t)
+        elif kind == "landed":
+            ph.on_landed_state(int(v), t)
+        elif kind == "speed":
+            speed = v
+        else:
+            ph.on_position(t, v, speed)
+        if ph.phase(t) == "air":
+            air.append(t / 1000.0)
+    t_ap, q_ap = res.references["autopilot ATTITUDE"]
+    truth = next((k for k in res.references if k.endswith("truth")), None)
+    judge: dict = {}
+    if truth is not None:
+        t_tr, q_tr = res.references[truth]
+        q_t = align_attitudes(t_tr / 1000.0, q_tr, t_ap / 1000.0, tolerance_ms=30.0)
+        tilt, hdg = divergence_series(t_ap / 1000.0, q_ap, t_ap / 1000.0, q_t)
+        judge = {"t_s": t_ap / 1e6, "tilt": tilt, "hdg": np.abs(hdg)}
+    return (air[0], air[-1], judge) if air else (math.nan, math.nan, judge)
+
+
+def ap_good(judge: dict, t_s: float) -> bool:
+    """The autopilot within 1° tilt and 3° heading of the truth around ``t_s`` (the last 2 s)."""
+    if not judge:
+        return False
+    m = (judge["t_s"] > t_s - 2.0) & (judge["t_s"] <= t_s)
+    tilt, hdg = judge["tilt"][m], judge["hdg"][m]
+    return bool(m.any() and np.nanmax(tilt) < 1.0 and np.nanmax(hdg) < 3.0)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--flights", default="", help="comma-separated name fragments (default: all)")
+    ap.add_argument("--faults", default="", help="comma-separated fault names (default: all): "
+                    + ",".join(f.name for f in FAULTS))  # fmt: skip
+    ap.add_argument("--sim", type=int, default=2, help="firmware_sim flights (0–3; default 2)")
+    args = ap.parse_args()
+    want = [w for w in args.flights.split(",") if w]
+    faults = [f for f in FAULTS if not args.faults or f.name in args.faults.split(",")]
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="bench_monitor_") as td:
+        tmp = Path(td)
+        flights = shared_flights() + (sim_flights(tmp, args.sim) if args.sim and not want else [])
+        flights = [f for f in flights if not want or any(w in f.name for w in want)]
+        lat: dict[str, dict[str, str]] = {}
+        clean_rows = []
+        hours = 0.0
+        for path in flights:
+            a0, a1, judge = airborne(path)
+            name = path.stem
+            if not math.isfinite(a0):
+                print(f"{name}: never airborne by its phase; skipped", file=sys.stderr)
+                continue
+            hours += (a1 - a0) / 3600.0
+            rows = {}
+            for label, mon in (("new", MonitorSettings()), ("fixed", FIXED)):
+                r = audit(path, mon)
+                times = [float(x) for x in r.alarm_times_s.split(";") if x]
+                false = sum(ap_good(judge, t) for t in times) if judge else math.nan
+                rows[label] = (len(times), r.ground_alarms, false, r.alarm_times_s, r.ground_alarm_times_s)
+            clean_rows.append((name, a1 - a0, rows))
+            onset = 100.0 if a0 + 5.0 <= 100.0 <= a1 - 20.0 else 0.5 * (a0 + a1)
+            lat[name] = {}
+            for f in faults:
+                copy = tmp / f"{name}_{f.name}.tlog"
+                when = FaultShape(f.shape, onset, ramp_s=f.ramp_s, period_s=4.0, on_s=1.0)
+                inject_faults(path, copy, [AttitudeFault(when, roll_deg=f.roll, tilt_deg=f.tilt,
+                                                         tilt_azimuth_deg=f.azimuth, heading_deg=f.heading)])
+                r = audit(copy, MonitorSettings())
+                copy.unlink()
+                after = [float(x) - onset for x in r.alarm_times_s.split(";") if x and float(x) >= onset]
+                ok_after = [d for d in after if onset + d <= a1]
+                if ok_after:
+                    d = ok_after[0]
+                    cell = f"{d:.1f}"
+                    if f.shape == "ramp":
+                        cell += f" ({min(d / f.ramp_s, 1.0) * f.tilt:.1f}°)"
+                else:
+                    cell = "–"
+                lat[name][f.name] = cell
+                print(f"  {name} {f.name}: onset {onset:.1f} s, {cell}", file=sys.stderr, flush=True)
+    # --- tables
+    names = list(lat)
+    print(f"# monitor benchmark ({time.perf_counter() - t0:.0f} s): latency of the first in-flight WARNING, s "
+          f"after the onset (default settings; – = none while airborne)\n")  # fmt: skip
+    print("| fault | " + " | ".join(names) + " | criterion |")
+    print("|---|" + "---|" * (len(names) + 1))
+    for f in faults:
+        crit = f"≤ {f.limit_s:.0f} s" if f.limit_s else ""
+        print(f"| {f.label} | " + " | ".join(lat[n][f.name] for n in names) + f" | {crit} |")
+    print("\n# the flights as recorded: in-flight WARNINGs (of them while the autopilot was within 1°/3° of the "
+          "truth: false) / NOTICEs on the ground, take-off, touchdown\n")  # fmt: skip
+    print("| flight | airborne s | default: warn (false) / notices | fixed 10°/25°: warn (false) / notices |")
+    print("|---|---|---|---|")
+    tot = {"new": 0.0, "fixed": 0.0}
+    for name, air_s, rows in clean_rows:
+        cells = []
+        for label in ("new", "fixed"):
+            n, g, false, at, gt = rows[label]
+            tot[label] += false if math.isfinite(false) else 0.0
+            f_txt = "?" if not math.isfinite(false) else f"{false:.0f}"
+            cells.append(f"{n} ({f_txt}) / {g}" + (f" [{at}]" if at else "") + (f" [{gt}]" if gt else ""))
+        print(f"| {name} | {air_s:.0f} | " + " | ".join(cells) + " |")
+    if hours > 0:
+        print(f"\nfalse in-flight WARNINGs per flight-hour airborne ({hours * 60:.1f} min): default "
+              f"{tot['new'] / hours:.2f}, fixed {tot['fixed'] / hours:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
