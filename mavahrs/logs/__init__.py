@@ -125,7 +125,10 @@ def read_log(
 
         return read_dataflash(path, settings, start_s=start_s, end_s=end_s)
     if fmt == "ulog":
-        from mavahrs.logs.ulog import read_ulog  # type: ignore[import-not-found,unused-ignore]
+        try:
+            from mavahrs.logs.ulog import read_ulog  # type: ignore[import-not-found,unused-ignore]
+        except ImportError as exc:
+            raise DataError(f"{path}: a PX4 ULog (.ulg), but its reader is not available: {exc}") from None
 
         return read_ulog(path, settings, start_s=start_s, end_s=end_s)  # type: ignore[no-any-return,unused-ignore]
     if fmt == "tlog":

@@ -483,6 +483,16 @@ def read_dataflash(
                         f"{len(sc.formats)} types read")  # fmt: skip
     if "I" not in imu:
         imu["I"] = np.zeros(imu["TimeUS"].shape[0], np.uint8)
+    # a corrupted time stamp: one record whose TimeUS jumps away from both neighbours (file order) by > 1 s
+    tt = imu["TimeUS"].astype(np.int64)
+    if tt.size > 2:
+        spike = np.zeros(tt.size, bool)
+        dp, dn = tt[1:-1] - tt[:-2], tt[2:] - tt[1:-1]
+        spike[1:-1] = ((dp > 1_000_000) & (dn < -1_000_000)) | ((dp < -1_000_000) & (dn > 1_000_000))
+        if spike.any():
+            imu = {k: v[~spike] for k, v in imu.items()}
+            notes.append(f"{int(spike.sum())} IMU records with a corrupted TimeUS (away from both neighbours "
+                         "by more than 1 s): dropped")  # fmt: skip
     params = _parameters(sc)
     profile = get_profile("ardupilot")
     ms = profile.scale_for("RAW_IMU")
