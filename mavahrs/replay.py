@@ -170,6 +170,13 @@ class ReplayResult:
     notes: list[str] = field(default_factory=list)
     #: the decoded log (:class:`~mavahrs.evaluation.tlogdata.TlogData`): HEARTBEATs, positions … for summaries
     tlog: TlogData | None = field(default=None, repr=False)
+    #: an onboard log's reading (:class:`~mavahrs.logs.LogInputs`: what was found, parameters); None for a tlog
+    log: Any = field(default=None, repr=False)
+
+    @property
+    def format(self) -> str:
+        """The log's format: ``tlog``, ``dataflash`` or ``ulog``."""
+        return "tlog" if self.log is None else str(self.log.format)
 
     @property
     def engine(self) -> str:
@@ -355,6 +362,11 @@ def replay(
     """
     s = settings or ReplaySettings()
     ps = s.pipeline_settings()
+    from mavahrs.logs import sniff
+
+    fmt = sniff(path)
+    if fmt in ("dataflash", "ulog"):
+        return _replay_log(path, fmt, s, csv_path, progress)
     td = read_tlog_data(path)
     ps, source_note = resolve_source(td, ps)
     dy = decimal_year_of_log(td)
@@ -377,7 +389,7 @@ def replay(
             cols, dec = csv_columns(s.filters)
             sink = CsvSink(csv_path, cols, dec)
         if prep is not None:
-            result = _replay_fast(td, prep, s, filters, sink, progress)
+            result = _replay_fast(td.path, prep, s, filters, sink, progress)
         else:
             result = _replay_pipeline(td, ps, s, filters, dy, sink, progress)
         if sink is not None:
@@ -398,6 +410,47 @@ def replay(
             f"(≥ {LOW_RATE_HZ:g} Hz needed; ground stations request 2–10 Hz — ask the autopilot for more, "
             "see docs/daemon.md). The comparison below is coarse."
         )
+    return result
+
+
+def _replay_log(
+    path: str | Path, fmt: str, s: ReplaySettings, csv_path: str | Path | None, progress: bool
+) -> ReplayResult:
+    """Replay an onboard log (DataFlash, ULog): its reader's :class:`~mavahrs.logs.LogInputs`, then the same
+    batch filters, CSV and comparison as a tlog's fast engine (the per-message pipeline engine reads MAVLink
+    only)."""
+    from mavahrs.logs import FORMATS, read_log
+
+    ps = s.pipeline_settings()
+    li = read_log(path, ps, start_s=s.start_s, end_s=s.end_s, format=fmt)
+    prep = li.inputs
+    filters = [(n, s.filter_settings.get(n)) for n in s.filters]
+    notes: list[str] = []
+    if s.engine == "pipeline":
+        notes.append(f"engine: fast (the pipeline engine reads MAVLink; this is a {FORMATS[fmt]})")
+    sink = None
+    try:
+        if csv_path is not None:
+            from mavahrs.evaluation.csvout import CsvSink
+
+            cols, dec = csv_columns(s.filters)
+            sink = CsvSink(csv_path, cols, dec)
+        result = _replay_fast(li.path, prep, s, filters, sink, progress)
+        if sink is not None:
+            sink.sync_behind()
+    finally:
+        if sink is not None:
+            sink.close()
+    result.references = dict(li.references)
+    result.log = li
+    result.notes = notes + list(prep.notes)
+    gaps = gap_note(prep, int(li.start_us), ps.timeline.max_gap_s)
+    if gaps is not None:
+        result.notes.append(gaps)
+    rate = prep.rate_hz()
+    if rate < LOW_RATE_HZ:
+        result.notes.append(f"IMU samples reach the filter at {rate:.1f} Hz: too slow for meaningful attitude "
+                            f"filtering (≥ {LOW_RATE_HZ:g} Hz needed)")  # fmt: skip
     return result
 
 
@@ -466,7 +519,7 @@ def _progress_bar(total: int, enabled: bool, unit: str) -> Any:
 
 
 def _replay_fast(
-    td: TlogData, prep: PreparedInputs, s: ReplaySettings, filters: Sequence[tuple[str, Any]],
+    path: str, prep: PreparedInputs, s: ReplaySettings, filters: Sequence[tuple[str, Any]],
     sink: Any, progress: bool,
 ) -> ReplayResult:  # fmt: skip
     from mavahrs.filters import create
@@ -499,7 +552,7 @@ def _replay_fast(
     tracks = {
         n: FilterTrack(n, ps.component_id + i, outs[i], sents[i]) for i, (n, _) in enumerate(filters)
     }
-    return ReplayResult(td.path, prep, tracks, sysid, s)
+    return ReplayResult(path, prep, tracks, sysid, s)
 
 
 def _replay_pipeline(
@@ -654,6 +707,8 @@ def write_tlog(result: ReplayResult, path: str | Path) -> int:
     from mavahrs.protocol.fast_tlog import scan_tlog
     from mavahrs.protocol.tlog import tlog_record
 
+    if result.log is not None:  # an onboard log: a tlog of the frames alone, stamped with their sample times
+        return _write_frames_tlog(result, path)
     td = read_tlog_data(result.path) if not isinstance(result.inputs, PreparedInputs) else None
     data = np.fromfile(result.path, np.uint8)
     full = scan_tlog(data, None, mode="mmap")
@@ -693,6 +748,24 @@ def write_tlog(result: ReplayResult, path: str | Path) -> int:
                 buf.clear()
         f.write(b"".join(buf))
     return inserted
+
+
+def _write_frames_tlog(result: ReplayResult, path: str | Path) -> int:
+    from mavahrs.protocol.tlog import tlog_record
+
+    per = 2 if result.settings.pipeline_settings().send_attitude_euler else 1
+    recs: list[tuple[int, int, bytes]] = []
+    for k, tr in enumerate(result.tracks.values()):
+        frames = result.frames(tr.name)
+        for j, i in enumerate(np.flatnonzero(tr.sent).tolist()):
+            t = int(result.inputs.t_us[i])
+            for fr in frames[per * j : per * j + per]:
+                recs.append((t, k, fr))
+    recs.sort(key=lambda r: (r[0], r[1]))
+    with open(path, "wb") as f:
+        for a in range(0, len(recs), 8192):
+            f.write(b"".join(tlog_record(t, fr) for t, _, fr in recs[a : a + 8192]))
+    return len(recs)
 
 
 def _replay_types() -> tuple[str, ...]:

@@ -8,13 +8,16 @@ from typing import Any
 
 __all__ = ["register", "run", "settings_from_args", "add_pipeline_options"]
 
-HELP = "replay a tlog through the filters (CSV, tlog with ATTITUDE_QUATERNION, plot, QGC stream)"
+HELP = "replay a flight log (.tlog, DataFlash .BIN, ULog .ulg) through the filters (CSV, tlog, plot, QGC stream)"
 
 DESCRIPTION = """\
 Read the IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) and the GNSS velocity
 (GLOBAL_POSITION_INT, GPS_RAW_INT, GPS2_RAW: --velocity-source) of a tlog with the daemon's own scaling, IMU selection and timing, run the
 filters, and compare them with the attitude the log already holds (the
 autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE/HIL_STATE_QUATERNION truth).
+An onboard log is read the same way, the format chosen by its content: an
+ArduPilot DataFlash log (.BIN: IMU at the loop rate, MAG, GPS; compared with
+EKF3's XKQ, ATT, AHR2 and in SITL the SIM truth) or a PX4 ULog (.ulg).
 
   --output   the input tlog with ATTITUDE_QUATERNION inserted after each IMU
              message, exactly as `mavahrs run` would have sent it (vehicle
@@ -36,10 +39,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "replay", help=HELP, description=DESCRIPTION, formatter_class=LazyDefaultsFormatter
     )
-    p.add_argument("tlog", metavar="FLIGHT.tlog", help="telemetry log (MAVProxy, QGC, Mission Planner, mavahrs)")
+    p.add_argument("tlog", metavar="LOG", help="flight log: telemetry .tlog (MAVProxy, QGC, Mission Planner, mavahrs), "
+                   "ArduPilot DataFlash .BIN or PX4 ULog .ulg (chosen by content)")
     p.add_argument("--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
                    help="filter (repeatable, or comma-separated): {filters}, or all (default: best)")
-    p.add_argument("--output", "-o", metavar="OUT.tlog", help="write the log with the filters' ATTITUDE_QUATERNION")
+    p.add_argument("--output", "-o", metavar="OUT.tlog", help="write the log with the filters' ATTITUDE_QUATERNION "
+                   "(of an onboard log: a tlog of those frames alone)")
     p.add_argument("--csv", metavar="OUT.csv", help="write one row per IMU sample")
     p.add_argument("--plot", metavar="OUT.png", help="write a plot (needs the plot extra: matplotlib)")
     p.add_argument("--out-rate", type=float, default=0.0, metavar="HZ",
@@ -132,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
 
     # the same exit code (1, a runtime failure, as for an unreadable log) for both, a clear message
     if Path(args.tlog).is_dir():
-        raise DataError(f"{args.tlog} is a directory: replay takes one .tlog file; for a folder of logs "
+        raise DataError(f"{args.tlog} is a directory: replay takes one log file; for a folder of logs "
                         "use `mavahrs audit FOLDER` (one row per flight)")  # fmt: skip
     if not Path(args.tlog).is_file():
         raise DataError(f"{args.tlog}: no such file")
@@ -144,6 +149,12 @@ def _run(args: argparse.Namespace) -> int:
     print(f"{Path(args.tlog).name}: {inp.n} IMU samples of {inp.message} (instance {inp.instance}) "
           f"from system {inp.source[0]}/{inp.source[1]} ({inp.profile} scaling), {dur:.1f} s at "
           f"{inp.rate_hz():.1f} Hz; engine {result.engine}")  # fmt: skip
+    if result.log is not None:
+        from mavahrs.logs import FORMATS
+
+        print(f"format: {FORMATS[result.log.format]}")
+        for line in result.log.found:
+            print(line)
     print(rp.format_velocity(inp))
     for note in result.notes:
         print(f"note: {note}")

@@ -367,7 +367,8 @@ def _no_source_message(td: TlogData, s: Any) -> str:
                 f"(SYSID:COMPID {listed}): choose one with {SOURCE_HINT}")  # fmt: skip
     if td.frames == 0 and scan_tlog(td.data, None).msgid.shape[0] == 0:
         return (f"{td.path}: no MAVLink messages in this file: expected a telemetry log (.tlog, "
-                "as MAVProxy, QGroundControl, Mission Planner and mavahrs write them)")  # fmt: skip
+                "as MAVProxy, QGroundControl, Mission Planner and mavahrs write them), an ArduPilot DataFlash "
+                "log (.BIN) or a PX4 ULog (.ulg)")  # fmt: skip
     return f"{td.path}: no autopilot HEARTBEAT{wanted} and no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU)"
 
 

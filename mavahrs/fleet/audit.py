@@ -51,8 +51,8 @@ __all__ = [
     "SERIAL_HINT",
 ]
 
-#: What a folder is searched for (recursively).
-LOG_SUFFIXES = (".tlog",)
+#: What a folder is searched for (recursively), beside any file whose content is a log (mavahrs.logs.sniff).
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
 #: Printed (stderr) when Dask is not installed and the logs are replayed one after the other.
 SERIAL_HINT = (
     "audit: Dask is not installed: replaying the logs one after the other on one core "
@@ -137,6 +137,8 @@ class FleetRow:
         vibration_x_m_s2, vibration_y_m_s2, vibration_z_m_s2: accelerometer
             vibration per body axis, m/s² RMS (see ``vibration_window_s``).
         notes: replay's notes (reboots, gaps, absent IMUs, low rate …), `` | ``-separated.
+        log_format: ``tlog``, ``dataflash`` or ``ulog`` ("" when not recognised).
+        truncated: the log ends inside a record (cut off; read up to its last whole record).
         replay_s: wall time this row took, s (timing: differs run to run).
         worker: host:pid that computed it (timing).
     """
@@ -174,6 +176,8 @@ class FleetRow:
     vibration_y_m_s2: float = math.nan
     vibration_z_m_s2: float = math.nan
     notes: str = ""
+    log_format: str = ""
+    truncated: bool | None = None
     replay_s: float = math.nan
     worker: str = ""
 
@@ -243,11 +247,13 @@ def _enum_name(enum: str, value: int) -> str:
 
 
 def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
-    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
+    from mavahrs.logs import sniff
     from mavahrs.replay import replay
-    from mavahrs.service.monitor import monitor_series
 
+    base = _replace(base, log_format=sniff(p) or "")
     result = replay(p, s.replay)
+    if result.log is not None:
+        return _summarise_onboard(result, base, s)
     td = result.tlog
     prep = result.inputs
     ps = s.replay.pipeline_settings()
@@ -271,9 +277,62 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
         imu_rate_hz=float(prep.rate_hz()), gnss=_has_fix(td, src), engine=result.engine,
         notes=" | ".join(result.notes),
     )  # fmt: skip
-    row = _replace(row, **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
-    # --- the second opinion: what the daemon would have published vs the log's own attitude
+    row = _replace(row, truncated=_tlog_truncated(td), **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
     ref = next((k for k in ("autopilot ATTITUDE", "autopilot AHRS2") if k in result.references), "")
+    return _second_opinion(result, row, s, ref, _phase_events(td, prep, src))
+
+
+#: MAV_AUTOPILOT of each onboard log format
+_AUTOPILOT_OF_FORMAT = {"dataflash": "ARDUPILOTMEGA", "ulog": "PX4"}
+
+
+def _summarise_onboard(result: Any, base: FleetRow, s: AuditSettings) -> FleetRow:
+    """The row of an onboard log (DataFlash, ULog): what its reader found, then the same second opinion."""
+    prep = result.inputs
+    li = result.log
+    ps = s.replay.pipeline_settings()
+    n = prep.n
+    dur = float(prep.t_us[-1] - prep.t_us[0]) * 1e-6 if n > 1 else 0.0
+    gnss = bool(sum(prep.velocity_fixes.values())) or bool(np.any(prep.declination_rad != 0.0))
+    row = _replace(
+        base, system_id=int(prep.source[0]), component_id=int(prep.source[1]),
+        autopilot=_AUTOPILOT_OF_FORMAT.get(li.format, ""), duration_s=dur, imu_message=prep.message,
+        imu_instance=int(prep.instance), imu_samples=n, imu_rate_hz=float(prep.rate_hz()), gnss=gnss,
+        engine=result.engine, notes=" | ".join(result.notes), truncated=bool(li.truncated),
+    )  # fmt: skip
+    row = _replace(row, **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
+    refs = [k for k in result.references if not k.endswith("truth")]
+    ref = next((k for k in refs if k.startswith("autopilot")), refs[0] if refs else "")
+    return _second_opinion(result, row, s, ref, [])  # phase: from the attitude alone (no HEARTBEAT read yet)
+
+
+def _tlog_truncated(td: Any) -> bool:
+    """A tlog whose last record is cut off: bytes after the last whole frame that no frame starts."""
+    scan = getattr(td, "scan", None)
+    if scan is None or td.data.size == 0:
+        return False
+    try:
+        from mavahrs.protocol.fast_tlog import scan_tlog
+
+        full = scan_tlog(td.data, None, mode="mmap")
+        if len(full) == 0:
+            return False
+        j = len(full) - 1
+        end = int(full.offset[j]) + len(full.frame(j))
+        return 0 < td.data.size - end < 8 + 280  # less than one record's header and longest frame
+    except Exception:  # noqa: BLE001 - only a flag: never the reason a row fails
+        return False
+
+
+def _second_opinion(
+    result: Any, row: FleetRow, s: AuditSettings, ref: str, phase_events: list[tuple[float, str, float]]
+) -> FleetRow:
+    """What the daemon would have published vs the log's own attitude ``ref`` (the monitor's WARNINGs)."""
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
+    from mavahrs.service.monitor import monitor_series
+
+    prep = result.inputs
+    ps = s.replay.pipeline_settings()
     if not ref:
         return row
     track = next(iter(result.tracks.values()))
@@ -286,7 +345,7 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
     aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
     sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
     series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
-                            tilt_sigma_rad=sigma, phase_events=_phase_events(td, prep, src))  # fmt: skip
+                            tilt_sigma_rad=sigma, phase_events=phase_events)  # fmt: skip
     warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING]
     ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE]
     judged = np.isfinite(series.tilt_deg)
@@ -355,7 +414,10 @@ def _clipping(prep: Any, ps: Any) -> dict[str, float]:
     n = prep.n
     if n == 0:
         return {}
-    scale = get_profile(prep.profile).scale_for(prep.message)
+    prof = get_profile(prep.profile)
+    scale = prof.scale_for(prep.message) or prof.scale_for(prof.primary_message)  # onboard logs: "IMU"
+    if scale is None:
+        return {}
     frac = ps.scaling.saturation_fraction
     gyro = prep.rows[:, IN_GYRO : IN_GYRO + 3]
     accel = prep.rows[:, IN_ACCEL : IN_ACCEL + 3]
@@ -386,18 +448,20 @@ def _vibration(prep: Any, window_s: float) -> dict[str, float]:
 
 
 def expand_logs(items: Sequence[str]) -> list[Path]:
-    """Files as given; folders searched recursively for ``*.tlog``; globs (``**`` recursive) expanded.
+    """Files as given; folders searched recursively for logs (``*.tlog``, ``*.BIN``, ``*.ulg`` and any file
+    whose content is one of them); globs (``**`` recursive) expanded.
 
     Sorted, duplicates removed.  Raises DataError for an item that
     matches nothing.
     """
     from mavahrs.errors import DataError
+    from mavahrs.logs import sniff
 
     out: dict[str, Path] = {}
     for item in items:
         p = Path(item)
         if p.is_dir():
-            found = [q for q in p.rglob("*") if q.suffix.lower() in LOG_SUFFIXES and q.is_file()]
+            found = [q for q in p.rglob("*") if q.is_file() and (q.suffix.lower() in LOG_SUFFIXES or sniff(q))]
         elif p.exists():
             found = [p]
         elif glob.has_magic(item):
@@ -669,6 +733,15 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
                 f"{_f(r.heading_rms_deg, '.2f', 9)}{_f(r.heading_max_deg, '.1f', 7)}{r.alarms if r.alarms is not None else '–':>7}"
                 f"{_f(r.first_alarm_s, '.1f', 9)}{_f(vib, '.2f', 9)}{_f(clip, '.2f', 7)}"
             )
+    cut = [r for r in good if r.truncated]
+    if cut:
+        lines += ["", "truncated (cut off inside a record; read up to the last whole one):"] + [
+            f"  {Path(r.path).name}" for r in cut]  # fmt: skip
+    bare = [r for r in good if not r.reference]
+    if bare:
+        lines += ["", "not compared (no autopilot attitude in the log):"] + [
+            f"  {Path(r.path).name}: {r.imu_samples or 0} IMU samples" + (f"; {r.notes}" if r.notes else "")
+            for r in bare]  # fmt: skip
     if bad:
         lines += ["", "unreadable:"] + [f"  {Path(r.path).name}: {r.error}" for r in bad]
     return "\n".join(lines)

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:
     from mavahrs.evaluation.tlogdata import PreparedInputs
 
-__all__ = ["FORMATS", "LogInputs", "sniff"]
+__all__ = ["FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES"]
 
 #: format name → what users call it (for messages naming the supported formats)
 FORMATS: dict[str, str] = {
@@ -27,6 +27,9 @@ FORMATS: dict[str, str] = {
     "dataflash": "ArduPilot DataFlash log (.BIN)",
     "ulog": "PX4 ULog (.ulg)",
 }
+
+#: file name endings of logs (a folder is searched for these; other files are taken when their content is a log)
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
 
 _ULOG_MAGIC = b"ULog\x01\x12\x35"  # ULog file header, bytes 0-6 (then the version byte)
 _DATAFLASH_HEAD = b"\xa3\x95"  # every DataFlash record starts with these two bytes
@@ -72,6 +75,8 @@ class LogInputs:
         found: lines for the replay header: IMU instances and their rates, the
             reference and truth found, parameters used.
         parameters: the autopilot's parameters recorded in the log (name → value).
+        truncated: the log ends inside a record (cut off): read up to its last whole record.
+        start_us: the log's first time stamp on ``inputs.t_us``'s clock (what ``start_s``/``end_s`` count from).
     """
 
     path: str
@@ -80,3 +85,52 @@ class LogInputs:
     references: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     found: list[str] = field(default_factory=list)
     parameters: dict[str, float] = field(default_factory=dict)
+    truncated: bool = False
+    start_us: int = 0
+
+
+def unsupported_message(path: str | Path) -> str:
+    """Why ``path`` is not read: empty, or not one of :data:`FORMATS` (named)."""
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+    except OSError as exc:
+        return f"{p}: cannot read: {exc.strerror or exc}"
+    if size == 0:
+        return f"{p}: empty file"
+    return f"{p}: not a log mavahrs reads (by its content): supported are " + ", ".join(FORMATS.values())
+
+
+def read_log(
+    path: str | Path,
+    settings: Any = None,
+    *,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    format: str | None = None,  # noqa: A002 - the format's name, as LogInputs.format
+) -> LogInputs:
+    """A DataFlash or ULog log as :class:`LogInputs`, the format chosen by content (:func:`sniff`).
+
+    Telemetry logs have their own reader with the daemon's per-message pipeline
+    (:func:`mavahrs.evaluation.tlogdata.read_tlog_data`, used by replay directly).
+
+    Raises:
+        DataError: empty, unreadable, not a supported format, or nothing usable in it.
+    """
+    from mavahrs.errors import DataError
+
+    fmt = format if format is not None else sniff(path)
+    if fmt == "dataflash":
+        from mavahrs.logs.dataflash import read_dataflash
+
+        return read_dataflash(path, settings, start_s=start_s, end_s=end_s)
+    if fmt == "ulog":
+        try:
+            from mavahrs.logs.ulog import read_ulog  # type: ignore[import-not-found,unused-ignore]
+        except ImportError as exc:
+            raise DataError(f"{path}: a PX4 ULog (.ulg), but its reader is not available: {exc}") from None
+
+        return read_ulog(path, settings, start_s=start_s, end_s=end_s)  # type: ignore[no-any-return,unused-ignore]
+    if fmt == "tlog":
+        raise DataError(f"{path}: a telemetry log: read it with mavahrs.evaluation.tlogdata.read_tlog_data")
+    raise DataError(unsupported_message(path))
