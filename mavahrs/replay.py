@@ -90,7 +90,8 @@ Array = NDArray[np.float64]
 #: Below this many samples per second, attitude filtering is not meaningful.
 LOW_RATE_HZ = 50.0
 # samples per fast-path block: the CSV is written and flushed per block, and Ctrl-C keeps every
-# finished block (one block of one filter takes about 10 ms; larger blocks were not measurably faster)
+# finished block.  Not slower than 131 072-sample blocks: the 400 Hz SITL log with all six filters
+# and --csv filtered in 0.35–0.45 s against 0.52–0.74 s (more of the CSV overlaps the filtering).
 _CHUNK = 16_384
 
 
