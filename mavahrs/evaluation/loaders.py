@@ -20,6 +20,17 @@ __all__ = ["load_any", "SUFFIXES"]
 
 SUFFIXES = (".mat", ".csv", ".tlog")
 
+#: where a user who has only the repository gets the BROAD trials the README evaluates
+BROAD_SOURCE = (
+    "BROAD is not shipped with mavahrs: get the .mat trials and trials.json from GitHub, dlaidig/broad, "
+    "folder data_mat/ (CC BY 4.0; cite Laidig et al., Data 6(7):72, 2021), see README 'Data and credits'"
+)
+
+
+def _missing(p: Path, what: str) -> DataError:
+    hint = f"; {BROAD_SOURCE}" if "broad" in p.name.lower() else ""
+    return DataError(f"{p}: {what}{hint}")
+
 
 def _is_repoimu(path: Path) -> bool:
     with path.open("r", encoding="utf-8", errors="replace") as f:
@@ -52,10 +63,10 @@ def load_any(path: str | Path, **kwargs: Any) -> list[Recording]:
     """Load one file, or every recognised file in a folder."""
     p = Path(path)
     if not p.exists():
-        raise DataError(f"{p}: no such file or folder")
+        raise _missing(p, "no such file or folder")
     if p.is_dir():
         files = sorted(f for f in p.iterdir() if f.suffix.lower() in SUFFIXES and f.is_file())
         if not files:
-            raise DataError(f"{p}: no .mat, .csv or .tlog files in this folder")
+            raise _missing(p, "no .mat, .csv or .tlog files in this folder")
         return [load_one(f, **kwargs) for f in files]
     return [load_one(p, **kwargs)]

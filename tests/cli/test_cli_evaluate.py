@@ -91,3 +91,16 @@ def test_help_lists_every_registered_filter(command: str, capsys: pytest.Capture
     assert m, text
     listed = re.findall(r"[a-z]+", m.group(1).split(":", 1)[1])
     assert sorted(listed) == sorted([*NAMES, *ALIASES, "or", "all"]), m.group(0)
+
+
+def test_a_missing_broad_folder_says_where_to_get_broad(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The README's ``evaluate ../shared/data/broad/`` for a user who has only the repository."""
+    assert main(["evaluate", str(tmp_path / "shared" / "data" / "broad")]) == 1
+    (tmp_path / "broad").mkdir()
+    assert main(["evaluate", str(tmp_path / "broad")]) == 1
+    assert main(["evaluate", str(tmp_path / "flights")]) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 3, lines
+    for line in lines[:2]:
+        assert "dlaidig/broad" in line and "data_mat" in line and "CC BY 4.0" in line, line
+    assert "no such file" in lines[2] and "dlaidig" not in lines[2]  # only where BROAD was meant

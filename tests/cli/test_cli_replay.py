@@ -328,3 +328,14 @@ def test_ctrl_c_in_a_fast_replay_keeps_every_row_and_frame_computed(shared_data:
     for times in ours.values():
         assert len(times) == rows
         assert times[-1] == pytest.approx(table[-1, 0] * 1000, abs=1)  # the CSV's time column: seconds of the autopilot's clock
+
+
+def test_filter_names_may_be_comma_separated() -> None:
+    """``-f mahony,best`` is ``-f mahony -f best`` in every command that takes filters."""
+    from mavahrs.cli import build_parser
+
+    parser = build_parser()
+    for cmd in ("replay", "evaluate", "plot", "audit"):
+        extra = ["-o", "x.png"] if cmd == "plot" else []
+        ns = parser.parse_args([cmd, "x.tlog", *extra, "-f", "mahony,best", "-f", "eskf"])
+        assert ns.filters == ["mahony", "best", "eskf"], cmd
