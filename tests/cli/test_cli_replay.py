@@ -339,3 +339,21 @@ def test_filter_names_may_be_comma_separated() -> None:
         extra = ["-o", "x.png"] if cmd == "plot" else []
         ns = parser.parse_args([cmd, "x.tlog", *extra, "-f", "mahony,best", "-f", "eskf"])
         assert ns.filters == ["mahony", "best", "eskf"], cmd
+
+
+def test_a_truncated_log_is_noted_by_replay_and_evaluate(shared_data: Path, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``head -c 100000`` of a SITL log: both replay engines and evaluate say it ends inside a frame."""
+    log = shared_data / "sitl" / "arducopter_gentle.tlog"
+    if not log.is_file():
+        pytest.skip(f"{log} not found")
+    cut = tmp_path / "cut.tlog"
+    with open(log, "rb") as f:
+        cut.write_bytes(f.read(100_000))
+    for argv in (["replay", str(cut), "-f", "mahony"], ["replay", str(cut), "-f", "mahony", "--engine", "pipeline"],
+                 ["evaluate", str(cut), "-f", "mahony"]):  # fmt: skip
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert "the log ends inside a frame at byte " in out and "truncated?" in out, (argv, out)
+    assert main(["replay", str(log), "-f", "mahony", "--end", "5"]) == 0
+    assert "ends inside a frame" not in capsys.readouterr().out
