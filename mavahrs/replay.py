@@ -81,6 +81,7 @@ __all__ = [
     "stream",
     "StreamSettings",
     "gap_note",
+    "ReplayInterrupted",
 ]
 
 log = logging.getLogger("mavahrs.replay")
@@ -88,7 +89,31 @@ Array = NDArray[np.float64]
 
 #: Below this many samples per second, attitude filtering is not meaningful.
 LOW_RATE_HZ = 50.0
-_CHUNK = 131_072  # samples per fast-path block (CSV written and flushed per block)
+# samples per fast-path block: the CSV is written and flushed per block, and Ctrl-C keeps every
+# finished block.  Not slower than 131 072-sample blocks: the 400 Hz SITL log with all six filters
+# and --csv filtered in 0.35–0.45 s against 0.52–0.74 s (more of the CSV overlaps the filtering).
+_CHUNK = 16_384
+
+
+class ReplayInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`replay`: what was computed before it is kept.
+
+    Attributes:
+        result: the replay of the samples filtered before the interrupt (every
+            filter, the same samples; no references), or None when it came
+            while the log was being read.
+        fraction: of the fed samples, the part filtered (0…1).
+        stage: ``"preparing the samples"`` or ``"filtering"``.
+        csv_path, csv_rows: the CSV and the rows it holds (all flushed and synced).
+    """
+
+    def __init__(self, result: ReplayResult | None, fraction: float, stage: str) -> None:
+        super().__init__(f"interrupted while {stage}")
+        self.result = result
+        self.fraction = fraction
+        self.stage = stage
+        self.csv_path: str | None = None
+        self.csv_rows = 0
 
 
 @dataclass(frozen=True)
@@ -357,6 +382,8 @@ def replay(
     """Replay a tlog; optionally write the per-sample CSV as it goes.
 
     Raises:
+        ReplayInterrupted: Ctrl-C once the samples were being filtered (with what
+            was kept); while the log is read, a plain KeyboardInterrupt.
         DataError: unreadable log, no autopilot, no IMU data.
         FastPathUnsupported: ``engine="fast"`` on a log that needs the pipeline.
     """
@@ -396,6 +423,12 @@ def replay(
             sink.sync_behind()  # the CSV's last block and fsync go on while the references are read
         result.references = references(td, result.inputs)
         result.tlog = td
+    except KeyboardInterrupt as exc:
+        stop = exc if isinstance(exc, ReplayInterrupted) else ReplayInterrupted(None, 0.0, "preparing the samples")
+        if sink is not None:
+            sink.close()  # every block handed over is written, flushed and synced
+            stop.csv_path, stop.csv_rows = sink.path, sink.rows
+        raise stop from None
     finally:
         if sink is not None:
             sink.close()
@@ -533,6 +566,7 @@ def _replay_fast(
     sents = [np.zeros(m, bool) for _ in filts]
     states = [np.full(1, -1, np.int64) for _ in filts]
     bar = _progress_bar(m, progress, "sample")
+    done = 0  # samples every filter has finished (and the CSV sink has been handed)
     try:
         for a in range(0, m, _CHUNK):
             b = min(m, a + _CHUNK)
@@ -542,9 +576,24 @@ def _replay_fast(
                 out[a:b, OUT_Q : OUT_Q + 4] = _declinate(out[a:b, OUT_Q : OUT_Q + 4], prep.declination_rad[a:b])
             if sink is not None:
                 # formatted and written by the sink's thread while the next chunk is filtered
-                sink.write_behind(_csv_block(prep.t_us[a:b], [o[a:b] for o in outs], [x[a:b] for x in sents]))
+                block = _csv_block(prep.t_us[a:b], [o[a:b] for o in outs], [x[a:b] for x in sents])
+                try:
+                    sink.write_behind(block)
+                except KeyboardInterrupt:
+                    sink.write_now(block)  # computed: kept (the interrupt came while the previous block was written)
+                    done = b
+                    raise
+            done = b
             if bar is not None:
                 bar.update(b - a)
+    except KeyboardInterrupt:
+        part = _first_samples(prep, done)
+        tracks = {
+            n: FilterTrack(n, ps.component_id + i, outs[i][:done], sents[i][:done])
+            for i, (n, _) in enumerate(filters)
+        }
+        partial = ReplayResult(td.path, part, tracks, ps.system_id or prep.source[0], s)
+        raise ReplayInterrupted(partial, done / m if m else 0.0, "filtering") from None
     finally:
         if bar is not None:
             bar.close()
@@ -553,6 +602,18 @@ def _replay_fast(
         n: FilterTrack(n, ps.component_id + i, outs[i], sents[i]) for i, (n, _) in enumerate(filters)
     }
     return ReplayResult(path, prep, tracks, sysid, s)
+
+
+def _first_samples(prep: PreparedInputs, n: int) -> PreparedInputs:
+    """``prep`` cut to its first ``n`` samples (what an interrupted replay filtered)."""
+    import dataclasses
+
+    return dataclasses.replace(
+        prep, rows=prep.rows[:n], t_us=prep.t_us[:n], frame_pos=prep.frame_pos[:n], tlog_us=prep.tlog_us[:n],
+        temperature_c=prep.temperature_c[:n], declination_rad=prep.declination_rad[:n],
+        mag_reference_events=[e for e in prep.mag_reference_events if e[0] < n],
+        notes=list(prep.notes), counts=dict(prep.counts),
+    )  # fmt: skip
 
 
 def _replay_pipeline(
@@ -590,6 +651,8 @@ def _replay_pipeline(
             td, ps, filters, start_s=s.start_s, end_s=s.end_s, decimal_year=dy, progress=tick,
             on_block=write_block if sink is not None else None,
         )  # fmt: skip
+    except KeyboardInterrupt:  # the CSV holds the blocks written so far; the tlog needs the whole run
+        raise ReplayInterrupted(None, last[0] / td.frames if td.frames else 0.0, "filtering") from None
     finally:
         if bar is not None:
             bar.close()
@@ -697,12 +760,14 @@ def format_velocity(inputs: Any) -> str:
 # --------------------------------------------------------------------------- tlog and plot
 
 
-def write_tlog(result: ReplayResult, path: str | Path) -> int:
+def write_tlog(result: ReplayResult, path: str | Path, *, until_tlog_us: int | None = None) -> int:
     """The input log with every filter's frames inserted after the IMU message they came from.
 
     Records keep their timestamps; the inserted frames carry the IMU
     message's.  With ``start_s``/``end_s`` only records in that window are
-    written.  Returns the number of frames inserted.
+    written; with ``until_tlog_us`` (an interrupted replay: its last
+    filtered sample's record time) none after it.  Returns the number of
+    frames inserted.
     """
     from mavahrs.protocol.fast_tlog import scan_tlog
     from mavahrs.protocol.tlog import tlog_record
@@ -728,6 +793,8 @@ def write_tlog(result: ReplayResult, path: str | Path) -> int:
     s = result.settings
     lo = -(2**62) if s.start_s is None else t0 + int(s.start_s * 1e6)
     hi = 2**62 if s.end_s is None else t0 + int(s.end_s * 1e6)
+    if until_tlog_us is not None:
+        hi = min(hi, int(until_tlog_us))
     inserted = 0
     del td
     with open(path, "wb") as f:

@@ -25,7 +25,8 @@ EKF3's XKQ, ATT, AHR2 and in SITL the SIM truth) or a PX4 ULog (.ulg).
              time_boot_ms of the IMU sample); opens in MAVExplorer and QGC.
   --csv      one row per IMU sample: time, then per filter the quaternion,
              Euler angles (deg), gain, accelerometer/magnetometer trust and
-             rejection, gyro bias; flushed as it goes.
+             rejection, gyro bias; flushed as it goes (Ctrl-C keeps every row
+             computed, and --output gets the log up to the last of them).
   --plot     truth/estimate/error per angle, gain and rejection underneath.
   --stream   after replaying, present the first filter's attitude to a ground
              station as a vehicle of its own (its own system id, component 1,
@@ -143,7 +144,12 @@ def _run(args: argparse.Namespace) -> int:
         raise DataError(f"{args.tlog}: no such file")
     settings = settings_from_args(args)
     progress = not args.no_progress and sys.stderr.isatty()
-    result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)
+    try:
+        result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)
+    except rp.ReplayInterrupted as stop:
+        return _interrupted(args, stop)
+    except KeyboardInterrupt:
+        return _interrupted(args, None)
     inp = result.inputs
     dur = (inp.t_us[-1] - inp.t_us[0]) * 1e-6 if inp.n > 1 else 0.0
     print(f"{Path(args.tlog).name}: {inp.n} IMU samples of {inp.message} (instance {inp.instance}) "
@@ -176,3 +182,33 @@ def _run(args: argparse.Namespace) -> int:
         n = rp.stream(result, name, ss)
         print(f"streamed {n} attitudes", file=sys.stderr)
     return 0
+
+
+def _interrupted(args: argparse.Namespace, stop: Any) -> int:
+    """Ctrl-C during the replay: write what was computed and say what was kept (exit 130)."""
+    import logging
+
+    from mavahrs import replay as rp
+    from mavahrs.cli.common import EXIT_INTERRUPTED
+
+    kept: list[str] = []
+    if stop is None:
+        at = "while reading the log, before any sample was filtered"
+    else:
+        at = f"at {100.0 * stop.fraction:.0f} % of the samples"
+    if args.csv:
+        kept.append(f"no CSV ({args.csv} not written)" if stop is None or stop.csv_path is None
+                    else f"{stop.csv_rows} CSV rows in {args.csv}")  # fmt: skip
+    if args.output:
+        part = None if stop is None else stop.result
+        if part is not None and part.inputs.n:
+            k = rp.write_tlog(part, args.output, until_tlog_us=int(part.inputs.tlog_us[-1]))
+            kept.append(f"{k} frames in {args.output} (the log up to the last filtered sample)")
+        elif part is None and stop is not None:
+            kept.append(f"no tlog ({args.output}: the pipeline engine writes it only at the end)")
+        else:
+            kept.append(f"no tlog ({args.output} not written)")
+    logging.getLogger("mavahrs").error(
+        "replay interrupted %s — %s", at, "kept " + ", ".join(kept) if kept else "nothing to keep"
+    )
+    return EXIT_INTERRUPTED

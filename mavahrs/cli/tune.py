@@ -90,7 +90,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from mavahrs.cli.common import prefer_small_pages, start_kernels
     from mavahrs.errors import DataError
-    from mavahrs.evaluation.tuning import combine, tune_file
+    from mavahrs.evaluation.tuning import combine
 
     prefer_small_pages()
     start_kernels()
@@ -100,7 +100,7 @@ def _run(args: argparse.Namespace) -> int:
             raise DataError(f"{path} is a directory: tune takes .tlog files (for a folder: {path}/*.tlog)")
         if not path.is_file():
             raise DataError(f"{path}: no such file")
-    fn = functools.partial(tune_file, imu=args.imu, start_s=args.start, end_s=args.end, source=args.source)
+    fn = functools.partial(_tune_one, imu=args.imu, start_s=args.start, end_s=args.end, source=args.source)
     if len(paths) > 1 and (args.dask or args.scheduler):
         from mavahrs.fleet.dask_engine import DaskEngine, available
 
@@ -111,6 +111,9 @@ def _run(args: argparse.Namespace) -> int:
         results = [done[i] for i in range(len(paths))]
     else:
         results = [fn(p) for p in paths]
+    failed = [r for r in results if isinstance(r, Exception)]
+    if failed:  # raised here, not in a worker: one line, no worker traceback on the console
+        raise failed[0]
     result = combine(results, name=paths[0].name if len(paths) == 1 else f"{len(paths)} recordings")
     if args.json:
         print(json.dumps(result.to_dict(), indent=2, default=float))
@@ -122,6 +125,9 @@ def _run(args: argparse.Namespace) -> int:
 
         logging.getLogger("mavahrs").warning("%s", warning)
     if args.output:
+        unusable = result.unusable(args.gains)
+        if unusable is not None:
+            raise DataError(f"{result.name}: {unusable} (no {args.output} written)")
         out = Path(args.output)
         out.write_text(result.to_toml(gains=args.gains), encoding="utf-8")
         temp = (
@@ -135,3 +141,15 @@ def _run(args: argparse.Namespace) -> int:
             what = f"{temp}; Madgwick β = {beta:.3g} rad/s, ζ = {zeta:.3g} rad/s² ({args.gains}, {fit})"
         print(f"wrote {out}: {what}; use: mavahrs run --config {out}", file=sys.stderr)
     return 0
+
+
+def _tune_one(path: Any, **kw: Any) -> Any:
+    """:func:`~mavahrs.evaluation.tuning.tune_file`, or the error it raised (a Dask task then does not fail:
+    its worker would log the traceback on the console)."""
+    from mavahrs.errors import MavahrsError
+    from mavahrs.evaluation.tuning import tune_file
+
+    try:
+        return tune_file(path, **kw)
+    except (MavahrsError, OSError, ValueError) as exc:
+        return exc

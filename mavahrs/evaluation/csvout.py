@@ -239,9 +239,20 @@ class CsvSink:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mavahrs-csv")
         self._pending.append(self._pool.submit(fn, *args))  # one worker: done in order
 
+    def write_now(self, values: NDArray[np.float64]) -> None:
+        """:meth:`write` in the caller's thread, after what was handed over before (rows stay in order)."""
+        self._wait()
+        self.write(values)
+
     def _wait(self) -> None:
-        pending, self._pending = self._pending, []
-        errors = [exc for f in pending if (exc := f.exception()) is not None]
+        # One at a time, each forgotten only once done: a Ctrl-C while waiting leaves the rest
+        # pending, so whatever comes next (close, write_now) still waits for it.
+        errors = []
+        while self._pending:
+            exc = self._pending[0].exception()
+            self._pending.pop(0)
+            if exc is not None:
+                errors.append(exc)
         if errors:
             raise errors[0]
 

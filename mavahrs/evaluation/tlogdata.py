@@ -174,6 +174,17 @@ def read_tlog_data(path: str | Path) -> TlogData:
     )
 
 
+def truncation_notes(td: TlogData) -> list[str]:
+    """The note every command reading ``td`` puts in its header when the log ends inside a frame."""
+    from mavahrs.protocol.fast_tlog import truncated_frame_at
+
+    at = truncated_frame_at(td.scan) if td.scan is not None else None
+    if at is None:
+        return []
+    return [f"the log ends inside a frame at byte {at} (of {int(td.data.shape[0])}): truncated? "
+            "(everything before it is used)"]  # fmt: skip
+
+
 def decimal_year_of_log(td: TlogData) -> float | None:
     """The date of the recording from its first record's Unix timestamp (None if implausible)."""
     if td.frames == 0:
@@ -658,7 +669,7 @@ def prepare_inputs(
     hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
     # --- every IMU message of the source, scaled, in frame order
     parts = []
-    notes: list[str] = []
+    notes: list[str] = truncation_notes(td)
     for name in IMU_TYPES:
         a = td.arrays[name]
         if a.shape[0] == 0 or profile.scale_for(name) is None:
@@ -967,6 +978,7 @@ def run_pipelines(
                 **{k: int(counters.get(k, 0)) for k in ("exact_duplicates", "same_stamp_changed")}},
         velocity_source=_velocity_setting(settings),
         velocity_fixes={k: p0.velocity_selector.used(k) for k in p0.velocity_selector.messages},
+        notes=truncation_notes(td),
     )  # fmt: skip
     for kind, text in p0.drain_notices():
         if kind >= logging.WARNING:

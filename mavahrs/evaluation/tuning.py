@@ -191,6 +191,31 @@ class TuneResult:
             return d.beta_rad_s, d.zeta_rad_s
         raise ValueError(f"gains must be 'flight', 'spec' or 'ls', got {which!r}")
 
+    def unusable(self, which: str) -> str | None:
+        """Why :meth:`to_toml` with ``gains=which`` would write nothing usable (None when it is fine).
+
+        Non-finite or non-positive gains (``spec``/``ls``), a non-finite temperature
+        model, or a ``flight`` file that would hold no settings at all.
+        """
+        if self.temperature_model and not all(
+            math.isfinite(v) for v in (self.t0_c, *self.b0_rad_s, *self.k_rad_s_per_c)
+        ):
+            return "the gyro temperature model is not finite"
+        if which == "flight":
+            if not self.temperature_model:
+                return ("nothing to write: no temperature model (the recording's IMU temperature did not spread "
+                        "enough) and --gains flight writes no gains; record a warm-up at rest, or ask for bench "
+                        "gains with --gains spec or ls")  # fmt: skip
+            return None
+        beta, zeta = self.gains(which)
+        bad = [f"{n} = {v:.3g}" for n, v in (("β", beta), ("ζ", zeta)) if not (math.isfinite(v) and v >= 0)]
+        if not bad and not beta > 0:
+            bad = [f"β = {beta:.3g}"]
+        if bad:
+            return (f"not enough motion / rest to estimate the {which} gains ({', '.join(bad)}): "
+                    "nothing written")  # fmt: skip
+        return None
+
     def flight_warning(self, which: str) -> str | None:
         """Why the ``which`` gains are not fit to fly with (None for ``flight``, or gains as large as those)."""
         beta, zeta = self.gains(which)
@@ -486,6 +511,15 @@ def tune(rec: Recording, settings: TuneSettings | None = None) -> TuneResult:
         )
     noise = resid[keep]
     noise_sd = noise.std(axis=0)
+    if not np.all(noise_sd > 0):  # e.g. a simulator before arming: every reading the same, nothing to fit
+        axes = "".join(a for a, sd in zip("xyz", noise_sd, strict=True) if not sd > 0)
+        span = float(t[ok][-1] - t[ok][0])
+        raise DataError(
+            f"{rec.name}: not enough rest data to estimate the gyro's noise, bias and gains: the gyro's {axes} "
+            f"reading{'s do' if len(axes) > 1 else ' does'} not change at all over the {int(keep.sum())} samples "
+            f"({span:.1f} s) — a simulator before arming, or a log cut short? Record the IMU at rest for a "
+            "minute or more"
+        )
     noise_mean_abs = np.mean(np.abs(noise - noise.mean(axis=0)), axis=0)
     omega_beta = float(np.mean(noise_mean_abs))  # "mean zero-mean error of each axis"
     tk = t[keep]

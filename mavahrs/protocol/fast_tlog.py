@@ -72,11 +72,13 @@ __all__ = [
     "IMU_TYPES",
     "DEFAULT_TYPES",
     "TlogScan",
+    "truncated_frame_at",
     "read_tlog_arrays",
     "decode_scan",
     "scan_tlog",
     "message_dtype",
     "load_bytes",
+    "truncated_frame_at",
 ]
 
 #: IMU message types mavahrs replays from
@@ -578,6 +580,42 @@ class TlogScan:
         src = self.side if self.in_side[j] else self.data
         o = int(self.offset[j])
         return bytes(src[o : o + int(self.length[j])])
+
+
+def truncated_frame_at(scan: TlogScan, max_records: int = 1_000_000) -> int | None:
+    """Where a frame cut off by the end of the file starts (byte offset), or None.
+
+    From the end of the last frame the scan found, the records that follow are
+    walked (8-byte timestamp, then a MAVLink 1 or 2 frame whose length its
+    header gives); a frame reaching past the end of the file means the log was
+    cut short (a copy interrupted, a recorder killed).  Junk (no frame start
+    where one should be) ends the walk without a verdict.
+    """
+    data = scan.data
+    n = int(data.shape[0])
+    p = 0
+    direct = np.flatnonzero(~scan.in_side)
+    if direct.size:
+        j = int(direct[-1])
+        p = int(scan.offset[j]) + int(scan.length[j])
+    for _ in range(max_records):
+        if p >= n:
+            return None
+        if p + 9 > n:  # a timestamp (and frame start) cut short
+            return p + 8 if p + 8 < n else p
+        start = p + 8
+        magic = int(data[start])
+        if magic not in (0xFE, 0xFD):
+            return None
+        if start + 3 > n:
+            return start
+        need = int(data[start + 1]) + (8 if magic == 0xFE else 12)
+        if magic == 0xFD and int(data[start + 2]) & 0x01:
+            need += 13  # signed
+        if start + need > n:
+            return start
+        p = start + need
+    return None
 
 
 def load_bytes(source: str | os.PathLike[str] | BinaryIO | bytes | bytearray | memoryview) -> np.ndarray:

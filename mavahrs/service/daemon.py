@@ -19,6 +19,10 @@ socket; no busy polling:
   flushing, the no-heartbeat watchdog, the status line every
   ``status_interval_s``, ``--duration``.
 
+Start-up: the links open before the filter compiles (a busy port is reported at
+once), so what the master link queued meanwhile is old; it is read and thrown away
+once the daemon is ready, counted (``startup_dropped``) and said in one line.
+
 Processing latency — from the moment a datagram is read to the moment the
 last ``sendto`` of the attitude computed from it returned — goes into a
 preallocated ring (``latency_ring`` entries, nanoseconds), summarised in the
@@ -230,6 +234,10 @@ class DaemonCounters:
             not confirm byte for byte (then the lane is switched off).
         fast_lane_chained: of ``fast_lane_answers``, those given in a chain over
             datagrams that had queued up (the process was not scheduled for a while).
+        startup_dropped: what the master link had queued while the daemon was starting
+            (links open before the filter compiles, so a busy port is reported at once):
+            datagrams (UDP) or bytes (streams), thrown away unread by the filter — it is
+            old data and would be handled as if it had just arrived.
     """
 
     datagrams_in: int = 0
@@ -243,6 +251,7 @@ class DaemonCounters:
     fast_lane_answers: int = 0
     fast_lane_mismatches: int = 0
     fast_lane_chained: int = 0
+    startup_dropped: int = 0
 
 
 @dataclass(frozen=True)
@@ -436,6 +445,8 @@ class Daemon:
         self._signing_reported = 0  # frames dropped by signing at the last warning
         self._signing_reported_us: int | None = None
         self._scheduling = "normal"  # set at run()
+        # Last of the start-up (the filter is compiled, the fast lane built): what follows is live.
+        self._drop_startup_backlog()
 
     # ------------------------------------------------------------------ control
     def stop(self, reason: str = "stopped") -> None:
@@ -513,6 +524,26 @@ class Daemon:
         return False
 
     # ------------------------------------------------------------------ receiving
+    def _drop_startup_backlog(self, max_s: float = 2.0) -> None:
+        """Throw away what the master link queued while the daemon was starting, count it and say so.
+
+        The links open first (a busy port or a missing device is reported before the filter
+        compiles, which can take tens of seconds on a fresh install); meanwhile the operating
+        system queues what the autopilot sends.  Handled now it would look live: hundreds of old
+        samples arriving within a fraction of a second (in the ``--log`` recording and in the
+        attitude sent on).  Reading it still teaches ``udpin`` its peer.
+        """
+        master, c = self.master, self.counters
+        unit = "datagrams" if master.datagram else "bytes"
+        end = time.monotonic() + max_s
+        while time.monotonic() < end:
+            data = master.read(0.0)
+            if not data:
+                break
+            c.startup_dropped += 1 if master.datagram else len(data)
+        if c.startup_dropped:
+            self.log.info("dropped %d %s queued during start-up (older than the filter)", c.startup_dropped, unit)
+
     def _read_master(self) -> None:
         """The master link is readable: answer what came, then drain the rest through the bounded queue.
 
@@ -909,6 +940,11 @@ class Daemon:
 
             self.http_publisher = StatusPublisher(self.http_server.board, self._started_s)
         self._last_status_s = self._started_s
+        # Everything allocated so far (numba, numpy, pymavlink tables: hundreds of thousands of
+        # objects) is permanent: keep the cyclic GC from walking it again in a full collection,
+        # which would otherwise stall the loop for tens of milliseconds now and then.
+        gc.collect()
+        gc.freeze()
         self.log.info(
             "mavahrs running: master %s; outputs %s; log %s; scheduling %s%s",
             self.master.describe(),
@@ -924,11 +960,6 @@ class Daemon:
                           "the status line and in the --log recording only)")
         next_tick = self._started_s
         master = self.master
-        # Everything allocated so far (numba, numpy, pymavlink tables: hundreds of thousands of
-        # objects) is permanent: keep the cyclic GC from walking it again in a full collection,
-        # which would otherwise stall the loop for tens of milliseconds now and then.
-        gc.collect()
-        gc.freeze()
         try:
             while self._stop_reason is None:
                 timeout = next_tick - time.monotonic()

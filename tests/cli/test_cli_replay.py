@@ -257,6 +257,79 @@ def test_replay_notes_a_hole_in_the_log(tmp_path: Path, capsys: pytest.CaptureFi
     ]
 
 
+@pytest.mark.slow
+def test_ctrl_c_in_a_fast_replay_keeps_every_row_and_frame_computed(shared_data: Path, tmp_path: Path) -> None:
+    """SIGINT to a real ``mavahrs replay --csv --output`` (fast engine) once its CSV has rows.
+
+    Every row written is whole and in time order, the tlog holds the frames of
+    the same samples, and the last line says how far it got and what was kept.
+    """
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import numpy as np
+    from pymavlink import mavutil
+
+    log = shared_data / "sitl" / "arducopter_400hz_gps.tlog"
+    if not log.is_file():
+        pytest.skip(f"{log} not found")
+    csv, out = tmp_path / "r.csv", tmp_path / "r.tlog"
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[2]) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mavahrs", "replay", str(log), "-f", "all", "--engine", "fast", "--csv", str(csv),
+         "--output", str(out), "--no-progress"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while proc.poll() is None and time.monotonic() < deadline:  # the first block of rows is the event
+            if csv.is_file() and csv.read_bytes().count(b"\n") >= 2:
+                break
+            time.sleep(0.01)
+        assert proc.poll() is None, "the replay ended before it could be interrupted"
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    said = re.search(r"replay interrupted at (\d+) % of the samples — kept (\d+) CSV rows in (\S+), (\d+) frames in (\S+)",
+                     stderr)  # fmt: skip
+    assert said, stderr
+    percent, rows, frames = int(said[1]), int(said[2]), int(said[4])
+    assert said[3] == str(csv) and said[5] == str(out)
+    assert 0 < percent < 100
+
+    text = csv.read_text()
+    assert text.endswith("\n")
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    assert len(lines) - 1 == rows > 0
+    assert all(line.count(",") == len(header) - 1 for line in lines[1:])  # whole rows
+    table = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+    assert table.shape == (rows, len(header))
+    assert np.all(np.diff(table[:, 0]) > 0)  # time-ordered, each sample once
+
+    mlog = mavutil.mavlink_connection(str(out), dialect="ardupilotmega")
+    ours: dict[int, list[int]] = {}
+    while (m := mlog.recv_match(type="ATTITUDE_QUATERNION")) is not None:
+        if m.get_srcComponent() >= 191:
+            ours.setdefault(m.get_srcComponent(), []).append(m.time_boot_ms)
+    mlog.close()
+    assert sum(len(v) for v in ours.values()) == frames
+    assert len(ours) == 6  # every filter, the same samples (out-rate 0: one frame per CSV row)
+    for times in ours.values():
+        assert len(times) == rows
+        assert times[-1] == pytest.approx(table[-1, 0] * 1000, abs=1)  # the CSV's time column: seconds of the autopilot's clock
+
+
 def test_filter_names_may_be_comma_separated() -> None:
     """``-f mahony,best`` is ``-f mahony -f best`` in every command that takes filters."""
     from mavahrs.cli import build_parser
@@ -266,3 +339,21 @@ def test_filter_names_may_be_comma_separated() -> None:
         extra = ["-o", "x.png"] if cmd == "plot" else []
         ns = parser.parse_args([cmd, "x.tlog", *extra, "-f", "mahony,best", "-f", "eskf"])
         assert ns.filters == ["mahony", "best", "eskf"], cmd
+
+
+def test_a_truncated_log_is_noted_by_replay_and_evaluate(shared_data: Path, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``head -c 100000`` of a SITL log: both replay engines and evaluate say it ends inside a frame."""
+    log = shared_data / "sitl" / "arducopter_gentle.tlog"
+    if not log.is_file():
+        pytest.skip(f"{log} not found")
+    cut = tmp_path / "cut.tlog"
+    with open(log, "rb") as f:
+        cut.write_bytes(f.read(100_000))
+    for argv in (["replay", str(cut), "-f", "mahony"], ["replay", str(cut), "-f", "mahony", "--engine", "pipeline"],
+                 ["evaluate", str(cut), "-f", "mahony"]):  # fmt: skip
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert "the log ends inside a frame at byte " in out and "truncated?" in out, (argv, out)
+    assert main(["replay", str(log), "-f", "mahony", "--end", "5"]) == 0
+    assert "ends inside a frame" not in capsys.readouterr().out

@@ -142,3 +142,43 @@ def test_the_readmes_tune_examples_write_what_they_say(
     assert "moves like your flights" not in readme
     assert main(["tune", "--help"]) == 0
     assert "at rest" in " ".join(capsys.readouterr().out.split())
+
+
+def test_tune_refuses_a_log_cut_short_and_writes_nothing(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The first 100 kB of the SITL flight (on the ground before arming: the simulated gyro reads exactly
+    zero) gave all-zero bias and noise and β = nan, written as ``beta_rad_s = nan``."""
+    log = shared_data / "sitl" / "arducopter_aggressive.tlog"
+    if not log.is_file():
+        pytest.skip(f"{log} not found")
+    cut = tmp_path / "cut.tlog"
+    with open(log, "rb") as f:
+        cut.write_bytes(f.read(100_000))
+    for gains in ("flight", "spec", "ls"):
+        toml = tmp_path / f"{gains}.toml"
+        assert main(["tune", str(cut), "--gains", gains, "-o", str(toml)]) == 1
+        cap = capsys.readouterr()
+        assert not toml.exists()
+        lines = cap.err.strip().splitlines()
+        assert len(lines) == 1 and "not enough rest data to estimate" in lines[0], cap.err
+        assert "nan" not in cap.out
+
+
+def test_tune_writes_no_file_without_settings(tmp_path: Path, rng: np.random.Generator,
+                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """At rest without a temperature spread, --gains flight has nothing to write: exit 1, no file."""
+    n, fs = 6000, 100
+    t = np.arange(n) / fs
+    gyro = 0.003 + rng.normal(0, 0.002, (n, 3))
+    acc = np.array([0.1, 0.2, -9.8]) + rng.normal(0, 0.02, (n, 3))
+    p = tmp_path / "flat.csv"
+    np.savetxt(p, np.column_stack([t, gyro, acc, np.full(n, 25.0)]), delimiter=",", comments="",
+               header="time_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2,"
+               "temperature_c")  # fmt: skip
+    toml = tmp_path / "empty.toml"
+    assert main(["tune", str(p), "-o", str(toml)]) == 1
+    err = capsys.readouterr().err
+    assert not toml.exists() and "nothing to write" in err
+    assert main(["tune", str(p), "--gains", "ls", "-o", str(toml)]) == 0  # bench gains are settings
+    assert "beta_rad_s" in toml.read_text()

@@ -50,3 +50,20 @@ def test_several_flights_give_one_set_of_gains(rests: list[Path], capsys: pytest
     from mavahrs.config import load_run_config
 
     assert load_run_config(toml).filter.beta_rad_s == pytest.approx(both["beta_ls"], rel=1e-5)
+
+
+def test_a_bad_recording_on_dask_is_one_line_without_worker_traceback(
+    rests: list[Path], tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """A recording tune refuses, among good ones on a local cluster: the reason in one line, exit 1, no file,
+    and no "Compute Failed … Traceback" from the worker processes (they write to the same terminal)."""
+    from firmware_sim.fleet import FleetLog, write_fleet_log
+
+    short = write_fleet_log(tmp_path, FleetLog("short.tlog", "rest", 4, 0.3))
+    toml = tmp_path / "fleet.toml"
+    assert main(["tune", *map(str, rests), str(short), "--dask", "--workers", "2", "--gains", "ls",
+                 "-o", str(toml)]) == 1  # fmt: skip
+    err = capfd.readouterr().err
+    assert not toml.exists()
+    assert "Traceback" not in err and "Compute Failed" not in err, err
+    assert "short" in err and "usable samples" in err

@@ -183,3 +183,21 @@ def test_corrupt_first_record_of_a_type_at_end_returns_data(pymavlink_ref, tmp_p
     scan = scan_tlog(p, ["RAW_IMU"])
     assert scan.pymavlink_raises == 1
     assert read_tlog_arrays(p, ["RAW_IMU"])["RAW_IMU"]["time_usec"].tolist() == [0, 1, 2, 3, 4]
+
+
+def test_a_log_cut_inside_a_frame_is_found_where_the_frame_starts(shared_data) -> None:  # type: ignore[no-untyped-def]
+    """``head -c N`` of a SITL log ends inside a frame: its start is reported; the whole log gives None."""
+    from mavahrs.protocol.fast_tlog import scan_tlog, truncated_frame_at
+
+    path = shared_data / "sitl" / "arducopter_gentle.tlog"
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    data = np.fromfile(path, np.uint8)
+    assert truncated_frame_at(scan_tlog(data, ["RAW_IMU"])) is None
+    full = scan_tlog(data, None)
+    ends = {int(o) + int(n) for o, n in zip(full.offset[~full.in_side], full.length[~full.in_side], strict=True)}
+    for cut in (100_000, 250_001, 777_777):
+        if cut in ends:
+            continue
+        at = truncated_frame_at(scan_tlog(data[:cut].copy(), ["RAW_IMU"]))
+        assert at is not None and cut - 300 < at < cut, (cut, at)  # within one frame of the cut
