@@ -406,8 +406,13 @@ def _resend_notes(counts: Mapping[str, int]) -> list[str]:
     out = []
     n = counts.get("exact_duplicates", 0)
     if n:
-        out.append(f"{n} exact duplicate IMU messages (same time stamp and values as the message before: "
-                   "sent twice by the autopilot) dropped")  # fmt: skip
+        line = (f"{n} exact duplicate IMU messages (same time stamp and values as the message before: "
+                f"sent twice by the autopilot) dropped, counted over every IMU instance "
+                f"({counts.get('imu_messages', 0)} IMU messages in all)")  # fmt: skip
+        fed, of = counts.get("exact_duplicates_fed"), counts.get("imu_messages_fed")
+        if fed is not None and of:
+            line += f"; of the filtered instance's {of} messages, {fed} ({100.0 * fed / of:.0f} %)"
+        out.append(line)
     n = counts.get("same_stamp_changed", 0)
     if n:
         out.append(f"{n} IMU messages repeat the previous message's time stamp with other values "

@@ -42,6 +42,7 @@ examples:
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
+    from mavahrs.cli.common import FilterNames
     from mavahrs.cli.replay import add_pipeline_options
 
     p: argparse.ArgumentParser = subparsers.add_parser(
@@ -49,7 +50,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("logs", nargs="+", metavar="LOGS", help="tlog files, folders, globs")
     p.add_argument("--output", "-o", action="append", default=[], metavar="TABLE",
-                   help="write the rows to TABLE.parquet or TABLE.csv (repeatable); resumable")
+                   help="write the rows to TABLE.parquet or TABLE.csv (repeatable, or comma-separated); resumable")
     p.add_argument("--force", action="store_true", help="replay logs already summarised in --output")
     p.add_argument("--plot", metavar="PNG", help="draw the fleet overview (needs matplotlib)")
     p.add_argument("--top", type=int, default=10, metavar="N", help="flights listed in the summary (default 10)")
@@ -58,7 +59,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "else a local cluster)")  # fmt: skip
     p.add_argument("--workers", type=int, metavar="N", help="local cluster: worker processes (default: one per core)")
     p.add_argument("--serial", action="store_true", help="no Dask: replay the logs one after the other here")
-    p.add_argument("--filter", "-f", dest="filters", action="append", metavar="NAME",
+    p.add_argument("--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
                    help="filter compared with the autopilot (default best)")
     add_pipeline_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -35,6 +35,7 @@ __all__ = [
     "EXIT_INTERRUPTED",
     "EXIT_CODES_HELP",
     "exit_code_for",
+    "FilterNames",
     "setup_logging",
     "JsonFormatter",
     "LazyDefaultsFormatter",
@@ -287,6 +288,16 @@ def add_velocity_source_option(parser: Any, *, default_text: str = "auto") -> No
 
 
 # --------------------------------------------------------------------------- options
+
+
+class FilterNames(argparse.Action):
+    """``--filter``: repeatable, and each value may list several names (``-f mahony,best``)."""
+
+    def __call__(self, parser: Any, namespace: argparse.Namespace, values: Any, option_string: Any = None) -> None:
+        names = [n.strip() for n in str(values).split(",") if n.strip()]
+        if not names:
+            parser.error(f"{option_string}: no filter name given")
+        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), *names])
 
 
 def parse_source(text: str) -> tuple[int, int | None]:

@@ -30,15 +30,20 @@ gyro drift, Fig. 12), compare (Mahony, Madgwick, complementary side by side,
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import LazyDefaultsFormatter, add_source_option, add_velocity_source_option
+    from mavahrs.cli.common import (
+        FilterNames,
+        LazyDefaultsFormatter,
+        add_source_option,
+        add_velocity_source_option,
+    )
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         "evaluate", help=HELP, description=DESCRIPTION, formatter_class=LazyDefaultsFormatter
     )
     p.add_argument("input", metavar="INPUT", help=".mat, .csv, .tlog file or a folder of them")
     p.add_argument(
-        "--filter", "-f", dest="filters", action="append", metavar="NAME",
-        help="filter to run (repeatable): {filters}, or all (default: best; studies: their own defaults)",
+        "--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
+        help="filter to run (repeatable, or comma-separated): {filters}, or all (default: best; studies: their own defaults)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of tables")
     add_velocity_source_option(p, default_text="auto; tlogs only")

@@ -19,15 +19,15 @@ each filter's gain and accelerometer/magnetometer trust (0 = rejected)."""
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import add_source_option
+    from mavahrs.cli.common import FilterNames, add_source_option
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         "plot", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("input", metavar="INPUT", help=".tlog, .mat, .csv (recording or replay CSV)")
     p.add_argument("--output", "-o", metavar="PNG", required=True, help="image to write")
-    p.add_argument("--filter", "-f", dest="filters", action="append", metavar="NAME",
-                   help="filter(s) to run (repeatable; all = every filter); default best")
+    p.add_argument("--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
+                   help="filter(s) to run (repeatable or comma-separated; all = every filter); default best")
     p.add_argument("--no-mag", action="store_true", help="recordings: 6-axis (no magnetometer)")
     p.add_argument("--start", type=float, metavar="S", help="from S seconds")
     p.add_argument("--end", type=float, metavar="S", help="up to S seconds")

@@ -31,14 +31,14 @@ autopilot's ATTITUDE and AHRS2; in simulator logs, the SIMSTATE/SIM_STATE/HIL_ST
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.cli.common import LazyDefaultsFormatter
+    from mavahrs.cli.common import FilterNames, LazyDefaultsFormatter
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         "replay", help=HELP, description=DESCRIPTION, formatter_class=LazyDefaultsFormatter
     )
     p.add_argument("tlog", metavar="FLIGHT.tlog", help="telemetry log (MAVProxy, QGC, Mission Planner, mavahrs)")
-    p.add_argument("--filter", "-f", dest="filters", action="append", metavar="NAME",
-                   help="filter (repeatable): {filters}, or all (default: best)")
+    p.add_argument("--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
+                   help="filter (repeatable, or comma-separated): {filters}, or all (default: best)")
     p.add_argument("--output", "-o", metavar="OUT.tlog", help="write the log with the filters' ATTITUDE_QUATERNION")
     p.add_argument("--csv", metavar="OUT.csv", help="write one row per IMU sample")
     p.add_argument("--plot", metavar="OUT.png", help="write a plot (needs the plot extra: matplotlib)")

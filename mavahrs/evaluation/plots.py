@@ -35,6 +35,7 @@ _REF_COLOR = "black"
 _COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:olive", "tab:cyan")
 #: ``best`` stands out: its own colour (no other filter gets it), a heavier line, drawn on top
 _BEST_COLOR = "tab:red"
+_FLEET_NAMED = 12  # flagged flights numbered and named in the fleet plot; the rest are counted
 
 
 def _style(name: str, j: int, lw: float) -> dict[str, Any]:
@@ -131,6 +132,38 @@ def _angle(y: Array, k: int, like: Array | None = None) -> Array:
     return u
 
 
+def _hidden_labels(quats: Mapping[str, Array], tol: float = 1e-6) -> dict[str, str]:
+    """Legend labels; a filter whose attitude equals a later-drawn one's says it is hidden beneath it.
+
+    (Mahony and the gyro-platform filter give identical attitudes with their defaults: the
+    later line covers the earlier one exactly.)
+    """
+    names = list(quats)
+    out = {n: n for n in names}
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            qa, qb = np.asarray(quats[a], float), np.asarray(quats[b], float)
+            if qa.shape != qb.shape or not qa.size:
+                continue
+            d = np.minimum(np.abs(qa - qb).max(axis=1), np.abs(qa + qb).max(axis=1))  # q and −q alike
+            fin = np.isfinite(d)
+            if fin.any() and float(d[fin].max()) <= tol:
+                out[a] = f"{a} (identical to {b}, hidden beneath it)"
+                break
+    return out
+
+
+def _wrap_entries(entries: list[str], width: int) -> list[str]:
+    """Entries joined by ``;`` into lines of at most ``width`` characters (an entry is never split)."""
+    lines: list[str] = []
+    for e in entries:
+        if lines and len(lines[-1]) + 3 + len(e) <= width:
+            lines[-1] += ("   " if lines[-1].endswith(":") else ";  ") + e
+        else:
+            lines.append(e)
+    return lines
+
+
 def _quats(x: Array) -> Array:
     x = np.asarray(x, dtype=float)
     return x[:, OUT_Q : OUT_Q + 4] if x.shape[1] == OUT_WIDTH else x
@@ -181,6 +214,7 @@ def plot_attitude(
     ax_of = {name: ax for (name, _), ax in zip(rows, axes, strict=True)}
     ref_e = euler_deg(reference_q)[idx] if has_err and reference_q is not None else None
     est_e = {name: euler_deg(_quats(est)[idx]) for name, est in estimates.items()}
+    label = _hidden_labels({name: _quats(est)[idx] for name, est in estimates.items()})
     for k, a in enumerate(ANGLES):
         ax = ax_of[a]
         like = None
@@ -190,7 +224,7 @@ def plot_attitude(
         for j, (name, e) in enumerate(est_e.items()):
             y = _angle(e[:, k], k, like)
             like = y if like is None else like
-            ax.plot(t[idx], y, label=name, **_style(name, j, 0.9))
+            ax.plot(t[idx], y, label=label[name], **_style(name, j, 0.9))
         for j, (name, (t_o, q_o)) in enumerate((others or {}).items()):
             e = euler_deg(q_o)
             y = _angle(e[:, k], k, np.interp(t_o, t[idx], like) if like is not None else None)
@@ -202,7 +236,7 @@ def plot_attitude(
             for j, (name, est) in enumerate(estimates.items()):
                 err = np.degrees(euler_errors_rad(_quats(est)[idx], reference_q[idx]))  # type: ignore[index]
                 rms = float(np.sqrt(np.nanmean(err[:, k] ** 2))) if np.isfinite(err[:, k]).any() else np.nan
-                axe.plot(t[idx], err[:, k], label=f"{name} RMS {rms:.2f}°", **_style(name, j, 0.8))
+                axe.plot(t[idx], err[:, k], label=f"{label[name]} RMS {rms:.2f}°", **_style(name, j, 0.8))
             axe.axhline(0, color="grey", lw=0.6)
             axe.set_ylabel(f"{a} err (°)")
             axe.grid(alpha=0.3)
@@ -373,6 +407,7 @@ def plot_fleet(
     :class:`mavahrs.fleet.audit.FleetRow` fields as mappings.
     """
     plt = _pyplot()
+    from matplotlib.ticker import MaxNLocator
 
     def col(name: str, sel: list[Mapping[str, Any]]) -> Array:
         return np.array([np.nan if r.get(name) is None else float(r[name]) for r in sel], dtype=float)
@@ -390,13 +425,15 @@ def plot_fleet(
             y = np.maximum(col("heading_max_deg", sel), floor)
             ax.scatter(x, y, s=18 + 2 * np.nan_to_num(col("duration_s", sel)) ** 0.5 * 4, c=color, alpha=0.7,
                        edgecolors="none", label=f"{label} ({len(sel)})")  # fmt: skip
-    for k, r in enumerate(flagged[:12]):  # named, stacked so that neighbours stay legible
+    named: list[str] = []
+    for k, r in enumerate(flagged[:_FLEET_NAMED]):  # numbered at the point, named in the list under the axes
         t = r.get("first_alarm_s")
         name = Path(str(r["path"])).name
-        ax.annotate(f"{name} @ {t:.1f} s" if t == t else name,
-                    (max(float(r["inclination_max_deg"]), floor), max(float(r["heading_max_deg"]), floor)),
-                    fontsize=7, xytext=(-6, 10 + 11 * k), textcoords="offset points", ha="right", color="tab:red",
-                    arrowprops={"arrowstyle": "-", "color": "tab:red", "lw": 0.5})  # fmt: skip
+        named.append(f"{k + 1}  {name} @ {t:.1f} s" if t is not None and t == t else f"{k + 1}  {name}")
+        ax.annotate(str(k + 1), (max(float(r["inclination_max_deg"]), floor), max(float(r["heading_max_deg"]), floor)),
+                    fontsize=7, xytext=(4, 4), textcoords="offset points", color="tab:red")  # fmt: skip
+    if len(flagged) > _FLEET_NAMED:
+        named.append(f"… and {len(flagged) - _FLEET_NAMED} more (see the table)")
     ax.axvline(tilt_threshold_deg, color="grey", ls="--", lw=0.8)
     ax.axhline(heading_threshold_deg, color="grey", ls="--", lw=0.8)
     ax.set_xscale("log")
@@ -404,7 +441,7 @@ def plot_fleet(
     ax.set_xlabel("largest inclination divergence, deg")
     ax.set_ylabel("largest heading divergence, deg")
     ax.set_title("mavahrs vs the autopilot's attitude, per flight")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="best", fontsize=8)
     ax.grid(True, which="both", alpha=0.25)
     ax = axes[1]
     incl = col("inclination_rms_deg", good)
@@ -415,6 +452,7 @@ def plot_fleet(
                 color=["tab:blue", "tab:red"], label=["agrees", "WARNING"])  # fmt: skip
     ax.set_xlabel("inclination divergence RMS, deg")
     ax.set_ylabel("flights")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # whole flights, not 1.25
     ax.set_title("inclination divergence RMS")
     ax.grid(True, alpha=0.25)
     ax = axes[2]
@@ -432,8 +470,13 @@ def plot_fleet(
         ax.legend(loc="upper right", fontsize=8)
     ax.set_xlabel("vibration, m/s² RMS (worst axis)")
     ax.set_ylabel("flights")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_title(f"vibration ({int(clipped.sum())} flights with clipped samples)")
     ax.grid(True, alpha=0.25)
     fig.suptitle(f"fleet audit: {len(rows)} logs, {len(flagged)} flagged, {bad} unreadable")
-    fig.tight_layout()
+    lines = _wrap_entries(["flagged (numbered on the left):", *named], width=170) if named else []
+    bottom = 0.03 + 0.035 * len(lines)  # the list of flagged flights gets its own strip under the axes
+    for k, line in enumerate(lines):
+        fig.text(0.01, bottom - 0.03 - 0.035 * k, line, fontsize=7, color="tab:red", va="bottom", ha="left")
+    fig.tight_layout(rect=(0.0, bottom if lines else 0.0, 1.0, 1.0))
     return _save(fig, path)

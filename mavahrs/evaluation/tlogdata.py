@@ -807,6 +807,9 @@ def prepare_inputs(
         "dropped_timeline": int((~keep).sum()),
         "exact_duplicates": int(resent.sum()),
         "same_stamp_changed": restamped,
+        # of the fed instance alone (the count above is over every instance the log carries)
+        "exact_duplicates_fed": int((resent & (mg["imu"] == chosen)).sum()),
+        "imu_messages_fed": int((mg["imu"] == chosen).sum()),
     }
     return PreparedInputs(
         rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,

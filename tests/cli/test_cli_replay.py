@@ -255,3 +255,14 @@ def test_replay_notes_a_hole_in_the_log(tmp_path: Path, capsys: pytest.CaptureFi
         "note: 2 gaps in the IMU data, 3.0 s without samples in all: 2.0–3.0 s, 6.0–8.0 s of the log; the "
         "filters start again after each (their re-convergence is in the comparison below)"
     ]
+
+
+def test_filter_names_may_be_comma_separated() -> None:
+    """``-f mahony,best`` is ``-f mahony -f best`` in every command that takes filters."""
+    from mavahrs.cli import build_parser
+
+    parser = build_parser()
+    for cmd in ("replay", "evaluate", "plot", "audit"):
+        extra = ["-o", "x.png"] if cmd == "plot" else []
+        ns = parser.parse_args([cmd, "x.tlog", *extra, "-f", "mahony,best", "-f", "eskf"])
+        assert ns.filters == ["mahony", "best", "eskf"], cmd

@@ -83,6 +83,9 @@ def test_firmware_sim_800_hz_loop_replays_alike_on_both_engines(tmp_path: Path) 
     np.testing.assert_array_equal(fast.inputs.rows, ref.inputs.rows)
     np.testing.assert_array_equal(fast.tracks["mahony"].out, ref.tracks["mahony"].out)
     assert any(f"{n} exact duplicate IMU messages" in note for note in fast.notes)
+    # the header says the count is over both instances, and what share of the filtered one's messages it is
+    assert fast.inputs.counts["exact_duplicates_fed"] == pytest.approx(8 * 100, abs=2)
+    assert any("every IMU instance" in note and "(20 %)" in note for note in fast.notes), fast.notes
     t_truth, _ = fast.references["SIMSTATE truth"]
     assert np.all(np.diff(t_truth) > 0) and t_truth.size == pytest.approx(8 * 400, abs=2)
     row = next(r for r in compare(fast) if r.reference == "SIMSTATE truth")

@@ -72,3 +72,83 @@ def test_every_legend_of_the_all_filters_plot_fits_its_panel(tmp_path: Path, mon
         for other in fig.axes:
             label = other.yaxis.label.get_window_extent(renderer)
             assert not box.overlaps(label), f"the {name} legend covers the axis label {other.get_ylabel()!r}"
+
+
+def _saved_figures(monkeypatch: pytest.MonkeyPatch) -> list:  # type: ignore[type-arg]
+    from matplotlib.figure import Figure
+
+    saved: list[Figure] = []
+    real_savefig = Figure.savefig
+
+    def savefig(self: Figure, *args: object, **kwargs: object) -> None:
+        saved.append(self)
+        real_savefig(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    return saved
+
+
+def _drawn(fig):  # type: ignore[no-untyped-def]
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return canvas.get_renderer()
+
+
+def test_identical_filters_say_which_one_hides_the_other(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Mahony and the gyro-platform filter give the same attitude with their defaults: the legend says so."""
+    pytest.importorskip("matplotlib")
+    from mavahrs.evaluation.plots import plot_attitude
+
+    saved = _saved_figures(monkeypatch)
+    n = 500
+    t = np.arange(n) / 250.0
+    same = _rows(n, 1)
+    estimates = {"mahony": same, "gyroplatform": same.copy(), "best": _rows(n, 2)}
+    plot_attitude(tmp_path / "same.png", t, estimates, reference_q=_rows(n, 0)[:, OUT_Q : OUT_Q + 4])
+    (fig,) = saved
+    roll = next(ax for ax in fig.axes if ax.get_ylabel() == "roll (°)")
+    labels = roll.get_legend_handles_labels()[1]
+    assert "mahony (identical to gyroplatform, hidden beneath it)" in labels
+    assert "gyroplatform" in labels and "best" in labels  # the others keep their plain names
+
+
+def test_fleet_plot_names_flagged_flights_inside_the_figure_with_whole_counts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Flagged flights are numbered at their points and named in a strip under the axes: no label is cut off
+    by the figure's edge or drawn over the legend; the histograms count whole flights."""
+    pytest.importorskip("matplotlib")
+    from mavahrs.evaluation.plots import plot_fleet
+
+    saved = _saved_figures(monkeypatch)
+    rng = np.random.default_rng(1)
+    rows = []
+    for i in range(20):
+        flagged = i % 3 == 0
+        rows.append({"path": f"/logs/flight_{i:03d}_a_long_scenario_name.tlog",
+                     "inclination_max_deg": float(rng.uniform(0.1, 20)), "heading_max_deg": float(rng.uniform(0.2, 40)),
+                     "duration_s": 100.0, "alarms": 2 if flagged else 0, "first_alarm_s": 12.5 * i if flagged else None,
+                     "inclination_rms_deg": float(rng.uniform(0.1, 3)), "vibration_x_m_s2": 1.0,
+                     "vibration_y_m_s2": 2.0, "vibration_z_m_s2": float(rng.uniform(0, 5)),
+                     "gyro_clip_fraction": 0.0, "accel_clip_fraction": 0.0})  # fmt: skip
+    plot_fleet(tmp_path / "fleet.png", rows)
+    (fig,) = saved
+    renderer = _drawn(fig)
+    page = fig.bbox
+    texts = [t for t in fig.texts if "flight_" in t.get_text()]
+    listed = " ".join(t.get_text() for t in texts)
+    for i in range(0, 20, 3):
+        assert f"flight_{i:03d}_a_long_scenario_name.tlog @ {12.5 * i:.1f} s" in listed
+    legend = fig.axes[0].get_legend().get_window_extent(renderer)
+    for t in texts:
+        box = t.get_window_extent(renderer)
+        assert page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0 and box.y1 <= page.y1, t.get_text()
+        for ax in fig.axes:
+            assert not box.overlaps(ax.get_window_extent(renderer)), f"{t.get_text()!r} is drawn over a panel"
+    for note in fig.axes[0].texts:  # the numbers at the points
+        assert note.get_text().isdigit() and not note.get_window_extent(renderer).overlaps(legend)
+    for ax in fig.axes[1:]:
+        ticks = [v for v in ax.get_yticks() if ax.get_ylim()[0] <= v <= ax.get_ylim()[1]]
+        assert ticks and all(float(v).is_integer() for v in ticks), ticks
