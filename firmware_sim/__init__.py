@@ -13,7 +13,16 @@ from __future__ import annotations
 
 from firmware_sim.endpoint import DENIED_TEXT, STREAMABLE, Endpoint, EndpointSettings
 from firmware_sim.imu_model import EarthField, ImuErrorSettings, MagSettings
-from firmware_sim.simulation import AttitudeFault, Home, ImuFault, LoopBlock, SimSettings, Simulation
+from firmware_sim.simulation import (
+    AttitudeFault,
+    CurrentSettings,
+    Home,
+    ImuFault,
+    LoopBlock,
+    MagAnomaly,
+    SimSettings,
+    Simulation,
+)
 from firmware_sim.trajectory import SCENARIO_DESCRIPTIONS, SCENARIOS
 from firmware_sim.vehicle import VehicleSettings
 
@@ -26,6 +35,8 @@ __all__ = [
     "Home",
     "AttitudeFault",
     "ImuFault",
+    "MagAnomaly",
+    "CurrentSettings",
     "VehicleSettings",
     "ImuErrorSettings",
     "MagSettings",

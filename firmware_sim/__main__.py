@@ -23,7 +23,15 @@ from dataclasses import replace
 
 from firmware_sim.endpoint import STREAMABLE, Endpoint, EndpointSettings
 from firmware_sim.imu_model import EarthField, ImuErrorSettings, MagSettings
-from firmware_sim.simulation import AttitudeFault, Home, ImuFault, SimSettings, Simulation
+from firmware_sim.simulation import (
+    AttitudeFault,
+    CurrentSettings,
+    Home,
+    ImuFault,
+    MagAnomaly,
+    SimSettings,
+    Simulation,
+)
 from firmware_sim.streamer import (
     Blackout,
     describe_link,
@@ -69,6 +77,40 @@ def _blackout(text: str) -> Blackout:
     return Blackout(vals[0], vals[1])
 
 
+def _imu_fault(text: str) -> ImuFault:
+    """``imuN:gyro_bias_dps=V[,V,V]:accel_bias_m_s2=V[,V,V]:at=S`` → :class:`ImuFault`."""
+    usage = "--imu-fault imuN:gyro_bias_dps=V[,V,V][:accel_bias_m_s2=V[,V,V]]:at=S"
+    head, *parts = text.replace(" ", "").split(":")
+    if not (head.lower().startswith("imu") and head[3:].isdigit() and int(head[3:]) <= 2):
+        raise argparse.ArgumentTypeError(f"{usage}: expected imu0, imu1 or imu2 first, got {head!r}")
+    vals: dict[str, str] = {}
+    for part in parts:
+        key, sep, value = part.partition("=")
+        if not sep or key not in ("gyro_bias_dps", "accel_bias_m_s2", "at"):
+            raise argparse.ArgumentTypeError(f"{usage}: unknown item {part!r}")
+        vals[key] = value
+
+    def vec(key: str) -> tuple[float, float, float]:
+        if key not in vals:
+            return (0.0, 0.0, 0.0)
+        v = _floats(vals[key], len(vals[key].split(",")), f"--imu-fault {key}")
+        if len(v) == 1:
+            return (v[0], v[0], v[0])  # one number: every axis
+        if len(v) != 3:
+            raise argparse.ArgumentTypeError(f"--imu-fault {key}: one number or three (x,y,z)")
+        return (v[0], v[1], v[2])
+
+    if "at" not in vals or not ({"gyro_bias_dps", "accel_bias_m_s2"} & set(vals)):
+        raise argparse.ArgumentTypeError(f"{usage}: needs a bias and at=S")
+    try:
+        at = float(vals["at"])
+        g = tuple(math.radians(v) for v in vec("gyro_bias_dps"))
+        return ImuFault(instance=int(head[3:]), step_at_s=at, gyro_bias_step_rad_s=g,  # type: ignore[arg-type]
+                        accel_bias_step_m_s2=vec("accel_bias_m_s2"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--imu-fault: {exc}") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     scen = "\n".join(f"  {n:12s} {SCENARIO_DESCRIPTIONS[n]}" for n in SCENARIOS)
     p = argparse.ArgumentParser(
@@ -100,6 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
     fl.add_argument("--lat", type=float, default=Home.lat_deg, metavar="DEG", help="home latitude, deg (default %(default)s, CMAC)")
     fl.add_argument("--lon", type=float, default=Home.lon_deg, metavar="DEG", help="home longitude, deg (default %(default)s)")
     fl.add_argument("--alt-m", type=float, default=Home.alt_m, metavar="M", help="home altitude AMSL, m (default %(default)s)")
+    fl.add_argument("--start-in-motion", action="store_true",
+                    help="no rest period: flying from t=0 (rotors spinning, vibration, 10 m up, 2-5 m/s), "
+                         "manoeuvres at once; not with --scenario rest")
     fl.add_argument("--boot-offset-s", type=float, default=0.0, metavar="S", help="time since boot at start, s (default 0)")
 
     ap = p.add_argument_group("autopilot")
@@ -129,6 +174,22 @@ def build_parser() -> argparse.ArgumentParser:
     se = p.add_argument_group("sensors")
     se.add_argument("--imus", type=int, default=2, choices=(1, 2, 3), help="IMU count (default %(default)s)")
     se.add_argument("--mags", type=int, default=2, choices=(0, 1, 2, 3), help="compass count (default %(default)s)")
+    se.add_argument("--imu-preset", choices=("calibrated", "raw"), default="calibrated",
+                    help="'calibrated': an autopilot's IMU after its boot calibration (residual gyro bias 0.1 deg/s "
+                         "sigma); 'raw': an uncalibrated MEMS IMU as a research rig streams it, every IMU message "
+                         "(RAW_IMU, SCALED_IMU*, HIGHRES_IMU) carrying it: turn-on gyro bias uniform in +-5 deg/s "
+                         "per axis from the seed, accel bias 0.1 m/s2 sigma, scale 0.5%% (default %(default)s)")
+    se.add_argument("--gyro-bias-dps", type=lambda t: _floats(t, 3, "--gyro-bias-dps"), metavar="X,Y,Z",
+                    help="constant gyro bias of every IMU, deg/s per sensor axis (replaces the drawn one; the "
+                         "bias random walk stays unless --noiseless)")
+    se.add_argument("--imu-mount-deg", type=lambda t: _floats(t, 3, "--imu-mount-deg"), metavar="ROLL,PITCH,YAW",
+                    default=(0.0, 0.0, 0.0),
+                    help="sensor board mounting, deg (Z-Y-X Euler rotating the body axes onto the IMU's): IMUs and "
+                         "compasses measure in the IMU axes; 0,90,0 = IMU x axis up; the truth stays the body's "
+                         "(default 0,0,0)")
+    se.add_argument("--imu-fault", type=_imu_fault, metavar="imuN:gyro_bias_dps=V[,V,V]:at=S",
+                    help="bias step on one IMU from S s (imu1 = SCALED_IMU2): gyro deg/s and/or "
+                         "accel_bias_m_s2=V[,V,V] m/s2, one number = every axis; e.g. imu1:gyro_bias_dps=2:at=30")
     se.add_argument("--imu2-freeze-at", type=float, metavar="S", help="second IMU (SCALED_IMU2) sticks from S s")
     se.add_argument("--imu2-saturate-at", type=float, metavar="S", help="second IMU reads full scale from S s")
     se.add_argument("--no-sensor-errors", action="store_true",
@@ -148,6 +209,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="magnetic north east of true north, deg (default %(default)s)")
     se.add_argument("--mag-hard-iron-ut", type=lambda t: _floats(t, 3, "--mag-hard-iron-ut"), metavar="X,Y,Z",
                     help="compass offset, body axes, uT (default 0,0,0: calibrated)")
+    se.add_argument("--mag-anomaly-ut", type=lambda t: _floats(t, 3, "--mag-anomaly-ut"), metavar="N,E,D",
+                    help="ground-level field anomaly at take-off, NED, uT (SIM_MAG_ALY, which is in mGauss = 0.1 uT; "
+                         "default: the scenario's, 8,-6,12 for mag_anomaly, none otherwise)")
+    se.add_argument("--mag-anomaly-height-m", type=float, metavar="M",
+                    help="height above ground where the anomaly has decayed to 1/8, m (SIM_MAG_ALY_HGT; "
+                         "default: the scenario's, 5 for mag_anomaly, else 1)")
+    se.add_argument("--mag-motor-ut-per-a", type=lambda t: _floats(t, 3, "--mag-motor-ut-per-a"), metavar="X,Y,Z",
+                    help="body-frame compass interference per amp of battery current, uT/A (SIM_MAG_MOT, mGauss/A "
+                         "there; default: the scenario's, 0.4,-0.3,0.8 for mag_anomaly, none otherwise)")
+    se.add_argument("--hover-current-a", type=float, default=CurrentSettings.hover_a, metavar="A",
+                    help="battery current in hover, A; scales as (thrust/g)^1.5, reported in SYS_STATUS and "
+                         "BATTERY_STATUS (default %(default)s)")
+    se.add_argument("--no-gnss", action="store_true",
+                    help="no GNSS receiver: GPS_RAW_INT and GLOBAL_POSITION_INT are never sent")
     se.add_argument("--mag-soft-iron", type=lambda t: _floats(t, 9, "--mag-soft-iron"), metavar="M11,...,M33",
                     help="soft-iron 3x3 matrix, row-major (default identity)")
 
@@ -161,7 +236,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointSettings]:
     """Build the simulator and endpoint settings from parsed arguments (raises ValueError)."""
-    imu = ImuErrorSettings.ideal(lowpass=True) if args.no_sensor_errors else ImuErrorSettings()
+    if args.no_sensor_errors and args.imu_preset == "raw":
+        raise ValueError("--no-sensor-errors and --imu-preset raw exclude each other")
+    imu = ImuErrorSettings.ideal(lowpass=True) if args.no_sensor_errors else (
+        ImuErrorSettings.raw() if args.imu_preset == "raw" else ImuErrorSettings())
+    if args.gyro_bias_dps is not None:
+        imu = replace(imu, gyro_bias_rad_s=tuple(math.radians(v) for v in args.gyro_bias_dps))
     imu = replace(imu, gyro_lowpass_hz=args.gyro_lowpass_hz, accel_lowpass_hz=args.accel_lowpass_hz)
     mag = MagSettings.ideal() if args.no_sensor_errors else MagSettings()
     if args.noiseless:
@@ -178,9 +258,23 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         names = ("start_s", "duration_s", "roll_deg", "pitch_deg", "yaw_deg")
         # 1 to 5 numbers given: the fields after them keep their defaults
         fault = AttitudeFault(**dict(zip(names, vals, strict=False)))
-    imu_fault = None
+    imu_fault = args.imu_fault
     if args.imu2_freeze_at is not None or args.imu2_saturate_at is not None:
-        imu_fault = ImuFault(instance=1, freeze_at_s=args.imu2_freeze_at, saturate_at_s=args.imu2_saturate_at)
+        if imu_fault is not None and imu_fault.instance != 1:
+            raise ValueError("--imu-fault on another IMU than imu1 cannot be combined with --imu2-freeze/saturate-at")
+        imu_fault = replace(imu_fault or ImuFault(instance=1), freeze_at_s=args.imu2_freeze_at,
+                            saturate_at_s=args.imu2_saturate_at)
+    if imu_fault is not None and imu_fault.instance >= args.imus:
+        raise ValueError(f"--imu-fault imu{imu_fault.instance}: only {args.imus} IMU(s) (--imus)")
+    anomaly = None
+    if args.mag_anomaly_ut is not None or args.mag_anomaly_height_m is not None:
+        from firmware_sim.trajectory import make_scenario
+
+        sc = make_scenario(args.scenario, 0)
+        anomaly = MagAnomaly(
+            args.mag_anomaly_ut if args.mag_anomaly_ut is not None else sc.mag_anomaly_ned_ut,
+            args.mag_anomaly_height_m if args.mag_anomaly_height_m is not None else sc.mag_anomaly_height_m,
+        )
     sim = SimSettings(
         jit=bool(args.fast or args.jit),
         scenario=args.scenario,
@@ -196,6 +290,12 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         home=Home(args.lat, args.lon, args.alt_m),
         attitude_fault=fault,
         imu_fault=imu_fault,
+        imu_mount_deg=args.imu_mount_deg,
+        start_in_motion=args.start_in_motion,
+        gnss=not args.no_gnss,
+        mag_anomaly=anomaly,
+        mag_motor_ut_per_a=args.mag_motor_ut_per_a,
+        current=CurrentSettings(hover_a=args.hover_current_a),
     )
     preset = args.preset or ("bench" if args.fast else "default")
     link_bps = None

@@ -81,7 +81,8 @@ class WireBlock:
         self.est_q = blk.est_q_body_to_ned.tolist()
         self.est_euler = to_euler_rad(blk.est_q_body_to_ned).tolist()
         # ATTITUDE rates: the primary gyro minus its bias (the estimator has learned it)
-        self.est_rates = (blk.gyro_rad_s[0] - blk.gyro_bias_rad_s[0]).tolist()
+        # (in body axes: the IMU's axes rotated back by its mounting)
+        self.est_rates = ((blk.gyro_rad_s[0] - blk.gyro_bias_rad_s[0]) @ blk.c_imu_to_body.T).tolist()
         self.lat_e7 = np.round(blk.lat_deg * 1e7).astype(np.int64).tolist()
         self.lon_e7 = np.round(blk.lon_deg * 1e7).astype(np.int64).tolist()
         self.lat = blk.lat_deg.tolist()
@@ -92,6 +93,10 @@ class WireBlock:
         self.vel_cm_s = to_int16(np.round(blk.vel_ned_m_s * 100.0)).tolist()
         yaw = np.degrees(to_euler_rad(blk.est_q_body_to_ned)[:, 2]) % 360.0
         self.hdg_cdeg = (np.round(yaw * 100.0).astype(np.int64) % 36000).tolist()
+        # battery: SYS_STATUS / BATTERY_STATUS units (mV, cA, mAh, %)
+        self.voltage_mv = np.round(blk.voltage_v * 1000.0).astype(np.int64).tolist()
+        self.current_ca = np.round(blk.current_a * 100.0).astype(np.int64).tolist()
+        self.consumed_mah = np.round(blk.consumed_mah).astype(np.int64).tolist()
         # barometric pressure for HIGHRES_IMU (ISA troposphere)
         self.pressure_hpa = (1013.25 * (1.0 - 2.25577e-5 * blk.alt_m) ** 5.25588).tolist()
 
@@ -160,6 +165,25 @@ class FrameEncoder:
     def gps_raw_int(self, time_usec: int, lat_e7: int, lon_e7: int, alt_mm: int, vel_cm_s: int, cog_cdeg: int) -> bytes:
         """A 3D fix from the receiver: ground speed and course over ground, HDOP 0.8, VDOP 1.2, 12 satellites."""
         return self._enc(self.mav.gps_raw_int_encode(time_usec, 3, lat_e7, lon_e7, alt_mm, 80, 120, vel_cm_s, cog_cdeg, 12))
+
+    # ------------------------------------------------------------------ power
+    def sys_status(self, w: WireBlock, i: int, remaining_pct: int, gps: bool = True) -> bytes:
+        """SYS_STATUS: sensors present/healthy (3D gyro, accel, mag), battery voltage (mV),
+        current (cA = 10 mA, as the current that drives the motor interference) and remaining %."""
+        sensors = 0x07 | (0x20 if gps else 0)  # 3D gyro, accel, mag; GPS if there is a receiver
+        return self._enc(
+            self.mav.sys_status_encode(sensors, sensors, sensors, 250, w.voltage_mv[i], w.current_ca[i], remaining_pct,
+                                       0, 0, 0, 0, 0, 0)
+        )
+
+    def battery_status(self, w: WireBlock, i: int, remaining_pct: int) -> bytes:
+        """BATTERY_STATUS (id 0): the pack voltage in the first cell field (mV; ArduPilot does so
+        without cell monitoring), current (cA), consumed charge (mAh), remaining %."""
+        cells = [min(w.voltage_mv[i], 65534)] + [65535] * 9
+        return self._enc(
+            self.mav.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
+                                           w.temp_cdeg[i], cells, w.current_ca[i], w.consumed_mah[i], -1, remaining_pct)
+        )
 
     def attitude(self, w: WireBlock, i: int, send_us: int) -> bytes:
         e, r = w.est_euler[i], w.est_rates[i]

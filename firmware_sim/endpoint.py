@@ -31,7 +31,10 @@ ArduPilot behaviour modelled (``autopilot="ardupilot"``, the default):
   other commands are ACKed UNSUPPORTED.  COMMAND_LONG and COMMAND_INT.
 * **REQUEST_DATA_STREAM** sets the rate of a stream group (RAW_SENSORS:
   RAW_IMU, SCALED_IMU2/3; POSITION: GLOBAL_POSITION_INT; EXTRA1: ATTITUDE,
-  SIMSTATE; EXTRA3: SYSTEM_TIME; ALL); like ArduPilot it sends no ACK.
+  SIMSTATE; EXTRA3: SYSTEM_TIME, BATTERY_STATUS; EXTENDED_STATUS: SYS_STATUS;
+  ALL); like ArduPilot it sends no ACK.
+* Without GNSS (``SimSettings.gnss = False``) GPS_RAW_INT and GLOBAL_POSITION_INT
+  may be requested (ACKed) but are never sent.
 * Defaults when nothing is requested: HEARTBEAT at 1 Hz and the groups above
   at ``default_stream_hz`` (ArduPilot's ``SRn_*`` parameters; 1 Hz like Plane
   and Rover, Copter's are 0).
@@ -57,7 +60,7 @@ from firmware_sim.encoder import Autopilot, FrameEncoder, WireBlock
 from firmware_sim.simulation import Simulation
 from mavahrs.protocol.codec import MavCodec, mavlink
 
-__all__ = ["EndpointSettings", "Endpoint", "STREAMABLE", "PRESETS", "DENIED_TEXT", "EPOCH_2025_06_01_US"]
+__all__ = ["EndpointSettings", "Endpoint", "STREAMABLE", "PRESETS", "DENIED_TEXT", "EPOCH_2025_06_01_US", "GNSS_MESSAGES"]
 
 DENIED_TEXT = "Requested rate too fast. Increase SCHED_LOOP_RATE"
 EPOCH_2025_06_01_US = 1748736000 * 1_000_000
@@ -76,6 +79,8 @@ STREAMABLE: dict[str, int] = {
     "ATTITUDE_QUATERNION": mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
     "GLOBAL_POSITION_INT": mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     "SYSTEM_TIME": mavlink.MAVLINK_MSG_ID_SYSTEM_TIME,
+    "SYS_STATUS": mavlink.MAVLINK_MSG_ID_SYS_STATUS,
+    "BATTERY_STATUS": mavlink.MAVLINK_MSG_ID_BATTERY_STATUS,
     "GPS_RAW_INT": mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,  # only when asked for: see _GpsReceiver
 }
 _ONE_SHOT_ONLY = {"AUTOPILOT_VERSION": mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
@@ -88,8 +93,11 @@ _GROUPS: dict[int, tuple[str, ...]] = {
     mavlink.MAV_DATA_STREAM_RAW_SENSORS: ("RAW_IMU", "SCALED_IMU2", "SCALED_IMU3"),
     mavlink.MAV_DATA_STREAM_POSITION: ("GLOBAL_POSITION_INT",),
     mavlink.MAV_DATA_STREAM_EXTRA1: ("ATTITUDE", "SIMSTATE"),
-    mavlink.MAV_DATA_STREAM_EXTRA3: ("SYSTEM_TIME",),
+    mavlink.MAV_DATA_STREAM_EXTRA3: ("SYSTEM_TIME", "BATTERY_STATUS"),
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: ("SYS_STATUS",),
 }
+#: GNSS messages, never sent with ``SimSettings.gnss = False``
+GNSS_MESSAGES = ("GPS_RAW_INT", "GLOBAL_POSITION_INT")
 
 #: Initial stream rates (Hz) by preset; "ardupilot"/"px4" = what the autopilot
 #: sends unasked ("ardupilot" uses ``default_stream_hz`` for its groups),
@@ -99,11 +107,12 @@ PRESETS: dict[str, dict[str, float | str]] = {
     "none": {"HEARTBEAT": 1.0},
     "px4": {
         "HEARTBEAT": 1.0, "HIGHRES_IMU": 50.0, "ATTITUDE": 20.0, "ATTITUDE_QUATERNION": 10.0,
-        "GLOBAL_POSITION_INT": 5.0, "SYSTEM_TIME": 1.0,
+        "GLOBAL_POSITION_INT": 5.0, "SYSTEM_TIME": 1.0, "SYS_STATUS": 1.0, "BATTERY_STATUS": 1.0,
     },
     "bench": {
         "HEARTBEAT": 1.0, "RAW_IMU": "max", "SCALED_IMU2": "max", "SIMSTATE": "max", "SIM_STATE": 10.0,
-        "ATTITUDE": 50.0, "GLOBAL_POSITION_INT": 10.0, "SYSTEM_TIME": 1.0,
+        "ATTITUDE": 50.0, "GLOBAL_POSITION_INT": 10.0, "SYSTEM_TIME": 1.0, "SYS_STATUS": 10.0,
+        "BATTERY_STATUS": 10.0,
     },
 }
 
@@ -391,6 +400,17 @@ class Endpoint:
             flying = bool(w.blk.truth.thrust_m_s2[i] > 0.0)
             return enc.heartbeat(armed=flying, flying=flying)
 
+        capacity = self.sim.settings.current.capacity_mah
+
+        def remaining(w: WireBlock, i: int) -> int:
+            return int(max(0.0, min(100.0, 100.0 * (1.0 - w.consumed_mah[i] / capacity))))
+
+        gnss = self.sim.settings.gnss
+
+        def gnss_only(f: Callable[[WireBlock, int, int, int], bytes | None]) -> Callable[[WireBlock, int, int, int], bytes | None]:
+            # no receiver: the stream may be requested (and is ACKed) but nothing goes out
+            return f if gnss else (lambda w, i, s, t: None)
+
         return {
             "HEARTBEAT": heartbeat,
             "RAW_IMU": lambda w, i, s, t: enc.raw_imu(w, i, stamp(s, t)),
@@ -402,9 +422,11 @@ class Endpoint:
             "SIM_STATE": lambda w, i, s, t: enc.sim_state(w, i),
             "ATTITUDE": lambda w, i, s, t: enc.attitude(w, i, stamp(s, t)),
             "ATTITUDE_QUATERNION": lambda w, i, s, t: enc.attitude_quaternion(w, i, stamp(s, t)),
-            "GLOBAL_POSITION_INT": lambda w, i, s, t: enc.global_position_int(w, i, stamp(s, t)),
+            "GLOBAL_POSITION_INT": gnss_only(lambda w, i, s, t: enc.global_position_int(w, i, stamp(s, t))),
             "SYSTEM_TIME": lambda w, i, s, t: enc.system_time(w, i, s, self.settings.epoch_unix_us),
-            "GPS_RAW_INT": lambda w, i, s, t: enc.gps_raw_int(*self._gps.fix) if self._gps.fix else None,
+            "SYS_STATUS": lambda w, i, s, t: enc.sys_status(w, i, remaining(w, i), gnss),
+            "BATTERY_STATUS": lambda w, i, s, t: enc.battery_status(w, i, remaining(w, i)),
+            "GPS_RAW_INT": gnss_only(lambda w, i, s, t: enc.gps_raw_int(*self._gps.fix) if self._gps.fix else None),
             "AUTOPILOT_VERSION": lambda w, i, s, t: enc.autopilot_version(self.settings.system_id),
         }
 

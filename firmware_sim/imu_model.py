@@ -18,7 +18,7 @@ The stream then *snapshots* this filtered signal once per scheduler loop
 (:mod:`firmware_sim.simulation`); wire units quantise again in the encoder.
 
 Magnetometer: ``S_soft · (Cᵀ (B_earth + d_earth) ) + d_motor · (thrust/g − 1) +
-hard_iron + noise``, quantised, updated at ``rate_hz`` and held in between (as
+d_amp · I + hard_iron + noise`` (``d_earth`` includes a ground anomaly, ``I`` the battery current), quantised, updated at ``rate_hz`` and held in between (as
 an autopilot reports the latest compass sample).  White-noise densities are
 one-sided: per-sample σ = density · √(fs / 2).
 """
@@ -63,6 +63,7 @@ class ImuErrorSettings:
     accel_noise_density_m_s2_rthz: float = 200e-6 * G  # (m/s²)/√Hz (200 µg/√Hz)
     gyro_bias_sigma_rad_s: float = math.radians(0.1)  # residual after boot calibration
     gyro_bias_rad_s: tuple[float, float, float] | None = None
+    gyro_bias_uniform_rad_s: float = 0.0  # > 0: turn-on bias uniform in ±this per axis instead (raw IMU)
     accel_bias_sigma_m_s2: float = 0.05
     accel_bias_m_s2: tuple[float, float, float] | None = None
     gyro_bias_walk_rad_s_rts: float = math.radians(0.002)  # (rad/s)/√s
@@ -100,6 +101,22 @@ class ImuErrorSettings:
             gyro_bias_walk_rad_s_rts=0.0,
             accel_bias_walk_m_s2_rts=0.0,
             vibration=False,
+        )
+
+    @classmethod
+    def raw(cls, *, max_gyro_bias_dps: float = 5.0) -> ImuErrorSettings:
+        """An uncalibrated MEMS IMU as a research rig streams it: no boot gyro calibration, so the
+        turn-on gyro bias is drawn from the seed uniformly in ±``max_gyro_bias_dps`` per axis (1–5 °/s
+        is typical), larger accelerometer offsets (σ 0.1 m/s²) and scale/cross-axis errors (σ 0.5 %,
+        0.3 %), as no factory or user calibration has removed them.  Noise, random walk,
+        temperature coefficient, range, quantisation and the low-pass are the defaults."""
+        return cls(
+            gyro_bias_uniform_rad_s=math.radians(max_gyro_bias_dps),
+            accel_bias_sigma_m_s2=0.1,
+            gyro_scale_sigma=0.005,
+            gyro_cross_axis_sigma=0.003,
+            accel_scale_sigma=0.005,
+            accel_cross_axis_sigma=0.003,
         )
 
     @classmethod
@@ -303,6 +320,10 @@ class ImuModel:
         self.gyro_matrix = _matrix(draw, s.gyro_scale_sigma, s.gyro_cross_axis_sigma)
         self.accel_matrix = _matrix(draw, s.accel_scale_sigma, s.accel_cross_axis_sigma)
         self.gyro_bias0_rad_s = _draw(draw, s.gyro_bias_rad_s, s.gyro_bias_sigma_rad_s)
+        if s.gyro_bias_uniform_rad_s > 0.0 and s.gyro_bias_rad_s is None:
+            # a generator of its own (the next child of the seed): the other draws stay as they were
+            uni = np.random.default_rng(ss.spawn(1)[0])
+            self.gyro_bias0_rad_s = uni.uniform(-1.0, 1.0, 3) * s.gyro_bias_uniform_rad_s
         self.accel_bias0_m_s2 = _draw(draw, s.accel_bias_m_s2, s.accel_bias_sigma_m_s2)
         self.gyro_tempco = _draw(draw, s.gyro_temp_coeff_rad_s_per_c, s.gyro_temp_coeff_sigma_rad_s_per_c)
         self.accel_tempco = _draw(draw, None, s.accel_temp_coeff_sigma_m_s2_per_c)
@@ -381,6 +402,7 @@ class MagModel:
         rate_hz: float,
         seed: int | np.random.SeedSequence,
         motor_ut_per_g: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        motor_ut_per_a: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         self.settings = settings
         self.rate_hz = float(rate_hz)
@@ -388,13 +410,24 @@ class MagModel:
         self.soft_iron = np.asarray(settings.soft_iron, dtype=np.float64).reshape(3, 3)
         self.hard_iron_ut = np.asarray(settings.hard_iron_ut, dtype=np.float64)
         self.motor_ut_per_g = np.asarray(motor_ut_per_g, dtype=np.float64)
+        self.motor_ut_per_a = np.asarray(motor_ut_per_a, dtype=np.float64)
         ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
         self._rng = np.random.default_rng(ss)
         self._held = np.full(3, np.nan)
         self._last_period = -1
 
-    def process(self, index: Array, q_body_to_ned: Array, disturbance_ned_ut: Array, thrust_m_s2: Array) -> tuple[Array, Array]:
-        """``index``: sensor sample numbers (int, since boot).  Returns (mag_ut (N,3), fresh (N,) bool)."""
+    def process(
+        self,
+        index: Array,
+        q_body_to_ned: Array,
+        disturbance_ned_ut: Array,
+        thrust_m_s2: Array,
+        current_a: Array | None = None,
+    ) -> tuple[Array, Array]:
+        """``index``: sensor sample numbers (int, since boot); ``q_body_to_ned``: the sensor's axes
+        (the body's unless the board is mounted rotated); ``current_a``: battery current (A) for the
+        per-amp interference (``SIM_MAG_MOT``: ``+ motor_ut_per_a · I``).
+        Returns (mag_ut (N,3), fresh (N,) bool)."""
         s = self.settings
         n = index.shape[0]
         period = np.floor(index * (s.rate_hz / self.rate_hz) + 1e-9).astype(np.int64)
@@ -414,6 +447,8 @@ class MagModel:
             b_body = b_ned + w * t + np.cross(u, t)
             motor = ((thrust_m_s2[sel] / G) - 1.0).clip(min=-1.0)[:, None] * (thrust_m_s2[sel] > 0)[:, None]
             m = b_body @ self.soft_iron.T + self.hard_iron_ut[None, :] + motor * self.motor_ut_per_g[None, :]
+            if current_a is not None and self.motor_ut_per_a.any():
+                m += current_a[sel][:, None] * self.motor_ut_per_a[None, :]
             m += self._rng.normal(0.0, 1.0, m.shape) * s.noise_ut
             m = _quantise(np.clip(m, -s.range_ut, s.range_ut), s.lsb_ut)
             # hold: forward-fill the fresh samples

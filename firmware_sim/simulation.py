@@ -23,13 +23,15 @@ from firmware_sim.imu_model import EarthField, ImuErrorSettings, ImuModel, MagMo
 from firmware_sim.trajectory import make_scenario
 from firmware_sim.vehicle import G, TruthChunk, Vehicle, VehicleSettings
 from mavahrs.geometry import quaternion as quat
-from mavahrs.geometry.rotation import from_euler_rad
+from mavahrs.geometry.rotation import from_euler_rad, to_matrix
 
 __all__ = [
     "Home",
     "EstimateSettings",
     "AttitudeFault",
     "ImuFault",
+    "MagAnomaly",
+    "CurrentSettings",
     "SimSettings",
     "LoopBlock",
     "Simulation",
@@ -95,12 +97,85 @@ class AttitudeFault:
 
 @dataclass(frozen=True)
 class ImuFault:
-    """A failing IMU instance: from ``freeze_at_s`` its reading is stuck at the last
-    value; from ``saturate_at_s`` it reads +full scale on every axis (None = never)."""
+    """A failing IMU instance (0 = RAW_IMU/SCALED_IMU, 1 = SCALED_IMU2, 2 = SCALED_IMU3).
+
+    Attributes:
+        instance: which IMU.
+        freeze_at_s: from then on its reading is stuck at the last value (None = never).
+        saturate_at_s: from then on it reads +full scale on every axis (None = never).
+        step_at_s: from then on ``gyro_bias_step_rad_s`` and ``accel_bias_step_m_s2`` are added
+            to its readings (its sensor axes; a bias step, e.g. a damaged or shifted sensor; the
+            LoopBlock's ``gyro_bias_rad_s`` / ``accel_bias_m_s2`` include it).
+        gyro_bias_step_rad_s: the gyro bias step per axis (rad/s).
+        accel_bias_step_m_s2: the accelerometer bias step per axis (m/s²).
+    """
 
     instance: int = 1
     freeze_at_s: float | None = None
     saturate_at_s: float | None = None
+    step_at_s: float | None = None
+    gyro_bias_step_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_bias_step_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.instance <= 2:
+            raise ValueError(f"ImuFault.instance must be 0, 1 or 2, got {self.instance!r}")
+        for name in ("freeze_at_s", "saturate_at_s", "step_at_s"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"ImuFault.{name} must be >= 0 s or None, got {v!r}")
+        if len(self.gyro_bias_step_rad_s) != 3 or len(self.accel_bias_step_m_s2) != 3:
+            raise ValueError("ImuFault: bias steps need 3 values (x, y, z)")
+
+
+@dataclass(frozen=True)
+class MagAnomaly:
+    """A ground-level magnetic anomaly around the take-off point, as ArduPilot SITL's
+    ``SIM_MAG_ALY`` / ``SIM_MAG_ALY_HGT``: the earth-frame field ``field_ned_ut`` is added on the
+    ground and decays with the height h above home as ``(H / (h + H))³`` (1/8 at H = ``height_m``;
+    a dipole's 1/r³ with the source H below the ground).
+
+    Attributes:
+        field_ned_ut: the anomaly at ground level, NED (µT; SITL's parameter is in mGauss = 0.1 µT).
+        height_m: height above ground where it has decayed to 1/8 (m, > 0).
+    """
+
+    field_ned_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    height_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        if len(self.field_ned_ut) != 3 or not self.height_m > 0.0:
+            raise ValueError("MagAnomaly: need 3 field components and height_m > 0")
+
+
+@dataclass(frozen=True)
+class CurrentSettings:
+    """The simulated battery current (reported in SYS_STATUS / BATTERY_STATUS; drives the
+    ``SIM_MAG_MOT``-like compass interference).  Rotor power grows with thrust^1.5 (momentum
+    theory), so ``I = idle_a + hover_a · (thrust / g)^1.5`` while the motors run, ``idle_a`` when
+    disarmed.  Battery: a 4S pack, ``V = full_v − internal_ohm · I``.
+
+    Attributes:
+        hover_a: motor current in hover (A).
+        idle_a: avionics current (A).
+        full_v: open-circuit voltage (V).
+        internal_ohm: internal resistance (Ω).
+        capacity_mah: capacity, for the remaining percentage (mAh).
+    """
+
+    hover_a: float = 15.0
+    idle_a: float = 0.4
+    full_v: float = 16.4
+    internal_ohm: float = 0.02
+    capacity_mah: float = 5000.0
+
+    def __post_init__(self) -> None:
+        if min(self.hover_a, self.idle_a, self.internal_ohm) < 0.0 or not (self.full_v > 0 and self.capacity_mah > 0):
+            raise ValueError("CurrentSettings: currents and resistance must be >= 0, voltage and capacity > 0")
+
+    def current_a(self, thrust_m_s2: Array) -> Array:
+        t = np.maximum(np.asarray(thrust_m_s2, dtype=np.float64), 0.0)
+        return self.idle_a + self.hover_a * (t / G) ** 1.5
 
 
 @dataclass(frozen=True)
@@ -115,6 +190,19 @@ class SimSettings:
         boot_offset_s: time since boot at simulation start (s).
         imu_count: IMUs (1–3): RAW_IMU/SCALED_IMU carry #0, SCALED_IMU2 #1, SCALED_IMU3 #2.
         mag_count: compasses (0–3), instance numbering as the IMUs.
+        imu_mount_deg: the sensor board's mounting (AHRS_ORIENTATION-like): roll, pitch, yaw (deg,
+            aerospace Z-Y-X) that rotate the body axes onto the IMU's axes; IMUs and compasses
+            measure in the IMU axes, ``v_imu = R(roll, pitch, yaw)ᵀ · v_body``.  (0, 90, 0) = the
+            IMU's x axis up (a research rig's "x up"); SIMSTATE / SIM_STATE stay the body truth.
+        start_in_motion: no rest period: flying from t = 0, rotors spinning, manoeuvres at once
+            (see :func:`firmware_sim.trajectory.make_scenario`).
+        gnss: False = no GNSS: GPS_RAW_INT and GLOBAL_POSITION_INT are never sent (requests are
+            ACKed, nothing goes out), as a vehicle without a receiver.
+        mag_anomaly: a ground anomaly (:class:`MagAnomaly`); None = the scenario's own
+            (``mag_anomaly`` has one, the others none).
+        mag_motor_ut_per_a: body-frame compass interference per amp of battery current (µT/A,
+            ``SIM_MAG_MOT``); None = the scenario's own.
+        current: the battery current model (:class:`CurrentSettings`).
         gps_velocity_noise_m_s: white noise on the reported NED velocity (m/s, σ).
         jit: run the sequential kernels compiled by numba (long batch runs; pays numba's
             start-up of about 2 s once per process); results are the same to rounding.
@@ -135,6 +223,12 @@ class SimSettings:
     estimate: EstimateSettings = field(default_factory=EstimateSettings)
     attitude_fault: AttitudeFault | None = None
     imu_fault: ImuFault | None = None
+    imu_mount_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    start_in_motion: bool = False
+    gnss: bool = True
+    mag_anomaly: MagAnomaly | None = None
+    mag_motor_ut_per_a: tuple[float, float, float] | None = None
+    current: CurrentSettings = field(default_factory=CurrentSettings)
     gps_velocity_noise_m_s: float = 0.02
     jit: bool = False
 
@@ -147,7 +241,11 @@ class SimSettings:
             raise ValueError("SimSettings: imu_count must be 1–3 and mag_count 0–3")
         if self.boot_offset_s < 0.0 or self.gps_velocity_noise_m_s < 0.0:
             raise ValueError("SimSettings: boot_offset_s and gps_velocity_noise_m_s must be >= 0")
-        make_scenario(self.scenario, 0)  # validates the name
+        if len(self.imu_mount_deg) != 3 or not all(math.isfinite(v) for v in self.imu_mount_deg):
+            raise ValueError(f"SimSettings.imu_mount_deg needs 3 finite angles, got {self.imu_mount_deg!r}")
+        if self.mag_motor_ut_per_a is not None and len(self.mag_motor_ut_per_a) != 3:
+            raise ValueError("SimSettings.mag_motor_ut_per_a needs 3 values")
+        make_scenario(self.scenario, 0, start_in_motion=self.start_in_motion)  # validates the name
 
     @property
     def sensor_rate_hz(self) -> float:
@@ -166,7 +264,10 @@ class LoopBlock:
     reported; ``gyro_bias_rad_s``/``accel_bias_m_s2``: their additive errors.
     ``mag_ut``: (mag_count, n, 3); ``mag_fresh``: new compass sample this tick.
     ``est_q_body_to_ned``: the autopilot's estimate; ``vel_ned_m_s``: reported
-    velocity; ``lat_deg``/``lon_deg``/``alt_m``: reported position.
+    velocity; ``lat_deg``/``lon_deg``/``alt_m``: reported position.  IMU and compass values
+    (and their errors) are in the IMU's axes (``SimSettings.imu_mount_deg``), the truth in body
+    axes.  ``current_a``: battery current (A); ``voltage_v``: battery voltage (V);
+    ``consumed_mah``: charge drawn since boot (mAh).
     """
 
     k0: int
@@ -184,6 +285,10 @@ class LoopBlock:
     lat_deg: Array
     lon_deg: Array
     alt_m: Array
+    current_a: Array
+    voltage_v: Array
+    consumed_mah: Array
+    c_imu_to_body: Array = field(default_factory=lambda: np.eye(3))
 
     @property
     def n(self) -> int:
@@ -195,7 +300,18 @@ class Simulation:
 
     def __init__(self, settings: SimSettings | None = None) -> None:
         self.settings = s = settings or SimSettings()
-        self.scenario = make_scenario(s.scenario, s.seed)
+        self.scenario = make_scenario(s.scenario, s.seed, start_in_motion=s.start_in_motion)
+        # the sensor board's mounting: q_imu_to_body, and C_imu_to_body for vectors
+        self.q_imu_to_body = from_euler_rad(*np.radians(s.imu_mount_deg))
+        self.c_imu_to_body = to_matrix(self.q_imu_to_body)
+        self._mounted = bool(any(v != 0.0 for v in s.imu_mount_deg))
+        sc = self.scenario
+        anomaly = s.mag_anomaly or MagAnomaly(sc.mag_anomaly_ned_ut, sc.mag_anomaly_height_m)
+        self.mag_anomaly = anomaly
+        self.mag_motor_ut_per_a = np.asarray(
+            s.mag_motor_ut_per_a if s.mag_motor_ut_per_a is not None else sc.mag_motor_ut_per_a, dtype=np.float64
+        )
+        self._consumed_mah = 0.0
         self.vehicle = Vehicle(self.scenario, s.vehicle, rate_hz=s.sensor_rate_hz, jit=s.jit)
         root = np.random.SeedSequence([int(s.seed), 0xF1C])
         seeds = root.spawn(10)
@@ -207,7 +323,9 @@ class Simulation:
         self.mags = [
             MagModel(
                 s.mag, field_ned, rate_hz=s.sensor_rate_hz, seed=seeds[3 + i],
-                motor_ut_per_g=self.scenario.mag_motor_ut_per_g,
+                # body-frame interference, seen in the IMU axes
+                motor_ut_per_g=tuple(self.c_imu_to_body.T @ np.asarray(self.scenario.mag_motor_ut_per_g)),
+                motor_ut_per_a=tuple(self.c_imu_to_body.T @ self.mag_motor_ut_per_a),
             )
             for i in range(s.mag_count)
         ]
@@ -247,20 +365,34 @@ class Simulation:
         accel = np.empty((s.imu_count, n, 3))
         gbias = np.empty((s.imu_count, n, 3))
         abias = np.empty((s.imu_count, n, 3))
+        gyro_true, accel_true, q_sensor = fine.gyro_rad_s, fine.accel_m_s2, fine.q_body_to_ned
+        if self._mounted:  # the IMU measures in its own axes: v_imu = C_imu_to_bodyᵀ v_body
+            gyro_true = gyro_true @ self.c_imu_to_body
+            accel_true = accel_true @ self.c_imu_to_body
+            q_sensor = quat.multiply(q_sensor, self.q_imu_to_body[None, :])
+        current_fine = s.current.current_a(fine.thrust_m_s2)
         for j, imu in enumerate(self.imus):
-            c = imu.process(fine.gyro_rad_s, fine.accel_m_s2, fine.thrust_m_s2, temp_fine)
+            c = imu.process(gyro_true, accel_true, fine.thrust_m_s2, temp_fine)
             gyro[j], accel[j] = c.gyro_rad_s[snap], c.accel_m_s2[snap]
             gbias[j], abias[j] = c.gyro_bias_rad_s[snap], c.accel_bias_m_s2[snap]
         mag = np.empty((s.mag_count, n, 3))
         fresh = np.empty((s.mag_count, n), dtype=bool)
         if self.mags:
             dist = self.scenario.mag_disturbance_ned(fine.t_s)
+            if any(self.mag_anomaly.field_ned_ut):
+                dist = dist + self.mag_anomaly_ned_ut(-fine.pos_ned_m[:, 2])
             for j, mm in enumerate(self.mags):
-                v, f = mm.process(idx, fine.q_body_to_ned, dist, fine.thrust_m_s2)
+                v, f = mm.process(idx, q_sensor, dist, fine.thrust_m_s2, current_fine)
                 mag[j] = v[snap]
                 # a compass sample is "fresh" at a tick if one arrived since the previous tick
                 fresh[j] = np.add.reduceat(f.astype(np.int64), np.arange(0, n * m, m)) > 0
-        self._apply_imu_fault(truth.t_s, gyro, accel)
+        self._apply_imu_fault(truth.t_s, gyro, accel, gbias, abias)
+        current = current_fine[snap]
+        # charge drawn: the current integrated at the sensor rate, reported at the ticks
+        mah = self._consumed_mah + np.cumsum(current_fine) * (1000.0 / 3600.0 / s.sensor_rate_hz)
+        if mah.size:
+            self._consumed_mah = float(mah[-1])
+        voltage = s.current.full_v - s.current.internal_ohm * current
         t_us = np.round((truth.t_s + s.boot_offset_s) * 1e6).astype(np.int64)
         est_q = self._estimate(truth)
         vel = truth.vel_ned_m_s + self._rng_gps.normal(0.0, 1.0, (n, 3)) * s.gps_velocity_noise_m_s
@@ -272,14 +404,31 @@ class Simulation:
             k0=k0, t_us=t_us, truth=truth, gyro_rad_s=gyro, accel_m_s2=accel,
             gyro_bias_rad_s=gbias, accel_bias_m_s2=abias, mag_ut=mag, mag_fresh=fresh,
             temperature_c=temp_fine[snap], est_q_body_to_ned=est_q, vel_ned_m_s=vel,
-            lat_deg=lat, lon_deg=lon, alt_m=alt,
+            lat_deg=lat, lon_deg=lon, alt_m=alt, current_a=current, voltage_v=voltage, consumed_mah=mah[snap],
+            c_imu_to_body=self.c_imu_to_body,
         )
 
-    def _apply_imu_fault(self, t_s: Array, gyro: Array, accel: Array) -> None:
+    def mag_anomaly_ned_ut(self, height_agl_m: Array) -> Array:
+        """The anomaly's earth-frame field (µT, NED) at heights above home (m), shape (N, 3)."""
+        a = self.mag_anomaly
+        h = np.maximum(np.asarray(height_agl_m, dtype=np.float64), 0.0)
+        scale = (a.height_m / (h + a.height_m)) ** 3
+        return scale[:, None] * np.asarray(a.field_ned_ut)[None, :]
+
+    def _apply_imu_fault(self, t_s: Array, gyro: Array, accel: Array, gbias: Array, abias: Array) -> None:
         f = self.settings.imu_fault
         if f is None or f.instance >= self.settings.imu_count:
             return
         j = f.instance
+        if f.step_at_s is not None:
+            on = t_s >= f.step_at_s
+            if on.any():
+                g_step = np.asarray(f.gyro_bias_step_rad_s, dtype=np.float64)
+                a_step = np.asarray(f.accel_bias_step_m_s2, dtype=np.float64)
+                gyro[j, on] += g_step
+                gbias[j, on] += g_step
+                accel[j, on] += a_step
+                abias[j, on] += a_step
         if f.freeze_at_s is not None:
             frozen = t_s >= f.freeze_at_s
             if frozen.any():

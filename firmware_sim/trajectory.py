@@ -22,7 +22,8 @@ grounded   0/1     1 = standing on the ground (held, no dynamics)
 ========== ======= ==========================================================
 
 Every scenario starts on the ground (the filters see a rest phase first),
-except that ``rest`` never leaves it.  See ``docs/firmware_sim.md`` for what
+except that ``rest`` never leaves it, and unless it is made with
+``start_in_motion`` (no rest period: flying from t = 0).  See ``docs/firmware_sim.md`` for what
 each scenario stresses.
 """
 
@@ -43,6 +44,7 @@ __all__ = [
     "VibrationSpec",
     "Harmonic",
     "make_scenario",
+    "START_IN_MOTION_ALT_M",
 ]
 
 Array = NDArray[np.float64]
@@ -87,6 +89,7 @@ class _Plan:
 
     values: dict[str, float]
     t_s: float = 0.0
+    in_motion: bool = False  # started airborne: no ground phase, no take-off
     points: dict[str, tuple[list[float], list[float]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -133,6 +136,11 @@ PlanBuilder = Callable[[np.random.Generator, _Plan], Iterator[None]]
 
 
 def _takeoff(plan: _Plan, ground_s: float = 3.0, alt_m: float = 10.0) -> Iterator[None]:
+    if plan.in_motion:  # already flying at START_IN_MOTION_ALT_M: go to the scenario's altitude, manoeuvring
+        if alt_m != plan.values["alt"]:
+            plan.ramp(abs(alt_m - plan.values["alt"]) / 3.0, alt=alt_m)
+        yield
+        return
     plan.hold(ground_s)
     plan.set(grounded=0.0)
     plan.ramp(0.5, roll=0.0, pitch=0.0)
@@ -259,6 +267,16 @@ def _magnetic(rng: np.random.Generator, plan: _Plan) -> Iterator[None]:
         yield
 
 
+def _mag_anomaly(rng: np.random.Generator, plan: _Plan) -> Iterator[None]:
+    # 10 s on the ground in the anomaly, then hover, climbs and descents with little horizontal acceleration
+    yield from _takeoff(plan, ground_s=10.0, alt_m=25.0)
+    while True:
+        _gentle(rng, plan, tilt_deg=3.0, yaw_deg=60.0)
+        if rng.random() < 0.5:
+            plan.ramp(rng.uniform(3.0, 6.0), alt=float(np.clip(plan.values["alt"] + rng.uniform(-12, 12), 8.0, 40.0)))
+        yield
+
+
 def _vibration(rng: np.random.Generator, plan: _Plan) -> Iterator[None]:
     yield from _takeoff(plan)
     while True:
@@ -282,6 +300,7 @@ _BUILDERS: dict[str, PlanBuilder] = {
     "flips": _flips,
     "highg": _highg,
     "magnetic": _magnetic,
+    "mag_anomaly": _mag_anomaly,
     "vibration": _vibration,
     "temperature": _temperature,
 }
@@ -298,6 +317,11 @@ SCENARIO_DESCRIPTIONS: dict[str, str] = {
     "magnetic": (
         "hover with wide turns; a ferrous structure adds a 35 uT earth-fixed disturbance from 20 s "
         "to 35 s of each minute, and motor currents add a throttle-dependent body-fixed field"
+    ),
+    "mag_anomaly": (
+        "10 s on the ground in a ground-level field anomaly (SIM_MAG_ALY: 8,-6,12 uT NED, 1/8 at 5 m), then "
+        "hover, climbs and descents to 8-40 m with little horizontal acceleration while the motor current "
+        "adds a body-frame field (SIM_MAG_MOT: 0.4,-0.3,0.8 uT/A, ~15 A in hover)"
     ),
     "vibration": (
         "strong motor vibration whose 3rd harmonic (1185 Hz) aliases to ~15 Hz at the default "
@@ -343,6 +367,12 @@ class Scenario:
     mag_disturbance_ned_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mag_disturbance_window_s: tuple[float, float] | None = None  # within each minute
     mag_motor_ut_per_g: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_anomaly_ned_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)  # ground level (SIM_MAG_ALY)
+    mag_anomaly_height_m: float = 1.0  # where it has decayed to 1/8 (SIM_MAG_ALY_HGT)
+    mag_motor_ut_per_a: tuple[float, float, float] = (0.0, 0.0, 0.0)  # body field per amp (SIM_MAG_MOT)
+    start_in_motion: bool = False
+    initial_alt_m: float = 0.0  # above home, when starting in motion
+    initial_vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     _plan: _Plan | None = None
     _gen: Iterator[None] | None = None
     _arrays: tuple[tuple[Array, Array], ...] | None = None
@@ -397,10 +427,22 @@ class Scenario:
         return w[:, None] * np.asarray(self.mag_disturbance_ned_ut)[None, :]
 
 
-def make_scenario(name: str, seed: int = 0) -> Scenario:
-    """The scenario ``name`` (one of :data:`SCENARIOS`) with its plan seeded by ``seed``."""
+#: the altitude above home (m) at which a scenario started in motion begins
+START_IN_MOTION_ALT_M = 10.0
+
+
+def make_scenario(name: str, seed: int = 0, *, start_in_motion: bool = False) -> Scenario:
+    """The scenario ``name`` (one of :data:`SCENARIOS`) with its plan seeded by ``seed``.
+
+    ``start_in_motion``: no rest period: the vehicle is already flying at t = 0 (rotors spinning,
+    vibration on, at :data:`START_IN_MOTION_ALT_M` above home with a horizontal velocity of
+    2–5 m/s in a random direction drawn from the seed) and the scenario's manoeuvres begin at
+    once.  Not for ``rest``.
+    """
     if name not in _BUILDERS:
         raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
+    if start_in_motion and name == "rest":
+        raise ValueError("scenario 'rest' cannot start in motion")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5C3]))
     ground = (
         float(rng.normal(0.0, 1.5) * _DEG),
@@ -409,8 +451,15 @@ def make_scenario(name: str, seed: int = 0) -> Scenario:
     )
     initial = {ch: 0.0 for ch in CHANNELS}
     initial.update(roll=ground[0], pitch=ground[1], yaw=ground[2], grounded=1.0)
-    plan = _Plan(values=initial)
     kwargs: dict[str, object] = {}
+    if start_in_motion:
+        # a generator of its own: the plan's draws stay those of the scenario started on the ground
+        mrng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5C3, 1]))
+        speed, course = mrng.uniform(2.0, 5.0), mrng.uniform(-math.pi, math.pi)
+        initial.update(grounded=0.0, alt=START_IN_MOTION_ALT_M)
+        kwargs.update(start_in_motion=True, initial_alt_m=START_IN_MOTION_ALT_M,
+                      initial_vel_ned_m_s=(speed * math.cos(course), speed * math.sin(course), 0.0))
+    plan = _Plan(values=initial, in_motion=start_in_motion)
     if name != "rest":
         kwargs["vibration"] = _MILD_VIBRATION
     if name == "vibration":
@@ -422,6 +471,12 @@ def make_scenario(name: str, seed: int = 0) -> Scenario:
             mag_disturbance_ned_ut=(25.0, -15.0, 20.0),
             mag_disturbance_window_s=(20.0, 35.0),
             mag_motor_ut_per_g=(4.0, -3.0, 10.0),
+        )
+    elif name == "mag_anomaly":
+        kwargs.update(
+            mag_anomaly_ned_ut=(8.0, -6.0, 12.0),
+            mag_anomaly_height_m=5.0,
+            mag_motor_ut_per_a=(0.4, -0.3, 0.8),
         )
     sc = Scenario(name=name, seed=int(seed), ground_attitude_rad=ground, **kwargs)  # type: ignore[arg-type]
     sc._plan = plan

@@ -358,7 +358,10 @@ class Vehicle:
         self._kernel = _integrate.select(jit)
         self._state = np.zeros(_S_LEN)
         self._state[0:4] = from_euler_rad(*scenario.ground_attitude_rad)
-        self._state[14] = 1.0
+        self._state[14] = 1.0  # on the ground before t = 0: the first airborne step starts at hover thrust
+        if scenario.start_in_motion:  # already flying: at its altitude, moving
+            self._state[7:10] = scenario.initial_vel_ned_m_s
+            self._state[12] = -scenario.initial_alt_m
         self._index = 0
 
     @property
