@@ -592,7 +592,7 @@ def _replay_fast(
             n: FilterTrack(n, ps.component_id + i, outs[i][:done], sents[i][:done])
             for i, (n, _) in enumerate(filters)
         }
-        partial = ReplayResult(td.path, part, tracks, ps.system_id or prep.source[0], s)
+        partial = ReplayResult(path, part, tracks, ps.system_id or prep.source[0], s)
         raise ReplayInterrupted(partial, done / m if m else 0.0, "filtering") from None
     finally:
         if bar is not None:
