@@ -66,8 +66,30 @@ def _env(**extra: str) -> dict[str, str]:
     return env
 
 
+#: These tests check the audit's rows, tables and engines with the monitor's fixed thresholds (10° / 25°,
+#: the 15° fault crosses 10°): the uncertainty-based default warns on firmware_sim's clean flights, whose
+#: simulated autopilot attitude errs by up to 1.9° (tests/service/test_monitor_flights.py judges that mode
+#: on the shared SITL flights).
+FIXED_MONITOR = MonitorSettings(mode="fixed")
+_FIXED_TOML = '[pipeline.monitor]\nmode = "fixed"\n'
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _fixed_monitor_config(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    global _CONFIG
+    path = tmp_path_factory.mktemp("config") / "fixed_monitor.toml"
+    path.write_text(_FIXED_TOML)
+    _CONFIG = str(path)
+    yield
+    _CONFIG = None
+
+
+_CONFIG: str | None = None
+
+
 def _audit(*args: str, env: dict[str, str] | None = None, timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mavahrs", "audit", *args], capture_output=True, text=True,
+    config = ["--config", _CONFIG] if _CONFIG else []
+    return subprocess.run([sys.executable, "-m", "mavahrs", "audit", *args, *config], capture_output=True, text=True,
                           env=env or _env(), timeout=timeout, cwd=REPO)  # fmt: skip
 
 
@@ -92,7 +114,7 @@ def test_every_row_of_the_fleet(fleet, local_run) -> None:  # type: ignore[no-un
     res, out = local_run
     rows = {Path(r.path).name: r for r in read_table(out / "fleet.parquet")}
     assert set(rows) == set(specs)  # every log present, nothing else (README.txt is not a log)
-    mon = MonitorSettings()
+    mon = FIXED_MONITOR
     for name, spec in specs.items():
         r = rows[name]
         assert r.size_bytes == (next(folder.rglob(name))).stat().st_size
@@ -244,7 +266,10 @@ def test_resumable_table_skips_what_is_summarised_and_survives_an_interruption(f
                 raise KeyboardInterrupt
             yield k, row
 
-    settings = AuditSettings()
+    from mavahrs.replay import ReplaySettings
+    from mavahrs.service.pipeline import PipelineSettings
+
+    settings = AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=FIXED_MONITOR)))  # as _audit
     with pytest.raises(KeyboardInterrupt):
         run_audit(logs, lambda p: summarise_log(p, settings), interrupted, tables=[csv], flush_every_s=3600.0)
     assert [r.path for r in read_table(csv)] == [str(p) for p in logs[:5]]
