@@ -52,7 +52,7 @@ from mavahrs.evaluation.metrics import AttitudeErrorSummary, attitude_errors_rad
 __all__ = ["DemoSettings", "DemoResult", "TruthTap", "run_demo", "score", "plot", "format_summary", "SCENARIOS"]
 
 #: the simulator's scenarios (``python -m firmware_sim --list-scenarios``), checked before starting
-SCENARIOS = ("rest", "hover", "aggressive", "flips", "highg", "magnetic", "vibration", "temperature")
+SCENARIOS = ("rest", "hover", "aggressive", "flips", "highg", "magnetic", "mag_anomaly", "vibration", "temperature")
 
 _COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the daemon's output
 _LOG = logging.getLogger("mavahrs.demo")

@@ -42,8 +42,12 @@ def _triple(text: str) -> tuple[float, float, float]:
     return x, y, z
 
 
+#: mavahrs.evaluation.faults.IMU_FAULT_MESSAGES, named here so that ``--help`` imports no numpy
+#: (tests/evaluation/test_faults.py keeps the two equal)
+_IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+
+
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from mavahrs.evaluation.faults import IMU_FAULT_MESSAGES
 
     p: argparse.ArgumentParser = subparsers.add_parser(
         "inject-fault", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -67,8 +71,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="the tilt's rotation axis, from north (default 0: about north)")
     a.add_argument("--heading", type=float, default=0.0, metavar="DEG", help="an earth-frame heading error")
     i = p.add_argument_group("an IMU (body axes)")
-    i.add_argument("--imu", choices=IMU_FAULT_MESSAGES, metavar="MESSAGE",
-                   help=f"the IMU message to bias ({', '.join(IMU_FAULT_MESSAGES)})")  # fmt: skip
+    i.add_argument("--imu", choices=_IMU_MESSAGES, metavar="MESSAGE",
+                   help=f"the IMU message to bias ({', '.join(_IMU_MESSAGES)})")  # fmt: skip
     i.add_argument("--gyro-bias", type=_triple, metavar="X,Y,Z", help="gyro bias, deg/s")
     i.add_argument("--accel-bias", type=_triple, metavar="X,Y,Z", help="accelerometer bias, m/s²")
     p.add_argument("--system", type=int, metavar="ID", help="the autopilot's system id (default: from its HEARTBEAT)")

@@ -155,8 +155,9 @@ def test_replay_says_what_is_wrong_with_a_file_that_is_no_log(tmp_path: Path, ca
     assert main(["replay", str(tmp_path)]) == 1  # as a missing file (docs/reliability.md)
     assert [m for m in _err_lines(capsys.readouterr().err) if m.startswith("replay:")] == [
         f"replay: {text}: no MAVLink messages in this file: expected a telemetry log (.tlog, as MAVProxy, "
-        "QGroundControl, Mission Planner and mavahrs write them)",
-        f"replay: {tmp_path} is a directory: replay takes one .tlog file; for a folder of logs use "
+        "QGroundControl, Mission Planner and mavahrs write them), an ArduPilot DataFlash log (.BIN) or a PX4 ULog "
+        "(.ulg)",
+        f"replay: {tmp_path} is a directory: replay takes one log file; for a folder of logs use "
         "`mavahrs audit FOLDER` (one row per flight)",
     ]
 

@@ -135,3 +135,10 @@ def test_usage_errors(original, tmp_path: Path) -> None:  # type: ignore[no-unty
     empty.write_bytes(b"")
     assert main(["inject-fault", str(empty), str(tmp_path / "z.tlog"), "--at", "1", "--roll", "2"]) == 2  # no data
     assert not list(tmp_path.glob(".*tmp"))
+
+
+def test_the_cli_offers_every_imu_message_the_injector_knows() -> None:
+    from mavahrs.cli.inject_fault import _IMU_MESSAGES
+    from mavahrs.evaluation.faults import IMU_FAULT_MESSAGES
+
+    assert _IMU_MESSAGES == IMU_FAULT_MESSAGES
