@@ -66,5 +66,7 @@ def test_compile_notice_on_a_cold_cache_only_and_warm_up_compiles_everything(tmp
         ("tune", str(tlog)),
     ):
         again = _mavahrs(env, *args)
-        assert again.returncode == 0, again.stderr
+        # the synthetic log is noiseless: tune refuses it (a gyro axis that never changes), after its kernels ran
+        refused = args[0] == "tune" and again.returncode == 1 and "not enough rest data" in again.stderr
+        assert again.returncode == 0 or refused, again.stderr
         assert _notices(again.stderr) == [], (args, again.stderr)
