@@ -47,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from mavahrs.geometry.rotation import euler_to_q_scalar
+
 __all__ = [
     "FaultShape",
     "AttitudeFault",
@@ -185,16 +187,7 @@ def _euler_of_q(w: float, x: float, y: float, z: float) -> tuple[float, float, f
     return roll, pitch, yaw
 
 
-def _q_of_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (
-        cy * cp * cr + sy * sp * sr,
-        cy * cp * sr - sy * sp * cr,
-        cy * sp * cr + sy * cp * sr,
-        sy * cp * cr - cy * sp * sr,
-    )
+_q_of_euler = euler_to_q_scalar
 
 
 def _wrap(a: float) -> float:

@@ -7,12 +7,15 @@ then pitch θ about the new right axis, then roll φ about forward; radians.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mavahrs.geometry.quaternion import normalize
 
 __all__ = [
+    "euler_to_q_scalar",
     "to_matrix",
     "from_matrix",
     "from_matrix_bar_itzhack",
@@ -146,4 +149,20 @@ def from_euler_rad(roll_rad: ArrayLike, pitch_rad: ArrayLike, yaw_rad: ArrayLike
             cr * cp * sy - sr * sp * cy,
         ],
         axis=-1,
+    )
+
+
+def euler_to_q_scalar(roll_rad: float, pitch_rad: float, yaw_rad: float) -> tuple[float, float, float, float]:
+    """One set of aerospace Z-Y-X Euler angles (rad) → q_body_to_ned, scalar first, in plain floats.
+
+    :func:`from_euler_rad` for a single attitude without numpy's per-call cost (the monitor, the fault injector).
+    """
+    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
+    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
+    cy, sy = math.cos(0.5 * yaw_rad), math.sin(0.5 * yaw_rad)
+    return (
+        cy * cp * cr + sy * sp * sr,
+        cy * cp * sr - sy * sp * cr,
+        cy * sp * cr + sy * cp * sr,
+        sy * cp * cr - cy * sp * sr,
     )

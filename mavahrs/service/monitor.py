@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mavahrs.geometry.quaternion import slerp
+from mavahrs.geometry.rotation import euler_to_q_scalar
 from mavahrs.protocol.codec import mavlink
 
 __all__ = [
@@ -316,17 +317,7 @@ class MonitorStatus:
 # --------------------------------------------------------------------------- scalar maths
 
 
-def _euler_to_q(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Aerospace Z-Y-X Euler angles (rad) → q_body_to_ned."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (
-        cy * cp * cr + sy * sp * sr,
-        cy * cp * sr - sy * sp * cr,
-        cy * sp * cr + sy * cp * sr,
-        sy * cp * cr - cy * sp * sr,
-    )
+_euler_to_q = euler_to_q_scalar  # aerospace Z-Y-X Euler angles (rad) → q_body_to_ned
 
 
 def _divergence(a: Sequence[float], b: Sequence[float]) -> tuple[float, float]:

@@ -117,6 +117,7 @@ def session(processes: Any, mavproxy: str, free_udp_port: Callable[[], int]) -> 
     }
 
 
+@pytest.mark.reaches_off_loopback  # MAVProxy itself tries 4 off-loopback connects (blocked by the namespace; not yet traced)
 def test_ground_station_mavproxy_logs_our_attitude(session: dict[str, Any]) -> None:
     assert session["mavahrs_rc"] == 0, session["mavahrs_out"][-3000:]
     msgs = _messages(session["gcs"], {"ATTITUDE_QUATERNION", "HEARTBEAT"})

@@ -80,3 +80,13 @@ def test_remap_names_read_as_signed_sensor_axes() -> None:
         remap(v, "+x+x+z")
     with pytest.raises(ValueError):
         remap_matrix("+x+y-z")  # improper (a mirror): not one of the 24
+
+
+def test_scalar_euler_to_q_matches_the_array_path() -> None:
+    import numpy as np
+
+    from mavahrs.geometry.rotation import euler_to_q_scalar, from_euler_rad
+
+    rng = np.random.default_rng(3)
+    for r, p, y in rng.uniform([-3.1, -1.5, -3.1], [3.1, 1.5, 3.1], size=(50, 3)):
+        np.testing.assert_allclose(euler_to_q_scalar(r, p, y), from_euler_rad(r, p, y), atol=1e-12)

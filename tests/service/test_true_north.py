@@ -140,7 +140,7 @@ def test_monitor_quiet_on_a_fault_free_flight(clean_flight: Flight) -> None:
 
 
 def test_monitor_warns_on_an_injected_autopilot_fault(faulty_flight: Flight) -> None:
-    s = MonitorSettings()
+    s = MonitorSettings(mode="fixed")  # the fixed 10° threshold's timing (uncertainty mode: test_monitor_flights.py)
     events, mon = _monitor(faulty_flight, s)
     texts = [(t / 1000.0, m.severity, m.text) for t, m in events]
     assert len(texts) == 2, texts

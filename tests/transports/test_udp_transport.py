@@ -90,6 +90,7 @@ def test_binding_a_busy_port_is_a_one_line_transport_error(listener: UdpTranspor
     assert "already in use" in str(info.value) and "\n" not in str(info.value)
 
 
+@pytest.mark.reaches_off_loopback  # the resolver asks its name server (nothing leaves the tests' namespace)
 def test_unresolvable_host_is_a_transport_error() -> None:
     with pytest.raises(TransportError, match="cannot resolve"):
         open_transport("udpout:no-such-host.invalid:14550")
