@@ -437,9 +437,12 @@ class MavCodec:
                 i += 1
                 continue
             msg, why = self._decode_at(buf, i, flen)
-            if why == 3 and not final and self._incomplete_candidate_in(buf, i + 1, i + flen):
-                break  # an unknown id cannot be CRC-checked: first see whether a real frame starts inside
-            if msg is None or (why == 3 and self._valid_known_frame_in(buf, i + 1, i + flen) >= 0):
+            # An unknown id cannot be CRC-checked: a CRC-valid known frame starting inside it wins;
+            # with none yet, a candidate inside that is still incomplete is waited for.
+            hides_real = why == 3 and self._valid_known_frame_in(buf, i + 1, i + flen) >= 0
+            if why == 3 and not hides_real and not final and self._incomplete_candidate_in(buf, i + 1, i + flen):
+                break
+            if msg is None or hides_real:
                 if why == 1 and i >= shadow_end:
                     c.crc_errors += 1
                 shadow_end = max(shadow_end, i + flen)

@@ -121,6 +121,21 @@ def test_sequence_gaps_duplicates_and_reordering_per_source():
     assert len(keep.receive_datagram(a[0] + a[0])) == 2 and keep.counters.duplicates == 1
 
 
+def test_a_stream_does_not_wait_behind_a_fake_frame_that_hides_a_real_one():
+    """Junk ``FE 1F`` (a MAVLink 1 header, id 3: unknown, 39 bytes) covers a whole real frame and ends
+    on a stray ``FD`` whose own fake frame runs past the data.  The real frames inside and after are
+    decoded at once, in one read or split anywhere (found by the property test of chunking)."""
+    src = MavCodec(3, 1)
+    att = src.encode(src.mav.attitude_encode(0, 0, 0, 0, 0, 0, 0), force_mavlink1=True)
+    hb = src.encode(src.mav.heartbeat_encode(0, 0, 0, 0, 0))
+    data = b"\xfe\x1f" + att + b"\xfd" + hb
+    assert [m.get_type() for m in MavCodec().receive_stream(data)] == ["ATTITUDE", "HEARTBEAT"]
+    for cut in range(len(data) + 1):
+        c = MavCodec()
+        got = c.receive_stream(data[:cut]) + c.receive_stream(data[cut:])
+        assert [m.get_type() for m in got if not isinstance(m, mavlink.MAVLink_unknown)] == ["ATTITUDE", "HEARTBEAT"], cut
+
+
 def test_unknown_message_id_is_returned_but_never_swallows_a_valid_frame():
     # a genuine frame of an id the dialect lacks
     hdr = bytes([0xFD, 3, 0, 0, 0, 1, 1]) + (60000).to_bytes(3, "little") + b"\x01\x02\x03"
