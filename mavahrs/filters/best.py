@@ -155,6 +155,8 @@ class BestSettings(FilterSettings):
     Attributes:
         madgwick: the filter used without velocity aiding.
         eskf: the velocity-aided filter.
+        shared_bias: without velocity aiding the Madgwick part integrates
+            the gyro less the ESKF's bias estimate (learnt in motion).
         fade_s: after the velocity-aided filter loses its aiding
             (``eskf.aiding_timeout_s`` without a fix), the output moves from
             its attitude to the Madgwick attitude over this long, s.
@@ -163,6 +165,7 @@ class BestSettings(FilterSettings):
     madgwick: MadgwickSettings = field(default_factory=best_settings)
     eskf: EskfSettings = field(default_factory=best_eskf_settings)
     fade_s: float = 2.0
+    shared_bias: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -188,7 +191,8 @@ _N_STATE = _ROW + IN_WIDTH - S_FILTER
 _PM = P_FILTER  # Madgwick params
 _PE = _PM + _PLM  # ESKF params
 _FADE = _PE + _PLE
-_N_PARAMS = _FADE + 1 - P_FILTER
+_SHARE_BIAS = _FADE + 1
+_N_PARAMS = _SHARE_BIAS + 1 - P_FILTER
 
 
 @kernel
@@ -225,9 +229,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(3):
                 erow[IN_VEL + i] = math.nan
             erow[IN_VEL_AGE] = math.nan
-    _madgwick_step(sm, pm, row, om)
     _eskf_step(se, pe, erow, oe)
     aided = eskf_aided(se, pe)
+    if not aided and se[S_INIT] > 0.0 and sm[S_INIT] > 0.0 and params[_SHARE_BIAS] > 0.0:
+        # one gyro bias: the ESKF's (a state, learnt in motion from the velocity it integrates); the
+        # Madgwick part integrates the gyro less it and does not learn its own
+        for i in range(3):
+            sm[S_BIAS + i] = se[S_BIAS + i]
+    _madgwick_step(sm, pm, row, om)
     w = state[_W]
     dt = row[IN_DT]
     if aided:
@@ -277,6 +286,7 @@ class Best(AttitudeFilter):
         p[_PM - P_FILTER : _PM - P_FILTER + _PLM] = m
         p[_PE - P_FILTER : _PE - P_FILTER + _PLE] = e
         p[_FADE - P_FILTER] = settings.fade_s
+        p[_SHARE_BIAS - P_FILTER] = 1.0 if settings.shared_bias else 0.0
         return p
 
     def initial_internal(self) -> np.ndarray:

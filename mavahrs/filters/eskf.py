@@ -120,7 +120,9 @@ _MAG_STALE = 16  # s: assumed age spread of a magnetometer reading (heading nois
 _REJECT_RESET = 17  # s of rejected attitude measurements before the attitude covariance is re-opened
 _VEL_GATE = 18  # χ gate of the velocity fixes (σ)
 _NOISE_TAU = 19  # s: time constant of the measured sensor noise (0: fixed noise densities)
-_N_PARAMS = 20
+_R_ZV = 20  # zero-velocity pseudo-measurement noise² while not aided, (m/s)² (0: off)
+_ZV_PERIOD = 21  # s between zero-velocity pseudo-measurements
+_N_PARAMS = 22
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 
@@ -139,7 +141,8 @@ _VIB = _CLK + 12  # running mean of ½‖Δω‖², ½‖Δf‖² between sample
 _PREV_IMU = _CLK + 14  # the previous sample's gyro and specific force (6; NaN: none)
 _HPOS = _CLK + 20  # next history slot
 _HCOUNT = _CLK + 21  # filled history slots
-_DX = _CLK + 22  # accumulated error-state correction (N)
+_LAST_ZV = _CLK + 22  # clock time of the last zero-velocity pseudo-measurement
+_DX = _CLK + 23  # accumulated error-state correction (N)
 _PH = _DX + N  # scratch: P·hᵀ (N)
 _H = _PH + N  # scratch: h (N)
 _C = _H + N  # scratch: C_body_to_ned (9)
@@ -199,6 +202,11 @@ class EskfSettings(FilterSettings):
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
+        unaided_velocity_noise_m_s: without velocity aiding, a zero-velocity
+            pseudo-measurement of this 1-σ noise, m/s, every
+            ``unaided_velocity_period_s`` (an autopilot EKF's no-GNSS mode):
+            the INS velocity's drift tells the tilt and bias error.  0 = off.
+        unaided_velocity_period_s: s between those pseudo-measurements.
         schedule: the shared schedule: only its magnetometer rejection (norm,
             dip) and accelerometer trust are used; no start-up boost (the
             covariance converges the filter).
@@ -210,7 +218,7 @@ class EskfSettings(FilterSettings):
     velocity_noise_m_s: float = 0.1
     vertical_velocity_noise_m_s: float = 0.15
     heading_noise_rad: float = math.radians(5.0)
-    gravity_noise_m_s2: float = 1.0
+    gravity_noise_m_s2: float = 3.0
     gate_sigma: float = 3.0
     velocity_gate_sigma: float = 5.0
     measured_noise_tau_s: float = 1.0
@@ -219,16 +227,18 @@ class EskfSettings(FilterSettings):
     mag_rate_hz: float = 10.0
     initial_tilt_rad: float = math.radians(3.0)
     initial_heading_rad: float = math.radians(20.0)
-    initial_bias_rad_s: float = math.radians(0.5)
-    bias_limit_rad_s: float = math.radians(5.0)
+    initial_bias_rad_s: float = math.radians(3.0)
+    bias_limit_rad_s: float = math.radians(10.0)
     velocity_reset_s: float = 5.0
     mag_staleness_s: float = 0.1
     rejection_reset_s: float = 2.0
+    unaided_velocity_noise_m_s: float = 10.0
+    unaided_velocity_period_s: float = 0.1
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
             startup_s=0.0,
-            accel_norm_tolerance=0.2,
+            accel_norm_tolerance=0.05,
             spin_rate_rad_s=0.0,
             horizontal_tolerance=0.0,
             rejection_timeout_s=0.0,
@@ -572,6 +582,18 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     # ---- gravity direction while not aided -------------------------------------------------
     tried = False  # an attitude measurement was offered this sample
     passed = False  # … and accepted
+    r_zv = params[p + _R_ZV]
+    if not aided and r_zv > 0.0 and clk - state[k + _LAST_ZV] >= params[p + _ZV_PERIOD]:
+        # without velocity aiding a vehicle's velocity is zero on average (an autopilot's EKF without GNSS
+        # fuses zero velocity or a constant position the same way): the INS velocity's drift is the tilt
+        # and bias error, through their covariance with the velocity
+        state[k + _LAST_ZV] = clk
+        for c in range(3):
+            for i in range(N):
+                state[k + _H + i] = 0.0
+            state[k + _H + 3 + c] = 1.0
+            if _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6):
+                updated = True
     if not aided and accel_ok and w_a > 0.0:
         na = math.sqrt(ax * ax + ay * ay + az * az)
         if na > 0.0:
@@ -641,7 +663,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = quat_multiply(
                 e0, e1, e2, e3, a0, a1, a2, a3
             )
-        if aided:
+        if aided or r_zv > 0.0:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
         lim = params[p + _BIAS_LIMIT]
@@ -710,6 +732,8 @@ class Eskf(AttitudeFilter):
         p[_VEL_RESET] = settings.velocity_reset_s
         p[_MAG_STALE] = settings.mag_staleness_s
         p[_REJECT_RESET] = settings.rejection_reset_s
+        p[_R_ZV] = settings.unaided_velocity_noise_m_s**2
+        p[_ZV_PERIOD] = settings.unaided_velocity_period_s
         return p
 
     def set_sensor_delay(self, delay_s: float) -> None:
