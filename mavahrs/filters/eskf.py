@@ -72,7 +72,6 @@ from mavahrs.filters.base import (
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import integrate_body_rate, quat_multiply
-from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_MAG_INVALID,
@@ -87,6 +86,7 @@ from mavahrs.filters.layout import (
     OUT_FLAGS,
     OUT_Q,
 )
+from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
 
 __all__ = ["EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM"]
 
@@ -126,7 +126,8 @@ _ZV_PERIOD = 21  # s between zero-velocity pseudo-measurements
 _REALIGN_SIN = 22  # sin of the gravity innovation angle beyond which it is not fused as a small error
 _REALIGN_S = 23  # s that large an innovation persists before the tilt is re-aligned
 _GRAV_TAU = 24  # s: NED low-pass of the specific force used as the gravity measurement (0: raw)
-_N_PARAMS = 25
+_ADAPT_TAU = 25  # s: averaging time of the gravity innovation's mean square, the adaptive noise (0: off)
+_N_PARAMS = 26
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 
@@ -155,7 +156,8 @@ _A = _M + 9  # scratch: Φ·P (N×N)
 _HIST = _A + N * N  # INS velocity history, HISTORY_LEN × (t, vn, ve, vd)
 _BIG = _HIST + 4 * HISTORY_LEN  # clock time since when the gravity innovation has been large (−1: not)
 _GLP = _BIG + 1  # NED Butterworth low-pass of the specific force (BW_LEN)
-_N_STATE = _GLP + BW_LEN
+_GMS = _GLP + BW_LEN  # running mean square of the horizontal gravity innovation, (m/s²)²
+_N_STATE = _GMS + 1
 
 
 @dataclass(frozen=True)
@@ -235,6 +237,11 @@ class EskfSettings(FilterSettings):
             motion acceleration is correlated over seconds, so the single
             sample's error is not the white noise the update assumes.
             0 = the raw sample.
+        adaptive_gravity_tau_s: the gravity measurement's noise variance is
+            raised to the mean square of its own innovation, averaged over
+            this time constant, s (adaptive measurement noise from the
+            innovation, Mehra 1972 / Sage–Husa): sustained manoeuvres make
+            the accelerometer count less for as long as they last.  0 = off.
         schedule: the shared schedule: only its magnetometer rejection (norm,
             dip) and accelerometer trust are used; no start-up boost (the
             covariance converges the filter).
@@ -265,6 +272,7 @@ class EskfSettings(FilterSettings):
     realign_innovation_rad: float = math.radians(45.0)
     realign_after_s: float = 0.5
     gravity_lowpass_s: float = 0.0
+    adaptive_gravity_tau_s: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -638,10 +646,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # the low-passed vector's norm tells a sustained manoeuvre (the sample's is mostly vibration)
         tol = params[P_SCHED + _g.GP_ACCEL_NORM_TOL]
         w_g = 1.0 - abs(na / G_M_S2 - 1.0) / tol if tol > 0.0 else 1.0
+    tau_r = params[p + _ADAPT_TAU]
+    if tau_r > 0.0 and not aided and accel_ok and na > 0.0:
+        # every sample, gated or not: a manoeuvre the gate refuses still tells how far off f runs
+        y2 = 0.5 * (gn * gn + ge * ge) * (G_M_S2 / na) ** 2
+        state[k + _GMS] += (y2 - state[k + _GMS]) * min(dt / tau_r, 1.0)
     if not aided and accel_ok and w_g > 0.0:
         if na > 0.0:
             sc = G_M_S2 / na  # the direction only
-            r_g = params[p + _R_GRAVITY] / (w_g * w_g)
+            r_g = max(params[p + _R_GRAVITY], state[k + _GMS]) / (w_g * w_g)
             # a large innovation is an attitude error, not an acceleration (see realign_innovation_rad):
             # not fused as a small one (it would be learnt as a bias); held, the tilt is re-aligned
             big = gd > 0.0 or gn * gn + ge * ge > (params[p + _REALIGN_SIN] * na) ** 2
@@ -793,6 +806,7 @@ class Eskf(AttitudeFilter):
         p[_REALIGN_SIN] = math.sin(min(settings.realign_innovation_rad, 0.5 * math.pi))
         p[_REALIGN_S] = settings.realign_after_s
         p[_GRAV_TAU] = settings.gravity_lowpass_s
+        p[_ADAPT_TAU] = settings.adaptive_gravity_tau_s
         return p
 
     def set_sensor_delay(self, delay_s: float) -> None:
