@@ -88,9 +88,14 @@ from mavahrs.filters.layout import (
 )
 from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
 
-__all__ = ["EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM"]
+__all__ = [
+    "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
+    "MULTIROTOR_DRAG_1_S",
+]  # fmt: skip
 
 N = 9  # error-state size: δθ (0–2), δv (3–5), δb (6–8)
+#: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
+MULTIROTOR_DRAG_1_S = 0.5
 HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 400 Hz
 
 #: variances the attitude covariance is re-opened to after persistent rejection, rad²
@@ -127,9 +132,14 @@ _REALIGN_SIN = 22  # sin of the gravity innovation angle beyond which it is not 
 _REALIGN_S = 23  # s that large an innovation persists before the tilt is re-aligned
 _GRAV_TAU = 24  # s: NED low-pass of the specific force used as the gravity measurement (0: raw)
 _ADAPT_TAU = 25  # s: averaging time of the gravity innovation's mean square, the adaptive noise (0: off)
-_N_PARAMS = 26
+_DRAG_K = 26  # rotor-drag coefficient, 1/s (0: no drag measurement)
+_R_DRAG = 27  # drag measurement noise², (m/s²)²
+_THRUST_TAU = 28  # s: averaging time of the body-frame thrust-axis estimate
+_N_PARAMS = 29
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
+#: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
+DRAG_PARAM = _DRAG_K
 
 # filter state, offsets from S_FILTER
 _V = 0  # INS velocity, NED (3)
@@ -157,7 +167,9 @@ _HIST = _A + N * N  # INS velocity history, HISTORY_LEN × (t, vn, ve, vd)
 _BIG = _HIST + 4 * HISTORY_LEN  # clock time since when the gravity innovation has been large (−1: not)
 _GLP = _BIG + 1  # NED Butterworth low-pass of the specific force (BW_LEN)
 _GMS = _GLP + BW_LEN  # running mean square of the horizontal gravity innovation, (m/s²)²
-_N_STATE = _GMS + 1
+_TAX = _GMS + 1  # running mean of the specific force's direction, body (3): the thrust axis
+_FSUM = _TAX + 3  # integral of the specific force (body, 3) and the time (1) since the last drag update
+_N_STATE = _FSUM + 4
 
 
 @dataclass(frozen=True)
@@ -242,6 +254,28 @@ class EskfSettings(FilterSettings):
             this time constant, s (adaptive measurement noise from the
             innovation, Mehra 1972 / Sage–Husa): sustained manoeuvres make
             the accelerometer count less for as long as they last.  0 = off.
+        drag_coefficient_1_s: a multirotor's rotor drag (Leishman, Macdonald,
+            Beard & McLain 2014, "Quad-rotor state estimation: the
+            contribution of drag", eqs. (9)–(10); PX4 EKF2's and ArduPilot
+            EKF3's drag fusion): the specific force across the thrust axis
+            is −k × the body-frame velocity relative to the air (no wind
+            assumed), k in 1/s.  Fused without velocity aiding every
+            ``unaided_velocity_period_s`` (the specific force averaged over
+            that period, two components across the thrust axis) it makes the
+            velocity, hence the tilt, observable without GNSS.  Momentum
+            theory sizes it: a rotor turning the air it ingests sideways at
+            the induced velocity v_i gives k = g/(2 v_i) (≈ 1.3 /s at a disc
+            loading of 35 N/m²); open rotors turn a fraction of it (ArduPilot's
+            SITL copter: ``mdrag_coef``, the ratio to a ducted rotor) — the
+            default 0.5 /s is that ratio ≈ 0.4.  0 = off (not a multirotor,
+            or flying is not known); the pipeline sets it from a multirotor's
+            HEARTBEAT (:meth:`Eskf.set_multirotor`).
+        drag_noise_m_s2: 1-σ noise of one averaged drag measurement, m/s²
+            (ArduPilot's EK3_DRAG_M_NSE default, 0.5; covers the model's error:
+            wind, a k off by a factor of two at low speed).
+        thrust_axis_tau_s: the thrust axis (across which drag acts) is the
+            running mean of the specific force's body-frame direction over
+            this time constant, s: any IMU mounting.
         schedule: the shared schedule: only its magnetometer rejection (norm,
             dip) and accelerometer trust are used; no start-up boost (the
             covariance converges the filter).
@@ -273,6 +307,9 @@ class EskfSettings(FilterSettings):
     realign_after_s: float = 0.5
     gravity_lowpass_s: float = 0.0
     adaptive_gravity_tau_s: float = 0.0
+    drag_coefficient_1_s: float = 0.0
+    drag_noise_m_s2: float = 0.5
+    thrust_axis_tau_s: float = 60.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -294,6 +331,12 @@ class EskfSettings(FilterSettings):
             "aiding_timeout_s", "mag_rate_hz", "initial_tilt_rad", "initial_heading_rad",
             "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s", "realign_innovation_rad",
         ):  # fmt: skip
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(self.drag_coefficient_1_s) and 0.0 <= self.drag_coefficient_1_s <= 10.0):
+            raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
+        for name in ("drag_noise_m_s2", "thrust_axis_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
@@ -458,6 +501,89 @@ def _history_velocity(s, k, t, out3):  # type: ignore[no-untyped-def]
             return True
         later = idx
     return False
+
+
+@kernel(inline=True)
+def _drag_update_prepare(s, k, params, ax, ay, az, dt):  # type: ignore[no-untyped-def]
+    """Thrust axis (running mean of the drag-corrected specific force's body direction); the force's integral.
+
+    The drag-corrected force f + k·v_b (v_b = Cᵀ v) is the thrust alone: its direction does not swing
+    with the vehicle's sustained body-frame velocity as the raw force's does (forward flight).
+    """
+    kc = k + _C
+    k_drag = params[P_FILTER + _DRAG_K]
+    vn, ve, vd = s[k + _V], s[k + _V + 1], s[k + _V + 2]
+    bx = ax + k_drag * (s[kc + 0] * vn + s[kc + 3] * ve + s[kc + 6] * vd)
+    by = ay + k_drag * (s[kc + 1] * vn + s[kc + 4] * ve + s[kc + 7] * vd)
+    bz = az + k_drag * (s[kc + 2] * vn + s[kc + 5] * ve + s[kc + 8] * vd)
+    n = math.sqrt(bx * bx + by * by + bz * bz)
+    kt = k + _TAX
+    s[k + _FSUM] += ax * dt
+    s[k + _FSUM + 1] += ay * dt
+    s[k + _FSUM + 2] += az * dt
+    s[k + _FSUM + 3] += dt
+    if not n > 0.0:
+        return
+    t2 = s[kt] * s[kt] + s[kt + 1] * s[kt + 1] + s[kt + 2] * s[kt + 2]
+    w = 1.0 if t2 == 0.0 else min(dt / params[P_FILTER + _THRUST_TAU], 1.0)
+    s[kt] += (bx / n - s[kt]) * w
+    s[kt + 1] += (by / n - s[kt + 1]) * w
+    s[kt + 2] += (bz / n - s[kt + 2]) * w
+
+
+@kernel(inline=True)
+def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
+    """Rotor drag: the mean specific force across the thrust axis = −k × the body velocity across it.
+
+    With ``v_b = Cᵀ v`` and a body axis e across the thrust axis, u = C e (NED):
+    h = −k uᵀv, ∂h/∂δv = −k uᵀ, ∂h/∂δθ = −k (u × v)ᵀ (q_true = exp(δθ/2) ⊗ q: v_b,true = v_b + Cᵀ(v × δθ)).
+    Leishman et al. 2014, eqs. (9)–(10).  Returns True if a component was fused.
+    """
+    kt = k + _TAX
+    tx, ty, tz = s[kt], s[kt + 1], s[kt + 2]
+    tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+    cnt = s[k + _FSUM + 3]
+    fx, fy, fz = s[k + _FSUM] / cnt, s[k + _FSUM + 1] / cnt, s[k + _FSUM + 2] / cnt
+    for i in range(4):
+        s[k + _FSUM + i] = 0.0
+    if not tn > 0.5:  # no steady thrust direction (tumbling, or not yet learnt)
+        return False
+    tx, ty, tz = tx / tn, ty / tn, tz / tn
+    # a body axis least aligned with t, made orthogonal to it: e1; e2 = t × e1
+    if abs(tx) <= abs(ty) and abs(tx) <= abs(tz):
+        ax, ay, az = 1.0, 0.0, 0.0
+    elif abs(ty) <= abs(tz):
+        ax, ay, az = 0.0, 1.0, 0.0
+    else:
+        ax, ay, az = 0.0, 0.0, 1.0
+    d = ax * tx + ay * ty + az * tz
+    e1x, e1y, e1z = ax - d * tx, ay - d * ty, az - d * tz
+    en = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / en, e1y / en, e1z / en
+    kc = k + _C
+    vn, ve, vd = s[k + _V], s[k + _V + 1], s[k + _V + 2]
+    r = params[P_FILTER + _R_DRAG]
+    fused = False
+    for c in range(2):
+        if c == 0:
+            ex, ey, ez = e1x, e1y, e1z
+        else:
+            ex, ey, ez = ty * e1z - tz * e1y, tz * e1x - tx * e1z, tx * e1y - ty * e1x
+        un = s[kc + 0] * ex + s[kc + 1] * ey + s[kc + 2] * ez
+        ue = s[kc + 3] * ex + s[kc + 4] * ey + s[kc + 5] * ez
+        ud = s[kc + 6] * ex + s[kc + 7] * ey + s[kc + 8] * ez
+        y = (fx * ex + fy * ey + fz * ez) + k_drag * (un * vn + ue * ve + ud * vd)
+        for i in range(N):
+            s[k + _H + i] = 0.0
+        s[k + _H + 0] = -k_drag * (ue * vd - ud * ve)
+        s[k + _H + 1] = -k_drag * (ud * vn - un * vd)
+        s[k + _H + 2] = -k_drag * (un * ve - ue * vn)
+        s[k + _H + 3] = -k_drag * un
+        s[k + _H + 4] = -k_drag * ue
+        s[k + _H + 5] = -k_drag * ud
+        if _scalar_update(s, k, y, r, params[P_FILTER + _VEL_GATE]):
+            fused = True
+    return fused
 
 
 @kernel
@@ -636,6 +762,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[k + _H + 3 + c] = 1.0
             if _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6):
                 updated = True
+    k_drag = params[p + _DRAG_K]
+    if k_drag > 0.0 and accel_ok:
+        _drag_update_prepare(state, k, params, ax, ay, az, dt)
+        if aided:  # velocity-aided: the fixes tell the velocity; the sum restarts
+            for i in range(4):
+                state[k + _FSUM + i] = 0.0
+        elif state[k + _FSUM + 3] >= params[p + _ZV_PERIOD]:  # the specific force averaged over that period
+            if _drag_update(state, k, params, k_drag):
+                updated = True
     gn, ge, gd = fn, fe, fd  # the gravity measurement, NED
     tau_g = params[p + _GRAV_TAU]
     if tau_g > 0.0 and accel_ok:
@@ -732,7 +867,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if tau_g > 0.0:  # the stored NED vectors move with the estimate's frame
                 nav_lowpass_rotate(state, k + _GLP, rx, ry, rz)
                 nav_lowpass_rotate(state, k + _GLP + BW_LEN // 2, rx, ry, rz)
-        if aided or r_zv > 0.0:
+        if aided or r_zv > 0.0 or k_drag > 0.0:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
         lim = params[p + _BIAS_LIMIT]
@@ -807,7 +942,23 @@ class Eskf(AttitudeFilter):
         p[_REALIGN_S] = settings.realign_after_s
         p[_GRAV_TAU] = settings.gravity_lowpass_s
         p[_ADAPT_TAU] = settings.adaptive_gravity_tau_s
+        p[_DRAG_K] = settings.drag_coefficient_1_s
+        p[_R_DRAG] = settings.drag_noise_m_s2**2
+        p[_THRUST_TAU] = settings.thrust_axis_tau_s
         return p
+
+    def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
+        """The vehicle is a multirotor: the rotor-drag measurement on (``EskfSettings.drag_coefficient_1_s``).
+
+        ``None`` keeps a coefficient already set, else the multirotor default 0.5 /s; 0 turns it off.
+        """
+        from dataclasses import replace
+
+        k = drag_coefficient_1_s
+        if k is None:
+            k = self._settings.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
+        self._settings = replace(self._settings, drag_coefficient_1_s=float(k))
+        self._params[P_FILTER + _DRAG_K] = self._settings.drag_coefficient_1_s
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps, s (see ``EskfSettings.sensor_delay_s``)."""
