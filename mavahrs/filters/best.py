@@ -98,7 +98,8 @@ from mavahrs.filters.base import (
     FilterState,
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
-from mavahrs.filters.eskf import Eskf, EskfSettings, eskf_aided
+from mavahrs.filters.eskf import DRAG_PARAM as _DRAG_OFFSET
+from mavahrs.filters.eskf import MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
 from mavahrs.filters.jit import kernel
@@ -376,6 +377,26 @@ class Best(AttitudeFilter):
         s = self._settings
         assert isinstance(s, BestSettings)
         self._settings = replace(s, unaided_filter="eskf")
+        self._params[_ESKF_ONLY] = 1.0
+
+    def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
+        """The vehicle is a multirotor: the ESKF with its rotor-drag measurement, in every condition.
+
+        The pipeline calls it on a multirotor's HEARTBEAT (MAV_TYPE quadrotor, hexarotor, …); a
+        Python API user whose IMU flies on a multirotor calls it too (or sets
+        ``BestSettings(unaided_filter="eskf", eskf=EskfSettings(drag_coefficient_1_s=0.5))``).
+        Without GNSS the drag makes the velocity, hence the tilt, observable: ArduCopter SITL
+        without GNSS 1.41 → 0.65° mean inclination RMS (``docs/accuracy.md``).  ``None``: a
+        coefficient already set, else 0.5 /s (``EskfSettings.drag_coefficient_1_s``).
+        """
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        k = drag_coefficient_1_s
+        if k is None:
+            k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
+        eskf = replace(s.eskf, drag_coefficient_1_s=float(k))
+        self._settings = replace(s, eskf=eskf, unaided_filter="eskf")
+        self._params[_PE + P_FILTER + _DRAG_OFFSET] = eskf.drag_coefficient_1_s
         self._params[_ESKF_ONLY] = 1.0
 
     def set_sensor_delay(self, delay_s: float) -> None:

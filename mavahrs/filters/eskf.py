@@ -101,6 +101,8 @@ HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 
 #: variances the attitude covariance is re-opened to after persistent rejection, rad²
 _REOPEN_TILT = (math.pi / 4.0) ** 2
 _REOPEN_HEADING = (math.pi / 2.0) ** 2
+#: initial velocity variance of a multirotor (it may start in flight), (m/s)²
+_P0_VEL_FLYING = 5.0**2
 #: … and when velocity aiding (re)starts
 _RESTART_TILT = math.radians(20.0) ** 2
 _RESTART_HEADING = math.radians(45.0) ** 2
@@ -360,6 +362,10 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[kp + 2 * N + 2] = params[p + _P0_HEADING]
     for i in range(6, 9):
         s[kp + i * N + i] = params[p + _P0_BIAS]
+    if params[p + _DRAG_K] > 0.0:
+        # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
+        for i in range(3, 6):
+            s[kp + i * N + i] = _P0_VEL_FLYING
     s[k + _LAST_FIX] = -1.0
     s[k + _LAST_MAG] = -1.0e9
     s[k + _GREJ] = -1.0
@@ -525,7 +531,8 @@ def _drag_update_prepare(s, k, params, ax, ay, az, dt):  # type: ignore[no-untyp
     if not n > 0.0:
         return
     t2 = s[kt] * s[kt] + s[kt + 1] * s[kt + 1] + s[kt + 2] * s[kt + 2]
-    w = 1.0 if t2 == 0.0 else min(dt / params[P_FILTER + _THRUST_TAU], 1.0)
+    # the mean since the start while shorter than the time constant (no weight on the first sample alone)
+    w = 1.0 if t2 == 0.0 else min(dt / min(params[P_FILTER + _THRUST_TAU], max(s[k + _CLK], dt)), 1.0)
     s[kt] += (bx / n - s[kt]) * w
     s[kt + 1] += (by / n - s[kt + 1]) * w
     s[kt + 2] += (bz / n - s[kt + 2]) * w
