@@ -3,8 +3,11 @@ r"""The configuration mavahrs recommends: ``filter="best"`` (also the daemon's d
 On an autopilot's stream (the daemon's pipeline calls :meth:`Best.set_vehicle_stream`
 when it knows the profile) ``best`` is one estimator in every condition: the
 ESKF below, velocity-aided with GNSS and unaided without (zero-velocity and
-gravity updates; ArduCopter SITL without GNSS 1.41° inclination against the
-Madgwick configuration's 2.80°).  Through the Python API two filters run side
+gravity updates, and on a multirotor — its HEARTBEAT type, :meth:`Best.set_multirotor`
+— the rotor-drag measurement; ArduCopter SITL without GNSS 0.66° inclination, 1.41°
+without drag, against the Madgwick configuration's 2.80°).  A Python API user whose
+IMU flies on a multirotor calls :meth:`Best.set_multirotor` and gets the same.
+Otherwise, through the Python API, two filters run side
 by side on every sample and ``best`` sends the one that measures best for the
 inputs it has (``BestSettings.unaided_filter``; ``docs/accuracy.md``):
 
@@ -301,7 +304,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
 
 
 class Best(AttitudeFilter):
-    """The recommended filter: velocity-aided ESKF with GNSS, tuned Madgwick without.  See :class:`BestSettings`."""
+    """The recommended filter: the ESKF (with GNSS, on a vehicle's stream, on a multirotor), else tuned Madgwick.
+
+    See :class:`BestSettings` and the module docstring.
+    """
 
     name = "best"
     settings_type = BestSettings
