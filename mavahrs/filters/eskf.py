@@ -36,8 +36,12 @@ Nominal state: ``q_body_to_ned`` (common prefix), ``v_ned`` (m/s), gyro bias
 * without velocity aiding (no fix yet, or none for ``aiding_timeout_s``), the
   accelerometer's direction as a gravity measurement, its noise scaled by
   the schedule's accelerometer trust: the filter is then an accelerometer +
-  magnetometer AHRS like the others, and ``best`` uses the Madgwick
-  configuration there instead (:mod:`mavahrs.filters.best`).
+  magnetometer AHRS like the others, with a zero-velocity pseudo-measurement
+  and, on a multirotor (``drag_coefficient_1_s``), the rotor-drag
+  measurement: the specific force across the thrust axis = −k × the
+  body-frame velocity (Leishman et al. 2014), which makes the velocity, hence
+  the tilt, observable without GNSS (:mod:`mavahrs.filters.best` says where
+  ``best`` uses it).
 
 Each update's δx is injected at once (q ← exp(δθ/2) ⊗ q, v += δv, b += δb)
 and the error state returns to zero.  The output is the attitude advanced by

@@ -74,3 +74,23 @@ def test_set_multirotor_turns_the_drag_measurement_on_and_best_to_the_eskf() -> 
     assert e.settings.drag_coefficient_1_s == MULTIROTOR_DRAG_1_S  # type: ignore[attr-defined]
     with pytest.raises(ValueError):
         EskfSettings(drag_coefficient_1_s=-1.0)
+
+
+@pytest.mark.parametrize(("mav_type", "drag"), [(2, MULTIROTOR_DRAG_1_S), (13, MULTIROTOR_DRAG_1_S), (1, 0.0)])
+def test_the_pipeline_turns_drag_on_for_a_multirotor_heartbeat(mav_type: int, drag: float) -> None:
+    """A quadrotor's or hexarotor's HEARTBEAT gives ``best`` the rotor-drag measurement; a plane's does not."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from mavahrs.filters.best import Best
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    pipe = Pipeline(PipelineSettings(filter_name="best", out_rate_hz=0.0))
+    tx = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    frame = tx.heartbeat_encode(mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4).pack(tx)
+    for msg in MavCodec(0, 0).receive_datagram(frame):
+        pipe.handle(msg, 1_000_000)
+    f = pipe._filter
+    assert isinstance(f, Best)
+    assert f.settings.eskf.drag_coefficient_1_s == drag
+    assert f.settings.unaided_filter == "eskf"  # an autopilot's stream either way
