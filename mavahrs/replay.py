@@ -433,6 +433,7 @@ def replay(
         if sink is not None:
             sink.close()
     result.notes = notes + result.inputs.notes + result.notes + _resend_notes(result.inputs.counts)
+    result.notes += _mag_notes(result)
     gaps = gap_note(result.inputs, int(td.t_us[0]) if td.frames else 0, ps.timeline.max_gap_s)
     if gaps is not None:
         result.notes.append(gaps)
@@ -485,6 +486,27 @@ def _replay_log(
         result.notes.append(f"IMU samples reach the filter at {rate:.1f} Hz: too slow for meaningful attitude "
                             f"filtering (≥ {LOW_RATE_HZ:g} Hz needed)")  # fmt: skip
     return result
+
+
+def _mag_notes(result: ReplayResult) -> list[str]:
+    """``magnetometer disturbed: heading from GNSS`` for the velocity-aided filters, with how long."""
+    from mavahrs.filters.layout import FLAG_MAG_INVALID, FLAG_VELOCITY_AIDED, OUT_MAG_WEIGHT
+    from mavahrs.filters.magfield import DISTURBED_TEXT
+
+    notes = []
+    t = result.inputs.t_us
+    for name, tr in result.tracks.items():
+        if name not in ("best", "eskf") or tr.out.shape[0] < 2:
+            continue
+        flags = tr.out[:, OUT_FLAGS].astype(np.int64)
+        off = ((flags & FLAG_VELOCITY_AIDED) != 0) & ((flags & FLAG_MAG_INVALID) == 0) & (tr.out[:, OUT_MAG_WEIGHT] == 0.0)
+        if not off.any():
+            continue
+        dt = np.diff(t, prepend=t[0]) * 1e-6
+        secs = float(dt[off].sum())
+        if secs >= 1.0:
+            notes.append(f"{name}: {DISTURBED_TEXT} for {secs:.0f} s ({100.0 * off.mean():.0f} % of the samples)")
+    return notes
 
 
 def _resend_notes(counts: Mapping[str, int]) -> list[str]:

@@ -57,7 +57,17 @@ from numpy.typing import NDArray
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_WIDTH
+from mavahrs.filters.layout import (
+    IN_ACCEL,
+    IN_CURRENT,
+    IN_DT,
+    IN_GYRO,
+    IN_MAG,
+    IN_VEL,
+    IN_VEL_AGE,
+    IN_WIDTH,
+    OUT_WIDTH,
+)
 
 __all__ = [
     "REPLAY_TYPES",
@@ -83,7 +93,9 @@ IMU_TYPES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU
 POSITION_TYPES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW", "HOME_POSITION", "SYSTEM_TIME")
 REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE", "HIL_STATE_QUATERNION")
 #: What replay reads from a log.
-REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT", "EXTENDED_SYS_STATE") + POSITION_TYPES + REFERENCE_TYPES
+#: battery current (the compass's motor interference, :mod:`mavahrs.sensors.current`)
+CURRENT_TYPES = ("SYS_STATUS", "BATTERY_STATUS")
+REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT", "EXTENDED_SYS_STATE") + POSITION_TYPES + REFERENCE_TYPES + CURRENT_TYPES
 
 _MAV_AUTOPILOT_INVALID = 8
 _NAN = math.nan
@@ -804,6 +816,7 @@ def prepare_inputs(
     for i, v, fix_t in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
         rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), fix_t)
+    _fill_current(td, src, pos, rows)
     # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
     for kind in np.flatnonzero(np.bincount(kinds)):
         ms = profile.scale_for(names[int(kind)])
@@ -830,6 +843,34 @@ def prepare_inputs(
         sensor_delay_s=_delay_of(profile, sc["name"]),
         velocity_source=_velocity_setting(s), velocity_fixes={k: vsel.used(k) for k in vsel.messages},
     )  # fmt: skip
+
+
+def _fill_current(td: TlogData, src: tuple[int, int], pos: NDArray[np.int64], rows: Array) -> None:
+    """``IN_CURRENT``: the last battery current of the source before each sample (Pipeline._on_current)."""
+    from mavahrs.sensors.current import CURRENT_STALE_S, battery_current_a
+
+    rows[:, IN_CURRENT] = _NAN
+    at: list[tuple[int, float]] = []
+    for name in CURRENT_TYPES:
+        a = td.arrays[name]
+        if a.shape[0] == 0:
+            continue
+        ok = (a["sysid"] == src[0]) & (a["compid"] == src[1])
+        for k in np.flatnonzero(ok):
+            amps = battery_current_a(td.message(name, int(k)))
+            if amps is not None:
+                at.append((int(td.pos[name][k]), amps))
+    if not at or pos.shape[0] == 0:
+        return
+    at.sort()
+    mpos = np.array([p for p, _ in at], dtype=np.int64)
+    amps_a = np.array([v for _, v in at])
+    j = np.searchsorted(mpos, pos) - 1  # the last current message before each sample
+    have = j >= 0
+    jj = np.maximum(j, 0)
+    age_s = (td.t_us[pos] - td.t_us[mpos[jj]]) * 1e-6
+    use = have & (age_s <= CURRENT_STALE_S)
+    rows[use, IN_CURRENT] = amps_a[jj[use]]
 
 
 def _calibrate(rows: Array, temp: Array, cal: Any) -> None:

@@ -63,6 +63,7 @@ from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
     FLAG_VELOCITY_AIDED,
+    IN_CURRENT,
     IN_GYRO,
     IN_VEL,
     IN_VEL_AGE,
@@ -74,6 +75,7 @@ from mavahrs.filters.layout import (
     OUT_MAG_WEIGHT,
     OUT_Q,
 )
+from mavahrs.filters.magfield import mag_state_text
 from mavahrs.protocol.codec import MavCodec, mavlink
 from mavahrs.protocol.timeline import (
     DROP_KINDS,
@@ -85,6 +87,7 @@ from mavahrs.protocol.timeline import (
     TimelineSettings,
 )
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
+from mavahrs.sensors.current import CURRENT_STALE_S, battery_current_a
 from mavahrs.sensors.geomag import (
     DeclinationSource,
     MagneticFieldSettings,
@@ -415,6 +418,8 @@ class PipelineStatus:
     velocity_skipped: Mapping[str, int] = field(default_factory=dict)
     monitor_state: MonitorStatus | None = None
     gnss_velocity: str = "none"
+    #: the learnt magnetometer model (``best``/``eskf``: state trusted/learning/disturbed, offsets; None: none)
+    magnetometer: Mapping[str, Any] | None = None
 
     def line(self) -> str:
         """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | … | vel GPI 10 Hz | …``."""
@@ -430,6 +435,7 @@ class PipelineStatus:
             f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
             f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
             + (f" | {self.monitor}" if self.monitor else "")
+            + (f" | {mag_state_text(self.magnetometer)}" if self.magnetometer else "")
         )
 
 
@@ -509,6 +515,8 @@ class Pipeline:
             "ATTITUDE": self._on_autopilot_attitude,
             "ATTITUDE_QUATERNION": self._on_autopilot_attitude,
             "EXTENDED_SYS_STATE": self._on_flight_phase,
+            "SYS_STATUS": self._on_current,
+            "BATTERY_STATUS": self._on_current,
         }
         for name in IMU_MESSAGES:
             self._handlers[name] = self._on_imu
@@ -595,6 +603,8 @@ class Pipeline:
         self._next_out_t: int | None = None
         #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
         self._vel: tuple[float, float, float, int | None] | None = None
+        self._current_a = _NAN  # battery current (the compass's motor interference model), A
+        self._current_us: int | None = None
         self._vel_written = True  # row's velocity columns hold NaN already
         if hasattr(self, "_velocity"):
             self._velocity.reset()
@@ -877,6 +887,8 @@ class Pipeline:
         elif not self._vel_written:
             row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = _NAN
             self._vel_written = True
+        fresh = self._current_us is not None and now_us - self._current_us <= CURRENT_STALE_S * 1e6
+        row[IN_CURRENT] = self._current_a if fresh else _NAN
         cal = self._calibrators[name]
         if cal.active:
             cal.apply_row(row, v[11])
@@ -965,6 +977,16 @@ class Pipeline:
                 self._vel_meter.reset()
                 self._vel_meter_source = fix.message
             self._vel_meter.add(now_us)
+        return []
+
+    def _on_current(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """SYS_STATUS / BATTERY_STATUS: the battery current, into every following sample's ``IN_CURRENT``."""
+        if not self._from_source(msg):
+            return []
+        amps = battery_current_a(msg)
+        if amps is not None:
+            self._current_a = amps
+            self._current_us = now_us
         return []
 
     def _on_position_only(self, msg: Any, now_us: int) -> list[Outgoing]:
@@ -1288,7 +1310,12 @@ class Pipeline:
             velocity_skipped=dict(vs.counters),
             monitor_state=self._monitor.status if self._monitor_on else None,
             gnss_velocity=self._gnss_state(now),
+            magnetometer=self._mag_model_state(),
         )
+
+    def _mag_model_state(self) -> dict[str, Any] | None:
+        get = getattr(self._filter, "mag_model_state", None)
+        return get() if get is not None else None
 
     @property
     def velocity_selector(self) -> VelocitySelector:

@@ -131,6 +131,10 @@
     set("mag-rej", fmt(s.mag_rejection_pct, 0));
     set("bias", s.bias_deg_s ? s.bias_deg_s.map((v) => signed(v, 2)).join("  ") : "–");
     set("gnss", s.gnss_velocity || "–");
+    const mm = s.magnetometer;  // the learnt magnetometer model (best / eskf)
+    set("mag-state", mm ? (mm.state === "disturbed" ? "disturbed: heading from GNSS" : mm.state) : "–");
+    set("mag-offset", mm ? "offset " + mm.offset_ut.map((v) => signed(v, 1)).join(" ") + " µT · "
+      + mm.motor_ut_per_a.map((v) => signed(v, 2)).join(" ") + " µT/A" : "");
     set("imu", s.imu === null || s.imu === undefined ? "none" : String(s.imu));
     set("imu-reason", s.imu_reason || "");
     set("lat50", fmt(s.latency_p50_us, 0));
