@@ -730,6 +730,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     if model_on and mag_ok and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
         # the learnt model judges the reading and corrects it (its offset); disturbed: no heading
         scr = state[k + _MSCR : k + _MSCR + 20]
+        was_disturbed = state[k + _MAGF + MF_TRUST] == MAG_DISTURBED
         trust = mag_model_update(
             state, k + _MAGF, params[p + _MAGF_P : p + _MAGF_P + MP_LEN], state[kc : kc + 9], mx, my, mz,
             row[IN_CURRENT], s_pos(state[k + _P + 2 * N + 2]),
@@ -750,7 +751,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # the field no longer fits what was learnt: the heading it gave may be wrong too (a start in a
             # ground anomaly); gyro and GNSS take over with an open heading variance
             state[k + _MSTEPS] = steps
-            if params[p + _REOPEN_ON_STEP] > 0.0 and s_pos(state[k + _P + 2 * N + 2]) < params[p + _R_MODEL_MAX]:
+            # (once per episode: re-opened on every reading, GNSS noise would walk the heading)
+            if (
+                params[p + _REOPEN_ON_STEP] > 0.0 and not was_disturbed
+                and s_pos(state[k + _P + 2 * N + 2]) < params[p + _R_MODEL_MAX]
+            ):  # fmt: skip
                 eskf_reopen_attitude(state, k, params, 0.0, params[p + _R_MODEL_MAX])
         if not use_mag:
             state[k + _LAST_MAG] = clk

@@ -135,7 +135,10 @@ class MagFieldSettings:
     Attributes:
         enabled: learn the offset and earth field and judge each reading by
             them (False: the ESKF's former heading update, gated only by the
-            gain schedule's norm and dip test).
+            gain schedule's norm and dip test).  Off by default: on it halves
+            the heading error on ArduCopter's motor-interference flight, but
+            a field disturbed for 30 s by a body-fixed rotation (the ESKF's
+            own tests) is learnt as an offset and followed (``docs/filters/magfield.md``).
         noise_ut: 1-σ noise of one reading per axis, µT (quantisation,
             the field's wander in a flight).
         initial_offset_ut: 1-σ of the body offset before anything is learnt,
@@ -190,7 +193,7 @@ class MagFieldSettings:
             before may be wrong: a start in a ground anomaly).
     """
 
-    enabled: bool = True
+    enabled: bool = False
     noise_ut: float = 1.0
     initial_offset_ut: float = 3.0
     offset_walk_ut_s: float = 0.05

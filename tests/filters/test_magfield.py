@@ -23,6 +23,7 @@ from mavahrs.replay import ReplaySettings, _declinate, replay
 from mavahrs.sensors.current import battery_current_a
 
 MOTOR_UT_PER_A = (-0.4, 0.2, 0.5)  # ArduPilot's SIM_MAG_MOT of its magnetic flight, in µT/A
+ON = BestSettings(eskf=EskfSettings(mag_model=MagFieldSettings(enabled=True)))
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +56,7 @@ def test_current_reaches_the_rows(flight) -> None:  # type: ignore[no-untyped-de
 
 def test_learns_the_field_per_ampere_and_holds_heading(flight) -> None:  # type: ignore[no-untyped-def]
     res, truth = flight
-    on = Best()
+    on = Best(ON)
     out_on = res.inputs.run_filter(on)
     state = on.mag_model_state()
     assert state is not None
@@ -73,13 +74,14 @@ def test_learns_the_field_per_ampere_and_holds_heading(flight) -> None:  # type:
 
 def test_model_kept_across_a_restart(flight) -> None:  # type: ignore[no-untyped-def]
     res, truth = flight
-    first = Best()
+    first = Best(ON)
     res.inputs.run_filter(first)
     saved = first.export_mag_model()
     assert saved is not None and saved["format"] == 1
     np.testing.assert_allclose(saved["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.12)
-    assert Best().export_mag_model() is None  # nothing learnt: nothing to write over a saved file
-    second = Best()
+    assert Best(ON).export_mag_model() is None  # nothing learnt: nothing to write over a saved file
+    assert Best().export_mag_model() is None and Best().mag_model_state() is None  # off by default
+    second = Best(ON)
     assert second.load_mag_model(saved) is None
     np.testing.assert_allclose(second.mag_model_state()["motor_ut_per_a"], saved["motor_ut_per_a"], atol=1e-3)
     out = res.inputs.run_filter(second)  # the reference seeding and the re-initialisation keep it
@@ -89,7 +91,7 @@ def test_model_kept_across_a_restart(flight) -> None:  # type: ignore[no-untyped
                                       "motor_sigma_ut_per_a": [0, 0, 0]},
                 {"format": 1, "offset_ut": [0, 0, 0], "motor_ut_per_a": [math.nan, 0, 0],
                  "motor_sigma_ut_per_a": [0, 0, 0]}):  # fmt: skip
-        assert isinstance(Best().load_mag_model(bad), str)
+        assert isinstance(Best(ON).load_mag_model(bad), str)
 
 
 def test_replay_says_when_the_compass_is_not_used(flight) -> None:  # type: ignore[no-untyped-def]
