@@ -192,6 +192,37 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     why_not = _enter_loopback_only_network()
     if why_not is not None:
         _loopback_ns["skip"] = why_not
+    _warm_up_kernels(session.config)
+
+
+def _warm_up_kernels(config: pytest.Config) -> None:
+    """``mavahrs warm-up`` once, before the test processes start, when the suite runs on several of them.
+
+    On a cold numba cache (a fresh clone, an edited filter) each worker would otherwise compile the same
+    kernels at the same time, and so would the daemons and replays the live tests start — inside their
+    deadlines, on a machine already busy compiling.  Compiled once here (about a minute on a cold cache,
+    a few seconds to load a warm one), every later process loads them from the cache (``NUMBA_CACHE_DIR``
+    or ``mavahrs/filters/__pycache__``, as the tests' own processes use).  Runs in the controlling
+    process only (not in xdist's workers); ``MAVAHRS_TESTS_WARM_UP=1`` also for ``-n 0``, ``=0`` never.
+    """
+    import subprocess
+
+    wanted = os.environ.get("MAVAHRS_TESTS_WARM_UP")
+    if wanted == "0" or hasattr(config, "workerinput"):
+        return
+    workers = config.getoption("numprocesses", default=None) if config.pluginmanager.has_plugin("xdist") else None
+    if wanted != "1" and not workers:
+        return
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    try:
+        done = subprocess.run([sys.executable, "-m", "mavahrs", "warm-up"], env=env, cwd=REPO, timeout=1800,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    except (OSError, subprocess.TimeoutExpired) as exc:  # the tests that need the kernels will say more
+        sys.stderr.write(f"tests/conftest.py: mavahrs warm-up failed before the tests: {exc}\n")
+        return
+    if done.returncode != 0:
+        sys.stderr.write(f"tests/conftest.py: mavahrs warm-up exited {done.returncode}:\n{done.stdout[-3000:]}\n")
 
 
 def pytest_runtest_logstart(nodeid: str, location: tuple[str, int | None, str]) -> None:

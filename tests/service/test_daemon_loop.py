@@ -226,9 +226,14 @@ def test_silence_after_heartbeats_is_reported_not_fatal(gcs: socket.socket, capl
     thread, box = _start(d)
     try:
         ap.heartbeat()
-        time.sleep(0.8)  # silence longer than the timeout
+        # silence longer than the timeout: wait for the daemon to say so (a loaded machine may take a while to
+        # wake the loop; the deadline is only reached if it never does)
+        deadline = time.monotonic() + 60.0
+        while "no heartbeat from the autopilot" not in caplog.text and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert thread.is_alive()
-        deadline = time.monotonic() + 5.0  # a loaded machine may take a while to wake the loop
+        assert "autopilot heartbeat received" in caplog.text, caplog.text  # the silence came after a heartbeat
+        deadline = time.monotonic() + 60.0
         while "heartbeat back" not in caplog.text and time.monotonic() < deadline:
             ap.heartbeat()
             time.sleep(0.1)
