@@ -37,14 +37,31 @@ LIVE_TESTS = (
 )
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        try:
-            rel = Path(item.path).resolve().relative_to(REPO).as_posix()
-        except ValueError:
-            continue
-        item.add_marker(pytest.mark.xdist_group("live" if rel.startswith(LIVE_TESTS) else rel))
+def xdist_unit(nodeid: str) -> str:
+    """The xdist work unit of a test (its node id, relative to the repository): "live" or its file."""
+    path = nodeid.split("::", 1)[0]
+    return "live" if path.startswith(LIVE_TESTS) else path
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """``--dist loadgroup`` by :func:`xdist_unit`, whatever the pytest version.
+
+    xdist's own ``loadgroup`` reads ``xdist_group`` marks by renaming each test's node id
+    (``…@group``), which pytest ≥ 9 no longer lets it do (node ids became structured): every test
+    would be a unit of its own — live flights two at a time, module fixtures computed in both
+    workers.  This scheduler groups by the node id's file instead.  The biggest unit (live) goes out
+    first (xdist sorts units by size), so the other worker takes the rest meanwhile.
+    """
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class _FileGroups(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            return xdist_unit(nodeid)
+
+    return _FileGroups(config, log)
 
 
 #: Skip reasons of tests whose dependency ``.ci/run`` installs (the extras test, plot, bench, fleet,
