@@ -376,10 +376,13 @@ def _daemon_run(
             except BlockingIOError:
                 pass
             gcs.settimeout(0.05)
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
+        # what the daemon still has to answer: until it has been quiet for 2 s (a loaded machine may hold the
+        # daemon's thread back for a while; the cap only a stuck daemon reaches)
+        quiet_until, cap = time.monotonic() + 2.0, time.monotonic() + 60.0
+        while time.monotonic() < min(quiet_until, cap):
             try:
                 got += rx.receive_datagram(gcs.recv(4096))
+                quiet_until = time.monotonic() + 2.0
             except TimeoutError:
                 pass
     finally:
