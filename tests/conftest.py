@@ -17,51 +17,59 @@ DATA = SHARED / "data"
 
 
 #: Tests that stream in real time between processes (simulator, daemon, MAVProxy, a relay) over
-#: sockets or ptys.  With pytest-xdist (``--dist loadgroup``, see pyproject.toml) they form one
-#: group and so run one at a time, never two flights sharing the machine's two cores; every other
-#: test file is a group of its own, so its module fixtures are computed once.
+#: sockets or ptys, the files that take longest first (measured with ``--durations``).  They spend
+#: most of their time waiting for a flight, so they are started first, one file per test process
+#: (``-n 2``: at most two at a time), and the CPU-bound files fill the time around them.  One unit
+#: for all of them would have run ~20 minutes of flights one after the other on a loaded machine.
 LIVE_TESTS = (
-    "tests/e2e/",
+    "tests/fleet/",
     "tests/reliability/",
-    "tests/cli/test_cli_demo.py",
-    "tests/cli/test_cli_doctor.py",
     "tests/cli/test_cli_replay.py",
+    "tests/service/test_http_live.py",
+    "tests/cli/test_cli_demo.py",
+    "tests/service/test_daemon_e2e.py",
+    "tests/e2e/",
     "tests/cli/test_cli_run.py",
     "tests/evaluation/test_replay_engines.py",
-    "tests/firmware_sim/test_sim_cli.py",
-    "tests/fleet/",
-    "tests/firmware_sim/test_sim_live.py",
-    "tests/service/test_daemon_e2e.py",
     "tests/service/test_daemon_loop.py",
-    "tests/service/test_http_live.py",
+    "tests/cli/test_cli_doctor.py",
+    "tests/firmware_sim/test_sim_live.py",
+    "tests/firmware_sim/test_sim_cli.py",
 )
 
 
-def xdist_unit(nodeid: str) -> str:
-    """The xdist work unit of a test (its node id, relative to the repository): "live" or its file."""
+def _live_rank(nodeid: str) -> int:
+    """Position of a test's file in :data:`LIVE_TESTS` (``len(LIVE_TESTS)`` for the others)."""
     path = nodeid.split("::", 1)[0]
-    return "live" if path.startswith(LIVE_TESTS) else path
+    return next((i for i, prefix in enumerate(LIVE_TESTS) if path.startswith(prefix)), len(LIVE_TESTS))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The live files first, longest first; then the rest in their usual order (a stable sort)."""
+    items.sort(key=lambda item: _live_rank(item.nodeid))
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """``--dist loadgroup`` by :func:`xdist_unit`, whatever the pytest version.
+    """``--dist loadgroup``: each test file is a unit of work (its module fixtures computed once), handed
+    out in collection order (the live files first), whatever the pytest version.
 
-    xdist's own ``loadgroup`` reads ``xdist_group`` marks by renaming each test's node id
-    (``…@group``), which pytest ≥ 9 no longer lets it do (node ids became structured): every test
-    would be a unit of its own — live flights two at a time, module fixtures computed in both
-    workers.  This scheduler groups by the node id's file instead.  The biggest unit (live) goes out
-    first (xdist sorts units by size), so the other worker takes the rest meanwhile.
+    xdist's own ``loadgroup`` reads ``xdist_group`` marks by renaming each test's node id (``…@group``),
+    which pytest ≥ 9 no longer lets it do (node ids became structured): every test would be a unit of
+    its own, and a module fixture computed in both workers.
     """
     if config.getvalue("dist") != "loadgroup":
         return None
     from xdist.scheduler import LoadScopeScheduling
 
-    class _FileGroups(LoadScopeScheduling):  # type: ignore[misc]
-        def _split_scope(self, nodeid: str) -> str:
-            return xdist_unit(nodeid)
+    config.option.loadscopereorder = False  # keep the order above (xdist would sort the units by size)
 
-    return _FileGroups(config, log)
+    class _Files(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            return nodeid.split("::", 1)[0]
+
+    return _Files(config, log)
 
 
 #: Skip reasons of tests whose dependency ``.ci/run`` installs (the extras test, plot, bench, fleet,

@@ -391,15 +391,21 @@ def _fly_identity(
     plane = ap.codec.encode(ap.codec.mav.heartbeat_encode(FIXED_WING, ARDUPILOT, 0, 0, 4))
     thread, box = _start(d)
     try:
-        end = time.monotonic() + 1.5
-        next_hb = 0.0
-        while time.monotonic() < end:
-            if time.monotonic() >= next_hb:
+        # 1.5 s of data (75 × 8 samples at 400 Hz, a heartbeat a second), paced at about real time: a fixed
+        # amount of data, however slowly a loaded machine lets it go out
+        for k in range(75):
+            if k % 50 == 0:
                 ap.sock.sendto(plane, ap.addr)
-                next_hb = time.monotonic() + 1.0
             ap.imu(8)
             if echo is not None:
                 ap.sock.sendto(echo(), ap.addr)
+            time.sleep(0.02)
+        # until the daemon has estimated everything it received (its count still for 0.3 s; the deadline is
+        # only reached by a stuck daemon), then what it sent
+        seen, still_since, deadline = -1, time.monotonic(), time.monotonic() + 30.0
+        while time.monotonic() - still_since < 0.3 and time.monotonic() < deadline:
+            if d.pipeline.outputs_sent != seen:
+                seen, still_since = d.pipeline.outputs_sent, time.monotonic()
             time.sleep(0.02)
         at_gcs = _drain(gcs, 0.3)
         at_ap = ap.received()
