@@ -87,6 +87,8 @@ def _run(args: argparse.Namespace) -> int:
     start_kernels()
     if not getattr(args, "verbose", 0):  # per-log INFO lines (magnetic model …) are noise over a fleet
         logging.getLogger("mavahrs").setLevel(logging.WARNING)
+        if not getattr(args, "quiet", 0):
+            logging.getLogger("mavahrs.fleet").setLevel(logging.INFO)  # the audit's own progress (cluster start …)
     if args.filters and len(args.filters) > 1:
         raise ValueError("audit compares one filter with the autopilot: give --filter once")
     for t in args.output:

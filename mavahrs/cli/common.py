@@ -88,11 +88,11 @@ def fail(message: str, code: int = EXIT_FAILURE) -> int:
 def report_errors(command: str, run: Any, args: argparse.Namespace) -> int:
     """``run(args)`` with its errors as one line and the documented exit code.
 
-    ConfigError and ValueError (bad options, settings) → 2; DataError, any
-    other MavahrsError and OSError (unreadable input, missing file) → 1; a
+    ConfigError and ValueError (bad options, settings) → 2; TransportError (a link or a
+    scheduler that cannot be reached) → 3; DataError, any other MavahrsError and OSError (unreadable input, missing file) → 1; a
     broken pipe (``mavahrs … | head``) is left to ``main``, which exits quietly.
     """
-    from mavahrs.errors import ConfigError, MavahrsError
+    from mavahrs.errors import ConfigError, MavahrsError, TransportError
 
     try:
         return int(run(args))
@@ -100,6 +100,8 @@ def report_errors(command: str, run: Any, args: argparse.Namespace) -> int:
         raise
     except ConfigError as exc:
         return fail(f"{command}: {exc}", EXIT_USAGE)
+    except TransportError as exc:  # a link or server that cannot be reached: the documented connection code
+        return fail(f"{command}: {exc}", EXIT_CONNECTION)
     except MavahrsError as exc:
         return fail(f"{command}: {exc}", EXIT_FAILURE)
     except OSError as exc:  # the file and the reason, not Python's "[Errno 2] …" form
