@@ -167,7 +167,9 @@ def announce_compiles() -> None:
     def announce(_kernel: str) -> None:
         logging.getLogger(_LOGGER_NAME).info("%s", COMPILE_NOTICE)
 
-    _ANNOUNCER.append(on_first_compile(announce))
+    import time
+
+    _ANNOUNCER.append(on_first_compile(announce, clock=time.monotonic))
 
 
 def stop_announcing() -> None:

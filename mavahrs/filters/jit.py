@@ -325,7 +325,7 @@ def quick_start() -> bool:
     return True
 
 
-def on_first_compile(callback: Callable[[str], None]) -> Callable[[], None]:
+def on_first_compile(callback: Callable[[str], None], clock: Callable[[], float] | None = None) -> Callable[[], None]:
     """Call ``callback(kernel_name)`` once, when a cached kernel of mavahrs is first *compiled* in this process.
 
     numba announces a compilation only when the on-disk cache has no usable
@@ -334,14 +334,15 @@ def on_first_compile(callback: Callable[[str], None]) -> Callable[[], None]:
     compilation starts, exactly when this process is about to spend the
     seconds to minutes of a cold compile, and never on a warm cache.  Driver loops that
     are compiled uncached in every process (:func:`loop_kernel`, ≈ 0.5 s) do
-    not count.  Returns a function that removes the listener; its ``compiled_s()``
-    tells how long the compilations took (None if none).  Without numba: never called.
+    not count.  Returns a function that removes the listener; with a ``clock``
+    (seconds, e.g. ``time.monotonic``) its ``compiled_s()`` tells how long the
+    compilations took (None if none).  Without numba: never called.
     """
     if not HAVE_NUMBA:
         return lambda: None
     from numba.core import event as _event
 
-    listener = _FirstCompile(callback, _event.Listener)
+    listener = _FirstCompile(callback, _event.Listener, clock)
     _event.register("numba:compile", listener.numba_listener)
 
     def remove() -> None:
@@ -358,8 +359,9 @@ class _FirstCompile:
     two threads never get here at the same time.
     """
 
-    def __init__(self, callback: Callable[[str], None], base: type) -> None:
+    def __init__(self, callback: Callable[[str], None], base: type, clock: Callable[[], float] | None = None) -> None:
         self._callback = callback
+        self._clock = clock
         self._fired = False
         self._first_s: float | None = None
         self._last_end_s: float | None = None
@@ -370,10 +372,8 @@ class _FirstCompile:
                 owner.started(event.data.get("dispatcher") if isinstance(event.data, dict) else None)
 
             def on_end(self, event: Any) -> None:
-                if owner._fired:
-                    import time
-
-                    owner._last_end_s = time.monotonic()
+                if owner._fired and owner._clock is not None:
+                    owner._last_end_s = owner._clock()
 
         self.numba_listener = _Listener()
 
@@ -392,10 +392,8 @@ class _FirstCompile:
             return
         if self._fired:
             return
-        import time
-
         self._fired = True
-        self._first_s = time.monotonic()
+        self._first_s = self._clock() if self._clock is not None else None
         self._callback(getattr(py, "__qualname__", repr(py)))
 
 

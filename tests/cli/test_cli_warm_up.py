@@ -84,12 +84,18 @@ def test_the_kernels_survive_reinstalling_the_same_sources(tmp_path: Path) -> No
     env.update(PYTHONPATH=str(site), HOME=str(home), XDG_CACHE_HOME=str(home / ".cache"))
     tlog = tmp_path / "rest.tlog"
     tlog.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames(2.0)))
+    def replay() -> subprocess.CompletedProcess[str]:  # from the installed copy (not the checkout: cwd elsewhere)
+        return subprocess.run(
+            [sys.executable, "-m", "mavahrs", "replay", str(tlog), "--filter", "complementary", "--no-progress"],
+            env=env, capture_output=True, text=True, timeout=900, cwd=tmp_path,
+        )  # fmt: skip
+
     install()
-    first = _mavahrs(env, "replay", str(tlog), "--filter", "complementary", "--no-progress")
+    first = replay()
     assert first.returncode == 0 and len(_notices(first.stderr)) == 1, first.stderr
     assert any((home / ".cache" / "mavahrs" / "kernels").iterdir()), "kept in the user's cache folder"
     install()
-    again = _mavahrs(env, "replay", str(tlog), "--filter", "complementary", "--no-progress")
+    again = replay()
     assert again.returncode == 0, again.stderr
     assert _notices(again.stderr) == [], again.stderr  # nothing compiled again
     assert not (site / "mavahrs" / "filters" / "__pycache__").exists() or not any(
