@@ -112,7 +112,7 @@ def _run(args: argparse.Namespace) -> int:
             elif scheduler:
                 raise ValueError("--scheduler needs Dask: pip install 'mavahrs[fleet]'")
             else:
-                print(fa.SERIAL_HINT, file=sys.stderr)
+                logging.getLogger("mavahrs.fleet").warning("%s", fa.SERIAL_HINT)  # a log line, as every message
         bar = None
         if not args.no_progress and sys.stderr.isatty():
             from tqdm import tqdm
