@@ -68,19 +68,15 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _error(msg: str, code: int) -> int:
-    print(f"mavahrs evaluate: error: {msg}", file=sys.stderr)
-    return code
+    from mavahrs.cli.common import fail
+
+    return fail(f"evaluate: {msg}", code)  # one log line, as every command's errors
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.errors import DataError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except (DataError, MavahrsError, OSError) as exc:
-        return _error(str(exc), 1)
-    except ValueError as exc:  # a bad option value (unknown filter name, …)
-        return _error(str(exc), 2)
+    return report_errors("evaluate", _run, args)  # DataError, OSError → 1; ValueError (a bad option) → 2
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -107,8 +103,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.plot:
         _plot_first(args, recordings[0], filters)
     if not any(r.scores for r in report.recordings):
-        print("mavahrs evaluate: nothing was scored (no reference attitude in the input)", file=sys.stderr)
-        return 1
+        return _error("nothing was scored (no reference attitude in the input; see the notes above)", 1)
     return 0
 
 

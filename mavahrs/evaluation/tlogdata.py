@@ -895,6 +895,8 @@ def run_pipelines(
         pipes.append(Pipeline(ps, filter=f, decimal_year=decimal_year))
         filts.append(f)
     p0 = pipes[0]
+    for p in pipes[1:]:  # the same field for every filter: logged once
+        p.declination.announce = False
     codec = MavCodec()
     t0 = int(td.t_us[0]) if td.frames else 0
     lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
@@ -1201,9 +1203,16 @@ def load_tlog_recording(
             half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
             q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
             q_ref = multiply(q_dec, q_true)
-            notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame)")
+            notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame), "
+                         "slerped onto the IMU samples: every sample scored (`mavahrs replay` compares at the "
+                         "truth's own times instead; the two differ only where the IMU stream has gaps), "
+                         + (f"from {skip_s:g} s on (--skip)" if skip_s > 0 else
+                            "convergence included (--skip 10 leaves out the first 10 s, as the README's tables)"))
         else:
-            notes.append("no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this log: nothing to score against")
+            others = [k for k in refs if not k.endswith("truth")]
+            notes.append("no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this log: nothing to score "
+                         "against" + (f" (`mavahrs replay` compares with the log's {' and '.join(others)} instead)"
+                                      if others else ""))  # fmt: skip
     rate = prep.rate_hz()
     if 0 < rate < 50:
         notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
@@ -1235,6 +1244,7 @@ def load_tlog_recording(
             "prepared": prep,
             "true_rate_rad_s": true_rates(td, prep),
             "mag_reference_events": list(prep.mag_reference_events),
+            "sensor_delay_s": prep.sensor_delay_s,  # filters that use it are told, as by the pipeline
         },
     )
 

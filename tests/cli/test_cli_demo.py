@@ -302,3 +302,7 @@ def test_a_second_demo_starts_a_fresh_tlog(tmp_path: Path) -> None:
     # and the output says which: a new file, then the previous one overwritten
     assert "(a new file)" in first.stdout, first.stdout
     assert "(overwriting the previous demo's tlog)" in second.stdout, second.stdout
+    # no silent stretch: it says it loads the filter before listening, and ends the flight before scoring
+    out = second.stdout
+    assert 0 <= out.find("loading the filter") < out.find("daemon: listening"), out
+    assert 0 <= out.find("flight over") < out.find("accuracy vs truth"), out

@@ -155,3 +155,19 @@ def test_doctor_help_states_the_exit_codes_once(capsys: pytest.CaptureFixture[st
         "exit codes: 0 report printed (an autopilot answered), 1 runtime failure, 2 usage error, 3 the link "
         "cannot be opened or no autopilot HEARTBEAT arrived, 130 interrupted by Ctrl-C"
     )
+
+
+def test_doctor_says_what_it_is_waiting_for(capsys: pytest.CaptureFixture[str]) -> None:
+    """It was silent for its whole --duration (10 s by default) before the report."""
+    import socket
+
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    code = main(["doctor", "--master", f"udpin:127.0.0.1:{port}", "--duration", "3.5"])
+    err = capsys.readouterr().err
+    assert code == 3
+    lines = err.splitlines()
+    assert "listening" in lines[0] and str(port) in lines[0] and "3.5 s" in lines[0], err
+    assert any("no autopilot" in ln.lower() and "3 s" in ln for ln in lines[1:]), err

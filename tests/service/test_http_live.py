@@ -329,6 +329,10 @@ def test_healthz_follows_the_link_and_metrics_parse(tmp_path: Path) -> None:
         assert rates["input"] == st["status"]["in_hz"] > 100
         assert st["attitude"]["q"] and abs(sum(v * v for v in st["attitude"]["q"]) - 1.0) < 1e-6
         assert st["attitude"]["autopilot"]["roll_deg"] == pytest.approx(st["attitude"]["roll_deg"], abs=5.0)
+        # the pilot's fields from the simulated ArduPilot's own messages (mavahrs.service.pilot)
+        pilot = st["status"]["pilot"]
+        assert pilot["mode"] and pilot["armed"] in (True, False) and pilot["gnss"]["satellites"] is not None
+        assert pilot["altitude_rel_m"] is not None and pilot["latency"]["sample_period_us"] > 0
         # BlueOS metadata from the live server
         status, body, _ = _get(url + "register_service")
         info = json.loads(body)
