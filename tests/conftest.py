@@ -388,15 +388,19 @@ def write_dataflash(
     imus: int = 2,
     params: dict[str, float] | None = None,
     extra: Callable[[DataflashWriter], None] | None = None,
+    gyro_noise_rad_s: float = 0.0,
 ) -> tuple[Path, dict[str, np.ndarray]]:
     """A 400 Hz ArduCopter-like DataFlash log of :func:`synthetic_flight`: IMU ×``imus``, MAG 10 Hz,
     SIM truth and XKQ at 25 Hz (XKQ = the truth), BAT/VIBE at 10 Hz, PARM first; ``extra`` may add records
-    before the flight's (a newer firmware's messages). Returns the path and the flight (with ``TimeUS``)."""
+    before the flight's (a newer firmware's messages); ``gyro_noise_rad_s``: white noise (SD, seeded) on the
+    logged gyro. Returns the path and the flight (with ``TimeUS``)."""
     from mavahrs.geometry.rotation import to_euler_rad
 
     fl = synthetic_flight(duration_s)
     tus = t0_us + np.round(fl["t_s"] * 1e6).astype(np.int64)
     fl["TimeUS"] = tus
+    if gyro_noise_rad_s:
+        fl["gyro_rad_s"] = fl["gyro_rad_s"] + np.random.default_rng(5).normal(0.0, gyro_noise_rad_s, (tus.size, 3))
     w = DataflashWriter()
     for name, (tid, fmt, cols) in DF_FORMATS.items():
         w.fmt(tid, name, fmt, cols)
