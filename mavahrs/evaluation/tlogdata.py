@@ -60,6 +60,7 @@ from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_WIDTH
 
 __all__ = [
+    "recording_from_inputs",
     "REPLAY_TYPES",
     "REFERENCE_TYPES",
     "TlogData",
@@ -1180,8 +1181,6 @@ def load_tlog_recording(
     ``source`` = (system, component or None): take the IMU data from that
     sender only (``--source``; ignored when ``settings`` are given).
     """
-    from mavahrs.geometry.quaternion import multiply
-
     if settings is None and source is not None:
         from mavahrs.service.pipeline import PipelineSettings
 
@@ -1189,21 +1188,45 @@ def load_tlog_recording(
                                     velocity_source=velocity_source)
     td = read_tlog_data(path)
     prep = _inputs_for(td, imu, settings, velocity_source)
+    refs = references(td, prep) if reference else None
+    return recording_from_inputs(Path(path).stem, prep, refs, skip_s=skip_s, true_rate_rad_s=true_rates(td, prep),
+                                 no_truth="no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this "
+                                 "log: nothing to score against")  # fmt: skip
+
+
+def recording_from_inputs(
+    name: str,
+    prep: PreparedInputs,
+    refs: dict[str, tuple[Array, Array]] | None,
+    *,
+    skip_s: float = 0.0,
+    true_rate_rad_s: Array | None = None,
+    groups: tuple[str, ...] = ("tlog",),
+    no_truth: str = "no simulator truth in this log: nothing to score against",
+) -> Recording:
+    """A log's filter inputs as an evaluation :class:`Recording`, whatever the log's format.
+
+    ``refs`` are the log's references (name → (t_us, q_body_to_ned) on ``prep.t_us``'s clock; None:
+    do not look for one); the first whose name ends in ``truth`` is slerped onto the sample times and
+    rotated by the declination the pipeline would apply (true → magnetic north), so the recording
+    scores filters exactly as their output would be scored.  Samples from ``skip_s`` s on are scored.
+    """
+    from mavahrs.geometry.quaternion import multiply
+
     n = prep.n
     q_ref = np.full((n, 4), _NAN)
     notes = list(prep.notes)
-    if reference:
-        refs = references(td, prep)
+    if refs is not None:
         truth = [k for k in refs if k.endswith("truth")]
         if truth:
             t_ref, q = refs[truth[0]]
-            q_true = interpolate_attitude(t_ref, q, prep.t_us.astype(np.float64))
+            q_true = interpolate_attitude(np.asarray(t_ref, np.float64), q, prep.t_us.astype(np.float64))
             half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
             q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
             q_ref = multiply(q_dec, q_true)
             notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame)")
         else:
-            notes.append("no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this log: nothing to score against")
+            notes.append(no_truth)
     rate = prep.rate_hz()
     if 0 < rate < 50:
         notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
@@ -1215,14 +1238,14 @@ def load_tlog_recording(
     mag = rows[:, IN_MAG : IN_MAG + 3]
     vel = rows[:, IN_VEL : IN_VEL + 3]
     return Recording(
-        name=Path(path).stem,
+        name=name,
         dt_s=dt,
         gyro_rad_s=np.ascontiguousarray(rows[:, IN_GYRO : IN_GYRO + 3]),
         accel_m_s2=np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3]),
         mag_ut=np.ascontiguousarray(mag) if np.isfinite(mag).any() else None,
         q_ref_body_to_ned=q_ref,
         scored=t_s >= skip_s,
-        groups=("tlog",),
+        groups=groups,
         heading_referenced=True,
         extra={
             "time_s": t_s,
@@ -1233,7 +1256,7 @@ def load_tlog_recording(
             "notes": notes,
             "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",
             "prepared": prep,
-            "true_rate_rad_s": true_rates(td, prep),
+            "true_rate_rad_s": true_rate_rad_s,
             "mag_reference_events": list(prep.mag_reference_events),
         },
     )
