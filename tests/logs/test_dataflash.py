@@ -304,3 +304,89 @@ def test_replay_the_shared_log_at_the_loop_rate_scored_against_sim(shared_bin: P
     table = _table(out)
     assert ("best", "SIM truth") in table and ("best", "autopilot EKF3") in table
     assert table[("best", "SIM truth")][1] < 0.6  # inclination; measured 0.2–0.3° over the first minute
+
+
+# --------------------------------------------------------------------------- battery, vibration, parameters, cores
+
+
+def test_battery_vibration_and_parameters_are_read(dataflash_log, write_df, tmp_path: Path) -> None:
+    path, fl = dataflash_log
+    li = read_dataflash(path)
+    bat, vib = li.series["battery"], li.series["vibration"]
+    assert bat["t_us"].size == 200 and np.all(bat["current_a"] == np.float32(12.5))
+    np.testing.assert_allclose(bat["voltage_v"], 16.0 - 1e-5 * 40 * np.arange(200), atol=1e-5)
+    assert set(vib) >= {"t_us", "imu", "x_m_s2", "y_m_s2", "z_m_s2", "clips"} and vib["z_m_s2"][0] == np.float32(4.0)
+    header = "\n".join(li.found)
+    assert "BAT: 10 Hz, current 12.5–12.5 A (mean 12.5)" in header and "VIBE: IMU 0 peak 4.0 m/s², 0 clips" in header
+    assert np.all(li.inputs.declination_rad == 0.0)  # COMPASS_DEC 0, no GPS: none
+    # COMPASS_DEC (radians) is the declination when there is no GPS fix for the magnetic model
+    dec, _ = write_df(tmp_path / "dec.BIN", duration_s=4.0, params={"COMPASS_DEC": 0.1})
+    li = read_dataflash(dec)
+    np.testing.assert_allclose(li.inputs.declination_rad, 0.1, rtol=1e-6)
+    assert "declination: COMPASS_DEC 5.73° (no GPS fix for the magnetic model)" in li.found
+    # IMU logged below the loop rate is said
+    slow, _ = write_df(tmp_path / "slow.BIN", duration_s=4.0, params={"SCHED_LOOP_RATE": 800.0})
+    assert any("below the loop rate (SCHED_LOOP_RATE 800)" in n for n in read_dataflash(slow).inputs.notes)
+
+
+def test_ekf3_per_core_from_xkf1_and_the_batch_sampler(write_df, df_writer, tmp_path: Path) -> None:
+    """An older firmware's EKF3 (XKF1 Euler angles, no XKQ), two cores; ISBH/ISBD bursts of the batch sampler."""
+    from mavahrs.geometry.rotation import to_euler_rad
+
+    def extra(w) -> None:  # type: ignore[no-untyped-def]
+        w.fmt(140, "XKF1", "QBccCfffffffccce", "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH")
+        w.fmt(141, "ISBH", "QHBBHHQf", "TimeUS,N,type,instance,mul,smp_cnt,SampleUS,smp_rate")
+        w.fmt(142, "ISBD", "QHHaaa", "TimeUS,N,seqno,x,y,z")
+
+    path, fl = write_df(tmp_path / "old.BIN", duration_s=6.0, extra=extra)
+    # rewrite: drop the XKQ records, add XKF1 for cores 0 and 1 (core 1 = core 0 + 2° roll) and two bursts
+    sc = scan(path)
+    xkq = sc.types["XKQ"]
+    keep = bytearray()
+    ends = [*sc.offsets[1:].tolist(), sc.data.size]
+    for t, a, b in zip(sc.ids.tolist(), sc.offsets.tolist(), ends, strict=True):
+        if t != xkq:
+            keep += sc.data[a:b].tobytes()
+    w = df_writer()
+    w.buf = bytearray()
+    w.types["XKF1"] = (140, "QBccCfffffffccce")
+    w.types["ISBH"] = (141, "QHBBHHQf")
+    w.types["ISBD"] = (142, "QHHaaa")
+    eul = np.degrees(to_euler_rad(fl["q_body_to_ned"]))
+    for k in range(0, fl["TimeUS"].size, 40):
+        r, p, y = eul[k]
+        for core, dr in ((0, 0.0), (1, 2.0)):
+            w.rec("XKF1", int(fl["TimeUS"][k]) + 5, core, int(round((r + dr) * 100)), int(round(p * 100)),
+                  int(round((y % 360.0) * 100)), *([0.0] * 7), 0, 0, 0, 0)  # fmt: skip
+    for burst in range(2):
+        t = int(fl["TimeUS"][0]) + 1_000_000 * (burst + 1)
+        w.rec("ISBH", t, burst, 1, 0, 1, 32, t, 1000.0)
+        w.rec("ISBD", t + 1, burst, 0, *([0] * 96))
+    log = tmp_path / "xkf1.BIN"
+    log.write_bytes(bytes(keep) + bytes(w.buf))
+    li = read_dataflash(log)
+    assert "autopilot EKF3" in li.references and "autopilot EKF3 core 1" in li.references
+    header = "\n".join(li.found)
+    assert "autopilot EKF3 (XKF1 core 0, 10 Hz)" in header and "autopilot EKF3 core 1 (XKF1 core 1, 10 Hz)" in header
+    from mavahrs.geometry.quaternion import angle_between
+
+    t0, q0 = li.references["autopilot EKF3"]
+    t1, q1 = li.references["autopilot EKF3 core 1"]
+    k = np.searchsorted(fl["TimeUS"], t0.astype(np.int64) - 5)
+    assert np.degrees(np.max(angle_between(q0, fl["q_body_to_ned"][k]))) < 0.02  # centidegrees
+    np.testing.assert_allclose(np.degrees(angle_between(q0, q1)), 2.0, atol=0.02)
+    bs = li.series["batch_sampler"]
+    assert bs["t_us"].size == 2 and np.all(bs["rate_hz"] == 1000.0) and np.all(bs["sensor"] == 1)
+    assert "batch sampler (ISBH/ISBD): 2 bursts, 2 data records (gyro 0 at 1000 Hz): raw bursts" in header
+
+
+def test_shared_log_battery_vibration_and_ekf3_cores(shared_bin: Path) -> None:
+    li = read_dataflash(shared_bin, end_s=60.0)
+    assert "autopilot EKF3" in li.references and "autopilot EKF3 core 1" in li.references
+    bat = li.series["battery"]
+    assert 9.0 < 1e6 * (bat["t_us"].size - 1) / (bat["t_us"][-1] - bat["t_us"][0]) < 11.0
+    assert np.nanmax(bat["current_a"]) > 1.0  # a hovering copter draws current
+    vib = li.series["vibration"]
+    assert set(np.unique(vib["imu"]).tolist()) == {0, 1}
+    assert li.parameters["SCHED_LOOP_RATE"] == 400.0 and li.parameters["INS_GYRO_FILTER"] == 20.0
+    assert "COMPASS_DEC" in li.parameters
