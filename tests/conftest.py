@@ -28,7 +28,7 @@ LIVE_TESTS = (
     "tests/cli/test_cli_doctor.py",
     "tests/cli/test_cli_replay.py",
     "tests/cli/test_cli_run.py",
-    "tests/evaluation/test_replay_engines.py",
+    "tests/replay/test_engine.py",
     "tests/firmware_sim/test_sim_cli.py",
     "tests/fleet/",
     "tests/firmware_sim/test_sim_live.py",
