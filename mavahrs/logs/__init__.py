@@ -1,7 +1,7 @@
 """Log readers: telemetry (.tlog), ArduPilot DataFlash (.BIN) and PX4 ULog (.ulg).
 
 Every reader ends in the same place, a :class:`LogInputs`: the filter's input rows
-(:class:`~mavahrs.evaluation.tlogdata.PreparedInputs`, the layout of
+(:class:`~mavahrs.ingest.arrays.PreparedInputs`, the layout of
 :mod:`mavahrs.filters.layout`) and the attitudes to compare against, so replay,
 evaluate, tune and audit run the same code downstream whatever the log's format.
 
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mavahrs.evaluation.tlogdata import PreparedInputs
+    from mavahrs.ingest.arrays import PreparedInputs
 
 __all__ = ["FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES"]
 

@@ -524,8 +524,8 @@ def read_dataflash(
     Raises:
         DataError: not a DataFlash log, no IMU records, nothing usable.
     """
-    from mavahrs.evaluation.tlogdata import PreparedInputs, _calibrate, _timeline, _velocity_setting
     from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+    from mavahrs.ingest.arrays import PreparedInputs, _calibrate, _timeline, _velocity_setting
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource, decimal_year_from_unix_s, rotate_true_to_magnetic
     from mavahrs.sensors.profiles import get_profile
@@ -741,7 +741,7 @@ def read_dataflash(
 
 def _timeline_or_error(p: Path, t_us: Any, gyro: Any, accel: Any, s: Any, timeline: Any) -> tuple[Any, Any]:
     """The pipeline's timeline over the fed samples (a reboot inside one log is not expected: say so)."""
-    from mavahrs.evaluation.tlogdata import FastPathUnsupported
+    from mavahrs.ingest.arrays import FastPathUnsupported
 
     try:
         return timeline(t_us, t_us, gyro, accel, s)
