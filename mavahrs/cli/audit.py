@@ -8,7 +8,7 @@ from typing import Any
 
 __all__ = ["register", "run"]
 
-HELP = "replay many tlogs (files, folders, globs) and summarise each flight in one row (Parquet/CSV)"
+HELP = "replay many flight logs (.tlog, .BIN, .ulg: files, folders, globs) and summarise each flight in one row"
 
 DESCRIPTION = """\
 Replay every log with the daemon's own decoding, scaling, IMU selection and
@@ -21,8 +21,15 @@ clipping, vibration, replay notes (reboots, gaps, low rate), and an error for a
 log that cannot be read (one bad log never stops the batch).  Prints the
 worst flights first.
 
-LOGS are files, folders (searched recursively for *.tlog) and globs
-(quote them; ** is recursive).
+LOGS are files, folders and globs (quote them; ** is recursive) of telemetry
+logs (.tlog), ArduPilot DataFlash logs (.BIN) and PX4 ULogs (.ulg), mixed
+freely; the format is chosen by content, and a folder is searched recursively
+for *.tlog, *.BIN, *.ulg and any other file that is a log by its content.
+
+Exit codes: 0 every log summarised; 1 one or more logs could not be read
+(their rows carry the error, the table and summary are written all the
+same), or no log found; 2 a bad option; 130 interrupted (the table keeps what
+was summarised).
 
 Engine: Dask (the fleet extra, pip install 'mavahrs[fleet]'): by default a
 local cluster, one worker process per core; --scheduler tcp://HOST:8786 (or
@@ -48,7 +55,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "audit", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("logs", nargs="+", metavar="LOGS", help="tlog files, folders, globs")
+    p.add_argument("logs", nargs="+", metavar="LOGS", help="log files (.tlog, .BIN, .ulg), folders, globs")
     p.add_argument("--output", "-o", action="append", default=[], metavar="TABLE",
                    help="write the rows to TABLE.parquet or TABLE.csv (repeatable, or comma-separated); resumable")
     p.add_argument("--force", action="store_true", help="replay logs already summarised in --output")
@@ -137,6 +144,13 @@ def _run(args: argparse.Namespace) -> int:
         from mavahrs.evaluation.plots import plot_fleet
 
         print(f"wrote {plot_fleet(args.plot, [r.as_dict() for r in result.rows])}", file=sys.stderr)
+    bad = sum(1 for r in result.rows if not r.ok)
+    if bad:
+        from mavahrs.cli.common import EXIT_FAILURE
+
+        print(f"audit: {bad} of {len(result.rows)} logs could not be read (their rows carry the error)",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_FAILURE
     return 0
 
 
