@@ -410,6 +410,9 @@ class Daemon:
         self.sink = sink
         self.log = logger or logging.getLogger("mavahrs.daemon")
         self.counters = DaemonCounters()
+        from mavahrs.service.pilot import PilotInfo
+
+        self.pilot = PilotInfo()  # the last messages the status page's pilot fields read (mavahrs.service.pilot)
         self._load_mag_model()
         self.latency = LatencyRing(settings.latency_ring)
         self._notices = Notices(repeat_s=60.0)
@@ -582,6 +585,7 @@ class Daemon:
     def _process_inbox(self) -> None:
         inbox, c, handle, decode = self._inbox, self.counters, self.pipeline.handle, self._decode
         sink = self.sink
+        observe = self.pilot.observe
         perf = time.perf_counter_ns
         hb_type = self._heartbeat_type
         chained: deque[bytes | None] = deque()  # answers already sent for the next datagrams (see below)
@@ -626,6 +630,7 @@ class Daemon:
                 c.messages_in += 1
                 if sink is not None:
                     sink.write(wall_us, msg.get_msgbuf(), now_s)
+                observe(msg)
                 if type(msg) is hb_type and msg.autopilot != _MAV_AUTOPILOT_INVALID and not self._own(msg):
                     self._on_heartbeat(now_s)
                 try:

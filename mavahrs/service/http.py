@@ -252,7 +252,18 @@ class StatusPublisher:
             "input_dropped": c.input_dropped,
             "master": daemon.settings.master,
         }
+        out["pilot"] = _pilot(daemon, fields)
         return _jsonable(out)
+
+
+def _pilot(daemon: Any, fields: dict[str, Any]) -> dict[str, Any] | None:
+    """The pilot's fields (armed, mode, battery, altitude, speed, GNSS, field strength, recording, latency)."""
+    from mavahrs.service.pilot import pilot_fields
+
+    try:
+        return pilot_fields(daemon, fields)
+    except Exception:  # noqa: BLE001 - a malformed message must not take the page down
+        return None
 
 
 class _AutopilotCache:

@@ -155,6 +155,30 @@
     } else {
       badge("so-alarm", "unknown", "off");
     }
+    onPilot(s.pilot);
+  }
+
+  // the pilot's fields (mavahrs.service.pilot): armed, mode, battery, altitude, speed, GNSS, field, recording, latency
+  function onPilot(p) {
+    if (!p) return;
+    set("armed", p.armed === null ? "–" : p.armed ? "ARMED" : "disarmed");
+    set("mode", p.mode || "–");
+    const b = p.battery || {};
+    set("battery", (b.voltage_v === null ? "–" : fmt(b.voltage_v, 1) + " V") +
+        (b.current_a === null ? "" : " · " + fmt(b.current_a, 1) + " A") +
+        (b.remaining_pct === null ? "" : " · " + b.remaining_pct + " %"));
+    set("altitude", p.altitude_rel_m === null ? "–" : fmt(p.altitude_rel_m, 1) + " m (MSL " + fmt(p.altitude_msl_m, 0) + " m)");
+    set("ground-speed", p.ground_speed_m_s === null ? "–" : fmt(p.ground_speed_m_s, 1) + " m/s");
+    const g = p.gnss || {};
+    set("gnss-fix", g.fix === null ? "–" : g.fix + (g.satellites === null ? "" : ", " + g.satellites + " satellites"));
+    set("mag-field", p.mag_field_ut === null ? "–" : fmt(p.mag_field_ut, 1) + " µT" +
+        (p.mag_field_expected_ut === null ? "" : " (model " + fmt(p.mag_field_expected_ut, 1) + " µT)"));
+    const log = p.log || {};
+    set("recording", log.recording ? log.path + (log.bytes === null ? "" : " (" + fmt(log.bytes / 1e6, 1) + " MB)") : "not recording (--log FILE)");
+    const l = p.latency || {};
+    set("lat-context", l.sample_period_us === null ? "" :
+        "p99 " + (l.within_sample_period ? "within" : "beyond") + " the " + fmt(l.sample_period_us, 0) +
+        " µs sample period" + (l.output_period_us === null ? "" : "; output every " + fmt(l.output_period_us / 1000, 0) + " ms"));
   }
 
   $("json-link").setAttribute("href", "status.json" + query);

@@ -722,22 +722,26 @@ def attitude_at_reference(result: ReplayResult, filter_name: str, reference_name
     return interpolate_attitude(t[init], out[init, OUT_Q : OUT_Q + 4], t_ref, max_gap_s=gap_s)
 
 
-def compare(result: ReplayResult) -> list[ComparisonRow]:
+def compare(result: ReplayResult, skip_s: float = 0.0) -> list[ComparisonRow]:
     """Each filter against each attitude the log holds, at the reference's own times.
 
     The filter's attitude (as sent: true north when the declination is known)
     is slerped onto the reference times within the replayed span; samples
-    before the filter initialised are skipped (:func:`attitude_at_reference`).
+    before the filter initialised are skipped (:func:`attitude_at_reference`),
+    and so are the reference times in the first ``skip_s`` seconds after the
+    first replayed sample (convergence: ``scripts/bench_sitl.py`` and the
+    README's tables leave out 10 s).
     """
     from mavahrs.evaluation.metrics import euler_errors_rad, summarize
 
     rows: list[ComparisonRow] = []
     if result.inputs.t_us.size < 2:
         return rows
+    start_us = float(result.inputs.t_us[0]) + max(0.0, skip_s) * 1e6
     for name in result.tracks:
-        for ref_name, (_t_ref, q_ref) in result.references.items():
+        for ref_name, (t_ref, q_ref) in result.references.items():
             q_est = attitude_at_reference(result, name, ref_name)
-            ok = np.all(np.isfinite(q_est), axis=1)
+            ok = np.all(np.isfinite(q_est), axis=1) & (t_ref >= start_us)
             if ok.sum() < 2:
                 continue
             sm = summarize(q_est[ok], q_ref[ok])
@@ -748,13 +752,21 @@ def compare(result: ReplayResult) -> list[ComparisonRow]:
     return rows
 
 
-def format_comparison(rows: Sequence[ComparisonRow]) -> str:
+def format_comparison(rows: Sequence[ComparisonRow], skip_s: float | None = None) -> str:
+    """The comparison table; ``skip_s`` (when given) says which samples it covers in its title."""
     if not rows:
         return "no attitude in the log to compare with (no ATTITUDE, AHRS2, SIM_STATE, SIMSTATE or HIL_STATE_QUATERNION)"
     head = (f"{'filter':<14}{'vs':<22}{'samples':>8}{'total':>8}{'head':>8}{'incl':>8}"
             f"{'roll':>8}{'pitch':>8}{'yaw':>8}")  # fmt: skip
-    lines = ["RMS difference, degrees (heading/inclination as BROAD defines them; roll/pitch/yaw of q_ref*⊗q):",
-             head, "─" * len(head)]  # fmt: skip
+    if skip_s is None:
+        span = ""
+    elif skip_s > 0:
+        span = f"; from {skip_s:g} s after the first replayed sample (--skip)"
+    else:
+        span = ("; from the first replayed sample, convergence included (the README's tables leave out the "
+                "first 10 s: --skip 10)")
+    lines = ["RMS difference, degrees (heading/inclination as BROAD defines them; roll/pitch/yaw of q_ref*⊗q"
+             f"{span}):", head, "─" * len(head)]  # fmt: skip
     for r in rows:
         lines.append(
             f"{r.filter:<14}{r.reference:<22}{r.samples:>8}{r.total_rms_deg:8.2f}{r.heading_rms_deg:8.2f}"
