@@ -19,7 +19,8 @@ from mavahrs.filters.best import Best, BestSettings
 from mavahrs.filters.eskf import EskfSettings
 from mavahrs.filters.layout import IN_CURRENT, OUT_Q
 from mavahrs.filters.magfield import DISTURBED_TEXT, MagFieldSettings, mag_state_text
-from mavahrs.replay import ReplaySettings, _declinate, replay
+from mavahrs.replay import ReplaySettings, replay
+from mavahrs.replay.engine import _declinate
 from mavahrs.sensors.current import battery_current_a
 
 MOTOR_UT_PER_A = (-0.4, 0.2, 0.5)  # ArduPilot's SIM_MAG_MOT of its magnetic flight, in µT/A
