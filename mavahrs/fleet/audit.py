@@ -130,6 +130,11 @@ class FleetRow:
         ground_alarms: disagreements it raised on the ground, at take-off or
             touchdown (NOTICEs naming the phase; not counted in ``alarms``).
         ground_alarm_times_s: their boot times and phases, ``12.345 touchdown;…``.
+        alarm_causes: per WARNING (``;``-separated, as ``alarm_times_s``) who is
+            likely wrong, the evidence it ended with (``mag``: the magnetometer's
+            field is not the expected one; ``AP?`` / ``us?``: the GNSS velocity
+            change agrees with our attitude / with the autopilot's; ``IMU2?``:
+            that IMU; space-separated, "" = no evidence).
         gyro_clip_fraction: fed samples with a gyro axis at ≥ the saturation
             fraction of the sensor's full scale (0–1).
         accel_clip_fraction: fed samples whose accelerometer was at its limit
@@ -170,6 +175,7 @@ class FleetRow:
     alarm_times_s: str = ""
     ground_alarms: int | None = None
     ground_alarm_times_s: str = ""
+    alarm_causes: str = ""
     gyro_clip_fraction: float = math.nan
     accel_clip_fraction: float = math.nan
     vibration_x_m_s2: float = math.nan
@@ -328,26 +334,13 @@ def _second_opinion(
     result: Any, row: FleetRow, s: AuditSettings, ref: str, phase_events: list[tuple[float, str, float]]
 ) -> FleetRow:
     """What the daemon would have published vs the log's own attitude ``ref`` (the monitor's WARNINGs)."""
-    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
-    from mavahrs.service.monitor import monitor_series
-
-    prep = result.inputs
-    ps = s.replay.pipeline_settings()
     if not ref:
         return row
-    track = next(iter(result.tracks.values()))
-    sent = np.flatnonzero(track.sent)
-    t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
-    q_est = track.out[sent, OUT_Q : OUT_Q + 4]
-    t_ref_us, q_ref = result.references[ref]
-    mon = ps.monitor
-    heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
-    aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
-    sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
-    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
-                            tilt_sigma_rad=sigma, phase_events=phase_events)  # fmt: skip
-    warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING]
-    ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE]
+    mon = s.replay.pipeline_settings().monitor
+    series, t_est_ms = replay_monitor(result, mon, ref, phase_events)
+    warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING and not e.update]
+    ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE and not e.update]
+    causes = episode_causes(series.events)
     judged = np.isfinite(series.tilt_deg)
     if t_est_ms.size:
         judged &= series.t_ms >= t_est_ms[0] + mon.startup_grace_s * 1000.0
@@ -360,8 +353,74 @@ def _second_opinion(
         heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
         alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
         alarm_times_s=";".join(f"{t:.3f}" for t in times), ground_alarms=len(ground),
+        alarm_causes=";".join(causes[id(e)] for e in warns),
         ground_alarm_times_s=";".join(f"{e.t_ms / 1000.0:.3f} {e.phase}" for e in ground),
     )  # fmt: skip
+
+
+def replay_monitor(
+    result: Any, mon: Any, ref: str, phase_events: list[tuple[float, str, float]]
+) -> tuple[Any, np.ndarray]:
+    """The daemon's monitor over a replay (``result``, :func:`mavahrs.replay.replay`): our first filter's
+    published attitudes against the log's attitude ``ref``, with our confidence and the samples behind each
+    estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and our estimates'
+    times, ms."""
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
+    from mavahrs.service.monitor import monitor_series
+
+    prep = result.inputs
+    track = next(iter(result.tracks.values()))
+    sent = np.flatnonzero(track.sent)
+    t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
+    q_est = track.out[sent, OUT_Q : OUT_Q + 4]
+    t_ref_us, q_ref = result.references[ref]
+    heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
+    aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
+    sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
+    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
+                            tilt_sigma_rad=sigma, phase_events=phase_events,
+                            sensors=monitor_sensors(prep, sent))  # fmt: skip
+    return series, t_est_ms
+
+
+def episode_causes(events: Any) -> dict[int, str]:
+    """Per raised disagreement (``id`` of its event), the evidence it ended with: its own, or that of the
+    last time it was said again with new evidence (``MonitorEvent.update``)."""
+    out: dict[int, str] = {}
+    current = None
+    for e in events:
+        if e.update and current is not None:
+            out[current] = e.cause
+        elif e.evidence is not None and not e.update:
+            current = id(e)
+            out[current] = e.cause
+        else:
+            current = None
+    return out
+
+
+def monitor_sensors(prep: Any, sent: np.ndarray) -> Any:
+    """The samples behind the estimates sent (``sent``: row indices), for the monitor's evidence: specific
+    force, magnetometer, the GNSS velocity last fixed (true north), the expected field (the pipeline's)."""
+    from mavahrs.filters.layout import IN_ACCEL, IN_MAG, IN_VEL, IN_VEL_AGE
+    from mavahrs.service.monitor import MonitorSensors
+
+    rows = prep.rows
+    n = rows.shape[0]
+    t_ms = prep.t_us.astype(np.float64) / 1000.0
+    has = np.isfinite(rows[:, IN_VEL]) & np.isfinite(rows[:, IN_VEL + 1]) & np.isfinite(rows[:, IN_VEL_AGE])
+    last = np.maximum.accumulate(np.where(has, np.arange(n), -1)) if n else np.zeros(0, np.int64)
+    last_s = last[sent]
+    ok = last_s >= 0
+    idx = np.where(ok, last_s, 0)
+    d = prep.declination_rad[idx]  # the rows' velocity is in the filter's (magnetic) frame: back to true north
+    vn_m, ve_m = rows[idx, IN_VEL], rows[idx, IN_VEL + 1]
+    vel = np.stack([vn_m * np.cos(d) - ve_m * np.sin(d), vn_m * np.sin(d) + ve_m * np.cos(d)], axis=1)
+    vel[~ok] = np.nan
+    vel_t = np.where(ok, t_ms[idx] - 1000.0 * rows[idx, IN_VEL_AGE], np.nan)
+    refs = [(float(t_ms[min(max(i, 0), n - 1)]) if n else 0.0, float(a), float(b))
+            for i, a, b in prep.mag_reference_events]  # fmt: skip
+    return MonitorSensors(rows[sent, IN_ACCEL : IN_ACCEL + 3], rows[sent, IN_MAG : IN_MAG + 3], vel, vel_t, refs)
 
 
 def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:

@@ -245,6 +245,7 @@ class StatusPublisher:
             "second_opinion": None if mon is None else {
                 "tilt_deg": _finite(mon.tilt_deg), "heading_deg": _finite(mon.heading_deg),
                 "warning": mon.warning, "comparisons": mon.comparisons, "episodes": mon.episodes,
+                **_second_opinion_extra(mon),
             },
             "datagrams_in": c.datagrams_in,
             "messages_in": c.messages_in,
@@ -253,6 +254,19 @@ class StatusPublisher:
             "master": daemon.settings.master,
         }
         return _jsonable(out)
+
+
+def _second_opinion_extra(mon: Any) -> dict[str, Any]:
+    """The thresholds, the flight's phase and who is likely wrong (docs/status-page.md, ``second_opinion``)."""
+    ev = getattr(mon, "evidence", None)
+    return {
+        "tilt_threshold_deg": _finite(getattr(mon, "tilt_threshold_deg", math.nan)),
+        "heading_threshold_deg": _finite(getattr(mon, "heading_threshold_deg", math.nan)),
+        "phase": getattr(mon, "phase", None),
+        "cause": getattr(mon, "cause", "") or "",
+        "evidence": ev.as_dict() if ev is not None else None,
+        "evidence_text": ev.text() if ev is not None else "",
+    }
 
 
 class _AutopilotCache:

@@ -63,7 +63,9 @@ from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
     FLAG_VELOCITY_AIDED,
+    IN_ACCEL,
     IN_GYRO,
+    IN_MAG,
     IN_VEL,
     IN_VEL_AGE,
     IN_WIDTH,
@@ -595,6 +597,7 @@ class Pipeline:
         self._next_out_t: int | None = None
         #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
         self._vel: tuple[float, float, float, int | None] | None = None
+        self._monitor_fix: tuple[float, float, float] | None = None  # GNSS velocity (true N, E) and fix time, ms
         self._vel_written = True  # row's velocity columns hold NaN already
         if hasattr(self, "_velocity"):
             self._velocity.reset()
@@ -928,6 +931,9 @@ class Pipeline:
         frames = [Outgoing(frame, to_master, to_outputs)]
         if self._monitor_on:
             sigma = float(out[OUT_GAIN]) if int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED else math.nan
+            fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
+            self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3], row[IN_MAG : IN_MAG + 3],
+                                      fix, fix[2] if fix is not None else math.nan)  # fmt: skip
             for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma):
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
@@ -961,6 +967,9 @@ class Pipeline:
             fix, vn, ve, vd = got
             self._gnss_fix_us = now_us
             self._vel = (vn, ve, vd, fix.fix_time_us)
+            d = f.declination_rad if f is not None else 0.0  # back to true north, as our published attitude
+            fix_ms = fix.fix_time_us / 1000.0 if fix.fix_time_us is not None else math.nan  # (not datable: no verdict)
+            self._monitor_fix = (vn * math.cos(d) - ve * math.sin(d), vn * math.sin(d) + ve * math.cos(d), fix_ms)
             if fix.message != self._vel_meter_source:  # the rate shown is the source in use's
                 self._vel_meter.reset()
                 self._vel_meter_source = fix.message
@@ -978,6 +987,8 @@ class Pipeline:
         setter = getattr(self._filter, "set_mag_reference", None)
         if ref is not None and setter is not None:
             setter(ref[0], ref[1])
+        if ref is not None:
+            self._monitor.set_mag_reference(ref[0], ref[1])
         self._monitor.heading_valid = self._decl.known
 
     def _on_autopilot_attitude(self, msg: Any, now_us: int) -> list[Outgoing]:

@@ -109,6 +109,13 @@
     e.className = w < 0.5 ? "low" : "";
   }
 
+  // who is likely wrong, while a warning is on
+  function showEvidence(so) {
+    const e = $("so-evidence");
+    e.dataset.cause = so.warning ? so.cause || "" : "";
+    e.textContent = so.warning && so.evidence_text ? "likely: " + (so.cause || "unclear") + " — " + so.evidence_text : "";
+  }
+
   function onStatus(s) {
     const body = document.body;
     body.dataset.statusUpdates = String(Number(body.dataset.statusUpdates) + 1);
@@ -148,6 +155,7 @@
       set("so-episodes", String(so.episodes));
       if (so.comparisons === 0) badge("so-alarm", "unknown", "no autopilot attitude");
       else badge("so-alarm", so.warning ? "warn" : "ok", so.warning ? "DIFFERS" : "agrees");
+      showEvidence(so);
     } else {
       badge("so-alarm", "unknown", "off");
     }
