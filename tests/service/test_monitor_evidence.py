@@ -177,3 +177,20 @@ def test_real_magnetic_flight_warning_names_the_magnetometer(sitl_rows: dict) ->
     causes = [c for c in row.alarm_causes.split(";")]
     assert row.alarms >= 1 and len(causes) == row.alarms
     assert "mag" in causes[0].split(), row.alarm_causes
+
+
+def test_the_flight_chart_has_the_thresholds_and_the_warning(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    from mavahrs.evaluation.plots import plot_second_opinion
+
+    t_ms, q_est, t_ap, q_ap, sigma, sensors = _flight("ap")
+    res = monitor_series(t_ms, q_est, t_ap, q_ap, MonitorSettings(), tilt_sigma_rad=sigma, sensors=sensors)
+    thr = res.tilt_threshold_deg
+    assert thr is not None and np.isfinite(thr).mean() > 0.9 and np.nanmin(thr) >= 1.0  # the 1° floor
+    assert res.heading_threshold_deg is not None and np.nanmin(res.heading_threshold_deg) >= 3.0
+    out = plot_second_opinion(tmp_path / "flight.png", res, title="synthetic")
+    import matplotlib.image
+
+    img = matplotlib.image.imread(str(out))[..., :3]
+    red = np.all(np.abs(img * 255 - np.array([214, 39, 40])) < 20, axis=-1)  # tab:red, the WARNING line
+    assert red.mean() > 0.0005
