@@ -873,6 +873,23 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
                          others=others, title=title)  # fmt: skip
 
 
+def plot_second_opinion(result: ReplayResult, path: str | Path) -> Path | None:
+    """The second-opinion monitor's chart beside the replay plot ``path`` (``NAME_second_opinion.png``): what
+    the daemon's monitor would have said on this flight against the log's autopilot attitude (None: the log
+    has none)."""
+    from mavahrs.evaluation.plots import plot_second_opinion as draw
+    from mavahrs.fleet.audit import _phase_events, replay_monitor
+
+    ref = next((k for k in result.references if k.startswith("autopilot")), None)
+    if ref is None or not result.tracks:
+        return None
+    tlog = getattr(result, "tlog", None)
+    phase = _phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
+    series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
+    p = Path(path)
+    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series, title=f"{Path(result.path).name} vs {ref}")
+
+
 # --------------------------------------------------------------------------- QGC streaming
 
 

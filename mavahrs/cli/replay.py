@@ -173,6 +173,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"wrote {args.output} ({k} frames inserted, system {result.system_id}: {comps})", file=sys.stderr)
     if args.plot:
         print(f"wrote {rp.plot_replay(result, args.plot)}", file=sys.stderr)
+        so = rp.plot_second_opinion(result, args.plot)  # the monitor's chart beside it, where there is one
+        if so is not None:
+            print(f"wrote {so}", file=sys.stderr)
     if args.stream:
         name = next(iter(result.tracks))
         ss = rp.StreamSettings(url=args.stream, system_id=args.stream_sysid, speed=args.speed,

@@ -83,10 +83,14 @@ class AuditSettings:
         vibration_window_s: the vibration figure is the RMS of the
             accelerometer minus its centred moving average over this window
             (a high-pass at about 1/window Hz), m/s².
+        plot_dir: also draw each flight's second-opinion chart (divergence,
+            threshold, warnings and their evidence) into this folder, as
+            ``LOGNAME_second_opinion.png``; "" = none (``audit --plot``).
     """
 
     replay: Any = field(default_factory=_default_replay)
     vibration_window_s: float = 0.2
+    plot_dir: str = ""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.vibration_window_s) and self.vibration_window_s > 0):
@@ -338,6 +342,8 @@ def _second_opinion(
         return row
     mon = s.replay.pipeline_settings().monitor
     series, t_est_ms = replay_monitor(result, mon, ref, phase_events)
+    if s.plot_dir:
+        row = _plot_flight(result, series, Path(s.plot_dir), ref, row)
     warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING and not e.update]
     ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE and not e.update]
     causes = episode_causes(series.events)
@@ -356,6 +362,17 @@ def _second_opinion(
         alarm_causes=";".join(causes[id(e)] for e in warns),
         ground_alarm_times_s=";".join(f"{e.t_ms / 1000.0:.3f} {e.phase}" for e in ground),
     )  # fmt: skip
+
+
+def _plot_flight(result: Any, series: Any, folder: Path, ref: str, row: FleetRow) -> FleetRow:
+    from mavahrs.evaluation.plots import PlotError, plot_second_opinion
+
+    try:
+        plot_second_opinion(folder / f"{Path(result.path).stem}_second_opinion.png", series,
+                            title=f"{Path(result.path).name} vs {ref}")  # fmt: skip
+    except PlotError as exc:  # a row is never lost to its drawing
+        return _replace(row, notes=" | ".join(x for x in (row.notes, f"no plot: {exc}") if x))
+    return row
 
 
 def replay_monitor(

@@ -266,7 +266,23 @@ def _second_opinion_extra(mon: Any) -> dict[str, Any]:
         "cause": getattr(mon, "cause", "") or "",
         "evidence": ev.as_dict() if ev is not None else None,
         "evidence_text": ev.text() if ev is not None else "",
+        "strip": _strip(getattr(mon, "strip", ())),
     }
+
+
+def _strip(points: Any) -> dict[str, list[Any]]:
+    """The strip chart's history as columns (``second_opinion.strip`` in docs/status-page.md)."""
+    cols: dict[str, list[Any]] = {k: [] for k in (
+        "t_s", "tilt_deg", "heading_deg", "tilt_threshold_deg", "heading_threshold_deg", "warning", "raised")}
+    for t, tilt, hdg, t_thr, h_thr, warn, raised in points:
+        cols["t_s"].append(round(t, 2))
+        cols["tilt_deg"].append(_finite(round(tilt, 3)))
+        cols["heading_deg"].append(_finite(round(hdg, 3)))
+        cols["tilt_threshold_deg"].append(_finite(round(t_thr, 3)))
+        cols["heading_threshold_deg"].append(_finite(round(h_thr, 3)))
+        cols["warning"].append(bool(warn))
+        cols["raised"].append(int(raised))
+    return cols
 
 
 class _AutopilotCache:

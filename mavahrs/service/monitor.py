@@ -84,6 +84,7 @@ _REBOOT_MS = 1000.0  # time going back by more than this = autopilot reboot
 _MAX_PENDING = 64
 _EVIDENCE_PERIOD_MS = 1000.0  # while a disagreement is on, its evidence is looked at again this often
 _MAX_UPDATES = 3  # … and said again, with what is new, at most this many times per episode
+_STRIP_STEP_MS = 500.0  # the strip chart's history: a point per this, and every warning
 _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
@@ -196,6 +197,8 @@ class MonitorSettings:
             ground, the touchdown phase this long after landing, s.  A
             disagreement raised on the ground, at take-off or touchdown is a
             NOTICE naming the phase, not an in-flight WARNING.
+        strip_s: how much of the divergence history the status page's strip
+            chart shows (:attr:`MonitorStatus.strip`), s.
     """
 
     enabled: bool = True
@@ -237,6 +240,7 @@ class MonitorSettings:
     air_alt_m: float = 2.0
     still_speed_m_s: float = 0.5
     transition_s: float = 5.0
+    strip_s: float = 300.0
 
     def __post_init__(self) -> None:
         if self.mode not in ("uncertainty", "fixed"):
@@ -244,7 +248,7 @@ class MonitorSettings:
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
-                     "transition_s", "learn_k", "learn_s"):  # fmt: skip
+                     "transition_s", "learn_k", "learn_s", "strip_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -299,6 +303,10 @@ class MonitorStatus:
             ``IMU2?`` (that IMU's own estimate is the odd one out); "" = none.
         evidence: the whole :class:`Evidence` of the latest disagreement
             while it is on (None otherwise).
+        strip: the last ``strip_s`` of comparisons for the status page's strip
+            chart, a point every 0.5 s and at each STATUSTEXT: ``(boot time s,
+            tilt°, heading° signed, tilt threshold°, heading threshold° (0 = not
+            judged), warning on, raised then: 0 / 1 NOTICE / 2 WARNING)``.
     """
 
     tilt_deg: float
@@ -314,6 +322,7 @@ class MonitorStatus:
     ground_episodes: int = 0
     cause: str = ""
     evidence: Evidence | None = None
+    strip: tuple[tuple[float, float, float, float, float, bool, int], ...] = ()
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -612,6 +621,8 @@ class AttitudeMonitor:
         self._unmatched = 0
         self._episodes = 0
         self._ground_episodes = 0
+        #: (t_s, tilt°, heading°, tilt threshold°, heading threshold°, warning on, raised: 0 / 1 notice / 2 warning)
+        self._strip: deque[tuple[float, float, float, float, float, bool, int]] = deque()
         self._next_publish_us: int | None = None
         self._quaternion_source = False
         self.phase = FlightPhase(s)
@@ -850,6 +861,23 @@ class AttitudeMonitor:
         self._learnt = [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
 
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
+        out = self._judge(t_ms, q_est, q_ap)
+        strip = self._strip
+        if not strip or t_ms - strip[-1][0] * 1000.0 >= _STRIP_STEP_MS or t_ms < strip[-1][0] * 1000.0 or out:
+            if strip and t_ms < strip[-1][0] * 1000.0 - _REBOOT_MS:
+                strip.clear()  # a reboot: the old time axis no longer applies
+            said = 0
+            for m in out:
+                sev = int(m.severity)
+                said = max(said, 2 if sev == mavlink.MAV_SEVERITY_WARNING else 1 if sev == mavlink.MAV_SEVERITY_NOTICE else 0)
+            strip.append((t_ms / 1000.0, math.degrees(self._tilt), math.degrees(self._heading),
+                          math.degrees(self._tilt_thr_now), math.degrees(self._hdg_thr_now), self._warning, said))
+            horizon = t_ms / 1000.0 - self.settings.strip_s
+            while strip and strip[0][0] < horizon:
+                strip.popleft()
+        return out
+
+    def _judge(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         s = self.settings
         tilt, heading = _divergence(q_est, q_ap)
         self._tilt, self._heading = tilt, heading
@@ -957,6 +985,7 @@ class AttitudeMonitor:
             ground_episodes=self._ground_episodes,
             cause=self.last_cause if self._warning else "",
             evidence=self.last_evidence if self._warning else None,
+            strip=tuple(self._strip),
         )
 
     @property
@@ -1266,6 +1295,9 @@ class MonitorSeries:
     tilt_deg: Array
     heading_deg: Array
     events: tuple[MonitorEvent, ...]
+    #: the thresholds in force at each comparison, deg (NaN: none made then; heading 0 = not judged)
+    tilt_threshold_deg: Array | None = None
+    heading_threshold_deg: Array | None = None
 
 
 def monitor_series(
@@ -1330,6 +1362,9 @@ def monitor_series(
             vt = np.asarray(sensors.vel_t_ms, float).tolist()
         refs = sorted(sensors.mag_reference)
     r = 0
+    thr_t: list[float] = []
+    thr_v: list[tuple[float, float]] = []
+    before = 0
     while i < n or j < m:
         if j >= m or (i < n and t[i] <= ta[j]):
             if n_ph:
@@ -1347,6 +1382,10 @@ def monitor_series(
                 phase_until(ta[j])
             out = mon.add_autopilot(ta[j], qa[j])
             j += 1
+        if mon._comparisons != before:
+            thr_t.append(mon._last_cmp_ms or 0.0)
+            thr_v.append((mon._tilt_thr_now, mon._hdg_thr_now))
+            before = mon._comparisons
         for msg in out:
             phase = mon.last_phase if int(msg.severity) != mavlink.MAV_SEVERITY_INFO else ""
             info = int(msg.severity) == mavlink.MAV_SEVERITY_INFO
@@ -1354,7 +1393,11 @@ def monitor_series(
             events.append(MonitorEvent(mon.last_comparison_ms, int(msg.severity), _text(msg), phase, ev,
                                        mon.last_update and not info))
     tilt, heading = divergence_series(t, q, ta, qa, tolerance_ms=s.align_tolerance_ms)
-    return MonitorSeries(ta, tilt, heading, tuple(events))
+    thr = np.full((len(ta), 2), np.nan)
+    if thr_t:  # the thresholds at the comparisons, onto the autopilot's sample times (most are one-to-one)
+        k_at = np.searchsorted(ta, np.asarray(thr_t), side="left").clip(0, max(len(ta) - 1, 0))
+        thr[k_at] = np.degrees(np.asarray(thr_v))
+    return MonitorSeries(ta, tilt, heading, tuple(events), thr[:, 0], thr[:, 1])
 
 
 def _text(msg: Any) -> str:
