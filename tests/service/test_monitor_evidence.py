@@ -194,3 +194,32 @@ def test_the_flight_chart_has_the_thresholds_and_the_warning(tmp_path: Path) -> 
     img = matplotlib.image.imread(str(out))[..., :3]
     red = np.all(np.abs(img * 255 - np.array([214, 39, 40])) < 20, axis=-1)  # tab:red, the WARNING line
     assert red.mean() > 0.0005
+
+
+# ---------------------------------------------------------------------------- several IMUs
+
+
+def _sim_tlog(path: Path, *extra: str) -> Path:
+    import subprocess
+    import sys
+
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", "aggressive",
+                    "--duration", "90", "--seed", "21", "-q", *extra], check=True, cwd=Path(__file__).parents[2])
+    return path
+
+
+def test_a_gyro_bias_step_on_one_of_two_imus_is_warned_and_that_imu_named(tmp_path: Path) -> None:
+    """firmware_sim's second IMU (SCALED_IMU2, instance 1) gains a 2°/s gyro bias per axis at 30 s; our filter
+    uses the first.  The IMU is named within the averaging window, the healthy flight names none."""
+    from mavahrs.fleet.audit import summarise_log
+    from mavahrs.service.monitor import IMU_TEXT  # noqa: F401  (the text the WARNING uses)
+
+    faulty = summarise_log(_sim_tlog(tmp_path / "imu.tlog", "--imu-fault", "imu1:gyro_bias_dps=2:at=30"))
+    assert faulty.ok, faulty.error
+    times = [float(x) for x in faulty.alarm_times_s.split(";") if x]
+    causes = faulty.alarm_causes.split(";")
+    first = next(i for i, c in enumerate(causes) if "IMU2?" in c.split())
+    assert 30.0 < times[first] < 30.0 + 10.0, (times, causes)
+    assert all("IMU1?" not in c.split() for c in causes) and all(t > 30.0 for t in times), (times, causes)
+    clean = summarise_log(_sim_tlog(tmp_path / "clean.tlog"))
+    assert clean.ok and "IMU" not in clean.alarm_causes, clean.alarm_causes
