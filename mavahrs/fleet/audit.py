@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import glob
+import logging
 import math
 import os
 import socket
@@ -31,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+_log = logging.getLogger("mavahrs.fleet")
 
 __all__ = [
     "AuditSettings",
@@ -388,6 +391,11 @@ def replay_monitor(
     prep = result.inputs
     track = next(iter(result.tracks.values()))
     sent = np.flatnonzero(track.sent)
+    try:
+        imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings())
+    except Exception as exc:  # noqa: BLE001 - the IMU check is evidence, never the reason a flight fails
+        _log.warning("%s: the IMUs' gyros could not be compared: %s", result.path, exc)
+        imus = []
     t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
     q_est = track.out[sent, OUT_Q : OUT_Q + 4]
     t_ref_us, q_ref = result.references[ref]
@@ -396,7 +404,7 @@ def replay_monitor(
     sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
     series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
                             tilt_sigma_rad=sigma, phase_events=phase_events,
-                            sensors=monitor_sensors(prep, sent))  # fmt: skip
+                            sensors=monitor_sensors(prep, sent, imus))  # fmt: skip
     return series, t_est_ms
 
 
@@ -416,7 +424,7 @@ def episode_causes(events: Any) -> dict[int, str]:
     return out
 
 
-def monitor_sensors(prep: Any, sent: np.ndarray) -> Any:
+def monitor_sensors(prep: Any, sent: np.ndarray, imus: Any = ()) -> Any:
     """The samples behind the estimates sent (``sent``: row indices), for the monitor's evidence: specific
     force, magnetometer, the GNSS velocity last fixed (true north), the expected field (the pipeline's)."""
     from mavahrs.filters.layout import IN_ACCEL, IN_MAG, IN_VEL, IN_VEL_AGE
@@ -437,7 +445,46 @@ def monitor_sensors(prep: Any, sent: np.ndarray) -> Any:
     vel_t = np.where(ok, t_ms[idx] - 1000.0 * rows[idx, IN_VEL_AGE], np.nan)
     refs = [(float(t_ms[min(max(i, 0), n - 1)]) if n else 0.0, float(a), float(b))
             for i, a, b in prep.mag_reference_events]  # fmt: skip
-    return MonitorSensors(rows[sent, IN_ACCEL : IN_ACCEL + 3], rows[sent, IN_MAG : IN_MAG + 3], vel, vel_t, refs)
+    return MonitorSensors(rows[sent, IN_ACCEL : IN_ACCEL + 3], rows[sent, IN_MAG : IN_MAG + 3], vel, vel_t, refs,
+                          imus)
+
+
+def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Every IMU instance's gyro in a tlog (``IMU1`` = instance 0 …; boot-clock ms, rad/s), scaled as the
+    replay scales its own, for the monitor to name an IMU that is off; [] where the log has one IMU."""
+    from mavahrs.evaluation.tlogdata import IMU_TYPES, _scale
+    from mavahrs.sensors.profiles import get_profile
+
+    arrays = getattr(td, "arrays", None)
+    if arrays is None:
+        return []
+    prof = get_profile(prep.profile)
+    src = prep.source
+    per: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for name in IMU_TYPES:
+        a = arrays.get(name) if hasattr(arrays, "get") else arrays[name]
+        ms = prof.scale_for(name)
+        if a is None or not a.shape[0] or ms is None:
+            continue
+        a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+        if not a.shape[0]:
+            continue
+        sc = _scale(name, a, ms, settings.scaling)
+        ok = sc["use"] & ~sc["zero"] & np.all(np.isfinite(sc["gyro"]), axis=1)
+        for inst in np.unique(sc["imu"][ok]).tolist():
+            sel = ok & (sc["imu"] == inst)
+            per.setdefault(int(inst), []).append((sc["t_us"][sel] / 1000.0, np.array(sc["gyro"][sel])))
+    if len(per) < 2:
+        return []
+    out = []
+    for inst, parts in sorted(per.items()):
+        t = np.concatenate([p[0] for p in parts])
+        g = np.concatenate([p[1] for p in parts])
+        order = np.argsort(t, kind="stable")
+        t, g = t[order], g[order]
+        keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)  # re-sends once
+        out.append((f"IMU{inst + 1}", t[keep], g[keep]))
+    return out
 
 
 def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:

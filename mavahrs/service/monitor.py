@@ -57,6 +57,7 @@ __all__ = [
     "attitude_of_message",
     "attitude_divergence_rad",
     "WARNING_TEXT",
+    "IMU_TEXT",
     "PHASE_TEXT",
     "CLEARED_TEXT",
     "FlightPhase",
@@ -75,6 +76,8 @@ PHASE_TEXT = "mavahrs {phase}: AP off: tilt {tilt:.1f} hdg {heading:+.1f}"
 PHASE_WORDS = {"disarmed": "disarmed", "ground": "on ground", "takeoff": "take-off", "touchdown": "touchdown"}
 #: Phases in which a disagreement is an in-flight WARNING ("unknown": the stream does not tell).
 FLIGHT_PHASES = ("air", "unknown")
+#: STATUSTEXT raised when one IMU's gyro disagrees with the others and with the autopilot's attitude (deg/s).
+IMU_TEXT = "mavahrs: {imu} gyro off by {rate:.1f} dps [{imu}?]"
 #: STATUSTEXT sent when it has cleared.
 CLEARED_TEXT = "mavahrs: AP attitude agrees again"
 
@@ -199,6 +202,15 @@ class MonitorSettings:
             NOTICE naming the phase, not an in-flight WARNING.
         strip_s: how much of the divergence history the status page's strip
             chart shows (:attr:`MonitorStatus.strip`), s.
+        imu_rate_tolerance_dps, imu_window_s: several IMUs
+            (:meth:`AttitudeMonitor.add_imu_gyro`): each IMU's gyro against
+            the body rate of the autopilot's attitude, averaged over
+            ``imu_window_s``; an IMU whose rate is off by more than the
+            tolerance while every other one is within half of it is named
+            (``IMU2?`` in the evidence) and warned about once; it stays named
+            until its error is below half the tolerance, deg/s, s.  (Healthy
+            IMUs on firmware_sim's aggressive flight: ≤ 1.1°/s over 10 s, from
+            the autopilot's attitude lagging in fast turns.)
     """
 
     enabled: bool = True
@@ -241,6 +253,8 @@ class MonitorSettings:
     still_speed_m_s: float = 0.5
     transition_s: float = 5.0
     strip_s: float = 300.0
+    imu_rate_tolerance_dps: float = 1.5
+    imu_window_s: float = 10.0
 
     def __post_init__(self) -> None:
         if self.mode not in ("uncertainty", "fixed"):
@@ -248,7 +262,8 @@ class MonitorSettings:
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
-                     "transition_s", "learn_k", "learn_s", "strip_s"):  # fmt: skip
+                     "transition_s", "learn_k", "learn_s", "strip_s", "imu_rate_tolerance_dps",
+                     "imu_window_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -527,8 +542,9 @@ class Evidence:
             difference at least ``gnss_min_m_s``), "" = no verdict.
         tilt_sigma_deg: our own 1-σ tilt uncertainty then (the ESKF's while
             velocity-aided), deg; NaN = not aided (the ``unaided`` figure applies).
-        imu: the IMU whose own estimate disagrees with the others' and with the
-            autopilot's (``IMU2`` …), "" = none named (see :meth:`AttitudeMonitor.add_imu_estimate`).
+        imu: the IMU whose gyro disagrees with the others' and with the
+            autopilot's turn rate (``IMU2`` …), "" = none named (see
+            :meth:`AttitudeMonitor.add_imu_gyro`).
     """
 
     mag_norm_dev: float = math.nan
@@ -577,7 +593,7 @@ class Evidence:
         elif math.isfinite(self.gnss_m_s):
             parts.append(f"GNSS velocity: attitudes differ by {self.gnss_m_s:.2f} m/s, too little to judge")
         if self.imu:
-            parts.append(f"{self.imu}'s own estimate is the odd one out")
+            parts.append(f"{self.imu}'s gyro disagrees with the other IMUs' and the autopilot's turn rate")
         parts.append(f"our tilt σ {self.tilt_sigma_deg:.2f}°" if math.isfinite(self.tilt_sigma_deg)
                      else "ours not GNSS-aided")
         return "; ".join(parts)
@@ -658,6 +674,8 @@ class AttitudeMonitor:
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
         old = getattr(self, "_evidence", None)
         self._evidence = _Evidence(self.settings)
+        self._imus = _ImuCheck(self.settings)
+        self._imu_named = ""
         if old is not None:  # what the vehicle's field should be outlives a reset
             self._evidence.mag_ref, self._evidence.mag_offset_ut = old.mag_ref, old.mag_offset_ut
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
@@ -737,6 +755,12 @@ class AttitudeMonitor:
         """
         if self.settings.enabled:
             self._evidence.sensors(float(t_boot_ms), accel_body_m_s2, mag_body_ut, vel_ne_m_s, float(vel_t_ms))
+
+    def add_imu_gyro(self, name: str, t_boot_ms: float, gyro_rad_s: Sequence[float]) -> None:
+        """A gyro sample of one of the vehicle's IMUs (``IMU1``, ``IMU2`` …; the one our filter uses too),
+        for naming the IMU that is off (see ``MonitorSettings.imu_rate_tolerance_dps``)."""
+        if self.settings.enabled:
+            self._imus.gyro(name, gyro_rad_s)
 
     def set_mag_reference(self, strength_ut: float, inclination_rad: float) -> None:
         """The field the magnetometer should measure (the geomagnetic model at the vehicle)."""
@@ -851,6 +875,27 @@ class AttitudeMonitor:
             hdg = max(hdg, lk * math.sqrt(m_h)) if hdg_on else 0.0
         return tilt, hdg
 
+    def _imu_warning(self, t_ms: float) -> list[Any]:
+        """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
+        name, err = self._imus.named(self._imu_named) if self._imus._err else ("", math.nan)
+        self._evidence.imu = name
+        if name == self._imu_named:
+            return []
+        self._imu_named = name
+        if not name:
+            return []
+        phase = self.phase.phase(t_ms)
+        self.last_phase = phase
+        self._evidence.sigma = self._sigma
+        self.last_evidence = self._evidence.evidence()
+        self.last_update = False
+        self._episodes += 1
+        text = IMU_TEXT.format(imu=name, rate=err)
+        if phase in FLIGHT_PHASES:
+            return [_statustext(mavlink.MAV_SEVERITY_WARNING, text)]
+        self._ground_episodes += 1
+        return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
+
     def _learn(self, tilt: float, heading: float, dt_s: float) -> None:
         """The divergence's mean square: running mean over the first ``learn_s``, then exponential."""
         if not dt_s > 0.0:
@@ -882,6 +927,7 @@ class AttitudeMonitor:
         tilt, heading = _divergence(q_est, q_ap)
         self._tilt, self._heading = tilt, heading
         self._evidence.compare(t_ms, q_est, q_ap)
+        self._imus.compare(t_ms, q_ap)
         self._comparisons += 1
         self._fresh = True
         prev = self._last_cmp_ms
@@ -901,6 +947,9 @@ class AttitudeMonitor:
         first = self._first_est_ms if self._first_est_ms is not None else t_ms
         if t_ms - first < 1000.0 * s.startup_grace_s:
             return []
+        imu_out = self._imu_warning(t_ms)
+        if imu_out:
+            return imu_out
         k = s.clear_fraction
         above = z > 1.0
         below = z < k
@@ -1154,6 +1203,79 @@ class _Evidence:
         return self.evidence().cause
 
 
+class _ImuCheck:
+    """Which IMU is off (pure): each IMU's gyro, averaged between two comparisons, against the body rate the
+    autopilot's attitude turned at over the same interval (``ω ≈ 2·vec(q_prev* ⊗ q)/Δt``); the difference's
+    exponential mean over ``imu_window_s`` is each IMU's rate error.  With two or more IMUs, one is named
+    when its error exceeds ``imu_rate_tolerance_dps`` and every other's is below half of it (a common-mode
+    difference — the autopilot's own lag in a fast turn — names none)."""
+
+    def __init__(self, s: MonitorSettings) -> None:
+        self.tol = math.radians(s.imu_rate_tolerance_dps)
+        self.tau = s.imu_window_s
+        self._sum: dict[str, list[float]] = {}
+        self._err: dict[str, list[float]] = {}  # name → [ex, ey, ez, seconds]
+        self._prev: tuple[float, Sequence[float]] | None = None
+
+    def gyro(self, name: str, g: Sequence[float]) -> None:
+        if not all(math.isfinite(v) for v in g):
+            return
+        acc = self._sum.get(name)
+        if acc is None:
+            acc = self._sum[name] = [0.0, 0.0, 0.0, 0.0]
+        acc[0] += g[0]
+        acc[1] += g[1]
+        acc[2] += g[2]
+        acc[3] += 1.0
+
+    def compare(self, t: float, q: Sequence[float]) -> None:
+        prev, self._prev = self._prev, (t, q)
+        sums = self._sum
+        if prev is None or not 0.0 < t - prev[0] <= 250.0 or self.tau <= 0.0:
+            for acc in sums.values():
+                acc[:] = [0.0, 0.0, 0.0, 0.0]
+            return
+        dt = 1e-3 * (t - prev[0])
+        a, b = prev[1], q
+        # q_rel = a* ⊗ b (the body's turn over dt, body axes)
+        w = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+        x = a[0] * b[1] - a[1] * b[0] - a[2] * b[3] + a[3] * b[2]
+        y = a[0] * b[2] + a[1] * b[3] - a[2] * b[0] - a[3] * b[1]
+        z = a[0] * b[3] - a[1] * b[2] + a[2] * b[1] - a[3] * b[0]
+        k = (2.0 if w >= 0.0 else -2.0) / dt
+        rate = (k * x, k * y, k * z)
+        for name, acc in sums.items():
+            n = acc[3]
+            if n:
+                e = self._err.get(name)
+                if e is None:
+                    e = self._err[name] = [0.0, 0.0, 0.0, 0.0]
+                e[3] += dt
+                f = dt / min(e[3], self.tau)
+                for i in range(3):
+                    e[i] += f * (acc[i] / n - rate[i] - e[i])
+            acc[:] = [0.0, 0.0, 0.0, 0.0]
+
+    def errors_dps(self) -> dict[str, float]:
+        """Each IMU's rate error learnt so far, deg/s (those seen for half a window)."""
+        return {k: math.degrees(math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]))
+                for k, e in self._err.items() if e[3] >= 0.5 * self.tau}  # fmt: skip
+
+    def named(self, current: str = "") -> tuple[str, float]:
+        """The IMU that is off and its rate error (deg/s), ("", NaN) for none; ``current``: the one named
+        before, kept while its error stays above half the tolerance (hysteresis)."""
+        err = self.errors_dps()
+        if len(err) < 2:
+            return "", math.nan
+        if current in err and math.radians(err[current]) > 0.5 * self.tol:
+            return current, err[current]
+        worst = max(err, key=lambda k: err[k])
+        top = err[worst]
+        if math.radians(top) > self.tol and all(v < 0.5 * top for k, v in err.items() if k != worst):
+            return worst, top
+        return "", math.nan
+
+
 def _rotate_ne(q: Sequence[float], v: Sequence[float]) -> tuple[float, float]:
     """North and east components of q ⊗ v ⊗ q* (body → NED)."""
     w, x, y, z = q
@@ -1285,6 +1407,8 @@ class MonitorSensors:
     vel_ne_m_s: ArrayLike | None = None
     vel_t_ms: ArrayLike | None = None
     mag_reference: Sequence[tuple[float, float, float]] = ()
+    #: every IMU's gyro, ``(name, t_ms (K,), gyro_rad_s (K, 3))`` (``IMU1`` …), to name one that is off
+    imus: Sequence[tuple[str, ArrayLike, ArrayLike]] = ()
 
 
 @dataclass(frozen=True)
@@ -1361,6 +1485,18 @@ def monitor_series(
             vel = np.asarray(sensors.vel_ne_m_s, float).reshape(-1, 2).tolist()
             vt = np.asarray(sensors.vel_t_ms, float).tolist()
         refs = sorted(sensors.mag_reference)
+    imus = [] if sensors is None else [
+        (name, np.asarray(ti, float), np.asarray(g, float).reshape(-1, 3).tolist()) for name, ti, g in sensors.imus]
+    imu_at = [0] * len(imus)
+
+    def imus_until(t_now: float) -> None:
+        for k, (name, ti, g) in enumerate(imus):
+            a = imu_at[k]
+            b = int(np.searchsorted(ti, t_now, side="right"))
+            for x in range(a, b):
+                mon.add_imu_gyro(name, ti[x], g[x])
+            imu_at[k] = b
+
     r = 0
     thr_t: list[float] = []
     thr_v: list[tuple[float, float]] = []
@@ -1380,6 +1516,8 @@ def monitor_series(
         else:
             if n_ph:
                 phase_until(ta[j])
+            if imus:
+                imus_until(ta[j])
             out = mon.add_autopilot(ta[j], qa[j])
             j += 1
         if mon._comparisons != before:

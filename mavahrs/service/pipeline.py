@@ -169,6 +169,9 @@ class Outgoing(NamedTuple):
     to_outputs: bool
 
 
+_IMU_NAMES = ("IMU1", "IMU2", "IMU3", "IMU4")  # IMU instance → the name the monitor gives it
+
+
 @dataclass(frozen=True)
 class PipelineSettings:
     """Everything the pipeline does, with units and defaults.
@@ -798,6 +801,8 @@ class Pipeline:
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
+        if self._monitor_on and not inv:  # every IMU's gyro, for the monitor to name one that is off
+            self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", v[1] / 1000.0, v[2:5])
         return self._filter_sample(name, v, now_us, True)
 
     def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
