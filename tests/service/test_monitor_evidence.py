@@ -223,3 +223,19 @@ def test_a_gyro_bias_step_on_one_of_two_imus_is_warned_and_that_imu_named(tmp_pa
     assert all("IMU1?" not in c.split() for c in causes) and all(t > 30.0 for t in times), (times, causes)
     clean = summarise_log(_sim_tlog(tmp_path / "clean.tlog"))
     assert clean.ok and "IMU" not in clean.alarm_causes, clean.alarm_causes
+
+
+def test_a_slow_heading_drift_is_not_learnt_as_normal() -> None:
+    """The learnt widening takes only what lies within the error model's thresholds: a heading drift of
+    0.2°/s is warned once past them (3°), not followed by a threshold learnt from it."""
+    from mavahrs.geometry.quaternion import from_axis_angle as about
+
+    t_ms, q_est, t_ap, q_ap, sigma, sensors = _flight("none")
+    drift_deg = np.clip((t_ap / 1000.0 - 20.0) * 0.2, 0.0, None)
+    q_drift = multiply(about([0.0, 0.0, 1.0], np.radians(drift_deg)), q_ap)
+    res = monitor_series(t_ms, q_est, t_ap, q_drift, MonitorSettings(), tilt_sigma_rad=sigma, sensors=sensors)
+    warns = [e for e in res.events if e.in_flight]
+    assert warns, res.events
+    at = (warns[0].t_ms / 1000.0 - 20.0) * 0.2
+    assert 3.0 < at < 4.5, at
+    assert np.nanmax(res.heading_threshold_deg) < 3.5
