@@ -151,8 +151,9 @@ class MonitorSettings:
         learn_k, learn_s: ``uncertainty``: the thresholds are also at least
             ``learn_k`` × the RMS of the divergence seen so far (a running
             mean over the first ``learn_s`` of comparisons, then an
-            exponential one with that time constant; comparisons above the
-            threshold or during a warning are not learnt): where the two
+            exponential one with that time constant; comparisons beyond the
+            thresholds of the error model alone, or during a warning, are not
+            learnt): where the two
             estimators' errors are larger than the model says (an autopilot
             whose own tilt error is 0.6° RMS), the test widens to what they
             really are, s.
@@ -670,6 +671,7 @@ class AttitudeMonitor:
         self._heading = math.nan
         self._tilt_thr_now = math.nan
         self._hdg_thr_now = math.nan
+        self._model_thr = (math.inf, math.inf)
         self._cusum = 0.0
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
         old = getattr(self, "_evidence", None)
@@ -859,7 +861,8 @@ class AttitudeMonitor:
         """(tilt, heading) thresholds now, rad (heading 0 = not judged)."""
         hdg_on = self.heading_valid and self._hdg_thr > 0.0
         if not self._uncertainty:
-            return self._tilt_thr, (self._hdg_thr if hdg_on else 0.0)
+            self._model_thr = (self._tilt_thr, self._hdg_thr if hdg_on else 0.0)
+            return self._model_thr
         sig = self._sigma
         aided = math.isfinite(sig) and sig > 0.0
         s_t = sig if aided else self._sig_unaided[0]
@@ -868,6 +871,7 @@ class AttitudeMonitor:
         k = self._k
         tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync2))
         hdg = max(self._min_thr[1], k * math.sqrt(s_h * s_h + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
+        self._model_thr = (tilt, hdg)
         n, m_t, m_h = self._learnt
         if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
             lk = self.settings.learn_k
@@ -942,7 +946,11 @@ class AttitudeMonitor:
         z = tilt / t_thr
         if hdg_on:
             z = max(z, abs(heading) / h_thr)
-        if self._uncertainty and not self._warning and z <= 1.0 and prev is not None and not gap:
+        # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
+        # itself let through, else a slowly growing fault would raise the threshold ahead of it)
+        m_t, m_h = self._model_thr
+        inside = tilt <= m_t and (not hdg_on or abs(heading) <= m_h)
+        if self._uncertainty and not self._warning and inside and prev is not None and not gap:
             self._learn(tilt, heading if hdg_on else 0.0, 1e-3 * (t_ms - prev))  # also in the start-up grace
         first = self._first_est_ms if self._first_est_ms is not None else t_ms
         if t_ms - first < 1000.0 * s.startup_grace_s:
