@@ -165,6 +165,9 @@ def _run(args: argparse.Namespace) -> int:
     for note in result.notes:
         print(f"note: {note}")
     print(rp.format_comparison(rp.compare(result)))
+    so = rp.format_second_opinion(result)  # what the daemon's monitor would have said
+    if so:
+        print(so)
     if args.csv:
         print(f"wrote {args.csv} ({inp.n} rows)", file=sys.stderr)
     if args.output:
