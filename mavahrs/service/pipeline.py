@@ -937,7 +937,7 @@ class Pipeline:
         if self._monitor_on:
             sigma = float(out[OUT_GAIN]) if int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED else math.nan
             fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
-            self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3], row[IN_MAG : IN_MAG + 3],
+            self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist(),
                                       fix, fix[2] if fix is not None else math.nan)  # fmt: skip
             for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma):
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
