@@ -160,7 +160,7 @@ def main() -> int:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_monitor_") as td:
         tmp = Path(td)
-        flights = shared_flights() + (sim_flights(tmp, args.sim) if args.sim and not want else [])
+        flights = (sim_flights(tmp, args.sim) if args.sim and not want else []) + shared_flights()
         flights = [f for f in flights if not want or any(w in f.name for w in want)]
         lat: dict[str, dict[str, str]] = {}
         clean_rows = []
