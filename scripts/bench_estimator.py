@@ -29,8 +29,9 @@ Data sets (all from ``../shared/data``; one setting per filter for all of them):
   truth HIL_STATE_QUATERNION.
 
 Every filter is fed the input rows the daemon builds (:func:`mavahrs.replay.replay`'s
-decoding, scaling and timeline; the pipeline's sensor delay is set as the
-pipeline sets it) and scored against the truth as ``scripts/bench_sitl.py``
+decoding, scaling and timeline; the sensor delay and, for an autopilot's
+stream, ``best``'s vehicle mode are set as the pipeline sets them; the raw-IMU
+sets stand for a sensor fed through the Python API, without either) and scored against the truth as ``scripts/bench_sitl.py``
 does (estimates slerped onto the truth's times, the first 10 s of each log
 left out; BROAD: its own scoring, movement phases).  VQF 2.x (``vqf.VQF``,
 defaults, sample by sample at the log's mean rate; 9-axis where a magnetometer
@@ -154,11 +155,15 @@ def _declinate(q: np.ndarray, decl: np.ndarray) -> np.ndarray:
     return multiply(np.stack([np.cos(h), 0 * h, 0 * h, np.sin(h)], axis=1), q)
 
 
-def run_filter(name: str, rows: np.ndarray, delay_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def run_filter(name: str, rows: np.ndarray, delay_s: float = 0.0, vehicle: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """``name`` on ``rows``; ``delay_s`` and ``vehicle`` (an autopilot's stream) set as the pipeline sets them."""
     f = create(name)
     set_delay = getattr(f, "set_sensor_delay", None)
     if set_delay is not None and delay_s > 0.0:
         set_delay(delay_s)
+    set_vehicle = getattr(f, "set_vehicle_stream", None)
+    if set_vehicle is not None and vehicle:
+        set_vehicle()
     out = f.run(rows)
     init = (out[:, OUT_FLAGS].astype(np.int64) & FLAG_NOT_INITIALISED) == 0
     return out[:, OUT_Q : OUT_Q + 4], init
@@ -214,7 +219,7 @@ def bench_logs(kind: str, filters: list[str], refs: list[str], cache: Path | Non
             delay = 0.0  # a raw IMU: no autopilot low-pass
         r: dict[str, tuple[float, float]] = {}
         for name in filters:
-            q, ok = run_filter(name, rows, delay)
+            q, ok = run_filter(name, rows, delay, vehicle=not raw)
             r[name] = score_log(t, _declinate(q, decl), ok, t_ref, q_ref, start)
         rate = 1e6 * (len(t) - 1) / float(t[-1] - t[0])
         for ref in refs:

@@ -1,7 +1,12 @@
 r"""The configuration mavahrs recommends: ``filter="best"`` (also the daemon's default filter).
 
-Two filters run side by side on every sample and ``best`` sends the one that
-measures best for the inputs it has:
+On an autopilot's stream (the daemon's pipeline calls :meth:`Best.set_vehicle_stream`
+when it knows the profile) ``best`` is one estimator in every condition: the
+ESKF below, velocity-aided with GNSS and unaided without (zero-velocity and
+gravity updates; ArduCopter SITL without GNSS 1.41° inclination against the
+Madgwick configuration's 2.80°).  Through the Python API two filters run side
+by side on every sample and ``best`` sends the one that measures best for the
+inputs it has (``BestSettings.unaided_filter``; ``docs/accuracy.md``):
 
 * **with GNSS velocity** — the velocity-aided error-state Kalman filter
   (:mod:`mavahrs.filters.eskf`): on ArduCopter SITL flights it reaches
@@ -155,19 +160,33 @@ class BestSettings(FilterSettings):
     Attributes:
         madgwick: the filter used without velocity aiding.
         eskf: the velocity-aided filter.
+        shared_bias: without velocity aiding the Madgwick part integrates
+            the gyro less the ESKF's bias estimate (learnt in motion).
         fade_s: after the velocity-aided filter loses its aiding
             (``eskf.aiding_timeout_s`` without a fix), the output moves from
             its attitude to the Madgwick attitude over this long, s.
+        unaided_filter: the filter whose attitude is sent without velocity
+            aiding: ``"eskf"`` (one estimator in every condition: its
+            zero-velocity and gravity updates; the Madgwick part is not run)
+            or ``"madgwick"``.  The daemon's pipeline sets ``"eskf"`` for
+            an autopilot's stream (a vehicle: ArduCopter SITL without GNSS
+            1.41° inclination against Madgwick's 2.80°); the Python API's
+            default stays ``"madgwick"``, which measures better on hand-held
+            motion (BROAD 0.70° against the ESKF's 1.33°; ``docs/accuracy.md``).
     """
 
     madgwick: MadgwickSettings = field(default_factory=best_settings)
     eskf: EskfSettings = field(default_factory=best_eskf_settings)
     fade_s: float = 2.0
+    shared_bias: bool = True
+    unaided_filter: str = "madgwick"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if not (math.isfinite(self.fade_s) and self.fade_s >= 0.0):
             raise ValueError(f"BestSettings.fade_s must be ≥ 0 s, got {self.fade_s!r}")
+        if self.unaided_filter not in ("eskf", "madgwick"):
+            raise ValueError(f"BestSettings.unaided_filter must be 'eskf' or 'madgwick', got {self.unaided_filter!r}")
         if self.madgwick.max_gap_s != self.max_gap_s or self.eskf.max_gap_s != self.max_gap_s:
             raise ValueError("BestSettings: max_gap_s must be the same for best and both of its filters")
 
@@ -188,7 +207,9 @@ _N_STATE = _ROW + IN_WIDTH - S_FILTER
 _PM = P_FILTER  # Madgwick params
 _PE = _PM + _PLM  # ESKF params
 _FADE = _PE + _PLE
-_N_PARAMS = _FADE + 1 - P_FILTER
+_SHARE_BIAS = _FADE + 1
+_ESKF_ONLY = _SHARE_BIAS + 1  # 1: the ESKF's attitude in every condition, the Madgwick part not run
+_N_PARAMS = _ESKF_ONLY + 1 - P_FILTER
 
 
 @kernel
@@ -206,6 +227,18 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         or not (row[IN_VEL + 2] != row[IN_VEL + 2])
     )
     erow = row
+    if params[_ESKF_ONLY] > 0.0:  # one estimator: the ESKF, aided or not
+        _eskf_step(se, pe, row, oe)
+        for i in range(OUT_WIDTH):
+            out[i] = oe[i]
+        state[_W] = 1.0 if eskf_aided(se, pe) else 0.0
+        for i in range(4):
+            state[S_Q + i] = out[OUT_Q + i]
+            state[_QOUT + i] = out[OUT_Q + i]
+        for i in range(3):
+            state[S_BIAS + i] = out[OUT_BIAS + i]
+        state[S_INIT] = se[S_INIT]
+        return
     if fix and not eskf_aided(se, pe):
         if (
             sm[S_INIT] > 0.0 and se[S_INIT] > 0.0
@@ -225,9 +258,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(3):
                 erow[IN_VEL + i] = math.nan
             erow[IN_VEL_AGE] = math.nan
-    _madgwick_step(sm, pm, row, om)
     _eskf_step(se, pe, erow, oe)
     aided = eskf_aided(se, pe)
+    if not aided and se[S_INIT] > 0.0 and sm[S_INIT] > 0.0 and params[_SHARE_BIAS] > 0.0:
+        # one gyro bias: the ESKF's (a state, learnt in motion from the velocity it integrates); the
+        # Madgwick part integrates the gyro less it and does not learn its own
+        for i in range(3):
+            sm[S_BIAS + i] = se[S_BIAS + i]
+    _madgwick_step(sm, pm, row, om)
     w = state[_W]
     dt = row[IN_DT]
     if aided:
@@ -277,6 +315,8 @@ class Best(AttitudeFilter):
         p[_PM - P_FILTER : _PM - P_FILTER + _PLM] = m
         p[_PE - P_FILTER : _PE - P_FILTER + _PLE] = e
         p[_FADE - P_FILTER] = settings.fade_s
+        p[_SHARE_BIAS - P_FILTER] = 1.0 if settings.shared_bias else 0.0
+        p[_ESKF_ONLY - P_FILTER] = 1.0 if settings.unaided_filter == "eskf" else 0.0
         return p
 
     def initial_internal(self) -> np.ndarray:
@@ -326,6 +366,17 @@ class Best(AttitudeFilter):
                                                   mag_reference_dip_rad=dip_rad)),
         )  # fmt: skip
         AttitudeFilter.set_mag_reference(self, norm_ut, dip_rad)
+
+    def set_vehicle_stream(self) -> None:
+        """The input is an autopilot's IMU stream (a vehicle): the ESKF's attitude in every condition.
+
+        Called by the pipeline when it knows the autopilot's profile (see
+        ``BestSettings.unaided_filter``).
+        """
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        self._settings = replace(s, unaided_filter="eskf")
+        self._params[_ESKF_ONLY] = 1.0
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps (s), for the velocity-aided filter's output and fixes."""

@@ -86,6 +86,7 @@ from mavahrs.filters.layout import (
     OUT_FLAGS,
     OUT_Q,
 )
+from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
 
 __all__ = ["EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM"]
 
@@ -120,7 +121,13 @@ _MAG_STALE = 16  # s: assumed age spread of a magnetometer reading (heading nois
 _REJECT_RESET = 17  # s of rejected attitude measurements before the attitude covariance is re-opened
 _VEL_GATE = 18  # χ gate of the velocity fixes (σ)
 _NOISE_TAU = 19  # s: time constant of the measured sensor noise (0: fixed noise densities)
-_N_PARAMS = 20
+_R_ZV = 20  # zero-velocity pseudo-measurement noise² while not aided, (m/s)² (0: off)
+_ZV_PERIOD = 21  # s between zero-velocity pseudo-measurements
+_REALIGN_SIN = 22  # sin of the gravity innovation angle beyond which it is not fused as a small error
+_REALIGN_S = 23  # s that large an innovation persists before the tilt is re-aligned
+_GRAV_TAU = 24  # s: NED low-pass of the specific force used as the gravity measurement (0: raw)
+_ADAPT_TAU = 25  # s: averaging time of the gravity innovation's mean square, the adaptive noise (0: off)
+_N_PARAMS = 26
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 
@@ -139,14 +146,18 @@ _VIB = _CLK + 12  # running mean of ½‖Δω‖², ½‖Δf‖² between sample
 _PREV_IMU = _CLK + 14  # the previous sample's gyro and specific force (6; NaN: none)
 _HPOS = _CLK + 20  # next history slot
 _HCOUNT = _CLK + 21  # filled history slots
-_DX = _CLK + 22  # accumulated error-state correction (N)
+_LAST_ZV = _CLK + 22  # clock time of the last zero-velocity pseudo-measurement
+_DX = _CLK + 23  # accumulated error-state correction (N)
 _PH = _DX + N  # scratch: P·hᵀ (N)
 _H = _PH + N  # scratch: h (N)
 _C = _H + N  # scratch: C_body_to_ned (9)
 _M = _C + 9  # scratch: −[f_NED]× (9)
 _A = _M + 9  # scratch: Φ·P (N×N)
 _HIST = _A + N * N  # INS velocity history, HISTORY_LEN × (t, vn, ve, vd)
-_N_STATE = _HIST + 4 * HISTORY_LEN
+_BIG = _HIST + 4 * HISTORY_LEN  # clock time since when the gravity innovation has been large (−1: not)
+_GLP = _BIG + 1  # NED Butterworth low-pass of the specific force (BW_LEN)
+_GMS = _GLP + BW_LEN  # running mean square of the horizontal gravity innovation, (m/s²)²
+_N_STATE = _GMS + 1
 
 
 @dataclass(frozen=True)
@@ -199,6 +210,38 @@ class EskfSettings(FilterSettings):
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
+        unaided_velocity_noise_m_s: without velocity aiding, a zero-velocity
+            pseudo-measurement of this 1-σ noise, m/s, every
+            ``unaided_velocity_period_s`` (an autopilot EKF's no-GNSS mode):
+            the INS velocity's drift tells the tilt and bias error.  0 = off.
+        unaided_velocity_period_s: s between those pseudo-measurements.
+        realign_innovation_rad: without velocity aiding, a gravity
+            innovation (angle between the measured and the predicted
+            specific-force direction) beyond this is not fused as a small
+            error: with ‖f‖ within the schedule's norm tolerance (5 % of g) a
+            motion acceleration explains at most acos(1/1.05) ≈ 18°, an
+            estimate drifted in a long manoeuvre some more, so an angle
+            beyond 45° held for ``realign_after_s`` is an attitude error (a
+            bad start, a state set by hand): the attitude covariance is
+            re-opened, uncorrelated with the bias, and the accelerometer
+            re-aligns the tilt (the bias is not learnt from it).  Fused as a
+            small error it would be learnt as a gyro bias (a 90° start error:
+            36° left after a minute).  20° re-aligned on in-flight errors:
+            ArduCopter SITL without GNSS 1.41 → 2.58° inclination.
+        realign_after_s: how long, s.
+        gravity_lowpass_s: without velocity aiding, the gravity measurement
+            is the specific force low-passed in the estimated NED frame
+            (second-order Butterworth of this time constant, s; the
+            Madgwick ``best`` configuration's and VQF's quasi-inertial
+            low-pass, :mod:`mavahrs.filters.prefilter`), not the sample: a
+            motion acceleration is correlated over seconds, so the single
+            sample's error is not the white noise the update assumes.
+            0 = the raw sample.
+        adaptive_gravity_tau_s: the gravity measurement's noise variance is
+            raised to the mean square of its own innovation, averaged over
+            this time constant, s (adaptive measurement noise from the
+            innovation, Mehra 1972 / Sage–Husa): sustained manoeuvres make
+            the accelerometer count less for as long as they last.  0 = off.
         schedule: the shared schedule: only its magnetometer rejection (norm,
             dip) and accelerometer trust are used; no start-up boost (the
             covariance converges the filter).
@@ -210,7 +253,7 @@ class EskfSettings(FilterSettings):
     velocity_noise_m_s: float = 0.1
     vertical_velocity_noise_m_s: float = 0.15
     heading_noise_rad: float = math.radians(5.0)
-    gravity_noise_m_s2: float = 1.0
+    gravity_noise_m_s2: float = 3.0
     gate_sigma: float = 3.0
     velocity_gate_sigma: float = 5.0
     measured_noise_tau_s: float = 1.0
@@ -219,16 +262,22 @@ class EskfSettings(FilterSettings):
     mag_rate_hz: float = 10.0
     initial_tilt_rad: float = math.radians(3.0)
     initial_heading_rad: float = math.radians(20.0)
-    initial_bias_rad_s: float = math.radians(0.5)
-    bias_limit_rad_s: float = math.radians(5.0)
+    initial_bias_rad_s: float = math.radians(3.0)
+    bias_limit_rad_s: float = math.radians(10.0)
     velocity_reset_s: float = 5.0
     mag_staleness_s: float = 0.1
     rejection_reset_s: float = 2.0
+    unaided_velocity_noise_m_s: float = 10.0
+    unaided_velocity_period_s: float = 0.1
+    realign_innovation_rad: float = math.radians(45.0)
+    realign_after_s: float = 0.5
+    gravity_lowpass_s: float = 0.0
+    adaptive_gravity_tau_s: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
             startup_s=0.0,
-            accel_norm_tolerance=0.2,
+            accel_norm_tolerance=0.05,
             spin_rate_rad_s=0.0,
             horizontal_tolerance=0.0,
             rejection_timeout_s=0.0,
@@ -243,11 +292,13 @@ class EskfSettings(FilterSettings):
             "gyro_noise_rad_s", "accel_noise_m_s2", "bias_walk_rad_s2", "velocity_noise_m_s",
             "vertical_velocity_noise_m_s", "heading_noise_rad", "gravity_noise_m_s2", "gate_sigma", "velocity_gate_sigma",
             "aiding_timeout_s", "mag_rate_hz", "initial_tilt_rad", "initial_heading_rad",
-            "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s",
+            "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s", "realign_innovation_rad",
         ):  # fmt: skip
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(self.realign_after_s) and self.realign_after_s >= 0.0):
+            raise ValueError(f"EskfSettings.realign_after_s must be ≥ 0 s, got {self.realign_after_s!r}")
         if not (math.isfinite(self.sensor_delay_s) and 0.0 <= self.sensor_delay_s <= 0.1):
             raise ValueError(f"EskfSettings.sensor_delay_s must be in [0, 0.1] s, got {self.sensor_delay_s!r}")
 
@@ -269,6 +320,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[k + _LAST_FIX] = -1.0
     s[k + _LAST_MAG] = -1.0e9
     s[k + _GREJ] = -1.0
+    s[k + _BIG] = -1.0
     for i in range(3):
         s[k + _PREV_VEL + i] = math.nan
     for i in range(6):
@@ -572,22 +624,58 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     # ---- gravity direction while not aided -------------------------------------------------
     tried = False  # an attitude measurement was offered this sample
     passed = False  # … and accepted
-    if not aided and accel_ok and w_a > 0.0:
-        na = math.sqrt(ax * ax + ay * ay + az * az)
+    r_zv = params[p + _R_ZV]
+    if not aided and r_zv > 0.0 and clk - state[k + _LAST_ZV] >= params[p + _ZV_PERIOD]:
+        # without velocity aiding a vehicle's velocity is zero on average (an autopilot's EKF without GNSS
+        # fuses zero velocity or a constant position the same way): the INS velocity's drift is the tilt
+        # and bias error, through their covariance with the velocity
+        state[k + _LAST_ZV] = clk
+        for c in range(3):
+            for i in range(N):
+                state[k + _H + i] = 0.0
+            state[k + _H + 3 + c] = 1.0
+            if _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6):
+                updated = True
+    gn, ge, gd = fn, fe, fd  # the gravity measurement, NED
+    tau_g = params[p + _GRAV_TAU]
+    if tau_g > 0.0 and accel_ok:
+        gn, ge, gd = ned_butterworth_step(state, k + _GLP, fn, fe, fd, dt, tau_g)
+    w_g = w_a
+    na = math.sqrt(gn * gn + ge * ge + gd * gd)
+    if tau_g > 0.0 and accel_ok:
+        # the low-passed vector's norm tells a sustained manoeuvre (the sample's is mostly vibration)
+        tol = params[P_SCHED + _g.GP_ACCEL_NORM_TOL]
+        w_g = 1.0 - abs(na / G_M_S2 - 1.0) / tol if tol > 0.0 else 1.0
+    tau_r = params[p + _ADAPT_TAU]
+    if tau_r > 0.0 and not aided and accel_ok and na > 0.0:
+        # every sample, gated or not: a manoeuvre the gate refuses still tells how far off f runs
+        y2 = 0.5 * (gn * gn + ge * ge) * (G_M_S2 / na) ** 2
+        state[k + _GMS] += (y2 - state[k + _GMS]) * min(dt / tau_r, 1.0)
+    if not aided and accel_ok and w_g > 0.0:
         if na > 0.0:
             sc = G_M_S2 / na  # the direction only
-            r_g = params[p + _R_GRAVITY] / (w_a * w_a)
+            r_g = max(params[p + _R_GRAVITY], state[k + _GMS]) / (w_g * w_g)
+            # a large innovation is an attitude error, not an acceleration (see realign_innovation_rad):
+            # not fused as a small one (it would be learnt as a bias); held, the tilt is re-aligned
+            big = gd > 0.0 or gn * gn + ge * ge > (params[p + _REALIGN_SIN] * na) ** 2
+            if not big:
+                state[k + _BIG] = -1.0
+            elif state[k + _BIG] < 0.0:
+                state[k + _BIG] = clk
+            elif clk - state[k + _BIG] >= params[p + _REALIGN_S]:
+                eskf_reopen_attitude(state, k, params, _REOPEN_TILT, _REOPEN_HEADING)
+                big = False
             # f_NED(est) − (0, 0, −g) = [f]× δθ: rows (0, g, 0 …) and (−g, 0, 0 …)
             for i in range(N):
                 state[k + _H + i] = 0.0
             state[k + _H + 1] = G_M_S2
             tried = True
-            if _scalar_update(state, k, fn * sc, r_g, gate):
+            if not big and _scalar_update(state, k, gn * sc, r_g, gate):
                 updated = passed = True
             for i in range(N):
                 state[k + _H + i] = 0.0
             state[k + _H + 0] = -G_M_S2
-            if _scalar_update(state, k, fe * sc, r_g, gate):
+            if not big and _scalar_update(state, k, ge * sc, r_g, gate):
                 updated = passed = True
 
     # ---- magnetometer heading ----------------------------------------------------------------
@@ -641,7 +729,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3] = quat_multiply(
                 e0, e1, e2, e3, a0, a1, a2, a3
             )
-        if aided:
+            if tau_g > 0.0:  # the stored NED vectors move with the estimate's frame
+                nav_lowpass_rotate(state, k + _GLP, rx, ry, rz)
+                nav_lowpass_rotate(state, k + _GLP + BW_LEN // 2, rx, ry, rz)
+        if aided or r_zv > 0.0:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
         lim = params[p + _BIAS_LIMIT]
@@ -710,6 +801,12 @@ class Eskf(AttitudeFilter):
         p[_VEL_RESET] = settings.velocity_reset_s
         p[_MAG_STALE] = settings.mag_staleness_s
         p[_REJECT_RESET] = settings.rejection_reset_s
+        p[_R_ZV] = settings.unaided_velocity_noise_m_s**2
+        p[_ZV_PERIOD] = settings.unaided_velocity_period_s
+        p[_REALIGN_SIN] = math.sin(min(settings.realign_innovation_rad, 0.5 * math.pi))
+        p[_REALIGN_S] = settings.realign_after_s
+        p[_GRAV_TAU] = settings.gravity_lowpass_s
+        p[_ADAPT_TAU] = settings.adaptive_gravity_tau_s
         return p
 
     def set_sensor_delay(self, delay_s: float) -> None:

@@ -733,6 +733,9 @@ class Pipeline:
         ms = profile.scale_for(profile.primary_message)
         if set_delay is not None and ms is not None:  # the IMU data's low-pass delay (velocity-aided filter)
             set_delay(ms.delay_s)
+        vehicle = getattr(self._filter, "set_vehicle_stream", None)
+        if vehicle is not None:  # an autopilot's stream: ``best`` is the ESKF in every condition
+            vehicle()
         self._calibrators = {
             name: Calibrator(self.settings.calibration, mag_already_calibrated=ms.mag_calibrated)
             for name, ms in profile.messages.items()

@@ -170,7 +170,8 @@ def test_best_uses_the_velocity_aided_filter_and_hands_back_without_a_jump() -> 
 
 
 def test_the_ardupilot_profile_gives_best_its_ins_delay() -> None:
-    """The pipeline hands the profile's IMU delay to ``best`` (ArduPilot: 20 Hz INS filter, 11.3 ms; PX4: 0)."""
+    """The pipeline hands the profile's IMU delay to ``best`` (ArduPilot: 20 Hz INS filter, 11.3 ms; PX4: 0),
+    and makes it the ESKF without GNSS too (a vehicle's stream)."""
     from mavahrs.sensors.profiles import AP_INS_DELAY_S
     from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
@@ -179,6 +180,7 @@ def test_the_ardupilot_profile_gives_best_its_ins_delay() -> None:
         f = p._filter
         assert isinstance(f, Best)
         assert f.settings.eskf.sensor_delay_s == pytest.approx(delay)
+        assert f.settings.unaided_filter == "eskf"  # an autopilot's stream: the ESKF in every condition
     assert AP_INS_DELAY_S == pytest.approx(math.sqrt(2) / (2 * math.pi * 20.0))
 
 
