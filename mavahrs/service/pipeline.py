@@ -600,6 +600,7 @@ class Pipeline:
         self._next_out_t: int | None = None
         #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
         self._vel: tuple[float, float, float, int | None] | None = None
+        self._imu_fed: dict[int, int] = {}  # IMU samples seen per instance (the monitor gets one in 8)
         self._monitor_fix: tuple[float, float, float] | None = None  # GNSS velocity (true N, E) and fix time, ms
         self._vel_written = True  # row's velocity columns hold NaN already
         if hasattr(self, "_velocity"):
@@ -804,8 +805,11 @@ class Pipeline:
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
-        if self._monitor_on and not inv:  # every IMU's gyro, for the monitor to name one that is off
-            self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", v[1] / 1000.0, v[2:5])
+        if self._monitor_on and not inv:  # every IMU's gyro, one sample in 8 (its mean is what counts), for
+            k = self._imu_fed.get(v[0], 0) + 1  # the monitor to name an IMU that is off
+            self._imu_fed[v[0]] = k
+            if not k & 7:
+                self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", v[1] / 1000.0, v[2:5])
         return self._filter_sample(name, v, now_us, True)
 
     def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
