@@ -101,7 +101,10 @@ def _run(args: argparse.Namespace) -> int:
     for t in args.output:
         fa.read_table(t)  # a bad suffix or a missing pyarrow fails now, not after the replays
     logs = fa.expand_logs(args.logs)
-    settings = fa.AuditSettings(replay=settings_from_args(args))
+    from pathlib import Path
+
+    plots = str(Path(args.plot).with_suffix("")) + "_flights" if args.plot else ""  # one chart per flight
+    settings = fa.AuditSettings(replay=settings_from_args(args), plot_dir=plots)
     fn = functools.partial(fa.summarise_log, settings=settings)
     scheduler = args.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     plan = fa.plan_audit(logs, args.output, args.force)
@@ -143,7 +146,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.plot:
         from mavahrs.evaluation.plots import plot_fleet
 
-        print(f"wrote {plot_fleet(args.plot, [r.as_dict() for r in result.rows])}", file=sys.stderr)
+        print(f"wrote {plot_fleet(args.plot, [r.as_dict() for r in result.rows])} (each flight replayed: "
+              f"{plots}/LOG_second_opinion.png)", file=sys.stderr)  # fmt: skip
     bad = sum(1 for r in result.rows if not r.ok)
     if bad:
         from mavahrs.cli.common import EXIT_FAILURE

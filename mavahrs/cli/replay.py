@@ -169,6 +169,9 @@ def _run(args: argparse.Namespace) -> int:
     for note in result.notes:
         print(f"note: {note}")
     print(rp.format_comparison(rp.compare(result, skip_s=args.skip), skip_s=args.skip))
+    so = rp.format_second_opinion(result)  # what the daemon's monitor would have said
+    if so:
+        print(so)
     if args.csv:
         print(f"wrote {args.csv} ({inp.n} rows)", file=sys.stderr)
     if args.output:
@@ -177,6 +180,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"wrote {args.output} ({k} frames inserted, system {result.system_id}: {comps})", file=sys.stderr)
     if args.plot:
         print(f"wrote {rp.plot_replay(result, args.plot)}", file=sys.stderr)
+        so = rp.plot_second_opinion(result, args.plot)  # the monitor's chart beside it, where there is one
+        if so is not None:
+            print(f"wrote {so}", file=sys.stderr)
     if args.stream:
         name = next(iter(result.tracks))
         ss = rp.StreamSettings(url=args.stream, system_id=args.stream_sysid, speed=args.speed,

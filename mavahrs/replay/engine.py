@@ -907,6 +907,47 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
                          others=others, title=title)  # fmt: skip
 
 
+def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
+    from mavahrs.fleet.audit import _phase_events, replay_monitor
+
+    ref = next((k for k in result.references if k.startswith("autopilot")), None)
+    if ref is None or not result.tracks:
+        return None
+    tlog = getattr(result, "tlog", None)
+    phase = _phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
+    series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
+    return series, ref
+
+
+def format_second_opinion(result: ReplayResult) -> str:
+    """What the daemon's monitor would have said on this flight: each STATUSTEXT (boot time, phase, text) and
+    the evidence of who is likely wrong; "" where the log has no autopilot attitude."""
+    got = _monitor_of(result)
+    if got is None:
+        return ""
+    series, ref = got
+    lines = [f"second opinion vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
+    for e in series.events:
+        lines.append(f"  {e.t_ms / 1000.0:9.3f} s  {e.phase or '':9s} {e.text}")
+        if e.evidence is not None:
+            lines.append(f"  {'':21s}({e.evidence.text()})")
+    return "\n".join(lines)
+
+
+def plot_second_opinion(result: ReplayResult, path: str | Path) -> Path | None:
+    """The second-opinion monitor's chart beside the replay plot ``path`` (``NAME_second_opinion.png``): what
+    the daemon's monitor would have said on this flight against the log's autopilot attitude (None: the log
+    has none)."""
+    from mavahrs.evaluation.plots import plot_second_opinion as draw
+
+    got = _monitor_of(result)
+    if got is None:
+        return None
+    series, ref = got
+    p = Path(path)
+    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series, title=f"{Path(result.path).name} vs {ref}")
+
+
 # --------------------------------------------------------------------------- QGC streaming
 
 

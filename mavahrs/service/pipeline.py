@@ -63,8 +63,10 @@ from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
     FLAG_VELOCITY_AIDED,
+    IN_ACCEL,
     IN_CURRENT,
     IN_GYRO,
+    IN_MAG,
     IN_VEL,
     IN_VEL_AGE,
     IN_WIDTH,
@@ -168,6 +170,9 @@ class Outgoing(NamedTuple):
     frame: bytes
     to_master: bool
     to_outputs: bool
+
+
+_IMU_NAMES = ("IMU1", "IMU2", "IMU3", "IMU4")  # IMU instance → the name the monitor gives it
 
 
 @dataclass(frozen=True)
@@ -603,6 +608,8 @@ class Pipeline:
         self._next_out_t: int | None = None
         #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
         self._vel: tuple[float, float, float, int | None] | None = None
+        self._imu_fed: dict[int, int] = {}  # IMU samples seen per instance (the monitor gets one in 8)
+        self._monitor_fix: tuple[float, float, float] | None = None  # GNSS velocity (true N, E) and fix time, ms
         self._current_a = _NAN  # battery current (the compass's motor interference model), A
         self._current_us: int | None = None
         self._vel_written = True  # row's velocity columns hold NaN already
@@ -808,6 +815,11 @@ class Pipeline:
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
+        if self._monitor_on and not inv:  # every IMU's gyro, one sample in 8 (its mean is what counts), for
+            k = self._imu_fed.get(v[0], 0) + 1  # the monitor to name an IMU that is off
+            self._imu_fed[v[0]] = k
+            if not k & 7:
+                self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", v[1] / 1000.0, v[2:5])
         return self._filter_sample(name, v, now_us, True)
 
     def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
@@ -943,6 +955,9 @@ class Pipeline:
         frames = [Outgoing(frame, to_master, to_outputs)]
         if self._monitor_on:
             sigma = float(out[OUT_GAIN]) if int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED else math.nan
+            fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
+            self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist(),
+                                      fix, fix[2] if fix is not None else math.nan)  # fmt: skip
             for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma):
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
@@ -976,6 +991,9 @@ class Pipeline:
             fix, vn, ve, vd = got
             self._gnss_fix_us = now_us
             self._vel = (vn, ve, vd, fix.fix_time_us)
+            d = f.declination_rad if f is not None else 0.0  # back to true north, as our published attitude
+            fix_ms = fix.fix_time_us / 1000.0 if fix.fix_time_us is not None else math.nan  # (not datable: no verdict)
+            self._monitor_fix = (vn * math.cos(d) - ve * math.sin(d), vn * math.sin(d) + ve * math.cos(d), fix_ms)
             if fix.message != self._vel_meter_source:  # the rate shown is the source in use's
                 self._vel_meter.reset()
                 self._vel_meter_source = fix.message
@@ -1003,6 +1021,8 @@ class Pipeline:
         setter = getattr(self._filter, "set_mag_reference", None)
         if ref is not None and setter is not None:
             setter(ref[0], ref[1])
+        if ref is not None:
+            self._monitor.set_mag_reference(ref[0], ref[1])
         self._monitor.heading_valid = self._decl.known
 
     def _on_autopilot_attitude(self, msg: Any, now_us: int) -> list[Outgoing]:

@@ -397,3 +397,61 @@ def test_token_read_only_and_open_network_warning(tmp_path: Path) -> None:
         "can reach this address can read the vehicle's attitude and link state (the page is read-only); set "
         "--http-token (daemon.http_token) or bind to 127.0.0.1"
     ) in daemon.log
+
+
+_READ_STRIP = """
+const s = document.getElementById('strip');
+const marks = Array.from(document.querySelectorAll('#strip-warn line')).map((m) => Number(m.dataset.raised));
+return [Number(s.dataset.points), Number(s.dataset.warnings), Number(s.dataset.tiltMaxDeg),
+        document.getElementById('strip-tilt').getAttribute('points'),
+        document.getElementById('strip-tilt-thr').getAttribute('points'),
+        document.querySelectorAll('#strip-warn rect').length, marks,
+        document.getElementById('so-evidence').textContent, Number(s.dataset.spanS)];
+"""
+
+
+def test_page_strip_chart_shows_the_divergence_threshold_and_warning(tmp_path: Path) -> None:
+    """The simulated autopilot's attitude is 6° off in roll from 22 s: the strip chart draws the divergence
+    reaching it (read back from the polyline), the threshold under it, and the WARNING as a mark and a band."""
+    browser = _chrome()
+    port = _free_port()
+    daemon, url = _daemon(port, tmp_path)
+    sim = _sim(port, tmp_path, "--scenario", "hover", "--duration", "0", "--seed", "3",
+               "--attitude-fault", "22,1000,6")
+    try:
+        daemon.wait_for("using IMU")
+        browser.get(url)
+        deadline = time.monotonic() + 90
+        read = browser.execute_script(_READ_STRIP)
+        def last_tilt(r: list[Any]) -> float:  # the newest point drawn, deg
+            pts = (r[3] or "").split()
+            return (100.0 - float(pts[-1].split(",")[1])) / 96.0 * r[2] if pts else 0.0
+
+        # the warning, and the fault's full size drawn (the status, and so the chart, comes once a second)
+        while time.monotonic() < deadline and not (read[1] >= 1 and read[0] > 30 and last_tilt(read) > 5.0):
+            time.sleep(0.3)
+            read = browser.execute_script(_READ_STRIP)
+        status = json.loads(_get(url + "status.json")[1])
+        shot = tmp_path / "strip.png"
+        assert browser.save_screenshot(str(shot))
+    finally:
+        browser.quit()
+        sim.stop()
+        rc = daemon.stop()
+    assert rc == 0 and "Traceback" not in daemon.log, daemon.log
+    points, warnings, tilt_scale, tilt_pts, thr_pts, bands, marks, evidence, span_s = read
+    assert warnings >= 1 and 2 in marks and bands >= 1, read
+    # the drawn tilt: y = 100 − |tilt| / scale · 96 (viewBox units): its peak is the fault, its start ~0
+    ys = [float(p.split(",")[1]) for p in tilt_pts.split()]
+    drawn = [(100.0 - y) / 96.0 * tilt_scale for y in ys]
+    assert len(drawn) >= 30 and drawn[-1] == pytest.approx(6.0, abs=1.0), drawn  # now: the fault
+    assert min(drawn) < 1.0, drawn  # before it (after our filter converged)
+    thr = [(100.0 - float(p.split(",")[1])) / 96.0 * tilt_scale for p in thr_pts.split()]
+    assert len(thr) >= 30 and 0.9 <= min(thr) and max(thr[-10:]) < 4.0, thr  # ≥ its 1° floor, narrow once aided
+    assert evidence.startswith("likely: "), evidence
+    so = status["status"]["second_opinion"]
+    strip = so["strip"]
+    assert set(strip) >= {"t_s", "tilt_deg", "heading_deg", "tilt_threshold_deg", "warning", "raised"}
+    assert 2 in strip["raised"] and so["warning"] and so["evidence"] is not None
+    assert strip["tilt_deg"][-1] == pytest.approx(6.0, abs=1.0) and strip["warning"][-1]
+    assert _pixels(shot, (85, 35, 31)) > 0.001, "no warning band drawn"  # the red band (35 %) over the chart
