@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mavahrs.cli import main
+from mavahrs.cli import console_main
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    console_main()

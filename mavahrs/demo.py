@@ -438,6 +438,7 @@ def run_demo(
 
     out(f"mavahrs demo: a simulated ArduPilot flies '{settings.scenario}' for {settings.duration_s:g} s; "
         f"mavahrs estimates its attitude with the '{settings.filter_name}' filter.")
+    out("loading the filter …")  # seconds even on a warm cache on a busy machine: not a silent wait
     t_prep = time.monotonic()
     _warm_up(pipeline_settings)  # a cold cache compiles here (the command line says so: cli.common.COMPILE_NOTICE)
     if time.monotonic() - t_prep > 3.0:
@@ -544,6 +545,11 @@ def run_demo(
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        if status_shown and tty:
+            out("\r\033[K")
+            status_shown = False
+        out("flight over: stopping the simulator and the daemon, scoring against the truth"
+            + (" and drawing the plot" if settings.plot else "") + " …")
         _stop_process(sim)
         daemon.stop()
         thread.join(15.0)

@@ -1,9 +1,10 @@
 r"""Compile every filter kernel ahead of time (``mavahrs warm-up``), so nothing compiles in the air.
 
 numba compiles the kernels on their first use and caches the machine code on
-disk (``mavahrs/filters/__pycache__``, or ``NUMBA_CACHE_DIR`` when set, e.g.
-the systemd unit's ``/var/cache/mavahrs``); a cold compile takes 20–30 s on a
-PC and longer on a Raspberry Pi.  :func:`warm_up` runs every path a command
+disk (the user's cache folder ``~/.cache/mavahrs/kernels``, or
+``NUMBA_CACHE_DIR`` when set, e.g. the systemd unit's ``/var/cache/mavahrs``);
+a full cold compile measured 40 s to 6 min on a 2-core PC (idle to heavily
+loaded) and takes longer on a Raspberry Pi.  :func:`warm_up` runs every path a command
 takes through compiled code once, on a short synthetic recording:
 
 * the daemon's path for each filter (``mavahrs run``, ``demo``): the

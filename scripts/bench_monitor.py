@@ -129,6 +129,16 @@ def airborne(path: Path) -> tuple[float, float, dict]:
     return (air[0], air[-1], judge) if air else (math.nan, math.nan, judge)
 
 
+def ap_error(judge: dict, t_s: float) -> tuple[float, float]:
+    """The autopilot's largest tilt and heading error against the truth over the 2 s before ``t_s``, deg."""
+    if not judge:
+        return math.nan, math.nan
+    m = (judge["t_s"] > t_s - 2.0) & (judge["t_s"] <= t_s)
+    if not m.any():
+        return math.nan, math.nan
+    return float(np.nanmax(judge["tilt"][m])), float(np.nanmax(judge["hdg"][m]))
+
+
 def ap_good(judge: dict, t_s: float) -> bool:
     """The autopilot within 1° tilt and 3° heading of the truth around ``t_s`` (the last 2 s)."""
     if not judge:
@@ -150,10 +160,11 @@ def main() -> int:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_monitor_") as td:
         tmp = Path(td)
-        flights = shared_flights() + (sim_flights(tmp, args.sim) if args.sim and not want else [])
+        flights = (sim_flights(tmp, args.sim) if args.sim and not want else []) + shared_flights()
         flights = [f for f in flights if not want or any(w in f.name for w in want)]
         lat: dict[str, dict[str, str]] = {}
         clean_rows = []
+        why: list[str] = []
         hours = 0.0
         for path in flights:
             a0, a1, judge = airborne(path)
@@ -168,6 +179,14 @@ def main() -> int:
                 times = [float(x) for x in r.alarm_times_s.split(";") if x]
                 false = sum(ap_good(judge, t) for t in times) if judge else math.nan
                 rows[label] = (len(times), r.ground_alarms, false, r.alarm_times_s, r.ground_alarm_times_s)
+                if label == "new":
+                    causes = r.alarm_causes.split(";") if r.alarm_causes else [""] * len(times)
+                    for t, c in zip(times, causes, strict=False):
+                        et, eh = ap_error(judge, t)
+                        verdict = ("FALSE: the autopilot within 1°/3° of the truth" if ap_good(judge, t) else
+                                   "correct: the autopilot beyond 1° tilt or 3° heading" if math.isfinite(et) else
+                                   "(no truth)")
+                        why.append(f"| {name} | {t:.1f} | {et:.2f} | {eh:.2f} | {c or '–'} | {verdict} |")
             clean_rows.append((name, a1 - a0, rows))
             onset = 100.0 if a0 + 5.0 <= 100.0 <= a1 - 20.0 else 0.5 * (a0 + a1)
             lat[name] = {}
@@ -178,11 +197,13 @@ def main() -> int:
                                                          tilt_azimuth_deg=f.azimuth, heading_deg=f.heading)])
                 r = audit(copy, MonitorSettings())
                 copy.unlink()
-                after = [float(x) - onset for x in r.alarm_times_s.split(";") if x and float(x) >= onset]
-                ok_after = [d for d in after if onset + d <= a1]
+                causes = r.alarm_causes.split(";") if r.alarm_causes else []
+                after = [(float(x) - onset, causes[k] if k < len(causes) else "")
+                         for k, x in enumerate(r.alarm_times_s.split(";")) if x and float(x) >= onset]  # fmt: skip
+                ok_after = [d for d in after if onset + d[0] <= a1]
                 if ok_after:
-                    d = ok_after[0]
-                    cell = f"{d:.1f}"
+                    d, cause = ok_after[0]
+                    cell = f"{d:.1f}" + (f" {cause}" if cause else "")
                     if f.shape == "ramp":
                         cell += f" ({min(d / f.ramp_s, 1.0) * f.tilt:.1f}°)"
                 else:
@@ -211,6 +232,12 @@ def main() -> int:
             f_txt = "?" if not math.isfinite(false) else f"{false:.0f}"
             cells.append(f"{n} ({f_txt}) / {g}" + (f" [{at}]" if at else "") + (f" [{gt}]" if gt else ""))
         print(f"| {name} | {air_s:.0f} | " + " | ".join(cells) + " |")
+    if why:
+        print("\n# each in-flight WARNING on the flights as recorded: the autopilot's largest error against the "
+              "truth over the 2 s before it, and who the evidence names\n")
+        print("| flight | boot s | AP tilt err ° | AP heading err ° | evidence | verdict |")
+        print("|---|---|---|---|---|---|")
+        print("\n".join(why))
     if hours > 0:
         print(f"\nfalse in-flight WARNINGs per flight-hour airborne ({hours * 60:.1f} min): default "
               f"{tot['new'] / hours:.2f}, fixed {tot['fixed'] / hours:.2f}")

@@ -25,7 +25,7 @@ scaling, IMU selection, timeline and calibration, one
 :class:`~mavahrs.service.pipeline.Pipeline` per filter with the daemon's
 defaults (GNSS velocity used when it arrives), output at every sample.  The
 ``fast`` engine (the default, ``auto``) mirrors the pipeline and is tested
-bit-identical to it (``tests/evaluation/test_replay_engines.py``);
+bit-identical to it (``tests/replay/test_engine.py``);
 ``--engine pipeline`` feeds every message through the pipeline itself.
 
 The magnetic declination is 0 in the simulator and in the pipeline

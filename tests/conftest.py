@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,34 +18,59 @@ DATA = SHARED / "data"
 
 
 #: Tests that stream in real time between processes (simulator, daemon, MAVProxy, a relay) over
-#: sockets or ptys.  With pytest-xdist (``--dist loadgroup``, see pyproject.toml) they form one
-#: group and so run one at a time, never two flights sharing the machine's two cores; every other
-#: test file is a group of its own, so its module fixtures are computed once.
+#: sockets or ptys, the files that take longest first (measured with ``--durations``).  They spend
+#: most of their time waiting for a flight, so they are started first, one file per test process
+#: (``-n 2``: at most two at a time), and the CPU-bound files fill the time around them.  One unit
+#: for all of them would have run ~20 minutes of flights one after the other on a loaded machine.
 LIVE_TESTS = (
-    "tests/e2e/",
-    "tests/reliability/",
-    "tests/cli/test_cli_demo.py",
-    "tests/cli/test_cli_doctor.py",
-    "tests/cli/test_cli_replay.py",
-    "tests/cli/test_cli_run.py",
-    "tests/evaluation/test_replay_engines.py",
-    "tests/firmware_sim/test_sim_cli.py",
     "tests/fleet/",
-    "tests/firmware_sim/test_sim_live.py",
-    "tests/service/test_daemon_e2e.py",
-    "tests/service/test_daemon_loop.py",
+    "tests/reliability/",
+    "tests/cli/test_cli_replay.py",
     "tests/service/test_http_live.py",
+    "tests/cli/test_cli_demo.py",
+    "tests/service/test_daemon_e2e.py",
+    "tests/e2e/",
+    "tests/cli/test_cli_run.py",
+    "tests/replay/test_engine.py",
+    "tests/service/test_daemon_loop.py",
+    "tests/cli/test_cli_doctor.py",
+    "tests/firmware_sim/test_sim_live.py",
+    "tests/firmware_sim/test_sim_cli.py",
 )
+
+
+def _live_rank(nodeid: str) -> int:
+    """Position of a test's file in :data:`LIVE_TESTS` (``len(LIVE_TESTS)`` for the others)."""
+    path = nodeid.split("::", 1)[0]
+    return next((i for i, prefix in enumerate(LIVE_TESTS) if path.startswith(prefix)), len(LIVE_TESTS))
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        try:
-            rel = Path(item.path).resolve().relative_to(REPO).as_posix()
-        except ValueError:
-            continue
-        item.add_marker(pytest.mark.xdist_group("live" if rel.startswith(LIVE_TESTS) else rel))
+    """The live files first, longest first; then the rest in their usual order (a stable sort)."""
+    items.sort(key=lambda item: _live_rank(item.nodeid))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """``--dist loadgroup``: each test file is a unit of work (its module fixtures computed once), handed
+    out in collection order (the live files first), whatever the pytest version.
+
+    xdist's own ``loadgroup`` reads ``xdist_group`` marks by renaming each test's node id (``…@group``),
+    which pytest ≥ 9 no longer lets it do (node ids became structured): every test would be a unit of
+    its own, and a module fixture computed in both workers.
+    """
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    config.option.loadscopereorder = False  # keep the order above (xdist would sort the units by size)
+
+    class _Files(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            return nodeid.split("::", 1)[0]
+
+    return _Files(config, log)
 
 
 #: Skip reasons of tests whose dependency ``.ci/run`` installs (the extras test, plot, bench, fleet,
@@ -192,6 +218,37 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     why_not = _enter_loopback_only_network()
     if why_not is not None:
         _loopback_ns["skip"] = why_not
+    _warm_up_kernels(session.config)
+
+
+def _warm_up_kernels(config: pytest.Config) -> None:
+    """``mavahrs warm-up`` once, before the test processes start, when the suite runs on several of them.
+
+    On a cold numba cache (a fresh clone, an edited filter) each worker would otherwise compile the same
+    kernels at the same time, and so would the daemons and replays the live tests start — inside their
+    deadlines, on a machine already busy compiling.  Compiled once here (about a minute on a cold cache,
+    a few seconds to load a warm one), every later process loads them from the cache (``NUMBA_CACHE_DIR``
+    or ``mavahrs/filters/__pycache__``, as the tests' own processes use).  Runs in the controlling
+    process only (not in xdist's workers); ``MAVAHRS_TESTS_WARM_UP=1`` also for ``-n 0``, ``=0`` never.
+    """
+    import subprocess
+
+    wanted = os.environ.get("MAVAHRS_TESTS_WARM_UP")
+    if wanted == "0" or hasattr(config, "workerinput"):
+        return
+    workers = config.getoption("numprocesses", default=None) if config.pluginmanager.has_plugin("xdist") else None
+    if wanted != "1" and not workers:
+        return
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    try:
+        done = subprocess.run([sys.executable, "-m", "mavahrs", "warm-up"], env=env, cwd=REPO, timeout=1800,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    except (OSError, subprocess.TimeoutExpired) as exc:  # the tests that need the kernels will say more
+        sys.stderr.write(f"tests/conftest.py: mavahrs warm-up failed before the tests: {exc}\n")
+        return
+    if done.returncode != 0:
+        sys.stderr.write(f"tests/conftest.py: mavahrs warm-up exited {done.returncode}:\n{done.stdout[-3000:]}\n")
 
 
 def pytest_runtest_logstart(nodeid: str, location: tuple[str, int | None, str]) -> None:
@@ -314,3 +371,135 @@ def sim_temperature_tlog(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path
         imu_changes={"gyro_temp_coeff_rad_s_per_c": TEMPCO_RAD_S_PER_C},
     )  # fmt: skip
     return path, TEMPCO_RAD_S_PER_C
+
+
+# --------------------------------------------------------------------------- DataFlash logs written here
+
+#: DataFlash format character → struct code (ArduPilot's LogStructure.h; pymavlink's DFReader.FORMAT_TO_STRUCT)
+_DF_STRUCT = {"a": "32h", "b": "b", "B": "B", "h": "h", "H": "H", "i": "i", "I": "I", "f": "f", "d": "d",
+              "n": "4s", "N": "16s", "Z": "64s", "c": "h", "C": "H", "e": "i", "E": "I", "L": "i", "M": "B",
+              "q": "q", "Q": "Q"}  # fmt: skip
+#: ArduPilot 4.5's formats of the messages the DataFlash reader takes (names and format characters as logged)
+DF_FORMATS = {
+    "IMU": (129, "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
+    "MAG": (130, "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"),
+    "PARM": (131, "QNff", "TimeUS,Name,Value,Default"),
+    "SIM": (132, "QccCfLLffff", "TimeUS,Roll,Pitch,Yaw,Alt,Lat,Lng,Q1,Q2,Q3,Q4"),
+    "XKQ": (133, "QBffff", "TimeUS,C,Q1,Q2,Q3,Q4"),
+    "BAT": (134, "QBfffffcfBBB", "TimeUS,Inst,Volt,VoltR,Curr,CurrTot,EnrgTot,Temp,Res,RemPct,H,SH"),
+    "VIBE": (135, "QBfffI", "TimeUS,IMU,VibeX,VibeY,VibeZ,Clip"),
+}
+
+
+class DataflashWriter:
+    """DataFlash records as ArduPilot writes them: ``A3 95 type payload``, each type announced by a FMT."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.types: dict[str, tuple[int, str]] = {}
+        self.fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
+
+    def fmt(self, type_id: int, name: str, fmt: str, cols: str) -> None:
+        import struct
+
+        length = 3 + struct.calcsize("<" + "".join(_DF_STRUCT.get(c, "B") for c in fmt))
+        self.buf += b"\xa3\x95\x80" + struct.pack("<BB4s16s64s", type_id, length, name.encode(), fmt.encode(),
+                                                  cols.encode())  # fmt: skip
+        self.types[name] = (type_id, fmt)
+
+    def rec(self, name: str, *values: object) -> None:
+        import struct
+
+        type_id, fmt = self.types[name]
+        self.buf += b"\xa3\x95" + bytes([type_id]) + struct.pack("<" + "".join(_DF_STRUCT[c] for c in fmt), *values)
+
+
+def synthetic_flight(duration_s: float = 20.0, rate_hz: float = 400.0) -> dict[str, np.ndarray]:
+    """A rotating, tilting vehicle at the IMU rate: body rates, true q_body_to_ned, specific force, field.
+
+    The attitude is the exact integral of the body rates, so the IMU and the truth agree to float precision.
+    """
+    from mavahrs.geometry import quaternion as quat
+
+    n = int(duration_s * rate_hz)
+    t = np.arange(n) / rate_hz
+    w = 2.0 * math.pi / 6.0
+    gyro = np.stack([0.4 * np.sin(w * t), 0.3 * np.cos(1.3 * w * t), np.full(n, 0.15)], axis=1)
+    gyro[t < 3.0] = 0.0  # at rest for the first 3 s (the filters start from the accelerometer and compass)
+    q = np.empty((n, 4))
+    q[0] = (1.0, 0.0, 0.0, 0.0)
+    for k in range(1, n):
+        q[k] = quat.normalize(quat.multiply(q[k - 1], quat.from_rotation_vector(gyro[k - 1] / rate_hz)))
+    qc = quat.conjugate(q)
+    accel = quat.rotate(qc, np.tile([0.0, 0.0, -9.80665], (n, 1)))
+    mag_ut = quat.rotate(qc, np.tile([22.0, 0.0, 42.0], (n, 1)))  # no declination: magnetic north = true north
+    return {"t_s": t, "gyro_rad_s": gyro, "accel_m_s2": accel, "mag_ut": mag_ut, "q_body_to_ned": q}
+
+
+def write_dataflash(
+    path: Path,
+    *,
+    duration_s: float = 20.0,
+    t0_us: int = 5_000_000,
+    imus: int = 2,
+    params: dict[str, float] | None = None,
+    extra: Callable[[DataflashWriter], None] | None = None,
+    gyro_noise_rad_s: float = 0.0,
+) -> tuple[Path, dict[str, np.ndarray]]:
+    """A 400 Hz ArduCopter-like DataFlash log of :func:`synthetic_flight`: IMU ×``imus``, MAG 10 Hz,
+    SIM truth and XKQ at 25 Hz (XKQ = the truth), BAT/VIBE at 10 Hz, PARM first; ``extra`` may add records
+    before the flight's (a newer firmware's messages); ``gyro_noise_rad_s``: white noise (SD, seeded) on the
+    logged gyro. Returns the path and the flight (with ``TimeUS``)."""
+    from mavahrs.geometry.rotation import to_euler_rad
+
+    fl = synthetic_flight(duration_s)
+    tus = t0_us + np.round(fl["t_s"] * 1e6).astype(np.int64)
+    fl["TimeUS"] = tus
+    if gyro_noise_rad_s:
+        fl["gyro_rad_s"] = fl["gyro_rad_s"] + np.random.default_rng(5).normal(0.0, gyro_noise_rad_s, (tus.size, 3))
+    w = DataflashWriter()
+    for name, (tid, fmt, cols) in DF_FORMATS.items():
+        w.fmt(tid, name, fmt, cols)
+    if extra is not None:
+        extra(w)
+    p = {"INS_GYRO_FILTER": 20.0, "SCHED_LOOP_RATE": 400.0, "COMPASS_DEC": 0.0, "AHRS_EKF_TYPE": 3.0}
+    p.update(params or {})
+    for k, v in p.items():
+        w.rec("PARM", int(t0_us - 1000), k.encode(), float(v), float(v))
+    eul = np.degrees(to_euler_rad(fl["q_body_to_ned"]))
+    for k in range(tus.shape[0]):
+        t = int(tus[k])
+        g, a = fl["gyro_rad_s"][k], fl["accel_m_s2"][k]
+        for i in range(imus):
+            w.rec("IMU", t + 20 * i, i, *g.tolist(), *a.tolist(), 0, 0, 25.0, 1, 1, 400, 400)
+        if k % 40 == 0:
+            m = np.round(fl["mag_ut"][k] * 10.0).astype(int).tolist()
+            w.rec("MAG", t + 50, 0, *m, 0, 0, 0, 0, 0, 0, 1, t + 50)
+            w.rec("BAT", t + 60, 0, 16.0 - 1e-5 * k, 16.0, 12.5, 0.0, 0.0, 2500, 0.01, 90, 1, 0)
+            w.rec("VIBE", t + 70, 0, 3.0, 3.5, 4.0, 0)
+        if k % 16 == 0:
+            qk = fl["q_body_to_ned"][k]
+            r, pch, y = eul[k]
+            w.rec("SIM", t, int(round(r * 100)), int(round(pch * 100)), int(round((y % 360.0) * 100)),
+                  100.0, 0, 0, *qk.tolist())  # fmt: skip
+            w.rec("XKQ", t + 10, 0, *qk.tolist())
+    path.write_bytes(bytes(w.buf))
+    return path, fl
+
+
+@pytest.fixture(scope="session")
+def dataflash_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, np.ndarray]]:
+    """20 s of :func:`write_dataflash`'s synthetic 400 Hz flight, two IMUs (session-wide, written once)."""
+    return write_dataflash(tmp_path_factory.mktemp("df") / "synthetic.BIN")
+
+
+@pytest.fixture
+def write_df() -> Callable[..., tuple[Path, dict[str, np.ndarray]]]:
+    """:func:`write_dataflash`, for tests that write a DataFlash log of their own."""
+    return write_dataflash
+
+
+@pytest.fixture
+def df_writer() -> type[DataflashWriter]:
+    """:class:`DataflashWriter`, for hand-built DataFlash bytes."""
+    return DataflashWriter

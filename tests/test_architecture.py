@@ -25,6 +25,7 @@ RANK = {
     "sensors": 3,
     "protocol": 4,
     "transports": 5,
+    "ingest": 5,
     "config": 6,
     "service": 6,
     "evaluation": 6,
@@ -105,3 +106,48 @@ def test_firmware_sim_depends_only_on_lower_layers() -> None:
                 assert target in {"geometry", "protocol", "transports", "errors", "filters"}, (
                     f"{path} imports {name}: the simulator may use geometry, protocol and transports only"
                 )
+
+
+# --------------------------------------------------------------------------- the layout users find their way by
+
+#: the room for each job, from the folder names alone (README "Where each step lives")
+LAYOUT = {
+    "read a new log format": "mavahrs/logs",
+    "change how gaps are handled (the sample chain over arrays)": "mavahrs/ingest",
+    "replay a log through the filters": "mavahrs/replay",
+    "score against a kind of truth": "mavahrs/evaluation",
+    "a fleet's logs": "mavahrs/fleet",
+}
+
+
+def test_each_job_has_its_room() -> None:
+    for job, room in LAYOUT.items():
+        assert (REPO / room / "__init__.py").is_file(), f"{job}: expected the package {room}"
+    assert not (PKG / "replay.py").exists(), "the replay engine lives in mavahrs/replay/, not a module beside it"
+    assert (PKG / "replay" / "engine.py").is_file()
+
+
+def test_every_log_reader_is_a_module_of_logs_with_one_entry_point() -> None:
+    """``mavahrs.logs`` dispatches by content to one ``read_<format>`` per reader module; none of them reaches
+    up into replay, fleet or the command line."""
+    import mavahrs.logs as logs
+
+    readers = {p.stem for p in (PKG / "logs").glob("*.py") if p.stem != "__init__"}
+    assert readers == {"dataflash", "ulog"}
+    assert set(logs.FORMATS) == {"tlog", "dataflash", "ulog"}
+    for stem in readers:
+        src = (PKG / "logs" / f"{stem}.py").read_text(encoding="utf-8")
+        assert f"def read_{stem}(" in src, f"mavahrs/logs/{stem}.py: its entry point read_{stem}()"
+        for name in _imports(PKG / "logs" / f"{stem}.py"):
+            # nor into evaluation: the sample chain they share is mavahrs.ingest (evaluation reads the logs)
+            assert not name.startswith(("mavahrs.replay", "mavahrs.fleet", "mavahrs.cli", "mavahrs.evaluation")), (
+                stem,
+                name,
+            )
+
+
+def test_evaluation_does_not_hold_or_import_the_replay_engine() -> None:
+    for path in (PKG / "evaluation").rglob("*.py"):
+        assert path.stem != "replay", path
+        for name in _imports(path):
+            assert not name.startswith("mavahrs.replay"), f"{path} imports {name}: evaluation reads replay's outputs"

@@ -22,7 +22,7 @@ from typing import Any
 
 from mavahrs.cli import common
 
-__all__ = ["main", "build_parser", "SUBCOMMANDS"]
+__all__ = ["main", "console_main", "build_parser", "SUBCOMMANDS"]
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMANDS: tuple[str, ...] = (
@@ -122,3 +122,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     finally:
         common.stop_announcing()
+
+
+def console_main() -> None:
+    """The ``mavahrs`` command (and ``python -m mavahrs``): :func:`main`, then an orderly exit.
+
+    A Ctrl-C after ``main`` returned — while the interpreter shuts down: Dask's and numba's exit
+    handlers, threads being joined — raised a KeyboardInterrupt nobody caught, and the process
+    ended by the signal (exit −2 in a shell's terms) without a word, after the command had
+    already written everything.  From here on a Ctrl-C says so and exits with 130 at once.
+    """
+    import os
+    import signal
+
+    code = main()
+
+    def at_shutdown(_signum: int, _frame: Any) -> None:
+        try:
+            sys.stdout.flush()
+            import time
+
+            now = time.time()
+            stamp = time.strftime("%H:%M:%S", time.localtime(now)) + f".{int(now * 1000) % 1000:03d}"
+            # the log's own format (logging itself may be shut down by now)
+            sys.stderr.write(f"{stamp} ERROR interrupted while shutting down (everything was written before)\n")
+            sys.stderr.flush()
+        finally:
+            os._exit(common.EXIT_INTERRUPTED)
+
+    try:
+        signal.signal(signal.SIGINT, at_shutdown)
+    except ValueError:  # not the main thread (embedded): nothing to do
+        pass
+    sys.exit(code)

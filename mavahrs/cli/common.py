@@ -88,11 +88,11 @@ def fail(message: str, code: int = EXIT_FAILURE) -> int:
 def report_errors(command: str, run: Any, args: argparse.Namespace) -> int:
     """``run(args)`` with its errors as one line and the documented exit code.
 
-    ConfigError and ValueError (bad options, settings) → 2; DataError, any
-    other MavahrsError and OSError (unreadable input, missing file) → 1; a
+    ConfigError and ValueError (bad options, settings) → 2; TransportError (a link or a
+    scheduler that cannot be reached) → 3; DataError, any other MavahrsError and OSError (unreadable input, missing file) → 1; a
     broken pipe (``mavahrs … | head``) is left to ``main``, which exits quietly.
     """
-    from mavahrs.errors import ConfigError, MavahrsError
+    from mavahrs.errors import ConfigError, MavahrsError, TransportError
 
     try:
         return int(run(args))
@@ -100,6 +100,8 @@ def report_errors(command: str, run: Any, args: argparse.Namespace) -> int:
         raise
     except ConfigError as exc:
         return fail(f"{command}: {exc}", EXIT_USAGE)
+    except TransportError as exc:  # a link or server that cannot be reached: the documented connection code
+        return fail(f"{command}: {exc}", EXIT_CONNECTION)
     except MavahrsError as exc:
         return fail(f"{command}: {exc}", EXIT_FAILURE)
     except OSError as exc:  # the file and the reason, not Python's "[Errno 2] …" form
@@ -143,8 +145,9 @@ def start_kernels() -> None:
 
 #: printed once, just before the first compilation of the filter kernels in a process (a cold cache)
 COMPILE_NOTICE = (
-    "preparing the filters: compiling them once for this machine "
-    "(about 20–30 s; later runs start at once; `mavahrs warm-up` does it ahead of time) …"
+    "preparing the filters: compiling what this command needs, once for this machine and version "
+    "(measured 15–45 s on an idle 2-core PC, minutes on a busy or slow one; kept in the user's cache "
+    "folder, also across reinstalls; `mavahrs warm-up` compiles everything ahead of time) …"
 )
 
 
@@ -164,13 +167,24 @@ def announce_compiles() -> None:
     def announce(_kernel: str) -> None:
         logging.getLogger(_LOGGER_NAME).info("%s", COMPILE_NOTICE)
 
-    _ANNOUNCER.append(on_first_compile(announce))
+    import time
+
+    _ANNOUNCER.append(on_first_compile(announce, clock=time.monotonic))
 
 
 def stop_announcing() -> None:
-    """Undo :func:`announce_compiles` (no-op when it was not called)."""
+    """Undo :func:`announce_compiles` (no-op when it was not called); after a compilation, say how long it took
+    and where the kernels are kept (the notice's figure is a range; this one is measured)."""
     while _ANNOUNCER:
-        _ANNOUNCER.pop()()
+        remove = _ANNOUNCER.pop()
+        took = getattr(remove, "compiled_s", lambda: None)()
+        remove()
+        if took is not None:
+            from mavahrs.filters.jit import cache_location
+
+            logging.getLogger(_LOGGER_NAME).info(
+                "compiling the filters took %.0f s; kept in %s, later runs load them at once", took, cache_location()
+            )
 
 
 _ANNOUNCER: list[Any] = []

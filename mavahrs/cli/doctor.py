@@ -72,6 +72,13 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_OK if report.autopilot is not None else EXIT_CONNECTION
 
 
+def _say(message: str) -> None:
+    """A progress line on standard error (the log's format), while the report itself goes to standard output."""
+    import logging
+
+    logging.getLogger("mavahrs").info("%s", message)
+
+
 def probe(master: str, baud: int, duration_s: float, settings: Any) -> tuple[Any, Any]:
     """Listen on ``master`` for ``duration_s``, asking for the IMU stream; returns (observer, link facts)."""
     from mavahrs.protocol.codec import MavCodec, mavlink
@@ -81,6 +88,9 @@ def probe(master: str, baud: int, duration_s: float, settings: Any) -> tuple[Any
 
     endpoint = parse_connection_string(master, baud)
     link = open_transport(endpoint)
+    _say(f"doctor: listening on {link.describe()} for {duration_s:g} s"
+         + (f", asking for the IMU stream at {settings.rate_hz:g} Hz once the autopilot is found" if settings.request_streams
+            else " (not asking for streams)") + " …")  # fmt: skip
     rx = MavCodec()
     tx = MavCodec(system_id=1, component_id=_COMPONENT)
     decode = rx.receive_datagram if link.datagram else rx.receive_stream
@@ -92,6 +102,7 @@ def probe(master: str, baud: int, duration_s: float, settings: Any) -> tuple[Any
     next_version_us = 0
     next_hb_us = 0
     start = time.monotonic()
+    next_wait_s = 3.0
     heartbeat = tx.mav.heartbeat_encode(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                                         mavlink.MAV_STATE_ACTIVE)  # fmt: skip
 
@@ -105,6 +116,10 @@ def probe(master: str, baud: int, duration_s: float, settings: Any) -> tuple[Any
             now_s = time.monotonic()
             if now_s - start >= duration_s:
                 break
+            if target is None and now_s - start >= next_wait_s:  # still nothing: say so, not a silent wait
+                _say(f"doctor: no autopilot HEARTBEAT yet after {now_s - start:.0f} s "
+                     f"({link.counters.bytes_in} bytes received) …")  # fmt: skip
+                next_wait_s += 3.0
             now_us = int(now_s * 1e6)
             if now_us >= next_hb_us:  # lets udpout/tcp peers learn where we are; harmless otherwise
                 link.write(tx.encode(heartbeat))
@@ -118,6 +133,8 @@ def probe(master: str, baud: int, duration_s: float, settings: Any) -> tuple[Any
                 if target is None and obs.autopilot is not None:
                     target = obs.autopilot
                     tx.system_id = target[0]
+                    _say(f"doctor: autopilot found after {time.monotonic() - start:.1f} s: system {target[0]}, "
+                         f"component {target[1]}; measuring until {duration_s:g} s …")  # fmt: skip
                     if settings.request_streams:
                         name = "HIGHRES_IMU" if int(obs.heartbeat.autopilot) == mavlink.MAV_AUTOPILOT_PX4 else "RAW_IMU"
                         requester.want(name, getattr(mavlink, f"MAVLINK_MSG_ID_{name}"), settings.rate_hz)

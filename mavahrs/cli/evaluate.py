@@ -9,7 +9,7 @@ from typing import Any
 
 __all__ = ["register", "run"]
 
-HELP = "score filters against ground truth (BROAD .mat, RepoIMU/CSV, tlog with SIMSTATE or HIL_STATE_QUATERNION truth)"
+HELP = "score filters against ground truth (BROAD .mat, RepoIMU/CSV, simulator logs: .tlog, DataFlash .BIN, ULog .ulg)"
 
 DESCRIPTION = """\
 Run filters over recordings with a reference attitude and print the papers'
@@ -19,7 +19,9 @@ scored samples, RMS of roll, pitch and yaw at rest (< 5 deg/s) and in motion
 (Ermakov & Gogolev 2022 Table 2).  All figures in degrees.
 
 INPUT is a BROAD .mat trial, a RepoIMU T-stick CSV, a CSV with the columns
-documented in docs/evaluation.md, a tlog with SIMSTATE (or HIL_STATE_QUATERNION) truth, or a folder of
+documented in docs/evaluation.md, a simulator's flight log with its truth (chosen
+by content: a tlog with SIMSTATE or HIL_STATE_QUATERNION, an ArduPilot DataFlash
+.BIN with SIM, a PX4 ULog .ulg with vehicle_attitude_groundtruth), or a folder of
 them (the mean over recordings is BROAD's plain mean of per-trial figures).
 
 --study runs one of the papers' studies on INPUT instead, prints its table and,
@@ -40,13 +42,13 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "evaluate", help=HELP, description=DESCRIPTION, formatter_class=LazyDefaultsFormatter
     )
-    p.add_argument("input", metavar="INPUT", help=".mat, .csv, .tlog file or a folder of them")
+    p.add_argument("input", metavar="INPUT", help=".mat, .csv, .tlog, .BIN, .ulg file or a folder of them")
     p.add_argument(
         "--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
         help="filter to run (repeatable, or comma-separated): {filters}, or all (default: best; studies: their own defaults)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of tables")
-    add_velocity_source_option(p, default_text="auto; tlogs only")
+    add_velocity_source_option(p, default_text="auto; flight logs only")
     p.add_argument("--no-mag", action="store_true", help="6-axis: do not give the filters the magnetometer")
     p.add_argument(
         "--align", default="auto", choices=("auto", "none", "heading", "heading+body"),
@@ -55,7 +57,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "(default: auto)",
     )  # fmt: skip
     p.add_argument("--skip", type=float, default=0.0, metavar="S",
-                   help="RepoIMU / tlog: do not score the first S seconds (convergence), s (default 0)")
+                   help="RepoIMU / flight logs: do not score the first S seconds (convergence), s (default 0)")
     p.add_argument("--per-recording", action="store_true", help="print every recording's table, not only the mean")
     p.add_argument("--study", choices=("beta", "rate", "bias", "compare"), help="run a study instead (see above)")
     p.add_argument("--decimation", default="average", choices=("average", "pick"),
@@ -68,19 +70,15 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _error(msg: str, code: int) -> int:
-    print(f"mavahrs evaluate: error: {msg}", file=sys.stderr)
-    return code
+    from mavahrs.cli.common import fail
+
+    return fail(f"evaluate: {msg}", code)  # one log line, as every command's errors
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.errors import DataError, MavahrsError
+    from mavahrs.cli.common import report_errors
 
-    try:
-        return _run(args)
-    except (DataError, MavahrsError, OSError) as exc:
-        return _error(str(exc), 1)
-    except ValueError as exc:  # a bad option value (unknown filter name, …)
-        return _error(str(exc), 2)
+    return report_errors("evaluate", _run, args)  # DataError, OSError → 1; ValueError (a bad option) → 2
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -107,8 +105,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.plot:
         _plot_first(args, recordings[0], filters)
     if not any(r.scores for r in report.recordings):
-        print("mavahrs evaluate: nothing was scored (no reference attitude in the input)", file=sys.stderr)
-        return 1
+        return _error("nothing was scored (no reference attitude in the input; see the notes above)", 1)
     return 0
 
 

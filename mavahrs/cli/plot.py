@@ -11,8 +11,9 @@ __all__ = ["register", "run"]
 HELP = "plot truth/estimate/error per angle with gain and rejection state (needs matplotlib)"
 
 DESCRIPTION = """\
-INPUT is a tlog (replayed first, compared with SIMSTATE truth or the
-autopilot's ATTITUDE), a recording with ground truth (BROAD .mat, RepoIMU or
+INPUT is a flight log, recognised by its content: a tlog, an ArduPilot
+DataFlash .BIN or a PX4 ULog .ulg (replayed first, compared with the
+simulator's truth or the autopilot's attitude), a recording with ground truth (BROAD .mat, RepoIMU or
 documented CSV: the filters run over it), or a CSV written by `mavahrs replay
 --csv` (drawn as it is).  Per angle: reference, estimates and error; underneath,
 each filter's gain and accelerometer/magnetometer trust (0 = rejected)."""
@@ -24,7 +25,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "plot", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("input", metavar="INPUT", help=".tlog, .mat, .csv (recording or replay CSV)")
+    p.add_argument("input", metavar="INPUT", help=".tlog, .BIN, .ulg, .mat, .csv (recording or replay CSV)")
     p.add_argument("--output", "-o", metavar="PNG", required=True, help="image to write")
     p.add_argument("--filter", "-f", dest="filters", action=FilterNames, metavar="NAME",
                    help="filter(s) to run (repeatable or comma-separated; all = every filter); default best")
@@ -57,10 +58,12 @@ def _run(args: argparse.Namespace) -> int:
     announce_compiles()
     path = Path(args.input)
     if path.is_dir():
-        raise DataError(f"{path} is a directory: plot takes one file (.tlog, .mat or .csv)")
+        raise DataError(f"{path} is a directory: plot takes one file (.tlog, .BIN, .ulg, .mat or .csv)")
     if not path.exists():
         raise DataError(f"{path}: no such file")
-    if path.suffix.lower() == ".tlog":
+    from mavahrs.logs import sniff
+
+    if sniff(path) is not None or path.suffix.lower() in (".tlog", ".bin", ".ulg"):  # a log, by content
         from mavahrs import replay as rp
         from mavahrs.evaluation.report import resolve_filter_names
         from mavahrs.service.pipeline import PipelineSettings

@@ -52,6 +52,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="ATTITUDE_QUATERNION rate in the output tlog, Hz of log time; 0 = every sample (default 0)")
     p.add_argument("--start", type=float, metavar="S", help="replay from S seconds after the log's start")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds after the log's start")
+    p.add_argument("--skip", type=float, default=0.0, metavar="S",
+                   help="compare from S seconds after the first replayed sample: leaves the filters' convergence "
+                   "out of the RMS table, as the README's tables do with 10 (the filters still start at the first "
+                   "sample; --start moves that) (default 0: every sample)")
     add_pipeline_options(p)
     p.add_argument("--engine", default="auto", choices=("auto", "fast", "pipeline"),
                    help="fast: bulk decode + batch filters; pipeline: the daemon's per-message path; "
@@ -164,7 +168,10 @@ def _run(args: argparse.Namespace) -> int:
     print(rp.format_velocity(inp))
     for note in result.notes:
         print(f"note: {note}")
-    print(rp.format_comparison(rp.compare(result)))
+    print(rp.format_comparison(rp.compare(result, skip_s=args.skip), skip_s=args.skip))
+    so = rp.format_second_opinion(result)  # what the daemon's monitor would have said
+    if so:
+        print(so)
     if args.csv:
         print(f"wrote {args.csv} ({inp.n} rows)", file=sys.stderr)
     if args.output:
@@ -173,6 +180,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"wrote {args.output} ({k} frames inserted, system {result.system_id}: {comps})", file=sys.stderr)
     if args.plot:
         print(f"wrote {rp.plot_replay(result, args.plot)}", file=sys.stderr)
+        so = rp.plot_second_opinion(result, args.plot)  # the monitor's chart beside it, where there is one
+        if so is not None:
+            print(f"wrote {so}", file=sys.stderr)
     if args.stream:
         name = next(iter(result.tracks))
         ss = rp.StreamSettings(url=args.stream, system_id=args.stream_sysid, speed=args.speed,

@@ -21,7 +21,8 @@ change, e.g. a warm-up after power-on):
     eq. 50-51) and by the least-squares method of Selezneva & Kumarin
     (mu = tr(V'W) / tr(V'V)).
 
-INPUT is a tlog (the daemon's scaling and timing) or a CSV with the columns in
+INPUT is a flight log, chosen by content: a tlog, an ArduPilot DataFlash .BIN
+or a PX4 ULog .ulg (the daemon's scaling and timing), or a CSV with the columns in
 docs/evaluation.md (time_s, gyro_*_rad_s, accel_*_m_s2, optional mag_*_ut and
 temperature_c).  Writes a TOML file `mavahrs run --config` reads: by default
 (--gains flight) the temperature model only, no gains (beta and zeta fitted at
@@ -44,7 +45,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "tune", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument(
-        "inputs", nargs="+", metavar="STATIONARY", help="tlog or CSV recorded at rest (one or more)"
+        "inputs", nargs="+", metavar="STATIONARY", help="flight log (.tlog, .BIN, .ulg) or CSV recorded at rest (one or more)"
     )
     p.add_argument(
         "--output", "-o", metavar="TOML", help="write the settings file here (default: print only)"
@@ -58,7 +59,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "for a bench only (default flight)",
     )
     p.add_argument(
-        "--imu", default="auto", metavar="N", help="tlog: IMU instance 0, 1, 2 or auto (default auto)"
+        "--imu", default="auto", metavar="N", help="flight log: IMU instance 0, 1, 2 or auto (default auto)"
     )
     p.add_argument("--start", type=float, metavar="S", help="use the recording from S seconds")
     p.add_argument("--end", type=float, metavar="S", help="… up to S seconds")
@@ -97,7 +98,7 @@ def _run(args: argparse.Namespace) -> int:
     paths = [Path(p) for p in args.inputs]
     for path in paths:
         if path.is_dir():
-            raise DataError(f"{path} is a directory: tune takes .tlog files (for a folder: {path}/*.tlog)")
+            raise DataError(f"{path} is a directory: tune takes log files (for a folder: {path}/*.tlog, {path}/*.BIN …)")
         if not path.is_file():
             raise DataError(f"{path}: no such file")
     fn = functools.partial(_tune_one, imu=args.imu, start_s=args.start, end_s=args.end, source=args.source)

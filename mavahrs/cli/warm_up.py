@@ -11,12 +11,15 @@ __all__ = ["register", "run"]
 
 _DESCRIPTION = """\
 Compile every filter kernel for this machine and cache the result on disk
-(numba; in mavahrs/filters/__pycache__ beside the code, or in NUMBA_CACHE_DIR
-when set).  Without it, the first command that runs a filter compiles what it
-needs then (20–30 s on a PC, longer on a Raspberry Pi) and says so.  Run it
-once after installing or upgrading mavahrs, before a flight, or from a
-systemd unit's ExecStartPre= (contrib/mavahrs.service).  With a warm cache it
-only loads the cached code and returns in a few seconds.
+(numba; in the user's cache folder, ~/.cache/mavahrs/kernels, or in
+NUMBA_CACHE_DIR when set).  The cache outlives reinstalling the same version
+(e.g. adding an extra); upgrading mavahrs compiles again.  Without it, each
+command that runs a filter compiles what it needs the first time and says so.
+A full warm-up measured 40 s to 6 min on a 2-core PC (idle to heavily
+loaded); expect longer on a Raspberry Pi.  Run it once after installing or
+upgrading mavahrs, before a flight, or from a systemd unit's ExecStartPre=
+(contrib/mavahrs.service).  With a warm cache it only loads the cached code
+and returns in a few seconds.
 
 example:
   mavahrs warm-up
@@ -44,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     quick_start()
     print(f"warm-up: compiling every filter kernel for this machine, cached in {cache_location()} "
-          "(20–30 s the first time, a few seconds when already cached) …", flush=True)
+          "(about a minute the first time, minutes on a busy or slow machine; a few seconds when already "
+          "cached) …", flush=True)
 
     def done(step: Any) -> None:
         print(f"  {step.name}: {step.seconds:.1f} s", flush=True)

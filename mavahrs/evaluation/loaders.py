@@ -3,8 +3,10 @@ r"""Pick the right loader for an input path (file or folder).
 * ``*.mat`` — a BROAD trial (:func:`~mavahrs.evaluation.datasets.load_broad_trial`);
 * ``*.csv`` — a RepoIMU T-stick file (recognised by its ``Time (s);`` header)
   or a CSV with the documented columns (:data:`~mavahrs.evaluation.datasets.CSV_COLUMNS`);
-* ``*.tlog`` — a MAVLink telemetry log whose reference is SIMSTATE (or SIM_STATE, HIL_STATE_QUATERNION)
-  (:func:`~mavahrs.evaluation.tlogdata.load_tlog_recording`);
+* a flight log, recognised by its content whatever its name (:func:`mavahrs.logs.sniff`): a MAVLink
+  telemetry log whose reference is SIMSTATE (or SIM_STATE, HIL_STATE_QUATERNION)
+  (:func:`~mavahrs.evaluation.tlogdata.load_tlog_recording`), an ArduPilot DataFlash log (SIM truth)
+  or a PX4 ULog (``vehicle_attitude_groundtruth``) (:func:`load_onboard_recording`);
 * a folder — every such file inside it (not recursive), sorted by name.
 """
 
@@ -18,7 +20,7 @@ from mavahrs.evaluation.datasets import Recording, load_broad_trial, load_csv, l
 
 __all__ = ["load_any", "SUFFIXES"]
 
-SUFFIXES = (".mat", ".csv", ".tlog")
+SUFFIXES = (".mat", ".csv", ".tlog", ".bin", ".ulg")
 
 #: where a user who has only the repository gets the BROAD trials the README evaluates
 BROAD_SOURCE = (
@@ -38,7 +40,41 @@ def _is_repoimu(path: Path) -> bool:
     return first.lower().startswith("time (s);")
 
 
+def load_onboard_recording(
+    path: str | Path,
+    *,
+    imu: str = "auto",
+    reference: bool = True,
+    skip_s: float = 0.0,
+    velocity_source: str = "auto",
+    source: tuple[int, int | None] | None = None,  # noqa: ARG001 - an onboard log has one vehicle
+) -> Recording:
+    """A DataFlash or ULog log as an evaluation :class:`Recording`: its reader's filter inputs
+    (:func:`mavahrs.logs.read_log`), the simulator's truth as the reference (SIM, ``vehicle_attitude_groundtruth``)."""
+    from mavahrs.evaluation.tlogdata import recording_from_inputs
+    from mavahrs.logs import read_log
+    from mavahrs.service.pipeline import PipelineSettings
+
+    li = read_log(path, PipelineSettings(imu=imu, velocity_source=velocity_source))
+    return recording_from_inputs(
+        Path(path).stem, li.inputs, li.references if reference else None, skip_s=skip_s, groups=(li.format,),
+        no_truth="no simulator truth (DataFlash SIM, ULog vehicle_attitude_groundtruth) in this log: nothing to "
+        "score against (an autopilot's own estimate is not ground truth: `mavahrs replay` compares with it)",
+    )  # fmt: skip
+
+
 def load_one(path: Path, **kwargs: Any) -> Recording:
+    """One input, a flight log by its content (any name), else a .mat or .csv recording by its suffix."""
+    from mavahrs.logs import FORMATS, sniff
+
+    fmt = sniff(path)
+    log_kw = {k: v for k, v in kwargs.items() if k in ("imu", "skip_s", "velocity_source", "source", "reference")}
+    if fmt == "tlog":
+        from mavahrs.evaluation.tlogdata import load_tlog_recording
+
+        return load_tlog_recording(path, **log_kw)
+    if fmt in ("dataflash", "ulog"):
+        return load_onboard_recording(path, **log_kw)
     suffix = path.suffix.lower()
     if suffix == ".mat":
         return load_broad_trial(path)
@@ -53,10 +89,12 @@ def load_one(path: Path, **kwargs: Any) -> Recording:
     if suffix == ".tlog":
         from mavahrs.evaluation.tlogdata import load_tlog_recording
 
-        return load_tlog_recording(
-            path, **{k: v for k, v in kwargs.items() if k in ("imu", "skip_s", "velocity_source", "source")}
-        )
-    raise DataError(f"{path}: unknown input type {suffix!r}; use .mat (BROAD), .csv or .tlog")
+        return load_tlog_recording(path, **log_kw)  # its reader says what is wrong with it
+    from mavahrs.logs import unsupported_message
+
+    why = unsupported_message(path)
+    raise DataError(f"{why}; or a recording with ground truth: .mat (BROAD), .csv (RepoIMU or documented columns)"
+                    if why.endswith(", ".join(FORMATS.values())) else why)  # fmt: skip
 
 
 def load_any(path: str | Path, **kwargs: Any) -> list[Recording]:
@@ -65,8 +103,10 @@ def load_any(path: str | Path, **kwargs: Any) -> list[Recording]:
     if not p.exists():
         raise _missing(p, "no such file or folder")
     if p.is_dir():
-        files = sorted(f for f in p.iterdir() if f.suffix.lower() in SUFFIXES and f.is_file())
+        from mavahrs.logs import sniff
+
+        files = sorted(f for f in p.iterdir() if f.is_file() and (f.suffix.lower() in SUFFIXES or sniff(f)))
         if not files:
-            raise _missing(p, "no .mat, .csv or .tlog files in this folder")
+            raise _missing(p, "no .mat, .csv, .tlog, .BIN or .ulg files in this folder")
         return [load_one(f, **kwargs) for f in files]
     return [load_one(p, **kwargs)]

@@ -480,3 +480,54 @@ def plot_fleet(
         fig.text(0.01, bottom - 0.03 - 0.035 * k, line, fontsize=7, color="tab:red", va="bottom", ha="left")
     fig.tight_layout(rect=(0.0, bottom if lines else 0.0, 1.0, 1.0))
     return _save(fig, path)
+
+
+def plot_second_opinion(path: str | Path, series: Any, *, title: str = "", t0_s: float = 0.0) -> Path:
+    """The second-opinion monitor over one flight (:class:`~mavahrs.service.monitor.MonitorSeries`): tilt and
+    |heading| divergence from the autopilot's attitude, the threshold in force (dashed), in-flight WARNINGs
+    (red lines, shaded while on, their evidence written beside), NOTICEs on the ground (grey) — the status
+    page's strip chart, for the whole flight.  Times: boot time minus ``t0_s``, s."""
+    from mavahrs.service.monitor import mavlink as _mav  # the severities
+
+    plt = _pyplot()
+    t = np.asarray(series.t_ms, dtype=np.float64) / 1000.0 - t0_s
+    fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True, constrained_layout=True)
+    thr = (series.tilt_threshold_deg, series.heading_threshold_deg)
+    for ax, y, th, label in ((axes[0], series.tilt_deg, thr[0], "tilt divergence, deg"),
+                             (axes[1], np.abs(series.heading_deg), thr[1], "|heading| divergence, deg")):
+        ax.plot(t, y, lw=0.9, color="tab:blue", label="mavahrs − autopilot")
+        if th is not None and np.isfinite(th).any():
+            ok = np.isfinite(th) & (th > 0)
+            ax.plot(t[ok], th[ok], lw=1.2, ls="--", color="tab:orange", label="threshold")
+            fin = y[np.isfinite(y)]
+            if fin.size and ok.any():  # the start-up's wide thresholds and converging estimates off the scale
+                top = max(float(np.percentile(fin, 99.5)), 2.0 * float(np.median(th[ok])))
+                ax.set_ylim(0.0, 1.25 * top)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    start = None
+    for e in series.events:
+        te = e.t_ms / 1000.0 - t0_s
+        warn = e.severity == _mav.MAV_SEVERITY_WARNING
+        if e.severity == _mav.MAV_SEVERITY_INFO:
+            if start is not None:
+                for ax in axes:
+                    ax.axvspan(start, te, color="tab:red", alpha=0.12, lw=0)
+            start = None
+            continue
+        for ax in axes:
+            ax.axvline(te, color="tab:red" if warn else "0.5", lw=1.0 if e.update else 1.8,
+                       ls=":" if e.update else "-")
+        if not e.update and warn:
+            start = te if start is None else start
+        label = (e.cause or ("–" if warn else "")) + ("" if warn else f" ({e.phase})")
+        axes[0].annotate(label, (te, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -24 if e.update else -12),
+                         textcoords="offset points", fontsize=8, color="tab:red" if warn else "0.4")
+    if start is not None and t.size:
+        for ax in axes:
+            ax.axvspan(start, t[-1], color="tab:red", alpha=0.12, lw=0)
+    n_warn = sum(1 for e in series.events if e.in_flight)
+    axes[0].set_title((title + " — " if title else "") + f"second opinion: {n_warn} in-flight WARNING(s)")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[1].set_xlabel("time, s" if not t0_s else f"time from boot {t0_s:.0f} s, s")
+    return _save(fig, path)

@@ -113,6 +113,10 @@ def run_filter(
         velocity_age_s=rec.extra.get("velocity_age_s") if vel is not None else None,
     )  # fmt: skip
     f = create(name, settings)
+    delay = rec.extra.get("sensor_delay_s")
+    set_delay = getattr(f, "set_sensor_delay", None)
+    if delay and set_delay is not None:  # a log's IMU stamps lag (the profile's delay): as the pipeline tells it
+        set_delay(float(delay))  # type: ignore[arg-type]
     events = rec.extra.get("mag_reference_events") or ()
     if not events:
         return f.run(inputs)
@@ -314,6 +318,7 @@ def evaluate_recording(
     report = RecordingReport(name=rec.name)
     has_ref = bool(np.all(np.isfinite(rec.q_ref_body_to_ned), axis=1).any())
     if not has_ref:
+        report.notes += [str(n) for n in rec.extra.get("notes", ())]  # type: ignore[attr-defined]  # (why: the loader's)
         report.notes.append("no reference attitude in this recording: nothing to score")
         return report
     clipped = int(rec.extra.get("gyro_clipped_samples", 0) or 0)  # type: ignore[call-overload]
@@ -426,14 +431,15 @@ def format_report(report: EvaluationReport, *, per_recording: bool | None = None
             lines.append("   per recording, total RMS (deg):")
             names = report.filter_names()
             lines.append("   " + f"{'recording':<46}" + "".join(f"{n:>14}" for n in names))
+            in_mean = {id(r) for r in report.averaged()}
             for r in report.recordings:
                 cells = "".join(
                     f"{_f(r.scores[n].total_rms_deg, 14) if n in r.scores else '—':>14}" for n in names
                 )
-                flag = " *" if r.notes else ""
+                flag = " *" if id(r) not in in_mean else ""  # the mark the heading's "left out" count refers to
                 lines.append("   " + f"{r.name[:46]:<46}" + cells + flag)
-            if any(r.notes for r in report.recordings):
-                lines.append("   * see notes (--json or per-recording output)")
+            if left_out:
+                lines.append("   * left out of the mean: see its notes (--json or --per-recording)")
         modes = sorted({s.alignment.mode for r in report.recordings for s in r.scores.values()})
         lines.append(f"   alignment: {', '.join(modes)} (per recording and filter; see --json)")
         lines += ["   " + x for x in _table(report.mean(), "")[1:]]

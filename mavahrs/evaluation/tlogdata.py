@@ -43,11 +43,10 @@ simulator's truth (SIM_STATE quaternion, else SIMSTATE Euler angles).
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -57,9 +56,18 @@ from numpy.typing import NDArray
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_WIDTH
+from mavahrs.filters.layout import IN_ACCEL, IN_CURRENT, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays, shared by every log reader
+    _GAP_DT_S,
+    FastPathUnsupported,
+    PreparedInputs,
+    _calibrate,
+    _timeline,
+    _velocity_setting,
+)
 
 __all__ = [
+    "recording_from_inputs",
     "REPLAY_TYPES",
     "REFERENCE_TYPES",
     "TlogData",
@@ -83,14 +91,12 @@ IMU_TYPES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU
 POSITION_TYPES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW", "HOME_POSITION", "SYSTEM_TIME")
 REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE", "HIL_STATE_QUATERNION")
 #: What replay reads from a log.
-REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT", "EXTENDED_SYS_STATE") + POSITION_TYPES + REFERENCE_TYPES
+#: battery current (the compass's motor interference, :mod:`mavahrs.sensors.current`)
+CURRENT_TYPES = ("SYS_STATUS", "BATTERY_STATUS")
+REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT", "EXTENDED_SYS_STATE") + POSITION_TYPES + REFERENCE_TYPES + CURRENT_TYPES
 
 _MAV_AUTOPILOT_INVALID = 8
 _NAN = math.nan
-
-
-class FastPathUnsupported(Exception):
-    """The log needs the pipeline's per-message decisions (the reason says which)."""
 
 
 # --------------------------------------------------------------------------- reading
@@ -198,85 +204,6 @@ def decimal_year_of_log(td: TlogData) -> float | None:
 
 
 # --------------------------------------------------------------------------- prepared inputs
-
-
-@dataclass
-class PreparedInputs:
-    """The filter's input rows for a log, as the pipeline would build them.
-
-    Attributes:
-        rows: (M, IN_WIDTH) input rows (dt, gyro, accel, mag, velocity, its age).
-        t_us: (M,) sample time, µs of the autopilot's clock.
-        frame_pos: (M,) position of the IMU message in :class:`TlogData` order.
-        tlog_us: (M,) the tlog timestamp of that message.
-        temperature_c: (M,) IMU temperature (NaN when not sent).
-        declination_rad: (M,) declination applied to the outputs at each sample.
-        message: the IMU message type fed; instance: its instance number.
-        source: (system, component) of the autopilot; profile: scaling profile name.
-        engine: ``fast`` (this module) or ``pipeline`` (message by message).
-        notes: things the user should know (absent instances, low rate …).
-        counts: samples seen / fed / dropped by reason.
-        velocity_source: the ``velocity_source`` setting in effect (``auto``,
-            ``auto, receiver only`` with the monitor's
-            ``receiver_velocity_only``, a named source, ``none``).
-        velocity_fixes: GNSS velocity fixes used, per message (in the
-            preference order; a fix after the last fed sample included).
-    """
-
-    rows: Array
-    t_us: NDArray[np.int64]
-    frame_pos: NDArray[np.int64]
-    tlog_us: NDArray[np.int64]
-    temperature_c: Array
-    declination_rad: Array
-    message: str
-    instance: int
-    source: tuple[int, int]
-    profile: str
-    engine: str = "fast"
-    notes: list[str] = field(default_factory=list)
-    counts: dict[str, int] = field(default_factory=dict)
-    velocity_source: str = "auto"
-    velocity_fixes: dict[str, int] = field(default_factory=dict)
-    #: (sample index, field strength µT, inclination rad): the pipeline seeds the filter's
-    #: magnetometer rejection (``set_mag_reference``) before that sample
-    mag_reference_events: list[tuple[int, float, float]] = field(default_factory=list)
-    #: the IMU data's delay behind its stamps (the profile's ``delay_s``), given to filters that use it
-    sensor_delay_s: float = 0.0
-
-    def run_filter(self, f: Any, a: int = 0, b: int | None = None, out: Array | None = None) -> Array:
-        """Run filter ``f`` over rows ``a:b`` as the pipeline would (reference seeding included)."""
-        b = self.n if b is None else b
-        if out is None:
-            out = np.empty((b - a, OUT_WIDTH))
-        set_delay = getattr(f, "set_sensor_delay", None)
-        if set_delay is not None:  # Pipeline._set_profile does the same
-            set_delay(self.sensor_delay_s)
-        cuts = [a] + sorted({i for i, _, _ in self.mag_reference_events if a < i < b}) + [b]
-        for lo, hi in itertools.pairwise(cuts):
-            for i, norm, dip in self.mag_reference_events:
-                if i == lo or (lo == 0 and i <= 0):
-                    f.set_mag_reference(norm, dip)
-            if hi > lo:
-                f.run(self.rows[lo:hi], out[lo - a : hi - a])
-        return out
-
-    @property
-    def n(self) -> int:
-        return int(self.t_us.shape[0])
-
-    def rate_hz(self) -> float:
-        """Mean sample rate reaching the filter over the log (0 if fewer than two samples)."""
-        if self.n < 2:
-            return 0.0
-        span = float(self.t_us[-1] - self.t_us[0])
-        return (self.n - 1) / span * 1e6 if span > 0 else 0.0
-
-
-def _velocity_setting(s: Any) -> str:
-    """The ``velocity_source`` in effect, as the replay header names it."""
-    v = str(s.effective_velocity_source)
-    return f"{v}, receiver only" if v == "auto" and s.monitor.receiver_velocity_only else v
 
 
 def _source_and_profile(td: TlogData, settings: Any) -> tuple[tuple[int, int], int, str]:
@@ -536,61 +463,6 @@ def _scale_integer(  # type: ignore[no-untyped-def]
         mag[i, 0], mag[i, 1], mag[i, 2] = m0, m1, m2
 
 
-#: dt given to the filters for a timeline gap: beyond every filter's max_gap_s (finite, so not "invalid")
-_GAP_DT_S = 1.0e6
-
-
-def _timeline(
-    t_us: NDArray[np.int64], now_us: NDArray[np.int64], gyro: Array, accel: Array, settings: Any
-) -> tuple[NDArray[np.bool_], Array]:
-    """Which samples the pipeline's timeline passes, and their dt (s).
-
-    Runs :class:`mavahrs.protocol.timeline.Timeline` — with the arguments the
-    pipeline gives it (raw time, receive time, the gyro+accel values as the
-    sample key) — sample by sample, unless the timestamps strictly increase
-    by no more than the gap limit: then every event is ``ok`` with
-    dt = Δt, which the timeline itself confirms on the first samples.
-    """
-
-    def key(i: int) -> tuple[float, ...]:  # Pipeline: the scaled v[2:8]
-        return (*gyro[i].tolist(), *accel[i].tolist())
-
-    from mavahrs.protocol.timeline import DROP_KINDS, GAP, OK, REBOOT, Timeline
-
-    n = t_us.shape[0]
-    keep = np.ones(n, bool)
-    dt = np.full(n, _NAN)
-    if n == 0:
-        return keep, dt
-    d = np.diff(t_us)
-    max_gap_us = int(settings.timeline.max_gap_s * 1e6)
-    simple = bool(np.all(d > 0)) and not bool(np.any(d > max_gap_us))
-    if simple:
-        tl = Timeline(settings.timeline)
-        for i in range(min(n, 64)):  # the timeline's own verdict on a prefix: plain "ok"
-            ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
-            if i and (ev.kind != OK or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
-                simple = False
-                break
-    if simple:
-        dt[1:] = d * 1e-6
-        return keep, dt
-    tl = Timeline(settings.timeline)
-    for i in range(n):
-        ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
-        if ev.kind == REBOOT and i:
-            raise FastPathUnsupported("the autopilot rebooted during the log")
-        if ev.kind in DROP_KINDS:
-            keep[i] = False
-            continue
-        if ev.t_us != t_us[i]:
-            raise FastPathUnsupported("the timeline corrects timestamps (wrap-around)")
-        # As the pipeline does: a gap reaches the filter as a dt longer than any filter's
-        # max_gap_s, so it re-initialises instead of integrating one gyro sample across it.
-        dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
-    return keep, dt
-
-
 def _resends(mg: dict[str, Any]) -> tuple[NDArray[np.bool_], int]:
     """:class:`mavahrs.protocol.timeline.ResendFilter` over the merged messages, per (message, instance):
     which are exact re-sends of the previous one (dropped), and how many repeat its stamp with new values."""
@@ -804,6 +676,7 @@ def prepare_inputs(
     for i, v, fix_t in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
         rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), fix_t)
+    _fill_current(td, src, pos, rows)
     # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
     for kind in np.flatnonzero(np.bincount(kinds)):
         ms = profile.scale_for(names[int(kind)])
@@ -832,29 +705,32 @@ def prepare_inputs(
     )  # fmt: skip
 
 
-def _calibrate(rows: Array, temp: Array, cal: Any) -> None:
-    """Calibrator.apply_row over all rows (the same operations, vectorised)."""
-    g = cal._gyro
-    if g is not None:
-        b0, k, t0 = g.b0_rad_s, g.k_rad_s_per_c, g.t0_c
-        d = temp - t0
-        known = np.isfinite(temp)
-        for i in range(3):
-            rows[:, IN_GYRO + i] -= np.where(known, b0[i] + k[i] * d, b0[i])
-    if cal._mag is not None:
-        mc = cal._mag
-        o = np.asarray(mc.offset_ut)
-        mat = np.asarray(mc.matrix)
-        v = rows[:, IN_MAG : IN_MAG + 3] - o
-        rows[:, IN_MAG : IN_MAG + 3] = (
-            v[:, 0:1] * mat[:, 0] + v[:, 1:2] * mat[:, 1] + v[:, 2:3] * mat[:, 2]
-        )
-    r = cal._remap
-    if r is not None:
-        for base in (IN_GYRO, IN_ACCEL, IN_MAG):
-            v = rows[:, base : base + 3].copy()
-            for i in range(3):
-                rows[:, base + i] = r[i][0] * v[:, 0] + r[i][1] * v[:, 1] + r[i][2] * v[:, 2]
+def _fill_current(td: TlogData, src: tuple[int, int], pos: NDArray[np.int64], rows: Array) -> None:
+    """``IN_CURRENT``: the last battery current of the source before each sample (Pipeline._on_current)."""
+    from mavahrs.sensors.current import CURRENT_STALE_S, battery_current_a
+
+    rows[:, IN_CURRENT] = _NAN
+    at: list[tuple[int, float]] = []
+    for name in CURRENT_TYPES:
+        a = td.arrays[name]
+        if a.shape[0] == 0:
+            continue
+        ok = (a["sysid"] == src[0]) & (a["compid"] == src[1])
+        for k in np.flatnonzero(ok):
+            amps = battery_current_a(td.message(name, int(k)))
+            if amps is not None:
+                at.append((int(td.pos[name][k]), amps))
+    if not at or pos.shape[0] == 0:
+        return
+    at.sort()
+    mpos = np.array([p for p, _ in at], dtype=np.int64)
+    amps_a = np.array([v for _, v in at])
+    j = np.searchsorted(mpos, pos) - 1  # the last current message before each sample
+    have = j >= 0
+    jj = np.maximum(j, 0)
+    age_s = (td.t_us[pos] - td.t_us[mpos[jj]]) * 1e-6
+    use = have & (age_s <= CURRENT_STALE_S)
+    rows[use, IN_CURRENT] = amps_a[jj[use]]
 
 
 # --------------------------------------------------------------------------- the pipeline itself
@@ -895,6 +771,8 @@ def run_pipelines(
         pipes.append(Pipeline(ps, filter=f, decimal_year=decimal_year))
         filts.append(f)
     p0 = pipes[0]
+    for p in pipes[1:]:  # the same field for every filter: logged once
+        p.declination.announce = False
     codec = MavCodec()
     t0 = int(td.t_us[0]) if td.frames else 0
     lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
@@ -1180,8 +1058,6 @@ def load_tlog_recording(
     ``source`` = (system, component or None): take the IMU data from that
     sender only (``--source``; ignored when ``settings`` are given).
     """
-    from mavahrs.geometry.quaternion import multiply
-
     if settings is None and source is not None:
         from mavahrs.service.pipeline import PipelineSettings
 
@@ -1189,21 +1065,51 @@ def load_tlog_recording(
                                     velocity_source=velocity_source)
     td = read_tlog_data(path)
     prep = _inputs_for(td, imu, settings, velocity_source)
+    refs = references(td, prep) if reference else None
+    return recording_from_inputs(Path(path).stem, prep, refs, skip_s=skip_s, true_rate_rad_s=true_rates(td, prep),
+                                 no_truth="no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this "
+                                 "log: nothing to score against")  # fmt: skip
+
+
+def recording_from_inputs(
+    name: str,
+    prep: PreparedInputs,
+    refs: dict[str, tuple[Array, Array]] | None,
+    *,
+    skip_s: float = 0.0,
+    true_rate_rad_s: Array | None = None,
+    groups: tuple[str, ...] = ("tlog",),
+    no_truth: str = "no simulator truth in this log: nothing to score against",
+) -> Recording:
+    """A log's filter inputs as an evaluation :class:`Recording`, whatever the log's format.
+
+    ``refs`` are the log's references (name → (t_us, q_body_to_ned) on ``prep.t_us``'s clock; None:
+    do not look for one); the first whose name ends in ``truth`` is slerped onto the sample times and
+    rotated by the declination the pipeline would apply (true → magnetic north), so the recording
+    scores filters exactly as their output would be scored.  Samples from ``skip_s`` s on are scored.
+    """
+    from mavahrs.geometry.quaternion import multiply
+
     n = prep.n
     q_ref = np.full((n, 4), _NAN)
     notes = list(prep.notes)
-    if reference:
-        refs = references(td, prep)
+    if refs is not None:
         truth = [k for k in refs if k.endswith("truth")]
         if truth:
             t_ref, q = refs[truth[0]]
-            q_true = interpolate_attitude(t_ref, q, prep.t_us.astype(np.float64))
+            q_true = interpolate_attitude(np.asarray(t_ref, np.float64), q, prep.t_us.astype(np.float64))
             half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
             q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
             q_ref = multiply(q_dec, q_true)
-            notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame)")
+            notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame), "
+                         "slerped onto the IMU samples: every sample scored (`mavahrs replay` compares at the "
+                         "truth's own times instead; the two differ only where the IMU stream has gaps), "
+                         + (f"from {skip_s:g} s on (--skip)" if skip_s > 0 else
+                            "convergence included (--skip 10 leaves out the first 10 s, as the README's tables)"))
         else:
-            notes.append("no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this log: nothing to score against")
+            others = [k for k in refs if not k.endswith("truth")]
+            notes.append(no_truth + (f" (`mavahrs replay` compares with the log's {' and '.join(others)} instead)"
+                                     if others else ""))  # fmt: skip
     rate = prep.rate_hz()
     if 0 < rate < 50:
         notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
@@ -1215,14 +1121,14 @@ def load_tlog_recording(
     mag = rows[:, IN_MAG : IN_MAG + 3]
     vel = rows[:, IN_VEL : IN_VEL + 3]
     return Recording(
-        name=Path(path).stem,
+        name=name,
         dt_s=dt,
         gyro_rad_s=np.ascontiguousarray(rows[:, IN_GYRO : IN_GYRO + 3]),
         accel_m_s2=np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3]),
         mag_ut=np.ascontiguousarray(mag) if np.isfinite(mag).any() else None,
         q_ref_body_to_ned=q_ref,
         scored=t_s >= skip_s,
-        groups=("tlog",),
+        groups=groups,
         heading_referenced=True,
         extra={
             "time_s": t_s,
@@ -1233,8 +1139,9 @@ def load_tlog_recording(
             "notes": notes,
             "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",
             "prepared": prep,
-            "true_rate_rad_s": true_rates(td, prep),
+            "true_rate_rad_s": true_rate_rad_s,
             "mag_reference_events": list(prep.mag_reference_events),
+            "sensor_delay_s": prep.sensor_delay_s,  # filters that use it are told, as by the pipeline
         },
     )
 

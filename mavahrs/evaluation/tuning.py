@@ -623,7 +623,8 @@ def tune_file(
     settings: TuneSettings | None = None,
     source: tuple[int, int | None] | None = None,
 ) -> TuneResult:
-    """:func:`tune` on a tlog (the daemon's scaling and timing) or a CSV, cut to ``start_s``…``end_s``.
+    """:func:`tune` on a flight log (tlog, DataFlash, ULog: by content; the daemon's scaling and timing) or a CSV,
+    cut to ``start_s``…``end_s``.
 
     ``source`` = (system, component or None): a tlog's IMU data from that sender only (``--source``).
 
@@ -637,11 +638,15 @@ def tune_file(
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(2, "no such file", str(p))
-    rec = (
-        load_tlog_recording(p, imu=imu, reference=False, source=source)
-        if p.suffix.lower() == ".tlog"
-        else load_one(p)
-    )
+    from mavahrs.logs import sniff
+
+    fmt = sniff(p)
+    if fmt == "tlog" or (fmt is None and p.suffix.lower() == ".tlog"):
+        rec = load_tlog_recording(p, imu=imu, reference=False, source=source)
+    elif fmt is not None:  # DataFlash, ULog
+        rec = load_one(p, imu=imu, reference=False)
+    else:
+        rec = load_one(p)
     return tune(cut_recording(rec, start_s, end_s), settings)
 
 

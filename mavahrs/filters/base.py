@@ -40,6 +40,7 @@ from mavahrs.filters.layout import (
     FLAG_REINITIALISED,
     FLAG_STARTUP,
     IN_ACCEL,
+    IN_CURRENT,
     IN_DT,
     IN_GYRO,
     IN_MAG,
@@ -438,6 +439,7 @@ class AttitudeFilter(ABC):
         )
         self._state = np.zeros(S_FILTER + self.internal_len)
         self._row = np.zeros(IN_WIDTH)
+        self._row[IN_CURRENT] = np.nan  # update() takes no current
         self._out = np.zeros(OUT_WIDTH)
         step = type(self).__dict__.get("step") or type(self).step  # unbound: dispatchers bind like methods
         self._step = step
@@ -567,6 +569,7 @@ class AttitudeFilter(ABC):
         row[IN_ACCEL + 2] = -9.80665
         row[IN_MAG : IN_MAG + 3] = (20.0, 0.0, 40.0)
         row[IN_VEL : IN_VEL + 3] = np.nan
+        row[IN_CURRENT] = np.nan
         state = self._state.copy()
         out = np.zeros(OUT_WIDTH)
         for _ in range(2):  # initialise, then one regular step

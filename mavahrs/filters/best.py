@@ -102,13 +102,14 @@ from mavahrs.filters.base import (
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
 from mavahrs.filters.eskf import DRAG_PARAM as _DRAG_OFFSET
-from mavahrs.filters.eskf import MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
+from mavahrs.filters.eskf import MAG_MODEL_STATE, MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_DT, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_BIAS, OUT_Q, OUT_WIDTH
 from mavahrs.filters.madgwick import FM_GNSS, PM_GNSS, Madgwick, MadgwickSettings
 from mavahrs.filters.madgwick import step as _madgwick_step
+from mavahrs.filters.magfield import MF_LEN, export_model, import_model, mag_model_summary
 from mavahrs.filters.rest import RestBiasSettings
 
 __all__ = ["best_settings", "best_eskf_settings", "BestSettings", "Best", "create_best", "BEST_FILTER"]
@@ -373,6 +374,33 @@ class Best(AttitudeFilter):
                                                   mag_reference_dip_rad=dip_rad)),
         )  # fmt: skip
         AttitudeFilter.set_mag_reference(self, norm_ut, dip_rad)
+
+    def mag_model_state(self) -> dict[str, object] | None:
+        """The velocity-aided filter's learnt magnetometer model (:meth:`Eskf.mag_model_state`), None when off."""
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        if not s.eskf.mag_model.enabled:
+            return None
+        k = _SE + S_FILTER + MAG_MODEL_STATE
+        return mag_model_summary(self._state[k : k + MF_LEN])
+
+    def export_mag_model(self) -> dict[str, object] | None:
+        """The velocity-aided filter's model to keep across a restart (:func:`magfield.export_model`)."""
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        if not s.eskf.mag_model.enabled:
+            return None
+        k = _SE + S_FILTER + MAG_MODEL_STATE
+        return export_model(self._state[k : k + MF_LEN])
+
+    def load_mag_model(self, saved: object) -> str | None:
+        """Start the velocity-aided filter's model from a saved one; return why not, None when taken."""
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        if not s.eskf.mag_model.enabled:
+            return "the magnetometer model is off"
+        k = _SE + S_FILTER + MAG_MODEL_STATE
+        return import_model(self._state[k : k + MF_LEN], s.eskf.mag_model, saved)
 
     def set_vehicle_stream(self) -> None:
         """The input is an autopilot's IMU stream (a vehicle): the ESKF's attitude in every condition.

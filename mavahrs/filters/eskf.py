@@ -82,6 +82,7 @@ from mavahrs.filters.layout import (
     FLAG_STARTUP,
     FLAG_VELOCITY_AIDED,
     IN_ACCEL,
+    IN_CURRENT,
     IN_GYRO,
     IN_MAG,
     IN_VEL,
@@ -89,6 +90,24 @@ from mavahrs.filters.layout import (
     OUT_ACCEL_WEIGHT,
     OUT_FLAGS,
     OUT_Q,
+)
+from mavahrs.filters.magfield import (
+    MAG_DISTURBED,
+    MAG_TRUSTED,
+    MF_LEN,
+    MF_P,
+    MF_STEP_T,
+    MF_STEPS,
+    MF_T,
+    MF_TRUST,
+    MP_LEN,
+    MagFieldSettings,
+    export_model,
+    import_model,
+    mag_model_reset,
+    mag_model_summary,
+    mag_model_update,
+    magfield_params,
 )
 from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
 
@@ -138,10 +157,14 @@ _REALIGN_SIN = 22  # sin of the gravity innovation angle beyond which it is not 
 _REALIGN_S = 23  # s that large an innovation persists before the tilt is re-aligned
 _GRAV_TAU = 24  # s: NED low-pass of the specific force used as the gravity measurement (0: raw)
 _ADAPT_TAU = 25  # s: averaging time of the gravity innovation's mean square, the adaptive noise (0: off)
-_DRAG_K = 26  # rotor-drag coefficient, 1/s (0: no drag measurement)
-_R_DRAG = 27  # drag measurement noise², (m/s²)²
-_THRUST_TAU = 28  # s: averaging time of the body-frame thrust-axis estimate
-_N_PARAMS = 29
+_R_MODEL_MAX = 26  # rad²: a reading whose model heading variance exceeds this gives no heading
+_MIN_BODY = 27  # µT²: a learnt body field below this is not removed (the reading is used as it is)
+_REOPEN_ON_STEP = 28  # 1: a disturbance re-opens the heading variance
+_MAGF_P = 29  # the magnetometer model's parameters (:mod:`mavahrs.filters.magfield`, MP_LEN)
+_DRAG_K = _MAGF_P + MP_LEN  # rotor-drag coefficient, 1/s (0: no drag measurement)
+_R_DRAG = _DRAG_K + 1  # drag measurement noise², (m/s²)²
+_THRUST_TAU = _DRAG_K + 2  # s: averaging time of the body-frame thrust-axis estimate
+_N_PARAMS = _THRUST_TAU + 1
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -173,9 +196,14 @@ _HIST = _A + N * N  # INS velocity history, HISTORY_LEN × (t, vn, ve, vd)
 _BIG = _HIST + 4 * HISTORY_LEN  # clock time since when the gravity innovation has been large (−1: not)
 _GLP = _BIG + 1  # NED Butterworth low-pass of the specific force (BW_LEN)
 _GMS = _GLP + BW_LEN  # running mean square of the horizontal gravity innovation, (m/s²)²
-_TAX = _GMS + 1  # running mean of the specific force's direction, body (3): the thrust axis
+_MAGF = _GMS + 1  # the magnetometer model (:mod:`mavahrs.filters.magfield`, MF_LEN)
+_MSCR = _MAGF + MF_LEN  # scratch of the model: corrected field + heading variance (4), h (8), P·h (8)
+_MSTEPS = _MSCR + 20  # the model's disturbance count last seen
+_TAX = _MSTEPS + 1  # running mean of the drag-corrected specific force's direction, body (3): the thrust axis
 _FSUM = _TAX + 3  # integral of the specific force (body, 3) and the time (1) since the last drag update
 _N_STATE = _FSUM + 4
+#: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
+MAG_MODEL_STATE = _MAGF
 
 
 @dataclass(frozen=True)
@@ -284,7 +312,11 @@ class EskfSettings(FilterSettings):
             this time constant, s: any IMU mounting.
         schedule: the shared schedule: only its magnetometer rejection (norm,
             dip) and accelerometer trust are used; no start-up boost (the
-            covariance converges the filter).
+            covariance converges the filter).  With ``mag_model`` enabled the
+            magnetometer is judged by the model instead of the norm and dip.
+        mag_model: the magnetometer's body offset and earth field learnt in
+            flight, and the trust in each reading
+            (:class:`mavahrs.filters.magfield.MagFieldSettings`).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -328,6 +360,7 @@ class EskfSettings(FilterSettings):
             mag_dip_tolerance_rad=math.radians(5.0),
         )
     )
+    mag_model: MagFieldSettings = field(default_factory=MagFieldSettings)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -359,8 +392,15 @@ class EskfSettings(FilterSettings):
 def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     """Initial covariance and an empty history (after the attitude's (re)initialisation)."""
     p = P_FILTER
-    for i in range(_N_STATE):
+    for i in range(_MAGF):
         s[k + i] = 0.0
+    for i in range(_MSCR, _N_STATE):
+        s[k + i] = 0.0
+    km = k + _MAGF
+    if not (s[km + MF_P] > 0.0):  # nothing learnt yet (a re-initialisation keeps the magnetometer model)
+        mag_model_reset(s, km, params[p + _MAGF_P : p + _MAGF_P + MP_LEN])
+    s[km + MF_T] = 0.0  # the clock restarts
+    s[km + MF_STEP_T] = -1.0e9
     kp = k + _P
     s[kp + 0] = s[kp + N + 1] = params[p + _P0_TILT]
     s[kp + 2 * N + 2] = params[p + _P0_HEADING]
@@ -830,7 +870,47 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     state[k + _PREV_MAG + 1] = my
     state[k + _PREV_MAG + 2] = mz
     since = clk - state[k + _LAST_MAG]
-    if mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
+    model_on = params[p + _MAGF_P] > 0.0
+    use_mag = True
+    r_model = 0.0
+    if model_on and mag_ok and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
+        # the learnt model judges the reading and corrects it (its offset); disturbed: no heading
+        scr = state[k + _MSCR : k + _MSCR + 20]
+        was_disturbed = state[k + _MAGF + MF_TRUST] == MAG_DISTURBED
+        trust = mag_model_update(
+            state, k + _MAGF, params[p + _MAGF_P : p + _MAGF_P + MP_LEN], state[kc : kc + 9], mx, my, mz,
+            row[IN_CURRENT], s_pos(state[k + _P + 2 * N + 2]),
+            params[p + _MAG_STALE] * math.sqrt(gx * gx + gy * gy + gz * gz), params[P_SCHED + _g.GP_MAG_REF_NORM],
+            params[P_SCHED + _g.GP_MAG_REF_DIP], clk, scr[0:4], scr[4:12], scr[12:20],
+        )  # fmt: skip
+        bx, by, bz = mx - scr[0], my - scr[1], mz - scr[2]  # the body field the model removes
+        if bx * bx + by * by + bz * bz >= params[p + _MIN_BODY]:
+            # the vehicle's own field matters: the corrected reading, weighed by what is known of it;
+            # disturbed, or the offset across the field still too uncertain to tell a heading: none
+            mx, my, mz, r_model = scr[0], scr[1], scr[2], scr[3]
+            use_mag = trust != MAG_DISTURBED and r_model <= params[p + _R_MODEL_MAX]
+            w_m = 1.0
+        else:  # nothing of note learnt: the reading as it is, gated by the schedule as without the model
+            use_mag = trust != MAG_DISTURBED
+        steps = state[k + _MAGF + MF_STEPS]
+        if steps != state[k + _MSTEPS]:
+            # the field no longer fits what was learnt: the heading it gave may be wrong too (a start in a
+            # ground anomaly); gyro and GNSS take over with an open heading variance
+            state[k + _MSTEPS] = steps
+            # (once per episode: re-opened on every reading, GNSS noise would walk the heading)
+            if (
+                params[p + _REOPEN_ON_STEP] > 0.0 and not was_disturbed
+                and s_pos(state[k + _P + 2 * N + 2]) < params[p + _R_MODEL_MAX]
+            ):  # fmt: skip
+                eskf_reopen_attitude(state, k, params, 0.0, params[p + _R_MODEL_MAX])
+        if not use_mag:
+            state[k + _LAST_MAG] = clk
+    if model_on:
+        tr = state[k + _MAGF + MF_TRUST]
+        w_out = 1.0 if tr == MAG_TRUSTED else (0.0 if tr == MAG_DISTURBED else 0.5)
+    else:
+        w_out = w_m
+    if use_mag and mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
         hn = state[kc + 0] * mx + state[kc + 1] * my + state[kc + 2] * mz
         he = state[kc + 3] * mx + state[kc + 4] * my + state[kc + 5] * mz
         bh = math.sqrt(hn * hn + he * he)
@@ -845,7 +925,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age
             stale = params[p + _MAG_STALE] * (state[kc + 6] * gx + state[kc + 7] * gy + state[kc + 8] * gz)
-            r_m = (params[p + _R_HEADING] + stale * stale) / (w_m * w_m)
+            r_m = (params[p + _R_HEADING] + stale * stale) / (w_m * w_m) + r_model
             tried = True
             if _scalar_update(state, k, psi, r_m, gate):
                 updated = passed = True
@@ -888,7 +968,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
 
     kp = k + _P
     tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
-    finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_m)
+    finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_out)
     if aided:
         add_flag(out, FLAG_VELOCITY_AIDED)
     # output: advanced by the IMU data's delay (the state is not)
@@ -953,6 +1033,10 @@ class Eskf(AttitudeFilter):
         p[_REALIGN_S] = settings.realign_after_s
         p[_GRAV_TAU] = settings.gravity_lowpass_s
         p[_ADAPT_TAU] = settings.adaptive_gravity_tau_s
+        p[_MAGF_P : _MAGF_P + MP_LEN] = magfield_params(settings.mag_model)
+        p[_R_MODEL_MAX] = settings.mag_model.max_heading_sigma_rad**2
+        p[_MIN_BODY] = settings.mag_model.min_body_field_ut**2
+        p[_REOPEN_ON_STEP] = 1.0 if settings.mag_model.reopen_heading else 0.0
         p[_DRAG_K] = settings.drag_coefficient_1_s
         p[_R_DRAG] = settings.drag_noise_m_s2**2
         p[_THRUST_TAU] = settings.thrust_axis_tau_s
@@ -982,3 +1066,24 @@ class Eskf(AttitudeFilter):
         s = np.zeros(_N_STATE)
         eskf_reset(s, 0, self._params)
         return s
+
+    def mag_model_state(self) -> dict[str, object] | None:
+        """The learnt magnetometer model (state, offsets, earth field; :func:`mag_model_summary`), None when off."""
+        if not self._settings.mag_model.enabled:  # type: ignore[attr-defined]
+            return None
+        k = S_FILTER + _MAGF
+        return mag_model_summary(self._state[k : k + MF_LEN])
+
+    def export_mag_model(self) -> dict[str, object] | None:
+        """The learnt magnetometer model to keep across a restart (:func:`magfield.export_model`)."""
+        if not self._settings.mag_model.enabled:  # type: ignore[attr-defined]
+            return None
+        k = S_FILTER + _MAGF
+        return export_model(self._state[k : k + MF_LEN])
+
+    def load_mag_model(self, saved: object) -> str | None:
+        """Start from a saved model (:func:`magfield.import_model`); return why not, None when taken."""
+        if not self._settings.mag_model.enabled:  # type: ignore[attr-defined]
+            return "the magnetometer model is off"
+        k = S_FILTER + _MAGF
+        return import_model(self._state[k : k + MF_LEN], self._settings.mag_model, saved)  # type: ignore[attr-defined]

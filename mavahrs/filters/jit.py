@@ -11,11 +11,14 @@ Cache freshness: numba re-uses a cached compilation while the *function's own
 file* is unchanged, but kernels bake in module-level constants of other files
 (the row layouts, ``P_FILTER`` = length of the gain-schedule block, …).  For
 kernels in this package the cache stamp therefore covers every ``.py`` file
-of ``mavahrs/filters`` (:class:`_FiltersCacheLocator`): editing one invalidates
+of ``mavahrs/filters`` — a hash of their contents, not their times, so that
+reinstalling the same sources keeps the kernels: editing one invalidates
 all, instead of silently running code compiled against an old layout.  The
-cache lives where numba would put it: ``NUMBA_CACHE_DIR`` when set (the
-systemd unit's ``/var/cache/mavahrs``), else ``mavahrs/filters/__pycache__``
-when writable, else the user's cache directory.  ``mavahrs warm-up``
+cache lives in ``NUMBA_CACHE_DIR`` when set (the systemd unit's
+``/var/cache/mavahrs``), else in the user's cache folder
+(``~/.cache/mavahrs/kernels``, :func:`user_cache_dir`) — outside the
+installation, which ``pip install ".[extra]"`` replaces with everything in
+it — else (no writable home) in ``mavahrs/filters/__pycache__``.  ``mavahrs warm-up``
 (:mod:`mavahrs.warmup`) fills it ahead of time; :func:`on_first_compile` tells
 the command line when a process is about to compile (a cold cache).
 
@@ -47,6 +50,7 @@ __all__ = [
     "quick_start",
     "on_first_compile",
     "cache_location",
+    "user_cache_dir",
     "HAVE_NUMBA",
 ]
 
@@ -63,15 +67,53 @@ except ImportError:  # pragma: no cover - exercised only where numba is absent
     prange = range
 
 _FILTERS_DIR = os.path.dirname(os.path.abspath(__file__))
+_PACKAGE_DIR = os.path.dirname(_FILTERS_DIR)
 
 
-def _filters_source_stamp() -> tuple[tuple[str, int, int], ...]:
-    stamp = []
+def _filters_files() -> tuple[tuple[str, int, int], ...]:
+    out = []
     for name in sorted(os.listdir(_FILTERS_DIR)):
         if name.endswith(".py"):
             st = os.stat(os.path.join(_FILTERS_DIR, name))
-            stamp.append((name, st.st_mtime_ns, st.st_size))
-    return tuple(stamp)
+            out.append((name, st.st_mtime_ns, st.st_size))
+    return tuple(out)
+
+
+_STAMPS: dict[tuple[tuple[str, int, int], ...], str] = {}
+
+
+def _filters_source_stamp() -> str:
+    """A hash of the *contents* of every ``.py`` file of ``mavahrs/filters`` (names included).
+
+    Not their modification times: reinstalling the same version (``pip install ".[http]"`` after
+    ``pip install .``) writes the same files anew, and the compiled kernels stay valid.  Hashed
+    again only when a file's time or size changes.
+    """
+    import hashlib
+
+    files = _filters_files()
+    stamp = _STAMPS.get(files)
+    if stamp is None:
+        h = hashlib.sha256()
+        for name, _t, _n in files:
+            h.update(name.encode() + b"\0")
+            with open(os.path.join(_FILTERS_DIR, name), "rb") as f:
+                h.update(f.read())
+            h.update(b"\0")
+        stamp = _STAMPS[files] = h.hexdigest()
+    return stamp
+
+
+def user_cache_dir() -> str:
+    """The kernels' cache outside the installation: ``$XDG_CACHE_HOME/mavahrs/kernels`` (``~/.cache/…``;
+    the platform's user cache folder elsewhere), so that reinstalling the package keeps it."""
+    try:
+        from numba.misc.appdirs import AppDirs
+
+        base = AppDirs(appname="mavahrs", appauthor=False).user_cache_dir
+    except Exception:  # noqa: BLE001 - numba's helper moved or absent: the XDG default
+        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "mavahrs")
+    return os.path.join(base, "kernels")
 
 
 if HAVE_NUMBA:
@@ -92,15 +134,35 @@ if HAVE_NUMBA:
     class _FiltersUserCacheLocator(_FiltersStamp, _caching.UserProvidedCacheLocator):  # type: ignore[misc]
         """``NUMBA_CACHE_DIR`` set (e.g. the systemd unit's /var/cache/mavahrs): the cache goes there."""
 
-    class _FiltersCacheLocator(_FiltersStamp, _caching.InTreeCacheLocator):  # type: ignore[misc]
-        """Otherwise ``mavahrs/filters/__pycache__`` (numba's own default place) if writable, …"""
+    class _FiltersMavahrsCacheLocator(_FiltersStamp, _caching.UserWideCacheLocator):  # type: ignore[misc]
+        """Otherwise the user's cache folder (:func:`user_cache_dir`), outside the installation: ``pip install``
+        replaces ``mavahrs/filters`` (and its ``__pycache__``) whenever an extra is added, …"""
 
-    class _FiltersUserWideCacheLocator(_FiltersStamp, _caching.UserWideCacheLocator):  # type: ignore[misc]
-        """… else the user's cache directory (an installation the user cannot write to)."""
+        def __init__(self, py_func: Any, py_file: str) -> None:
+            super().__init__(py_func, py_file)
+            self._cache_path = os.path.join(user_cache_dir(), self.get_suitable_cache_subpath(py_file))
+
+    class _FiltersCacheLocator(_FiltersStamp, _caching.InTreeCacheLocator):  # type: ignore[misc]
+        """… else (no writable home) ``mavahrs/filters/__pycache__``, numba's own default place."""
+
+    class _MavahrsCacheLocator(_caching.UserWideCacheLocator):  # type: ignore[misc]
+        """The other kernels of the package (tlog decoder, replay, CSV, fast lane: numba's own stamp, a hash of
+        their file) go to the same user cache folder, unless ``NUMBA_CACHE_DIR`` is set."""
+
+        def __init__(self, py_func: Any, py_file: str) -> None:
+            super().__init__(py_func, py_file)
+            self._cache_path = os.path.join(user_cache_dir(), self.get_suitable_cache_subpath(py_file))
+
+        @classmethod
+        def from_function(cls, py_func: Any, py_file: str) -> Any:
+            if _numba.config.CACHE_DIR or not os.path.abspath(py_file).startswith(_PACKAGE_DIR + os.sep):
+                return None
+            return super().from_function(py_func, py_file)
 
     _locators = _caching.CacheImpl._locator_classes
-    _locators[:] = [c for c in _locators if not getattr(c, "__name__", "").startswith("_Filters")]
-    _locators[0:0] = [_FiltersUserCacheLocator, _FiltersCacheLocator, _FiltersUserWideCacheLocator]  # idempotent across re-imports
+    _locators[:] = [c for c in _locators if not getattr(c, "__name__", "").startswith(("_Filters", "_Mavahrs"))]
+    _locators[0:0] = [_FiltersUserCacheLocator, _FiltersMavahrsCacheLocator, _FiltersCacheLocator,
+                      _MavahrsCacheLocator]  # idempotent across re-imports
 
 
 class _Interpreted:
@@ -263,25 +325,31 @@ def quick_start() -> bool:
     return True
 
 
-def on_first_compile(callback: Callable[[str], None]) -> Callable[[], None]:
+def on_first_compile(callback: Callable[[str], None], clock: Callable[[], float] | None = None) -> Callable[[], None]:
     """Call ``callback(kernel_name)`` once, when a cached kernel of mavahrs is first *compiled* in this process.
 
     numba announces a compilation only when the on-disk cache has no usable
     entry (a cold cache: first run on a machine, or sources changed); loading a
     cached kernel is silent.  So the callback runs, just before the first
     compilation starts, exactly when this process is about to spend the
-    20–30 s of a cold compile, and never on a warm cache.  Driver loops that
+    seconds to minutes of a cold compile, and never on a warm cache.  Driver loops that
     are compiled uncached in every process (:func:`loop_kernel`, ≈ 0.5 s) do
-    not count.  Returns a function that removes the listener.  Without numba:
-    never called.
+    not count.  Returns a function that removes the listener; with a ``clock``
+    (seconds, e.g. ``time.monotonic``) its ``compiled_s()`` tells how long the
+    compilations took (None if none).  Without numba: never called.
     """
     if not HAVE_NUMBA:
         return lambda: None
     from numba.core import event as _event
 
-    listener = _FirstCompile(callback, _event.Listener)
+    listener = _FirstCompile(callback, _event.Listener, clock)
     _event.register("numba:compile", listener.numba_listener)
-    return lambda: _event.unregister("numba:compile", listener.numba_listener)
+
+    def remove() -> None:
+        _event.unregister("numba:compile", listener.numba_listener)
+
+    remove.compiled_s = listener.compiled_s  # type: ignore[attr-defined]  # how long it compiled, s (None: it did not)
+    return remove
 
 
 class _FirstCompile:
@@ -291,9 +359,12 @@ class _FirstCompile:
     two threads never get here at the same time.
     """
 
-    def __init__(self, callback: Callable[[str], None], base: type) -> None:
+    def __init__(self, callback: Callable[[str], None], base: type, clock: Callable[[], float] | None = None) -> None:
         self._callback = callback
+        self._clock = clock
         self._fired = False
+        self._first_s: float | None = None
+        self._last_end_s: float | None = None
         owner = self
 
         class _Listener(base):  # type: ignore[misc, valid-type]
@@ -301,9 +372,16 @@ class _FirstCompile:
                 owner.started(event.data.get("dispatcher") if isinstance(event.data, dict) else None)
 
             def on_end(self, event: Any) -> None:
-                pass
+                if owner._fired and owner._clock is not None:
+                    owner._last_end_s = owner._clock()
 
         self.numba_listener = _Listener()
+
+    def compiled_s(self) -> float | None:
+        """From the first compilation's start to the last one's end, s (None before any)."""
+        if self._first_s is None or self._last_end_s is None:
+            return None
+        return self._last_end_s - self._first_s
 
     def started(self, dispatcher: Any) -> None:
         py = getattr(dispatcher, "py_func", None)
@@ -315,11 +393,13 @@ class _FirstCompile:
         if self._fired:
             return
         self._fired = True
+        self._first_s = self._clock() if self._clock is not None else None
         self._callback(getattr(py, "__qualname__", repr(py)))
 
 
 def cache_location() -> str | None:
-    """Where numba caches the filter kernels: ``NUMBA_CACHE_DIR`` when set, else their directory (None without numba)."""
+    """Where numba caches the filter kernels (``NUMBA_CACHE_DIR`` when set, else the user's cache folder, …);
+    None without numba."""
     if not HAVE_NUMBA:
         return None
     if _numba.config.CACHE_DIR:

@@ -21,6 +21,9 @@ IN_VEL_AGE  age of the velocity in IN_VEL at this sample's time:   s
             sample time − the fix's own time stamp (0 when the
             fix's time stamp is on another clock); NaN when
             IN_VEL is NaN
+IN_CURRENT  battery current (SYS_STATUS / BATTERY_STATUS), the     A
+            compass's motor interference scales with it; NaN =
+            not known
 ==========  =====================================================  ==========
 
 Output row (``OUT_WIDTH`` values): the attitude and the diagnostics.
@@ -45,7 +48,8 @@ IN_ACCEL = 4
 IN_MAG = 7
 IN_VEL = 10
 IN_VEL_AGE = 13
-IN_WIDTH = 14
+IN_CURRENT = 14
+IN_WIDTH = 15
 
 OUT_Q = 0
 OUT_GAIN = 4

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import glob
+import logging
 import math
 import os
 import socket
@@ -31,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+_log = logging.getLogger("mavahrs.fleet")
 
 __all__ = [
     "AuditSettings",
@@ -83,10 +86,14 @@ class AuditSettings:
         vibration_window_s: the vibration figure is the RMS of the
             accelerometer minus its centred moving average over this window
             (a high-pass at about 1/window Hz), m/s².
+        plot_dir: also draw each flight's second-opinion chart (divergence,
+            threshold, warnings and their evidence) into this folder, as
+            ``LOGNAME_second_opinion.png``; "" = none (``audit --plot``).
     """
 
     replay: Any = field(default_factory=_default_replay)
     vibration_window_s: float = 0.2
+    plot_dir: str = ""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.vibration_window_s) and self.vibration_window_s > 0):
@@ -130,6 +137,11 @@ class FleetRow:
         ground_alarms: disagreements it raised on the ground, at take-off or
             touchdown (NOTICEs naming the phase; not counted in ``alarms``).
         ground_alarm_times_s: their boot times and phases, ``12.345 touchdown;…``.
+        alarm_causes: per WARNING (``;``-separated, as ``alarm_times_s``) who is
+            likely wrong, the evidence it ended with (``mag``: the magnetometer's
+            field is not the expected one; ``AP?`` / ``us?``: the GNSS velocity
+            change agrees with our attitude / with the autopilot's; ``IMU2?``:
+            that IMU; space-separated, "" = no evidence).
         gyro_clip_fraction: fed samples with a gyro axis at ≥ the saturation
             fraction of the sensor's full scale (0–1).
         accel_clip_fraction: fed samples whose accelerometer was at its limit
@@ -170,6 +182,7 @@ class FleetRow:
     alarm_times_s: str = ""
     ground_alarms: int | None = None
     ground_alarm_times_s: str = ""
+    alarm_causes: str = ""
     gyro_clip_fraction: float = math.nan
     accel_clip_fraction: float = math.nan
     vibration_x_m_s2: float = math.nan
@@ -328,26 +341,15 @@ def _second_opinion(
     result: Any, row: FleetRow, s: AuditSettings, ref: str, phase_events: list[tuple[float, str, float]]
 ) -> FleetRow:
     """What the daemon would have published vs the log's own attitude ``ref`` (the monitor's WARNINGs)."""
-    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
-    from mavahrs.service.monitor import monitor_series
-
-    prep = result.inputs
-    ps = s.replay.pipeline_settings()
     if not ref:
         return row
-    track = next(iter(result.tracks.values()))
-    sent = np.flatnonzero(track.sent)
-    t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
-    q_est = track.out[sent, OUT_Q : OUT_Q + 4]
-    t_ref_us, q_ref = result.references[ref]
-    mon = ps.monitor
-    heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
-    aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
-    sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
-    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
-                            tilt_sigma_rad=sigma, phase_events=phase_events)  # fmt: skip
-    warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING]
-    ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE]
+    mon = s.replay.pipeline_settings().monitor
+    series, t_est_ms = replay_monitor(result, mon, ref, phase_events)
+    if s.plot_dir:
+        row = _plot_flight(result, series, Path(s.plot_dir), ref, row)
+    warns = [e for e in series.events if e.severity == _MAV_SEVERITY_WARNING and not e.update]
+    ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE and not e.update]
+    causes = episode_causes(series.events)
     judged = np.isfinite(series.tilt_deg)
     if t_est_ms.size:
         judged &= series.t_ms >= t_est_ms[0] + mon.startup_grace_s * 1000.0
@@ -360,8 +362,129 @@ def _second_opinion(
         heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
         alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
         alarm_times_s=";".join(f"{t:.3f}" for t in times), ground_alarms=len(ground),
+        alarm_causes=";".join(causes[id(e)] for e in warns),
         ground_alarm_times_s=";".join(f"{e.t_ms / 1000.0:.3f} {e.phase}" for e in ground),
     )  # fmt: skip
+
+
+def _plot_flight(result: Any, series: Any, folder: Path, ref: str, row: FleetRow) -> FleetRow:
+    from mavahrs.evaluation.plots import PlotError, plot_second_opinion
+
+    try:
+        plot_second_opinion(folder / f"{Path(result.path).stem}_second_opinion.png", series,
+                            title=f"{Path(result.path).name} vs {ref}")  # fmt: skip
+    except PlotError as exc:  # a row is never lost to its drawing
+        return _replace(row, notes=" | ".join(x for x in (row.notes, f"no plot: {exc}") if x))
+    return row
+
+
+def replay_monitor(
+    result: Any, mon: Any, ref: str, phase_events: list[tuple[float, str, float]]
+) -> tuple[Any, np.ndarray]:
+    """The daemon's monitor over a replay (``result``, :func:`mavahrs.replay.replay`): our first filter's
+    published attitudes against the log's attitude ``ref``, with our confidence and the samples behind each
+    estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and our estimates'
+    times, ms."""
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
+    from mavahrs.service.monitor import monitor_series
+
+    prep = result.inputs
+    track = next(iter(result.tracks.values()))
+    sent = np.flatnonzero(track.sent)
+    try:
+        imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings())
+    except Exception as exc:  # noqa: BLE001 - the IMU check is evidence, never the reason a flight fails
+        _log.warning("%s: the IMUs' gyros could not be compared: %s", result.path, exc)
+        imus = []
+    t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
+    q_est = track.out[sent, OUT_Q : OUT_Q + 4]
+    t_ref_us, q_ref = result.references[ref]
+    heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
+    aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
+    sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
+    series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
+                            tilt_sigma_rad=sigma, phase_events=phase_events,
+                            sensors=monitor_sensors(prep, sent, imus))  # fmt: skip
+    return series, t_est_ms
+
+
+def episode_causes(events: Any) -> dict[int, str]:
+    """Per raised disagreement (``id`` of its event), the evidence it ended with: its own, or that of the
+    last time it was said again with new evidence (``MonitorEvent.update``)."""
+    out: dict[int, str] = {}
+    current = None
+    for e in events:
+        if e.update and current is not None:
+            out[current] = e.cause
+        elif e.evidence is not None and not e.update:
+            current = id(e)
+            out[current] = e.cause
+        else:
+            current = None
+    return out
+
+
+def monitor_sensors(prep: Any, sent: np.ndarray, imus: Any = ()) -> Any:
+    """The samples behind the estimates sent (``sent``: row indices), for the monitor's evidence: specific
+    force, magnetometer, the GNSS velocity last fixed (true north), the expected field (the pipeline's)."""
+    from mavahrs.filters.layout import IN_ACCEL, IN_MAG, IN_VEL, IN_VEL_AGE
+    from mavahrs.service.monitor import MonitorSensors
+
+    rows = prep.rows
+    n = rows.shape[0]
+    t_ms = prep.t_us.astype(np.float64) / 1000.0
+    has = np.isfinite(rows[:, IN_VEL]) & np.isfinite(rows[:, IN_VEL + 1]) & np.isfinite(rows[:, IN_VEL_AGE])
+    last = np.maximum.accumulate(np.where(has, np.arange(n), -1)) if n else np.zeros(0, np.int64)
+    last_s = last[sent]
+    ok = last_s >= 0
+    idx = np.where(ok, last_s, 0)
+    d = prep.declination_rad[idx]  # the rows' velocity is in the filter's (magnetic) frame: back to true north
+    vn_m, ve_m = rows[idx, IN_VEL], rows[idx, IN_VEL + 1]
+    vel = np.stack([vn_m * np.cos(d) - ve_m * np.sin(d), vn_m * np.sin(d) + ve_m * np.cos(d)], axis=1)
+    vel[~ok] = np.nan
+    vel_t = np.where(ok, t_ms[idx] - 1000.0 * rows[idx, IN_VEL_AGE], np.nan)
+    refs = [(float(t_ms[min(max(i, 0), n - 1)]) if n else 0.0, float(a), float(b))
+            for i, a, b in prep.mag_reference_events]  # fmt: skip
+    return MonitorSensors(rows[sent, IN_ACCEL : IN_ACCEL + 3], rows[sent, IN_MAG : IN_MAG + 3], vel, vel_t, refs,
+                          imus)
+
+
+def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Every IMU instance's gyro in a tlog (``IMU1`` = instance 0 …; boot-clock ms, rad/s), scaled as the
+    replay scales its own, for the monitor to name an IMU that is off; [] where the log has one IMU."""
+    from mavahrs.evaluation.tlogdata import IMU_TYPES, _scale
+    from mavahrs.sensors.profiles import get_profile
+
+    arrays = getattr(td, "arrays", None)
+    if arrays is None:
+        return []
+    prof = get_profile(prep.profile)
+    src = prep.source
+    per: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for name in IMU_TYPES:
+        a = arrays.get(name) if hasattr(arrays, "get") else arrays[name]
+        ms = prof.scale_for(name)
+        if a is None or not a.shape[0] or ms is None:
+            continue
+        a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+        if not a.shape[0]:
+            continue
+        sc = _scale(name, a, ms, settings.scaling)
+        ok = sc["use"] & ~sc["zero"] & np.all(np.isfinite(sc["gyro"]), axis=1)
+        for inst in np.unique(sc["imu"][ok]).tolist():
+            sel = ok & (sc["imu"] == inst)
+            per.setdefault(int(inst), []).append((sc["t_us"][sel] / 1000.0, np.array(sc["gyro"][sel])))
+    if len(per) < 2:
+        return []
+    out = []
+    for inst, parts in sorted(per.items()):
+        t = np.concatenate([p[0] for p in parts])
+        g = np.concatenate([p[1] for p in parts])
+        order = np.argsort(t, kind="stable")
+        t, g = t[order], g[order]
+        keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)  # re-sends once
+        out.append((f"IMU{inst + 1}", t[keep], g[keep]))
+    return out
 
 
 def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:

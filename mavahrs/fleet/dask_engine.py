@@ -54,6 +54,28 @@ def available() -> bool:
     return True
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail at once, with a clear reason, when nothing accepts connections at a ``tcp://HOST:PORT`` scheduler
+    address (Dask's client would retry a refused connection silently for its whole 60 s time-out)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from mavahrs.errors import TransportError
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname:
+        return  # another transport (inproc, ucx, ws): Dask's client decides
+    port = parts.port or 8786
+    try:
+        socket.create_connection((parts.hostname, port), timeout=timeout_s).close()
+    except OSError as exc:
+        reason = "connection refused" if isinstance(exc, ConnectionRefusedError) else (exc.strerror or str(exc))
+        raise TransportError(
+            f"no Dask scheduler at {address} ({reason}): start one there (`dask scheduler`) with workers "
+            "(`dask worker ADDRESS`), or leave out --scheduler (and DASK_SCHEDULER_ADDRESS) for a local cluster"
+        ) from None
+
+
 class DaskEngine:
     """A Dask client, local or remote, mapping a function over items (one task each).
 
@@ -80,9 +102,18 @@ class DaskEngine:
             settings["temporary-directory"] = self._scratch
         self._config = dask.config.set(settings)
         self._config.__enter__()
+        log = logging.getLogger("mavahrs.fleet")  # audit keeps this one at INFO (the per-log lines: WARNING)
         if self.scheduler:
+            try:
+                _check_reachable(self.scheduler)
+            except BaseException:
+                self.__exit__(None, None, None)
+                raise
+            log.info("connecting to the Dask scheduler at %s …", self.scheduler)
             self._client = Client(self.scheduler, timeout="60s")
         else:
+            log.info("starting a local Dask cluster of %d worker process%s …", self.workers,
+                        "es" if self.workers != 1 else "")  # fmt: skip
             try:
                 self._cluster = LocalCluster(
                     n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=":0",

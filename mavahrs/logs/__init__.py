@@ -1,7 +1,7 @@
 """Log readers: telemetry (.tlog), ArduPilot DataFlash (.BIN) and PX4 ULog (.ulg).
 
 Every reader ends in the same place, a :class:`LogInputs`: the filter's input rows
-(:class:`~mavahrs.evaluation.tlogdata.PreparedInputs`, the layout of
+(:class:`~mavahrs.ingest.arrays.PreparedInputs`, the layout of
 :mod:`mavahrs.filters.layout`) and the attitudes to compare against, so replay,
 evaluate, tune and audit run the same code downstream whatever the log's format.
 
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mavahrs.evaluation.tlogdata import PreparedInputs
+    from mavahrs.ingest.arrays import PreparedInputs
 
 __all__ = ["FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES"]
 
@@ -77,6 +77,9 @@ class LogInputs:
         parameters: the autopilot's parameters recorded in the log (name → value).
         truncated: the log ends inside a record (cut off): read up to its last whole record.
         start_us: the log's first time stamp on ``inputs.t_us``'s clock (what ``start_s``/``end_s`` count from).
+        series: other time series the log holds, name → columns (each with ``t_us`` on the same clock), e.g.
+            DataFlash ``battery`` (``current_a``, ``voltage_v``), ``vibration`` (``imu``, ``x_m_s2`` …,
+            ``clips``), ``batch_sampler`` (ISBH headers: ``sensor``, ``instance``, ``rate_hz``, ``samples``).
     """
 
     path: str
@@ -87,6 +90,7 @@ class LogInputs:
     parameters: dict[str, float] = field(default_factory=dict)
     truncated: bool = False
     start_us: int = 0
+    series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 def unsupported_message(path: str | Path) -> str:

@@ -38,14 +38,23 @@ ArduPilot's body frame is FRD, its earth frame NED, angles in degrees, yaw
   when the autopilot got the fix; the receiver's own lag (``GPS_DELAY_MS`` /
   ``GPS1_DELAY_MS``, else the driver's) comes on top and is not added, as for
   GPS_RAW_INT's ``time_usec`` in a tlog.
-* references: ``XKQ`` core 0 (EKF3's quaternion, body→NED, scalar first) as
-  ``autopilot EKF3``, ``ATT`` (Roll/Pitch/Yaw deg) as ``autopilot ATT``,
+* references: ``XKQ`` (EKF3's quaternion, body→NED, scalar first; an older
+  firmware's ``XKF1`` Euler angles when there is no XKQ), core 0 as
+  ``autopilot EKF3`` and each further core (one per IMU) as ``autopilot EKF3
+  core N``, ``ATT`` (Roll/Pitch/Yaw deg) as ``autopilot ATT``,
   ``AHR2`` (DCM, quaternion) as ``autopilot DCM``; in SITL ``SIM``
   (the simulator's true attitude, quaternion Q1–Q4, about 25 Hz) as
   ``SIM truth``, and ``SIM2`` (true NED velocity at the loop rate) counted in
   ``found``.
 * ``PARM``: every parameter (last value wins); ``SYSID_THISMAV`` is the
-  system id of the frames replay would send.
+  system id of the frames replay would send; ``INS_GYRO_FILTER`` gives the
+  IMU data's delay (below), ``SCHED_LOOP_RATE`` is checked against the fed
+  rate (a note when the IMU was logged slower), ``COMPASS_DEC`` (rad) is the
+  declination when no GPS fix gives the magnetic model a position.
+* ``BAT`` (``Curr`` A, ``Volt`` V, first battery), ``VIBE`` (per IMU, m/s²,
+  clip count) and the batch sampler's ``ISBH``/``ISBD`` headers go to
+  :attr:`~mavahrs.logs.LogInputs.series` and the replay header; none feeds
+  the filters (ISBD holds raw bursts, not a continuous stream).
 
 A log cut off in the middle of a record is read up to its last whole record
 and flagged (:attr:`~mavahrs.logs.LogInputs.truncated`); bytes that are not
@@ -395,13 +404,26 @@ def _references(sc: DataflashScan, found: list[str]) -> dict[str, tuple[Array, A
     def quat(m: dict[str, np.ndarray]) -> np.ndarray:
         return np.stack([m["Q1"], m["Q2"], m["Q3"], m["Q4"]], axis=1).astype(np.float64)
 
+    # EKF3, one core per IMU: core 0 is "autopilot EKF3", the others "autopilot EKF3 core N"; the quaternion
+    # (XKQ) where logged, else the Euler angles of XKF1 (older firmware)
     xkq = decode(sc, "XKQ")
-    if xkq is not None and xkq["TimeUS"].shape[0]:
-        core = xkq["C"] == 0 if "C" in xkq else np.ones(xkq["TimeUS"].shape[0], bool)
-        got = _clean_reference(xkq["TimeUS"][core], quat(xkq)[core])
-        if got is not None:
-            refs["autopilot EKF3"] = got
-            lines.append(f"autopilot EKF3 (XKQ core 0, {_rate_hz(got[0]):.0f} Hz)")
+    xkf1 = decode(sc, "XKF1")
+    for src, what in ((xkq, "XKQ"), (xkf1, "XKF1")):
+        if src is None or src["TimeUS"].shape[0] == 0 or any(k.startswith("autopilot EKF3") for k in refs):
+            continue
+        cores = src["C"].astype(np.int64) if "C" in src else np.zeros(src["TimeUS"].shape[0], np.int64)
+        for c in np.unique(cores).tolist():
+            sel = cores == c
+            if what == "XKQ":
+                q = quat(src)[sel]
+            else:
+                q = from_euler_rad(*(np.radians(src[k][sel].astype(np.float64)) for k in ("Roll", "Pitch", "Yaw")))
+            got = _clean_reference(src["TimeUS"][sel], q)
+            if got is None:
+                continue
+            name = "autopilot EKF3" if c == 0 else f"autopilot EKF3 core {c}"
+            refs[name] = got
+            lines.append(f"{name} ({what} core {c}, {_rate_hz(got[0]):.0f} Hz)")
     att = decode(sc, "ATT")
     if att is not None and att["TimeUS"].shape[0]:
         r = np.radians(att["Roll"].astype(np.float64))
@@ -433,8 +455,59 @@ def _references(sc: DataflashScan, found: list[str]) -> dict[str, tuple[Array, A
     if lines:
         found.append("references: " + "; ".join(lines))
     else:
-        found.append("references: none (no XKQ, ATT, AHR2 or SIM)")
+        found.append("references: none (no XKQ, XKF1, ATT, AHR2 or SIM)")
     return refs
+
+
+#: ISBH ``type``: the batch sampler's sensor (AP_InertialSensor::IMU_SENSOR_TYPE)
+_ISB_SENSOR = {0: "accel", 1: "gyro"}
+
+
+def _series(sc: DataflashScan, found: list[str]) -> dict[str, dict[str, np.ndarray]]:
+    """Battery (BAT), vibration (VIBE) and the batch sampler's headers (ISBH/ISBD), for the header and callers.
+
+    None of them feeds the filters: the battery current is there for a magnetometer's current compensation
+    (ArduPilot's ``COMPASS_MOT*``), VIBE is the autopilot's own vibration figure (beside the one computed
+    from the fed IMU samples), and the batch sampler logs raw bursts (``INS_LOG_BAT_*``), not a continuous
+    stream.
+    """
+    out: dict[str, dict[str, np.ndarray]] = {}
+    bat = decode(sc, "BAT")
+    if bat is not None and bat["TimeUS"].shape[0]:
+        inst = bat["Inst"] if "Inst" in bat else bat.get("I", np.zeros(bat["TimeUS"].shape[0], np.uint8))
+        first = inst == np.min(inst)
+        cur = bat["Curr"][first].astype(np.float64) if "Curr" in bat else np.full(int(first.sum()), _NAN)
+        volt = bat["Volt"][first].astype(np.float64) if "Volt" in bat else np.full(int(first.sum()), _NAN)
+        out["battery"] = {"t_us": bat["TimeUS"][first].astype(np.int64), "current_a": cur, "voltage_v": volt}
+        ok = np.isfinite(cur)
+        span = f"current {np.min(cur[ok]):.1f}–{np.max(cur[ok]):.1f} A (mean {np.mean(cur[ok]):.1f})" if ok.any() else "no current"
+        found.append(f"BAT: {_rate_hz(out['battery']['t_us']):.0f} Hz, {span}, "
+                     f"{np.nanmin(volt):.1f}–{np.nanmax(volt):.1f} V (battery {int(np.min(inst))})")  # fmt: skip
+    vibe = decode(sc, "VIBE")
+    if vibe is not None and vibe["TimeUS"].shape[0]:
+        imu_col = vibe["IMU"] if "IMU" in vibe else np.zeros(vibe["TimeUS"].shape[0], np.uint8)
+        clip = vibe["Clip"] if "Clip" in vibe else vibe.get("Clip0", np.zeros(vibe["TimeUS"].shape[0]))
+        out["vibration"] = {"t_us": vibe["TimeUS"].astype(np.int64), "imu": imu_col.astype(np.int64),
+                            "x_m_s2": vibe["VibeX"].astype(np.float64), "y_m_s2": vibe["VibeY"].astype(np.float64),
+                            "z_m_s2": vibe["VibeZ"].astype(np.float64), "clips": clip.astype(np.int64)}  # fmt: skip
+        parts = []
+        for i in np.unique(imu_col).tolist():
+            sel = imu_col == i
+            peak = max(float(np.max(vibe[k][sel])) for k in ("VibeX", "VibeY", "VibeZ"))
+            parts.append(f"IMU {int(i)} peak {peak:.1f} m/s², {int(np.max(clip[sel]))} clips")
+        found.append(f"VIBE: {'; '.join(parts)}")
+    isbh = decode(sc, "ISBH")
+    if isbh is not None and isbh["TimeUS"].shape[0]:
+        out["batch_sampler"] = {"t_us": isbh["TimeUS"].astype(np.int64), "sensor": isbh["type"].astype(np.int64),
+                                "instance": isbh["instance"].astype(np.int64),
+                                "rate_hz": isbh["smp_rate"].astype(np.float64),
+                                "samples": isbh["smp_cnt"].astype(np.int64)}  # fmt: skip
+        kinds = sorted({(_ISB_SENSOR.get(int(k), str(int(k))), int(i), float(r)) for k, i, r in
+                        zip(isbh["type"], isbh["instance"], isbh["smp_rate"], strict=True)})  # fmt: skip
+        found.append(f"batch sampler (ISBH/ISBD): {isbh['TimeUS'].shape[0]} bursts, {sc.count('ISBD')} data records ("
+                     + ", ".join(f"{k} {i} at {r:.0f} Hz" for k, i, r in kinds)
+                     + "): raw bursts, not fed to the filters")  # fmt: skip
+    return out
 
 
 def read_dataflash(
@@ -451,8 +524,8 @@ def read_dataflash(
     Raises:
         DataError: not a DataFlash log, no IMU records, nothing usable.
     """
-    from mavahrs.evaluation.tlogdata import PreparedInputs, _calibrate, _timeline, _velocity_setting
     from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+    from mavahrs.ingest.arrays import PreparedInputs, _calibrate, _timeline, _velocity_setting
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource, decimal_year_from_unix_s, rotate_true_to_magnetic
     from mavahrs.sensors.profiles import get_profile
@@ -547,6 +620,11 @@ def read_dataflash(
     dt[0] = _NAN
     m = t_us.shape[0]
     chosen = int(np.bincount(sub["I"][idx].astype(np.int64)).argmax())
+    loop = params.get("SCHED_LOOP_RATE")
+    fed_hz = _rate_hz(t_us)
+    if loop is not None and math.isfinite(loop) and loop > 0 and fed_hz < 0.95 * loop:
+        notes.append(f"IMU logged at {fed_hz:.0f} Hz, below the loop rate (SCHED_LOOP_RATE {loop:g}): the log "
+                     "holds every IMU sample only with LOG_BITMASK's IMU_FAST bit)")  # fmt: skip
     found.append(f"IMU: instances {rates}; fed: instance {chosen}, {_rate_hz(t_us):.0f} Hz "
                  f"(INS_GYRO_FILTER {params.get('INS_GYRO_FILTER', float('nan')):g} Hz, "
                  f"SCHED_LOOP_RATE {params.get('SCHED_LOOP_RATE', float('nan')):g})")  # fmt: skip
@@ -624,6 +702,14 @@ def read_dataflash(
                         f"its record: {lag_why})" if use_vel else "velocity not used (velocity_source none)"))  # fmt: skip
     else:
         found.append("GPS: no 3D fix (no declination from the magnetic model unless configured; no velocity)")
+    # no position for the magnetic model and no declination configured: the autopilot's own COMPASS_DEC
+    # (radians, positive east; what it used itself, learnt or set), rather than none
+    mag_s = s.magnetic
+    cdec = params.get("COMPASS_DEC")
+    if (decl.field is None and mag_s.true_north and mag_s.declination_deg is None and cdec is not None
+            and math.isfinite(cdec) and cdec != 0.0 and abs(cdec) <= math.pi):  # fmt: skip
+        decl_at[:] = cdec
+        found.append(f"declination: COMPASS_DEC {math.degrees(cdec):.2f}° (no GPS fix for the magnetic model)")
     # --- calibration as the pipeline applies it (the logged values are the autopilot's calibrated ones)
     cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
     if cal.active:
@@ -634,6 +720,7 @@ def read_dataflash(
                                                 "COMPASS_DEC", "AHRS_EKF_TYPE") if k in params]  # fmt: skip
         found.append(f"parameters: {n_par} ({', '.join(shown)})")
     refs = _references(sc, found)
+    series = _series(sc, found)
     found.append(f"read with numpy over the log's FMT records: {len(sc.offsets)} records of {len(sc.formats)} types")
     sysid = int(params.get("SYSID_THISMAV", 1)) or 1
     # the logged IMU values trail TimeUS by the group delay of the autopilot's low-pass (second order):
@@ -649,12 +736,12 @@ def read_dataflash(
         velocity_source=_velocity_setting(s), velocity_fixes={"GPS": fixes} if use_vel else {},
     )  # fmt: skip
     return LogInputs(path=str(p), format="dataflash", inputs=prep, references=refs, found=found,
-                     parameters=params, truncated=truncated, start_us=t0)  # fmt: skip
+                     parameters=params, truncated=truncated, start_us=t0, series=series)  # fmt: skip
 
 
 def _timeline_or_error(p: Path, t_us: Any, gyro: Any, accel: Any, s: Any, timeline: Any) -> tuple[Any, Any]:
     """The pipeline's timeline over the fed samples (a reboot inside one log is not expected: say so)."""
-    from mavahrs.evaluation.tlogdata import FastPathUnsupported
+    from mavahrs.ingest.arrays import FastPathUnsupported
 
     try:
         return timeline(t_us, t_us, gyro, accel, s)

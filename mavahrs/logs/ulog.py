@@ -2,7 +2,7 @@ r"""PX4 ULog (``.ulg``) as filter inputs, through pyulog.
 
 :func:`read_ulog` reads only the topics it needs (pyulog's
 ``message_name_filter_list``) and builds the filter's input rows
-(:class:`~mavahrs.evaluation.tlogdata.PreparedInputs`, layout of
+(:class:`~mavahrs.ingest.arrays.PreparedInputs`, layout of
 :mod:`mavahrs.filters.layout`) on the log's own clock: ``t_us`` is the ULog
 ``timestamp`` of the IMU topic (µs since PX4 booted).
 
@@ -61,7 +61,7 @@ References (``LogInputs.references``): ``"EKF2"`` = ``vehicle_attitude.q``
 simulator's state; named ``"groundtruth truth"`` when the log is not from SIH),
 each at its ``timestamp_sample`` (the IMU sample it describes) where logged.
 
-The other :class:`~mavahrs.evaluation.tlogdata.PreparedInputs` fields: ``frame_pos`` is the
+The other :class:`~mavahrs.ingest.arrays.PreparedInputs` fields: ``frame_pos`` is the
 sample's index, ``tlog_us`` = ``t_us`` (a ULog has one clock), ``temperature_c`` the gyro's from
 ``vehicle_imu_status`` (about 1 Hz, held; NaN before it or without it), ``source`` the ids in
 ``vehicle_status`` (else PX4's 1/1), ``engine`` ``fast`` (built over arrays, filtered in blocks).
@@ -263,7 +263,7 @@ def _timeline(t_us: NDArray[np.int64], max_gap_s: float) -> tuple[NDArray[np.boo
     backward stamps are dropped.  A real gap (the clock stays ahead) reaches the
     filter as a long dt, as on the pipeline: the filters re-initialise.
     """
-    from mavahrs.evaluation.tlogdata import _GAP_DT_S
+    from mavahrs.ingest.arrays import _GAP_DT_S
 
     n = t_us.shape[0]
     keep = np.ones(n, bool)
@@ -327,7 +327,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     Raises:
         DataError: empty, not a ULog, damaged beyond reading, no IMU data.
     """
-    from mavahrs.evaluation.tlogdata import PreparedInputs, _calibrate
+    from mavahrs.ingest.arrays import PreparedInputs, _calibrate
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile

@@ -61,6 +61,8 @@ __all__ = [
 ]
 
 _log = logging.getLogger(__name__)
+#: (model, date) pairs already warned about as outside the model's span (:func:`expected_field`)
+_WARNED_OUTSIDE: set[tuple[str, float]] = set()
 
 Array = NDArray[np.float64]
 
@@ -145,7 +147,9 @@ def expected_field(lat_deg: float, lon_deg: float, alt_m: float, decimal_year: f
         glat=float(lat_deg), glon=lon, alt=alt_m / 1000.0, time=float(decimal_year),
         allow_date_outside_lifespan=not within,
     )  # fmt: skip
-    if not within:
+    if not within and (str(model.model), round(decimal_year, 1)) not in _WARNED_OUTSIDE:
+        # once per model and date in a process: every filter of a replay has its own pipeline and field
+        _WARNED_OUTSIDE.add((str(model.model), round(decimal_year, 1)))
         _log.warning(
             "date %.2f lies outside the World Magnetic Model's %g–%g span: extrapolating %s",
             decimal_year, WMM_FIRST_YEAR, WMM_END_YEAR, model.model,
@@ -336,6 +340,9 @@ class DeclinationSource:
         self._declination_rad = 0.0
         self._changes = 0
         self._logged: tuple[str, str, str] | None = None  # the field as last logged (rounded text)
+        #: log the field at INFO (False: DEBUG only — e.g. the further pipelines of a multi-filter replay,
+        #: which compute the same field as the first)
+        self.announce = True
         if s.latitude_deg is not None and s.longitude_deg is not None:
             self._position = (s.latitude_deg, s.longitude_deg, s.altitude_m or 0.0)
             self._position_source = "settings"
@@ -432,7 +439,7 @@ class DeclinationSource:
         two contradicting lines.
         """
         shown = (f"{model.declination_deg:.1f}", f"{model.inclination_deg:.1f}", f"{model.strength_ut:.1f}")
-        level = logging.DEBUG if shown == self._logged else logging.INFO
+        level = logging.DEBUG if shown == self._logged or not self.announce else logging.INFO
         self._logged = shown
         lat, lon = self._computed_at[0], self._computed_at[1]  # type: ignore[index]
         _log.log(level, "magnetic field from %s at %.4f, %.4f: declination %s°, inclination %s°, %s µT",

@@ -94,6 +94,12 @@ class DaemonSettings:
         latency_ring: processing-latency samples kept for percentiles.
         stats_path: write a JSON summary (counters, latency, CPU) here at
             exit; None = don't.
+        mag_model_path: keep the learnt magnetometer model (the compass's
+            field per ampere of battery current and its offset;
+            :mod:`mavahrs.filters.magfield`) in this small JSON file across
+            restarts: read at start, written at exit once something was
+            learnt.  One file per vehicle (the earth field is not kept: the
+            WMM at the new position seeds it).  None = not kept.
         signing_key_path: MAVLink 2 signing key file (64 hex characters or a
             passphrase, key = SHA-256 of it as MAVProxy's ``signing setup``;
             must not be readable by other users); every frame we send is
@@ -142,6 +148,7 @@ class DaemonSettings:
     max_tcp_clients: int = 8
     latency_ring: int = 16384
     stats_path: str | None = None
+    mag_model_path: str | None = None
     signing_key_path: str | None = None
     require_signing: bool = False
     signing_link_id: int = 0
@@ -403,6 +410,10 @@ class Daemon:
         self.sink = sink
         self.log = logger or logging.getLogger("mavahrs.daemon")
         self.counters = DaemonCounters()
+        from mavahrs.service.pilot import PilotInfo
+
+        self.pilot = PilotInfo()  # the last messages the status page's pilot fields read (mavahrs.service.pilot)
+        self._load_mag_model()
         self.latency = LatencyRing(settings.latency_ring)
         self._notices = Notices(repeat_s=60.0)
         self._inbox: deque[tuple[int, bytes]] = deque(maxlen=settings.input_queue)
@@ -574,6 +585,7 @@ class Daemon:
     def _process_inbox(self) -> None:
         inbox, c, handle, decode = self._inbox, self.counters, self.pipeline.handle, self._decode
         sink = self.sink
+        observe = self.pilot.observe
         perf = time.perf_counter_ns
         hb_type = self._heartbeat_type
         chained: deque[bytes | None] = deque()  # answers already sent for the next datagrams (see below)
@@ -618,6 +630,7 @@ class Daemon:
                 c.messages_in += 1
                 if sink is not None:
                     sink.write(wall_us, msg.get_msgbuf(), now_s)
+                observe(msg)
                 if type(msg) is hb_type and msg.autopilot != _MAV_AUTOPILOT_INVALID and not self._own(msg):
                     self._on_heartbeat(now_s)
                 try:
@@ -848,6 +861,7 @@ class Daemon:
             "bias_deg_s": list(p["bias_deg_s"]) if p.get("bias_deg_s") is not None else None,
             "heading_reference": p.get("heading_reference"),
             "velocity": p.get("velocity"),
+            "magnetometer": p.get("magnetometer"),
             "connected": p.get("connected"),
             "crc_errors": cc.crc_errors,
             "bad_data": cc.bad_data,
@@ -1003,6 +1017,7 @@ class Daemon:
             self.counters.input_dropped,
             "off" if self.sink is None else f"{self.sink.frames} frames ({self.sink.state})",
         )
+        self._save_mag_model()
         if s.stats_path:
             try:
                 with open(s.stats_path, "w", encoding="utf-8") as f:
@@ -1010,6 +1025,41 @@ class Daemon:
             except OSError as exc:
                 self.log.error("cannot write statistics to %s: %s", s.stats_path, exc.strerror or exc)
         return DaemonResult(reason=result_reason, signal_name=self._signal_name, run_s=run_s, stats=stats)
+
+    def _load_mag_model(self) -> None:
+        """``mag_model_path``: start the filter's magnetometer model from the saved one (a bad file: logged, ignored)."""
+        path = self.settings.mag_model_path
+        f = getattr(self.pipeline, "filter", None)
+        load = getattr(f, "load_mag_model", None)
+        if not path or load is None or not os.path.exists(path):
+            return
+        try:
+            with open(path, encoding="utf-8") as fh:
+                saved = json.load(fh)
+        except (OSError, ValueError) as exc:
+            self.log.warning("magnetometer model %s not read (%s): learning from scratch", path, exc)
+            return
+        why = load(saved)
+        if why is None:
+            self.log.info("magnetometer model read from %s: %s µT/A", path, saved.get("motor_ut_per_a"))
+        else:
+            self.log.warning("magnetometer model %s not used (%s): learning from scratch", path, why)
+
+    def _save_mag_model(self) -> None:
+        path = self.settings.mag_model_path
+        export = getattr(getattr(self.pipeline, "filter", None), "export_mag_model", None)
+        if not path or export is None:
+            return
+        model = export()
+        if model is None:
+            return  # nothing learnt: the saved file (if any) stays as it is
+        tmp = f"{path}.tmp"
+        try:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                json.dump(model, fh)
+            os.replace(tmp, path)
+        except OSError as exc:
+            self.log.error("cannot write the magnetometer model to %s: %s", path, exc.strerror or exc)
 
     def close(self) -> None:
         """Flush and close the log, close the links (idempotent)."""

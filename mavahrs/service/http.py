@@ -245,6 +245,7 @@ class StatusPublisher:
             "second_opinion": None if mon is None else {
                 "tilt_deg": _finite(mon.tilt_deg), "heading_deg": _finite(mon.heading_deg),
                 "warning": mon.warning, "comparisons": mon.comparisons, "episodes": mon.episodes,
+                **_second_opinion_extra(mon),
             },
             "datagrams_in": c.datagrams_in,
             "messages_in": c.messages_in,
@@ -252,7 +253,47 @@ class StatusPublisher:
             "input_dropped": c.input_dropped,
             "master": daemon.settings.master,
         }
+        out["pilot"] = _pilot(daemon, fields)
         return _jsonable(out)
+
+
+def _pilot(daemon: Any, fields: dict[str, Any]) -> dict[str, Any] | None:
+    """The pilot's fields (armed, mode, battery, altitude, speed, GNSS, field strength, recording, latency)."""
+    from mavahrs.service.pilot import pilot_fields
+
+    try:
+        return pilot_fields(daemon, fields)
+    except Exception:  # noqa: BLE001 - a malformed message must not take the page down
+        return None
+
+
+def _second_opinion_extra(mon: Any) -> dict[str, Any]:
+    """The thresholds, the flight's phase and who is likely wrong (docs/status-page.md, ``second_opinion``)."""
+    ev = getattr(mon, "evidence", None)
+    return {
+        "tilt_threshold_deg": _finite(getattr(mon, "tilt_threshold_deg", math.nan)),
+        "heading_threshold_deg": _finite(getattr(mon, "heading_threshold_deg", math.nan)),
+        "phase": getattr(mon, "phase", None),
+        "cause": getattr(mon, "cause", "") or "",
+        "evidence": ev.as_dict() if ev is not None else None,
+        "evidence_text": ev.text() if ev is not None else "",
+        "strip": _strip(getattr(mon, "strip", ())),
+    }
+
+
+def _strip(points: Any) -> dict[str, list[Any]]:
+    """The strip chart's history as columns (``second_opinion.strip`` in docs/status-page.md)."""
+    cols: dict[str, list[Any]] = {k: [] for k in (
+        "t_s", "tilt_deg", "heading_deg", "tilt_threshold_deg", "heading_threshold_deg", "warning", "raised")}
+    for t, tilt, hdg, t_thr, h_thr, warn, raised in points:
+        cols["t_s"].append(round(t, 2))
+        cols["tilt_deg"].append(_finite(round(tilt, 3)))
+        cols["heading_deg"].append(_finite(round(hdg, 3)))
+        cols["tilt_threshold_deg"].append(_finite(round(t_thr, 3)))
+        cols["heading_threshold_deg"].append(_finite(round(h_thr, 3)))
+        cols["warning"].append(bool(warn))
+        cols["raised"].append(int(raised))
+    return cols
 
 
 class _AutopilotCache:

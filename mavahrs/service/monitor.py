@@ -57,22 +57,27 @@ __all__ = [
     "attitude_of_message",
     "attitude_divergence_rad",
     "WARNING_TEXT",
+    "IMU_TEXT",
     "PHASE_TEXT",
     "CLEARED_TEXT",
     "FlightPhase",
     "phase_events_of_arrays",
+    "Evidence",
+    "MonitorSensors",
 ]
 
 Array = NDArray[np.float64]
 
 #: STATUSTEXT raised in flight when the divergence is confirmed (formatted with the values, deg; ≤ 50 chars).
-WARNING_TEXT = "mavahrs: AP attitude off: tilt {tilt:.1f} hdg {heading:+.1f}"
+WARNING_TEXT = "mavahrs: AP off: tilt {tilt:.1f} hdg {heading:+.1f}"
 #: The same on the ground, at take-off or touchdown (a NOTICE; ``phase`` from :data:`PHASE_WORDS`).
 PHASE_TEXT = "mavahrs {phase}: AP off: tilt {tilt:.1f} hdg {heading:+.1f}"
 #: How a phase is named in :data:`PHASE_TEXT`.
 PHASE_WORDS = {"disarmed": "disarmed", "ground": "on ground", "takeoff": "take-off", "touchdown": "touchdown"}
 #: Phases in which a disagreement is an in-flight WARNING ("unknown": the stream does not tell).
 FLIGHT_PHASES = ("air", "unknown")
+#: STATUSTEXT raised when one IMU's gyro disagrees with the others and with the autopilot's attitude (deg/s).
+IMU_TEXT = "mavahrs: {imu} gyro off by {rate:.1f} dps [{imu}?]"
 #: STATUSTEXT sent when it has cleared.
 CLEARED_TEXT = "mavahrs: AP attitude agrees again"
 
@@ -80,6 +85,9 @@ _STATUSTEXT_MAX = 50
 _NAME_MAX = 10
 _REBOOT_MS = 1000.0  # time going back by more than this = autopilot reboot
 _MAX_PENDING = 64
+_EVIDENCE_PERIOD_MS = 1000.0  # while a disagreement is on, its evidence is looked at again this often
+_MAX_UPDATES = 3  # … and said again, with what is new, at most this many times per episode
+_STRIP_STEP_MS = 500.0  # the strip chart's history: a point per this, and every warning
 _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
@@ -132,14 +140,20 @@ class MonitorSettings:
             specific force rotated into NED by each attitude and integrated
             over ``gnss_window_s`` must match the GNSS velocity change (a tilt
             error δ adds g·sin δ of horizontal acceleration, 1.0 m/s over 3 s
-            for 2°).  ``[AP?]`` when the autopilot's attitude misses it by more
-            than ``gnss_ratio`` × ours and at least ``gnss_min_m_s`` (m/s RMS
-            over the recent windows), ``[us?]`` the other way round.
+            for 2°).  ``[AP?]`` when, along the direction in which the two
+            attitudes' integrals differ, the autopilot's misses the GNSS
+            velocity change by more than ``gnss_ratio`` × ours (least squares
+            over the windows of the last 3 × ``gnss_window_s``; see
+            :class:`Evidence`) and they differ by at least ``gnss_min_m_s``,
+            ``[us?]`` the other way round.  The evidence is looked at again
+            every second while the warning is on and the STATUSTEXT said again
+            (up to 3 times) when it names something new.
         learn_k, learn_s: ``uncertainty``: the thresholds are also at least
             ``learn_k`` × the RMS of the divergence seen so far (a running
             mean over the first ``learn_s`` of comparisons, then an
-            exponential one with that time constant; comparisons above the
-            threshold or during a warning are not learnt): where the two
+            exponential one with that time constant; comparisons beyond the
+            thresholds of the error model alone, or during a warning, are not
+            learnt): where the two
             estimators' errors are larger than the model says (an autopilot
             whose own tilt error is 0.6° RMS), the test widens to what they
             really are, s.
@@ -187,6 +201,17 @@ class MonitorSettings:
             ground, the touchdown phase this long after landing, s.  A
             disagreement raised on the ground, at take-off or touchdown is a
             NOTICE naming the phase, not an in-flight WARNING.
+        strip_s: how much of the divergence history the status page's strip
+            chart shows (:attr:`MonitorStatus.strip`), s.
+        imu_rate_tolerance_dps, imu_window_s: several IMUs
+            (:meth:`AttitudeMonitor.add_imu_gyro`): each IMU's gyro against
+            the body rate of the autopilot's attitude, averaged over
+            ``imu_window_s``; an IMU whose rate is off by more than the
+            tolerance while every other one is within half of it is named
+            (``IMU2?`` in the evidence) and warned about once; it stays named
+            until its error is below half the tolerance, deg/s, s.  (Healthy
+            IMUs on firmware_sim's aggressive flight: ≤ 1.1°/s over 10 s, from
+            the autopilot's attitude lagging in fast turns.)
     """
 
     enabled: bool = True
@@ -228,6 +253,9 @@ class MonitorSettings:
     air_alt_m: float = 2.0
     still_speed_m_s: float = 0.5
     transition_s: float = 5.0
+    strip_s: float = 300.0
+    imu_rate_tolerance_dps: float = 1.5
+    imu_window_s: float = 10.0
 
     def __post_init__(self) -> None:
         if self.mode not in ("uncertainty", "fixed"):
@@ -235,7 +263,8 @@ class MonitorSettings:
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
-                     "transition_s", "learn_k", "learn_s"):  # fmt: skip
+                     "transition_s", "learn_k", "learn_s", "strip_s", "imu_rate_tolerance_dps",
+                     "imu_window_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -286,8 +315,14 @@ class MonitorStatus:
             take-off or touchdown.
         cause: the evidence with the latest disagreement: ``mag`` (the
             magnetometer's field is not the expected one), ``AP?`` / ``us?``
-            (the GNSS velocity agrees with ours / the autopilot's attitude);
-            "" = none.
+            (the GNSS velocity agrees with ours / the autopilot's attitude),
+            ``IMU2?`` (that IMU's own estimate is the odd one out); "" = none.
+        evidence: the whole :class:`Evidence` of the latest disagreement
+            while it is on (None otherwise).
+        strip: the last ``strip_s`` of comparisons for the status page's strip
+            chart, a point every 0.5 s and at each STATUSTEXT: ``(boot time s,
+            tilt°, heading° signed, tilt threshold°, heading threshold° (0 = not
+            judged), warning on, raised then: 0 / 1 NOTICE / 2 WARNING)``.
     """
 
     tilt_deg: float
@@ -302,6 +337,8 @@ class MonitorStatus:
     phase: str = "unknown"
     ground_episodes: int = 0
     cause: str = ""
+    evidence: Evidence | None = None
+    strip: tuple[tuple[float, float, float, float, float, bool, int], ...] = ()
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -311,7 +348,8 @@ class MonitorStatus:
         vel = f" (vel {self.velocity_source})" if self.velocity_source else ""
         thr = f" (thr {self.tilt_threshold_deg:.1f}°/{self.heading_threshold_deg:.1f}°)" if math.isfinite(
             self.tilt_threshold_deg) else ""  # fmt: skip
-        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{thr}{flag}{vel}"
+        why = f" [{self.cause}]" if self.warning and self.cause else ""
+        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{thr}{flag}{why}{vel}"
 
 
 # --------------------------------------------------------------------------- scalar maths
@@ -480,6 +518,88 @@ def phase_events_of_arrays(
     return ev
 
 
+@dataclass(frozen=True)
+class Evidence:
+    """Who is likely wrong, with a disagreement (:attr:`AttitudeMonitor.evidence`).
+
+    Attributes:
+        mag_norm_dev: the magnetometer's field strength (median of the last 3 s)
+            off the expected one (the geomagnetic model's), as a fraction of it;
+            NaN = not known (no magnetometer, or no expected field yet).
+        mag_dip_dev_deg: its dip (inclination) off the expected one, deg (median).
+        mag_offset_ut: the size of the magnetometer offsets learnt in flight,
+            µT, where the estimator learns them (NaN = not told).
+        mag_disturbed: the field is not the expected one (``mag_norm_tolerance``,
+            ``mag_dip_tolerance_deg``): the heading of whoever trusts it is suspect.
+        gnss_m_s: how far apart the two attitudes put the horizontal velocity
+            change (the specific force rotated into NED by each and integrated
+            over ``gnss_window_s``), m/s, the largest over the recent windows;
+            NaN = no GNSS velocity.
+        gnss_blames_us: of that difference, the share the GNSS velocity change
+            puts on our side: 0 = it agrees with our attitude (the autopilot's is
+            wrong), 1 = with the autopilot's (ours is wrong); NaN = not judged.
+        gnss_verdict: ``AP`` / ``us`` (who the GNSS velocity says is wrong: its
+            miss along the difference is ``gnss_ratio`` × the other's and the
+            difference at least ``gnss_min_m_s``), "" = no verdict.
+        tilt_sigma_deg: our own 1-σ tilt uncertainty then (the ESKF's while
+            velocity-aided), deg; NaN = not aided (the ``unaided`` figure applies).
+        imu: the IMU whose gyro disagrees with the others' and with the
+            autopilot's turn rate (``IMU2`` …), "" = none named (see
+            :meth:`AttitudeMonitor.add_imu_gyro`).
+    """
+
+    mag_norm_dev: float = math.nan
+    mag_dip_dev_deg: float = math.nan
+    mag_offset_ut: float = math.nan
+    mag_disturbed: bool = False
+    gnss_m_s: float = math.nan
+    gnss_blames_us: float = math.nan
+    gnss_verdict: str = ""
+    tilt_sigma_deg: float = math.nan
+    imu: str = ""
+
+    @property
+    def cause(self) -> str:
+        """The short form for STATUSTEXT: ``mag`` (magnetometer disturbed), ``AP?`` / ``us?`` (the GNSS
+        velocity says the autopilot's / our attitude is wrong), ``IMU2?`` (that IMU), space-separated."""
+        out = []
+        if self.mag_disturbed:
+            out.append("mag")
+        if self.gnss_verdict:
+            out.append(f"{self.gnss_verdict}?")
+        if self.imu:
+            out.append(f"{self.imu}?")
+        return " ".join(out)
+
+    def as_dict(self) -> dict[str, Any]:
+        """For ``/status.json`` and the audit table (NaN → None)."""
+        out: dict[str, Any] = {}
+        for k, v in self.__dict__.items():
+            out[k] = None if isinstance(v, float) and not math.isfinite(v) else v
+        out["cause"] = self.cause
+        return out
+
+    def text(self) -> str:
+        """A line for people: ``magnetometer disturbed (|B| +31 %, dip 4°); GNSS velocity agrees with ours …``."""
+        parts = []
+        if math.isfinite(self.mag_norm_dev):
+            state = "disturbed" if self.mag_disturbed else "as expected"
+            parts.append(f"magnetometer {state} (|B| {100 * self.mag_norm_dev:+.0f} %, dip {self.mag_dip_dev_deg:+.1f}°"
+                         + (f", offsets {self.mag_offset_ut:.0f} µT" if math.isfinite(self.mag_offset_ut) else "") + ")")
+        if math.isfinite(self.gnss_blames_us):
+            side = {"AP": "ours (the autopilot's is off)", "us": "the autopilot's (ours is off)"}.get(
+                self.gnss_verdict, "neither clearly")
+            parts.append(f"GNSS velocity agrees with {side}: share on us {self.gnss_blames_us:.2f} of "
+                         f"{self.gnss_m_s:.2f} m/s")
+        elif math.isfinite(self.gnss_m_s):
+            parts.append(f"GNSS velocity: attitudes differ by {self.gnss_m_s:.2f} m/s, too little to judge")
+        if self.imu:
+            parts.append(f"{self.imu}'s gyro disagrees with the other IMUs' and the autopilot's turn rate")
+        parts.append(f"our tilt σ {self.tilt_sigma_deg:.2f}°" if math.isfinite(self.tilt_sigma_deg)
+                     else "ours not GNSS-aided")
+        return "; ".join(parts)
+
+
 # --------------------------------------------------------------------------- monitor
 
 
@@ -510,10 +630,16 @@ class AttitudeMonitor:
         self.last_phase = ""
         #: the evidence of who is likely wrong with it: "mag", "AP?", "us?", "mag AP?" … ("" = none)
         self.last_cause = ""
+        #: … and the whole evidence (None before the first disagreement)
+        self.last_evidence: Evidence | None = None
+        #: the latest STATUSTEXT was the same disagreement said again with new evidence (not a new episode)
+        self.last_update = False
         self._comparisons = 0
         self._unmatched = 0
         self._episodes = 0
         self._ground_episodes = 0
+        #: (t_s, tilt°, heading°, tilt threshold°, heading threshold°, warning on, raised: 0 / 1 notice / 2 warning)
+        self._strip: deque[tuple[float, float, float, float, float, bool, int]] = deque()
         self._next_publish_us: int | None = None
         self._quaternion_source = False
         self.phase = FlightPhase(s)
@@ -539,13 +665,21 @@ class AttitudeMonitor:
         self._below_since_ms: float | None = None
         self._warning = False
         self._warned_in_flight = False
+        self._next_evidence_ms = math.inf
+        self._updates = 0
         self._tilt = math.nan
         self._heading = math.nan
         self._tilt_thr_now = math.nan
         self._hdg_thr_now = math.nan
+        self._model_thr = (math.inf, math.inf)
         self._cusum = 0.0
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
+        old = getattr(self, "_evidence", None)
         self._evidence = _Evidence(self.settings)
+        self._imus = _ImuCheck(self.settings)
+        self._imu_named = ""
+        if old is not None:  # what the vehicle's field should be outlives a reset
+            self._evidence.mag_ref, self._evidence.mag_offset_ut = old.mag_ref, old.mag_offset_ut
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._fresh = False  # a comparison since the last publication
@@ -624,9 +758,19 @@ class AttitudeMonitor:
         if self.settings.enabled:
             self._evidence.sensors(float(t_boot_ms), accel_body_m_s2, mag_body_ut, vel_ne_m_s, float(vel_t_ms))
 
+    def add_imu_gyro(self, name: str, t_boot_ms: float, gyro_rad_s: Sequence[float]) -> None:
+        """A gyro sample of one of the vehicle's IMUs (``IMU1``, ``IMU2`` …; the one our filter uses too),
+        for naming the IMU that is off (see ``MonitorSettings.imu_rate_tolerance_dps``)."""
+        if self.settings.enabled:
+            self._imus.gyro(name, gyro_rad_s)
+
     def set_mag_reference(self, strength_ut: float, inclination_rad: float) -> None:
         """The field the magnetometer should measure (the geomagnetic model at the vehicle)."""
         self._evidence.mag_ref = (float(strength_ut), float(inclination_rad))
+
+    def set_mag_offsets(self, offset_ut: Sequence[float] | None) -> None:
+        """The magnetometer offsets our estimator has learnt in flight, µT (None: none), for the evidence."""
+        self._evidence.mag_offset_ut = math.nan if offset_ut is None else math.sqrt(sum(float(v) ** 2 for v in offset_ut))
 
     def add_autopilot(self, t_boot_ms: float, q_body_to_ned: Sequence[float]) -> list[Any]:
         """The autopilot's attitude at ``t_boot_ms`` (what :meth:`handle` extracts); returns STATUSTEXTs."""
@@ -717,7 +861,8 @@ class AttitudeMonitor:
         """(tilt, heading) thresholds now, rad (heading 0 = not judged)."""
         hdg_on = self.heading_valid and self._hdg_thr > 0.0
         if not self._uncertainty:
-            return self._tilt_thr, (self._hdg_thr if hdg_on else 0.0)
+            self._model_thr = (self._tilt_thr, self._hdg_thr if hdg_on else 0.0)
+            return self._model_thr
         sig = self._sigma
         aided = math.isfinite(sig) and sig > 0.0
         s_t = sig if aided else self._sig_unaided[0]
@@ -726,12 +871,34 @@ class AttitudeMonitor:
         k = self._k
         tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync2))
         hdg = max(self._min_thr[1], k * math.sqrt(s_h * s_h + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
+        self._model_thr = (tilt, hdg)
         n, m_t, m_h = self._learnt
         if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
             lk = self.settings.learn_k
             tilt = max(tilt, lk * math.sqrt(m_t))
             hdg = max(hdg, lk * math.sqrt(m_h)) if hdg_on else 0.0
         return tilt, hdg
+
+    def _imu_warning(self, t_ms: float) -> list[Any]:
+        """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
+        name, err = self._imus.named(self._imu_named) if self._imus._err else ("", math.nan)
+        self._evidence.imu = name
+        if name == self._imu_named:
+            return []
+        self._imu_named = name
+        if not name:
+            return []
+        phase = self.phase.phase(t_ms)
+        self.last_phase = phase
+        self._evidence.sigma = self._sigma
+        self.last_evidence = self._evidence.evidence()
+        self.last_update = False
+        self._episodes += 1
+        text = IMU_TEXT.format(imu=name, rate=err)
+        if phase in FLIGHT_PHASES:
+            return [_statustext(mavlink.MAV_SEVERITY_WARNING, text)]
+        self._ground_episodes += 1
+        return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
 
     def _learn(self, tilt: float, heading: float, dt_s: float) -> None:
         """The divergence's mean square: running mean over the first ``learn_s``, then exponential."""
@@ -743,10 +910,28 @@ class AttitudeMonitor:
         self._learnt = [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
 
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
+        out = self._judge(t_ms, q_est, q_ap)
+        strip = self._strip
+        if not strip or t_ms - strip[-1][0] * 1000.0 >= _STRIP_STEP_MS or t_ms < strip[-1][0] * 1000.0 or out:
+            if strip and t_ms < strip[-1][0] * 1000.0 - _REBOOT_MS:
+                strip.clear()  # a reboot: the old time axis no longer applies
+            said = 0
+            for m in out:
+                sev = int(m.severity)
+                said = max(said, 2 if sev == mavlink.MAV_SEVERITY_WARNING else 1 if sev == mavlink.MAV_SEVERITY_NOTICE else 0)
+            strip.append((t_ms / 1000.0, math.degrees(self._tilt), math.degrees(self._heading),
+                          math.degrees(self._tilt_thr_now), math.degrees(self._hdg_thr_now), self._warning, said))
+            horizon = t_ms / 1000.0 - self.settings.strip_s
+            while strip and strip[0][0] < horizon:
+                strip.popleft()
+        return out
+
+    def _judge(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         s = self.settings
         tilt, heading = _divergence(q_est, q_ap)
         self._tilt, self._heading = tilt, heading
         self._evidence.compare(t_ms, q_est, q_ap)
+        self._imus.compare(t_ms, q_ap)
         self._comparisons += 1
         self._fresh = True
         prev = self._last_cmp_ms
@@ -761,11 +946,18 @@ class AttitudeMonitor:
         z = tilt / t_thr
         if hdg_on:
             z = max(z, abs(heading) / h_thr)
-        if self._uncertainty and not self._warning and z <= 1.0 and prev is not None and not gap:
+        # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
+        # itself let through, else a slowly growing fault would raise the threshold ahead of it)
+        m_t, m_h = self._model_thr
+        inside = tilt <= m_t and (not hdg_on or abs(heading) <= m_h)
+        if self._uncertainty and not self._warning and inside and prev is not None and not gap:
             self._learn(tilt, heading if hdg_on else 0.0, 1e-3 * (t_ms - prev))  # also in the start-up grace
         first = self._first_est_ms if self._first_est_ms is not None else t_ms
         if t_ms - first < 1000.0 * s.startup_grace_s:
             return []
+        imu_out = self._imu_warning(t_ms)
+        if imu_out:
+            return imu_out
         k = s.clear_fraction
         above = z > 1.0
         below = z < k
@@ -795,7 +987,13 @@ class AttitudeMonitor:
             self._episodes += 1
             self.last_phase = phase
             self._warned_in_flight = phase in FLIGHT_PHASES
-            cause = self._evidence.cause(tilt, heading)
+            self._evidence.sigma = self._sigma
+            ev = self._evidence.evidence()
+            self.last_evidence = ev
+            self.last_update = False
+            self._updates = 0
+            self._next_evidence_ms = t_ms + _EVIDENCE_PERIOD_MS
+            cause = ev.cause
             self.last_cause = cause
             if self._warned_in_flight:
                 text = _fit(WARNING_TEXT, tilt, heading, "", cause)
@@ -803,6 +1001,19 @@ class AttitudeMonitor:
             self._ground_episodes += 1
             text = _fit(PHASE_TEXT, tilt, heading, PHASE_WORDS.get(phase, phase), cause)
             return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
+        if self._warning and t_ms >= self._next_evidence_ms:  # the evidence as it builds up: said again when new
+            self._next_evidence_ms = t_ms + _EVIDENCE_PERIOD_MS
+            self._evidence.sigma = self._sigma
+            ev = self._evidence.evidence()
+            new = [w for w in ev.cause.split() if w not in self.last_cause.split()]
+            self.last_evidence = ev
+            if new and self._updates < _MAX_UPDATES:
+                self._updates += 1
+                self.last_cause = ev.cause
+                self.last_update = True
+                template = WARNING_TEXT if self._warned_in_flight else PHASE_TEXT
+                severity = mavlink.MAV_SEVERITY_WARNING if self._warned_in_flight else mavlink.MAV_SEVERITY_NOTICE
+                return [_statustext(severity, _fit(template, tilt, heading, PHASE_WORDS.get(self.last_phase, self.last_phase), ev.cause))]
         if self._warning and self._below_since_ms is not None and t_ms - self._below_since_ms >= 1000.0 * s.clear_s:
             self._warning = False
             self._cusum = 0.0
@@ -830,73 +1041,142 @@ class AttitudeMonitor:
             phase=self.phase.phase(self._last_cmp_ms) if self._last_cmp_ms is not None else self.phase.phase(0.0),
             ground_episodes=self._ground_episodes,
             cause=self.last_cause if self._warning else "",
+            evidence=self.last_evidence if self._warning else None,
+            strip=tuple(self._strip),
         )
+
+    @property
+    def evidence(self) -> Evidence:
+        """The evidence of who is likely wrong as it stands now (whether or not a warning is on)."""
+        self._evidence.sigma = self._sigma
+        return self._evidence.evidence()
 
 
 def _fit(template: str, tilt_rad: float, heading_rad: float, phase: str, cause: str = "") -> str:
-    """The warning text (+ `` [cause]``), ≤ 50 bytes: one decimal while it fits, else whole degrees."""
+    """The warning text (+ `` [cause]``), ≤ 50 bytes: one decimal while it fits, else whole degrees, else the
+    cause's last words dropped."""
     t, h = math.degrees(tilt_rad), math.degrees(heading_rad)
-    tail = f" [{cause}]" if cause else ""
-    text = template.format(tilt=t, heading=h, phase=phase) + tail
-    if len(text.encode()) > _STATUSTEXT_MAX:
-        short = template.replace(":.1f}", ":.0f}").replace(":+.1f}", ":+.0f}")
-        text = short.format(tilt=t, heading=h, phase=phase) + tail
-    return text
+    words = cause.split()
+    short = template.replace(":.1f}", ":.0f}").replace(":+.1f}", ":+.0f}")
+    while True:
+        tail = f" [{' '.join(words)}]" if words else ""
+        for tpl in (template, short):
+            text = tpl.format(tilt=t, heading=h, phase=phase) + tail
+            if len(text.encode()) <= _STATUSTEXT_MAX or (not words and tpl is short):
+                return text
+        words.pop()
 
 
 class _Evidence:
-    """Who is likely wrong: the magnetometer's field against the expected one, and which attitude turns the
-    specific force into the GNSS velocity change (pure; fed by the monitor)."""
+    """Who is likely wrong (pure; fed by the monitor): the magnetometer's field against the expected one, and
+    which attitude turns the specific force into the GNSS velocity change.
+
+    Per comparison, the mean specific force since the previous one is rotated into NED by our attitude and by
+    the autopilot's and integrated (horizontal).  Per GNSS fix, over the window back to a fix ``gnss_window_s``
+    earlier: our miss ``r = ∫a_ours − Δv`` and the two attitudes' difference ``D = ∫a_AP − ∫a_ours``; the
+    autopilot's miss is ``r + D``.  The share of ``D`` the GNSS puts on us is the least-squares
+    ``−Σ r·D / Σ |D|²`` over the recent windows (0: the GNSS velocity agrees with ours, 1: with the
+    autopilot's); noise along other directions than the difference does not enter.
+    """
 
     def __init__(self, s: MonitorSettings) -> None:
         self.s = s
         self.mag_ref: tuple[float, float] | None = None
+        self.mag_offset_ut = math.nan
+        self.sigma = math.nan
+        self.imu = ""
+        self._f_sum = [0.0, 0.0, 0.0]
+        self._f_n = 0
         self._accel: tuple[float, float, float] | None = None
-        self._mag: deque[tuple[float, float, float]] = deque()  # (t_ms, |B|, B_body…) → (t, norm dev, dip dev)
+        self._mag: deque[tuple[float, float, float]] = deque()  # (t_ms, norm dev, dip dev rad)
         self._mag_body: tuple[float, float, float] | None = None
-        self._vel: tuple[float, float, float] | None = None  # (fix t_ms, vn, ve), newest
+        self._vel_t = -math.inf  # newest fix time taken
+        self._pending: deque[tuple[float, float, float]] = deque()  # fixes not yet reached by a comparison
         self._last_ms: float | None = None
         self._int = [0.0, 0.0, 0.0, 0.0]  # ∫ horizontal acceleration, ours (n, e), the autopilot's (n, e)
+        self._hist: deque[tuple[float, float, float, float, float]] = deque()  # (t, ∫…) at comparisons
         self._fixes: deque[tuple[float, float, float, float, float, float, float]] = deque()  # t, vn, ve, ∫…
-        self._res: deque[tuple[float, float, float]] = deque()  # (t, residual ours², autopilot's²)
+        self._res: deque[tuple[float, float, float]] = deque()  # (t, r·D, |D|²)
 
     def sensors(self, t: float, accel: Any, mag: Any, vel: Any, vel_t: float) -> None:
-        if accel is not None and all(math.isfinite(v) for v in accel):
-            self._accel = (float(accel[0]), float(accel[1]), float(accel[2]))
-        self._mag_body = (float(mag[0]), float(mag[1]), float(mag[2])) if (
-            mag is not None and all(math.isfinite(v) for v in mag)) else None  # fmt: skip
+        if accel is not None:
+            x, y, z = accel
+            if x - x == 0.0 and y - y == 0.0 and z - z == 0.0:  # finite
+                f = self._f_sum
+                f[0] += x
+                f[1] += y
+                f[2] += z
+                self._f_n += 1
+        self._mag_body = None
+        if mag is not None:
+            x, y, z = mag
+            if x - x == 0.0 and y - y == 0.0 and z - z == 0.0:
+                self._mag_body = (float(x), float(y), float(z))
         if vel is not None and math.isfinite(vel_t) and math.isfinite(vel[0]) and math.isfinite(vel[1]):
-            if self._vel is None or vel_t > self._vel[0]:
-                self._vel = (vel_t, float(vel[0]), float(vel[1]))
-                self._fix(vel_t)
+            if vel_t > self._vel_t:
+                self._vel_t = vel_t
+                self._pending.append((vel_t, float(vel[0]), float(vel[1])))
+                if len(self._pending) > 50:
+                    self._pending.popleft()
 
-    def _fix(self, t: float) -> None:
-        assert self._vel is not None
-        i = self._int
-        self._fixes.append((t, self._vel[1], self._vel[2], i[0], i[1], i[2], i[3]))
+    def _integral_at(self, t: float) -> tuple[float, float, float, float] | None:
+        h = self._hist
+        if not h or t < h[0][0] or t > h[-1][0]:
+            return None
+        i = len(h) - 1
+        while i > 0 and h[i - 1][0] >= t:
+            i -= 1
+        b = h[i]
+        if i == 0 or b[0] == t:
+            return b[1], b[2], b[3], b[4]
+        a = h[i - 1]
+        if b[0] - a[0] > 1000.0:
+            return None
+        u = (t - a[0]) / (b[0] - a[0])
+        return tuple(a[k] + u * (b[k] - a[k]) for k in range(1, 5))  # type: ignore[return-value]
+
+    def _fix(self, t: float, vn: float, ve: float) -> None:
+        i = self._integral_at(t)
+        if i is None:
+            return
+        self._fixes.append((t, vn, ve, i[0], i[1], i[2], i[3]))
         w = 1000.0 * self.s.gnss_window_s
         while len(self._fixes) > 1 and self._fixes[1][0] <= t - w:
             self._fixes.popleft()
         old = self._fixes[0]
         if t - old[0] >= 0.8 * w:
-            dvn, dve = self._vel[1] - old[1], self._vel[2] - old[2]
-            ro = (i[0] - old[3] - dvn) ** 2 + (i[1] - old[4] - dve) ** 2
-            ra = (i[2] - old[5] - dvn) ** 2 + (i[3] - old[6] - dve) ** 2
-            self._res.append((t, ro, ra))
+            dvn, dve = vn - old[1], ve - old[2]
+            rn, re = i[0] - old[3] - dvn, i[1] - old[4] - dve
+            dn, de = i[2] - old[5] - (i[0] - old[3]), i[3] - old[6] - (i[1] - old[4])
+            self._res.append((t, rn * dn + re * de, dn * dn + de * de))
         while self._res and self._res[0][0] < t - 3.0 * w:
             self._res.popleft()
 
     def compare(self, t: float, q_est: Sequence[float], q_ap: Sequence[float]) -> None:
         last, self._last_ms = self._last_ms, t
+        if self._f_n:
+            n = self._f_n
+            self._accel = (self._f_sum[0] / n, self._f_sum[1] / n, self._f_sum[2] / n)
+            self._f_sum = [0.0, 0.0, 0.0]
+            self._f_n = 0
         f = self._accel
+        if last is not None and t - last >= 1000.0:
+            self._fixes.clear()  # a gap: the integrals no longer match the fixes
+            self._hist.clear()
         if f is not None and last is not None and 0.0 < t - last < 1000.0:
             dt = 1e-3 * (t - last)
             for k, q in ((0, q_est), (2, q_ap)):
                 an, ae = _rotate_ne(q, f)
                 self._int[k] += an * dt
                 self._int[k + 1] += ae * dt
-        elif last is not None and t - last >= 1000.0:
-            self._fixes.clear()  # a gap: the integrals no longer match the fixes
+        if f is not None:
+            h = self._hist
+            h.append((t, *self._int))
+            while h and h[0][0] < t - 2000.0:
+                h.popleft()
+            p = self._pending
+            while p and p[0][0] <= t:
+                self._fix(*p.popleft())
         m = self._mag_body
         if m is not None and self.mag_ref is not None:
             n = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
@@ -904,26 +1184,110 @@ class _Evidence:
                 down = _rotate_d(q_est, m)
                 dip = math.asin(max(-1.0, min(1.0, down / n)))
                 ref_n, ref_dip = self.mag_ref
-                self._mag.append((t, abs(n - ref_n) / ref_n if ref_n > 0 else 0.0, abs(dip - ref_dip)))
+                self._mag.append((t, (n - ref_n) / ref_n if ref_n > 0 else 0.0, dip - ref_dip))
         while self._mag and self._mag[0][0] < t - 3000.0:
             self._mag.popleft()
 
-    def cause(self, tilt: float, heading: float) -> str:
+    def evidence(self) -> Evidence:
         s = self.s
-        out = []
+        kw: dict[str, Any] = {"tilt_sigma_deg": math.degrees(self.sigma), "imu": self.imu,
+                              "mag_offset_ut": self.mag_offset_ut}
         if self._mag:
             norm = sorted(x[1] for x in self._mag)[len(self._mag) // 2]
             dip = sorted(x[2] for x in self._mag)[len(self._mag) // 2]
-            if norm > s.mag_norm_tolerance or dip > math.radians(s.mag_dip_tolerance_deg):
-                out.append("mag")
+            kw.update(mag_norm_dev=norm, mag_dip_dev_deg=math.degrees(dip),
+                      mag_disturbed=abs(norm) > s.mag_norm_tolerance or abs(dip) > math.radians(s.mag_dip_tolerance_deg))
         if self._res:
-            ro = math.sqrt(sum(r[1] for r in self._res) / len(self._res))
-            ra = math.sqrt(sum(r[2] for r in self._res) / len(self._res))
-            if ra > s.gnss_ratio * ro and ra > s.gnss_min_m_s:
-                out.append("AP?")
-            elif ro > s.gnss_ratio * ra and ro > s.gnss_min_m_s:
-                out.append("us?")
-        return " ".join(out)
+            rd = sum(r[1] for r in self._res)
+            dd = sum(r[2] for r in self._res)
+            d_rms = math.sqrt(max(r[2] for r in self._res))
+            kw["gnss_m_s"] = d_rms
+            if d_rms >= s.gnss_min_m_s:
+                share = -rd / dd
+                kw["gnss_blames_us"] = share
+                r = s.gnss_ratio
+                if share <= 1.0 / (1.0 + r):  # the autopilot's miss along D ≥ r × ours
+                    kw["gnss_verdict"] = "AP"
+                elif share >= r / (1.0 + r):
+                    kw["gnss_verdict"] = "us"
+        return Evidence(**kw)
+
+    def cause(self, tilt: float, heading: float) -> str:
+        return self.evidence().cause
+
+
+class _ImuCheck:
+    """Which IMU is off (pure): each IMU's gyro, averaged between two comparisons, against the body rate the
+    autopilot's attitude turned at over the same interval (``ω ≈ 2·vec(q_prev* ⊗ q)/Δt``); the difference's
+    exponential mean over ``imu_window_s`` is each IMU's rate error.  With two or more IMUs, one is named
+    when its error exceeds ``imu_rate_tolerance_dps`` and every other's is below half of it (a common-mode
+    difference — the autopilot's own lag in a fast turn — names none)."""
+
+    def __init__(self, s: MonitorSettings) -> None:
+        self.tol = math.radians(s.imu_rate_tolerance_dps)
+        self.tau = s.imu_window_s
+        self._sum: dict[str, list[float]] = {}
+        self._err: dict[str, list[float]] = {}  # name → [ex, ey, ez, seconds]
+        self._prev: tuple[float, Sequence[float]] | None = None
+
+    def gyro(self, name: str, g: Sequence[float]) -> None:
+        x, y, z = g
+        if x - x != 0.0 or y - y != 0.0 or z - z != 0.0:  # NaN or ±inf (cheaper than isfinite ×3: per sample)
+            return
+        acc = self._sum.get(name)
+        if acc is None:
+            acc = self._sum[name] = [0.0, 0.0, 0.0, 0.0]
+        acc[0] += x
+        acc[1] += y
+        acc[2] += z
+        acc[3] += 1.0
+
+    def compare(self, t: float, q: Sequence[float]) -> None:
+        prev, self._prev = self._prev, (t, q)
+        sums = self._sum
+        if prev is None or not 0.0 < t - prev[0] <= 250.0 or self.tau <= 0.0:
+            for acc in sums.values():
+                acc[:] = [0.0, 0.0, 0.0, 0.0]
+            return
+        dt = 1e-3 * (t - prev[0])
+        a, b = prev[1], q
+        # q_rel = a* ⊗ b (the body's turn over dt, body axes)
+        w = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+        x = a[0] * b[1] - a[1] * b[0] - a[2] * b[3] + a[3] * b[2]
+        y = a[0] * b[2] + a[1] * b[3] - a[2] * b[0] - a[3] * b[1]
+        z = a[0] * b[3] - a[1] * b[2] + a[2] * b[1] - a[3] * b[0]
+        k = (2.0 if w >= 0.0 else -2.0) / dt
+        rate = (k * x, k * y, k * z)
+        for name, acc in sums.items():
+            n = acc[3]
+            if n:
+                e = self._err.get(name)
+                if e is None:
+                    e = self._err[name] = [0.0, 0.0, 0.0, 0.0]
+                e[3] += dt
+                f = dt / min(e[3], self.tau)
+                for i in range(3):
+                    e[i] += f * (acc[i] / n - rate[i] - e[i])
+            acc[:] = [0.0, 0.0, 0.0, 0.0]
+
+    def errors_dps(self) -> dict[str, float]:
+        """Each IMU's rate error learnt so far, deg/s (those seen for half a window)."""
+        return {k: math.degrees(math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]))
+                for k, e in self._err.items() if e[3] >= 0.5 * self.tau}  # fmt: skip
+
+    def named(self, current: str = "") -> tuple[str, float]:
+        """The IMU that is off and its rate error (deg/s), ("", NaN) for none; ``current``: the one named
+        before, kept while its error stays above half the tolerance (hysteresis)."""
+        err = self.errors_dps()
+        if len(err) < 2:
+            return "", math.nan
+        if current in err and math.radians(err[current]) > 0.5 * self.tol:
+            return current, err[current]
+        worst = max(err, key=lambda k: err[k])
+        top = err[worst]
+        if math.radians(top) > self.tol and all(v < 0.5 * top for k, v in err.items() if k != worst):
+            return worst, top
+        return "", math.nan
 
 
 def _rotate_ne(q: Sequence[float], v: Sequence[float]) -> tuple[float, float]:
@@ -1025,11 +1389,40 @@ class MonitorEvent:
     severity: int
     text: str
     phase: str = ""
+    evidence: Evidence | None = None
+    #: the disagreement already raised, said again with new evidence (not a new warning)
+    update: bool = False
+
+    @property
+    def cause(self) -> str:
+        """The short evidence (:attr:`Evidence.cause`), "" for none."""
+        return self.evidence.cause if self.evidence is not None else ""
 
     @property
     def in_flight(self) -> bool:
         """A disagreement raised in flight (WARNING), not on the ground, at take-off or touchdown."""
-        return self.severity == mavlink.MAV_SEVERITY_WARNING
+        return self.severity == mavlink.MAV_SEVERITY_WARNING and not self.update
+
+
+@dataclass(frozen=True)
+class MonitorSensors:
+    """The samples behind our estimates, for the evidence in :func:`monitor_series` (one row per estimate).
+
+    Attributes:
+        accel_body_m_s2: (N, 3) specific force, body axes.
+        mag_body_ut: (N, 3) the calibrated magnetic field, body axes (NaN rows: none), or None.
+        vel_ne_m_s: (N, 2) the GNSS velocity north and east (true north; NaN: no fix), or None.
+        vel_t_ms: (N,) when that velocity was fixed, ms (boot clock).
+        mag_reference: ``(t_ms, strength µT, inclination rad)``: the expected field from then on.
+    """
+
+    accel_body_m_s2: ArrayLike
+    mag_body_ut: ArrayLike | None = None
+    vel_ne_m_s: ArrayLike | None = None
+    vel_t_ms: ArrayLike | None = None
+    mag_reference: Sequence[tuple[float, float, float]] = ()
+    #: every IMU's gyro, ``(name, t_ms (K,), gyro_rad_s (K, 3))`` (``IMU1`` …), to name one that is off
+    imus: Sequence[tuple[str, ArrayLike, ArrayLike]] = ()
 
 
 @dataclass(frozen=True)
@@ -1040,6 +1433,9 @@ class MonitorSeries:
     tilt_deg: Array
     heading_deg: Array
     events: tuple[MonitorEvent, ...]
+    #: the thresholds in force at each comparison, deg (NaN: none made then; heading 0 = not judged)
+    tilt_threshold_deg: Array | None = None
+    heading_threshold_deg: Array | None = None
 
 
 def monitor_series(
@@ -1052,6 +1448,7 @@ def monitor_series(
     heading_valid: bool = True,
     tilt_sigma_rad: ArrayLike | None = None,
     phase_events: Sequence[tuple[float, str, float]] = (),
+    sensors: MonitorSensors | None = None,
 ) -> MonitorSeries:
     """Run :class:`AttitudeMonitor` over whole arrays (replay): which warnings, when.
 
@@ -1060,7 +1457,9 @@ def monitor_series(
     :func:`divergence_series` (NaN where unmatched).  ``tilt_sigma_rad``: (N,)
     our 1-σ tilt per estimate (NaN: not velocity-aided; see
     :meth:`AttitudeMonitor.add_estimate`); ``phase_events``: the flight's phase
-    (:func:`phase_events_of_arrays`), applied in time order.
+    (:func:`phase_events_of_arrays`), applied in time order; ``sensors``: the
+    samples behind the estimates, for the evidence of who is wrong
+    (:attr:`MonitorEvent.evidence`; without them only our confidence).
     """
     s = settings if settings is not None else MonitorSettings()
     mon = AttitudeMonitor(s)
@@ -1091,22 +1490,66 @@ def monitor_series(
     events: list[MonitorEvent] = []
     i = j = 0
     n, m = len(t), len(ta)
+    acc = mag = vel = vt = None
+    refs: list[tuple[float, float, float]] = []
+    if sensors is not None:
+        acc = np.asarray(sensors.accel_body_m_s2, float).reshape(-1, 3).tolist()
+        mag = None if sensors.mag_body_ut is None else np.asarray(sensors.mag_body_ut, float).reshape(-1, 3).tolist()
+        if sensors.vel_ne_m_s is not None and sensors.vel_t_ms is not None:
+            vel = np.asarray(sensors.vel_ne_m_s, float).reshape(-1, 2).tolist()
+            vt = np.asarray(sensors.vel_t_ms, float).tolist()
+        refs = sorted(sensors.mag_reference)
+    imus = [] if sensors is None else [
+        (name, np.asarray(ti, float), np.asarray(g, float).reshape(-1, 3).tolist()) for name, ti, g in sensors.imus]
+    imu_at = [0] * len(imus)
+
+    def imus_until(t_now: float) -> None:
+        for k, (name, ti, g) in enumerate(imus):
+            a = imu_at[k]
+            b = int(np.searchsorted(ti, t_now, side="right"))
+            for x in range(a, b):
+                mon.add_imu_gyro(name, ti[x], g[x])
+            imu_at[k] = b
+
+    r = 0
+    thr_t: list[float] = []
+    thr_v: list[tuple[float, float]] = []
+    before = 0
     while i < n or j < m:
         if j >= m or (i < n and t[i] <= ta[j]):
             if n_ph:
                 phase_until(t[i])
+            if acc is not None:
+                while r < len(refs) and refs[r][0] <= t[i]:
+                    mon.set_mag_reference(refs[r][1], refs[r][2])
+                    r += 1
+                mon.add_sensors(t[i], acc[i], None if mag is None else mag[i], None if vel is None else vel[i],
+                                math.nan if vt is None else vt[i])
             out = mon.add_estimate(t[i], q[i], sig[i])
             i += 1
         else:
             if n_ph:
                 phase_until(ta[j])
+            if imus:
+                imus_until(ta[j])
             out = mon.add_autopilot(ta[j], qa[j])
             j += 1
+        if mon._comparisons != before:
+            thr_t.append(mon._last_cmp_ms or 0.0)
+            thr_v.append((mon._tilt_thr_now, mon._hdg_thr_now))
+            before = mon._comparisons
         for msg in out:
             phase = mon.last_phase if int(msg.severity) != mavlink.MAV_SEVERITY_INFO else ""
-            events.append(MonitorEvent(mon.last_comparison_ms, int(msg.severity), _text(msg), phase))
+            info = int(msg.severity) == mavlink.MAV_SEVERITY_INFO
+            ev = mon.last_evidence if not info else None
+            events.append(MonitorEvent(mon.last_comparison_ms, int(msg.severity), _text(msg), phase, ev,
+                                       mon.last_update and not info))
     tilt, heading = divergence_series(t, q, ta, qa, tolerance_ms=s.align_tolerance_ms)
-    return MonitorSeries(ta, tilt, heading, tuple(events))
+    thr = np.full((len(ta), 2), np.nan)
+    if thr_t:  # the thresholds at the comparisons, onto the autopilot's sample times (most are one-to-one)
+        k_at = np.searchsorted(ta, np.asarray(thr_t), side="left").clip(0, max(len(ta) - 1, 0))
+        thr[k_at] = np.degrees(np.asarray(thr_v))
+    return MonitorSeries(ta, tilt, heading, tuple(events), thr[:, 0], thr[:, 1])
 
 
 def _text(msg: Any) -> str:

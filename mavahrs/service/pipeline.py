@@ -63,7 +63,10 @@ from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
     FLAG_VELOCITY_AIDED,
+    IN_ACCEL,
+    IN_CURRENT,
     IN_GYRO,
+    IN_MAG,
     IN_VEL,
     IN_VEL_AGE,
     IN_WIDTH,
@@ -74,6 +77,7 @@ from mavahrs.filters.layout import (
     OUT_MAG_WEIGHT,
     OUT_Q,
 )
+from mavahrs.filters.magfield import mag_state_text
 from mavahrs.protocol.codec import MavCodec, mavlink
 from mavahrs.protocol.timeline import (
     DROP_KINDS,
@@ -85,6 +89,7 @@ from mavahrs.protocol.timeline import (
     TimelineSettings,
 )
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
+from mavahrs.sensors.current import CURRENT_STALE_S, battery_current_a
 from mavahrs.sensors.geomag import (
     DeclinationSource,
     MagneticFieldSettings,
@@ -167,6 +172,9 @@ class Outgoing(NamedTuple):
     frame: bytes
     to_master: bool
     to_outputs: bool
+
+
+_IMU_NAMES = ("IMU1", "IMU2", "IMU3", "IMU4")  # IMU instance → the name the monitor gives it
 
 
 @dataclass(frozen=True)
@@ -417,6 +425,8 @@ class PipelineStatus:
     velocity_skipped: Mapping[str, int] = field(default_factory=dict)
     monitor_state: MonitorStatus | None = None
     gnss_velocity: str = "none"
+    #: the learnt magnetometer model (``best``/``eskf``: state trusted/learning/disturbed, offsets; None: none)
+    magnetometer: Mapping[str, Any] | None = None
 
     def line(self) -> str:
         """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | … | vel GPI 10 Hz | …``."""
@@ -432,6 +442,7 @@ class PipelineStatus:
             f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
             f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
             + (f" | {self.monitor}" if self.monitor else "")
+            + (f" | {mag_state_text(self.magnetometer)}" if self.magnetometer else "")
         )
 
 
@@ -511,6 +522,8 @@ class Pipeline:
             "ATTITUDE": self._on_autopilot_attitude,
             "ATTITUDE_QUATERNION": self._on_autopilot_attitude,
             "EXTENDED_SYS_STATE": self._on_flight_phase,
+            "SYS_STATUS": self._on_current,
+            "BATTERY_STATUS": self._on_current,
         }
         for name in IMU_MESSAGES:
             self._handlers[name] = self._on_imu
@@ -597,6 +610,10 @@ class Pipeline:
         self._next_out_t: int | None = None
         #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
         self._vel: tuple[float, float, float, int | None] | None = None
+        self._imu_fed: dict[int, int] = {}  # IMU samples seen per instance (the monitor gets one in 8)
+        self._monitor_fix: tuple[float, float, float] | None = None  # GNSS velocity (true N, E) and fix time, ms
+        self._current_a = _NAN  # battery current (the compass's motor interference model), A
+        self._current_us: int | None = None
         self._vel_written = True  # row's velocity columns hold NaN already
         if hasattr(self, "_velocity"):
             self._velocity.reset()
@@ -803,6 +820,11 @@ class Pipeline:
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
+        if self._monitor_on and not inv:  # every IMU's gyro, one sample in 8 (its mean is what counts), for
+            k = self._imu_fed.get(v[0], 0) + 1  # the monitor to name an IMU that is off
+            self._imu_fed[v[0]] = k
+            if not k & 7:
+                self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", v[1] / 1000.0, v[2:5])
         return self._filter_sample(name, v, now_us, True)
 
     def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
@@ -885,6 +907,8 @@ class Pipeline:
         elif not self._vel_written:
             row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = _NAN
             self._vel_written = True
+        fresh = self._current_us is not None and now_us - self._current_us <= CURRENT_STALE_S * 1e6
+        row[IN_CURRENT] = self._current_a if fresh else _NAN
         cal = self._calibrators[name]
         if cal.active:
             cal.apply_row(row, v[11])
@@ -936,6 +960,9 @@ class Pipeline:
         frames = [Outgoing(frame, to_master, to_outputs)]
         if self._monitor_on:
             sigma = float(out[OUT_GAIN]) if int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED else math.nan
+            fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
+            self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist(),
+                                      fix, fix[2] if fix is not None else math.nan)  # fmt: skip
             for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma):
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
@@ -969,10 +996,23 @@ class Pipeline:
             fix, vn, ve, vd = got
             self._gnss_fix_us = now_us
             self._vel = (vn, ve, vd, fix.fix_time_us)
+            d = f.declination_rad if f is not None else 0.0  # back to true north, as our published attitude
+            fix_ms = fix.fix_time_us / 1000.0 if fix.fix_time_us is not None else math.nan  # (not datable: no verdict)
+            self._monitor_fix = (vn * math.cos(d) - ve * math.sin(d), vn * math.sin(d) + ve * math.cos(d), fix_ms)
             if fix.message != self._vel_meter_source:  # the rate shown is the source in use's
                 self._vel_meter.reset()
                 self._vel_meter_source = fix.message
             self._vel_meter.add(now_us)
+        return []
+
+    def _on_current(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """SYS_STATUS / BATTERY_STATUS: the battery current, into every following sample's ``IN_CURRENT``."""
+        if not self._from_source(msg):
+            return []
+        amps = battery_current_a(msg)
+        if amps is not None:
+            self._current_a = amps
+            self._current_us = now_us
         return []
 
     def _on_position_only(self, msg: Any, now_us: int) -> list[Outgoing]:
@@ -986,6 +1026,8 @@ class Pipeline:
         setter = getattr(self._filter, "set_mag_reference", None)
         if ref is not None and setter is not None:
             setter(ref[0], ref[1])
+        if ref is not None:
+            self._monitor.set_mag_reference(ref[0], ref[1])
         self._monitor.heading_valid = self._decl.known
 
     def _on_autopilot_attitude(self, msg: Any, now_us: int) -> list[Outgoing]:
@@ -1296,7 +1338,12 @@ class Pipeline:
             velocity_skipped=dict(vs.counters),
             monitor_state=self._monitor.status if self._monitor_on else None,
             gnss_velocity=self._gnss_state(now),
+            magnetometer=self._mag_model_state(),
         )
+
+    def _mag_model_state(self) -> dict[str, Any] | None:
+        get = getattr(self._filter, "mag_model_state", None)
+        return get() if get is not None else None
 
     @property
     def velocity_selector(self) -> VelocitySelector:

@@ -42,20 +42,15 @@ def test_compile_notice_on_a_cold_cache_only_and_warm_up_compiles_everything(tmp
     cold = _mavahrs(env, "replay", str(tlog), "--filter", "madgwick")
     assert cold.returncode == 0, cold.stderr
     assert len(_notices(cold.stderr)) == 1, cold.stderr
-    assert COMPILE_NOTICE == (
-        "preparing the filters: compiling them once for this machine "
-        "(about 20–30 s; later runs start at once; `mavahrs warm-up` does it ahead of time) …"
-    )
+    assert "compiling" in COMPILE_NOTICE and "warm-up" in COMPILE_NOTICE
+    assert re.search(r"INFO compiling the filters took \d+ s; kept in ", cold.stderr), cold.stderr  # measured
     assert cold.stderr.splitlines()[0].endswith(COMPILE_NOTICE), cold.stderr  # before anything else
     assert any(cache.iterdir()), "the kernels were cached in NUMBA_CACHE_DIR"
 
     warm = _mavahrs(env, "warm-up")
     assert warm.returncode == 0, warm.stderr
     lines = warm.stdout.splitlines()
-    assert lines[0] == (
-        f"warm-up: compiling every filter kernel for this machine, cached in {cache} "
-        "(20–30 s the first time, a few seconds when already cached) …"
-    )
+    assert lines[0].startswith(f"warm-up: compiling every filter kernel for this machine, cached in {cache} (")
     assert [re.sub(r"\d+\.\d s$", "N s", x) for x in lines[1:-1]] == [f"  {s}: N s" for s in STEPS]
     assert re.fullmatch(r"warm-up: done in \d+\.\d s; later commands start without compiling", lines[-1])
     assert _notices(warm.stderr) == []
@@ -70,3 +65,39 @@ def test_compile_notice_on_a_cold_cache_only_and_warm_up_compiles_everything(tmp
         refused = args[0] == "tune" and again.returncode == 1 and "not enough rest data" in again.stderr
         assert again.returncode == 0 or refused, again.stderr
         assert _notices(again.stderr) == [], (args, again.stderr)
+
+
+def test_the_kernels_survive_reinstalling_the_same_sources(tmp_path: Path) -> None:
+    """`pip install ".[http]"` after `pip install .` writes the package anew (new files, new times, its
+    ``__pycache__`` gone), and the next command compiled everything again (`run` silent for 102 s)."""
+    import shutil
+
+    repo = Path(__file__).resolve().parents[2]
+    site, home = tmp_path / "site-packages", tmp_path / "home"
+
+    def install() -> None:  # as pip does: the old tree removed, every file written fresh
+        shutil.rmtree(site / "mavahrs", ignore_errors=True)
+        shutil.copytree(repo / "mavahrs", site / "mavahrs", copy_function=shutil.copyfile,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc"))  # fmt: skip
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(PYTHONPATH=str(site), HOME=str(home), XDG_CACHE_HOME=str(home / ".cache"))
+    tlog = tmp_path / "rest.tlog"
+    tlog.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames(2.0)))
+    def replay() -> subprocess.CompletedProcess[str]:  # from the installed copy (not the checkout: cwd elsewhere)
+        return subprocess.run(
+            [sys.executable, "-m", "mavahrs", "replay", str(tlog), "--filter", "complementary", "--no-progress"],
+            env=env, capture_output=True, text=True, timeout=900, cwd=tmp_path,
+        )  # fmt: skip
+
+    install()
+    first = replay()
+    assert first.returncode == 0 and len(_notices(first.stderr)) == 1, first.stderr
+    assert any((home / ".cache" / "mavahrs" / "kernels").iterdir()), "kept in the user's cache folder"
+    install()
+    again = replay()
+    assert again.returncode == 0, again.stderr
+    assert _notices(again.stderr) == [], again.stderr  # nothing compiled again
+    assert not (site / "mavahrs" / "filters" / "__pycache__").exists() or not any(
+        p.suffix in (".nbi", ".nbc") for p in (site / "mavahrs" / "filters" / "__pycache__").iterdir()
+    )

@@ -22,6 +22,7 @@ SETTINGS = [
     ("mavahrs.filters.mahony", "MahonySettings"),
     ("mavahrs.filters.complementary", "ComplementarySettings"),
     ("mavahrs.filters.gyroplatform", "GyroPlatformSettings"),
+    ("mavahrs.filters.magfield", "MagFieldSettings"),
     ("mavahrs.service.pipeline", "PipelineSettings"),
     ("mavahrs.service.daemon", "DaemonSettings"),
     ("mavahrs.service.monitor", "MonitorSettings"),

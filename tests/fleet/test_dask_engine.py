@@ -75,3 +75,25 @@ def test_a_local_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Pat
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
     assert run.returncode == 0 and run.stdout.strip() == "[1, 2]", run.stdout + run.stderr
     assert sorted(p.name for p in tmpdir.iterdir()) == []
+
+
+def test_no_scheduler_at_the_address_fails_at_once_with_the_reason(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """`audit --scheduler tcp://127.0.0.1:PORT` with nothing listening waited silently for 60 s, then failed."""
+    import socket
+    import time
+
+    from mavahrs.cli import main
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()  # nothing listens there now
+    log = tmp_path / "one.tlog"
+    log.write_bytes(b"")
+    t0 = time.monotonic()
+    code = main(["audit", str(log), "--scheduler", f"tcp://127.0.0.1:{port}", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert time.monotonic() - t0 < 30  # the client's own time-out was 60 s
+    assert "scheduler" in err and f"127.0.0.1:{port}" in err and "refused" in err, err

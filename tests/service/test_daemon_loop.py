@@ -226,9 +226,14 @@ def test_silence_after_heartbeats_is_reported_not_fatal(gcs: socket.socket, capl
     thread, box = _start(d)
     try:
         ap.heartbeat()
-        time.sleep(0.8)  # silence longer than the timeout
+        # silence longer than the timeout: wait for the daemon to say so (a loaded machine may take a while to
+        # wake the loop; the deadline is only reached if it never does)
+        deadline = time.monotonic() + 60.0
+        while "no heartbeat from the autopilot" not in caplog.text and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert thread.is_alive()
-        deadline = time.monotonic() + 5.0  # a loaded machine may take a while to wake the loop
+        assert "autopilot heartbeat received" in caplog.text, caplog.text  # the silence came after a heartbeat
+        deadline = time.monotonic() + 60.0
         while "heartbeat back" not in caplog.text and time.monotonic() < deadline:
             ap.heartbeat()
             time.sleep(0.1)
@@ -401,6 +406,13 @@ def _fly_identity(
             ap.imu(8)
             if echo is not None:
                 ap.sock.sendto(echo(), ap.addr)
+            time.sleep(0.02)
+        # until the daemon has estimated everything it received (its count still for 0.3 s; the deadline is
+        # only reached by a stuck daemon), then what it sent
+        seen, still_since, deadline = -1, time.monotonic(), time.monotonic() + 30.0
+        while time.monotonic() - still_since < 0.3 and time.monotonic() < deadline:
+            if d.pipeline.outputs_sent != seen:
+                seen, still_since = d.pipeline.outputs_sent, time.monotonic()
             time.sleep(0.02)
         at_gcs = _drain(gcs, 0.3)
         at_ap = ap.received()

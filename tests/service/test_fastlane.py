@@ -376,12 +376,17 @@ def _daemon_run(
             except BlockingIOError:
                 pass
             gcs.settimeout(0.05)
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
+        # what the daemon still has to answer: until no attitude came for 1.5 s (a loaded machine may hold the
+        # daemon's thread back for a while; the cap only a stuck daemon reaches; its 1 Hz HEARTBEAT goes on)
+        quiet_until, cap = time.monotonic() + 1.5, time.monotonic() + 60.0
+        while time.monotonic() < min(quiet_until, cap):
             try:
-                got += rx.receive_datagram(gcs.recv(4096))
+                new = rx.receive_datagram(gcs.recv(4096))
             except TimeoutError:
-                pass
+                continue
+            got += new
+            if any(m.get_type() == "ATTITUDE_QUATERNION" for m in new):
+                quiet_until = time.monotonic() + 1.5
     finally:
         d.stop()
         thread.join(10)

@@ -129,7 +129,7 @@ def test_injected_roll_fault_raises_one_warning_in_time_and_clears(rng: np.rando
     events, named = _run_live(f, s)
     assert len(events) == 2, [(t, e.text) for t, e in events]
     (t_warn, warn), (t_clear, clear) = events
-    assert warn.severity == mavlink.MAV_SEVERITY_WARNING and warn.text.startswith("mavahrs: AP attitude off")
+    assert warn.severity == mavlink.MAV_SEVERITY_WARNING and warn.text.startswith("mavahrs: AP off: tilt ")
     assert 30.0 + s.trigger_s <= t_warn <= 30.0 + s.trigger_s + 0.25  # within the configured time (+ 2 samples)
     assert "tilt 1" in warn.text and len(warn.text) <= 50
     assert clear.severity == mavlink.MAV_SEVERITY_INFO and clear.text == CLEARED_TEXT

@@ -109,6 +109,83 @@
     e.className = w < 0.5 ? "low" : "";
   }
 
+  // the strip chart: the last minutes of tilt and heading divergence, the threshold, the warnings
+  const SVGNS = "http://www.w3.org/2000/svg";
+  function drawStrip(st) {
+    const svg = $("strip");
+    const n = st && st.t_s ? st.t_s.length : 0;
+    svg.dataset.points = String(n);
+    if (n < 2) return;
+    const t0 = st.t_s[0], t1 = st.t_s[n - 1], span = Math.max(t1 - t0, 1);
+    const x = (t) => ((t - t0) / span * 1000).toFixed(1);
+    const top = (vals, thr) => {
+      let m = 0;
+      for (let i = 0; i < n; i++) {
+        const v = Math.abs(vals[i]), h = thr[i];
+        if (isFinite(v) && v !== null && v > m) m = v;
+        if (isFinite(h) && h !== null && h > m) m = h;
+      }
+      return m > 0 ? m * 1.1 : 1;
+    };
+    const line = (id, vals, scale) => {
+      const pts = [];
+      for (let i = 0; i < n; i++) {
+        const v = vals[i];
+        if (v === null || !isFinite(v)) continue;
+        pts.push(x(st.t_s[i]) + "," + (100 - Math.min(Math.abs(v), scale) / scale * 96).toFixed(1));
+      }
+      $(id).setAttribute("points", pts.join(" "));
+    };
+    const tMax = top(st.tilt_deg, st.tilt_threshold_deg), hMax = top(st.heading_deg, st.heading_threshold_deg);
+    line("strip-tilt", st.tilt_deg, tMax);
+    line("strip-tilt-thr", st.tilt_threshold_deg, tMax);
+    line("strip-hdg", st.heading_deg, hMax);
+    line("strip-hdg-thr", st.heading_threshold_deg.map((v) => (v ? v : null)), hMax);
+    set("strip-tilt-scale", fmt(tMax, 1));
+    set("strip-hdg-scale", fmt(hMax, 1));
+    svg.dataset.tiltMaxDeg = fmt(tMax, 2);
+    svg.dataset.headingMaxDeg = fmt(hMax, 2);
+    svg.dataset.spanS = span.toFixed(1);
+    // warning periods shaded, each WARNING / NOTICE raised a mark
+    const g = $("strip-warn");
+    while (g.firstChild) g.removeChild(g.firstChild);
+    let start = null, raised = 0;
+    for (let i = 0; i <= n; i++) {
+      const on = i < n && st.warning[i];
+      if (on && start === null) start = st.t_s[i];
+      if (!on && start !== null) {
+        const r = document.createElementNS(SVGNS, "rect");
+        r.setAttribute("class", "strip-warn");
+        r.setAttribute("x", x(start));
+        r.setAttribute("width", Math.max(2, x(st.t_s[i - 1]) - x(start)).toFixed(1));
+        r.setAttribute("y", "0");
+        r.setAttribute("height", "215");
+        g.appendChild(r);
+        start = null;
+      }
+      if (i < n && st.raised[i]) {
+        const m = document.createElementNS(SVGNS, "line");
+        m.setAttribute("class", "strip-mark");
+        m.setAttribute("x1", x(st.t_s[i]));
+        m.setAttribute("x2", x(st.t_s[i]));
+        m.setAttribute("y1", "0");
+        m.setAttribute("y2", "215");
+        m.dataset.raised = String(st.raised[i]);
+        g.appendChild(m);
+        raised += st.raised[i] === 2 ? 1 : 0;
+      }
+    }
+    svg.dataset.warnings = String(raised);
+    set("strip-span", "the last " + span.toFixed(0) + " s (boot time " + t0.toFixed(0) + "–" + t1.toFixed(0) + " s)");
+  }
+
+  // who is likely wrong, while a warning is on
+  function showEvidence(so) {
+    const e = $("so-evidence");
+    e.dataset.cause = so.warning ? so.cause || "" : "";
+    e.textContent = so.warning && so.evidence_text ? "likely: " + (so.cause || "unclear") + " — " + so.evidence_text : "";
+  }
+
   function onStatus(s) {
     const body = document.body;
     body.dataset.statusUpdates = String(Number(body.dataset.statusUpdates) + 1);
@@ -131,6 +208,10 @@
     set("mag-rej", fmt(s.mag_rejection_pct, 0));
     set("bias", s.bias_deg_s ? s.bias_deg_s.map((v) => signed(v, 2)).join("  ") : "–");
     set("gnss", s.gnss_velocity || "–");
+    const mm = s.magnetometer;  // the learnt magnetometer model (best / eskf)
+    set("mag-state", mm ? (mm.state === "disturbed" ? "disturbed: heading from GNSS" : mm.state) : "–");
+    set("mag-offset", mm ? "offset " + mm.offset_ut.map((v) => signed(v, 1)).join(" ") + " µT · "
+      + mm.motor_ut_per_a.map((v) => signed(v, 2)).join(" ") + " µT/A" : "");
     set("imu", s.imu === null || s.imu === undefined ? "none" : String(s.imu));
     set("imu-reason", s.imu_reason || "");
     set("lat50", fmt(s.latency_p50_us, 0));
@@ -148,9 +229,35 @@
       set("so-episodes", String(so.episodes));
       if (so.comparisons === 0) badge("so-alarm", "unknown", "no autopilot attitude");
       else badge("so-alarm", so.warning ? "warn" : "ok", so.warning ? "DIFFERS" : "agrees");
+      showEvidence(so);
+      drawStrip(so.strip);
     } else {
       badge("so-alarm", "unknown", "off");
     }
+    onPilot(s.pilot);
+  }
+
+  // the pilot's fields (mavahrs.service.pilot): armed, mode, battery, altitude, speed, GNSS, field, recording, latency
+  function onPilot(p) {
+    if (!p) return;
+    set("armed", p.armed === null ? "–" : p.armed ? "ARMED" : "disarmed");
+    set("mode", p.mode || "–");
+    const b = p.battery || {};
+    set("battery", (b.voltage_v === null ? "–" : fmt(b.voltage_v, 1) + " V") +
+        (b.current_a === null ? "" : " · " + fmt(b.current_a, 1) + " A") +
+        (b.remaining_pct === null ? "" : " · " + b.remaining_pct + " %"));
+    set("altitude", p.altitude_rel_m === null ? "–" : fmt(p.altitude_rel_m, 1) + " m (MSL " + fmt(p.altitude_msl_m, 0) + " m)");
+    set("ground-speed", p.ground_speed_m_s === null ? "–" : fmt(p.ground_speed_m_s, 1) + " m/s");
+    const g = p.gnss || {};
+    set("gnss-fix", g.fix === null ? "–" : g.fix + (g.satellites === null ? "" : ", " + g.satellites + " satellites"));
+    set("mag-field", p.mag_field_ut === null ? "–" : fmt(p.mag_field_ut, 1) + " µT" +
+        (p.mag_field_expected_ut === null ? "" : " (model " + fmt(p.mag_field_expected_ut, 1) + " µT)"));
+    const log = p.log || {};
+    set("recording", log.recording ? log.path + (log.bytes === null ? "" : " (" + fmt(log.bytes / 1e6, 1) + " MB)") : "not recording (--log FILE)");
+    const l = p.latency || {};
+    set("lat-context", l.sample_period_us === null ? "" :
+        "p99 " + (l.within_sample_period ? "within" : "beyond") + " the " + fmt(l.sample_period_us, 0) +
+        " µs sample period" + (l.output_period_us === null ? "" : "; output every " + fmt(l.output_period_us / 1000, 0) + " ms"));
   }
 
   $("json-link").setAttribute("href", "status.json" + query);

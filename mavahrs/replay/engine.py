@@ -433,6 +433,7 @@ def replay(
         if sink is not None:
             sink.close()
     result.notes = notes + result.inputs.notes + result.notes + _resend_notes(result.inputs.counts)
+    result.notes += _mag_notes(result)
     gaps = gap_note(result.inputs, int(td.t_us[0]) if td.frames else 0, ps.timeline.max_gap_s)
     if gaps is not None:
         result.notes.append(gaps)
@@ -485,6 +486,27 @@ def _replay_log(
         result.notes.append(f"IMU samples reach the filter at {rate:.1f} Hz: too slow for meaningful attitude "
                             f"filtering (≥ {LOW_RATE_HZ:g} Hz needed)")  # fmt: skip
     return result
+
+
+def _mag_notes(result: ReplayResult) -> list[str]:
+    """``magnetometer disturbed: heading from GNSS`` for the velocity-aided filters, with how long."""
+    from mavahrs.filters.layout import FLAG_MAG_INVALID, FLAG_VELOCITY_AIDED, OUT_MAG_WEIGHT
+    from mavahrs.filters.magfield import DISTURBED_TEXT
+
+    notes = []
+    t = result.inputs.t_us
+    for name, tr in result.tracks.items():
+        if name not in ("best", "eskf") or tr.out.shape[0] < 2:
+            continue
+        flags = tr.out[:, OUT_FLAGS].astype(np.int64)
+        off = ((flags & FLAG_VELOCITY_AIDED) != 0) & ((flags & FLAG_MAG_INVALID) == 0) & (tr.out[:, OUT_MAG_WEIGHT] == 0.0)
+        if not off.any():
+            continue
+        dt = np.diff(t, prepend=t[0]) * 1e-6
+        secs = float(dt[off].sum())
+        if secs >= 1.0:
+            notes.append(f"{name}: {DISTURBED_TEXT} for {secs:.0f} s ({100.0 * off.mean():.0f} % of the samples)")
+    return notes
 
 
 def _resend_notes(counts: Mapping[str, int]) -> list[str]:
@@ -700,22 +722,26 @@ def attitude_at_reference(result: ReplayResult, filter_name: str, reference_name
     return interpolate_attitude(t[init], out[init, OUT_Q : OUT_Q + 4], t_ref, max_gap_s=gap_s)
 
 
-def compare(result: ReplayResult) -> list[ComparisonRow]:
+def compare(result: ReplayResult, skip_s: float = 0.0) -> list[ComparisonRow]:
     """Each filter against each attitude the log holds, at the reference's own times.
 
     The filter's attitude (as sent: true north when the declination is known)
     is slerped onto the reference times within the replayed span; samples
-    before the filter initialised are skipped (:func:`attitude_at_reference`).
+    before the filter initialised are skipped (:func:`attitude_at_reference`),
+    and so are the reference times in the first ``skip_s`` seconds after the
+    first replayed sample (convergence: ``scripts/bench_sitl.py`` and the
+    README's tables leave out 10 s).
     """
     from mavahrs.evaluation.metrics import euler_errors_rad, summarize
 
     rows: list[ComparisonRow] = []
     if result.inputs.t_us.size < 2:
         return rows
+    start_us = float(result.inputs.t_us[0]) + max(0.0, skip_s) * 1e6
     for name in result.tracks:
-        for ref_name, (_t_ref, q_ref) in result.references.items():
+        for ref_name, (t_ref, q_ref) in result.references.items():
             q_est = attitude_at_reference(result, name, ref_name)
-            ok = np.all(np.isfinite(q_est), axis=1)
+            ok = np.all(np.isfinite(q_est), axis=1) & (t_ref >= start_us)
             if ok.sum() < 2:
                 continue
             sm = summarize(q_est[ok], q_ref[ok])
@@ -726,13 +752,21 @@ def compare(result: ReplayResult) -> list[ComparisonRow]:
     return rows
 
 
-def format_comparison(rows: Sequence[ComparisonRow]) -> str:
+def format_comparison(rows: Sequence[ComparisonRow], skip_s: float | None = None) -> str:
+    """The comparison table; ``skip_s`` (when given) says which samples it covers in its title."""
     if not rows:
         return "no attitude in the log to compare with (no ATTITUDE, AHRS2, SIM_STATE, SIMSTATE or HIL_STATE_QUATERNION)"
     head = (f"{'filter':<14}{'vs':<22}{'samples':>8}{'total':>8}{'head':>8}{'incl':>8}"
             f"{'roll':>8}{'pitch':>8}{'yaw':>8}")  # fmt: skip
-    lines = ["RMS difference, degrees (heading/inclination as BROAD defines them; roll/pitch/yaw of q_ref*⊗q):",
-             head, "─" * len(head)]  # fmt: skip
+    if skip_s is None:
+        span = ""
+    elif skip_s > 0:
+        span = f"; from {skip_s:g} s after the first replayed sample (--skip)"
+    else:
+        span = ("; from the first replayed sample, convergence included (the README's tables leave out the "
+                "first 10 s: --skip 10)")
+    lines = ["RMS difference, degrees (heading/inclination as BROAD defines them; roll/pitch/yaw of q_ref*⊗q"
+             f"{span}):", head, "─" * len(head)]  # fmt: skip
     for r in rows:
         lines.append(
             f"{r.filter:<14}{r.reference:<22}{r.samples:>8}{r.total_rms_deg:8.2f}{r.heading_rms_deg:8.2f}"
@@ -871,6 +905,47 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
              + (f" — reference: {ref_name}" if ref_name else ""))  # fmt: skip
     return plot_attitude(path, (t_us - t0) * 1e-6, est, reference_q=ref_q, reference_label=ref_name or "",
                          others=others, title=title)  # fmt: skip
+
+
+def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
+    from mavahrs.fleet.audit import _phase_events, replay_monitor
+
+    ref = next((k for k in result.references if k.startswith("autopilot")), None)
+    if ref is None or not result.tracks:
+        return None
+    tlog = getattr(result, "tlog", None)
+    phase = _phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
+    series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
+    return series, ref
+
+
+def format_second_opinion(result: ReplayResult) -> str:
+    """What the daemon's monitor would have said on this flight: each STATUSTEXT (boot time, phase, text) and
+    the evidence of who is likely wrong; "" where the log has no autopilot attitude."""
+    got = _monitor_of(result)
+    if got is None:
+        return ""
+    series, ref = got
+    lines = [f"second opinion vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
+    for e in series.events:
+        lines.append(f"  {e.t_ms / 1000.0:9.3f} s  {e.phase or '':9s} {e.text}")
+        if e.evidence is not None:
+            lines.append(f"  {'':21s}({e.evidence.text()})")
+    return "\n".join(lines)
+
+
+def plot_second_opinion(result: ReplayResult, path: str | Path) -> Path | None:
+    """The second-opinion monitor's chart beside the replay plot ``path`` (``NAME_second_opinion.png``): what
+    the daemon's monitor would have said on this flight against the log's autopilot attitude (None: the log
+    has none)."""
+    from mavahrs.evaluation.plots import plot_second_opinion as draw
+
+    got = _monitor_of(result)
+    if got is None:
+        return None
+    series, ref = got
+    p = Path(path)
+    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series, title=f"{Path(result.path).name} vs {ref}")
 
 
 # --------------------------------------------------------------------------- QGC streaming

@@ -112,7 +112,7 @@ def test_stream_paces_by_sample_time(sim_hover_tlog: Path) -> None:
     port = sock.getsockname()[1]
     clock = _pace_check_clock()
     sends: list[float] = []
-    from mavahrs import replay as rp
+    from mavahrs.replay import engine as rp  # the module whose globals the engine reads
 
     orig = rp._open_udp_sender
 
@@ -190,7 +190,7 @@ def test_an_interrupted_fast_replay_keeps_every_block_it_filtered(
     sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Ctrl-C in the middle of the bulk replay: the blocks handed to the CSV writer thread are all on disk, whole."""
-    import mavahrs.replay as rp
+    import mavahrs.replay.engine as rp  # the module whose globals the engine reads
 
     full = tmp_path / "full.csv"
     replay(sim_hover_tlog, ReplaySettings(filters=("madgwick",), engine="fast"), csv_path=full)

@@ -1,0 +1,530 @@
+r"""The magnetometer model learnt in flight: body-frame offset and local earth field, and when to trust it.
+
+An autopilot's compass reads the earth's field rotated into the body plus a
+body-fixed field of the vehicle's own: hard iron, and the field of the motor
+currents (ArduPilot: ``COMPASS_MOT``, proportional to the current; its
+simulator: ``SIM_MAG_MOT``), which appears at take-off and changes with the
+throttle.  Near the ground a field anomaly (``SIM_MAG_ALY``: steel in the
+ground, a car) changes the earth field itself.  ArduPilot's EKF3 and PX4's
+EKF2 carry a body-field and an earth-field state for this; this module does
+the same beside the velocity-aided ESKF (:mod:`mavahrs.filters.eskf`), as a
+small Kalman filter of its own that takes the ESKF's attitude and heading
+variance as given (a Schmidt-style decoupling: the attitude states are not
+re-estimated here).
+
+Measurement model (body → NED rotation ``C`` of the ESKF, its magnetic-north
+NED frame)::
+
+    m = Cᵀ F + B + w,     F = (F_H, 0, F_D),     w ~ N(0, σ_m² I)
+
+The body field is ``B = b₀ + k·I``: hard iron b₀ (µT) and the field per
+ampere of battery current k (µT/A, ArduPilot's ``COMPASS_MOT``; I from
+SYS_STATUS / BATTERY_STATUS, ``IN_CURRENT``; without a current only b₀).
+State ``x = (b₀, k, F_H, F_D)`` (8) with covariance ``P`` (8×8).  The
+residual in NED, ``r = C (m − B) − F``, is linear in the state errors,
+``r = C δB + δF_H e_N + δF_D e_D + F_H δψ e_E + w`` (δ = true − estimate): a heading error δψ of the
+ESKF moves the field east (by ``F_H δψ``), so the east component's noise is
+``σ_m² + F_H² P_ψψ``, with ``P_ψψ`` the ESKF's heading variance; the three
+components are then uncorrelated and fused one after another (Kalman, scalar
+updates; Solà 2017 eq. (275)–(279) with a diagonal R):
+
+* while the ESKF's heading is certain (gyro and GNSS hold it), the residual
+  teaches the offset in all three axes (this is how EKF3 learns a motor
+  field after take-off);
+* while it is not, only the heading-free parts are learnt: the vertical
+  component and the horizontal magnitude (the field's direction changes in
+  the body as the vehicle turns, so turns make every axis observable);
+* the earth field starts from the World Magnetic Model (``set_mag_reference``:
+  the pipeline's WMM field at the vehicle's position) with σ
+  ``earth_field_sigma_ut`` — a prior, not a constraint — or, before a
+  position is known, from the first reading with a wide σ.
+
+**Disturbance.**  A reading whose residual, in any component, is beyond
+``gate_sigma`` of its predicted σ does not fit the model: the vehicle's own
+field has changed or the vehicle is in an earth anomaly.  The offset returns
+to its prior (a calibrated compass) and the model re-learns, the ESKF's
+heading variance is re-opened (the heading a disturbed compass gave may be
+wrong); for ``hold_s`` the magnetometer gives no heading at all
+("disturbed": the heading is held by the gyro and GNSS), then, while the
+offset across the horizontal field is still uncertain, only with the noise
+that uncertainty implies (σ_B⊥ / F_H rad: "learning"), and once it is known
+to ``trusted_heading_sigma_rad`` the magnetometer is "trusted".
+
+State and parameters are flat blocks inside the ESKF's (offsets ``MF_*`` and
+``MP_*`` from the block's start), so the ESKF's one kernel runs it per sample
+and over whole logs alike.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mavahrs.filters.jit import kernel
+
+__all__ = [
+    "MagFieldSettings",
+    "MF_LEN",
+    "MP_LEN",
+    "MAG_TRUSTED",
+    "MAG_LEARNING",
+    "MAG_DISTURBED",
+    "MAG_STATES",
+    "mag_model_reset",
+    "mag_model_update",
+    "magfield_params",
+    "mag_model_summary",
+    "mag_state_text",
+    "DISTURBED_TEXT",
+    "export_model",
+    "import_model",
+]
+
+#: what the status line, ``/status.json`` readers and the replay header say while the compass is not used
+DISTURBED_TEXT = "magnetometer disturbed: heading from GNSS"
+
+NX = 8  # b₀ (3), k (3), F_H, F_D
+_FH = 6
+_FD = 7
+
+#: magnetometer states (``MF_TRUST``)
+MAG_TRUSTED = 0
+MAG_LEARNING = 1
+MAG_DISTURBED = 2
+MAG_STATES = ("trusted", "learning", "disturbed")
+
+# state offsets
+MF_X = 0  # b₀ (3) µT, k (3) µT/A, F_H, F_D µT
+MF_P = MF_X + NX  # covariance NX×NX
+MF_INIT = MF_P + NX * NX  # 1 once the earth field was seeded
+MF_REF_NORM = MF_INIT + 1  # the WMM reference the earth field was seeded from (µT; 0 = from data)
+MF_REF_DIP = MF_REF_NORM + 1
+MF_T = MF_REF_DIP + 1  # clock of the last reading fused
+MF_STEP_T = MF_T + 1  # clock of the last misfit (a disturbance), −1e9: none
+MF_TRUST = MF_STEP_T + 1  # MAG_* of the last reading
+MF_STEPS = MF_TRUST + 1  # disturbances counted
+MF_HEAD_SIGMA = MF_STEPS + 1  # 1-σ heading noise the model gives the last reading, rad
+MF_RESID = MF_HEAD_SIGMA + 1  # the last reading's residual in NED (3), µT
+MF_LEN = MF_RESID + 3
+
+# parameter offsets
+MP_ON = 0
+MP_SIGMA_M = 1  # µT
+MP_B0 = 2  # initial offset σ, µT
+MP_Q_B = 3  # offset random walk², µT²/s
+MP_F0 = 4  # earth field σ around WMM, µT
+MP_Q_F = 5  # earth field random walk², µT²/s
+MP_GATE = 6
+MP_STEP = 7  # µT
+MP_HOLD = 8  # s
+MP_TRUST_SIGMA = 9  # rad
+MP_F_DATA = 10  # earth field σ when seeded from the data, µT
+MP_EAST = 11  # 1: learn the offset from the ESKF's heading too (the east residual)
+MP_HFACTOR = 12  # the model's heading σ is multiplied by this before the ESKF uses it
+MP_K0 = 13  # initial σ of the field per ampere, µT/A
+MP_Q_K = 14  # its random walk², (µT/A)²/s
+MP_LEN = 15
+
+
+@dataclass(frozen=True)
+class MagFieldSettings:
+    """Settings of the in-flight magnetometer model (:mod:`mavahrs.filters.magfield`).
+
+    Attributes:
+        enabled: learn the offset and earth field and judge each reading by
+            them (False: the ESKF's former heading update, gated only by the
+            gain schedule's norm and dip test).  Off by default: on it halves
+            the heading error on ArduCopter's motor-interference flight, but
+            a field disturbed for 30 s by a body-fixed rotation (the ESKF's
+            own tests) is learnt as an offset and followed (``docs/filters/magfield.md``).
+        noise_ut: 1-σ noise of one reading per axis, µT (quantisation,
+            the field's wander in a flight).
+        initial_offset_ut: 1-σ of the body offset before anything is learnt,
+            µT (an autopilot's compass is calibrated: what is left is small).
+        offset_walk_ut_s: random walk of the body offset, µT/√s (the motor
+            field follows the throttle).
+        earth_field_sigma_ut: 1-σ of the World Magnetic Model's field
+            (horizontal and down) as the prior of the local field, µT.
+        earth_field_walk_ut_s: random walk of the local earth field, µT/√s.
+        data_field_sigma_ut: 1-σ of the earth field when it is seeded from
+            the first reading (no position yet), µT.
+        gate_sigma: a residual beyond this many σ (any NED component) is a
+            disturbance.
+        step_sigma_ut: after a disturbance the offset's σ is re-opened by
+            this much, µT; 0 = the offset returns to its prior (0 ±
+            ``initial_offset_ut``), so that an earth-frame anomaly is not
+            learnt as the vehicle's own field (the motor part is carried by
+            the per-ampere term).  Measured: with 20 µT the learnt offset
+            follows a ground anomaly and the heading after take-off stays
+            that far off (firmware_sim mag_anomaly seed 11: 4.9° vs 3.9°).
+        hold_s: after a disturbance the magnetometer gives no heading for
+            this long, s.
+        trusted_heading_sigma_rad: the model's heading σ below which the
+            magnetometer counts as trusted (status), rad.
+        learn_from_heading: also learn the offset across the horizontal
+            field from the ESKF's heading (its east residual, noise
+            σ_m² + F_H² P_ψψ), as EKF3 does.  Off by default: a heading taken
+            from a disturbed compass (a start in a ground anomaly) would be
+            learnt as right; without it that part of the offset is learnt
+            from turns only (heading-free).
+        heading_sigma_factor: the heading σ the offset's uncertainty implies
+            is multiplied by this before the ESKF weighs the reading (the
+            linearised covariance of the heading-free fit is optimistic
+            while the offset is still being learnt).
+        max_heading_sigma_rad: a reading whose heading σ (so scaled) is
+            beyond this gives the ESKF no heading at all; after a
+            disturbance the ESKF's heading variance is re-opened to at
+            least this (the heading a disturbed compass gave may be wrong).
+        motor_ut_per_a_sigma: 1-σ prior of the body field per ampere of
+            battery current, µT/A (ArduPilot's simulator: 0.4–0.5 µT/A per
+            axis in its magnetic flights); learnt where the stream carries a
+            current (SYS_STATUS / BATTERY_STATUS, ``IN_CURRENT``).
+        motor_walk_ut_per_a_s: its random walk, µT/A per √s.
+        min_body_field_ut: while the learnt body field (b₀ + k·I) is below
+            this, µT, the reading is used as it is, gated by the gain
+            schedule's norm and dip test as without the model (a small
+            learnt offset on a clean compass is mostly the fit's own error:
+            measured on the clean SITL flights); a disturbance still
+            withholds it.
+        reopen_heading: a disturbance re-opens the ESKF's heading variance to
+            ``max_heading_sigma_rad`` (the heading the disturbed compass gave
+            before may be wrong: a start in a ground anomaly).
+    """
+
+    enabled: bool = False
+    noise_ut: float = 1.0
+    initial_offset_ut: float = 3.0
+    offset_walk_ut_s: float = 0.05
+    earth_field_sigma_ut: float = 1.0
+    earth_field_walk_ut_s: float = 0.0
+    data_field_sigma_ut: float = 10.0
+    gate_sigma: float = 4.0
+    step_sigma_ut: float = 0.0
+    hold_s: float = 3.0
+    trusted_heading_sigma_rad: float = math.radians(3.0)
+    learn_from_heading: bool = False
+    heading_sigma_factor: float = 2.0
+    max_heading_sigma_rad: float = math.radians(20.0)
+    motor_ut_per_a_sigma: float = 1.0
+    motor_walk_ut_per_a_s: float = 0.0005
+    min_body_field_ut: float = 4.0
+    reopen_heading: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
+                     "gate_sigma", "trusted_heading_sigma_rad", "heading_sigma_factor",
+                     "max_heading_sigma_rad", "motor_ut_per_a_sigma"):  # fmt: skip
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"MagFieldSettings.{name} must be a finite number > 0, got {v!r}")
+        for name in ("offset_walk_ut_s", "earth_field_walk_ut_s", "hold_s", "motor_walk_ut_per_a_s", "step_sigma_ut",
+                     "min_body_field_ut"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"MagFieldSettings.{name} must be ≥ 0, got {v!r}")
+
+
+def magfield_params(s: MagFieldSettings) -> np.ndarray:
+    """The parameter block of :class:`MagFieldSettings`."""
+    p = np.zeros(MP_LEN)
+    p[MP_ON] = 1.0 if s.enabled else 0.0
+    p[MP_SIGMA_M] = s.noise_ut
+    p[MP_B0] = s.initial_offset_ut
+    p[MP_Q_B] = s.offset_walk_ut_s**2
+    p[MP_F0] = s.earth_field_sigma_ut
+    p[MP_Q_F] = s.earth_field_walk_ut_s**2
+    p[MP_GATE] = s.gate_sigma
+    p[MP_STEP] = s.step_sigma_ut
+    p[MP_HOLD] = s.hold_s
+    p[MP_TRUST_SIGMA] = s.trusted_heading_sigma_rad
+    p[MP_F_DATA] = s.data_field_sigma_ut
+    p[MP_EAST] = 1.0 if s.learn_from_heading else 0.0
+    p[MP_HFACTOR] = s.heading_sigma_factor
+    p[MP_K0] = s.motor_ut_per_a_sigma
+    p[MP_Q_K] = s.motor_walk_ut_per_a_s**2
+    return p
+
+
+@kernel
+def mag_model_reset(s, k, p):  # type: ignore[no-untyped-def]
+    """Nothing learnt: offset 0 with its prior σ, earth field not yet seeded."""
+    for i in range(MF_LEN):
+        s[k + i] = 0.0
+    b0 = p[MP_B0] * p[MP_B0]
+    k0 = p[MP_K0] * p[MP_K0]
+    for i in range(3):
+        s[k + MF_P + i * NX + i] = b0
+        s[k + MF_P + (3 + i) * NX + 3 + i] = k0
+    s[k + MF_STEP_T] = -1.0e9
+    s[k + MF_TRUST] = MAG_LEARNING
+    s[k + MF_HEAD_SIGMA] = math.pi
+
+
+@kernel
+def _seed_field(s, k, p, f_h, f_d, sigma):  # type: ignore[no-untyped-def]
+    kp = k + MF_P
+    for i in range(_FH, NX):
+        for j in range(NX):
+            s[kp + i * NX + j] = 0.0
+            s[kp + j * NX + i] = 0.0
+    s[k + MF_X + _FH] = f_h
+    s[k + MF_X + _FD] = f_d
+    s[kp + _FH * NX + _FH] = sigma * sigma
+    s[kp + _FD * NX + _FD] = sigma * sigma
+    s[k + MF_INIT] = 1.0
+
+
+@kernel(inline=True)
+def _h_row(c, j, amps, h):  # type: ignore[no-untyped-def]
+    """Row j of H for z = C m = C (b₀ + k·I) + F (innovation r): (C[j, :], I·C[j, :], [j = N], [j = D])."""
+    for i in range(3):
+        h[i] = c[3 * j + i]
+        h[3 + i] = amps * c[3 * j + i]
+    h[_FH] = 1.0 if j == 0 else 0.0
+    h[_FD] = 1.0 if j == 2 else 0.0
+
+
+@kernel
+def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph):  # type: ignore[no-untyped-def]
+    """Fuse one new reading ``m`` (µT, body) into the model; return its trust (``MAG_*``).
+
+    ``c``: C_body_to_ned (9, row-major) of the ESKF; ``p_psi``: its heading
+    variance, rad²; ``ref_norm``/``ref_dip``: the WMM reference (0: none);
+    ``clk``: the ESKF's clock, s.  Writes the corrected field ``m − B`` (µT,
+    body) and the heading noise variance the model adds (rad²) to ``out4``;
+    ``amps``: the battery current, A (NaN: not known, the per-ampere term
+    is then left out); ``stale_rad``: how far the vehicle turns over the
+    reading's possible age (rate × the ESKF's ``mag_staleness_s``), rad —
+    the field moves by that much times its strength in every component; ``h``, ``ph``: scratch of ``NX``.
+    """
+    if not (amps == amps):
+        amps = 0.0
+    kx = k + MF_X
+    kp = k + MF_P
+    m_norm = math.sqrt(mx * mx + my * my + mz * mz)
+    sig_m2 = p[MP_SIGMA_M] * p[MP_SIGMA_M] + (stale_rad * m_norm) ** 2
+    # ---- the earth field's prior: WMM when known (again when it changes), else the first reading
+    if ref_norm > 0.0 and (ref_norm != s[k + MF_REF_NORM] or ref_dip != s[k + MF_REF_DIP]):
+        if s[k + MF_REF_NORM] == 0.0 and s[k + MF_INIT] > 0.0:
+            # the offset learnt so far was against a field seeded from the data: start it again (the field
+            # per ampere is kept: before a position is known the vehicle is on the ground, its current ~0)
+            for i in range(3):
+                s[kx + i] = 0.0
+                for j in range(NX):
+                    s[kp + i * NX + j] = 0.0
+                    s[kp + j * NX + i] = 0.0
+                s[kp + i * NX + i] = p[MP_B0] * p[MP_B0] if i < 3 else p[MP_K0] * p[MP_K0]
+        _seed_field(s, k, p, ref_norm * math.cos(ref_dip), ref_norm * math.sin(ref_dip), p[MP_F0])
+        s[k + MF_REF_NORM] = ref_norm
+        s[k + MF_REF_DIP] = ref_dip
+    if s[k + MF_INIT] == 0.0:
+        bx, by, bz = mx - s[kx] - amps * s[kx + 3], my - s[kx + 1] - amps * s[kx + 4], mz - s[kx + 2] - amps * s[kx + 5]
+        nn = c[0] * bx + c[1] * by + c[2] * bz
+        ne = c[3] * bx + c[4] * by + c[5] * bz
+        nd = c[6] * bx + c[7] * by + c[8] * bz
+        _seed_field(s, k, p, math.sqrt(nn * nn + ne * ne), nd, p[MP_F_DATA])
+        s[k + MF_T] = clk
+    # ---- process noise since the last reading
+    dt = clk - s[k + MF_T]
+    if dt > 0.0:
+        if dt > 10.0:
+            dt = 10.0
+        for i in range(3):
+            s[kp + i * NX + i] += p[MP_Q_B] * dt
+            s[kp + (3 + i) * NX + 3 + i] += p[MP_Q_K] * dt
+        for i in range(_FH, NX):
+            s[kp + i * NX + i] += p[MP_Q_F] * dt
+    s[k + MF_T] = clk
+    f_h = s[kx + _FH]
+    pp = max(p_psi, 0.0)
+    r_e = sig_m2 + f_h * f_h * pp
+    # the north residual is heading-free only to first order: F_H (1 − cos δψ) has variance ≈ F_H² P_ψψ² / 2
+    r_n = sig_m2 + 0.5 * f_h * f_h * pp * pp
+    # ---- does the reading fit? (every component against its predicted σ)
+    gate = p[MP_GATE]
+    fits = True
+    for j in range(3):
+        _h_row(c, j, amps, h)
+        y = _residual(s, kx, c, mx, my, mz, amps, j)
+        s[k + MF_RESID + j] = y
+        if j == 1 and p[MP_EAST] == 0.0:
+            continue
+        sv = r_e if j == 1 else (r_n if j == 0 else sig_m2)
+        for a in range(NX):
+            acc = 0.0
+            for b in range(NX):
+                acc += s[kp + a * NX + b] * h[b]
+            sv += h[a] * acc
+        if y * y > gate * gate * sv:
+            fits = False
+    if not fits:
+        # the vehicle's own field changed (or an anomaly): re-open the offset and re-learn
+        st = p[MP_STEP] * p[MP_STEP]
+        for i in range(3):
+            if p[MP_STEP] > 0.0:
+                s[kp + i * NX + i] += st
+            else:  # back to the calibrated compass's prior: an earth-frame anomaly is not learnt as the vehicle's
+                s[kx + i] = 0.0
+                for j in range(NX):
+                    s[kp + i * NX + j] = 0.0
+                    s[kp + j * NX + i] = 0.0
+                s[kp + i * NX + i] = p[MP_B0] * p[MP_B0]
+        s[k + MF_STEP_T] = clk
+        s[k + MF_STEPS] += 1.0
+    # ---- sequential scalar updates (R diagonal in NED)
+    for j in range(3):
+        if j == 1 and p[MP_EAST] == 0.0:
+            continue
+        _h_row(c, j, amps, h)
+        y = _residual(s, kx, c, mx, my, mz, amps, j)
+        sv = r_e if j == 1 else (r_n if j == 0 else sig_m2)
+        for a in range(NX):
+            acc = 0.0
+            for b in range(NX):
+                acc += s[kp + a * NX + b] * h[b]
+            ph[a] = acc
+            sv += h[a] * acc
+        if not (sv > 0.0):
+            continue
+        lim = gate * math.sqrt(sv)  # a residual beyond the gate teaches at most the gate's worth (Huber)
+        if y > lim:
+            y = lim
+        elif y < -lim:
+            y = -lim
+        inv = 1.0 / sv
+        for a in range(NX):
+            s[kx + a] += ph[a] * inv * y
+        for a in range(NX):
+            for b in range(NX):
+                s[kp + a * NX + b] -= ph[a] * inv * ph[b]
+    for a in range(NX):  # symmetric
+        for b in range(a + 1, NX):
+            v = 0.5 * (s[kp + a * NX + b] + s[kp + b * NX + a])
+            s[kp + a * NX + b] = v
+            s[kp + b * NX + a] = v
+    out4[0] = mx - s[kx] - amps * s[kx + 3]
+    out4[1] = my - s[kx + 1] - amps * s[kx + 4]
+    out4[2] = mz - s[kx + 2] - amps * s[kx + 5]
+    # heading noise from the offset left unknown across the horizontal field (east in the estimate's frame)
+    _h_row(c, 1, amps, h)
+    var_e = 0.0
+    for a in range(6):
+        acc = 0.0
+        for b in range(6):
+            acc += s[kp + a * NX + b] * h[b]
+        var_e += h[a] * acc
+    f_h = s[kx + _FH]
+    head_var = var_e / (f_h * f_h) if f_h > 1.0 else 1.0e6
+    out4[3] = head_var * p[MP_HFACTOR] * p[MP_HFACTOR]
+    s[k + MF_HEAD_SIGMA] = math.sqrt(head_var)
+    if clk - s[k + MF_STEP_T] < p[MP_HOLD]:
+        trust = MAG_DISTURBED
+    elif math.sqrt(head_var) > p[MP_TRUST_SIGMA]:
+        trust = MAG_LEARNING
+    else:
+        trust = MAG_TRUSTED
+    s[k + MF_TRUST] = trust
+    return trust
+
+
+@kernel(inline=True)
+def _residual(s, kx, c, mx, my, mz, amps, j):  # type: ignore[no-untyped-def]
+    """Component j of r = C (m − b₀ − k·I) − (F_H, 0, F_D)."""
+    bx = mx - s[kx] - amps * s[kx + 3]
+    by = my - s[kx + 1] - amps * s[kx + 4]
+    bz = mz - s[kx + 2] - amps * s[kx + 5]
+    n = c[3 * j] * bx + c[3 * j + 1] * by + c[3 * j + 2] * bz
+    if j == 0:
+        return n - s[kx + _FH]
+    if j == 2:
+        return n - s[kx + _FD]
+    return n
+
+
+def mag_model_summary(block: np.ndarray) -> dict[str, object]:
+    """The model's state as plain values (status page, ``/status.json``, replay header)."""
+    b = np.asarray(block, dtype=np.float64)
+    p = b[MF_P : MF_P + NX * NX].reshape(NX, NX)
+    trust = int(b[MF_TRUST]) if np.isfinite(b[MF_TRUST]) else MAG_LEARNING
+    return {
+        "state": MAG_STATES[min(max(trust, 0), 2)],
+        "offset_ut": [round(float(v), 2) for v in b[MF_X : MF_X + 3]],
+        "offset_sigma_ut": [round(float(math.sqrt(max(p[i, i], 0.0))), 2) for i in range(3)],
+        "motor_ut_per_a": [round(float(v), 3) for v in b[MF_X + 3 : MF_X + 6]],
+        "motor_sigma_ut_per_a": [round(float(math.sqrt(max(p[i, i], 0.0))), 3) for i in range(3, 6)],
+        "earth_field_ut": {"horizontal": round(float(b[MF_X + _FH]), 2), "down": round(float(b[MF_X + _FD]), 2)},
+        "heading_sigma_deg": round(math.degrees(float(b[MF_HEAD_SIGMA])), 2),
+        "disturbances": int(b[MF_STEPS]),
+    }
+
+
+#: version of the saved model (:func:`export_model`)
+MODEL_FORMAT = 1
+
+
+def export_model(block: np.ndarray) -> dict[str, object] | None:
+    """What is worth keeping across a restart of the daemon: the field per ampere (and the offset).
+
+    None while nothing was learnt (the per-ampere σ still above half its prior on every axis), so
+    that a file is never overwritten by an empty model (a daemon started and stopped on the bench).
+    """
+    b = np.asarray(block, dtype=np.float64)
+    p = b[MF_P : MF_P + NX * NX].reshape(NX, NX)
+    k_sig = np.sqrt(np.maximum(np.diag(p)[3:6], 0.0))
+    if not (np.all(np.isfinite(b[MF_X : MF_X + NX])) and b[MF_INIT] > 0.0):
+        return None
+    prior = math.sqrt(max(p[3, 3], 0.0))
+    if not np.any(k_sig < 0.5 * max(prior, 1e-9)) and b[MF_STEPS] == 0:
+        return None
+    return {
+        "format": MODEL_FORMAT,
+        "offset_ut": [float(v) for v in b[MF_X : MF_X + 3]],
+        "motor_ut_per_a": [float(v) for v in b[MF_X + 3 : MF_X + 6]],
+        "motor_sigma_ut_per_a": [float(v) for v in k_sig],
+    }
+
+
+def import_model(block: np.ndarray, settings: MagFieldSettings, saved: object) -> str | None:
+    """Start ``block`` (a reset model) from a saved one; return why not, or None when taken.
+
+    The field per ampere is taken with its σ (at least 0.05 µT/A); the offset as the prior's mean
+    with the prior's σ (a payload may have changed it); the earth field is not kept (the WMM at the
+    new position seeds it).
+    """
+    if not isinstance(saved, dict) or saved.get("format") != MODEL_FORMAT:
+        return "not a saved magnetometer model (format)"
+    try:
+        off = np.asarray(saved["offset_ut"], dtype=np.float64)
+        mot = np.asarray(saved["motor_ut_per_a"], dtype=np.float64)
+        sig = np.asarray(saved["motor_sigma_ut_per_a"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        return "missing or non-numeric fields"
+    if off.shape != (3,) or mot.shape != (3,) or sig.shape != (3,):
+        return "wrong field sizes"
+    if not (np.all(np.isfinite(off)) and np.all(np.isfinite(mot)) and np.all(np.isfinite(sig)) and np.all(sig >= 0)):
+        return "non-finite values"
+    if np.any(np.abs(off) > 200.0) or np.any(np.abs(mot) > 20.0):
+        return "implausible values (offset > 200 µT or > 20 µT/A)"
+    p = block[MF_P : MF_P + NX * NX].reshape(NX, NX)
+    block[MF_X : MF_X + 3] = off
+    block[MF_X + 3 : MF_X + 6] = mot
+    for i in range(3):
+        p[3 + i, :] = 0.0
+        p[:, 3 + i] = 0.0
+        p[3 + i, 3 + i] = max(float(sig[i]), 0.05) ** 2
+    return None
+
+
+def mag_state_text(summary: dict[str, object] | None) -> str:
+    """The status line's magnetometer part, e.g. ``mag trusted (offset +0.2 −1.3 +0.7 µT, 0.41 −0.29 0.79 µT/A)``."""
+    if not summary:
+        return ""
+    state = summary.get("state")
+    if state == "disturbed":
+        return DISTURBED_TEXT
+    off = summary.get("offset_ut") or (0.0, 0.0, 0.0)
+    mot = summary.get("motor_ut_per_a") or (0.0, 0.0, 0.0)
+    return (f"mag {state} (offset {off[0]:+.1f} {off[1]:+.1f} {off[2]:+.1f} µT, "  # type: ignore[index]
+            f"{mot[0]:+.2f} {mot[1]:+.2f} {mot[2]:+.2f} µT/A)")  # type: ignore[index]

@@ -1,0 +1,196 @@
+r"""The sample chain over arrays: from decoded IMU samples to the filter's input rows.
+
+The steps every log reader shares after decoding (telemetry logs in
+:mod:`mavahrs.evaluation.tlogdata`, DataFlash and ULog in :mod:`mavahrs.logs`),
+each the array form of the live pipeline's per-sample step
+(:mod:`mavahrs.service.pipeline`):
+
+* :func:`_timeline` — :class:`mavahrs.protocol.timeline.Timeline` over the samples
+  (dt, gaps, drops; a reboot or a corrected time stamp raises
+  :class:`FastPathUnsupported`: the per-message pipeline then replays the log);
+* :func:`_calibrate` — :class:`mavahrs.sensors.calibration.Calibrator`'s
+  ``apply_row`` over all rows at once;
+* :class:`PreparedInputs` — the rows in :mod:`mavahrs.filters.layout`'s layout,
+  their times and what the readers found, and :meth:`PreparedInputs.run_filter`,
+  the filter run over them as the pipeline runs it (reference seeding, sensor delay).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG, OUT_WIDTH
+
+__all__ = ["FastPathUnsupported", "PreparedInputs"]
+
+Array = NDArray[np.float64]
+_NAN = math.nan
+
+
+class FastPathUnsupported(Exception):
+    """The log needs the pipeline's per-message decisions (the reason says which)."""
+
+
+@dataclass
+class PreparedInputs:
+    """The filter's input rows for a log, as the pipeline would build them.
+
+    Attributes:
+        rows: (M, IN_WIDTH) input rows (dt, gyro, accel, mag, velocity, its age).
+        t_us: (M,) sample time, µs of the autopilot's clock.
+        frame_pos: (M,) position of the IMU message in :class:`TlogData` order.
+        tlog_us: (M,) the tlog timestamp of that message.
+        temperature_c: (M,) IMU temperature (NaN when not sent).
+        declination_rad: (M,) declination applied to the outputs at each sample.
+        message: the IMU message type fed; instance: its instance number.
+        source: (system, component) of the autopilot; profile: scaling profile name.
+        engine: ``fast`` (this module) or ``pipeline`` (message by message).
+        notes: things the user should know (absent instances, low rate …).
+        counts: samples seen / fed / dropped by reason.
+        velocity_source: the ``velocity_source`` setting in effect (``auto``,
+            ``auto, receiver only`` with the monitor's
+            ``receiver_velocity_only``, a named source, ``none``).
+        velocity_fixes: GNSS velocity fixes used, per message (in the
+            preference order; a fix after the last fed sample included).
+    """
+
+    rows: Array
+    t_us: NDArray[np.int64]
+    frame_pos: NDArray[np.int64]
+    tlog_us: NDArray[np.int64]
+    temperature_c: Array
+    declination_rad: Array
+    message: str
+    instance: int
+    source: tuple[int, int]
+    profile: str
+    engine: str = "fast"
+    notes: list[str] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    velocity_source: str = "auto"
+    velocity_fixes: dict[str, int] = field(default_factory=dict)
+    #: (sample index, field strength µT, inclination rad): the pipeline seeds the filter's
+    #: magnetometer rejection (``set_mag_reference``) before that sample
+    mag_reference_events: list[tuple[int, float, float]] = field(default_factory=list)
+    #: the IMU data's delay behind its stamps (the profile's ``delay_s``), given to filters that use it
+    sensor_delay_s: float = 0.0
+
+    def run_filter(self, f: Any, a: int = 0, b: int | None = None, out: Array | None = None) -> Array:
+        """Run filter ``f`` over rows ``a:b`` as the pipeline would (reference seeding included)."""
+        b = self.n if b is None else b
+        if out is None:
+            out = np.empty((b - a, OUT_WIDTH))
+        set_delay = getattr(f, "set_sensor_delay", None)
+        if set_delay is not None:  # Pipeline._set_profile does the same
+            set_delay(self.sensor_delay_s)
+        cuts = [a] + sorted({i for i, _, _ in self.mag_reference_events if a < i < b}) + [b]
+        for lo, hi in itertools.pairwise(cuts):
+            for i, norm, dip in self.mag_reference_events:
+                if i == lo or (lo == 0 and i <= 0):
+                    f.set_mag_reference(norm, dip)
+            if hi > lo:
+                f.run(self.rows[lo:hi], out[lo - a : hi - a])
+        return out
+
+    @property
+    def n(self) -> int:
+        return int(self.t_us.shape[0])
+
+    def rate_hz(self) -> float:
+        """Mean sample rate reaching the filter over the log (0 if fewer than two samples)."""
+        if self.n < 2:
+            return 0.0
+        span = float(self.t_us[-1] - self.t_us[0])
+        return (self.n - 1) / span * 1e6 if span > 0 else 0.0
+
+
+def _velocity_setting(s: Any) -> str:
+    """The ``velocity_source`` in effect, as the replay header names it."""
+    v = str(s.effective_velocity_source)
+    return f"{v}, receiver only" if v == "auto" and s.monitor.receiver_velocity_only else v
+
+
+#: dt given to the filters for a timeline gap: beyond every filter's max_gap_s (finite, so not "invalid")
+_GAP_DT_S = 1.0e6
+
+
+def _timeline(
+    t_us: NDArray[np.int64], now_us: NDArray[np.int64], gyro: Array, accel: Array, settings: Any
+) -> tuple[NDArray[np.bool_], Array]:
+    """Which samples the pipeline's timeline passes, and their dt (s).
+
+    Runs :class:`mavahrs.protocol.timeline.Timeline` — with the arguments the
+    pipeline gives it (raw time, receive time, the gyro+accel values as the
+    sample key) — sample by sample, unless the timestamps strictly increase
+    by no more than the gap limit: then every event is ``ok`` with
+    dt = Δt, which the timeline itself confirms on the first samples.
+    """
+
+    def key(i: int) -> tuple[float, ...]:  # Pipeline: the scaled v[2:8]
+        return (*gyro[i].tolist(), *accel[i].tolist())
+
+    from mavahrs.protocol.timeline import DROP_KINDS, GAP, OK, REBOOT, Timeline
+
+    n = t_us.shape[0]
+    keep = np.ones(n, bool)
+    dt = np.full(n, _NAN)
+    if n == 0:
+        return keep, dt
+    d = np.diff(t_us)
+    max_gap_us = int(settings.timeline.max_gap_s * 1e6)
+    simple = bool(np.all(d > 0)) and not bool(np.any(d > max_gap_us))
+    if simple:
+        tl = Timeline(settings.timeline)
+        for i in range(min(n, 64)):  # the timeline's own verdict on a prefix: plain "ok"
+            ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
+            if i and (ev.kind != OK or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
+                simple = False
+                break
+    if simple:
+        dt[1:] = d * 1e-6
+        return keep, dt
+    tl = Timeline(settings.timeline)
+    for i in range(n):
+        ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
+        if ev.kind == REBOOT and i:
+            raise FastPathUnsupported("the autopilot rebooted during the log")
+        if ev.kind in DROP_KINDS:
+            keep[i] = False
+            continue
+        if ev.t_us != t_us[i]:
+            raise FastPathUnsupported("the timeline corrects timestamps (wrap-around)")
+        # As the pipeline does: a gap reaches the filter as a dt longer than any filter's
+        # max_gap_s, so it re-initialises instead of integrating one gyro sample across it.
+        dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
+    return keep, dt
+
+
+def _calibrate(rows: Array, temp: Array, cal: Any) -> None:
+    """Calibrator.apply_row over all rows (the same operations, vectorised)."""
+    g = cal._gyro
+    if g is not None:
+        b0, k, t0 = g.b0_rad_s, g.k_rad_s_per_c, g.t0_c
+        d = temp - t0
+        known = np.isfinite(temp)
+        for i in range(3):
+            rows[:, IN_GYRO + i] -= np.where(known, b0[i] + k[i] * d, b0[i])
+    if cal._mag is not None:
+        mc = cal._mag
+        o = np.asarray(mc.offset_ut)
+        mat = np.asarray(mc.matrix)
+        v = rows[:, IN_MAG : IN_MAG + 3] - o
+        rows[:, IN_MAG : IN_MAG + 3] = (
+            v[:, 0:1] * mat[:, 0] + v[:, 1:2] * mat[:, 1] + v[:, 2:3] * mat[:, 2]
+        )
+    r = cal._remap
+    if r is not None:
+        for base in (IN_GYRO, IN_ACCEL, IN_MAG):
+            v = rows[:, base : base + 3].copy()
+            for i in range(3):
+                rows[:, base + i] = r[i][0] * v[:, 0] + r[i][1] * v[:, 1] + r[i][2] * v[:, 2]

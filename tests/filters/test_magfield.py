@@ -1,0 +1,123 @@
+"""The in-flight magnetometer model (mavahrs.filters.magfield) against firmware_sim's known interference.
+
+firmware_sim's ``mag_anomaly`` scenario: a ground anomaly at take-off, then hover, climbs and descents
+while the battery current (SYS_STATUS / BATTERY_STATUS) adds a body field of a known µT per ampere.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from firmware_sim.__main__ import main as sim_main
+from mavahrs.evaluation.metrics import summarize
+from mavahrs.evaluation.tlogdata import interpolate_attitude
+from mavahrs.filters.best import Best, BestSettings
+from mavahrs.filters.eskf import EskfSettings
+from mavahrs.filters.layout import IN_CURRENT, OUT_Q
+from mavahrs.filters.magfield import DISTURBED_TEXT, MagFieldSettings, mag_state_text
+from mavahrs.replay import ReplaySettings, replay
+from mavahrs.replay.engine import _declinate
+from mavahrs.sensors.current import battery_current_a
+
+MOTOR_UT_PER_A = (-0.4, 0.2, 0.5)  # ArduPilot's SIM_MAG_MOT of its magnetic flight, in µT/A
+ON = BestSettings(eskf=EskfSettings(mag_model=MagFieldSettings(enabled=True)))
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    path = tmp_path_factory.mktemp("mag") / "mag_anomaly.tlog"
+    args = ["--tlog", str(path), "--fast", "-q", "--scenario", "mag_anomaly", "--seed", "5", "--duration", "120",
+            "--mag-anomaly-ut", "12,-8,15", "--mag-anomaly-height-m", "3",
+            "--mag-motor-ut-per-a=" + ",".join(str(v) for v in MOTOR_UT_PER_A), "--hover-current-a", "28"]  # fmt: skip
+    assert sim_main(args) == 0
+    res = replay(path, ReplaySettings(filters=("best",)))
+    path.unlink()
+    truth = next(k for k in res.references if "truth" in k)
+    return res, res.references[truth]
+
+
+def _heading_rms(res, truth, out) -> float:  # type: ignore[no-untyped-def]
+    t_ref, q_ref = truth
+    q = _declinate(out[:, OUT_Q : OUT_Q + 4].copy(), res.inputs.declination_rad)
+    qi = interpolate_attitude(res.inputs.t_us, q, t_ref, max_gap_s=0.5)
+    keep = (t_ref >= res.inputs.t_us[0] + 10e6) & np.all(np.isfinite(qi), axis=1)
+    return summarize(qi[keep], q_ref[keep]).heading_rms_deg
+
+
+def test_current_reaches_the_rows(flight) -> None:  # type: ignore[no-untyped-def]
+    res, _ = flight
+    cur = res.inputs.rows[:, IN_CURRENT]
+    assert np.isfinite(cur).mean() > 0.95  # SYS_STATUS at 5 Hz: held between messages
+    assert np.nanmax(cur) > 20.0 and np.nanmin(cur) < 1.0  # hover ~28 A, on the ground avionics only
+
+
+def test_learns_the_field_per_ampere_and_holds_heading(flight) -> None:  # type: ignore[no-untyped-def]
+    res, truth = flight
+    on = Best(ON)
+    out_on = res.inputs.run_filter(on)
+    state = on.mag_model_state()
+    assert state is not None
+    np.testing.assert_allclose(state["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.12)
+    assert state["disturbances"] >= 1  # the anomaly on the ground / its end at take-off was noticed
+    off = Best(BestSettings(eskf=EskfSettings(mag_model=MagFieldSettings(enabled=False))))
+    out_off = res.inputs.run_filter(off)
+    assert off.mag_model_state() is None
+    head_on, head_off = _heading_rms(res, truth, out_on), _heading_rms(res, truth, out_off)
+    print(f"heading RMS: model on {head_on:.2f}°, off {head_off:.2f}°")
+    # measured (seed 5, 120 s): model on 4.2°, off 3.3° (most of it on the ground in the anomaly and
+    # just after take-off); bounds that catch a regression only
+    assert head_on < 5.5, (head_on, head_off)
+
+
+def test_model_kept_across_a_restart(flight) -> None:  # type: ignore[no-untyped-def]
+    res, truth = flight
+    first = Best(ON)
+    res.inputs.run_filter(first)
+    saved = first.export_mag_model()
+    assert saved is not None and saved["format"] == 1
+    np.testing.assert_allclose(saved["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.12)
+    assert Best(ON).export_mag_model() is None  # nothing learnt: nothing to write over a saved file
+    assert Best().export_mag_model() is None and Best().mag_model_state() is None  # off by default
+    second = Best(ON)
+    assert second.load_mag_model(saved) is None
+    np.testing.assert_allclose(second.mag_model_state()["motor_ut_per_a"], saved["motor_ut_per_a"], atol=1e-3)
+    out = res.inputs.run_filter(second)  # the reference seeding and the re-initialisation keep it
+    np.testing.assert_allclose(second.mag_model_state()["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.12)
+    assert _heading_rms(res, truth, out) < 5.5
+    for bad in (None, {"format": 2}, {"format": 1, "offset_ut": [0, 0], "motor_ut_per_a": [0, 0, 0],
+                                      "motor_sigma_ut_per_a": [0, 0, 0]},
+                {"format": 1, "offset_ut": [0, 0, 0], "motor_ut_per_a": [math.nan, 0, 0],
+                 "motor_sigma_ut_per_a": [0, 0, 0]}):  # fmt: skip
+        assert isinstance(Best(ON).load_mag_model(bad), str)
+
+
+def test_replay_says_when_the_compass_is_not_used(flight) -> None:  # type: ignore[no-untyped-def]
+    res, _ = flight
+    assert any(DISTURBED_TEXT in n for n in res.notes), res.notes
+
+
+def test_status_text() -> None:
+    assert mag_state_text(None) == ""
+    assert mag_state_text({"state": "disturbed"}) == DISTURBED_TEXT
+    text = mag_state_text(
+        {"state": "trusted", "offset_ut": [0.2, -1.3, 0.7], "motor_ut_per_a": [-0.4, 0.2, 0.5]}
+    )
+    assert text.startswith("mag trusted") and "-0.40" in text
+
+
+def test_battery_current_parsing() -> None:
+    assert battery_current_a(SimpleNamespace(current_battery=2850)) == pytest.approx(28.5)
+    assert battery_current_a(SimpleNamespace(current_battery=-1)) is None  # not measured
+    assert battery_current_a(SimpleNamespace()) is None
+    assert battery_current_a(SimpleNamespace(current_battery=math.nan)) is None
+
+
+def test_settings_validated() -> None:
+    with pytest.raises(ValueError):
+        MagFieldSettings(noise_ut=0.0)
+    with pytest.raises(ValueError):
+        MagFieldSettings(hold_s=-1.0)
