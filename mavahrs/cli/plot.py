@@ -74,6 +74,10 @@ def _run(args: argparse.Namespace) -> int:
         res = rp.replay(path, rp.ReplaySettings(filters=tuple(resolve_filter_names(args.filters)), pipeline=ps,
                                                 start_s=args.start, end_s=args.end))  # fmt: skip
         out = rp.plot_replay(res, args.output)
+        import logging
+
+        for note in res.notes:  # what replay says of the log (truncated, gaps, reboots …) holds for its plot
+            logging.getLogger("mavahrs.cli").info("%s: note: %s", path.name, note)
     elif path.suffix.lower() == ".csv" and _is_replay_csv(path):
         out = _plot_replay_csv(path, args.output)
     else:

@@ -356,6 +356,11 @@ def _second_opinion(
     tilt, hdg = series.tilt_deg[judged], np.abs(series.heading_deg[judged])
     tj = series.t_ms[judged]
     times = [e.t_ms / 1000.0 for e in warns]
+    if tj.size < 2:  # say why the row's divergence columns are empty
+        span_s = float(series.t_ms[-1] - series.t_ms[0]) / 1000.0 if series.t_ms.size > 1 else 0.0
+        short = (f"nothing compared: the log's {span_s:.1f} s of {ref} lie within the monitor's start-up "
+                 f"grace of {mon.startup_grace_s:g} s")
+        row = _replace(row, notes=" | ".join(x for x in (row.notes, short) if x))
     return _replace(
         row, reference=ref, compared_s=float(tj[-1] - tj[0]) / 1000.0 if tj.size > 1 else 0.0,
         inclination_rms_deg=_rms(tilt), inclination_max_deg=_max(tilt),
@@ -865,6 +870,12 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
         lines += ["", "not compared (no autopilot attitude in the log):"] + [
             f"  {Path(r.path).name}: {r.imu_samples or 0} IMU samples" + (f"; {r.notes}" if r.notes else "")
             for r in bare]  # fmt: skip
+    short = [r for r in good if r.reference and not r.compared_s]
+    if short:
+        lines += ["", "not compared (too short):"] + [
+            f"  {Path(r.path).name}: " + next((n for n in r.notes.split(" | ") if n.startswith("nothing compared")),
+                                            f"{r.duration_s:.1f} s")
+            for r in short]  # fmt: skip
     if bad:
         lines += ["", "unreadable:"] + [f"  {Path(r.path).name}: {r.error}" for r in bad]
     return "\n".join(lines)

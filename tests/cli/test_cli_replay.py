@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -356,5 +357,9 @@ def test_a_truncated_log_is_noted_by_replay_and_evaluate(shared_data: Path, tmp_
         assert main(argv) == 0
         out = capsys.readouterr().out
         assert "the log ends inside a frame at byte " in out and "truncated?" in out, (argv, out)
+    if importlib.util.find_spec("matplotlib") is not None:  # plot says it on its log lines, beside its figure
+        assert main(["plot", str(cut), "-f", "mahony", "-o", str(tmp_path / "cut.png")]) == 0
+        err = capsys.readouterr().err
+        assert "cut.tlog: note: the log ends inside a frame at byte " in err and "truncated?" in err, err
     assert main(["replay", str(log), "-f", "mahony", "--end", "5"]) == 0
     assert "ends inside a frame" not in capsys.readouterr().out

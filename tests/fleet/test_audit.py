@@ -294,6 +294,20 @@ def test_one_log_summary_is_a_pure_function_of_the_file(fleet) -> None:  # type:
     assert missing.error == "cannot read: No such file or directory" and missing.size_bytes == -1
 
 
+def test_a_log_shorter_than_the_start_up_grace_says_why_nothing_is_compared(fleet, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Its row's divergence columns are empty: the notes and the printed table say it is too short."""
+    folder, _ = fleet
+    short = tmp_path / "short.tlog"
+    short.write_bytes(next(folder.rglob("flight_000_*.tlog")).read_bytes()[:100_000])  # ~2.5 s, cut mid-record
+    row = summarise_log(short)
+    assert row.error == "" and row.reference and row.compared_s == 0.0 and math.isnan(row.inclination_rms_deg)
+    assert "nothing compared" in row.notes and "start-up grace of 10 s" in row.notes and row.truncated
+    res = _audit(str(tmp_path), "--serial", "-o", str(tmp_path / "short.csv"))
+    assert res.returncode == 0, res.stderr
+    tail = res.stdout.split("not compared (too short):\n", 1)[1]
+    assert tail.startswith("  short.tlog: nothing compared: the log's "), res.stdout
+
+
 def test_audit_help_and_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["audit", "--help"]) == 0
     help_text = capsys.readouterr().out
