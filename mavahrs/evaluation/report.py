@@ -113,10 +113,11 @@ def run_filter(
         velocity_age_s=rec.extra.get("velocity_age_s") if vel is not None else None,
     )  # fmt: skip
     f = create(name, settings)
-    delay = rec.extra.get("sensor_delay_s")
-    set_delay = getattr(f, "set_sensor_delay", None)
-    if delay and set_delay is not None:  # a log's IMU stamps lag (the profile's delay): as the pipeline tells it
-        set_delay(float(delay))  # type: ignore[arg-type]
+    if "sensor_delay_s" in rec.extra:  # a flight log: the filter is told what the daemon's pipeline tells it
+        from mavahrs.ingest.arrays import configure_filter
+
+        configure_filter(f, float(rec.extra["sensor_delay_s"]), bool(rec.extra.get("vehicle_stream")),  # type: ignore[arg-type]
+                         bool(rec.extra.get("multirotor")))  # fmt: skip
     events = rec.extra.get("mag_reference_events") or ()
     if not events:
         return f.run(inputs)

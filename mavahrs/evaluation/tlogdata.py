@@ -700,9 +700,18 @@ def prepare_inputs(
         rows=rows, t_us=t_us, frame_pos=pos, tlog_us=td.t_us[pos], temperature_c=temp,
         declination_rad=decl_at, message=sc["name"], instance=chosen, source=src, profile=prof_name,
         engine="fast", notes=notes, counts=counts, mag_reference_events=mag_events,
-        sensor_delay_s=_delay_of(profile, sc["name"]),
+        sensor_delay_s=_delay_of(profile, sc["name"]), vehicle_stream=True, multirotor=_is_multirotor(td, src),
         velocity_source=_velocity_setting(s), velocity_fixes={k: vsel.used(k) for k in vsel.messages},
     )  # fmt: skip
+
+
+def _is_multirotor(td: TlogData, src: tuple[int, int]) -> bool:
+    """Whether the source's first HEARTBEAT names a multirotor (``Pipeline._on_heartbeat``'s test)."""
+    from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES
+
+    hb = td.arrays["HEARTBEAT"]
+    k = np.flatnonzero((hb["sysid"] == src[0]) & (hb["compid"] == src[1]))
+    return bool(k.size) and int(hb["type"][k[0]]) in MULTIROTOR_MAV_TYPES
 
 
 def _fill_current(td: TlogData, src: tuple[int, int], pos: NDArray[np.int64], rows: Array) -> None:
@@ -1142,6 +1151,8 @@ def recording_from_inputs(
             "true_rate_rad_s": true_rate_rad_s,
             "mag_reference_events": list(prep.mag_reference_events),
             "sensor_delay_s": prep.sensor_delay_s,  # filters that use it are told, as by the pipeline
+            "vehicle_stream": prep.vehicle_stream,
+            "multirotor": prep.multirotor,
         },
     )
 

@@ -80,15 +80,19 @@ class PreparedInputs:
     mag_reference_events: list[tuple[int, float, float]] = field(default_factory=list)
     #: the IMU data's delay behind its stamps (the profile's ``delay_s``), given to filters that use it
     sensor_delay_s: float = 0.0
+    #: the samples are an autopilot's stream (every log format): ``best`` is then the ESKF in every
+    #: condition, as in the daemon (``Pipeline._set_profile`` → ``set_vehicle_stream``)
+    vehicle_stream: bool = False
+    #: the vehicle is a multirotor (its HEARTBEAT type, the firmware, MAV_TYPE): the ESKF's rotor-drag
+    #: measurement is on, as in the daemon (``Pipeline._on_heartbeat`` → ``set_multirotor``)
+    multirotor: bool = False
 
     def run_filter(self, f: Any, a: int = 0, b: int | None = None, out: Array | None = None) -> Array:
         """Run filter ``f`` over rows ``a:b`` as the pipeline would (reference seeding included)."""
         b = self.n if b is None else b
         if out is None:
             out = np.empty((b - a, OUT_WIDTH))
-        set_delay = getattr(f, "set_sensor_delay", None)
-        if set_delay is not None:  # Pipeline._set_profile does the same
-            set_delay(self.sensor_delay_s)
+        configure_filter(f, self.sensor_delay_s, self.vehicle_stream, self.multirotor)
         cuts = [a] + sorted({i for i, _, _ in self.mag_reference_events if a < i < b}) + [b]
         for lo, hi in itertools.pairwise(cuts):
             for i, norm, dip in self.mag_reference_events:
@@ -108,6 +112,23 @@ class PreparedInputs:
             return 0.0
         span = float(self.t_us[-1] - self.t_us[0])
         return (self.n - 1) / span * 1e6 if span > 0 else 0.0
+
+
+def configure_filter(f: Any, sensor_delay_s: float, vehicle_stream: bool, multirotor: bool) -> None:
+    """Tell filter ``f`` what the daemon's pipeline tells it once it knows the autopilot.
+
+    The IMU data's delay behind its stamps (``set_sensor_delay``, from the profile), that the input is
+    an autopilot's stream (``set_vehicle_stream``) and that the vehicle is a multirotor
+    (``set_multirotor``): a replay of a log then runs each filter as the daemon did on that flight.
+    Filters without the method ignore it.
+    """
+    set_delay = getattr(f, "set_sensor_delay", None)
+    if set_delay is not None:
+        set_delay(float(sensor_delay_s))
+    if vehicle_stream and hasattr(f, "set_vehicle_stream"):
+        f.set_vehicle_stream()
+    if multirotor and hasattr(f, "set_multirotor"):
+        f.set_multirotor()
 
 
 def _velocity_setting(s: Any) -> str:

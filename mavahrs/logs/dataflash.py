@@ -733,10 +733,24 @@ def read_dataflash(
         rows=rows, t_us=t_us, frame_pos=idx.astype(np.int64), tlog_us=t_us.copy(), temperature_c=temp,
         declination_rad=decl_at, message="IMU", instance=chosen, source=(sysid, 1), profile="ardupilot",
         engine="fast", notes=notes, counts=counts, mag_reference_events=mag_events, sensor_delay_s=delay_s,
+        vehicle_stream=True, multirotor=_is_multicopter(sc, params),
         velocity_source=_velocity_setting(s), velocity_fixes={"GPS": fixes} if use_vel else {},
     )  # fmt: skip
     return LogInputs(path=str(p), format="dataflash", inputs=prep, references=refs, found=found,
                      parameters=params, truncated=truncated, start_us=t0, series=series)  # fmt: skip
+
+
+#: ArduCopter's FRAME_CLASS values of helicopters (single, dual, quad-heli): no rotor-drag model
+_HELI_FRAME_CLASSES = frozenset((6, 11, 13))
+
+
+def _is_multicopter(sc: DataflashScan, params: dict[str, float]) -> bool:
+    """An ArduCopter log (its MSG firmware line) of a multirotor frame, not a helicopter."""
+    msg = decode(sc, "MSG")
+    if not msg or "Message" not in msg:
+        return False
+    copter = any(bytes(m).split(b"\0", 1)[0].startswith(b"ArduCopter") for m in msg["Message"][:50])
+    return copter and int(params.get("FRAME_CLASS", 1)) not in _HELI_FRAME_CLASSES
 
 
 def _timeline_or_error(p: Path, t_us: Any, gyro: Any, accel: Any, s: Any, timeline: Any) -> tuple[Any, Any]:

@@ -89,6 +89,7 @@ from numpy.typing import NDArray
 from mavahrs.errors import DataError
 from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
 from mavahrs.logs import LogInputs
+from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES
 
 __all__ = ["read_ulog", "TOPICS", "VEHICLE_IMU_MIN_SHARE", "GAUSS_TO_UT"]
 
@@ -489,7 +490,8 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
         tlog_us=t_us.astype(np.int64), temperature_c=temp, declination_rad=decl_at, message=topic,
         instance=inst, source=_source(topics), profile="px4", engine="fast", notes=notes, counts=counts,
         velocity_source=str(s.effective_velocity_source), velocity_fixes={vel[0]: vel_used} if vel is not None else {},
-        mag_reference_events=mag_events, sensor_delay_s=delay,
+        mag_reference_events=mag_events, sensor_delay_s=delay, vehicle_stream=True,
+        multirotor=int(params.get("MAV_TYPE", 0)) in MULTIROTOR_MAV_TYPES,
     )  # fmt: skip
     return LogInputs(path=str(p), format="ulog", inputs=prep, references=references, found=found,
                      parameters=params)  # fmt: skip

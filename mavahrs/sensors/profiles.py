@@ -304,6 +304,11 @@ def get_profile(name: str) -> AutopilotProfile:
         ) from None
 
 
+#: MAV_TYPE values of multirotors (quad, hexa, octo, tri, coaxial, deca, dodeca, generic): the
+#: vehicles whose horizontal specific force is mostly rotor drag (the ESKF's drag measurement)
+MULTIROTOR_MAV_TYPES = frozenset((2, 3, 13, 14, 15, 29, 35, 43))
+
+
 def profile_for_autopilot(autopilot: int) -> AutopilotProfile:
     """The profile for a HEARTBEAT ``autopilot`` value (MAV_AUTOPILOT_*)."""
     if autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:

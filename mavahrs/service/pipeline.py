@@ -98,6 +98,7 @@ from mavahrs.sensors.geomag import (
 from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings, InstanceStatus
 from mavahrs.sensors.profiles import (
     IMU_MESSAGES,
+    MULTIROTOR_MAV_TYPES,
     PROFILE_NAMES,
     AutopilotProfile,
     get_profile,
@@ -130,7 +131,6 @@ _MAV_AUTOPILOT_GENERIC = 0
 _MAV_TYPE_QUADROTOR = 2
 _MAV_TYPE_ONBOARD_CONTROLLER = 18
 #: MAV_TYPE of multirotors (coaxial, quad-, hexa-, octo-, tri-, dodeca-, decarotor, generic): rotor drag applies
-_MAV_TYPES_MULTIROTOR = frozenset((3, 2, 13, 14, 15, 29, 35, 43))
 _MAV_STATE_ACTIVE = 4
 _NAN = math.nan
 _ZERO_Q = [0.0, 0.0, 0.0, 0.0]
@@ -690,7 +690,7 @@ class Pipeline:
             profile = profile_for_autopilot(msg.autopilot) if s.autopilot_profile == "auto" else get_profile(s.autopilot_profile)
             self._set_profile(profile)
             multirotor = getattr(self._filter, "set_multirotor", None)
-            if multirotor is not None and int(msg.type) in _MAV_TYPES_MULTIROTOR:
+            if multirotor is not None and int(msg.type) in MULTIROTOR_MAV_TYPES:
                 multirotor()  # the rotor-drag measurement (the ESKF's ``drag_coefficient_1_s``)
             if not self._sysid_known:
                 self._codec.system_id = src[0]

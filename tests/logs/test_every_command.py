@@ -26,12 +26,15 @@ def test_evaluate_scores_a_dataflash_log_against_sim_whatever_its_name(dataflash
     path, _ = dataflash_log
     odd = tmp_path / "flight_2026.dat"
     odd.symlink_to(path)
-    assert main(["evaluate", str(odd), "-f", "best", "--json"]) == 0
+    assert main(["evaluate", str(odd), "-f", "mahony,best", "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["recordings"] == 1
     assert rep["per_recording"]["flight_2026"]["notes"][0].startswith("reference: SIM truth")
-    assert rep["filters"]["best"]["inclination_rms_deg"] < 0.15  # measured 0.05°
-    assert rep["filters"]["best"]["heading_rms_deg"] < 0.1  # measured 0.02°
+    assert rep["filters"]["mahony"]["inclination_rms_deg"] < 0.15  # measured 0.05°
+    assert rep["filters"]["mahony"]["heading_rms_deg"] < 0.1  # measured 0.02°
+    # best on an autopilot's log is the ESKF, here without GNSS, as the daemon runs it: measured 0.25° / 0.12°
+    assert rep["filters"]["best"]["inclination_rms_deg"] < 0.5
+    assert rep["filters"]["best"]["heading_rms_deg"] < 0.3
 
 
 def test_evaluate_tune_plot_name_the_formats_for_a_file_that_is_no_log(tmp_path: Path, capsys) -> None:

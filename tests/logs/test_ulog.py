@@ -346,3 +346,10 @@ def test_vehicle_imu_at_the_loop_rate_is_preferred_and_its_integrals_are_divided
     assert np.allclose(r[ok, IN_ACCEL : IN_ACCEL + 3], [0.0, 0.0, -G], atol=1e-5)
     assert any(line.startswith("IMU: vehicle_imu[0]") for line in li.found)
     assert any(line.startswith("sensor_combined:") and "not used" in line for line in li.found)
+
+
+def test_the_vehicle_is_known_to_the_filters_as_in_the_daemon(sitl, bench) -> None:
+    """PX4's MAV_TYPE parameter: the SIH quadrotor gets the rotor-drag model, as its HEARTBEAT would give it."""
+    assert sitl.parameters["MAV_TYPE"] == 2 and sitl.inputs.vehicle_stream and sitl.inputs.multirotor
+    assert bench.inputs.vehicle_stream
+    assert bench.inputs.multirotor == (int(bench.parameters.get("MAV_TYPE", 0)) in (2, 3, 13, 14, 15, 29, 35, 43))

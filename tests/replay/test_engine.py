@@ -25,12 +25,13 @@ LOGS = ("UAVLogViewer/vtol.tlog", "dronekit-python/flight.tlog", "ardusub_log_to
 
 @pytest.mark.slow
 def test_fast_engine_equals_the_pipeline(sim_hover_tlog: Path, tmp_path: Path) -> None:
-    s = dict(filters=("madgwick", "mahony"))
+    s = dict(filters=("madgwick", "mahony", "best"))  # best: told of the vehicle (a quadrotor) as the daemon tells it
     fast = replay(sim_hover_tlog, ReplaySettings(engine="fast", **s), csv_path=tmp_path / "fast.csv")
     ref = replay(sim_hover_tlog, ReplaySettings(engine="pipeline", **s), csv_path=tmp_path / "ref.csv")
     assert (tmp_path / "fast.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()
     assert fast.engine == "fast" and ref.engine == "pipeline"
     assert fast.inputs.n > 4000
+    assert fast.inputs.vehicle_stream and fast.inputs.multirotor  # the simulator's HEARTBEAT: MAV_TYPE_QUADROTOR
     np.testing.assert_array_equal(fast.inputs.t_us, ref.inputs.t_us)
     np.testing.assert_array_equal(fast.inputs.rows, ref.inputs.rows)  # NaN positions must match too
     for name in s["filters"]:
