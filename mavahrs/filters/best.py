@@ -232,18 +232,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         or not (row[IN_VEL + 2] != row[IN_VEL + 2])
     )
     erow = row
-    if params[_ESKF_ONLY] > 0.0:  # one estimator: the ESKF, aided or not
-        _eskf_step(se, pe, row, oe)
-        for i in range(OUT_WIDTH):
-            out[i] = oe[i]
-        state[_W] = 1.0 if eskf_aided(se, pe) else 0.0
-        for i in range(4):
-            state[S_Q + i] = out[OUT_Q + i]
-            state[_QOUT + i] = out[OUT_Q + i]
-        for i in range(3):
-            state[S_BIAS + i] = out[OUT_BIAS + i]
-        state[S_INIT] = se[S_INIT]
-        return
     if fix and not eskf_aided(se, pe):
         if (
             sm[S_INIT] > 0.0 and se[S_INIT] > 0.0
@@ -273,6 +261,21 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     _madgwick_step(sm, pm, row, om)
     w = state[_W]
     dt = row[IN_DT]
+    if params[_ESKF_ONLY] > 0.0:
+        # one estimator: the ESKF's attitude, aided or not.  The Madgwick part still runs beside it for
+        # one job: after a (re)initialisation in a manoeuvre (a link outage mid-flight) its first v̇
+        # re-aligns it by TRIAD, and the ESKF restarts its aiding from that attitude (above); without
+        # it the ESKF restarted from the accelerometer 20–45° off and took 5 s to recover (60° at 3–5 s)
+        state[_W] = 1.0 if aided else 0.0
+        for i in range(OUT_WIDTH):
+            out[i] = oe[i]
+        for i in range(4):
+            state[S_Q + i] = out[OUT_Q + i]
+            state[_QOUT + i] = out[OUT_Q + i]
+        for i in range(3):
+            state[S_BIAS + i] = out[OUT_BIAS + i]
+        state[S_INIT] = se[S_INIT]
+        return
     if aided:
         w = 1.0
     elif w > 0.0:

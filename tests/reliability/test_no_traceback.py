@@ -70,7 +70,7 @@ CASES = [
     ("replay-missing-tlog", ["replay", "{missing}"], EXIT_FAILURE, "missing.tlog"),
     # a missing file and a directory: the same code (1, as documented in docs/reliability.md), said plainly
     ("replay-a-directory", ["replay", "{dir}"], EXIT_FAILURE, "a_dir is a directory: replay takes one log file"),
-    ("tune-a-directory", ["tune", "{dir}"], EXIT_FAILURE, "a_dir is a directory: tune takes .tlog files"),
+    ("tune-a-directory", ["tune", "{dir}"], EXIT_FAILURE, "a_dir is a directory: tune takes log files"),
     ("tune-missing-tlog", ["tune", "{missing}"], EXIT_FAILURE, "missing.tlog: no such file"),
     ("plot-a-directory", ["plot", "-o", "{dir}/p.png", "{dir}"], EXIT_FAILURE, "a_dir is a directory: plot takes"),
     ("calibrate-empty-tlog", ["calibrate-mag", "{empty}"], EXIT_FAILURE, "empty.tlog: the file is empty"),
