@@ -152,6 +152,25 @@ def console_main() -> None:
 
     try:
         signal.signal(signal.SIGINT, at_shutdown)
+        # The handler above runs only in the main thread, and only once the signal interrupts what it
+        # waits on; a Ctrl-C delivered to another thread (one still running at shutdown) left the main
+        # thread blocked in joining it.  The wakeup file descriptor gets the signal's number whichever
+        # thread it reaches, and a daemon thread reading it acts at once.
+        import threading
+
+        r, w = os.pipe()
+        os.set_blocking(w, False)
+        signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+
+        def watch() -> None:
+            while True:
+                got = os.read(r, 64)
+                if not got or signal.SIGINT in got:
+                    break
+            if got:
+                at_shutdown(signal.SIGINT, None)
+
+        threading.Thread(target=watch, name="mavahrs-shutdown-ctrl-c", daemon=True).start()
     except ValueError:  # not the main thread (embedded): nothing to do
         pass
     sys.exit(code)

@@ -57,3 +57,35 @@ def test_ctrl_c_while_shutting_down_after_audit_wrote_its_table(tmp_path: Path) 
     assert proc.returncode == 130, (proc.returncode, err)
     assert "interrupted" in err and "Traceback" not in err, err
     assert table.exists() and table.stat().st_size > 0
+
+
+#: The same thread, but the Ctrl-C reaches it rather than the main thread (the kernel hands a
+#: process's signal to any thread that does not block it; under load the lingering one got it).
+_LINGER_TAKES_THE_SIGNAL = """
+import signal, sys, threading, time
+def _linger():
+    threading.main_thread().join()
+    sys.stderr.write("SHUTTING DOWN\\n")
+    sys.stderr.flush()
+    signal.pthread_kill(threading.get_ident(), signal.SIGINT)
+    time.sleep(60)
+threading.Thread(target=_linger, daemon=False).start()
+"""
+
+
+def test_ctrl_c_that_reaches_another_thread_while_shutting_down_still_ends_it(tmp_path: Path) -> None:
+    """The main thread is blocked joining the lingering thread: the signal must still end the process."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(_LINGER_TAKES_THE_SIGNAL)
+    log = tmp_path / "empty.tlog"
+    log.write_bytes(b"")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), str(REPO)]))
+    proc = subprocess.run(
+        [sys.executable, "-m", "mavahrs", "audit", str(log), "--serial", "--no-progress", "-o", str(tmp_path / "t.csv")],
+        env=env, capture_output=True, text=True, cwd=tmp_path, timeout=45,
+    )  # fmt: skip
+    assert "SHUTTING DOWN" in proc.stderr, proc.stderr
+    assert proc.returncode == 130, (proc.returncode, proc.stderr)
+    assert "interrupted while shutting down" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
