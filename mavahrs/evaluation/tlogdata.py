@@ -55,13 +55,11 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
-from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_ACCEL, IN_CURRENT, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
 from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays, shared by every log reader
     _GAP_DT_S,
     FastPathUnsupported,
     PreparedInputs,
-    _calibrate,
     _timeline,
     _velocity_setting,
 )
@@ -313,7 +311,7 @@ def _no_source_message(td: TlogData, s: Any) -> str:
 def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     """Vectorised :class:`mavahrs.sensors.scaling.Scaler` for one message type (same arithmetic)."""
     from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE
-    from mavahrs.sensors.scaling import MAG_MIN_UT
+    from mavahrs.sensors.scaling import INVALID_SHIFT, ZERO, int_constants, scale_int_rows
 
     n = a.shape[0]
     accel_fs = scaling.accel_range_g * G_M_S2 if scaling.accel_range_g is not None else ms.accel_range_m_s2
@@ -321,21 +319,21 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     frac, bad = scaling.saturation_fraction, scaling.implausible_factor
     a_sat, g_sat, a_bad, g_bad = accel_fs * frac, gyro_fs * frac, accel_fs * bad, gyro_fs * bad
     ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
-    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*: one compiled pass (_scale_integer), no temporaries
+    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*: the scaling step over every message (one compiled loop)
         # written in place in an array shaped like the filter's input rows, which the common case
         # (one message type, every sample fed) then uses as they are: no copy, no second 150 MB
         block = np.empty((n, IN_WIDTH))
+        codes = np.empty(n, np.int64)
+        scale_int_rows(
+            a["xgyro"], a["ygyro"], a["zgyro"], a["xacc"], a["yacc"], a["zacc"], a["xmag"], a["ymag"], a["zmag"],
+            int_constants(ms, scaling), block, codes,
+        )  # fmt: skip
         gyro = block[:, IN_GYRO : IN_GYRO + 3]
         accel = block[:, IN_ACCEL : IN_ACCEL + 3]
         mag = block[:, IN_MAG : IN_MAG + 3]
-        sat = np.empty(n, np.int64)
-        inv = np.empty(n, np.int64)
-        zero = np.empty(n, bool)
-        k_old = ms.mag_legacy_to_ut if ms.mag_legacy_to_ut is not None else _NAN
-        _scale_integer(
-            a["xgyro"], a["ygyro"], a["zgyro"], a["xacc"], a["yacc"], a["zacc"], a["xmag"], a["ymag"], a["zmag"],
-            kg, ka, km, k_old, g_sat, a_sat, MAG_MIN_UT, ms.mag_plausible_max_ut, gyro, accel, mag, sat, inv, zero,
-        )  # fmt: skip
+        sat = codes & 7
+        inv = (codes >> INVALID_SHIFT) & 7
+        zero = (codes & ZERO) != 0
         use = np.ones(n, bool)
     else:
         block = None
@@ -412,57 +410,6 @@ def _scale_highres(
     return gyro, accel, mag, sat, inv, use
 
 
-@kernel
-def _scale_integer(  # type: ignore[no-untyped-def]
-    gx, gy, gz, ax, ay, az, xm, ym, zm, kg, ka, km, k_old, g_sat, a_sat, mag_min, mag_max,
-    gyro, accel, mag, sat, inv, zero,
-):  # fmt: skip
-    """:class:`mavahrs.sensors.scaling.Scaler` on integer-field messages (RAW_IMU, SCALED_IMU*), row by row.
-
-    The raw int16 fields in, per row: gyro, accel, mag (SI; mag NaN when
-    absent or implausible), the saturated and invalid bit masks (GYRO=1,
-    ACCEL=2, MAG=4, as :mod:`mavahrs.sensors.sample`), and whether gyro and
-    accelerometer are all zero (an absent IMU instance).  The same operations as
-    ``Scaler``: value · unit; saturated when a raw component is at the int16
-    limit or the scaled magnitude reaches ``*_sat``; the magnetometer
-    re-read with the legacy unit ``k_old`` (NaN: none) when its norm exceeds
-    ``mag_max``, unusable outside [``mag_min``, ``mag_max``].
-    """
-    n = gyro.shape[0]
-    nan = np.nan
-    for i in range(n):
-        rg0, rg1, rg2 = float(gx[i]), float(gy[i]), float(gz[i])
-        ra0, ra1, ra2 = float(ax[i]), float(ay[i]), float(az[i])
-        g0, g1, g2 = rg0 * kg, rg1 * kg, rg2 * kg
-        a0, a1, a2 = ra0 * ka, ra1 * ka, ra2 * ka
-        gyro[i, 0], gyro[i, 1], gyro[i, 2] = g0, g1, g2
-        accel[i, 0], accel[i, 1], accel[i, 2] = a0, a1, a2
-        s = 0
-        if abs(rg0) >= 32767.0 or abs(rg1) >= 32767.0 or abs(rg2) >= 32767.0:
-            s |= 1
-        if abs(ra0) >= 32767.0 or abs(ra1) >= 32767.0 or abs(ra2) >= 32767.0:
-            s |= 2
-        if max(max(abs(g0), abs(g1)), abs(g2)) >= g_sat:
-            s |= 1
-        if max(max(abs(a0), abs(a1)), abs(a2)) >= a_sat:
-            s |= 2
-        sat[i] = s
-        zero[i] = g0 == 0.0 and g1 == 0.0 and g2 == 0.0 and a0 == 0.0 and a1 == 0.0 and a2 == 0.0
-        rm0, rm1, rm2 = float(xm[i]), float(ym[i]), float(zm[i])
-        m0, m1, m2 = rm0 * km, rm1 * km, rm2 * km
-        nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        if k_old == k_old and nrm > mag_max:
-            m0, m1, m2 = rm0 * k_old, rm1 * k_old, rm2 * k_old
-            nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        absent = rm0 == 0.0 and rm1 == 0.0 and rm2 == 0.0
-        if absent or not (mag_min <= nrm and nrm <= mag_max):
-            inv[i] = 0 if absent else 4
-            m0 = m1 = m2 = nan
-        else:
-            inv[i] = 0
-        mag[i, 0], mag[i, 1], mag[i, 2] = m0, m1, m2
-
-
 def _resends(mg: dict[str, Any]) -> tuple[NDArray[np.bool_], int]:
     """:class:`mavahrs.protocol.timeline.ResendFilter` over the merged messages, per (message, instance):
     which are exact re-sends of the previous one (dropped), and how many repeat its stamp with new values."""
@@ -529,7 +476,7 @@ def prepare_inputs(
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile
-    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.sensors.sample import blank_unusable_rows
     from mavahrs.sensors.velocity import VelocitySelector, fix_age_s
     from mavahrs.service.pipeline import PipelineSettings
 
@@ -630,13 +577,11 @@ def prepare_inputs(
     else:
         rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
-    bad = inv | (sat & (ACCEL | MAG))  # sample.write_row
-    for col, values, bit in ((IN_GYRO, gyro, GYRO), (IN_ACCEL, accel, ACCEL), (IN_MAG, mag, MAG)):
-        if not in_place:
-            rows[:, col : col + 3] = values
-        blank = (bad & bit) != 0
-        if blank.any():
-            rows[blank, col : col + 3] = _NAN
+    if not in_place:
+        rows[:, IN_GYRO : IN_GYRO + 3] = gyro
+        rows[:, IN_ACCEL : IN_ACCEL + 3] = accel
+        rows[:, IN_MAG : IN_MAG + 3] = mag
+    blank_unusable_rows(rows, np.ascontiguousarray(sat, np.int64), np.ascontiguousarray(inv, np.int64))
     # --- position/time messages in order: declination per sample, velocity into the next fed row
     decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
     events = []
@@ -684,7 +629,7 @@ def prepare_inputs(
         if cal.active:
             sel_k = kinds == kind
             sub = rows[sel_k]
-            _calibrate(sub, temp[sel_k], cal)
+            cal.apply_rows(sub, temp[sel_k])
             rows[sel_k] = sub
     counts = {
         "imu_messages": int(mg["pos"].shape[0]),

@@ -8,8 +8,8 @@ each the array form of the live pipeline's per-sample step
 * :func:`_timeline` — :class:`mavahrs.protocol.timeline.Timeline` over the samples
   (dt, gaps, drops; a reboot or a corrected time stamp raises
   :class:`FastPathUnsupported`: the per-message pipeline then replays the log);
-* :func:`_calibrate` — :class:`mavahrs.sensors.calibration.Calibrator`'s
-  ``apply_row`` over all rows at once;
+* calibration — :meth:`mavahrs.sensors.calibration.Calibrator.apply_rows`, the compiled
+  per-row step (:func:`~mavahrs.sensors.calibration.calibrate_row`) over all rows;
 * :class:`PreparedInputs` — the rows in :mod:`mavahrs.filters.layout`'s layout,
   their times and what the readers found, and :meth:`PreparedInputs.run_filter`,
   the filter run over them as the pipeline runs it (reference seeding, sensor delay).
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG, OUT_WIDTH
+from mavahrs.filters.layout import OUT_WIDTH
 
 __all__ = ["FastPathUnsupported", "PreparedInputs"]
 
@@ -190,28 +190,3 @@ def _timeline(
         # max_gap_s, so it re-initialises instead of integrating one gyro sample across it.
         dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
     return keep, dt
-
-
-def _calibrate(rows: Array, temp: Array, cal: Any) -> None:
-    """Calibrator.apply_row over all rows (the same operations, vectorised)."""
-    g = cal._gyro
-    if g is not None:
-        b0, k, t0 = g.b0_rad_s, g.k_rad_s_per_c, g.t0_c
-        d = temp - t0
-        known = np.isfinite(temp)
-        for i in range(3):
-            rows[:, IN_GYRO + i] -= np.where(known, b0[i] + k[i] * d, b0[i])
-    if cal._mag is not None:
-        mc = cal._mag
-        o = np.asarray(mc.offset_ut)
-        mat = np.asarray(mc.matrix)
-        v = rows[:, IN_MAG : IN_MAG + 3] - o
-        rows[:, IN_MAG : IN_MAG + 3] = (
-            v[:, 0:1] * mat[:, 0] + v[:, 1:2] * mat[:, 1] + v[:, 2:3] * mat[:, 2]
-        )
-    r = cal._remap
-    if r is not None:
-        for base in (IN_GYRO, IN_ACCEL, IN_MAG):
-            v = rows[:, base : base + 3].copy()
-            for i in range(3):
-                rows[:, base + i] = r[i][0] * v[:, 0] + r[i][1] * v[:, 1] + r[i][2] * v[:, 2]

@@ -525,10 +525,11 @@ def read_dataflash(
         DataError: not a DataFlash log, no IMU records, nothing usable.
     """
     from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
-    from mavahrs.ingest.arrays import PreparedInputs, _calibrate, _timeline, _velocity_setting
+    from mavahrs.ingest.arrays import PreparedInputs, _timeline, _velocity_setting
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource, decimal_year_from_unix_s, rotate_true_to_magnetic
     from mavahrs.sensors.profiles import get_profile
+    from mavahrs.sensors.sample import ACCEL, GYRO, blank_unusable_rows
     from mavahrs.sensors.velocity import fix_age_s
     from mavahrs.service.pipeline import PipelineSettings
 
@@ -632,9 +633,8 @@ def read_dataflash(
     rows[:, IN_DT] = dt
     rows[:, IN_GYRO : IN_GYRO + 3] = gyro
     rows[:, IN_ACCEL : IN_ACCEL + 3] = accel
-    bad_sat = sat[window][idx]
-    if bad_sat.any():
-        rows[bad_sat, IN_ACCEL : IN_ACCEL + 3] = _NAN  # sample.write_row: a saturated accelerometer is not used
+    flagged = np.where(sat[window][idx], GYRO | ACCEL, 0).astype(np.int64)  # as _select_imu tells the selector
+    blank_unusable_rows(rows, flagged, np.zeros(m, np.int64))  # the row step's rule for saturated vectors
     temp = sub["T"][idx].astype(np.float64) if "T" in sub else np.full(m, _NAN)
     # --- compass: the primary instance's healthy samples into the next fed row
     if mag is not None and mag_sel is not None:
@@ -713,7 +713,7 @@ def read_dataflash(
     # --- calibration as the pipeline applies it (the logged values are the autopilot's calibrated ones)
     cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
     if cal.active:
-        _calibrate(rows, temp, cal)
+        cal.apply_rows(rows, temp)
     n_par = len(params)
     if n_par:
         shown = [f"{k} {params[k]:g}" for k in ("INS_GYRO_FILTER", "INS_ACCEL_FILTER", "SCHED_LOOP_RATE",

@@ -328,7 +328,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     Raises:
         DataError: empty, not a ULog, damaged beyond reading, no IMU data.
     """
-    from mavahrs.ingest.arrays import PreparedInputs, _calibrate
+    from mavahrs.ingest.arrays import PreparedInputs
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile
@@ -476,7 +476,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     # --- calibration (Calibrator.apply_row over all rows); the magnetometer is PX4-calibrated
     cal = Calibrator(s.calibration, mag_already_calibrated=True)
     if cal.active:
-        _calibrate(rows, temp, cal)
+        cal.apply_rows(rows, temp)
     references = _references(topics, ulog, found)
     delay = 0.0
     if topic == "vehicle_imu":
