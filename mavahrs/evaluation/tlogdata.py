@@ -309,36 +309,38 @@ def _no_source_message(td: TlogData, s: Any) -> str:
 
 
 def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
-    """Vectorised :class:`mavahrs.sensors.scaling.Scaler` for one message type (same arithmetic)."""
-    from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE
-    from mavahrs.sensors.scaling import INVALID_SHIFT, ZERO, int_constants, scale_int_rows
+    """The scaling step (:func:`~mavahrs.sensors.scaling.scale_int_row` / ``scale_float_row``) over one message type."""
+    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
+    from mavahrs.sensors.scaling import (
+        HIGHRES_GYRO_BITS,
+        INVALID_SHIFT,
+        ZERO,
+        scale_constants,
+        scale_float_rows,
+        scale_int_rows,
+    )
 
     n = a.shape[0]
-    accel_fs = scaling.accel_range_g * G_M_S2 if scaling.accel_range_g is not None else ms.accel_range_m_s2
-    gyro_fs = math.radians(scaling.gyro_range_deg_s) if scaling.gyro_range_deg_s is not None else ms.gyro_range_rad_s
-    frac, bad = scaling.saturation_fraction, scaling.implausible_factor
-    a_sat, g_sat, a_bad, g_bad = accel_fs * frac, gyro_fs * frac, accel_fs * bad, gyro_fs * bad
-    ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
-    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*: the scaling step over every message (one compiled loop)
-        # written in place in an array shaped like the filter's input rows, which the common case
-        # (one message type, every sample fed) then uses as they are: no copy, no second 150 MB
-        block = np.empty((n, IN_WIDTH))
-        codes = np.empty(n, np.int64)
-        scale_int_rows(
-            a["xgyro"], a["ygyro"], a["zgyro"], a["xacc"], a["yacc"], a["zacc"], a["xmag"], a["ymag"], a["zmag"],
-            int_constants(ms, scaling), block, codes,
-        )  # fmt: skip
-        gyro = block[:, IN_GYRO : IN_GYRO + 3]
-        accel = block[:, IN_ACCEL : IN_ACCEL + 3]
-        mag = block[:, IN_MAG : IN_MAG + 3]
-        sat = codes & 7
-        inv = (codes >> INVALID_SHIFT) & 7
-        zero = (codes & ZERO) != 0
+    c = scale_constants(ms, scaling)
+    # the scaling step over every message (one compiled loop), written in place in an array shaped like the
+    # filter's input rows, which the common case (one message type, every sample fed) then uses as they
+    # are: no copy, no second 150 MB
+    block = np.empty((n, IN_WIDTH))
+    codes = np.empty(n, np.int64)
+    cols = [a[f] for f in ("xgyro", "ygyro", "zgyro", "xacc", "yacc", "zacc", "xmag", "ymag", "zmag")]
+    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*
+        scale_int_rows(*cols, c, block, codes)
         use = np.ones(n, bool)
-    else:
-        block = None
-        gyro, accel, mag, sat, inv, use = _scale_highres(a, n, ms, kg, ka, km, g_sat, a_sat, g_bad, a_bad)
-        zero = np.all(gyro == 0, axis=1) & np.all(accel == 0, axis=1)
+    else:  # HIGHRES_IMU: only messages with a new gyro are samples (Scaler.scale: None)
+        upd = a["fields_updated"].astype(np.int64)
+        scale_float_rows(*(x.astype(np.float64) for x in cols), upd, c, block, codes)
+        use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
+    gyro = block[:, IN_GYRO : IN_GYRO + 3]
+    accel = block[:, IN_ACCEL : IN_ACCEL + 3]
+    mag = block[:, IN_MAG : IN_MAG + 3]
+    sat = codes & 7
+    inv = (codes >> INVALID_SHIFT) & 7
+    zero = (codes & ZERO) != 0
     # temperature
     temp = np.full(n, _NAN)
     if ms.temperature_to_c is not None and "temperature" in a.dtype.names:
@@ -355,59 +357,6 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
         "imu": imu, "t_us": t_us, "gyro": gyro, "accel": accel,
         "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use, "zero": zero, "block": block,
     }  # fmt: skip
-
-
-def _scale_highres(
-    a: np.ndarray, n: int, ms: Any, kg: float, ka: float, km: float, g_sat: float, a_sat: float, g_bad: float,
-    a_bad: float,
-) -> tuple[Array, Array, Array, NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
-    """HIGHRES_IMU (float fields, ``fields_updated``): gyro, accel, mag, saturated, invalid, new-gyro flags."""
-    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
-    from mavahrs.sensors.scaling import HIGHRES_ACCEL_BITS, HIGHRES_GYRO_BITS, HIGHRES_MAG_BITS, MAG_MIN_UT
-
-    f64 = np.float64
-    gyro = np.column_stack([a[f"{c}gyro"].astype(f64) * kg for c in "xyz"])
-    accel = np.column_stack([a[f"{c}acc"].astype(f64) * ka for c in "xyz"])
-    gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
-    ax, ay, az = accel[:, 0], accel[:, 1], accel[:, 2]
-    xm, ym, zm = (a[f"{c}mag"].astype(f64) for c in "xyz")
-    sat = np.zeros(n, np.int64)
-    inv = np.zeros(n, np.int64)
-    gmax = np.maximum(np.maximum(np.abs(gx), np.abs(gy)), np.abs(gz))
-    amax = np.maximum(np.maximum(np.abs(ax), np.abs(ay)), np.abs(az))
-    upd = a["fields_updated"].astype(np.int64)
-    use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
-    with np.errstate(invalid="ignore"):
-        g_inv = ~(gmax < g_bad)
-        inv |= np.where(g_inv, GYRO, 0)
-        sat |= np.where(~g_inv & (gmax >= g_sat), GYRO, 0)
-        acc_new = (upd & HIGHRES_ACCEL_BITS) == HIGHRES_ACCEL_BITS
-        a_inv = acc_new & ~(amax < a_bad)
-        inv |= np.where(a_inv, ACCEL, 0)
-        sat |= np.where(acc_new & ~a_inv & (amax >= a_sat), ACCEL, 0)
-    accel[~acc_new] = _NAN
-    mag_new = (upd & HIGHRES_MAG_BITS) == HIGHRES_MAG_BITS
-    # magnetometer (Scaler.mag_of)
-    absent = (xm == 0) & (ym == 0) & (zm == 0)
-    mag = np.empty((n, 3))
-    mx, my, mz = mag[:, 0], mag[:, 1], mag[:, 2]
-    for raw, col in ((xm, mx), (ym, my), (zm, mz)):
-        np.multiply(raw, km, out=col)
-    with np.errstate(invalid="ignore", over="ignore"):
-        nrm = np.sqrt(mx * mx + my * my + mz * mz)
-        if ms.mag_legacy_to_ut is not None:
-            legacy = nrm > ms.mag_plausible_max_ut
-            if legacy.any():
-                k_old = ms.mag_legacy_to_ut
-                lx, ly, lz = xm[legacy] * k_old, ym[legacy] * k_old, zm[legacy] * k_old
-                mx[legacy], my[legacy], mz[legacy] = lx, ly, lz
-                nrm[legacy] = np.sqrt(lx * lx + ly * ly + lz * lz)
-        unusable = ~((MAG_MIN_UT <= nrm) & (nrm <= ms.mag_plausible_max_ut))
-    m_inv = mag_new & ~absent & unusable
-    inv |= np.where(m_inv, MAG, 0)
-    keep_m = mag_new & ~absent & ~unusable
-    mag[~keep_m] = _NAN
-    return gyro, accel, mag, sat, inv, use
 
 
 def _resends(mg: dict[str, Any]) -> tuple[NDArray[np.bool_], int]:

@@ -317,7 +317,7 @@ class FastLane:
             return
         if p._vel is not None:
             return
-        fcfg[:C_LEN] = scaler.int_constants(ms)
+        fcfg[:C_LEN] = scaler.scale_constants(ms)
         fcfg[F_DECL] = p._decl.declination_rad
         icfg[I_SYS], icfg[I_COMP], icfg[I_IMU] = src[0], src[1], imu
         # "ok" needs 0 < Δt ≤ the gap limit and ≤ the jump limit (beyond it the timeline holds the sample)

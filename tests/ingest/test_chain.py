@@ -22,7 +22,14 @@ from mavahrs.sensors.calibration import (
 )
 from mavahrs.sensors.profiles import get_profile
 from mavahrs.sensors.sample import ACCEL, GYRO, MAG, blank_unusable_rows
-from mavahrs.sensors.scaling import INVALID_SHIFT, ZERO, ScalingSettings, int_constants, scale_int_row, scale_int_rows
+from mavahrs.sensors.scaling import (
+    INVALID_SHIFT,
+    ZERO,
+    ScalingSettings,
+    scale_constants,
+    scale_int_row,
+    scale_int_rows,
+)
 
 G = 9.80665
 AP_RAW = get_profile("ardupilot").scale_for("RAW_IMU")
@@ -30,7 +37,7 @@ AP_RAW = get_profile("ardupilot").scale_for("RAW_IMU")
 
 def _scaled(raw: tuple[int, ...], ms=AP_RAW) -> tuple[np.ndarray, int]:  # type: ignore[no-untyped-def]
     row = np.full(IN_WIDTH, -1.0)
-    code = scale_int_row(*raw, int_constants(ms, ScalingSettings()), row)
+    code = scale_int_row(*raw, scale_constants(ms, ScalingSettings()), row)
     return row, int(code)
 
 
@@ -61,7 +68,7 @@ def test_the_batch_form_is_the_step_over_each_message() -> None:
                      (0, 0, 0, 0, 0, 0, 0, 0, 0)], np.int16)  # fmt: skip
     rows = np.empty((3, IN_WIDTH))
     codes = np.empty(3, np.int64)
-    scale_int_rows(*(raws[:, j] for j in range(9)), int_constants(AP_RAW, ScalingSettings()), rows, codes)
+    scale_int_rows(*(raws[:, j] for j in range(9)), scale_constants(AP_RAW, ScalingSettings()), rows, codes)
     np.testing.assert_allclose(rows[0, IN_ACCEL : IN_ACCEL + 3], (0.01 * G, -0.02 * G, -G), rtol=1e-15)
     assert codes.tolist() == [0, GYRO | (MAG << INVALID_SHIFT), ZERO]
 
