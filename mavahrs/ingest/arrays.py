@@ -10,6 +10,9 @@ each the array form of the live pipeline's per-sample step
   :class:`FastPathUnsupported`: the per-message pipeline then replays the log);
 * calibration — :meth:`mavahrs.sensors.calibration.Calibrator.apply_rows`, the compiled
   per-row step (:func:`~mavahrs.sensors.calibration.calibrate_row`) over all rows;
+* :func:`si_rows` — the scaling step (:func:`~mavahrs.sensors.scaling.scale_float_row`) and the
+  row step (:func:`~mavahrs.sensors.sample.blank_unusable`) over samples a log already holds in SI
+  units (DataFlash IMU, ULog sensor_combined / vehicle_imu);
 * :class:`PreparedInputs` — the rows in :mod:`mavahrs.filters.layout`'s layout,
   their times and what the readers found, and :meth:`PreparedInputs.run_filter`,
   the filter run over them as the pipeline runs it (reference seeding, sensor delay).
@@ -25,9 +28,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.filters.layout import OUT_WIDTH
+from mavahrs.filters.layout import IN_WIDTH, OUT_WIDTH
+from mavahrs.sensors.sample import ACCEL, blank_unusable_rows
+from mavahrs.sensors.scaling import (
+    C_KA,
+    C_KG,
+    HIGHRES_ACCEL_BITS,
+    HIGHRES_GYRO_BITS,
+    INVALID_SHIFT,
+    scale_constants,
+    scale_float_rows,
+)
 
-__all__ = ["FastPathUnsupported", "PreparedInputs"]
+__all__ = ["FastPathUnsupported", "PreparedInputs", "si_rows"]
 
 Array = NDArray[np.float64]
 _NAN = math.nan
@@ -190,3 +203,32 @@ def _timeline(
         # max_gap_s, so it re-initialises instead of integrating one gyro sample across it.
         dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
     return keep, dt
+
+
+def si_rows(
+    gyro_rad_s: Array, accel_m_s2: Array, ms: Any, scaling: Any, accel_clipped: NDArray[np.bool_] | None = None
+) -> tuple[Array, NDArray[np.int64], NDArray[np.int64]]:
+    """Filter input rows (dt NaN, no magnetometer) of IMU samples already in SI units: (rows, saturated, invalid).
+
+    The scaling step of float-field messages with unit factors 1
+    (:func:`~mavahrs.sensors.scaling.scale_float_row`: saturated at the profile
+    ``ms``'s full scale × ``saturation_fraction``, invalid beyond × ``implausible_factor``
+    or non-finite, as ``scaling`` says), an accelerometer the log marks clipped saturated
+    too, then the row step's rule (:func:`~mavahrs.sensors.sample.blank_unusable`).
+    """
+    n = gyro_rad_s.shape[0]
+    c = scale_constants(ms, scaling)
+    c[C_KG] = c[C_KA] = 1.0  # already rad/s and m/s²
+    rows = np.full((n, IN_WIDTH), _NAN)
+    codes = np.empty(n, np.int64)
+    g = np.ascontiguousarray(gyro_rad_s, np.float64)
+    a = np.ascontiguousarray(accel_m_s2, np.float64)
+    zeros = np.zeros(n)
+    upd = np.full(n, HIGHRES_GYRO_BITS | HIGHRES_ACCEL_BITS, np.int64)
+    scale_float_rows(g[:, 0], g[:, 1], g[:, 2], a[:, 0], a[:, 1], a[:, 2], zeros, zeros, zeros, upd, c, rows, codes)
+    sat = codes & 7
+    inv = (codes >> INVALID_SHIFT) & 7
+    if accel_clipped is not None:
+        sat = sat | np.where(accel_clipped, ACCEL, 0)
+    blank_unusable_rows(rows, sat, inv)
+    return rows, sat, inv
