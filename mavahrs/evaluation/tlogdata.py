@@ -8,7 +8,7 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
 * the IMU source is the first autopilot HEARTBEAT's system/component (or the
   configured one); IMU messages before it, or from elsewhere, are not used;
 * scaling with the profile's units, saturation and validity checks
-  (:class:`mavahrs.sensors.scaling.Scaler`, mirrored element by element);
+  (the compiled steps :class:`mavahrs.sensors.scaling.Scaler` calls per message, in a loop);
 * exact re-sends (same stamp and values as the previous message of the same
   kind and instance, :class:`~mavahrs.protocol.timeline.ResendFilter`) dropped
   before anything else and counted (``counts["exact_duplicates"]``);
@@ -571,7 +571,7 @@ def prepare_inputs(
         rows[i, IN_VEL : IN_VEL + 3] = v
         rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), fix_t)
     _fill_current(td, src, pos, rows)
-    # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
+    # --- calibration (the step Calibrator.apply_row runs, in a compiled loop; one calibrator per message type)
     for kind in np.flatnonzero(np.bincount(kinds)):
         ms = profile.scale_for(names[int(kind)])
         cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
