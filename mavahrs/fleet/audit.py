@@ -52,6 +52,9 @@ __all__ = [
     "run_audit",
     "format_summary",
     "SERIAL_HINT",
+    "imu_gyros",
+    "phase_events",
+    "replay_monitor",
 ]
 
 #: What a folder is searched for (recursively), beside any file whose content is a log (mavahrs.logs.sniff).
@@ -292,7 +295,7 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
     )  # fmt: skip
     row = _replace(row, truncated=_tlog_truncated(td), **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
     ref = next((k for k in ("autopilot ATTITUDE", "autopilot AHRS2") if k in result.references), "")
-    return _second_opinion(result, row, s, ref, _phase_events(td, prep, src))
+    return _second_opinion(result, row, s, ref, phase_events(td, prep, src))
 
 
 #: MAV_AUTOPILOT of each onboard log format
@@ -457,7 +460,7 @@ def monitor_sensors(prep: Any, sent: np.ndarray, imus: Any = ()) -> Any:
 def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """Every IMU instance's gyro in a tlog (``IMU1`` = instance 0 …; boot-clock ms, rad/s), scaled as the
     replay scales its own, for the monitor to name an IMU that is off; [] where the log has one IMU."""
-    from mavahrs.evaluation.tlogdata import IMU_TYPES, _scale
+    from mavahrs.evaluation.tlogdata import IMU_TYPES, scale_imu_messages
     from mavahrs.sensors.profiles import get_profile
 
     arrays = getattr(td, "arrays", None)
@@ -474,7 +477,7 @@ def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, 
         a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
         if not a.shape[0]:
             continue
-        sc = _scale(name, a, ms, settings.scaling)
+        sc = scale_imu_messages(name, a, ms, settings.scaling)
         ok = sc["use"] & ~sc["zero"] & np.all(np.isfinite(sc["gyro"]), axis=1)
         for inst in np.unique(sc["imu"][ok]).tolist():
             sel = ok & (sc["imu"] == inst)
@@ -492,9 +495,9 @@ def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, 
     return out
 
 
-def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:
+def phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:
     """The flight's phase from the log's HEARTBEAT, EXTENDED_SYS_STATE and GLOBAL_POSITION_INT (boot ms)."""
-    from mavahrs.evaluation.tlogdata import _tlog_to_autopilot
+    from mavahrs.evaluation.tlogdata import tlog_to_autopilot_us
     from mavahrs.service.monitor import phase_events_of_arrays
 
     def of_src(name: str) -> np.ndarray:
@@ -506,9 +509,9 @@ def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float,
     hb, ess, gpi = of_src("HEARTBEAT"), of_src("EXTENDED_SYS_STATE"), of_src("GLOBAL_POSITION_INT")
     hb_args = ess_args = pos_args = None
     if hb.shape[0]:
-        hb_args = (_tlog_to_autopilot(td, prep, hb["t_us"]) / 1000.0, hb["base_mode"])
+        hb_args = (tlog_to_autopilot_us(td, prep, hb["t_us"]) / 1000.0, hb["base_mode"])
     if ess.shape[0]:
-        ess_args = (_tlog_to_autopilot(td, prep, ess["t_us"]) / 1000.0, ess["landed_state"])
+        ess_args = (tlog_to_autopilot_us(td, prep, ess["t_us"]) / 1000.0, ess["landed_state"])
     if gpi.shape[0]:
         v = np.sqrt(gpi["vx"].astype(float) ** 2 + gpi["vy"].astype(float) ** 2 + gpi["vz"].astype(float) ** 2) * 0.01
         pos_args = (gpi["time_boot_ms"].astype(float), gpi["relative_alt"].astype(float) * 1e-3, v)
