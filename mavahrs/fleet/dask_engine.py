@@ -199,8 +199,11 @@ def loopback_cluster(
     sched_file.unlink(missing_ok=True)
     procs: list[subprocess.Popen[bytes]] = []
 
-    # one numba thread per worker process (see _WORKER_ENV): what a real cluster's workers should be given too
-    penv = {**(env if env is not None else os.environ), **_WORKER_ENV}
+    # one numba thread per worker process (see _WORKER_ENV): what a real cluster's workers should be given too;
+    # the processes' scratch space (Dask's default: dask-scratch-space with its lock files in the system's
+    # temporary directory, left there by the scheduler and the workers' nannies) inside workdir
+    penv = {**(env if env is not None else os.environ), **_WORKER_ENV,
+            "DASK_TEMPORARY_DIRECTORY": str(work / "scratch")}  # fmt: skip
 
     def start(name: str, *args: str) -> None:
         with open(work / f"{name}.log", "wb") as log:
