@@ -51,6 +51,7 @@ __all__ = [
     "lost_row",
     "run_audit",
     "format_summary",
+    "format_startup",
     "SERIAL_HINT",
     "imu_gyros",
     "phase_events",
@@ -832,8 +833,40 @@ def _f(x: float, fmt: str, width: int) -> str:
     return f"{x:{width}{fmt}}" if math.isfinite(x) else f"{'–':>{width}}"
 
 
-def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
-    """The printed summary: counts, then the worst flights first, then the unreadable logs."""
+def format_startup(
+    startup_s: float | None, cluster_s: float | None, kernels_s: float | None, compiled_s: float | None, *,
+    local: bool = True,
+) -> str:  # fmt: skip
+    """What the run cost before its first log (the summary's second line): the cluster's start and the filter
+    kernels, compiled (a cold cache: the first run on a machine and version) or loaded from the cache.
+
+    ``startup_s``: start of the run to the first task (None: no cluster, the logs replayed here); ``cluster_s``:
+    the cluster's start (or connection) within it; ``kernels_s``: loading or compiling the kernels in this
+    process (run beside the cluster's start; None: not done here); ``compiled_s``: of that, compiling (None:
+    nothing compiled, the cache was warm).
+    """
+    cold = compiled_s is not None and compiled_s >= 0.5
+    what = "connecting to the cluster" if not local else "starting the local cluster"
+    if startup_s is None:  # serial: the first log's replay compiled them (inside the replay time above)
+        if not cold:
+            return ""
+        return (f"of which {compiled_s:.0f} s compiling the filter kernels: the first run on this machine and version "
+                "(kept in the user's cache folder: later runs load them in seconds; `mavahrs warm-up` compiles them "
+                "ahead of time)")  # fmt: skip
+    parts = [f"{what} {cluster_s:.1f} s" if cluster_s is not None else what]
+    if kernels_s is not None:
+        if cold:
+            parts.append(f"meanwhile the filter kernels compiled once in this process in {compiled_s:.0f} s, "
+                         "for every worker to load: the first run on this machine and version (kept in the user's "
+                         "cache folder: later runs start in seconds; `mavahrs warm-up` compiles them ahead of time)")  # fmt: skip
+        else:
+            parts.append(f"meanwhile the filter kernels loaded from the cache in {kernels_s:.1f} s")
+    return f"start-up before the first log {startup_s:.1f} s, not in the figures above: " + "; ".join(parts)
+
+
+def format_summary(run: AuditRun, *, top: int = 10, engine: str = "", startup: str = "") -> str:
+    """The printed summary: counts (and ``startup``, :func:`format_startup`), then the worst flights first,
+    then the unreadable logs."""
     rows = run.rows
     bad = [r for r in rows if not r.ok]
     good = [r for r in rows if r.ok]
@@ -844,6 +877,8 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
     ]
     if run.samples:
         lines[0] += f"; {run.samples} IMU samples, {run.samples_per_s:.3g} samples/s"
+    if startup:
+        lines.append(startup)
     if flagged:
         lines.append("flagged: the autopilot's attitude disagreed with mavahrs (second-opinion monitor WARNING) in "
                      + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s" for r in flagged))  # fmt: skip
