@@ -10,9 +10,10 @@ Imported only by ``mavahrs audit`` and ``mavahrs tune`` when they run on Dask
   CLI): an existing cluster; its workers must be able to import mavahrs and
   read the logs' paths.
 
-Each worker process loads the filter kernels from numba's on-disk cache (or
-compiles them once, 20–30 s); the connection time-outs are raised so that a
-worker busy compiling is not taken for a dead one.
+Each worker process loads the filter kernels from numba's on-disk cache (on a
+cold cache ``mavahrs audit`` compiles them once in its own process while a local
+cluster starts; a remote worker compiles them itself); the connection time-outs
+are raised so that a worker busy compiling is not taken for a dead one.
 """
 
 from __future__ import annotations
