@@ -74,6 +74,8 @@ __all__ = [
     "read_tlog_data",
     "prepare_inputs",
     "references",
+    "tlog_to_autopilot_us",
+    "scale_imu_messages",
     "load_tlog_recording",
     "cut_recording",
     "decimal_year_of_log",
@@ -308,7 +310,7 @@ def _no_source_message(td: TlogData, s: Any) -> str:
     return f"{td.path}: no autopilot HEARTBEAT{wanted} and no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU)"
 
 
-def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
+def scale_imu_messages(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
     """The scaling step (:func:`~mavahrs.sensors.scaling.scale_int_row` / ``scale_float_row``) over one message type."""
     from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
     from mavahrs.sensors.scaling import (
@@ -447,7 +449,7 @@ def prepare_inputs(
         ok &= (td.t_us[pos] >= lo) & (td.t_us[pos] <= hi)
         if not ok.any():
             continue
-        sc = _scale(name, a if ok.all() else a[ok], profile.scale_for(name), s.scaling)
+        sc = scale_imu_messages(name, a if ok.all() else a[ok], profile.scale_for(name), s.scaling)
         sc["name"] = name
         sc["pos"] = pos[ok]
         parts.append(sc)
@@ -519,7 +521,7 @@ def prepare_inputs(
     chosen = int(np.bincount(mg["imu"][idx]).argmax())
     m = pos.shape[0]
     in_place = sel is None and len(parts) == 1 and parts[0]["block"] is not None
-    if in_place:  # gyro, accel and mag are already columns of these rows (_scale)
+    if in_place:  # gyro, accel and mag are already columns of these rows (scale_imu_messages)
         rows = parts[0]["block"]
         rows[:, IN_VEL : IN_VEL + 3] = _NAN
         rows[:, IN_VEL_AGE] = _NAN
@@ -791,7 +793,12 @@ def _imu_clock(td: TlogData, prep: PreparedInputs) -> tuple[NDArray[np.int64], N
     return prep.tlog_us, prep.t_us
 
 
-def _tlog_to_autopilot(td: TlogData, prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> Array:
+def tlog_to_autopilot_us(td: TlogData, prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> Array:
+    """Tlog record times (µs) mapped onto the autopilot's boot clock (µs, float; NaN outside the IMU samples).
+
+    For messages that carry no time of their own (SIMSTATE, SIM_STATE, HEARTBEAT, EXTENDED_SYS_STATE …): the
+    fed IMU samples pair each record time with their boot time, and the map interpolates between them.
+    """
     x, y = _imu_clock(td, prep)
     if x.size == 0:
         return np.full(tlog_us.shape, _NAN)
@@ -835,7 +842,7 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     ahrs2 = of_source(td.arrays["AHRS2"])
     if ahrs2.shape[0]:
         q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
-        out["autopilot AHRS2"] = (_tlog_to_autopilot(td, prep, ahrs2["t_us"]), q)
+        out["autopilot AHRS2"] = (tlog_to_autopilot_us(td, prep, ahrs2["t_us"]), q)
     # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler), SIM_STATE (quaternion) or
     # HIL_STATE_QUATERNION (PX4's simulators), whichever comes most often (slerping a 10 Hz truth
     # through fast manoeuvres would add its own error)
@@ -851,13 +858,13 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
         if np.all(t_hil > 0):
             out["HIL_STATE_QUATERNION truth"] = (t_hil, q)
         else:
-            out["HIL_STATE_QUATERNION truth"] = (_tlog_to_autopilot(td, prep, hil["t_us"]), q)
+            out["HIL_STATE_QUATERNION truth"] = (tlog_to_autopilot_us(td, prep, hil["t_us"]), q)
     elif sim.shape[0] and sim.shape[0] == most:
         q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
-        out["SIM_STATE truth"] = (_tlog_to_autopilot(td, prep, sim["t_us"]), q)
+        out["SIM_STATE truth"] = (tlog_to_autopilot_us(td, prep, sim["t_us"]), q)
     elif ss.shape[0]:
         q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
-        out["SIMSTATE truth"] = (_tlog_to_autopilot(td, prep, ss["t_us"]), q)
+        out["SIMSTATE truth"] = (tlog_to_autopilot_us(td, prep, ss["t_us"]), q)
     for k, (t, q) in list(out.items()):
         good = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
         if not good.any():
@@ -886,7 +893,7 @@ def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
         a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
         if a.shape[0] < 2:
             continue
-        t = _tlog_to_autopilot(td, prep, a["t_us"])
+        t = tlog_to_autopilot_us(td, prep, a["t_us"])
         ok = np.isfinite(t)
         if ok.sum() < 2:
             continue
