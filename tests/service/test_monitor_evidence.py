@@ -283,3 +283,36 @@ def test_the_pipeline_passes_the_magnetometer_models_state_to_the_monitor(autopi
     state = {"state": "learning", "offset_ut": [1.0, -2.0, 2.0]}
     pipe.tick(2_200_000)
     assert math.isnan(mon.evidence.mag_offset_ut) and not mon.evidence.mag_disturbed
+
+
+def test_the_daemons_pipeline_names_the_imu_with_a_gyro_bias_step() -> None:
+    """The daemon's path: the real Pipeline fed live by firmware_sim's ArduPilot (RAW_IMU and SCALED_IMU2 at
+    the loop rate, ATTITUDE at 50 Hz) whose second IMU (instance 1, SCALED_IMU2) gains 2°/s per axis at 12 s:
+    a WARNING naming IMU2, after the step, and never IMU1."""
+    fs = pytest.importorskip("firmware_sim")
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    step_s, sim_s = 12.0, 26.0
+    bias = (math.radians(2.0),) * 3
+    ss = fs.SimSettings(scenario="aggressive", seed=21, imu_fault=fs.ImuFault(instance=1, step_at_s=step_s,
+                                                                              gyro_bias_step_rad_s=bias))
+    ep = fs.Endpoint(fs.Simulation(ss), fs.EndpointSettings(preset="none", block_ticks=400, streams_hz=(
+        ("RAW_IMU", math.inf), ("SCALED_IMU2", math.inf), ("ATTITUDE", 50.0), ("GLOBAL_POSITION_INT", 5.0),
+        ("SYSTEM_TIME", 1.0))))  # fmt: skip
+    pipe = Pipeline(PipelineSettings(out_rate_hz=50.0))
+    rx, ours = MavCodec(255, 190), MavCodec(255, 190)
+    texts: list[tuple[float, int, str]] = []
+    for k in range(int(sim_s * ss.loop_rate_hz)):
+        for t_us, frame in ep.step():
+            for msg in rx.receive_datagram(frame):
+                for o in pipe.handle(msg, t_us):
+                    for m in ours.receive_datagram(o.frame):
+                        if m.get_type() == "STATUSTEXT":
+                            texts.append((t_us / 1e6, int(m.severity), str(m.text)))
+        if k % 20 == 0:
+            pipe.tick(ep.now_us)
+    named = [(t, sev, x) for t, sev, x in texts if "IMU2 gyro off" in x]
+    assert named and named[0][1] == mavlink.MAV_SEVERITY_WARNING and named[0][2].endswith("[IMU2?]"), texts
+    assert step_s < named[0][0] < step_s + 10.0, texts
+    assert not any("IMU1" in x for _, _, x in texts), texts
