@@ -108,10 +108,13 @@ class MonitorSettings:
             ``min_heading_threshold_deg``.  Our σ is the filter's own (the
             ESKF's tilt covariance, while GNSS-velocity-aided) or the
             ``unaided_*`` figure; the ESKF's σ is conservative (≈ 0.5° where its
-            error is 0.05–0.2°), hence a k of 2 (1.15° of tilt, 3° of heading
+            error is 0.05–0.2°), hence a k of 2 (1.15° of tilt, 3.6° of heading
             while aided).
         autopilot_tilt_sigma_deg, autopilot_heading_sigma_deg: the autopilot's
-            typical 1-σ error (EKF3 on SITL: ≈ 0.25° inclination, ≈ 1° heading), deg.
+            typical 1-σ error, deg (EKF3 on SITL: ≈ 0.25° inclination, ≈ 1°
+            heading; heading 1.5: an autopilot within 3° of the truth — 2σ —
+            is not one to warn about, and with our own heading error of about
+            1° in the other direction the divergence reaches 3–4°).
         heading_sigma_deg: our heading 1-σ while velocity-aided, deg.
         unaided_tilt_sigma_deg, unaided_heading_sigma_deg: our 1-σ without
             GNSS velocity (Madgwick configuration: ≈ 2° inclination RMS in
@@ -145,7 +148,12 @@ class MonitorSettings:
             velocity change by more than ``gnss_ratio`` × ours (least squares
             over the windows of the last 3 × ``gnss_window_s``; see
             :class:`Evidence`) and they differ by at least ``gnss_min_m_s``,
-            ``[us?]`` the other way round.  The evidence is looked at again
+            ``[us?]`` the other way round.  A disagreement in heading alone
+            (the tilt within its threshold) needs them to differ by at least
+            ``gnss_heading_min_m_s``: a heading error shows only through the
+            horizontal acceleration it turns, in the manoeuvres in which the
+            GNSS velocity's own lag is largest (no verdict, rather than a
+            wrong one, below it).  The evidence is looked at again
             every second while the warning is on and the STATUSTEXT said again
             (up to 3 times) when it names something new.
         learn_k, learn_s: ``uncertainty``: the thresholds are also at least
@@ -219,7 +227,7 @@ class MonitorSettings:
     mode: str = "uncertainty"
     sigma_k: float = 2.0
     autopilot_tilt_sigma_deg: float = 0.3
-    autopilot_heading_sigma_deg: float = 1.0
+    autopilot_heading_sigma_deg: float = 1.5
     heading_sigma_deg: float = 1.0
     unaided_tilt_sigma_deg: float = 1.5
     unaided_heading_sigma_deg: float = 3.0
@@ -235,6 +243,7 @@ class MonitorSettings:
     gnss_window_s: float = 3.0
     gnss_ratio: float = 2.0
     gnss_min_m_s: float = 0.3
+    gnss_heading_min_m_s: float = 1.0
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -263,7 +272,7 @@ class MonitorSettings:
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
-                     "transition_s", "learn_k", "learn_s", "strip_s", "imu_rate_tolerance_dps",
+                     "transition_s", "learn_k", "learn_s", "strip_s", "imu_rate_tolerance_dps", "gnss_heading_min_m_s",
                      "imu_window_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -528,9 +537,12 @@ class Evidence:
             NaN = not known (no magnetometer, or no expected field yet).
         mag_dip_dev_deg: its dip (inclination) off the expected one, deg (median).
         mag_offset_ut: the size of the magnetometer offsets learnt in flight,
-            µT, where the estimator learns them (NaN = not told).
+            µT, by our magnetometer model (:mod:`mavahrs.filters.magfield`, when
+            it is on and past learning; the pipeline passes them once a second
+            with :meth:`AttitudeMonitor.set_mag_offsets`); NaN = not known.
         mag_disturbed: the field is not the expected one (``mag_norm_tolerance``,
-            ``mag_dip_tolerance_deg``): the heading of whoever trusts it is suspect.
+            ``mag_dip_tolerance_deg``), or our magnetometer model finds it
+            disturbed: the heading of whoever trusts it is suspect.
         gnss_m_s: how far apart the two attitudes put the horizontal velocity
             change (the specific force rotated into NED by each and integrated
             over ``gnss_window_s``), m/s, the largest over the recent windows;
@@ -540,7 +552,8 @@ class Evidence:
             wrong), 1 = with the autopilot's (ours is wrong); NaN = not judged.
         gnss_verdict: ``AP`` / ``us`` (who the GNSS velocity says is wrong: its
             miss along the difference is ``gnss_ratio`` × the other's and the
-            difference at least ``gnss_min_m_s``), "" = no verdict.
+            difference at least ``gnss_min_m_s``, ``gnss_heading_min_m_s`` for a
+            disagreement in heading alone), "" = no verdict (unknown).
         tilt_sigma_deg: our own 1-σ tilt uncertainty then (the ESKF's while
             velocity-aided), deg; NaN = not aided (the ``unaided`` figure applies).
         imu: the IMU whose gyro disagrees with the others' and with the
@@ -680,6 +693,7 @@ class AttitudeMonitor:
         self._imu_named = ""
         if old is not None:  # what the vehicle's field should be outlives a reset
             self._evidence.mag_ref, self._evidence.mag_offset_ut = old.mag_ref, old.mag_offset_ut
+            self._evidence.mag_model_disturbed = old.mag_model_disturbed
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._fresh = False  # a comparison since the last publication
@@ -768,9 +782,13 @@ class AttitudeMonitor:
         """The field the magnetometer should measure (the geomagnetic model at the vehicle)."""
         self._evidence.mag_ref = (float(strength_ut), float(inclination_rad))
 
-    def set_mag_offsets(self, offset_ut: Sequence[float] | None) -> None:
-        """The magnetometer offsets our estimator has learnt in flight, µT (None: none), for the evidence."""
-        self._evidence.mag_offset_ut = math.nan if offset_ut is None else math.sqrt(sum(float(v) ** 2 for v in offset_ut))
+    def set_mag_offsets(self, offset_ut: Sequence[float] | None, *, disturbed: bool = False) -> None:
+        """The magnetometer offsets our estimator's magnetometer model has learnt in flight, µT (None: none, or
+        the model is off), for the evidence; ``disturbed``: the model itself finds the field disturbed (then
+        ``mag`` is named with a disagreement whatever the field strength and dip say)."""
+        ok = offset_ut is not None and all(math.isfinite(float(v)) for v in offset_ut)
+        self._evidence.mag_offset_ut = math.sqrt(sum(float(v) ** 2 for v in offset_ut)) if ok else math.nan  # type: ignore[union-attr]
+        self._evidence.mag_model_disturbed = bool(disturbed) and ok
 
     def add_autopilot(self, t_boot_ms: float, q_body_to_ned: Sequence[float]) -> list[Any]:
         """The autopilot's attitude at ``t_boot_ms`` (what :meth:`handle` extracts); returns STATUSTEXTs."""
@@ -948,6 +966,7 @@ class AttitudeMonitor:
             z = max(z, abs(heading) / h_thr)
         # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
         # itself let through, else a slowly growing fault would raise the threshold ahead of it)
+        self._evidence.heading_only = hdg_on and tilt <= t_thr and abs(heading) > h_thr
         m_t, m_h = self._model_thr
         inside = tilt <= m_t and (not hdg_on or abs(heading) <= m_h)
         if self._uncertainty and not self._warning and inside and prev is not None and not gap:
@@ -1083,6 +1102,8 @@ class _Evidence:
         self.s = s
         self.mag_ref: tuple[float, float] | None = None
         self.mag_offset_ut = math.nan
+        self.mag_model_disturbed = False
+        self.heading_only = False  # the disagreement judged is in heading alone (see gnss_heading_min_m_s)
         self.sigma = math.nan
         self.imu = ""
         self._f_sum = [0.0, 0.0, 0.0]
@@ -1197,12 +1218,14 @@ class _Evidence:
             dip = sorted(x[2] for x in self._mag)[len(self._mag) // 2]
             kw.update(mag_norm_dev=norm, mag_dip_dev_deg=math.degrees(dip),
                       mag_disturbed=abs(norm) > s.mag_norm_tolerance or abs(dip) > math.radians(s.mag_dip_tolerance_deg))
+        if self.mag_model_disturbed:  # the magnetometer model (:mod:`mavahrs.filters.magfield`) says so itself
+            kw["mag_disturbed"] = True
         if self._res:
             rd = sum(r[1] for r in self._res)
             dd = sum(r[2] for r in self._res)
             d_rms = math.sqrt(max(r[2] for r in self._res))
             kw["gnss_m_s"] = d_rms
-            if d_rms >= s.gnss_min_m_s:
+            if d_rms >= (s.gnss_heading_min_m_s if self.heading_only else s.gnss_min_m_s):
                 share = -rd / dd
                 kw["gnss_blames_us"] = share
                 r = s.gnss_ratio

@@ -486,6 +486,7 @@ class Pipeline:
         self._decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
         self._monitor = AttitudeMonitor(s.monitor)
         self._monitor_on = s.monitor.enabled
+        self._next_mag_offsets_us = 0  # the magnetometer model's learnt offsets go to the monitor at 1 Hz
         self._velocity = VelocitySelector(s.effective_velocity_source, s.monitor.receiver_velocity_only)
         self._vel_meter = RateMeter()
         self._vel_meter_source: str | None = None
@@ -663,6 +664,9 @@ class Pipeline:
             for req in self._requester.poll(now_us):
                 out.append(Outgoing(self._request_frame(req), True, False))
             if self._monitor_on:
+                if now_us >= self._next_mag_offsets_us:
+                    self._next_mag_offsets_us = now_us + 1_000_000
+                    self._monitor_mag_model()
                 for m in self._monitor.tick(now_us):
                     out.append(Outgoing(self._codec.encode(m), self._to_master, self._to_outputs))
             self._check_input(now_us)
@@ -1340,6 +1344,15 @@ class Pipeline:
             gnss_velocity=self._gnss_state(now),
             magnetometer=self._mag_model_state(),
         )
+
+    def _monitor_mag_model(self) -> None:
+        """The magnetometer model's learnt offsets and state (its public summary), for the monitor's evidence
+        (None while the model is off, or still learning)."""
+        state = self._mag_model_state()
+        if not state or state.get("state") == "learning":
+            self._monitor.set_mag_offsets(None)
+            return
+        self._monitor.set_mag_offsets(state.get("offset_ut"), disturbed=state.get("state") == "disturbed")
 
     def _mag_model_state(self) -> dict[str, Any] | None:
         get = getattr(self._filter, "mag_model_state", None)
