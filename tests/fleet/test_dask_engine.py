@@ -57,11 +57,22 @@ def test_local_workers_run_one_numba_thread_and_this_process_is_left_alone() -> 
     assert os.environ.get("NUMBA_NUM_THREADS") == before
 
 
+
+def _run_with_tmpdir(code: str, tmpdir: Path, cwd: Path) -> None:
+    """``code`` in a Python process of its own whose temporary directory is ``tmpdir``: it must print
+    ``[1, 2]`` and leave ``tmpdir`` empty."""
+    import subprocess
+
+    repo = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "TMPDIR": str(tmpdir), "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=cwd)
+    assert run.returncode == 0 and run.stdout.strip() == "[1, 2]", run.stdout + run.stderr
+    assert sorted(p.name for p in tmpdir.iterdir()) == []
+
 def test_a_local_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Path) -> None:
     """Dask's workers keep a scratch space (by default ``dask-scratch-space`` in the system's temporary
     directory, left behind); the engine gives them a folder of its own and removes it.  Run in a process
     of its own whose temporary directory is this test's (tests run in parallel)."""
-    import subprocess
 
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
@@ -70,11 +81,7 @@ def test_a_local_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Pat
         "with DaskEngine(workers=1) as eng:\n"
         "    print(sorted(r for _, r in eng.map(abs, [-1, -2])))\n"
     )
-    repo = str(Path(__file__).resolve().parents[2])
-    env = {**os.environ, "TMPDIR": str(tmpdir), "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
-    assert run.returncode == 0 and run.stdout.strip() == "[1, 2]", run.stdout + run.stderr
-    assert sorted(p.name for p in tmpdir.iterdir()) == []
+    _run_with_tmpdir(code, tmpdir, tmp_path)
 
 
 def test_a_loopback_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Path) -> None:
@@ -82,7 +89,6 @@ def test_a_loopback_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: 
     ``dask-scratch-space`` with empty ``global.lock`` / ``purge.lock`` in the system's temporary directory; their
     scratch space is now inside the cluster's own work folder.  Processes of their own whose temporary
     directory is this test's."""
-    import subprocess
 
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
@@ -92,11 +98,7 @@ def test_a_loopback_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: 
         f"with loopback_cluster({str(work)!r}, 1) as address, DaskEngine(scheduler=address) as eng:\n"
         "    print(sorted(r for _, r in eng.map(abs, [-1, -2])))\n"
     )
-    repo = str(Path(__file__).resolve().parents[2])
-    env = {**os.environ, "TMPDIR": str(tmpdir), "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
-    assert run.returncode == 0 and run.stdout.strip() == "[1, 2]", run.stdout + run.stderr
-    assert sorted(p.name for p in tmpdir.iterdir()) == []
+    _run_with_tmpdir(code, tmpdir, tmp_path)
     assert (work / "scratch").is_dir()  # where it went instead (removed with the work folder)
 
 

@@ -54,17 +54,11 @@ def _heartbeat(codec: MavCodec) -> bytes:
     return codec.encode(codec.mav.heartbeat_encode(2, 3, 0, 0, 4))
 
 
-def test_datagrams_queued_during_a_cold_start_are_dropped_and_counted(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    import mavahrs.transports as transports
-    from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
-    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    gcs.bind(("127.0.0.1", 0))
-    gcs.settimeout(0.05)
-    ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    ap_codec = MavCodec(1, 1)
+def _keep_opened_links(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """The links the daemon opens, in order (``open_transport`` wrapped to keep each one)."""
+    import mavahrs.transports as transports
+
     opened: list[Any] = []
     real_open = transports.open_transport
 
@@ -74,6 +68,19 @@ def test_datagrams_queued_during_a_cold_start_are_dropped_and_counted(
         return link
 
     monkeypatch.setattr(transports, "open_transport", open_and_keep)
+    return opened
+
+def test_datagrams_queued_during_a_cold_start_are_dropped_and_counted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(0.05)
+    ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ap_codec = MavCodec(1, 1)
+    opened = _keep_opened_links(monkeypatch)
     pipeline = Pipeline(PipelineSettings(out_rate_hz=0.0))  # one attitude per sample: every one is seen
     real_warm_up = pipeline.filter.warm_up
     addr: list[tuple[str, int]] = []
@@ -150,21 +157,12 @@ def test_an_autopilot_that_went_silent_during_a_cold_start_is_not_called_no_mavl
     """A simulator that stopped while the filter compiled (minutes on a cold cache): its queued datagrams are
     dropped, nothing else comes, and the heartbeat time-out said '57708 bytes received but no valid MAVLink
     frame: is this a MAVLink stream?' — about a stream of valid MAVLink.  It says what happened instead."""
-    import mavahrs.transports as transports
     from mavahrs.errors import TransportError
     from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
     ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ap_codec = MavCodec(1, 1)
-    opened: list[Any] = []
-    real_open = transports.open_transport
-
-    def open_and_keep(*args: Any, **kw: Any) -> Any:
-        link = real_open(*args, **kw)
-        opened.append(link)
-        return link
-
-    monkeypatch.setattr(transports, "open_transport", open_and_keep)
+    opened = _keep_opened_links(monkeypatch)
     pipeline = Pipeline(PipelineSettings())
     real_warm_up = pipeline.filter.warm_up
 
