@@ -272,6 +272,15 @@ def _count_off_loopback_attempts(item: pytest.Item, call: pytest.CallInfo[None],
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    # A suite started in the background by a shell without job control (`nohup … &` in a script,
+    # `( … & )`) inherits SIGINT ignored, and every process it starts then ignores Ctrl-C too: the
+    # tests that interrupt a real `mavahrs` command would see it run to the end.  Python's own
+    # handler is installed here (the xdist workers, started after this hook, and the commands the
+    # tests start inherit the default action instead of "ignored").
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     config.addinivalue_line("markers", "reaches_off_loopback: the test tries to reach beyond loopback on purpose "
                             "(it checks the check); exempt from the per-test count")
 

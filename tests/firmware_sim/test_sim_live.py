@@ -56,18 +56,44 @@ def _request(m: Any, msg_id: int, hz: float) -> tuple[int, list[str]]:
 
 
 def _rates(m: Any, seconds: float) -> dict[str, float]:
-    """Messages per second by type, counted by arrival over ``seconds`` of wall clock."""
+    """Messages per second by type over ``seconds`` of the simulator's own clock.
+
+    The clock is the newest ``time_usec`` / ``time_boot_ms`` received.  A starved simulator runs
+    behind real time (it re-anchors its schedule, never skips samples) and a starved receiver reads
+    late, so an arrival count per wall-clock second measures the machine's load, not the rates.
+    """
     deadline = time.monotonic() + 0.3
     while time.monotonic() < deadline:  # let the new rates settle, drop the backlog
         m.recv_match(blocking=True, timeout=0.05)
+
+    def clock_us(msg: Any) -> int | None:
+        if hasattr(msg, "time_usec"):
+            return int(msg.time_usec)
+        if hasattr(msg, "time_boot_ms"):
+            return int(msg.time_boot_ms) * 1000
+        return None
+
     counts: dict[str, int] = {}
-    t0 = time.perf_counter()
-    while (now := time.perf_counter()) - t0 < seconds:
+    t0_us = now_us = None
+    give_up = time.monotonic() + 120.0  # only a simulator that stopped streaming reaches this
+    while time.monotonic() < give_up:
         msg = m.recv_match(blocking=True, timeout=0.05)
-        if msg is not None:
-            counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
-    elapsed = now - t0
-    return {k: v / elapsed for k, v in counts.items()}
+        if msg is None:
+            continue
+        t_us = clock_us(msg)
+        if t_us is not None:
+            if t0_us is None:
+                t0_us = now_us = t_us
+                continue  # the window opens at the first stamped message
+            now_us = max(now_us, t_us)
+        if t0_us is None:
+            continue
+        if now_us - t0_us >= seconds * 1e6:
+            break
+        counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+    elapsed_s = ((now_us or 0) - (t0_us or 0)) / 1e6
+    assert elapsed_s > 0, f"no timestamped message in {seconds} s of the simulator's clock"
+    return {k: v / elapsed_s for k, v in counts.items()}
 
 
 def _check_250_100_and_400_denied(m: Any) -> None:

@@ -92,8 +92,21 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
     gcs_clean, gcs_faulty = rt.Collector(), rt.Collector()
     clean = rt.DaemonProcess(_daemon_args(rt, port_clean, gcs_clean.port, "clean.json"), tmp_path)
     faulty = rt.DaemonProcess(_daemon_args(rt, port_faulty, gcs_faulty.port, "faulty.json"), tmp_path)
+    # the flight's own clock, from the clean leg's RAW_IMU stamps: the faults are scheduled on it (a
+    # loaded machine runs the simulator slower than real time, and wall-clock phases then squeeze
+    # the steady window the comparison needs)
+    flown_ms: list[int] = []
+
+    def observe(leg: int, data: bytes) -> None:
+        if leg == 0:
+            for ms in rt.imu_ms_in([data]):
+                if not flown_ms:
+                    flown_ms.extend((ms, ms))
+                flown_ms[1] = max(flown_ms[1], ms)
+
     relay = UdpFaultRelay(
-        [(("127.0.0.1", port_clean), FaultSettings(), True), (("127.0.0.1", port_faulty), MIX, False)], seed=7
+        [(("127.0.0.1", port_clean), FaultSettings(), True), (("127.0.0.1", port_faulty), MIX, False)], seed=7,
+        observer=observe,
     )
     relay.set_faults(1, MIX, "mix")
     schedule = [(4.0, BURST, "burst"), (5.0, MIX, "mix"), (12.0, OUTAGE, "outage"), (13.5, MIX, "mix")]
@@ -103,15 +116,23 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
         host, rport = relay.address
         sim = rt.start_sim(["--out", f"udpout:{host}:{rport}", "--scenario", SCENARIO, "--duration", "18",
                          "--seed", "11"], tmp_path)
-        deadline = time.monotonic() + 180
-        while relay.counters(1).datagrams == 0 and time.monotonic() < deadline:
-            time.sleep(0.01)
-        t0 = time.monotonic()  # the flight is streaming: faults on the simulator's clock from here
-        for at, faults, phase in schedule:
-            time.sleep(max(0.0, at - (time.monotonic() - t0)))
+        deadline = time.monotonic() + 240
+        for at, faults, phase in schedule:  # at: seconds of the flight's clock since its first sample
+            while (not flown_ms or flown_ms[1] - flown_ms[0] < at * 1000) and time.monotonic() < deadline:
+                if sim.poll() is not None:
+                    break
+                time.sleep(0.005)
             relay.set_faults(1, faults, phase)
         assert sim.wait(240) == 0
-        time.sleep(0.5)
+        # the flight is over: wait until each daemon has answered the newest sample it received
+        # (the event; a loaded machine can hold seconds of datagrams in the daemons' queues)
+        deadline = time.monotonic() + 120
+        for leg, gcs in ((0, gcs_clean), (1, gcs_faulty)):
+            newest = max(rt.imu_ms_in([d for _, d in relay.sent(leg)]), default=None)
+            while newest is not None and newest not in rt.attitude_map(gcs.attitudes()):
+                if time.monotonic() > deadline:
+                    break  # judged below: the answered fraction says what was missing
+                time.sleep(0.05)
     finally:
         rc_clean, rc_faulty = clean.stop(), faulty.stop()
         gcs_clean.close()

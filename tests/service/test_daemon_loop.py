@@ -267,7 +267,9 @@ def test_an_exception_in_the_pipeline_is_counted_and_the_loop_goes_on(gcs: socke
 def test_duration_ends_the_run() -> None:
     d = _daemon(None, duration_s=0.3, heartbeat_timeout_s=0.0)
     result = d.run()
-    assert result.reason == "duration" and 0.25 <= result.run_s < 3.0
+    # the lower bound is the claim; the upper one only catches a run that does not end (a loaded
+    # machine took 4 s for this 0.3 s run)
+    assert result.reason == "duration" and 0.25 <= result.run_s < 30.0
 
 
 def test_latency_ring_percentiles_and_wrap() -> None:
