@@ -327,9 +327,11 @@ class EskfSettings(FilterSettings):
             not (a vehicle on the ground is held by its legs; hovering still
             it reads no airflow to speak of).  The rate limit is 6°/s (a raw
             MEMS gyro's bias: up to ≈ 5°/s per axis);
-            ``RestBiasSettings(bias_tau_s=0)`` turns it off.  (ArduCopter
-            SITL as a raw IMU: 1.94 → 1.70° mean inclination, the landed end
-            of the gentle flight 5.95 → 4.93°; ``docs/accuracy.md``.)
+            ``RestBiasSettings(bias_tau_s=0)`` turns it off.  A low-passed
+            rate farther than 3 σ (the bias covariance) from the bias
+            estimate is a slow steady turn, not rest (a hover's yaw).
+            (ArduCopter SITL as a raw IMU: 1.94 → 1.86° mean inclination;
+            ``docs/accuracy.md``.)
         rest_rate_noise_rad_s: 1-σ noise of the low-passed gyro as a
             bias measurement at rest, rad/s (0 = no rest updates).
         rest_velocity_noise_m_s: 1-σ noise of a zero velocity fused at rest,
