@@ -98,12 +98,12 @@ def audit(path: Path, mon: MonitorSettings) -> object:
 
 def airborne(path: Path) -> tuple[float, float, dict]:
     """(first, last) boot time airborne, s, and the data to judge the autopilot against the truth."""
-    from mavahrs.fleet.audit import _phase_events
+    from mavahrs.fleet.audit import phase_events
     from mavahrs.replay import replay
     from mavahrs.service.monitor import FlightPhase, align_attitudes, divergence_series
 
     res = replay(path, ReplaySettings(pipeline=PipelineSettings()))
-    ev = _phase_events(res.tlog, res.inputs, res.inputs.source)
+    ev = phase_events(res.tlog, res.inputs, res.inputs.source)
     ph = FlightPhase(MonitorSettings())
     speed = math.nan
     air = []

@@ -151,3 +151,53 @@ def test_evaluation_does_not_hold_or_import_the_replay_engine() -> None:
         assert path.stem != "replay", path
         for name in _imports(path):
             assert not name.startswith("mavahrs.replay"), f"{path} imports {name}: evaluation reads replay's outputs"
+
+
+# --------------------------------------------------------------------------- the one sample chain
+
+#: each step of the sample chain: the module that defines it (once), as a compiled per-sample function
+#: and the loop over it
+SAMPLE_STEPS = {
+    "scale_int_row": "sensors/scaling.py",
+    "scale_float_row": "sensors/scaling.py",
+    "blank_unusable": "sensors/sample.py",
+    "calibrate_row": "sensors/calibration.py",
+}
+#: who runs the steps: the live pipeline (through Scaler / Calibrator / write_row), the daemon's fast
+#: lane, and the readers (the loops)
+STEP_USERS = {
+    "service/fastlane.py": {"scale_int_row"},
+    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows"},
+    "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows"},
+    "logs/dataflash.py": {"si_rows"},
+    "logs/ulog.py": {"si_rows"},
+}
+
+
+def _defined(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    return {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+
+
+def test_each_sample_step_is_defined_once_with_its_loop_beside_it() -> None:
+    defs: dict[str, list[str]] = {}
+    for path in _modules():
+        for name in _defined(path):
+            defs.setdefault(name, []).append(str(path.relative_to(PKG)))
+    for step, home in SAMPLE_STEPS.items():
+        assert defs.get(step) == [home], f"{step}: defined in {defs.get(step)}, expected once in {home}"
+        loop = step.removesuffix("_row") + "_rows" if step.endswith("_row") else step + "_rows"
+        assert defs.get(loop) == [home], f"{loop} (the loop over {step}) belongs beside it in {home}"
+
+
+def test_the_pipeline_the_fast_lane_and_every_reader_run_those_steps() -> None:
+    for rel, names in STEP_USERS.items():
+        src = (PKG / rel).read_text(encoding="utf-8")
+        for name in names:
+            assert f"{name}(" in src, f"mavahrs/{rel} no longer calls {name}: a second copy of the step?"
+        # the scaling constants belong to the scaling step alone
+        for const in ("scaling.saturation_fraction", "scaling.implausible_factor", ".mag_legacy_to_ut"):
+            assert const not in src, f"mavahrs/{rel} uses {const}: the scaling step's own constant"
+    scaling = (PKG / "sensors" / "scaling.py").read_text(encoding="utf-8")
+    assert "scale_int_row(" in scaling.split("class Scaler", 1)[1] and "scale_float_row(" in scaling.split("class Scaler", 1)[1]
+    assert "calibrate_row(" in (PKG / "sensors" / "calibration.py").read_text(encoding="utf-8").split("class Calibrator", 1)[1]

@@ -92,10 +92,13 @@ def _run(args: argparse.Namespace) -> int:
 
     prefer_small_pages()
     start_kernels()
+    from mavahrs.cli.common import KERNELS_LOGGER
+
     if not getattr(args, "verbose", 0):  # per-log INFO lines (magnetic model …) are noise over a fleet
         logging.getLogger("mavahrs").setLevel(logging.WARNING)
         if not getattr(args, "quiet", 0):
             logging.getLogger("mavahrs.fleet").setLevel(logging.INFO)  # the audit's own progress (cluster start …)
+            logging.getLogger(KERNELS_LOGGER).setLevel(logging.INFO)  # and a first compile's notice and time
     if args.filters and len(args.filters) > 1:
         raise ValueError("audit compares one filter with the autopilot: give --filter once")
     for t in args.output:
@@ -108,6 +111,9 @@ def _run(args: argparse.Namespace) -> int:
     fn = functools.partial(fa.summarise_log, settings=settings)
     scheduler = args.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     plan = fa.plan_audit(logs, args.output, args.force)
+    import time
+
+    startup = ""
     with ExitStack() as stack:
         mapper: Any = fa.serial_map
         where = "one process, serially" if plan.todo else ""
@@ -116,17 +122,22 @@ def _run(args: argparse.Namespace) -> int:
 
             if dask_engine.available():
                 loading = None
+                t0 = time.monotonic()
+                kernels_s: list[float] = []
                 if not scheduler:  # meanwhile the cluster starts: on a warm cache this costs no time
                     import threading
 
-                    loading = threading.Thread(target=_load_kernels_here, args=(fn,), name="mavahrs-kernels")
+                    loading = threading.Thread(target=_load_kernels_here, args=(fn, kernels_s), name="mavahrs-kernels")
                     loading.start()
                 try:
                     eng = stack.enter_context(dask_engine.DaskEngine(scheduler, args.workers))
+                    cluster_s = time.monotonic() - t0
                 finally:
                     if loading is not None:
                         loading.join()  # before the first task: the workers load the kernels, none compiles
                 mapper, where = functools.partial(eng.map, on_error=fa.lost_row), eng.describe()
+                startup = fa.format_startup(time.monotonic() - t0, cluster_s, kernels_s[0] if kernels_s else None,
+                                            _compiled_s(), local=not scheduler)  # fmt: skip
             elif scheduler:
                 raise ValueError("--scheduler needs Dask: pip install 'mavahrs[fleet]'")
             else:
@@ -140,7 +151,9 @@ def _run(args: argparse.Namespace) -> int:
             logs, fn, mapper, tables=args.output, plan=plan,
             on_row=(lambda _row: bar.update(1)) if bar is not None else None,
         )  # fmt: skip
-    print(fa.format_summary(result, top=args.top, engine=where))
+    if where == "one process, serially" and _compiled_s() is not None:  # the first log's replay compiled them
+        startup = fa.format_startup(None, None, None, _compiled_s(), local=True)
+    print(fa.format_summary(result, top=args.top, engine=where, startup=startup))
     for t in args.output:
         print(f"wrote {t}", file=sys.stderr)
     if args.plot:
@@ -158,7 +171,13 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_kernels_here(fn: Any) -> None:
+def _compiled_s() -> float | None:
+    from mavahrs.cli.common import compiled_s
+
+    return compiled_s()
+
+
+def _load_kernels_here(fn: Any, took_s: list[float]) -> None:
     """Run the audit's own task once, here, on a short synthetic log before the local workers start.
 
     On a cold kernel cache every local worker compiled the same kernels at the same time (two workers on two
@@ -167,12 +186,15 @@ def _load_kernels_here(fn: Any) -> None:
     cluster starts; on a warm cache it only loads them (2.6 s at a load average of 13 on 2 cores).
     """
     import tempfile
+    import time
     from pathlib import Path
 
     from mavahrs.protocol.tlog import tlog_record
     from mavahrs.warmup import synthetic_frames
 
+    t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="mavahrs-audit-") as tmp:
         log = Path(tmp) / "kernels.tlog"
         log.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames(2.0)))
         fn(str(log))
+    took_s.append(time.monotonic() - t0)

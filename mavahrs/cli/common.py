@@ -165,11 +165,20 @@ def announce_compiles() -> None:
     from mavahrs.filters.jit import on_first_compile
 
     def announce(_kernel: str) -> None:
-        logging.getLogger(_LOGGER_NAME).info("%s", COMPILE_NOTICE)
+        logging.getLogger(KERNELS_LOGGER).info("%s", COMPILE_NOTICE)
 
     import time
 
     _ANNOUNCER.append(on_first_compile(announce, clock=time.monotonic))
+
+
+def compiled_s() -> float | None:
+    """How long this process has compiled filter kernels so far, s (None: nothing compiled, a warm cache)."""
+    for remove in _ANNOUNCER:
+        took = getattr(remove, "compiled_s", lambda: None)()
+        if took is not None:
+            return float(took)
+    return None
 
 
 def stop_announcing() -> None:
@@ -182,12 +191,15 @@ def stop_announcing() -> None:
         if took is not None:
             from mavahrs.filters.jit import cache_location
 
-            logging.getLogger(_LOGGER_NAME).info(
+            logging.getLogger(KERNELS_LOGGER).info(
                 "compiling the filters took %.0f s; kept in %s, later runs load them at once", took, cache_location()
             )
 
 
 _ANNOUNCER: list[Any] = []
+#: the compile notice's logger: a command that keeps ``mavahrs`` at WARNING over many logs (audit) keeps this
+#: one at INFO, so that minutes of a first compile are never silent
+KERNELS_LOGGER = "mavahrs.kernels"
 
 
 # --------------------------------------------------------------------------- logging

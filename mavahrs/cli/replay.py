@@ -131,6 +131,15 @@ def settings_from_args(args: argparse.Namespace) -> Any:
 
 
 def _run(args: argparse.Namespace) -> int:
+    try:
+        rp, settings = _start(args)
+    except KeyboardInterrupt:  # Ctrl-C while the command started (imports, kernels): before the log was read
+        return _interrupted(args, None, starting=True)
+    return _replay_started(args, rp, settings)
+
+
+def _start(args: argparse.Namespace) -> tuple[Any, Any]:
+    """Imports, filter kernels, checks of the input and the settings: (the replay module, its settings)."""
     from pathlib import Path
 
     from mavahrs import replay as rp
@@ -146,7 +155,12 @@ def _run(args: argparse.Namespace) -> int:
                         "use `mavahrs audit FOLDER` (one row per flight)")  # fmt: skip
     if not Path(args.tlog).is_file():
         raise DataError(f"{args.tlog}: no such file")
-    settings = settings_from_args(args)
+    return rp, settings_from_args(args)
+
+
+def _replay_started(args: argparse.Namespace, rp: Any, settings: Any) -> int:
+    from pathlib import Path
+
     progress = not args.no_progress and sys.stderr.isatty()
     try:
         result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)
@@ -194,15 +208,16 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _interrupted(args: argparse.Namespace, stop: Any) -> int:
+def _interrupted(args: argparse.Namespace, stop: Any, starting: bool = False) -> int:
     """Ctrl-C during the replay: write what was computed and say what was kept (exit 130)."""
     import logging
 
-    from mavahrs import replay as rp
     from mavahrs.cli.common import EXIT_INTERRUPTED
 
     kept: list[str] = []
-    if stop is None:
+    if starting:
+        at = "while starting (loading the filters), before the log was read"
+    elif stop is None:
         at = "while reading the log, before any sample was filtered"
     else:
         at = f"at {100.0 * stop.fraction:.0f} % of the samples"
@@ -212,6 +227,8 @@ def _interrupted(args: argparse.Namespace, stop: Any) -> int:
     if args.output:
         part = None if stop is None else stop.result
         if part is not None and part.inputs.n:
+            from mavahrs import replay as rp
+
             k = rp.write_tlog(part, args.output, until_tlog_us=int(part.inputs.tlog_us[-1]))
             kept.append(f"{k} frames in {args.output} (the log up to the last filtered sample)")
         elif part is None and stop is not None:

@@ -13,8 +13,8 @@ from mavahrs.cli.common import (
     EXIT_OK,
     LazyDefaultsFormatter,
     add_velocity_source_option,
-    announce_compiles,
     parse_source,
+    start_kernels,
 )
 
 __all__ = ["register", "run"]
@@ -232,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         print(config.to_toml(), end="")
         return EXIT_OK
-    announce_compiles()
+    start_kernels()  # cached kernels load without numba's compiler registries; announces a first compile
     # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
     # the daemon installs its own handlers for the loop and restores these afterwards.
     in_main = threading.current_thread() is threading.main_thread()

@@ -132,11 +132,12 @@ def _angle(y: Array, k: int, like: Array | None = None) -> Array:
     return u
 
 
-def _hidden_labels(quats: Mapping[str, Array], tol: float = 1e-6) -> dict[str, str]:
-    """Legend labels; a filter whose attitude equals a later-drawn one's says it is hidden beneath it.
+def _hidden_labels(quats: Mapping[str, Array], tol_deg: float = 0.01) -> dict[str, str]:
+    """Legend labels; a filter whose attitude is within ``tol_deg`` of a later-drawn one's at every sample
+    says it is hidden beneath it (a hundredth of a degree is far below a line's width on any panel).
 
-    (Mahony and the gyro-platform filter give identical attitudes with their defaults: the
-    later line covers the earlier one exactly.)
+    (Mahony and the gyro-platform filter give the same attitudes with their defaults: bit for bit without
+    GNSS, within 0.002° with it — the later line covers the earlier one.)
     """
     names = list(quats)
     out = {n: n for n in names}
@@ -145,10 +146,15 @@ def _hidden_labels(quats: Mapping[str, Array], tol: float = 1e-6) -> dict[str, s
             qa, qb = np.asarray(quats[a], float), np.asarray(quats[b], float)
             if qa.shape != qb.shape or not qa.size:
                 continue
-            d = np.minimum(np.abs(qa - qb).max(axis=1), np.abs(qa + qb).max(axis=1))  # q and −q alike
-            fin = np.isfinite(d)
-            if fin.any() and float(d[fin].max()) <= tol:
-                out[a] = f"{a} (identical to {b}, hidden beneath it)"
+            dot = np.abs(np.sum(qa * qb, axis=1))  # q and −q alike
+            fin = np.isfinite(dot)
+            if not fin.any():
+                continue
+            worst = float(np.degrees(2.0 * np.arccos(np.clip(dot[fin].min(), -1.0, 1.0))))
+            if worst <= tol_deg:
+                same = float(np.minimum(np.abs(qa - qb), np.abs(qa + qb))[fin].max()) <= 1e-6
+                out[a] = (f"{a} (identical to {b}, hidden beneath it)" if same else
+                          f"{a} (within {max(worst, 0.001):.3f}° of {b}, hidden beneath it)")  # fmt: skip
                 break
     return out
 

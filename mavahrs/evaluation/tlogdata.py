@@ -8,7 +8,7 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
 * the IMU source is the first autopilot HEARTBEAT's system/component (or the
   configured one); IMU messages before it, or from elsewhere, are not used;
 * scaling with the profile's units, saturation and validity checks
-  (:class:`mavahrs.sensors.scaling.Scaler`, mirrored element by element);
+  (the compiled steps :class:`mavahrs.sensors.scaling.Scaler` calls per message, in a loop);
 * exact re-sends (same stamp and values as the previous message of the same
   kind and instance, :class:`~mavahrs.protocol.timeline.ResendFilter`) dropped
   before anything else and counted (``counts["exact_duplicates"]``);
@@ -55,13 +55,11 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
-from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_ACCEL, IN_CURRENT, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
 from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays, shared by every log reader
     _GAP_DT_S,
     FastPathUnsupported,
     PreparedInputs,
-    _calibrate,
     _timeline,
     _velocity_setting,
 )
@@ -76,6 +74,8 @@ __all__ = [
     "read_tlog_data",
     "prepare_inputs",
     "references",
+    "tlog_to_autopilot_us",
+    "scale_imu_messages",
     "load_tlog_recording",
     "cut_recording",
     "decimal_year_of_log",
@@ -310,37 +310,39 @@ def _no_source_message(td: TlogData, s: Any) -> str:
     return f"{td.path}: no autopilot HEARTBEAT{wanted} and no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU)"
 
 
-def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
-    """Vectorised :class:`mavahrs.sensors.scaling.Scaler` for one message type (same arithmetic)."""
-    from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE
-    from mavahrs.sensors.scaling import MAG_MIN_UT
+def scale_imu_messages(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
+    """The scaling step (:func:`~mavahrs.sensors.scaling.scale_int_row` / ``scale_float_row``) over one message type."""
+    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
+    from mavahrs.sensors.scaling import (
+        HIGHRES_GYRO_BITS,
+        INVALID_SHIFT,
+        ZERO,
+        scale_constants,
+        scale_float_rows,
+        scale_int_rows,
+    )
 
     n = a.shape[0]
-    accel_fs = scaling.accel_range_g * G_M_S2 if scaling.accel_range_g is not None else ms.accel_range_m_s2
-    gyro_fs = math.radians(scaling.gyro_range_deg_s) if scaling.gyro_range_deg_s is not None else ms.gyro_range_rad_s
-    frac, bad = scaling.saturation_fraction, scaling.implausible_factor
-    a_sat, g_sat, a_bad, g_bad = accel_fs * frac, gyro_fs * frac, accel_fs * bad, gyro_fs * bad
-    ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
-    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*: one compiled pass (_scale_integer), no temporaries
-        # written in place in an array shaped like the filter's input rows, which the common case
-        # (one message type, every sample fed) then uses as they are: no copy, no second 150 MB
-        block = np.empty((n, IN_WIDTH))
-        gyro = block[:, IN_GYRO : IN_GYRO + 3]
-        accel = block[:, IN_ACCEL : IN_ACCEL + 3]
-        mag = block[:, IN_MAG : IN_MAG + 3]
-        sat = np.empty(n, np.int64)
-        inv = np.empty(n, np.int64)
-        zero = np.empty(n, bool)
-        k_old = ms.mag_legacy_to_ut if ms.mag_legacy_to_ut is not None else _NAN
-        _scale_integer(
-            a["xgyro"], a["ygyro"], a["zgyro"], a["xacc"], a["yacc"], a["zacc"], a["xmag"], a["ymag"], a["zmag"],
-            kg, ka, km, k_old, g_sat, a_sat, MAG_MIN_UT, ms.mag_plausible_max_ut, gyro, accel, mag, sat, inv, zero,
-        )  # fmt: skip
+    c = scale_constants(ms, scaling)
+    # the scaling step over every message (one compiled loop), written in place in an array shaped like the
+    # filter's input rows, which the common case (one message type, every sample fed) then uses as they
+    # are: no copy, no second 150 MB
+    block = np.empty((n, IN_WIDTH))
+    codes = np.empty(n, np.int64)
+    cols = [a[f] for f in ("xgyro", "ygyro", "zgyro", "xacc", "yacc", "zacc", "xmag", "ymag", "zmag")]
+    if ms.integer_fields:  # RAW_IMU, SCALED_IMU*
+        scale_int_rows(*cols, c, block, codes)
         use = np.ones(n, bool)
-    else:
-        block = None
-        gyro, accel, mag, sat, inv, use = _scale_highres(a, n, ms, kg, ka, km, g_sat, a_sat, g_bad, a_bad)
-        zero = np.all(gyro == 0, axis=1) & np.all(accel == 0, axis=1)
+    else:  # HIGHRES_IMU: only messages with a new gyro are samples (Scaler.scale: None)
+        upd = a["fields_updated"].astype(np.int64)
+        scale_float_rows(*(x.astype(np.float64) for x in cols), upd, c, block, codes)
+        use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
+    gyro = block[:, IN_GYRO : IN_GYRO + 3]
+    accel = block[:, IN_ACCEL : IN_ACCEL + 3]
+    mag = block[:, IN_MAG : IN_MAG + 3]
+    sat = codes & 7
+    inv = (codes >> INVALID_SHIFT) & 7
+    zero = (codes & ZERO) != 0
     # temperature
     temp = np.full(n, _NAN)
     if ms.temperature_to_c is not None and "temperature" in a.dtype.names:
@@ -357,110 +359,6 @@ def _scale(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[str, Any]:
         "imu": imu, "t_us": t_us, "gyro": gyro, "accel": accel,
         "mag": mag, "temp": temp, "sat": sat, "inv": inv, "use": use, "zero": zero, "block": block,
     }  # fmt: skip
-
-
-def _scale_highres(
-    a: np.ndarray, n: int, ms: Any, kg: float, ka: float, km: float, g_sat: float, a_sat: float, g_bad: float,
-    a_bad: float,
-) -> tuple[Array, Array, Array, NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
-    """HIGHRES_IMU (float fields, ``fields_updated``): gyro, accel, mag, saturated, invalid, new-gyro flags."""
-    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
-    from mavahrs.sensors.scaling import HIGHRES_ACCEL_BITS, HIGHRES_GYRO_BITS, HIGHRES_MAG_BITS, MAG_MIN_UT
-
-    f64 = np.float64
-    gyro = np.column_stack([a[f"{c}gyro"].astype(f64) * kg for c in "xyz"])
-    accel = np.column_stack([a[f"{c}acc"].astype(f64) * ka for c in "xyz"])
-    gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
-    ax, ay, az = accel[:, 0], accel[:, 1], accel[:, 2]
-    xm, ym, zm = (a[f"{c}mag"].astype(f64) for c in "xyz")
-    sat = np.zeros(n, np.int64)
-    inv = np.zeros(n, np.int64)
-    gmax = np.maximum(np.maximum(np.abs(gx), np.abs(gy)), np.abs(gz))
-    amax = np.maximum(np.maximum(np.abs(ax), np.abs(ay)), np.abs(az))
-    upd = a["fields_updated"].astype(np.int64)
-    use = (upd & HIGHRES_GYRO_BITS) == HIGHRES_GYRO_BITS
-    with np.errstate(invalid="ignore"):
-        g_inv = ~(gmax < g_bad)
-        inv |= np.where(g_inv, GYRO, 0)
-        sat |= np.where(~g_inv & (gmax >= g_sat), GYRO, 0)
-        acc_new = (upd & HIGHRES_ACCEL_BITS) == HIGHRES_ACCEL_BITS
-        a_inv = acc_new & ~(amax < a_bad)
-        inv |= np.where(a_inv, ACCEL, 0)
-        sat |= np.where(acc_new & ~a_inv & (amax >= a_sat), ACCEL, 0)
-    accel[~acc_new] = _NAN
-    mag_new = (upd & HIGHRES_MAG_BITS) == HIGHRES_MAG_BITS
-    # magnetometer (Scaler.mag_of)
-    absent = (xm == 0) & (ym == 0) & (zm == 0)
-    mag = np.empty((n, 3))
-    mx, my, mz = mag[:, 0], mag[:, 1], mag[:, 2]
-    for raw, col in ((xm, mx), (ym, my), (zm, mz)):
-        np.multiply(raw, km, out=col)
-    with np.errstate(invalid="ignore", over="ignore"):
-        nrm = np.sqrt(mx * mx + my * my + mz * mz)
-        if ms.mag_legacy_to_ut is not None:
-            legacy = nrm > ms.mag_plausible_max_ut
-            if legacy.any():
-                k_old = ms.mag_legacy_to_ut
-                lx, ly, lz = xm[legacy] * k_old, ym[legacy] * k_old, zm[legacy] * k_old
-                mx[legacy], my[legacy], mz[legacy] = lx, ly, lz
-                nrm[legacy] = np.sqrt(lx * lx + ly * ly + lz * lz)
-        unusable = ~((MAG_MIN_UT <= nrm) & (nrm <= ms.mag_plausible_max_ut))
-    m_inv = mag_new & ~absent & unusable
-    inv |= np.where(m_inv, MAG, 0)
-    keep_m = mag_new & ~absent & ~unusable
-    mag[~keep_m] = _NAN
-    return gyro, accel, mag, sat, inv, use
-
-
-@kernel
-def _scale_integer(  # type: ignore[no-untyped-def]
-    gx, gy, gz, ax, ay, az, xm, ym, zm, kg, ka, km, k_old, g_sat, a_sat, mag_min, mag_max,
-    gyro, accel, mag, sat, inv, zero,
-):  # fmt: skip
-    """:class:`mavahrs.sensors.scaling.Scaler` on integer-field messages (RAW_IMU, SCALED_IMU*), row by row.
-
-    The raw int16 fields in, per row: gyro, accel, mag (SI; mag NaN when
-    absent or implausible), the saturated and invalid bit masks (GYRO=1,
-    ACCEL=2, MAG=4, as :mod:`mavahrs.sensors.sample`), and whether gyro and
-    accelerometer are all zero (an absent IMU instance).  The same operations as
-    ``Scaler``: value · unit; saturated when a raw component is at the int16
-    limit or the scaled magnitude reaches ``*_sat``; the magnetometer
-    re-read with the legacy unit ``k_old`` (NaN: none) when its norm exceeds
-    ``mag_max``, unusable outside [``mag_min``, ``mag_max``].
-    """
-    n = gyro.shape[0]
-    nan = np.nan
-    for i in range(n):
-        rg0, rg1, rg2 = float(gx[i]), float(gy[i]), float(gz[i])
-        ra0, ra1, ra2 = float(ax[i]), float(ay[i]), float(az[i])
-        g0, g1, g2 = rg0 * kg, rg1 * kg, rg2 * kg
-        a0, a1, a2 = ra0 * ka, ra1 * ka, ra2 * ka
-        gyro[i, 0], gyro[i, 1], gyro[i, 2] = g0, g1, g2
-        accel[i, 0], accel[i, 1], accel[i, 2] = a0, a1, a2
-        s = 0
-        if abs(rg0) >= 32767.0 or abs(rg1) >= 32767.0 or abs(rg2) >= 32767.0:
-            s |= 1
-        if abs(ra0) >= 32767.0 or abs(ra1) >= 32767.0 or abs(ra2) >= 32767.0:
-            s |= 2
-        if max(max(abs(g0), abs(g1)), abs(g2)) >= g_sat:
-            s |= 1
-        if max(max(abs(a0), abs(a1)), abs(a2)) >= a_sat:
-            s |= 2
-        sat[i] = s
-        zero[i] = g0 == 0.0 and g1 == 0.0 and g2 == 0.0 and a0 == 0.0 and a1 == 0.0 and a2 == 0.0
-        rm0, rm1, rm2 = float(xm[i]), float(ym[i]), float(zm[i])
-        m0, m1, m2 = rm0 * km, rm1 * km, rm2 * km
-        nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        if k_old == k_old and nrm > mag_max:
-            m0, m1, m2 = rm0 * k_old, rm1 * k_old, rm2 * k_old
-            nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        absent = rm0 == 0.0 and rm1 == 0.0 and rm2 == 0.0
-        if absent or not (mag_min <= nrm and nrm <= mag_max):
-            inv[i] = 0 if absent else 4
-            m0 = m1 = m2 = nan
-        else:
-            inv[i] = 0
-        mag[i, 0], mag[i, 1], mag[i, 2] = m0, m1, m2
 
 
 def _resends(mg: dict[str, Any]) -> tuple[NDArray[np.bool_], int]:
@@ -529,7 +427,7 @@ def prepare_inputs(
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile
-    from mavahrs.sensors.sample import ACCEL, GYRO, MAG
+    from mavahrs.sensors.sample import blank_unusable_rows
     from mavahrs.sensors.velocity import VelocitySelector, fix_age_s
     from mavahrs.service.pipeline import PipelineSettings
 
@@ -551,7 +449,7 @@ def prepare_inputs(
         ok &= (td.t_us[pos] >= lo) & (td.t_us[pos] <= hi)
         if not ok.any():
             continue
-        sc = _scale(name, a if ok.all() else a[ok], profile.scale_for(name), s.scaling)
+        sc = scale_imu_messages(name, a if ok.all() else a[ok], profile.scale_for(name), s.scaling)
         sc["name"] = name
         sc["pos"] = pos[ok]
         parts.append(sc)
@@ -623,20 +521,18 @@ def prepare_inputs(
     chosen = int(np.bincount(mg["imu"][idx]).argmax())
     m = pos.shape[0]
     in_place = sel is None and len(parts) == 1 and parts[0]["block"] is not None
-    if in_place:  # gyro, accel and mag are already columns of these rows (_scale)
+    if in_place:  # gyro, accel and mag are already columns of these rows (scale_imu_messages)
         rows = parts[0]["block"]
         rows[:, IN_VEL : IN_VEL + 3] = _NAN
         rows[:, IN_VEL_AGE] = _NAN
     else:
         rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
-    bad = inv | (sat & (ACCEL | MAG))  # sample.write_row
-    for col, values, bit in ((IN_GYRO, gyro, GYRO), (IN_ACCEL, accel, ACCEL), (IN_MAG, mag, MAG)):
-        if not in_place:
-            rows[:, col : col + 3] = values
-        blank = (bad & bit) != 0
-        if blank.any():
-            rows[blank, col : col + 3] = _NAN
+    if not in_place:
+        rows[:, IN_GYRO : IN_GYRO + 3] = gyro
+        rows[:, IN_ACCEL : IN_ACCEL + 3] = accel
+        rows[:, IN_MAG : IN_MAG + 3] = mag
+    blank_unusable_rows(rows, np.ascontiguousarray(sat, np.int64), np.ascontiguousarray(inv, np.int64))
     # --- position/time messages in order: declination per sample, velocity into the next fed row
     decl = DeclinationSource(s.magnetic, decimal_year=decimal_year)
     events = []
@@ -677,14 +573,14 @@ def prepare_inputs(
         rows[i, IN_VEL : IN_VEL + 3] = v
         rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), fix_t)
     _fill_current(td, src, pos, rows)
-    # --- calibration (Calibrator.apply_row, element by element; one calibrator per message type)
+    # --- calibration (the step Calibrator.apply_row runs, in a compiled loop; one calibrator per message type)
     for kind in np.flatnonzero(np.bincount(kinds)):
         ms = profile.scale_for(names[int(kind)])
         cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
         if cal.active:
             sel_k = kinds == kind
             sub = rows[sel_k]
-            _calibrate(sub, temp[sel_k], cal)
+            cal.apply_rows(sub, temp[sel_k])
             rows[sel_k] = sub
     counts = {
         "imu_messages": int(mg["pos"].shape[0]),
@@ -897,7 +793,12 @@ def _imu_clock(td: TlogData, prep: PreparedInputs) -> tuple[NDArray[np.int64], N
     return prep.tlog_us, prep.t_us
 
 
-def _tlog_to_autopilot(td: TlogData, prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> Array:
+def tlog_to_autopilot_us(td: TlogData, prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> Array:
+    """Tlog record times (µs) mapped onto the autopilot's boot clock (µs, float; NaN outside the IMU samples).
+
+    For messages that carry no time of their own (SIMSTATE, SIM_STATE, HEARTBEAT, EXTENDED_SYS_STATE …): the
+    fed IMU samples pair each record time with their boot time, and the map interpolates between them.
+    """
     x, y = _imu_clock(td, prep)
     if x.size == 0:
         return np.full(tlog_us.shape, _NAN)
@@ -941,7 +842,7 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     ahrs2 = of_source(td.arrays["AHRS2"])
     if ahrs2.shape[0]:
         q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
-        out["autopilot AHRS2"] = (_tlog_to_autopilot(td, prep, ahrs2["t_us"]), q)
+        out["autopilot AHRS2"] = (tlog_to_autopilot_us(td, prep, ahrs2["t_us"]), q)
     # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler), SIM_STATE (quaternion) or
     # HIL_STATE_QUATERNION (PX4's simulators), whichever comes most often (slerping a 10 Hz truth
     # through fast manoeuvres would add its own error)
@@ -957,13 +858,13 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
         if np.all(t_hil > 0):
             out["HIL_STATE_QUATERNION truth"] = (t_hil, q)
         else:
-            out["HIL_STATE_QUATERNION truth"] = (_tlog_to_autopilot(td, prep, hil["t_us"]), q)
+            out["HIL_STATE_QUATERNION truth"] = (tlog_to_autopilot_us(td, prep, hil["t_us"]), q)
     elif sim.shape[0] and sim.shape[0] == most:
         q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
-        out["SIM_STATE truth"] = (_tlog_to_autopilot(td, prep, sim["t_us"]), q)
+        out["SIM_STATE truth"] = (tlog_to_autopilot_us(td, prep, sim["t_us"]), q)
     elif ss.shape[0]:
         q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
-        out["SIMSTATE truth"] = (_tlog_to_autopilot(td, prep, ss["t_us"]), q)
+        out["SIMSTATE truth"] = (tlog_to_autopilot_us(td, prep, ss["t_us"]), q)
     for k, (t, q) in list(out.items()):
         good = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
         if not good.any():
@@ -992,7 +893,7 @@ def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
         a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
         if a.shape[0] < 2:
             continue
-        t = _tlog_to_autopilot(td, prep, a["t_us"])
+        t = tlog_to_autopilot_us(td, prep, a["t_us"])
         ok = np.isfinite(t)
         if ok.sum() < 2:
             continue

@@ -61,7 +61,8 @@ GS_MAG_NORM = 3  # reference field norm, µT (0 = not yet known)
 GS_MAG_DIP = 4  # reference dip angle, rad (positive: field points below horizon)
 GS_ACCEL_REJECT_T = 5  # how long the accelerometer has been (mostly) rejected, s
 GS_MAG_REJECT_T = 6  # how long the magnetometer has been rejected, s
-GS_LEN = 7
+GS_MAG_LAST_T = 7  # GS_T of the last valid magnetometer sample (−1: none yet)
+GS_LEN = 8
 
 
 @dataclass(frozen=True)
@@ -155,6 +156,7 @@ def schedule_reset(gs, gp):  # type: ignore[no-untyped-def]
     gs[GS_MAG_DIP] = gp[GP_MAG_REF_DIP]
     gs[GS_ACCEL_REJECT_T] = 0.0
     gs[GS_MAG_REJECT_T] = 0.0
+    gs[GS_MAG_LAST_T] = -1.0
 
 
 @kernel
@@ -223,6 +225,11 @@ def schedule_step(gs, gp, q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, 
     w_m = 0.0
     if mag_ok:
         w_m = 1.0
+        # the magnetometer's own interval: a stream whose readings come on a few rows only (PX4: a
+        # HIGHRES_IMU field every 4th–20th sample, NaN between) recovers and times out in seconds, not
+        # in samples (per-row dt made the 0.5 s recovery last ~10 s there: heading on the gyro alone)
+        dt_m = dt if gs[GS_MAG_LAST_T] < 0.0 else t - gs[GS_MAG_LAST_T]
+        gs[GS_MAG_LAST_T] = t
         m_norm = math.sqrt(mx * mx + my * my + mz * mz)
         # dip: angle of m below the horizontal plane; down = −a/‖a‖ in body axes
         # (from the accelerometer when valid, else from the attitude).
@@ -252,9 +259,9 @@ def schedule_step(gs, gp, q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, 
             consistent = False
         if not consistent and not in_startup:
             w_m = 0.0
-        w_m = _smooth(gs[GS_MAG_W], w_m, dt, gp[GP_RECOVERY_S])
+        w_m = _smooth(gs[GS_MAG_W], w_m, dt_m, gp[GP_RECOVERY_S])
         if w_m < 0.5:
-            gs[GS_MAG_REJECT_T] += dt
+            gs[GS_MAG_REJECT_T] += dt_m
         else:
             gs[GS_MAG_REJECT_T] = 0.0
         timeout = gp[GP_REJECT_TIMEOUT_S]
@@ -271,7 +278,7 @@ def schedule_step(gs, gp, q0, q1, q2, q3, gx, gy, gz, ax, ay, az, accel_ok, mx, 
         gs[GS_MAG_W] = w_m
         learn = gp[GP_MAG_LEARN_S]
         if (consistent or forced) and learn > 0.0 and gp[GP_MAG_REF_NORM] <= 0.0 and w_a > 0.5:
-            k = dt / learn
+            k = dt_m / learn
             if k > 1.0:
                 k = 1.0
             gs[GS_MAG_NORM] += (m_norm - gs[GS_MAG_NORM]) * k

@@ -56,8 +56,33 @@ __all__ = [
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+
+def _import_numba() -> Any:
+    """``import numba`` without the two optional imports it makes on the way that mavahrs never uses.
+
+    numba imports PyYAML to read a ``.numba_config.yaml`` in the working directory (skipped only when
+    there is none) and SciPy to check its version (skipped when SciPy is not already loaded; it
+    imports as usual later): a tenth of numba's import, on every command's start.  Both are restored
+    in ``sys.modules`` right after.
+    """
+    hidden = []
+    if not os.path.isfile(".numba_config.yaml") and "yaml" not in sys.modules:
+        hidden.append("yaml")
+    if "scipy" not in sys.modules:
+        hidden.append("scipy")
+    for name in hidden:
+        sys.modules[name] = None  # type: ignore[assignment]  # import name → ImportError
+    try:
+        import numba
+    finally:
+        for name in hidden:
+            if name in sys.modules and sys.modules[name] is None:
+                del sys.modules[name]
+    return numba
+
+
 try:  # numba is a core dependency, but the package must still run without it
-    import numba as _numba
+    _numba = _import_numba()
 
     HAVE_NUMBA = True
     prange = _numba.prange
@@ -297,31 +322,54 @@ def bound_loop(template: Callable[..., Any], qualname: str, *, parallel: bool = 
 
 
 def quick_start() -> bool:
-    """Load numba's compiler registries now, with its BLAS probe answered "none" (command-line processes).
+    """Let kernels load from the disk cache without numba's compiler registries (command-line processes).
 
-    The first cached kernel a process runs makes numba import all of its
-    lowering registries; one of them probes for BLAS by importing
-    ``scipy.linalg`` (0.14 s of the 0.3 s load on the development VM), which
-    only code that compiles ``np.dot``-like calls with numba needs.  The
-    kernels of mavahrs use none, so the command-line tools load the
-    registries with ``scipy.linalg`` hidden for that moment; it imports as
-    usual afterwards.  Not done when the library is imported: a user's own
-    numba code in the same process may need BLAS.  Returns whether the probe
-    was skipped (False: numba absent, already loaded, or ``scipy.linalg``
-    already imported, when the probe costs nothing).
+    numba loads every lowering and typing registry (``BaseContext.refresh``: ~0.2 s, a third of
+    a command's start on the development VM) before it even looks up a kernel in its on-disk
+    cache, though re-creating a cached kernel needs none of them: they serve compilation only.
+    Here a cache lookup goes straight to the cache; a kernel that is not there is compiled,
+    and numba's compiler loads the registries itself then.  When they load, one of them probes
+    for BLAS by importing ``scipy.linalg`` (0.14 s), which only code compiling ``np.dot``-like
+    calls with numba needs; the kernels of mavahrs use none, so ``scipy.linalg`` is hidden for
+    that moment (it imports as usual afterwards).  Neither changes a result: the same machine
+    code runs.  Not done when the library is imported: a user's own numba code in the same
+    process may need BLAS.  Returns whether it was installed (False: numba absent, its
+    registries already loaded, or numba's internals not as expected).
     """
-    if not HAVE_NUMBA or "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+    if not HAVE_NUMBA or "numba.np.arraymath" in sys.modules:
         return False
-    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # import scipy.linalg → ImportError
     try:
-        from numba.core.registry import cpu_target
+        from numba.core.cpu import CPUContext
+        from numba.core.runtime import rtsys
 
-        cpu_target.target_context.refresh()
-    except Exception:  # noqa: BLE001 - numba internals moved: it loads them itself on first use
+        cache_cls = _caching.Cache
+        load = cache_cls._load_overload
+        guard = cache_cls._guard_against_spurious_io_errors
+        registries = CPUContext.load_additional_registries
+    except (ImportError, AttributeError):  # numba internals moved: it loads them itself on first use
         return False
-    finally:
-        if sys.modules.get("scipy.linalg", 0) is None:
-            del sys.modules["scipy.linalg"]
+    if getattr(cache_cls.load_overload, "_mavahrs_quick", False):
+        return True
+
+    def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
+        rtsys.initialize(target_context)  # numba's runtime (kernels with reference counting call into it)
+        with guard(self):
+            return load(self, sig, target_context)
+        return None  # (the guard swallowed an I/O error: compile, as numba does)
+
+    def load_additional_registries(self: Any) -> None:
+        hide = "scipy.linalg" not in sys.modules
+        if hide:
+            sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # import scipy.linalg → ImportError
+        try:
+            registries(self)
+        finally:
+            if hide and sys.modules.get("scipy.linalg", 0) is None:
+                del sys.modules["scipy.linalg"]
+
+    load_overload._mavahrs_quick = True  # type: ignore[attr-defined]
+    cache_cls.load_overload = load_overload  # type: ignore[method-assign]
+    CPUContext.load_additional_registries = load_additional_registries  # type: ignore[method-assign]
     return True
 
 

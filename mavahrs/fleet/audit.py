@@ -51,7 +51,11 @@ __all__ = [
     "lost_row",
     "run_audit",
     "format_summary",
+    "format_startup",
     "SERIAL_HINT",
+    "imu_gyros",
+    "phase_events",
+    "replay_monitor",
 ]
 
 #: What a folder is searched for (recursively), beside any file whose content is a log (mavahrs.logs.sniff).
@@ -292,7 +296,7 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
     )  # fmt: skip
     row = _replace(row, truncated=_tlog_truncated(td), **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
     ref = next((k for k in ("autopilot ATTITUDE", "autopilot AHRS2") if k in result.references), "")
-    return _second_opinion(result, row, s, ref, _phase_events(td, prep, src))
+    return _second_opinion(result, row, s, ref, phase_events(td, prep, src))
 
 
 #: MAV_AUTOPILOT of each onboard log format
@@ -457,7 +461,7 @@ def monitor_sensors(prep: Any, sent: np.ndarray, imus: Any = ()) -> Any:
 def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """Every IMU instance's gyro in a tlog (``IMU1`` = instance 0 …; boot-clock ms, rad/s), scaled as the
     replay scales its own, for the monitor to name an IMU that is off; [] where the log has one IMU."""
-    from mavahrs.evaluation.tlogdata import IMU_TYPES, _scale
+    from mavahrs.evaluation.tlogdata import IMU_TYPES, scale_imu_messages
     from mavahrs.sensors.profiles import get_profile
 
     arrays = getattr(td, "arrays", None)
@@ -474,7 +478,7 @@ def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, 
         a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
         if not a.shape[0]:
             continue
-        sc = _scale(name, a, ms, settings.scaling)
+        sc = scale_imu_messages(name, a, ms, settings.scaling)
         ok = sc["use"] & ~sc["zero"] & np.all(np.isfinite(sc["gyro"]), axis=1)
         for inst in np.unique(sc["imu"][ok]).tolist():
             sel = ok & (sc["imu"] == inst)
@@ -492,9 +496,9 @@ def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, 
     return out
 
 
-def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:
+def phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:
     """The flight's phase from the log's HEARTBEAT, EXTENDED_SYS_STATE and GLOBAL_POSITION_INT (boot ms)."""
-    from mavahrs.evaluation.tlogdata import _tlog_to_autopilot
+    from mavahrs.evaluation.tlogdata import tlog_to_autopilot_us
     from mavahrs.service.monitor import phase_events_of_arrays
 
     def of_src(name: str) -> np.ndarray:
@@ -506,9 +510,9 @@ def _phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float,
     hb, ess, gpi = of_src("HEARTBEAT"), of_src("EXTENDED_SYS_STATE"), of_src("GLOBAL_POSITION_INT")
     hb_args = ess_args = pos_args = None
     if hb.shape[0]:
-        hb_args = (_tlog_to_autopilot(td, prep, hb["t_us"]) / 1000.0, hb["base_mode"])
+        hb_args = (tlog_to_autopilot_us(td, prep, hb["t_us"]) / 1000.0, hb["base_mode"])
     if ess.shape[0]:
-        ess_args = (_tlog_to_autopilot(td, prep, ess["t_us"]) / 1000.0, ess["landed_state"])
+        ess_args = (tlog_to_autopilot_us(td, prep, ess["t_us"]) / 1000.0, ess["landed_state"])
     if gpi.shape[0]:
         v = np.sqrt(gpi["vx"].astype(float) ** 2 + gpi["vy"].astype(float) ** 2 + gpi["vz"].astype(float) ** 2) * 0.01
         pos_args = (gpi["time_boot_ms"].astype(float), gpi["relative_alt"].astype(float) * 1e-3, v)
@@ -829,8 +833,40 @@ def _f(x: float, fmt: str, width: int) -> str:
     return f"{x:{width}{fmt}}" if math.isfinite(x) else f"{'–':>{width}}"
 
 
-def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
-    """The printed summary: counts, then the worst flights first, then the unreadable logs."""
+def format_startup(
+    startup_s: float | None, cluster_s: float | None, kernels_s: float | None, compiled_s: float | None, *,
+    local: bool = True,
+) -> str:  # fmt: skip
+    """What the run cost before its first log (the summary's second line): the cluster's start and the filter
+    kernels, compiled (a cold cache: the first run on a machine and version) or loaded from the cache.
+
+    ``startup_s``: start of the run to the first task (None: no cluster, the logs replayed here); ``cluster_s``:
+    the cluster's start (or connection) within it; ``kernels_s``: loading or compiling the kernels in this
+    process (run beside the cluster's start; None: not done here); ``compiled_s``: of that, compiling (None:
+    nothing compiled, the cache was warm).
+    """
+    cold = compiled_s is not None and compiled_s >= 0.5
+    what = "connecting to the cluster" if not local else "starting the local cluster"
+    if startup_s is None:  # serial: the first log's replay compiled them (inside the replay time above)
+        if not cold:
+            return ""
+        return (f"of which {compiled_s:.0f} s compiling the filter kernels: the first run on this machine and version "
+                "(kept in the user's cache folder: later runs load them in seconds; `mavahrs warm-up` compiles them "
+                "ahead of time)")  # fmt: skip
+    parts = [f"{what} {cluster_s:.1f} s" if cluster_s is not None else what]
+    if kernels_s is not None:
+        if cold:
+            parts.append(f"meanwhile the filter kernels compiled once in this process in {compiled_s:.0f} s, "
+                         "for every worker to load: the first run on this machine and version (kept in the user's "
+                         "cache folder: later runs start in seconds; `mavahrs warm-up` compiles them ahead of time)")  # fmt: skip
+        else:
+            parts.append(f"meanwhile the filter kernels loaded from the cache in {kernels_s:.1f} s")
+    return f"start-up before the first log {startup_s:.1f} s, not in the figures above: " + "; ".join(parts)
+
+
+def format_summary(run: AuditRun, *, top: int = 10, engine: str = "", startup: str = "") -> str:
+    """The printed summary: counts (and ``startup``, :func:`format_startup`), then the worst flights first,
+    then the unreadable logs."""
     rows = run.rows
     bad = [r for r in rows if not r.ok]
     good = [r for r in rows if r.ok]
@@ -841,6 +877,8 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "") -> str:
     ]
     if run.samples:
         lines[0] += f"; {run.samples} IMU samples, {run.samples_per_s:.3g} samples/s"
+    if startup:
+        lines.append(startup)
     if flagged:
         lines.append("flagged: the autopilot's attitude disagreed with mavahrs (second-opinion monitor WARNING) in "
                      + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s" for r in flagged))  # fmt: skip

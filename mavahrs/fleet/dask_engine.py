@@ -10,9 +10,10 @@ Imported only by ``mavahrs audit`` and ``mavahrs tune`` when they run on Dask
   CLI): an existing cluster; its workers must be able to import mavahrs and
   read the logs' paths.
 
-Each worker process loads the filter kernels from numba's on-disk cache (or
-compiles them once, 20–30 s); the connection time-outs are raised so that a
-worker busy compiling is not taken for a dead one.
+Each worker process loads the filter kernels from numba's on-disk cache (on a
+cold cache ``mavahrs audit`` compiles them once in its own process while a local
+cluster starts; a remote worker compiles them itself); the connection time-outs
+are raised so that a worker busy compiling is not taken for a dead one.
 """
 
 from __future__ import annotations
@@ -199,8 +200,11 @@ def loopback_cluster(
     sched_file.unlink(missing_ok=True)
     procs: list[subprocess.Popen[bytes]] = []
 
-    # one numba thread per worker process (see _WORKER_ENV): what a real cluster's workers should be given too
-    penv = {**(env if env is not None else os.environ), **_WORKER_ENV}
+    # one numba thread per worker process (see _WORKER_ENV): what a real cluster's workers should be given too;
+    # the processes' scratch space (Dask's default: dask-scratch-space with its lock files in the system's
+    # temporary directory, left there by the scheduler and the workers' nannies) inside workdir
+    penv = {**(env if env is not None else os.environ), **_WORKER_ENV,
+            "DASK_TEMPORARY_DIRECTORY": str(work / "scratch")}  # fmt: skip
 
     def start(name: str, *args: str) -> None:
         with open(work / f"{name}.log", "wb") as log:

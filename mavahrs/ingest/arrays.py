@@ -8,8 +8,11 @@ each the array form of the live pipeline's per-sample step
 * :func:`_timeline` — :class:`mavahrs.protocol.timeline.Timeline` over the samples
   (dt, gaps, drops; a reboot or a corrected time stamp raises
   :class:`FastPathUnsupported`: the per-message pipeline then replays the log);
-* :func:`_calibrate` — :class:`mavahrs.sensors.calibration.Calibrator`'s
-  ``apply_row`` over all rows at once;
+* calibration — :meth:`mavahrs.sensors.calibration.Calibrator.apply_rows`, the compiled
+  per-row step (:func:`~mavahrs.sensors.calibration.calibrate_row`) over all rows;
+* :func:`si_rows` — the scaling step (:func:`~mavahrs.sensors.scaling.scale_float_row`) and the
+  row step (:func:`~mavahrs.sensors.sample.blank_unusable`) over samples a log already holds in SI
+  units (DataFlash IMU, ULog sensor_combined / vehicle_imu);
 * :class:`PreparedInputs` — the rows in :mod:`mavahrs.filters.layout`'s layout,
   their times and what the readers found, and :meth:`PreparedInputs.run_filter`,
   the filter run over them as the pipeline runs it (reference seeding, sensor delay).
@@ -25,9 +28,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG, OUT_WIDTH
+from mavahrs.filters.layout import IN_WIDTH, OUT_WIDTH
+from mavahrs.sensors.sample import ACCEL, blank_unusable_rows
+from mavahrs.sensors.scaling import (
+    C_KA,
+    C_KG,
+    HIGHRES_ACCEL_BITS,
+    HIGHRES_GYRO_BITS,
+    INVALID_SHIFT,
+    scale_constants,
+    scale_float_rows,
+)
 
-__all__ = ["FastPathUnsupported", "PreparedInputs"]
+__all__ = ["FastPathUnsupported", "PreparedInputs", "si_rows"]
 
 Array = NDArray[np.float64]
 _NAN = math.nan
@@ -192,26 +205,30 @@ def _timeline(
     return keep, dt
 
 
-def _calibrate(rows: Array, temp: Array, cal: Any) -> None:
-    """Calibrator.apply_row over all rows (the same operations, vectorised)."""
-    g = cal._gyro
-    if g is not None:
-        b0, k, t0 = g.b0_rad_s, g.k_rad_s_per_c, g.t0_c
-        d = temp - t0
-        known = np.isfinite(temp)
-        for i in range(3):
-            rows[:, IN_GYRO + i] -= np.where(known, b0[i] + k[i] * d, b0[i])
-    if cal._mag is not None:
-        mc = cal._mag
-        o = np.asarray(mc.offset_ut)
-        mat = np.asarray(mc.matrix)
-        v = rows[:, IN_MAG : IN_MAG + 3] - o
-        rows[:, IN_MAG : IN_MAG + 3] = (
-            v[:, 0:1] * mat[:, 0] + v[:, 1:2] * mat[:, 1] + v[:, 2:3] * mat[:, 2]
-        )
-    r = cal._remap
-    if r is not None:
-        for base in (IN_GYRO, IN_ACCEL, IN_MAG):
-            v = rows[:, base : base + 3].copy()
-            for i in range(3):
-                rows[:, base + i] = r[i][0] * v[:, 0] + r[i][1] * v[:, 1] + r[i][2] * v[:, 2]
+def si_rows(
+    gyro_rad_s: Array, accel_m_s2: Array, ms: Any, scaling: Any, accel_clipped: NDArray[np.bool_] | None = None
+) -> tuple[Array, NDArray[np.int64], NDArray[np.int64]]:
+    """Filter input rows (dt NaN, no magnetometer) of IMU samples already in SI units: (rows, saturated, invalid).
+
+    The scaling step of float-field messages with unit factors 1
+    (:func:`~mavahrs.sensors.scaling.scale_float_row`: saturated at the profile
+    ``ms``'s full scale × ``saturation_fraction``, invalid beyond × ``implausible_factor``
+    or non-finite, as ``scaling`` says), an accelerometer the log marks clipped saturated
+    too, then the row step's rule (:func:`~mavahrs.sensors.sample.blank_unusable`).
+    """
+    n = gyro_rad_s.shape[0]
+    c = scale_constants(ms, scaling)
+    c[C_KG] = c[C_KA] = 1.0  # already rad/s and m/s²
+    rows = np.full((n, IN_WIDTH), _NAN)
+    codes = np.empty(n, np.int64)
+    g = np.ascontiguousarray(gyro_rad_s, np.float64)
+    a = np.ascontiguousarray(accel_m_s2, np.float64)
+    zeros = np.zeros(n)
+    upd = np.full(n, HIGHRES_GYRO_BITS | HIGHRES_ACCEL_BITS, np.int64)
+    scale_float_rows(g[:, 0], g[:, 1], g[:, 2], a[:, 0], a[:, 1], a[:, 2], zeros, zeros, zeros, upd, c, rows, codes)
+    sat = codes & 7
+    inv = (codes >> INVALID_SHIFT) & 7
+    if accel_clipped is not None:
+        sat = sat | np.where(accel_clipped, ACCEL, 0)
+    blank_unusable_rows(rows, sat, inv)
+    return rows, sat, inv

@@ -524,8 +524,8 @@ def read_dataflash(
     Raises:
         DataError: not a DataFlash log, no IMU records, nothing usable.
     """
-    from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
-    from mavahrs.ingest.arrays import PreparedInputs, _calibrate, _timeline, _velocity_setting
+    from mavahrs.filters.layout import IN_DT, IN_MAG, IN_VEL, IN_VEL_AGE
+    from mavahrs.ingest.arrays import PreparedInputs, _timeline, _velocity_setting, si_rows
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource, decimal_year_from_unix_s, rotate_true_to_magnetic
     from mavahrs.sensors.profiles import get_profile
@@ -580,14 +580,11 @@ def read_dataflash(
     t0 = min(firsts)
     insts = np.unique(imu["I"]).tolist()
     rates = ", ".join(f"{int(i)} ({_rate_hz(t_all[imu['I'] == i]):.0f} Hz)" for i in insts)
-    # --- scaling checks as Scaler makes them: saturation at the profile's full scale, invalid values
-    frac = s.scaling.saturation_fraction
+    # --- the scaling and row steps as for RAW_IMU (the ardupilot profile's full scales; values already SI)
     g_all = np.stack([imu["GyrX"], imu["GyrY"], imu["GyrZ"]], axis=1).astype(np.float64)
     a_all = np.stack([imu["AccX"], imu["AccY"], imu["AccZ"]], axis=1).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        sat = np.any(np.abs(g_all) >= frac * ms.gyro_range_rad_s, axis=1) | np.any(
-            np.abs(a_all) >= frac * ms.accel_range_m_s2, axis=1
-        )
+    rows_all, sat_all, _inv = si_rows(g_all, a_all, ms, s.scaling)
+    sat = sat_all != 0
     lo = -(2**62) if start_s is None else t0 + int(start_s * 1e6)
     hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
     window = (t_all >= lo) & (t_all <= hi)
@@ -628,13 +625,8 @@ def read_dataflash(
     found.append(f"IMU: instances {rates}; fed: instance {chosen}, {_rate_hz(t_us):.0f} Hz "
                  f"(INS_GYRO_FILTER {params.get('INS_GYRO_FILTER', float('nan')):g} Hz, "
                  f"SCHED_LOOP_RATE {params.get('SCHED_LOOP_RATE', float('nan')):g})")  # fmt: skip
-    rows = np.full((m, IN_WIDTH), _NAN)
+    rows = rows_all[np.flatnonzero(window)[idx]]  # gyro, accelerometer, flagged vectors blanked (si_rows)
     rows[:, IN_DT] = dt
-    rows[:, IN_GYRO : IN_GYRO + 3] = gyro
-    rows[:, IN_ACCEL : IN_ACCEL + 3] = accel
-    bad_sat = sat[window][idx]
-    if bad_sat.any():
-        rows[bad_sat, IN_ACCEL : IN_ACCEL + 3] = _NAN  # sample.write_row: a saturated accelerometer is not used
     temp = sub["T"][idx].astype(np.float64) if "T" in sub else np.full(m, _NAN)
     # --- compass: the primary instance's healthy samples into the next fed row
     if mag is not None and mag_sel is not None:
@@ -713,7 +705,7 @@ def read_dataflash(
     # --- calibration as the pipeline applies it (the logged values are the autopilot's calibrated ones)
     cal = Calibrator(s.calibration, mag_already_calibrated=ms.mag_calibrated)
     if cal.active:
-        _calibrate(rows, temp, cal)
+        cal.apply_rows(rows, temp)
     n_par = len(params)
     if n_par:
         shown = [f"{k} {params[k]:g}" for k in ("INS_GYRO_FILTER", "INS_ACCEL_FILTER", "SCHED_LOOP_RATE",

@@ -87,7 +87,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+from mavahrs.filters.layout import IN_DT, IN_MAG, IN_VEL, IN_VEL_AGE
 from mavahrs.logs import LogInputs
 from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES
 
@@ -328,10 +328,11 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     Raises:
         DataError: empty, not a ULog, damaged beyond reading, no IMU data.
     """
-    from mavahrs.ingest.arrays import PreparedInputs, _calibrate
+    from mavahrs.ingest.arrays import PreparedInputs, si_rows
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile
+    from mavahrs.sensors.sample import ACCEL, GYRO
 
     p = Path(path)
     s = _settings(settings)
@@ -370,21 +371,13 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
         notes.append(f"{dropped} IMU samples with a time stamp not after the previous one dropped")
     t_us = t_all[sel]
     gyro, accel, clip = imu["gyro"][sel], imu["accel"][sel], imu["clip"][sel]
-    # --- validity as the MAVLink scaler judges it (the px4 profile's full scales, the scaling settings)
+    # --- the scaling and row steps as for HIGHRES_IMU (the px4 profile's full scales, the scaling settings)
     ms = get_profile("px4").scale_for("HIGHRES_IMU")
-    sc_set = s.scaling
-    a_fs = sc_set.accel_range_g * 9.80665 if sc_set.accel_range_g is not None else ms.accel_range_m_s2
-    g_fs = math.radians(sc_set.gyro_range_deg_s) if sc_set.gyro_range_deg_s is not None else ms.gyro_range_rad_s
-    with np.errstate(invalid="ignore"):
-        g_bad = ~np.all(np.isfinite(gyro), axis=1) | np.any(np.abs(gyro) > g_fs * sc_set.implausible_factor, axis=1)
-        a_bad = ~np.all(np.isfinite(accel), axis=1) | np.any(np.abs(accel) > a_fs * sc_set.implausible_factor, axis=1)
-        a_sat = np.any(np.abs(accel) >= a_fs * sc_set.saturation_fraction, axis=1) | clip
-    rows = np.full((m, IN_WIDTH), _NAN)
+    rows, sat, inv = si_rows(gyro, accel, ms, s.scaling, clip)
     rows[:, IN_DT] = dt
-    rows[:, IN_GYRO : IN_GYRO + 3] = gyro
-    rows[:, IN_ACCEL : IN_ACCEL + 3] = accel
-    rows[g_bad, IN_GYRO : IN_GYRO + 3] = _NAN
-    rows[a_bad | a_sat, IN_ACCEL : IN_ACCEL + 3] = _NAN
+    g_bad = (inv & GYRO) != 0
+    a_bad = (inv & ACCEL) != 0
+    a_sat = (sat & ACCEL) != 0
     counts = {"imu_messages": int(t_all.shape[0]), "fed": m, "dropped_timeline": dropped,
               "invalid_gyro": int(g_bad.sum()), "invalid_accel": int(a_bad.sum()),
               "saturated_accel": int((a_sat & ~a_bad).sum())}  # fmt: skip
@@ -476,7 +469,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     # --- calibration (Calibrator.apply_row over all rows); the magnetometer is PX4-calibrated
     cal = Calibrator(s.calibration, mag_already_calibrated=True)
     if cal.active:
-        _calibrate(rows, temp, cal)
+        cal.apply_rows(rows, temp)
     references = _references(topics, ulog, found)
     delay = 0.0
     if topic == "vehicle_imu":

@@ -69,7 +69,10 @@ __all__ = [
     "ReplaySettings",
     "FilterTrack",
     "ReplayResult",
+    "ComparisonRow",
     "replay",
+    "format_second_opinion",
+    "plot_second_opinion",
     "compare",
     "attitude_at_reference",
     "format_comparison",
@@ -908,13 +911,13 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 
 
 def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
-    from mavahrs.fleet.audit import _phase_events, replay_monitor
+    from mavahrs.fleet.audit import phase_events, replay_monitor
 
     ref = next((k for k in result.references if k.startswith("autopilot")), None)
     if ref is None or not result.tracks:
         return None
     tlog = getattr(result, "tlog", None)
-    phase = _phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
+    phase = phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
     series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
     return series, ref
 

@@ -30,11 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavahrs.errors import ConfigError
-from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG, IN_WIDTH
 from mavahrs.geometry.frames import remap_matrix
 from mavahrs.sensors.sample import ImuSample, Vector3
 
-__all__ = ["GyroTemperatureModel", "MagCalibration", "CalibrationSettings", "Calibrator"]
+__all__ = ["GyroTemperatureModel", "MagCalibration", "CalibrationSettings", "Calibrator", "calibrate_row", "calibrate_rows"]
 
 Matrix3 = tuple[Vector3, Vector3, Vector3]
 _IDENTITY: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
@@ -162,6 +163,7 @@ class Calibrator:
         self._gyro = s.gyro_temperature
         self._mag = s.mag if (s.mag is not None and (s.force_mag_calibration or not self.mag_already_calibrated)) else None
         self.active = self._remap is not None or self._gyro is not None or self._mag is not None
+        self.constants = _constants(self._gyro, self._mag, self._remap)
 
     @property
     def mag_calibration_applied(self) -> bool:
@@ -169,40 +171,79 @@ class Calibrator:
         return self._mag is not None
 
     def apply_row(self, row: NDArray[np.float64], temperature_c: float | None) -> None:
-        """Correct the gyro/accel/mag columns of a filter input row in place."""
-        if self._gyro is not None:
-            b = self._gyro.bias_rad_s(temperature_c)
-            row[IN_GYRO] -= b[0]
-            row[IN_GYRO + 1] -= b[1]
-            row[IN_GYRO + 2] -= b[2]
-        if self._mag is not None:
-            m = self._mag.apply((row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]))
-            row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2] = m
-        r = self._remap
-        if r is not None:
-            for base in (IN_GYRO, IN_ACCEL, IN_MAG):
-                row[base], row[base + 1], row[base + 2] = _mul(r, (row[base], row[base + 1], row[base + 2]))
+        """Correct the gyro/accel/mag columns of a filter input row in place (:func:`calibrate_row`)."""
+        calibrate_row(row, _NAN if temperature_c is None else float(temperature_c), self.constants)
+
+    def apply_rows(self, rows: NDArray[np.float64], temperature_c: NDArray[np.float64]) -> None:
+        """:meth:`apply_row` over every row (``temperature_c`` NaN where unknown)."""
+        calibrate_rows(rows, temperature_c, self.constants)
 
     def apply(self, sample: ImuSample) -> ImuSample:
-        """A corrected copy of ``sample``."""
+        """A corrected copy of ``sample`` (the same step, :func:`calibrate_row`, on a row of it)."""
         if not self.active:
             return sample
-        g, a, m = sample.gyro_rad_s, sample.accel_m_s2, sample.mag_ut
-        if self._gyro is not None:
-            b = self._gyro.bias_rad_s(sample.temperature_c)
-            g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
-        if self._mag is not None and m is not None:
-            m = self._mag.apply(m)
-        r = self._remap
-        if r is not None:
-            g, a = _mul(r, g), _mul(r, a)
-            m = _mul(r, m) if m is not None else None
-        return replace(sample, gyro_rad_s=g, accel_m_s2=a, mag_ut=m)
+        row = np.full(IN_WIDTH, _NAN)
+        row[IN_GYRO : IN_GYRO + 3] = sample.gyro_rad_s
+        row[IN_ACCEL : IN_ACCEL + 3] = sample.accel_m_s2
+        if sample.mag_ut is not None:
+            row[IN_MAG : IN_MAG + 3] = sample.mag_ut
+        self.apply_row(row, sample.temperature_c)
+        g, a, m = row[IN_GYRO : IN_GYRO + 3].tolist(), row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist()
+        return replace(sample, gyro_rad_s=tuple(g), accel_m_s2=tuple(a), mag_ut=tuple(m) if sample.mag_ut is not None else None)
 
 
-def _mul(r: Matrix3, v: Vector3) -> Vector3:
-    return (
-        r[0][0] * v[0] + r[0][1] * v[1] + r[0][2] * v[2],
-        r[1][0] * v[0] + r[1][1] * v[1] + r[1][2] * v[2],
-        r[2][0] * v[0] + r[2][1] * v[1] + r[2][2] * v[2],
-    )
+#: Positions in :attr:`Calibrator.constants`: flags (gyro model, mag calibration, axis remap present), the gyro
+#: model (b₀ 3, k 3, T₀), the magnetometer's offset (3) and matrix (3×3, row-major), the remap (3×3)
+K_HAS_GYRO, K_HAS_MAG, K_HAS_REMAP, K_B0, K_K, K_T0, K_OFFSET, K_MATRIX, K_REMAP = 0, 1, 2, 3, 6, 9, 10, 13, 22
+K_LEN = 31
+_NAN = math.nan
+
+
+def _constants(gyro: GyroTemperatureModel | None, mag: MagCalibration | None, remap: Matrix3 | None) -> NDArray[np.float64]:
+    k = np.zeros(K_LEN)
+    if gyro is not None:
+        k[K_HAS_GYRO] = 1.0
+        k[K_B0 : K_B0 + 3], k[K_K : K_K + 3], k[K_T0] = gyro.b0_rad_s, gyro.k_rad_s_per_c, gyro.t0_c
+    if mag is not None:
+        k[K_HAS_MAG] = 1.0
+        k[K_OFFSET : K_OFFSET + 3] = mag.offset_ut
+        k[K_MATRIX : K_MATRIX + 9] = np.asarray(mag.matrix, dtype=np.float64).reshape(9)
+    if remap is not None:
+        k[K_HAS_REMAP] = 1.0
+        k[K_REMAP : K_REMAP + 9] = np.asarray(remap, dtype=np.float64).reshape(9)
+    return k
+
+
+@kernel
+def calibrate_row(row, temperature_c, k):  # type: ignore[no-untyped-def]
+    """The calibration step of one filter input row, in place: the one implementation.
+
+    ``k`` = :attr:`Calibrator.constants`.  Gyro: minus b(T) = b₀ + k·(T − T₀)
+    (b₀ when ``temperature_c`` is NaN); magnetometer: M·(m − offset); then
+    every vector through the axis remap.  The pipeline calls it per sample
+    (:meth:`Calibrator.apply_row`), replay over a log's rows (:func:`calibrate_rows`).
+    """
+    if k[K_HAS_GYRO] != 0.0:
+        known = temperature_c == temperature_c
+        d = temperature_c - k[K_T0]
+        for i in range(3):
+            b = k[K_B0 + i] + k[K_K + i] * d if known else k[K_B0 + i]
+            row[IN_GYRO + i] -= b
+    if k[K_HAS_MAG] != 0.0:
+        v0 = row[IN_MAG] - k[K_OFFSET]
+        v1 = row[IN_MAG + 1] - k[K_OFFSET + 1]
+        v2 = row[IN_MAG + 2] - k[K_OFFSET + 2]
+        for i in range(3):
+            row[IN_MAG + i] = k[K_MATRIX + 3 * i] * v0 + k[K_MATRIX + 3 * i + 1] * v1 + k[K_MATRIX + 3 * i + 2] * v2
+    if k[K_HAS_REMAP] != 0.0:
+        for base in (IN_GYRO, IN_ACCEL, IN_MAG):
+            v0, v1, v2 = row[base], row[base + 1], row[base + 2]
+            for i in range(3):
+                row[base + i] = k[K_REMAP + 3 * i] * v0 + k[K_REMAP + 3 * i + 1] * v1 + k[K_REMAP + 3 * i + 2] * v2
+
+
+@kernel
+def calibrate_rows(rows, temperature_c, k):  # type: ignore[no-untyped-def]
+    """:func:`calibrate_row` over every row."""
+    for i in range(rows.shape[0]):
+        calibrate_row(rows[i], temperature_c[i], k)

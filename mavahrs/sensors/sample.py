@@ -23,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
 
-__all__ = ["ImuSample", "GYRO", "ACCEL", "MAG", "Vector3", "write_row", "new_row", "flag_names"]
+__all__ = ["ImuSample", "GYRO", "ACCEL", "MAG", "Vector3", "write_row", "blank_unusable", "blank_unusable_rows", "new_row", "flag_names"]
 
 #: Flag bits for ``ImuSample.saturated`` / ``ImuSample.invalid``.
 GYRO = 1
@@ -105,23 +106,32 @@ def write_row(
     Invalid vectors, and saturated accelerometer/magnetometer vectors, are
     written as NaN so the filter skips just that correction.
     """
-    bad = invalid | (saturated & (ACCEL | MAG))
     row[IN_DT] = dt_s
+    row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2] = gx, gy, gz
+    row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2] = ax, ay, az
+    row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2] = mx, my, mz
+    if saturated or invalid:
+        blank_unusable(row, saturated, invalid)
+
+
+@kernel
+def blank_unusable(row, saturated, invalid):  # type: ignore[no-untyped-def]
+    """The rule for flagged vectors, once: an invalid vector, or a saturated accelerometer or
+    magnetometer, becomes NaN in the row (the filter then skips just that correction; a saturated
+    gyro is still integrated: it is the best there is).  Per sample from :func:`write_row`, over a
+    log's rows by :func:`blank_unusable_rows`."""
+    bad = invalid | (saturated & (ACCEL | MAG))
     if bad & GYRO:
-        row[IN_GYRO] = row[IN_GYRO + 1] = row[IN_GYRO + 2] = _NAN
-    else:
-        row[IN_GYRO] = gx
-        row[IN_GYRO + 1] = gy
-        row[IN_GYRO + 2] = gz
+        row[IN_GYRO] = row[IN_GYRO + 1] = row[IN_GYRO + 2] = math.nan
     if bad & ACCEL:
-        row[IN_ACCEL] = row[IN_ACCEL + 1] = row[IN_ACCEL + 2] = _NAN
-    else:
-        row[IN_ACCEL] = ax
-        row[IN_ACCEL + 1] = ay
-        row[IN_ACCEL + 2] = az
+        row[IN_ACCEL] = row[IN_ACCEL + 1] = row[IN_ACCEL + 2] = math.nan
     if bad & MAG:
-        row[IN_MAG] = row[IN_MAG + 1] = row[IN_MAG + 2] = _NAN
-    else:
-        row[IN_MAG] = mx
-        row[IN_MAG + 1] = my
-        row[IN_MAG + 2] = mz
+        row[IN_MAG] = row[IN_MAG + 1] = row[IN_MAG + 2] = math.nan
+
+
+@kernel
+def blank_unusable_rows(rows, saturated, invalid):  # type: ignore[no-untyped-def]
+    """:func:`blank_unusable` over every row with a flag."""
+    for i in range(rows.shape[0]):
+        if saturated[i] or invalid[i]:
+            blank_unusable(rows[i], saturated[i], invalid[i])

@@ -28,12 +28,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from mavahrs.errors import ConfigError, ScalingError
+from mavahrs.filters.jit import kernel
+from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG, IN_WIDTH
 from mavahrs.sensors.profiles import G_M_S2, INSTANCE_OF_MESSAGE, AutopilotProfile, MessageScale, get_profile
-from mavahrs.sensors.sample import ACCEL, GYRO, MAG, ImuSample, flag_names
+from mavahrs.sensors.sample import MAG, ImuSample, flag_names
 
 __all__ = ["ScalingSettings", "Scaler", "Scaled", "to_sample", "S_IMU", "S_T_US", "S_GYRO", "S_ACCEL", "S_MAG",
-           "S_TEMP", "S_SAT", "S_INVALID", "HIGHRES_ACCEL_BITS", "HIGHRES_GYRO_BITS", "HIGHRES_MAG_BITS"]  # fmt: skip
+           "S_TEMP", "S_SAT", "S_INVALID", "HIGHRES_ACCEL_BITS", "HIGHRES_GYRO_BITS", "HIGHRES_MAG_BITS",
+           "scale_int_row", "scale_int_rows", "scale_float_row", "scale_float_rows", "scale_constants", "C_KG", "C_KA", "C_KM", "C_KOLD", "C_GSAT", "C_ASAT", "C_MAG_MAX", "C_GBAD", "C_ABAD",
+           "C_LEN", "INVALID_SHIFT", "ZERO"]  # fmt: skip
 
 #: Positions in the tuple :meth:`Scaler.scale` returns.
 S_IMU, S_T_US, S_GYRO, S_ACCEL, S_MAG, S_TEMP, S_SAT, S_INVALID = 0, 1, 2, 5, 8, 11, 12, 13
@@ -44,10 +51,130 @@ HIGHRES_ACCEL_BITS = 0x007
 HIGHRES_GYRO_BITS = 0x038
 HIGHRES_MAG_BITS = 0x1C0
 
-_INT16_LIMIT = 32767
 _NAN = math.nan
 #: Smallest believable magnetic field norm, µT (Earth: 22–67 µT).
 MAG_MIN_UT = 1.0
+
+#: Positions in the constants array of :func:`scale_int_row` (:meth:`Scaler.scale_constants`): the units
+#: (gyro, accel, mag, the legacy mag unit or NaN), the saturation limits (gyro, accel) and the largest
+#: believable magnetic field norm, and (float fields) the limits beyond which a value is not a measurement.
+C_KG, C_KA, C_KM, C_KOLD, C_GSAT, C_ASAT, C_MAG_MAX, C_GBAD, C_ABAD = range(9)
+C_LEN = 9
+#: :func:`scale_int_row`'s result: ``saturated | invalid << INVALID_SHIFT | ZERO`` (gyro and accelerometer all 0)
+INVALID_SHIFT = 3
+ZERO = 64
+
+
+@kernel
+def _mag_into(xm, ym, zm, c, row):  # type: ignore[no-untyped-def]
+    """The magnetometer in µT into ``row``; the invalid bit (MAG) or 0.  Absent (all zero): NaN, not invalid."""
+    if xm == 0.0 and ym == 0.0 and zm == 0.0:
+        row[IN_MAG] = row[IN_MAG + 1] = row[IN_MAG + 2] = math.nan
+        return 0
+    km, k_old, mag_max = c[C_KM], c[C_KOLD], c[C_MAG_MAX]
+    m0, m1, m2 = xm * km, ym * km, zm * km
+    nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if k_old == k_old and nrm > mag_max:  # the legacy unit (gauss in an old HIGHRES_IMU)
+        m0, m1, m2 = xm * k_old, ym * k_old, zm * k_old
+        nrm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if not (MAG_MIN_UT <= nrm and nrm <= mag_max):  # also catches NaN/inf
+        row[IN_MAG] = row[IN_MAG + 1] = row[IN_MAG + 2] = math.nan
+        return 4
+    row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2] = m0, m1, m2
+    return 0
+
+
+@kernel
+def scale_int_row(xg, yg, zg, xa, ya, za, xm, ym, zm, c, row):  # type: ignore[no-untyped-def]
+    """The scaling step of an integer-field IMU message (RAW_IMU, SCALED_IMU*): one sample, in SI.
+
+    The one implementation of integer scaling: :class:`Scaler` calls it per
+    message (the live pipeline), :func:`scale_int_rows` loops over it for a
+    whole log (replay), and the daemon's fast lane calls it inside its
+    compiled parse.  The raw int16 fields in, ``c`` the constants (``C_*``);
+    written into ``row``'s gyro, accelerometer and magnetometer columns
+    (:mod:`mavahrs.filters.layout`): value · unit, the magnetometer NaN when
+    absent (all zero) or implausible, re-read with the legacy unit when its
+    norm exceeds the limit in the profile's unit.  Returns the saturated bits (a raw
+    component at the int16 limit, or a scaled one at the saturation limit),
+    the invalid bits shifted by ``INVALID_SHIFT`` (an implausible
+    magnetometer) and ``ZERO`` when gyro and accelerometer are all zero (an
+    absent IMU instance).  Bits as :mod:`mavahrs.sensors.sample` (GYRO=1, ACCEL=2, MAG=4).
+    """
+    rg0, rg1, rg2 = float(xg), float(yg), float(zg)
+    ra0, ra1, ra2 = float(xa), float(ya), float(za)
+    kg, ka = c[C_KG], c[C_KA]
+    g0, g1, g2 = rg0 * kg, rg1 * kg, rg2 * kg
+    a0, a1, a2 = ra0 * ka, ra1 * ka, ra2 * ka
+    row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2] = g0, g1, g2
+    row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2] = a0, a1, a2
+    s = 0
+    if max(max(abs(rg0), abs(rg1)), abs(rg2)) >= 32767.0:
+        s |= 1
+    if max(max(abs(ra0), abs(ra1)), abs(ra2)) >= 32767.0:
+        s |= 2
+    if max(max(abs(g0), abs(g1)), abs(g2)) >= c[C_GSAT]:
+        s |= 1
+    if max(max(abs(a0), abs(a1)), abs(a2)) >= c[C_ASAT]:
+        s |= 2
+    if g0 == 0.0 and g1 == 0.0 and g2 == 0.0 and a0 == 0.0 and a1 == 0.0 and a2 == 0.0:
+        s |= 64
+    return s | (_mag_into(float(xm), float(ym), float(zm), c, row) << 3)
+
+
+@kernel
+def scale_float_row(xg, yg, zg, xa, ya, za, xm, ym, zm, updated, c, row):  # type: ignore[no-untyped-def]
+    """The scaling step of a float-field IMU message (HIGHRES_IMU, ``fields_updated`` = ``updated``).
+
+    As :func:`scale_int_row` (same result code, same columns): value · unit;
+    a vector beyond ``C_GBAD``/``C_ABAD`` (or NaN/inf) invalid, else saturated at
+    the saturation limit; the accelerometer NaN unless updated, the
+    magnetometer NaN unless updated (and only then judged).  The caller drops a message
+    without a new gyro (:data:`HIGHRES_GYRO_BITS`) before this step.
+    """
+    kg, ka = c[C_KG], c[C_KA]
+    g0, g1, g2 = xg * kg, yg * kg, zg * kg
+    row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2] = g0, g1, g2
+    s = 0
+    inv = 0
+    m = max(max(abs(g0), abs(g1)), abs(g2))
+    if not m < c[C_GBAD]:  # NaN/inf fail this too
+        inv = 1
+    elif m >= c[C_GSAT]:
+        s = 1
+    zero = g0 == 0.0 and g1 == 0.0 and g2 == 0.0
+    if updated & HIGHRES_ACCEL_BITS == HIGHRES_ACCEL_BITS:
+        a0, a1, a2 = xa * ka, ya * ka, za * ka
+        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2] = a0, a1, a2
+        m = max(max(abs(a0), abs(a1)), abs(a2))
+        if not m < c[C_ABAD]:
+            inv |= 2
+        elif m >= c[C_ASAT]:
+            s |= 2
+        zero = zero and a0 == 0.0 and a1 == 0.0 and a2 == 0.0
+    else:
+        row[IN_ACCEL] = row[IN_ACCEL + 1] = row[IN_ACCEL + 2] = math.nan
+        zero = False
+    if updated & HIGHRES_MAG_BITS == HIGHRES_MAG_BITS:
+        inv |= _mag_into(xm, ym, zm, c, row)
+    else:
+        row[IN_MAG] = row[IN_MAG + 1] = row[IN_MAG + 2] = math.nan
+    return s | (inv << 3) | (64 if zero else 0)
+
+
+@kernel
+def scale_float_rows(xg, yg, zg, xa, ya, za, xm, ym, zm, updated, c, rows, codes):  # type: ignore[no-untyped-def]
+    """:func:`scale_float_row` over arrays of fields: ``rows[i]`` and ``codes[i]`` for message i."""
+    for i in range(rows.shape[0]):
+        codes[i] = scale_float_row(xg[i], yg[i], zg[i], xa[i], ya[i], za[i], xm[i], ym[i], zm[i], updated[i], c,
+                                   rows[i])  # fmt: skip
+
+
+@kernel
+def scale_int_rows(xg, yg, zg, xa, ya, za, xm, ym, zm, c, rows, codes):  # type: ignore[no-untyped-def]
+    """:func:`scale_int_row` over arrays of raw fields: ``rows[i]`` and ``codes[i]`` for message i."""
+    for i in range(rows.shape[0]):
+        codes[i] = scale_int_row(xg[i], yg[i], zg[i], xa[i], ya[i], za[i], xm[i], ym[i], zm[i], c, rows[i])
 
 
 @dataclass(frozen=True)
@@ -142,55 +269,30 @@ class Scaler:
         gyro_fs = math.radians(s.gyro_range_deg_s) if s.gyro_range_deg_s is not None else ms.gyro_range_rad_s
         return accel_fs, gyro_fs
 
+    def scale_constants(self, ms: MessageScale) -> NDArray[np.float64]:
+        """The constants :func:`scale_int_row` scales ``ms``'s integer fields with (``C_*`` order)."""
+        return scale_constants(ms, self.settings)
+
     def _make(self, ms: MessageScale) -> Callable[[Any], Scaled | None]:
-        accel_fs, gyro_fs = self._limits(ms)
-        frac = self.settings.saturation_fraction
-        bad = self.settings.implausible_factor
-        ka, kg, km = ms.accel_to_m_s2, ms.gyro_to_rad_s, ms.mag_to_ut
-        a_sat, g_sat = accel_fs * frac, gyro_fs * frac
-        a_bad, g_bad = accel_fs * bad, gyro_fs * bad
-        mag_max, mag_legacy = ms.mag_plausible_max_ut, ms.mag_legacy_to_ut
         tf, tk, kt = ms.time_field, ms.time_to_us, ms.temperature_to_c
         fixed_id = INSTANCE_OF_MESSAGE[ms.message]
         has_id = ms.message in ("RAW_IMU", "HIGHRES_IMU")
-
-        def mag_of(xm: float, ym: float, zm: float) -> tuple[float, float, float, int]:
-            """(mx, my, mz, invalid-bit) in µT; NaN when absent or unusable."""
-            if xm == 0 and ym == 0 and zm == 0:
-                return _NAN, _NAN, _NAN, 0  # absent: no compass
-            mx, my, mz = xm * km, ym * km, zm * km
-            n = math.sqrt(mx * mx + my * my + mz * mz)
-            if n > mag_max and mag_legacy is not None:
-                mx, my, mz = xm * mag_legacy, ym * mag_legacy, zm * mag_legacy
-                n = math.sqrt(mx * mx + my * my + mz * mz)
-            if not (MAG_MIN_UT <= n <= mag_max):  # also catches NaN/inf
-                return _NAN, _NAN, _NAN, MAG
-            return mx, my, mz, 0
-
+        c = self.scale_constants(ms)
+        buf = np.empty(IN_WIDTH)
         if ms.integer_fields:
 
             def scale_int(msg: Any) -> Scaled | None:
-                xa, ya, za = msg.xacc, msg.yacc, msg.zacc
-                xg, yg, zg = msg.xgyro, msg.ygyro, msg.zgyro
-                sat = 0
-                if max(abs(xg), abs(yg), abs(zg)) >= _INT16_LIMIT:
-                    sat = GYRO
-                if max(abs(xa), abs(ya), abs(za)) >= _INT16_LIMIT:
-                    sat |= ACCEL
-                gx, gy, gz = xg * kg, yg * kg, zg * kg
-                ax, ay, az = xa * ka, ya * ka, za * ka
-                if max(abs(gx), abs(gy), abs(gz)) >= g_sat:
-                    sat |= GYRO
-                if max(abs(ax), abs(ay), abs(az)) >= a_sat:
-                    sat |= ACCEL
-                mx, my, mz, inv = mag_of(msg.xmag, msg.ymag, msg.zmag)
+                code = scale_int_row(msg.xgyro, msg.ygyro, msg.zgyro, msg.xacc, msg.yacc, msg.zacc,
+                                     msg.xmag, msg.ymag, msg.zmag, c, buf)  # fmt: skip
+                gx, gy, gz, ax, ay, az, mx, my, mz = buf[IN_GYRO : IN_MAG + 3].tolist()
                 temp = None
                 if kt is not None:
                     raw_t = getattr(msg, "temperature", 0)
                     if raw_t:  # 0 = "not provided" (common.xml); 0 °C is sent as 1
                         temp = raw_t * kt
                 imu = _instance(msg) if has_id else fixed_id
-                return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, temp, sat, inv)
+                return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, temp, code & 7,
+                        (code >> INVALID_SHIFT) & 7)  # fmt: skip
 
             return scale_int
 
@@ -198,31 +300,28 @@ class Scaler:
             upd = msg.fields_updated
             if upd & HIGHRES_GYRO_BITS != HIGHRES_GYRO_BITS:
                 return None  # no new gyro: not an IMU sample
-            sat = inv = 0
-            gx, gy, gz = msg.xgyro * kg, msg.ygyro * kg, msg.zgyro * kg
-            m = max(abs(gx), abs(gy), abs(gz))
-            if not m < g_bad:  # NaN/inf fail this too
-                inv = GYRO
-            elif m >= g_sat:
-                sat = GYRO
-            if upd & HIGHRES_ACCEL_BITS == HIGHRES_ACCEL_BITS:
-                ax, ay, az = msg.xacc * ka, msg.yacc * ka, msg.zacc * ka
-                m = max(abs(ax), abs(ay), abs(az))
-                if not m < a_bad:
-                    inv |= ACCEL
-                elif m >= a_sat:
-                    sat |= ACCEL
-            else:
-                ax = ay = az = _NAN
-            if upd & HIGHRES_MAG_BITS == HIGHRES_MAG_BITS:
-                mx, my, mz, minv = mag_of(msg.xmag, msg.ymag, msg.zmag)
-                inv |= minv
-            else:
-                mx = my = mz = _NAN
+            code = scale_float_row(float(msg.xgyro), float(msg.ygyro), float(msg.zgyro), float(msg.xacc),
+                                   float(msg.yacc), float(msg.zacc), float(msg.xmag), float(msg.ymag),
+                                   float(msg.zmag), int(upd), c, buf)  # fmt: skip
+            gx, gy, gz, ax, ay, az, mx, my, mz = buf[IN_GYRO : IN_MAG + 3].tolist()
             imu = _instance(msg) if has_id else fixed_id
-            return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, None, sat, inv)
+            return (imu, int(getattr(msg, tf)) * tk, gx, gy, gz, ax, ay, az, mx, my, mz, None, code & 7,
+                    (code >> INVALID_SHIFT) & 7)  # fmt: skip
 
         return scale_float
+
+
+def scale_constants(ms: MessageScale, settings: ScalingSettings) -> NDArray[np.float64]:
+    """The constants of :func:`scale_int_row` for message ``ms`` with ``settings`` (``C_*`` order)."""
+    accel_fs = settings.accel_range_g * G_M_S2 if settings.accel_range_g is not None else ms.accel_range_m_s2
+    gyro_fs = math.radians(settings.gyro_range_deg_s) if settings.gyro_range_deg_s is not None else ms.gyro_range_rad_s
+    frac = settings.saturation_fraction
+    c = np.empty(C_LEN)
+    c[C_KG], c[C_KA], c[C_KM] = ms.gyro_to_rad_s, ms.accel_to_m_s2, ms.mag_to_ut
+    c[C_KOLD] = ms.mag_legacy_to_ut if ms.mag_legacy_to_ut is not None else _NAN
+    c[C_GSAT], c[C_ASAT], c[C_MAG_MAX] = gyro_fs * frac, accel_fs * frac, ms.mag_plausible_max_ut
+    c[C_GBAD], c[C_ABAD] = gyro_fs * settings.implausible_factor, accel_fs * settings.implausible_factor
+    return c
 
 
 def _instance(msg: Any) -> int:

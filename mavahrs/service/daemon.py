@@ -410,6 +410,7 @@ class Daemon:
         self.sink = sink
         self.log = logger or logging.getLogger("mavahrs.daemon")
         self.counters = DaemonCounters()
+        self._bytes_after_backlog = 0  # the master link's bytes_in once the start-up backlog was dropped
         from mavahrs.service.pilot import PilotInfo
 
         self.pilot = PilotInfo()  # the last messages the status page's pilot fields read (mavahrs.service.pilot)
@@ -552,6 +553,7 @@ class Daemon:
             if not data:
                 break
             c.startup_dropped += 1 if master.datagram else len(data)
+        self._bytes_after_backlog = master.counters.bytes_in  # what came before the daemon was ready
         if c.startup_dropped:
             self.log.info("dropped %d %s queued during start-up (older than the filter)", c.startup_dropped, unit)
 
@@ -812,6 +814,11 @@ class Daemon:
                 "serial": "nothing received: check the wiring and that this port runs MAVLink "
                 "(ArduPilot SERIALn_PROTOCOL = 2)",
             }.get(kind, "nothing received")
+        elif cc.packets == 0 and self.counters.startup_dropped and bytes_in <= self._bytes_after_backlog:
+            # all of it had queued while the filter was prepared (minutes on a cold cache), none came since
+            unit = "datagrams" if m.datagram else "bytes"
+            hint = (f"{bytes_in} bytes received, all of them queued during start-up ({self.counters.startup_dropped} "
+                    f"{unit}, dropped as older than the filter), none since: has the autopilot stopped sending?")  # fmt: skip
         elif cc.packets == 0:
             hint = (
                 f"{bytes_in} bytes received but no valid MAVLink frame"

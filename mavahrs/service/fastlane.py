@@ -50,10 +50,8 @@ import numpy as np
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
-    IN_ACCEL,
     IN_DT,
     IN_GYRO,
-    IN_MAG,
     IN_VEL,
     IN_VEL_AGE,
     IN_WIDTH,
@@ -64,7 +62,7 @@ from mavahrs.filters.layout import (
 )
 from mavahrs.protocol.codec import mavlink
 from mavahrs.protocol.fast_tlog import _CRC_TABLE, _wire_dtype, _x25_crc
-from mavahrs.sensors.scaling import MAG_MIN_UT
+from mavahrs.sensors.scaling import C_LEN, scale_int_row
 
 __all__ = ["FastLane"]
 
@@ -82,9 +80,9 @@ I_ON, I_SYS, I_COMP, I_IMU, I_T_LAST, I_WRAP_OFF, I_MAX_GAP, I_EVAL_DUE = range(
 I_LAST_OUT_T, I_NEXT_OUT_T, I_HAVE_NEXT, I_PERIOD, I_TOL, I_OUR_SYS, I_OUR_COMP, I_SEQ = range(8, 16)
 I_CHAIN = 16  # answers may be chained over queued datagrams (nothing but the attitude takes sequence numbers)
 I_LEN = 17
-# float mirror
-F_KG, F_KA, F_KM, F_KOLD, F_GSAT, F_ASAT, F_MAG_MAX, F_DECL = range(8)
-F_LEN = 8
+# float mirror: the scaling step's constants (sensors.scaling C_*), then the declination
+F_DECL = C_LEN
+F_LEN = C_LEN + 1
 
 
 _RAW_ID, _RAW_CRC = int(_RAW_IMU.id), int(_RAW_IMU.crc_extra)
@@ -143,27 +141,10 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
         _payload_i16(data, plen, _O_YMAG),
         _payload_i16(data, plen, _O_ZMAG),
     )
-    # Scaler.scale_int: anything saturated or invalid takes the Python path
-    if max(abs(xg), abs(yg), abs(zg)) >= 32767 or max(abs(xa), abs(ya), abs(za)) >= 32767:
+    # the scaling step (Scaler's own): anything saturated, invalid or all-zero (the selector's absent-instance
+    # rule) takes the Python path; the gyro, accelerometer and magnetometer columns of the row are written
+    if scale_int_row(xg, yg, zg, xa, ya, za, xm, ym, zm, fcfg, row) != 0:
         return -1
-    kg, ka, km = fcfg[F_KG], fcfg[F_KA], fcfg[F_KM]
-    gx, gy, gz = xg * kg, yg * kg, zg * kg
-    ax, ay, az = xa * ka, ya * ka, za * ka
-    if max(abs(gx), abs(gy), abs(gz)) >= fcfg[F_GSAT] or max(abs(ax), abs(ay), abs(az)) >= fcfg[F_ASAT]:
-        return -1
-    if gx == 0.0 and gy == 0.0 and gz == 0.0 and ax == 0.0 and ay == 0.0 and az == 0.0:
-        return -1  # the selector's absent-instance rule
-    mx = my = mz = np.nan
-    if not (xm == 0 and ym == 0 and zm == 0):
-        mx, my, mz = xm * km, ym * km, zm * km
-        nrm = math.sqrt(mx * mx + my * my + mz * mz)
-        mag_max = fcfg[F_MAG_MAX]
-        k_old = fcfg[F_KOLD]
-        if nrm > mag_max and k_old == k_old:
-            mx, my, mz = xm * k_old, ym * k_old, zm * k_old
-            nrm = math.sqrt(mx * mx + my * my + mz * mz)
-        if not (MAG_MIN_UT <= nrm and nrm <= mag_max):
-            return -1  # invalid magnetometer
     # ImuSelector.observe: no evaluation due (its clock is the raw time); Timeline.push: plainly "ok"
     if t >= icfg[I_EVAL_DUE]:
         return -1
@@ -172,9 +153,6 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
     if d <= 0 or d > icfg[I_MAX_GAP]:
         return -1
     row[IN_DT] = d * 1e-6
-    row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2] = gx, gy, gz
-    row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2] = ax, ay, az
-    row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2] = mx, my, mz
     row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = np.nan
     for i in range(state.shape[0]):
         scratch[i] = state[i]
@@ -339,11 +317,7 @@ class FastLane:
             return
         if p._vel is not None:
             return
-        accel_fs, gyro_fs = scaler._limits(ms)
-        frac = scaler.settings.saturation_fraction
-        fcfg[F_KG], fcfg[F_KA], fcfg[F_KM] = ms.gyro_to_rad_s, ms.accel_to_m_s2, ms.mag_to_ut
-        fcfg[F_KOLD] = ms.mag_legacy_to_ut if ms.mag_legacy_to_ut is not None else np.nan
-        fcfg[F_GSAT], fcfg[F_ASAT], fcfg[F_MAG_MAX] = gyro_fs * frac, accel_fs * frac, ms.mag_plausible_max_ut
+        fcfg[:C_LEN] = scaler.scale_constants(ms)
         fcfg[F_DECL] = p._decl.declination_rad
         icfg[I_SYS], icfg[I_COMP], icfg[I_IMU] = src[0], src[1], imu
         # "ok" needs 0 < Δt ≤ the gap limit and ≤ the jump limit (beyond it the timeline holds the sample)

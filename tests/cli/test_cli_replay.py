@@ -363,3 +363,25 @@ def test_a_truncated_log_is_noted_by_replay_and_evaluate(shared_data: Path, tmp_
         assert "cut.tlog: note: the log ends inside a frame at byte " in err and "truncated?" in err, err
     assert main(["replay", str(log), "-f", "mahony", "--end", "5"]) == 0
     assert "ends inside a frame" not in capsys.readouterr().out
+
+
+def test_ctrl_c_while_replay_starts_says_nothing_was_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A Ctrl-C in the first seconds (imports, the filter kernels: longer on a busy machine) ended with the bare
+    'ERROR interrupted': nothing about the CSV and tlog that were asked for.  Now replay's own line says when it
+    was interrupted and what was written."""
+    from mavahrs.cli import common
+
+    def interrupted() -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(common, "start_kernels", interrupted)
+    log = tmp_path / "x.tlog"
+    log.write_bytes(b"")
+    csv, out = tmp_path / "x.csv", tmp_path / "o.tlog"
+    code = main(["replay", str(log), "--csv", str(csv), "--output", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert err.strip().endswith(f"ERROR replay interrupted while starting (loading the filters), before the log "
+                                f"was read — kept no CSV ({csv} not written), no tlog ({out} not written)"), err  # fmt: skip
+    assert not csv.exists() and not out.exists()

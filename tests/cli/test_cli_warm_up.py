@@ -24,7 +24,9 @@ pytestmark = pytest.mark.slow
 
 def _mavahrs(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "mavahrs", *args], env=env, capture_output=True, text=True, timeout=600
+        # a cold compile of every kernel: about 40 s on an idle 2-core machine, over 600 s with ten
+        # times more runnable processes than cores; the deadline is for a hung compiler only
+        [sys.executable, "-m", "mavahrs", *args], env=env, capture_output=True, text=True, timeout=1800
     )
 
 

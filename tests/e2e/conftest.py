@@ -60,14 +60,53 @@ def mavlogdump() -> str:
     return path
 
 
+#: The reaper: reads "+PGID" / "-PGID" lines (a process group started / stopped) until its stdin closes —
+#: at the end of the fixture, or when the test process dies in any way (Ctrl-C, SIGTERM, SIGKILL, a killed
+#: xdist worker), which no ``finally`` covers —, then stops every group still listed: SIGTERM, SIGKILL after 5 s.
+_REAPER = """
+import os, signal, sys, time
+groups = set()
+for line in sys.stdin:
+    line = line.strip()
+    if line[:1] == "+":
+        groups.add(int(line[1:]))
+    elif line[:1] == "-":
+        groups.discard(int(line[1:]))
+def alive(g):
+    try:
+        os.killpg(g, 0)
+        return True
+    except OSError:
+        return False
+for sig in (signal.SIGTERM, signal.SIGKILL):
+    for g in [g for g in groups if alive(g)]:
+        try:
+            os.killpg(g, sig)
+        except OSError:
+            pass
+    deadline = time.monotonic() + 5.0
+    while any(alive(g) for g in groups) and time.monotonic() < deadline:
+        time.sleep(0.05)
+"""
+
+
 class Processes:
-    """Subprocesses with their output in files; all of them stopped (SIGINT/SIGTERM, then SIGKILL) at the end."""
+    """Subprocesses with their output in files; all of them stopped (SIGINT/SIGTERM, then SIGKILL) at the end,
+    and by a reaper process of their own when the test process ends without reaching its teardown."""
 
     def __init__(self, workdir: Path) -> None:
         self.workdir = workdir
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.env = dict(os.environ)
         self.env["PYTHONPATH"] = str(REPO) + os.pathsep + self.env.get("PYTHONPATH", "")
+        # its own session: a Ctrl-C at the terminal reaches pytest, not the reaper, which then does its work
+        self.reaper = subprocess.Popen([sys.executable, "-c", _REAPER], stdin=subprocess.PIPE,
+                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+
+    def _tell_reaper(self, line: str) -> None:
+        if self.reaper.stdin is not None and not self.reaper.stdin.closed:
+            self.reaper.stdin.write(line.encode() + b"\n")
+            self.reaper.stdin.flush()
 
     def start(self, name: str, cmd: list[str]) -> subprocess.Popen[bytes]:
         out = open(self.workdir / f"{name}.out", "wb")  # noqa: SIM115 - closed with the process
@@ -75,6 +114,7 @@ class Processes:
                                 cwd=self.workdir, env=self.env, start_new_session=True)  # fmt: skip
         out.close()
         self.procs[name] = proc
+        self._tell_reaper(f"+{proc.pid}")  # start_new_session: its process group is its pid
         return proc
 
     def output(self, name: str) -> str:
@@ -95,11 +135,25 @@ class Processes:
                 except ProcessLookupError:
                     pass
                 proc.wait(timeout_s)
+        self._reap_group(proc.pid)
         return proc.returncode
 
+    def _reap_group(self, pgid: int) -> None:
+        """The leader has exited; what it left in its group (MAVProxy's helpers) goes too."""
+        try:
+            os.killpg(pgid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        self._tell_reaper(f"-{pgid}")
+
     def stop_all(self) -> None:
-        for name in list(self.procs):
-            self.stop(name)
+        try:
+            for name in list(self.procs):
+                self.stop(name)
+        finally:
+            if self.reaper.stdin is not None:
+                self.reaper.stdin.close()  # nothing listed is left: the reaper exits at once
+            self.reaper.wait(30)
 
 
 @pytest.fixture(scope="module")

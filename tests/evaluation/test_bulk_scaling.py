@@ -1,4 +1,4 @@
-"""The bulk scaling of replay (``tlogdata._scale``) equals the daemon's per-message ``Scaler``, edge cases included."""
+"""The bulk scaling of replay (``tlogdata.scale_imu_messages``) equals the daemon's per-message ``Scaler``, edge cases included."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavahrs.evaluation.tlogdata import _scale, read_tlog_data
+from mavahrs.evaluation.tlogdata import read_tlog_data, scale_imu_messages
 from mavahrs.protocol.codec import MavCodec, mavlink
 from mavahrs.sensors.profiles import get_profile
 from mavahrs.sensors.scaling import Scaler, ScalingSettings
@@ -50,7 +50,7 @@ def test_bulk_scaling_equals_the_scaler(tmp_path: Path, name: str, profile: str,
     path = tmp_path / "edges.tlog"
     path.write_bytes(blob)
     td = read_tlog_data(path)
-    bulk = _scale(name, td.arrays[name], ms, settings)
+    bulk = scale_imu_messages(name, td.arrays[name], ms, settings)
     scaler = Scaler(profile, settings)
     for k, m in enumerate(msgs):
         v = scaler.scale(m)

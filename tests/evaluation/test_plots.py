@@ -114,6 +114,35 @@ def test_identical_filters_say_which_one_hides_the_other(tmp_path: Path, monkeyp
     assert "gyroplatform" in labels and "best" in labels  # the others keep their plain names
 
 
+def test_filters_within_a_hundredth_of_a_degree_say_which_one_hides_the_other(tmp_path: Path,
+                                                                             monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """With GNSS velocity Mahony and the gyro-platform filter differ by at most 0.002° (the demo's tlog): the
+    orange line was invisible under the purple one, and the legend said nothing (it took only bit-equal
+    attitudes as the same)."""
+    pytest.importorskip("matplotlib")
+    from mavahrs.evaluation.plots import plot_attitude
+
+    saved = _saved_figures(monkeypatch)
+    n = 500
+    t = np.arange(n) / 250.0
+    base = _rows(n, 1)
+    near = base.copy()
+    half = np.radians(0.002) / 2  # a 0.002° turn about x of every sample
+    q = base[:, OUT_Q : OUT_Q + 4]
+    w, x, y, z = q.T
+    c, s_ = np.cos(half), np.sin(half)
+    near[:, OUT_Q : OUT_Q + 4] = np.stack([c * w - s_ * x, c * x + s_ * w, c * y + s_ * z, c * z - s_ * y], axis=1)
+    apart = base.copy()
+    apart[:, OUT_Q : OUT_Q + 4] = _rows(n, 2)[:, OUT_Q : OUT_Q + 4]
+    plot_attitude(tmp_path / "near.png", t, {"mahony": near, "gyroplatform": base, "best": apart},
+                  reference_q=_rows(n, 0)[:, OUT_Q : OUT_Q + 4])  # fmt: skip
+    (fig,) = saved
+    roll = next(ax for ax in fig.axes if ax.get_ylabel() == "roll (°)")
+    labels = roll.get_legend_handles_labels()[1]
+    assert "mahony (within 0.002° of gyroplatform, hidden beneath it)" in labels, labels
+    assert "gyroplatform" in labels and "best" in labels
+
+
 def test_fleet_plot_names_flagged_flights_inside_the_figure_with_whole_counts(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

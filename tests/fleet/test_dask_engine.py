@@ -77,6 +77,29 @@ def test_a_local_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Pat
     assert sorted(p.name for p in tmpdir.iterdir()) == []
 
 
+def test_a_loopback_cluster_leaves_nothing_in_the_temporary_directory(tmp_path: Path) -> None:
+    """``loopback_cluster`` (tests, bench_fleet): the ``dask scheduler`` and ``dask worker`` processes left
+    ``dask-scratch-space`` with empty ``global.lock`` / ``purge.lock`` in the system's temporary directory; their
+    scratch space is now inside the cluster's own work folder.  Processes of their own whose temporary
+    directory is this test's."""
+    import subprocess
+
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    work = tmp_path / "cluster"
+    code = (
+        "from mavahrs.fleet.dask_engine import DaskEngine, loopback_cluster\n"
+        f"with loopback_cluster({str(work)!r}, 1) as address, DaskEngine(scheduler=address) as eng:\n"
+        "    print(sorted(r for _, r in eng.map(abs, [-1, -2])))\n"
+    )
+    repo = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "TMPDIR": str(tmpdir), "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert run.returncode == 0 and run.stdout.strip() == "[1, 2]", run.stdout + run.stderr
+    assert sorted(p.name for p in tmpdir.iterdir()) == []
+    assert (work / "scratch").is_dir()  # where it went instead (removed with the work folder)
+
+
 def test_no_scheduler_at_the_address_fails_at_once_with_the_reason(tmp_path: Path,
                                                                   capsys: pytest.CaptureFixture[str]) -> None:
     """`audit --scheduler tcp://127.0.0.1:PORT` with nothing listening waited silently for 60 s, then failed."""

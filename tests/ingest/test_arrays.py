@@ -2,9 +2,9 @@
 
 VQF's rule for the batch path, checked step by step: ``_timeline`` against
 :class:`~mavahrs.protocol.timeline.Timeline` pushed one sample at a time (the pipeline's call),
-``_calibrate`` against :meth:`~mavahrs.sensors.calibration.Calibrator.apply_row` row by row, and
-:meth:`PreparedInputs.run_filter` against the filter's own per-row update.  Every log reader
-(tlog, DataFlash, ULog) builds its rows with these functions.
+and :meth:`PreparedInputs.run_filter` against the filter's own per-row update.  Every log reader
+(tlog, DataFlash, ULog) builds its rows with these functions; the compiled steps themselves
+(scaling, row, calibration) are tested against hand-computed values in ``test_chain.py``.
 """
 
 from __future__ import annotations
@@ -14,9 +14,8 @@ import pytest
 
 from mavahrs.filters import create
 from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_WIDTH, OUT_WIDTH
-from mavahrs.ingest.arrays import _GAP_DT_S, FastPathUnsupported, PreparedInputs, _calibrate, _timeline
+from mavahrs.ingest.arrays import _GAP_DT_S, FastPathUnsupported, PreparedInputs, _timeline
 from mavahrs.protocol.timeline import DROP_KINDS, GAP, Timeline
-from mavahrs.sensors.calibration import CalibrationSettings, Calibrator, GyroTemperatureModel, MagCalibration
 from mavahrs.service.pipeline import PipelineSettings
 
 
@@ -66,26 +65,6 @@ def test_a_reboot_needs_the_per_message_pipeline(rng: np.random.Generator) -> No
     t[2000:] -= t[2000] - 10_000  # the autopilot's clock starts again
     with pytest.raises(FastPathUnsupported, match="rebooted"):
         _timeline(t, t, g, a, PipelineSettings())
-
-
-def test_calibration_over_arrays_is_apply_row_per_row(rng: np.random.Generator) -> None:
-    cal = Calibrator(CalibrationSettings(
-        axis_remap="+y-x+z",
-        gyro_temperature=GyroTemperatureModel((0.01, -0.02, 0.005), (1e-4, 2e-4, -3e-4), 30.0),
-        mag=MagCalibration((5.0, -3.0, 12.0), ((1.1, 0.02, 0.0), (0.02, 0.95, 0.01), (0.0, 0.01, 1.02))),
-    ))  # fmt: skip
-    n = 500
-    rows = np.full((n, IN_WIDTH), np.nan)
-    rows[:, IN_GYRO : IN_GYRO + 3] = rng.normal(0, 0.5, (n, 3))
-    rows[:, IN_ACCEL : IN_ACCEL + 3] = rng.normal(0, 3, (n, 3))
-    rows[:, IN_MAG : IN_MAG + 3] = rng.normal(0, 30, (n, 3))
-    temp = rng.uniform(10, 50, n)
-    temp[::7] = np.nan  # unknown temperature: b0
-    ref = rows.copy()
-    for i in range(n):
-        cal.apply_row(ref[i], None if np.isnan(temp[i]) else float(temp[i]))
-    _calibrate(rows, temp, cal)
-    np.testing.assert_allclose(rows, ref, rtol=1e-12, atol=1e-12, equal_nan=True)
 
 
 def test_run_filter_is_the_per_row_update(rng: np.random.Generator) -> None:

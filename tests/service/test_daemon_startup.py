@@ -144,3 +144,48 @@ def test_datagrams_queued_during_a_cold_start_are_dropped_and_counted(
     assert 0 < dropped <= STALE + 1
     said = [line for line in rec.lines if "queued during start-up" in line]
     assert len(said) == 1 and re.search(rf"\bdropped {dropped} datagrams queued during start-up", said[0]), rec.lines
+
+
+def test_an_autopilot_that_went_silent_during_a_cold_start_is_not_called_no_mavlink(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A simulator that stopped while the filter compiled (minutes on a cold cache): its queued datagrams are
+    dropped, nothing else comes, and the heartbeat time-out said '57708 bytes received but no valid MAVLink
+    frame: is this a MAVLink stream?' — about a stream of valid MAVLink.  It says what happened instead."""
+    import mavahrs.transports as transports
+    from mavahrs.errors import TransportError
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ap_codec = MavCodec(1, 1)
+    opened: list[Any] = []
+    real_open = transports.open_transport
+
+    def open_and_keep(*args: Any, **kw: Any) -> Any:
+        link = real_open(*args, **kw)
+        opened.append(link)
+        return link
+
+    monkeypatch.setattr(transports, "open_transport", open_and_keep)
+    pipeline = Pipeline(PipelineSettings())
+    real_warm_up = pipeline.filter.warm_up
+
+    def warm_up_while_the_autopilot_streams_then_stops() -> None:
+        to = ("127.0.0.1", opened[0].local_address[1])
+        ap.sendto(_heartbeat(ap_codec), to)
+        for k in range(STALE):
+            ap.sendto(_raw_imu(ap_codec, STALE_START_US + k * RATE_US), to)
+        real_warm_up()
+
+    pipeline.filter.warm_up = warm_up_while_the_autopilot_streams_then_stops
+    log = logging.getLogger("mavahrs.test.daemon-startup-silent")
+    log.propagate = False
+    d = build_daemon(DaemonSettings(master="udpin:127.0.0.1:0", status_interval_s=0.0, heartbeat_timeout_s=1.0,
+                                    fast_lane=False), pipeline=pipeline, logger=log)  # fmt: skip
+    try:
+        with pytest.raises(TransportError) as err:
+            d.run()
+    finally:
+        ap.close()
+    said = str(err.value)
+    assert "no valid MAVLink frame" not in said, said
+    assert re.search(rf"all of them queued during start-up \({STALE + 1} datagrams, dropped as older than the "
+                     r"filter\), none since: has the autopilot stopped sending\?", said), said  # fmt: skip
