@@ -110,6 +110,7 @@ from mavahrs.filters.magfield import (
     magfield_params,
 )
 from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
+from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
@@ -164,7 +165,10 @@ _MAGF_P = 29  # the magnetometer model's parameters (:mod:`mavahrs.filters.magfi
 _DRAG_K = _MAGF_P + MP_LEN  # rotor-drag coefficient, 1/s (0: no drag measurement)
 _R_DRAG = _DRAG_K + 1  # drag measurement noise², (m/s²)²
 _THRUST_TAU = _DRAG_K + 2  # s: averaging time of the body-frame thrust-axis estimate
-_N_PARAMS = _THRUST_TAU + 1
+_R_REST_RATE = _DRAG_K + 3  # zero-rate measurement noise² at detected rest, (rad/s)² (0: off)
+_R_REST_VEL = _DRAG_K + 4  # zero-velocity measurement noise² at detected rest, (m/s)²
+_REST_P = _DRAG_K + 5  # the rest detector's parameters (:mod:`mavahrs.filters.rest`, RP_LEN)
+_N_PARAMS = _REST_P + RP_LEN
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -201,7 +205,10 @@ _MSCR = _MAGF + MF_LEN  # scratch of the model: corrected field + heading varian
 _MSTEPS = _MSCR + 20  # the model's disturbance count last seen
 _TAX = _MSTEPS + 1  # running mean of the drag-corrected specific force's direction, body (3): the thrust axis
 _FSUM = _TAX + 3  # integral of the specific force (body, 3) and the time (1) since the last drag update
-_N_STATE = _FSUM + 4
+_REST = _FSUM + 4  # the rest detector (:mod:`mavahrs.filters.rest`, REST_LEN)
+_RSCR = _REST + REST_LEN  # scratch of the detector's own bias follower (3; not used as the bias)
+_LAST_REST = _RSCR + 3  # clock time of the last zero-rate / zero-velocity update at rest
+_N_STATE = _LAST_REST + 1
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
 MAG_MODEL_STATE = _MAGF
 
@@ -310,6 +317,26 @@ class EskfSettings(FilterSettings):
         thrust_axis_tau_s: the thrust axis (across which drag acts) is the
             running mean of the specific force's body-frame direction over
             this time constant, s: any IMU mounting.
+        rest: the rest detector (:mod:`mavahrs.filters.rest`: gyro and
+            accelerometer steady within 2°/s and 0.5 m/s² of their 0.5 s
+            low-passes for 1.5 s, the low-passed rate below
+            ``rate_limit_rad_s``; its own bias follower is not used).
+            Without velocity aiding, at detected rest the low-passed gyro is
+            fused as a measurement of the bias (the true rate is zero) every
+            ``unaided_velocity_period_s``, and the rotor-drag measurement is
+            not (a vehicle on the ground is held by its legs; hovering still
+            it reads no airflow to speak of).  The rate limit is 6°/s (a raw
+            MEMS gyro's bias: up to ≈ 5°/s per axis);
+            ``RestBiasSettings(bias_tau_s=0)`` turns it off.  A low-passed
+            rate farther than 3 σ (the bias covariance) from the bias
+            estimate is a slow steady turn, not rest (a hover's yaw).
+            (ArduCopter SITL as a raw IMU: 1.94 → 1.86° mean inclination;
+            ``docs/accuracy.md``.)
+        rest_rate_noise_rad_s: 1-σ noise of the low-passed gyro as a
+            bias measurement at rest, rad/s (0 = no rest updates).
+        rest_velocity_noise_m_s: 1-σ noise of a zero velocity fused at rest,
+            m/s; 0 = not fused (the default: SITL's hover is as still as a
+            landed vehicle and drifts; 0.05 m/s measured 1.94 → 2.07°).
         schedule: the shared schedule: only its magnetometer rejection (norm,
             dip) and accelerometer trust are used; no start-up boost (the
             covariance converges the filter).  With ``mag_model`` enabled the
@@ -348,6 +375,11 @@ class EskfSettings(FilterSettings):
     drag_coefficient_1_s: float = 0.0
     drag_noise_m_s2: float = 0.5
     thrust_axis_tau_s: float = 60.0
+    rest: RestBiasSettings = field(
+        default_factory=lambda: RestBiasSettings(bias_tau_s=1.0, rate_limit_rad_s=math.radians(6.0))
+    )
+    rest_rate_noise_rad_s: float = math.radians(0.1)
+    rest_velocity_noise_m_s: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -375,6 +407,12 @@ class EskfSettings(FilterSettings):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
         if not (math.isfinite(self.drag_coefficient_1_s) and 0.0 <= self.drag_coefficient_1_s <= 10.0):
             raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
+        if not isinstance(self.rest, RestBiasSettings):
+            raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
+        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
         for name in ("drag_noise_m_s2", "thrust_axis_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -410,6 +448,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
             s[kp + i * N + i] = _P0_VEL_FLYING
+    rest_reset(s, k + _REST)
     s[k + _LAST_FIX] = -1.0
     s[k + _LAST_MAG] = -1.0e9
     s[k + _GREJ] = -1.0
@@ -798,6 +837,38 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                         state[k + _LAST_FIX] = clk
     aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
 
+    # ---- at rest while not aided: the rate and the velocity are zero ------------------------
+    at_rest = False
+    if not aided and params[p + _R_REST_RATE] > 0.0:
+        at_rest = rest_step(
+            state, k + _REST, state, k + _RSCR, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
+            ax, ay, az, accel_ok, math.nan, math.nan, math.nan, dt, params, p + _REST_P,
+        )  # fmt: skip
+        if at_rest:
+            # a low-passed rate the bias cannot explain is a slow steady turn (a hover's yaw), not rest:
+            # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise)
+            kp = k + _P
+            for c in range(3):
+                d = state[k + _REST + c] - state[S_BIAS + c]
+                if d * d > 9.0 * (s_pos(state[kp + (6 + c) * N + 6 + c]) + params[p + _R_REST_RATE]):
+                    at_rest = False
+        if at_rest and clk - state[k + _LAST_REST] >= params[p + _ZV_PERIOD]:
+            # the low-passed gyro is the bias (Madgwick's and VQF's rest phase, here as a measurement of
+            # the bias state: its covariance with the tilt corrects that too); optionally the velocity is zero
+            state[k + _LAST_REST] = clk
+            for c in range(3):
+                for i in range(N):
+                    state[k + _H + i] = 0.0
+                state[k + _H + 6 + c] = 1.0
+                if _scalar_update(state, k, state[k + _REST + c] - state[S_BIAS + c], params[p + _R_REST_RATE], 1.0e6):
+                    updated = True
+            for c in range(3 if params[p + _R_REST_VEL] > 0.0 else 0):
+                for i in range(N):
+                    state[k + _H + i] = 0.0
+                state[k + _H + 3 + c] = 1.0
+                if _scalar_update(state, k, -state[k + _V + c], params[p + _R_REST_VEL], 1.0e6):
+                    updated = True
+
     # ---- gravity direction while not aided -------------------------------------------------
     tried = False  # an attitude measurement was offered this sample
     passed = False  # … and accepted
@@ -817,6 +888,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     if k_drag > 0.0 and accel_ok:
         _drag_update_prepare(state, k, params, ax, ay, az, dt)
         if aided:  # velocity-aided: the fixes tell the velocity; the sum restarts
+            for i in range(4):
+                state[k + _FSUM + i] = 0.0
+        elif at_rest:  # no airflow to speak of, or held by its legs: the sum restarts
             for i in range(4):
                 state[k + _FSUM + i] = 0.0
         elif state[k + _FSUM + 3] >= params[p + _ZV_PERIOD]:  # the specific force averaged over that period
@@ -958,7 +1032,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if tau_g > 0.0:  # the stored NED vectors move with the estimate's frame
                 nav_lowpass_rotate(state, k + _GLP, rx, ry, rz)
                 nav_lowpass_rotate(state, k + _GLP + BW_LEN // 2, rx, ry, rz)
-        if aided or r_zv > 0.0 or k_drag > 0.0:
+        if aided or r_zv > 0.0 or k_drag > 0.0 or at_rest:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
         lim = params[p + _BIAS_LIMIT]
@@ -1040,6 +1114,9 @@ class Eskf(AttitudeFilter):
         p[_DRAG_K] = settings.drag_coefficient_1_s
         p[_R_DRAG] = settings.drag_noise_m_s2**2
         p[_THRUST_TAU] = settings.thrust_axis_tau_s
+        p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
+        p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
+        p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
