@@ -313,13 +313,16 @@ def test_healthz_follows_the_link_and_metrics_parse(tmp_path: Path) -> None:
         assert status == 503 and body in ("unhealthy: starting\n", "unhealthy: nothing received from the autopilot yet\n")
         daemon.wait_for("using IMU")
         _wait_health(url, 200, 10.0)
-        # the event: the status reports the simulator's 400 Hz as a rate above 100 Hz (a loaded machine
-        # takes longer to fill the rate window; 2 s of waiting gave 1.6 Hz there)
+        # the events: the status reports the simulator's 400 Hz as a rate above 100 Hz, and its GNSS and
+        # position messages arrived (a loaded machine takes longer; 2 s of waiting gave 1.6 Hz there)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             now = json.loads(_get(url + "status.json")[1])
-            if (now["status"].get("in_hz") or 0) > 100 and now["status"].get("attitudes_out", 0) > 0:
-                break
+            pilot_now = now["status"].get("pilot") or {}
+            if ((now["status"].get("in_hz") or 0) > 100 and now["status"].get("attitudes_out", 0) > 0
+                    and (pilot_now.get("gnss") or {}).get("satellites") is not None
+                    and pilot_now.get("altitude_rel_m") is not None):
+                break  # and the simulator's GPS_RAW_INT and GLOBAL_POSITION_INT have arrived
             time.sleep(0.1)
         # /metrics in the Prometheus text format, agreeing with /status.json
         status, text, headers = _get(url + "metrics")
