@@ -101,8 +101,7 @@ from mavahrs.filters.base import (
     FilterState,
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
-from mavahrs.filters.eskf import DRAG_PARAM as _DRAG_OFFSET
-from mavahrs.filters.eskf import MAG_MODEL_STATE, MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
+from mavahrs.filters.eskf import GRAVITY_LOWPASS_STATE, MAG_MODEL_STATE, MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
 from mavahrs.filters.jit import kernel
@@ -150,12 +149,53 @@ def best_settings() -> MadgwickSettings:
 
 
 def best_eskf_settings() -> EskfSettings:
-    """The velocity-aided filter ``best`` runs with GNSS velocity: :class:`EskfSettings` defaults.
+    """The ESKF ``best`` runs when nothing is known of the source (the Python API's default).
 
-    ``sensor_delay_s`` is set per stream by the pipeline from the autopilot's
-    scaling profile (:meth:`Best.set_sensor_delay`).
+    Without velocity aiding the gravity measurement is the specific force low-passed for 2 s in
+    the estimated NED frame (``gravity_lowpass_s``, the quasi-inertial low-pass of VQF, here as
+    the ESKF's measurement, σ 0.5 m/s²): the accelerations of a hand-held sensor or an indoor
+    flight average out within seconds, and so does a raw IMU's rotor vibration, which the single
+    sample's 5 % norm gate rejected on most samples (held-back real multirotor flights: 2.5°
+    against 0.86° with the bias removed beforehand).  Every magnetometer reading up to 100 Hz is
+    fused at σ 10° (the information rate of 10 Hz at 5°, spread over more readings: a room's
+    field errors average out), and the innovation gate is 4σ: a low-passed reference has little
+    noise, and a 3σ gate on it refused the corrections that bring a large error back (a state
+    90° off: 1.16° RMS 45–60 s later at 3σ, 0.29° at 4σ; at 5σ the 6-axis case learnt a
+    wrong bias from them, 1.39°).  Measured (``scripts/bench_estimator.py``, ``docs/accuracy.md``):
+    BROAD 9-axis 0.66° inclination / 1.66° heading (the Madgwick configuration 0.705 / 1.69,
+    VQF 0.71 / 2.30), 6-axis 0.655°, as a raw IMU (bias, no rest) 1.09° (Madgwick
+    configuration 1.98°, VQF 4.85°).  On an autopilot's stream or a declared multirotor
+    :func:`vehicle_eskf_settings` replaces these.  ``sensor_delay_s`` is set per stream by the
+    pipeline from the autopilot's scaling profile (:meth:`Best.set_sensor_delay`).
     """
-    return EskfSettings()
+    return EskfSettings(
+        gravity_lowpass_s=2.0,
+        gravity_noise_m_s2=0.5,
+        heading_noise_rad=math.radians(10.0),
+        mag_rate_hz=100.0,
+        gate_sigma=4.0,
+    )
+
+
+def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
+    """``eskf`` with the measurement models of a vehicle's stream (:class:`EskfSettings` defaults for them).
+
+    A vehicle's accelerations last for the whole manoeuvre (legs, banked circles), so a low-pass
+    carries them into the gravity measurement: the single sample, σ 3 m/s² within 5 % of g, and
+    for a multirotor the rotor-drag measurement, measure better (ArduCopter SITL without GNSS
+    1.41° without drag, 0.62° with it, against 8.06° / 3.65–10° with the 2 s low-pass;
+    ``docs/accuracy.md``).  An autopilot's IMU data is already low-passed (no vibration) and
+    its compass read at 10 Hz: the magnetometer at most 10 Hz, σ 5°, gated at 3σ.
+    """
+    d = EskfSettings()
+    return replace(
+        eskf,
+        gravity_lowpass_s=d.gravity_lowpass_s,
+        gravity_noise_m_s2=d.gravity_noise_m_s2,
+        heading_noise_rad=d.heading_noise_rad,
+        mag_rate_hz=d.mag_rate_hz,
+        gate_sigma=d.gate_sigma,
+    )
 
 
 @dataclass(frozen=True)
@@ -164,27 +204,28 @@ class BestSettings(FilterSettings):
 
     Attributes:
         madgwick: the filter used without velocity aiding.
-        eskf: the velocity-aided filter.
+        eskf: the estimator (:func:`best_eskf_settings`: nothing known of the source; an
+            autopilot's stream or a declared multirotor switches its measurement models to
+            :func:`vehicle_eskf_settings`).
         shared_bias: without velocity aiding the Madgwick part integrates
             the gyro less the ESKF's bias estimate (learnt in motion).
         fade_s: after the velocity-aided filter loses its aiding
             (``eskf.aiding_timeout_s`` without a fix), the output moves from
             its attitude to the Madgwick attitude over this long, s.
         unaided_filter: the filter whose attitude is sent without velocity
-            aiding: ``"eskf"`` (one estimator in every condition: its
-            zero-velocity and gravity updates; the Madgwick part is not run)
-            or ``"madgwick"``.  The daemon's pipeline sets ``"eskf"`` for
-            an autopilot's stream (a vehicle: ArduCopter SITL without GNSS
-            1.41° inclination against Madgwick's 2.80°); the Python API's
-            default stays ``"madgwick"``, which measures better on hand-held
-            motion (BROAD 0.70° against the ESKF's 1.33°; ``docs/accuracy.md``).
+            aiding: ``"eskf"`` (the default: one estimator in every condition,
+            its zero-velocity and gravity updates; the Madgwick part runs beside
+            it only to re-align a restart of the aiding) or ``"madgwick"`` (the
+            tuned Madgwick configuration, integrating the gyro less the ESKF's
+            bias; kept for comparison: BROAD 0.705° against the ESKF's 0.66°, a
+            raw IMU 1.98° against 1.09°, ``docs/accuracy.md``).
     """
 
     madgwick: MadgwickSettings = field(default_factory=best_settings)
     eskf: EskfSettings = field(default_factory=best_eskf_settings)
     fade_s: float = 2.0
     shared_bias: bool = True
-    unaided_filter: str = "madgwick"
+    unaided_filter: str = "eskf"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -354,6 +395,8 @@ class Best(AttitudeFilter):
                 s[base + S_Q : base + S_Q + 4] = s[S_Q : S_Q + 4]
                 s[base + S_BIAS : base + S_BIAS + 3] = s[S_BIAS : S_BIAS + 3]
                 s[base + S_INIT] = s[S_INIT]
+            # the ESKF's low-passed gravity reference is in the old frame: it is built again
+            s[_SE + S_FILTER + GRAVITY_LOWPASS_STATE + 3] = 0.0
             s[_QOUT : _QOUT + 4] = s[S_Q : S_Q + 4]
 
     def set_mag_reference(self, norm_ut: float, dip_rad: float) -> None:
@@ -405,36 +448,43 @@ class Best(AttitudeFilter):
         k = _SE + S_FILTER + MAG_MODEL_STATE
         return import_model(self._state[k : k + MF_LEN], s.eskf.mag_model, saved)
 
-    def set_vehicle_stream(self) -> None:
-        """The input is an autopilot's IMU stream (a vehicle): the ESKF's attitude in every condition.
+    def _set_eskf(self, eskf: EskfSettings, **changes: Any) -> None:
+        """New settings for the ESKF part (its whole parameter block recomputed) and ``changes`` to ``best``'s."""
+        s = self._settings
+        assert isinstance(s, BestSettings)
+        self._settings = replace(s, eskf=eskf, **changes)
+        self._params[_PE : _PE + _PLE] = np.concatenate([eskf.common_params(), Eskf.filter_params(eskf)])
+        if "unaided_filter" in changes:
+            self._params[_ESKF_ONLY] = 1.0 if changes["unaided_filter"] == "eskf" else 0.0
 
-        Called by the pipeline when it knows the autopilot's profile (see
-        ``BestSettings.unaided_filter``).
+    def set_vehicle_stream(self) -> None:
+        """The input is an autopilot's IMU stream (a vehicle): the ESKF with a vehicle's measurement models.
+
+        Called by the pipeline when it knows the autopilot's profile: the single accelerometer
+        sample as the gravity measurement and the magnetometer at most 10 Hz
+        (:func:`vehicle_eskf_settings`), the ESKF's attitude in every condition.
         """
         s = self._settings
         assert isinstance(s, BestSettings)
-        self._settings = replace(s, unaided_filter="eskf")
-        self._params[_ESKF_ONLY] = 1.0
+        self._set_eskf(vehicle_eskf_settings(s.eskf), unaided_filter="eskf")
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
-        """The vehicle is a multirotor: the ESKF with its rotor-drag measurement, in every condition.
+        """The vehicle is a multirotor: the ESKF with a vehicle's models and the rotor-drag measurement.
 
         The pipeline calls it on a multirotor's HEARTBEAT (MAV_TYPE quadrotor, hexarotor, …); a
         Python API user whose IMU flies on a multirotor calls it too (or sets
-        ``BestSettings(unaided_filter="eskf", eskf=EskfSettings(drag_coefficient_1_s=0.5))``).
-        Without GNSS the drag makes the velocity, hence the tilt, observable: ArduCopter SITL
-        without GNSS 1.41 → 0.65° mean inclination RMS (``docs/accuracy.md``).  ``None``: a
-        coefficient already set, else 0.5 /s (``EskfSettings.drag_coefficient_1_s``).
+        ``BestSettings(eskf=vehicle_eskf_settings(replace(best_eskf_settings(), drag_coefficient_1_s=0.5)))``).
+        Without GNSS the drag makes the velocity, hence the tilt, observable even through
+        sustained manoeuvres: ArduCopter SITL without GNSS 1.41 → 0.62° mean inclination RMS
+        (``docs/accuracy.md``).  ``None``: a coefficient already set, else 0.5 /s
+        (``EskfSettings.drag_coefficient_1_s``).
         """
         s = self._settings
         assert isinstance(s, BestSettings)
         k = drag_coefficient_1_s
         if k is None:
             k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
-        eskf = replace(s.eskf, drag_coefficient_1_s=float(k))
-        self._settings = replace(s, eskf=eskf, unaided_filter="eskf")
-        self._params[_PE + P_FILTER + _DRAG_OFFSET] = eskf.drag_coefficient_1_s
-        self._params[_ESKF_ONLY] = 1.0
+        self._set_eskf(vehicle_eskf_settings(replace(s.eskf, drag_coefficient_1_s=float(k))), unaided_filter="eskf")
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps (s), for the velocity-aided filter's output and fixes."""

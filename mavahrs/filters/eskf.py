@@ -211,6 +211,8 @@ _LAST_REST = _RSCR + 3  # clock time of the last zero-rate / zero-velocity updat
 _N_STATE = _LAST_REST + 1
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
 MAG_MODEL_STATE = _MAGF
+#: offset of the gravity low-pass (:func:`mavahrs.filters.prefilter.ned_butterworth_step`) in the ESKF's state
+GRAVITY_LOWPASS_STATE = _GLP
 
 
 @dataclass(frozen=True)
@@ -469,6 +471,9 @@ def eskf_reopen_attitude(s, k, params, big_tilt, big_heading):  # type: ignore[n
             s[kp + j * N + i] = 0.0
     s[kp + 0] = s[kp + N + 1] = max(params[P_FILTER + _P0_TILT], big_tilt)
     s[kp + 2 * N + 2] = max(params[P_FILTER + _P0_HEADING], big_heading)
+    # the low-passed gravity reference was built in a frame now doubted: it is built again from
+    # the samples to come (averaged over its τ, then filtered), in the frame the attitude goes to
+    s[k + _GLP + 3] = 0.0
 
 
 @kernel
@@ -906,6 +911,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # the low-passed vector's norm tells a sustained manoeuvre (the sample's is mostly vibration)
         tol = params[P_SCHED + _g.GP_ACCEL_NORM_TOL]
         w_g = 1.0 - abs(na / G_M_S2 - 1.0) / tol if tol > 0.0 else 1.0
+        since = clk - state[k + _LAST_FIX] - params[p + _AID_TIMEOUT]
+        if state[k + _LAST_FIX] >= 0.0 and 0.0 <= since < tau_g:
+            # just after the velocity aiding ended the reference still holds the accelerations of
+            # the aided flight, which the fixes explained: its trust rises as they leave it
+            w_g *= since / tau_g
     tau_r = params[p + _ADAPT_TAU]
     if tau_r > 0.0 and not aided and accel_ok and na > 0.0:
         # every sample, gated or not: a manoeuvre the gate refuses still tells how far off f runs

@@ -149,7 +149,7 @@ def test_a_disturbed_magnetometer_is_not_followed_while_gnss_tells_the_heading()
 
 
 def test_best_uses_the_velocity_aided_filter_and_hands_back_without_a_jump() -> None:
-    """Fixes for 0–40 s, none after: the ESKF's attitude while aided; Madgwick's 5 s later, faded."""
+    """Fixes for 0–40 s, none after: the ESKF's attitude while aided, and no step when the aiding ends."""
     rows, q, t = _flight(60.0, _north_then_east)
     rows[t >= 40, IN_VEL : IN_VEL + 3] = np.nan
     rows[t >= 40, IN_VEL_AGE] = np.nan
