@@ -1,85 +1,48 @@
 r"""The configuration mavahrs recommends: ``filter="best"`` (also the daemon's default filter).
 
-On an autopilot's stream (the daemon's pipeline calls :meth:`Best.set_vehicle_stream`
-when it knows the profile) ``best`` is one estimator in every condition: the
-ESKF below, velocity-aided with GNSS and unaided without (zero-velocity and
-gravity updates, and on a multirotor — its HEARTBEAT type, :meth:`Best.set_multirotor`
-— the rotor-drag measurement; ArduCopter SITL without GNSS 0.66° inclination, 1.41°
-without drag, against the Madgwick configuration's 2.80°).  A Python API user whose
-IMU flies on a multirotor calls :meth:`Best.set_multirotor` and gets the same.
-Otherwise, through the Python API, two filters run side
-by side on every sample and ``best`` sends the one that measures best for the
-inputs it has (``BestSettings.unaided_filter``; ``docs/accuracy.md``):
+``best`` is one estimator in every condition: the error-state Kalman filter of
+:mod:`mavahrs.filters.eskf` (attitude, NED velocity and gyro bias as states).  What changes
+with the inputs is only which measurements it has, and the measurement model of the
+accelerometer is chosen by what is known of the source, never by a separately tuned fallback:
 
-* **with GNSS velocity** — the velocity-aided error-state Kalman filter
-  (:mod:`mavahrs.filters.eskf`): on ArduCopter SITL flights it reaches
-  0.2–0.3° inclination RMS where the autopilot's own EKF3 has 0.15–0.26°
-  and the Madgwick configuration below 0.8–0.9° (``scripts/bench_sitl.py``,
-  ``docs/accuracy.md``).  It takes over on the first fix, starting from the
-  Madgwick attitude and bias (so the hand-over does not jump), and hands back
-  over ``fade_s`` after ``aiding_timeout_s`` without a fix;
-* **without** — the Madgwick filter (:mod:`mavahrs.filters.madgwick`) with the
-  extensions that measured best on the 16 BROAD trials in ``../shared/data/broad``
-(Laidig et al. 2021; one parameter set for all trials, mean of the per-trial
-RMS over the scored movement phases; ``scripts/bench_accuracy.py``) *and* on
-``firmware_sim`` flights replayed through the daemon's pipeline, with and
-without GLOBAL_POSITION_INT (``scripts/bench_sim_accuracy.py``); the tables
-are in ``docs/accuracy.md``:
+* **with GNSS velocity** — every fix is compared with the velocity integrated from the
+  specific force at the fix's own time; the tilt, the gyro bias and, while the vehicle
+  accelerates, the heading follow through their covariance (ArduCopter SITL 0.22° mean
+  inclination RMS, EKF3 0.15–0.26°; ``scripts/bench_estimator.py``);
+* **without, nothing known of the source** (the Python API's default: a hand-held sensor, a
+  research rig's raw IMU, an indoor flight) — the gravity measurement is the specific force
+  low-passed for 2 s in the estimated NED frame (VQF's quasi-inertial low-pass, Laidig & Seel
+  2023, as the ESKF's measurement): short accelerations and rotor vibration average out, so
+  the gyro bias is learnt in motion through the tilt it causes; every magnetometer reading up
+  to 100 Hz, heading only (:func:`best_eskf_settings`);
+* **without, on an autopilot's stream** (the pipeline calls :meth:`Best.set_vehicle_stream`) —
+  a vehicle's accelerations last the whole manoeuvre, which a low-pass would carry: the single
+  (autopilot-filtered) sample is the gravity measurement, trusted within 5 % of g, with a weak
+  zero-mean-velocity pseudo-measurement, as autopilot EKFs fuse without GNSS
+  (:func:`vehicle_eskf_settings`);
+* **and on a multirotor** (its HEARTBEAT type, or :meth:`Best.set_multirotor` through the
+  API) — the rotor-drag measurement besides (Leishman et al. 2014): the specific force across
+  the thrust axis is −k × the body-frame velocity, which makes the velocity, hence the tilt,
+  observable through sustained manoeuvres (ArduCopter SITL without GNSS 0.62°).
 
-==============================  ====================  =====================
-                                BROAD 9-axis          ``aggressive`` flight
-                                total / incl. °       incl. ° GPS / no GPS
-==============================  ====================  =====================
-``best``                        1.88 / 0.70           0.35 / 2.3
-VQF 2.x (causal, defaults)      2.46 / 0.71           9.1 (no velocity input)
-``mahony`` defaults             2.14 / 0.75           0.74 / 6.0
-``ahrs`` Madgwick / imufusion   5.3 / 2.4             10.7 (imufusion)
-==============================  ====================  =====================
+Measured with one setting for all data (``scripts/bench_estimator.py``, ``docs/accuracy.md``),
+inclination RMS, degrees:
 
-What differs from the Madgwick defaults, and why (each a physical argument,
-then checked on the data; nothing is chosen per trial or per flight):
+=========================================  ==============  ==================  ========
+data                                       ``best``        ``best`` before     VQF 2.x
+=========================================  ==============  ==================  ========
+BROAD 9-axis (16 trials): incl. / heading  0.66 / 1.66     0.705 / 1.69        0.71 / 2.30
+BROAD 6-axis                               0.655           0.704               0.71
+BROAD as a raw IMU (1–5 °/s bias, no rest)  1.09            1.98                4.85
+ArduCopter SITL with GNSS / without         0.22 / 0.62     (unchanged)         8.2
+=========================================  ==============  ==================  ========
 
-* the accelerometer enters the gradient through a second-order Butterworth
-  low-pass (τ = 2 s) taken in the estimated NED frame: motion accelerations
-  average out over a few seconds while rotations are followed without lag
-  (VQF's quasi-inertial filter); β is then lowered to 0.01 (1.1°/s of
-  correction) because the low-pass already removed the noise the larger β
-  was chasing;
-* with a GNSS velocity (the daemon feeds GLOBAL_POSITION_INT), the vehicle's
-  acceleration v̇ is subtracted before that low-pass (f − v̇, the 003
-  tutorial's acceleration-compensated vertical): a multirotor's
-  accelerometer reads thrust and drag, not gravity, for as long as it
-  accelerates, and no amount of averaging removes a sustained acceleration;
-* without velocity, the norm of the low-passed specific force tells a
-  manoeuvre: beyond 3 % from g the gravity correction falls to 20 % and the
-  large-error speed-up is off (a sustained tilted acceleration looks exactly
-  like a large tilt error); on BROAD this changes nothing (its low-passed
-  norm stays within a few per cent of g);
-* without velocity, a 3 s low-pass is blended in beside the 2 s one as far
-  as the motion acceleration outweighs the rotation rate and the manoeuvre
-  weight allows: hand-held translation is averaged longer, rotation and
-  sustained acceleration keep 2 s (BROAD inclination 0.715 → 0.703°);
-* the magnetometer corrects heading only, at its own slower β = 0.005
-  (0.57°/s): the field in a room (and a calibration error) deflects the
-  measured heading by several degrees in some orientations, which a slow,
-  bounded-rate correction averages out, while a well-estimated gyro bias
-  keeps the heading in between;
-* large errors (a bad start) converge exponentially (τ 2 s tilt, 20 s
-  heading) instead of at the constant 2β rate; ζ = 0.0005 learns a bias in
-  motion slowly (time constant β/ζ = 20 s), not while the error is large;
-* the rest-phase gyro bias accepts at most 1°/s: a hovering vehicle turning
-  slowly is otherwise taken for a sensor at rest with a bias (the rate of
-  the turn) when no GNSS speed rules it out; autopilots calibrate the gyro
-  at boot, so what is left to learn is well below that;
-* the rest is the Madgwick default: magnetometer rejected beyond 15 % norm /
-  15° dip from the learned reference (dip against the estimate's vertical),
-  start-up boost.
-
-Tuned on: the 16 BROAD trials (coarse grid over τ, β, β_heading, rejection
-tolerances, ζ; the optimum is flat, the rounded values are kept) and
-``firmware_sim`` flights (seeds 1–3, six scenarios; 4–6 for ``aggressive``):
-the norm tolerance, the rest-rate limit and ζ, each checked not to change
-BROAD by more than 0.01°.
+The Madgwick configuration that ``best`` ran through the API without GNSS until 2026-12
+(:func:`best_settings`: β = 0.01, the accelerometer low-passed in the quasi-inertial frame,
+heading-only magnetometer, tuned on BROAD) stays selectable as
+``BestSettings(unaided_filter="madgwick")`` for comparison, and runs beside the ESKF for one
+job: after a restart in a manoeuvre (a link outage) its first GNSS v̇ re-aligns it by TRIAD,
+and the ESKF restarts its aiding from that attitude.
 """
 
 from __future__ import annotations
@@ -101,7 +64,14 @@ from mavahrs.filters.base import (
     FilterState,
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
-from mavahrs.filters.eskf import GRAVITY_LOWPASS_STATE, MAG_MODEL_STATE, MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
+from mavahrs.filters.eskf import (
+    GRAVITY_LOWPASS_STATE,
+    MAG_MODEL_STATE,
+    MULTIROTOR_DRAG_1_S,
+    Eskf,
+    EskfSettings,
+    eskf_aided,
+)
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
 from mavahrs.filters.jit import kernel
@@ -111,7 +81,7 @@ from mavahrs.filters.madgwick import step as _madgwick_step
 from mavahrs.filters.magfield import MF_LEN, export_model, import_model, mag_model_summary
 from mavahrs.filters.rest import RestBiasSettings
 
-__all__ = ["best_settings", "best_eskf_settings", "BestSettings", "Best", "create_best", "BEST_FILTER"]
+__all__ = ["best_settings", "best_eskf_settings", "vehicle_eskf_settings", "BestSettings", "Best", "create_best", "BEST_FILTER"]
 
 #: the registry name of the filter ``"best"`` uses without GNSS velocity
 BEST_FILTER = "madgwick"
