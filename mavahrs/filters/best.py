@@ -101,7 +101,14 @@ from mavahrs.filters.base import (
     FilterState,
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
-from mavahrs.filters.eskf import GRAVITY_LOWPASS_STATE, MAG_MODEL_STATE, MULTIROTOR_DRAG_1_S, Eskf, EskfSettings, eskf_aided
+from mavahrs.filters.eskf import (
+    GRAVITY_LOWPASS_STATE,
+    MAG_MODEL_STATE,
+    MULTIROTOR_DRAG_1_S,
+    Eskf,
+    EskfSettings,
+    eskf_aided,
+)
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
 from mavahrs.filters.jit import kernel
