@@ -547,7 +547,7 @@ def prepare_inputs(
     decl_at = np.full(m, decl.declination_rad)
     decl_steps: list[tuple[int, float]] = []  # (first sample, declination from there on), filled in once below
     vel_rows: list[tuple[int, tuple[float, float, float], int | None]] = []
-    vsel = VelocitySelector(s.effective_velocity_source, s.monitor.receiver_velocity_only)
+    vsel = VelocitySelector(s.effective_velocity_source, s.monitor.receiver_velocity_only, profile.velocity_order)
     mag_events: list[tuple[int, float, float]] = []  # Pipeline._field_changed → filter.set_mag_reference
     ref0 = decl.mag_reference()
     if ref0 is not None:

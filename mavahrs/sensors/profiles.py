@@ -170,6 +170,17 @@ class AutopilotProfile:
         messages: message name → :class:`MessageScale`.
         primary_message: the message to request for instance 0.
         secondary_messages: messages carrying instances 1 and 2.
+        velocity_order: the GNSS velocity messages ``velocity_source = auto``
+            takes, in order of preference (:mod:`mavahrs.sensors.velocity`).
+            ArduPilot and generic: GLOBAL_POSITION_INT (the EKF's velocity, 3 ms
+            old), then the receiver's GPS_RAW_INT (90–200 ms old).  PX4: the
+            receiver's GPS_RAW_INT first (``sensor_gps``, stamped at its sample
+            time), then GLOBAL_POSITION_INT — PX4 fills the latter with EKF2's
+            output-predictor velocity (``vehicle_local_position``), whose error
+            follows EKF2's own attitude and tracking errors: against the simulator's
+            truth on the PX4 SITL flight 0.19–0.26 m/s RMS per axis in the
+            manoeuvres, the receiver's 0.06–0.08 m/s at no measurable lag
+            (``docs/accuracy.md``, "PX4: which velocity").
     """
 
     name: str
@@ -177,6 +188,7 @@ class AutopilotProfile:
     messages: Mapping[str, MessageScale] = field(default_factory=dict)
     primary_message: str = "RAW_IMU"
     secondary_messages: tuple[str, ...] = ("SCALED_IMU2", "SCALED_IMU3")
+    velocity_order: tuple[str, ...] = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW")
 
     def scale_for(self, message: str) -> MessageScale | None:
         return self.messages.get(message)
@@ -265,6 +277,7 @@ _PX4 = AutopilotProfile(
         }
     ),
     primary_message="HIGHRES_IMU",
+    velocity_order=("GPS_RAW_INT", "GLOBAL_POSITION_INT", "GPS2_RAW"),
 )
 
 _GENERIC_SRC = "MAVLink common.xml field units"

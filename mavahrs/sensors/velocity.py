@@ -25,7 +25,12 @@ messages as they arrive and says which fix to feed, following the
   last :data:`SILENCE_US`), else GPS_RAW_INT, else GPS2_RAW.  The sources are
   never mixed: a lower one is used only once every preferred one has been
   silent for 2 s, so a source is abandoned only after it went silent; a
-  preferred source that comes back is taken again from its first fix.
+  preferred source that comes back is taken again from its first fix.  The
+  autopilot's profile may change that order
+  (:attr:`~mavahrs.sensors.profiles.AutopilotProfile.velocity_order`, given
+  with :meth:`VelocitySelector.set_auto_order`): PX4's GLOBAL_POSITION_INT
+  velocity is EKF2's output, three times the receiver's error on PX4's SITL
+  flight, so on PX4 ``auto`` takes GPS_RAW_INT first (:data:`PX4_AUTO_ORDER`).
 * ``global_position_int`` / ``gps_raw_int`` / ``gps2_raw`` — that message only.
 * ``none`` — no velocity.
 
@@ -52,6 +57,8 @@ __all__ = [
     "SOURCE_MESSAGES",
     "LABELS",
     "SILENCE_US",
+    "AUTO_ORDER",
+    "PX4_AUTO_ORDER",
     "VelocityFix",
     "VelocitySelector",
     "decode_fix",
@@ -65,6 +72,8 @@ VELOCITY_SOURCES = ("auto", "global_position_int", "gps_raw_int", "gps2_raw", "n
 SOURCE_MESSAGES = {"global_position_int": "GLOBAL_POSITION_INT", "gps_raw_int": "GPS_RAW_INT", "gps2_raw": "GPS2_RAW"}
 #: the preference order of ``auto``
 AUTO_ORDER = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW")
+#: … on PX4: the receiver first, EKF2's velocity (GLOBAL_POSITION_INT) when no receiver message arrives
+PX4_AUTO_ORDER = ("GPS_RAW_INT", "GLOBAL_POSITION_INT", "GPS2_RAW")
 #: ``auto`` with ``receiver_only``: the GNSS receivers' own velocity
 RECEIVER_ORDER = ("GPS_RAW_INT", "GPS2_RAW")
 #: short names for the status line and the replay header
@@ -80,12 +89,15 @@ _GPS_FIX_TYPE_3D = 3
 _CDEG_TO_RAD = math.pi / 18000.0
 
 
-def source_messages(source: str, receiver_only: bool = False) -> tuple[str, ...]:
-    """The messages a ``velocity_source`` setting may use, in order of preference."""
+def source_messages(source: str, receiver_only: bool = False, auto_order: tuple[str, ...] = AUTO_ORDER) -> tuple[str, ...]:
+    """The messages a ``velocity_source`` setting may use, in order of preference.
+
+    ``auto_order``: what ``auto`` means (the autopilot profile's ``velocity_order``).
+    """
     if source == "none":
         return ()
     if source == "auto":
-        return RECEIVER_ORDER if receiver_only else AUTO_ORDER
+        return RECEIVER_ORDER if receiver_only else auto_order
     try:
         return (SOURCE_MESSAGES[source],)
     except KeyError:
@@ -162,6 +174,8 @@ class VelocitySelector:
     Args:
         source: the ``velocity_source`` setting.
         receiver_only: ``auto`` uses only the receivers' messages.
+        auto_order: the order of preference of ``auto`` (:data:`AUTO_ORDER`; PX4:
+            :data:`PX4_AUTO_ORDER`).
 
     Attributes:
         counters: fixes not fed, by reason (``no_fix``, ``unknown_velocity``,
@@ -171,13 +185,25 @@ class VelocitySelector:
 
     source: str = "auto"
     receiver_only: bool = False
+    auto_order: tuple[str, ...] = AUTO_ORDER
     counters: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.messages = source_messages(self.source, self.receiver_only)
+        self.messages = source_messages(self.source, self.receiver_only, self.auto_order)
         self._states = {m: _SourceState() for m in self.messages}
         self.current: str | None = None
         self.switches = 0
+
+    def set_auto_order(self, order: tuple[str, ...]) -> None:
+        """What ``auto`` prefers, once the autopilot's profile is known (its ``velocity_order``).
+
+        The sources' states and counts are kept; only the order (and, for ``auto``, the
+        messages) change.  No effect on a named source or ``receiver_only``.
+        """
+        self.auto_order = tuple(order)
+        messages = source_messages(self.source, self.receiver_only, self.auto_order)
+        self._states = {m: self._states.get(m) or _SourceState() for m in messages}
+        self.messages = messages
 
     def reset(self) -> None:
         """Forget the sources' time stamps (autopilot reboot); the counts stay."""

@@ -223,8 +223,10 @@ class PipelineSettings:
             autopilot heartbeat's (of ``source_system`` when given).
         velocity_source: GNSS velocity fed to the filter (acceleration
             compensation): ``auto`` (GLOBAL_POSITION_INT while it arrives, else
-            GPS_RAW_INT, else GPS2_RAW; switches down only when the source in
-            use has been silent for 2 s, never mixes two), ``global_position_int``,
+            GPS_RAW_INT, else GPS2_RAW — on PX4 GPS_RAW_INT first, then
+            GLOBAL_POSITION_INT, then GPS2_RAW: the profile's ``velocity_order``;
+            switches down only when the source in use has been silent for 2 s,
+            never mixes two), ``global_position_int``,
             ``gps_raw_int``, ``gps2_raw`` or ``none``
             (:mod:`mavahrs.sensors.velocity`).  With
             ``monitor.receiver_velocity_only``, ``auto`` uses only GPS_RAW_INT and
@@ -325,7 +327,11 @@ class PipelineSettings:
 
     @property
     def velocity_messages(self) -> tuple[str, ...]:
-        """The messages the velocity may come from, in order of preference."""
+        """The messages the velocity may come from, in order of preference, before the profile is known.
+
+        ``auto``: the ArduPilot / generic order; the pipeline's selector takes the profile's
+        ``velocity_order`` once the autopilot's HEARTBEAT names it.
+        """
         return source_messages(self.effective_velocity_source, self.monitor.receiver_velocity_only)
 
     @property
@@ -756,6 +762,7 @@ class Pipeline:
         vehicle = getattr(self._filter, "set_vehicle_stream", None)
         if vehicle is not None:  # an autopilot's stream: ``best`` is the ESKF in every condition
             vehicle()
+        self._velocity.set_auto_order(profile.velocity_order)  # PX4: the receiver before EKF2's velocity
         self._calibrators = {
             name: Calibrator(self.settings.calibration, mag_already_calibrated=ms.mag_calibrated)
             for name, ms in profile.messages.items()
@@ -785,9 +792,10 @@ class Pipeline:
                 name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, MAV_DATA_STREAM_RAW_SENSORS,
                 warn_low_rate=imu_id == current,  # a board may have no second or third IMU
             )  # fmt: skip
-        wanted = s.velocity_messages
+        wanted = self._velocity.messages  # in the profile's order
         if s.effective_velocity_source == "auto":
-            wanted = wanted[:2]  # GLOBAL_POSITION_INT and GPS_RAW_INT (receiver-only: GPS_RAW_INT and GPS2_RAW)
+            # GLOBAL_POSITION_INT and GPS_RAW_INT (PX4: GPS_RAW_INT first; receiver-only: GPS_RAW_INT and GPS2_RAW)
+            wanted = wanted[:2]
         for name, group in _VELOCITY_STREAMS.items():
             # no low-rate warning: PX4 sends GLOBAL_POSITION_INT only with a position estimate, and
             # GPS2_RAW needs a second receiver

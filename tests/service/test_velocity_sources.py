@@ -256,3 +256,47 @@ def test_replay_velocity_line_after_a_switch():
     )
     inp = SimpleNamespace(velocity_source="auto, receiver only", velocity_fixes={"GPS_RAW_INT": 0, "GPS2_RAW": 0})
     assert format_velocity(inp) == "velocity: none (velocity_source auto, receiver only: no usable fix in the log)"
+
+
+def test_px4_auto_prefers_the_receiver_over_ekf2s_velocity(trajectory, make_autopilot):
+    """On PX4, GLOBAL_POSITION_INT is EKF2's velocity: ``auto`` takes GPS_RAW_INT while it arrives, both are requested."""
+    ap = make_autopilot(1, 1, autopilot=12)  # PX4: HIGHRES_IMU
+    pipe, rows = make_pipe()
+    t0 = int(trajectory.t_us[0])
+    frames = [(0, ap.heartbeat())]
+    for k in range(800):
+        t = int(trajectory.t_us[k])
+        frames.append((t + ARRIVAL_US, ap.highres_imu(t, [0.0, 0.0, -9.80665], [0.0, 0.0, 0.0], [0.2, 0.0, 0.45])))
+    extra = [(int(trajectory.t_us[k]) + ARRIVAL_US, ap.global_position_int(t0 + k * 2500, (1.0, 2.0, 0.0)))
+             for k in range(0, 800, 40)]  # fmt: skip
+    extra += [(int(trajectory.t_us[k]) + ARRIVAL_US + 1, ap.gps_raw_int(t0 + k * 2500, 100, 0)) for k in range(0, 800, 80)]
+    feed(pipe, with_messages(frames, extra))
+    fed = velocity_rows(rows)
+    assert len(fed) == 10 and all(math.isnan(r[IN_VEL + 2]) for _, r in fed)  # GPS_RAW_INT only
+    assert {s.message for s in pipe.status().streams} >= {"GPS_RAW_INT", "GLOBAL_POSITION_INT"}
+
+
+def test_selector_px4_order_falls_back_to_global_position_int():
+    """PX4's order: the receiver first; EKF2's GLOBAL_POSITION_INT only once the receiver is silent for 2 s."""
+    from mavahrs.sensors.profiles import get_profile
+    from mavahrs.sensors.velocity import AUTO_ORDER, PX4_AUTO_ORDER
+
+    assert get_profile("px4").velocity_order == PX4_AUTO_ORDER
+    assert get_profile("ardupilot").velocity_order == AUTO_ORDER == get_profile("generic").velocity_order
+    sel = VelocitySelector("auto")
+    sel.set_auto_order(PX4_AUTO_ORDER)
+    assert sel.messages == PX4_AUTO_ORDER
+
+    def gps(t):
+        return _Msg("GPS_RAW_INT", time_usec=t, fix_type=3, vel=100, cog=0)
+
+    def gpi(t_ms):
+        return _Msg("GLOBAL_POSITION_INT", time_boot_ms=t_ms, lat=1, lon=1, vx=100, vy=0, vz=0)
+
+    assert sel.offer(gps(1_000_000), 1_000_000, None) is not None
+    assert sel.offer(gpi(1_050), 1_050_000, None) is None  # standby while the receiver arrives
+    assert sel.offer(gpi(3_100), 3_100_000, None) is not None  # receiver silent > 2 s
+    assert sel.current == "GLOBAL_POSITION_INT" and sel.counters == {"standby": 1}
+    receiver_only = VelocitySelector("auto", receiver_only=True)
+    receiver_only.set_auto_order(PX4_AUTO_ORDER)  # no effect: the receivers only
+    assert receiver_only.messages == ("GPS_RAW_INT", "GPS2_RAW")
