@@ -13,6 +13,7 @@ from mavahrs.cli.common import (
     EXIT_OK,
     LazyDefaultsFormatter,
     add_velocity_source_option,
+    gc_paused,
     parse_source,
     start_kernels,
 )
@@ -224,25 +225,40 @@ def _stop_during_startup(signum: int, frame: Any) -> None:
     raise _StopRequested(signal.Signals(signum).name)
 
 
+def _restore_signals(old: dict[Any, Any]) -> None:
+    for sig, handler in old.items():
+        signal.signal(sig, handler)
+
+
 def run(args: argparse.Namespace) -> int:
     from mavahrs.config import load_run_config
     from mavahrs.service.daemon import build_daemon
 
-    config = load_run_config(args.config, overrides_from_args(args))
-    if args.print_config:
-        print(config.to_toml(), end="")
-        return EXIT_OK
-    start_kernels()  # cached kernels load without numba's compiler registries; announces a first compile
-    # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
-    # the daemon installs its own handlers for the loop and restores these afterwards.
-    in_main = threading.current_thread() is threading.main_thread()
-    old = {s: signal.signal(s, _stop_during_startup) for s in (signal.SIGINT, signal.SIGTERM)} if in_main else {}
+    # the collector rests while the daemon starts (settings, imports, kernels: see gc_paused) and
+    # resumes before it serves
+    with gc_paused():
+        config = load_run_config(args.config, overrides_from_args(args))
+        if args.print_config:
+            print(config.to_toml(), end="")
+            return EXIT_OK
+        start_kernels()  # cached kernels load without numba's compiler registries; announces a first compile
+        # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
+        # the daemon installs its own handlers for the loop and restores these afterwards.
+        in_main = threading.current_thread() is threading.main_thread()
+        old = {s: signal.signal(s, _stop_during_startup) for s in (signal.SIGINT, signal.SIGTERM)} if in_main else {}
+        try:
+            daemon = build_daemon(config.daemon, config.pipeline, config.filter)
+        except _StopRequested as exc:
+            _restore_signals(old)
+            logging.getLogger("mavahrs.daemon").info("mavahrs stopped (%s) while starting", exc)
+            return EXIT_OK
+        except BaseException:
+            _restore_signals(old)
+            raise
     try:
-        daemon = build_daemon(config.daemon, config.pipeline, config.filter)
         daemon.run()
     except _StopRequested as exc:
         logging.getLogger("mavahrs.daemon").info("mavahrs stopped (%s) while starting", exc)
     finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+        _restore_signals(old)
     return EXIT_OK
