@@ -1,0 +1,57 @@
+"""``best`` through the plain Python API on a raw IMU, against the simulator's truth.
+
+The way a research rig's log reaches ``create("best")``: nothing is known of the
+source (no ``set_multirotor()``, no ``set_vehicle_stream()``), so ``best`` runs the
+ESKF with the 2 s low-passed gravity measurement (:func:`best_eskf_settings`).
+``firmware_sim``'s raw preset (a constant gyro bias drawn up to 5 °/s per axis, no
+calibration), the IMU mounted x axis up, 200 Hz, no GNSS, no magnetometer, and a
+start in flight (no rest period to learn the bias from).  Measured (seed 3, bias
+(−3.6, −0.7, −5.0) °/s, 90 s): 1.81° inclination RMS after 20 s (VQF 9.31°, the
+ESKF with a vehicle's models 1.28°), the bias on the two horizontal axes learnt
+within 0.02 °/s.  The bounds (4°; 0.3 °/s, the issue's "a few tenths") catch a
+regression — a bias not learnt in motion, a diverged tilt — not a tuning.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mavahrs.evaluation.metrics import summarize
+from mavahrs.filters import create
+from mavahrs.filters.base import make_inputs
+from mavahrs.filters.layout import OUT_BIAS, OUT_Q
+from mavahrs.geometry.quaternion import multiply
+
+RATE_HZ = 200
+#: body → IMU: the IMU's x axis up (rotated 90° about the body's y axis)
+Q_MOUNT = np.array([math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0])
+
+
+def test_best_through_the_plain_api_holds_the_tilt_of_a_raw_imu_started_in_flight() -> None:
+    sim_mod = pytest.importorskip("firmware_sim.simulation")
+    from firmware_sim.imu_model import ImuErrorSettings
+
+    sim = sim_mod.Simulation(sim_mod.SimSettings(
+        scenario="hover", seed=3, start_in_motion=True, imu_mount_deg=(0.0, 90.0, 0.0),
+        imu=ImuErrorSettings.raw(), gnss=False, mag_count=0, imu_count=1, loop_rate_hz=RATE_HZ,
+    ))  # fmt: skip
+    blk = sim.next_block(RATE_HZ * 90)
+    bias_dps = np.degrees(blk.gyro_bias_rad_s[0][0])
+    assert np.abs(bias_dps).max() > 3.0  # a raw gyro's bias: nothing subtracted beforehand
+    dt = np.diff(blk.t_us, prepend=blk.t_us[0] - 1e6 / RATE_HZ) / 1e6
+    assert abs(float(np.median(dt)) - 1.0 / RATE_HZ) < 1e-4
+    rows = make_inputs(blk.gyro_rad_s[0], blk.accel_m_s2[0], None, dt_s=dt)
+    q_ref = multiply(blk.truth.q_body_to_ned, np.broadcast_to(Q_MOUNT, blk.truth.q_body_to_ned.shape).copy())
+
+    f = create("best")  # the plain API: no set_multirotor(), no vehicle stream
+    out = f.run(rows)
+    scored = slice(RATE_HZ * 20, None)  # after 20 s of convergence from a start in flight
+    incl = summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg
+    assert incl < 4.0
+    # the horizontal axes' bias (IMU y and z with its x axis up) is learnt in motion; the vertical
+    # one (x) is not observable without a heading reference and is not checked
+    bias_err = np.abs(np.degrees(out[-1, OUT_BIAS + 1 : OUT_BIAS + 3]) - bias_dps[1:])
+    assert bias_err.max() < 0.3
