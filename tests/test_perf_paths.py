@@ -218,3 +218,54 @@ def test_quick_start_loads_cached_kernels_without_the_registries_and_changes_no_
         assert not got["registries"]
     assert got["lu"] == [[1.0, 0.0], [0.0, 1.0]]
     np.testing.assert_array_equal(np.array(got["q"]), create("madgwick").run(sensor_rows)[:, :4])
+
+
+_NO_RUNTIME = r"""
+import json, sys
+import numpy as np
+from mavahrs.filters.jit import on_first_compile, quick_start
+quick_start()
+compiled = []
+on_first_compile(compiled.append)
+from numba.core.runtime import rtsys
+from mavahrs.protocol.fast_tlog import scan_tlog
+from mavahrs.filters import create
+scan = scan_tlog(sys.argv[1])
+q = create("madgwick").run(np.load(sys.argv[2]))[:, :4]
+runtime_before = bool(rtsys._init)
+from mavahrs.evaluation.csvout import format_rows  # declared allocates: loads with numba's runtime
+text = format_rows(np.array([[1.25, -2.5]]), [2, 1])
+print(json.dumps({"compiled": bool(compiled), "runtime_before": runtime_before, "runtime_after": bool(rtsys._init),
+                  "t_us": scan.t_us.tolist(), "q": q.tolist(), "csv": text.decode()}))
+"""
+
+
+def test_kernels_without_reference_counting_load_without_numbas_runtime(
+    ideal_400hz_tlog: Path, sensor_rows: np.ndarray, tmp_path: Path
+) -> None:
+    """A command's start: the tlog decoder and the filters (no reference counting) come from the disk cache without
+    numba's runtime (17 ms to set up); a kernel that allocates (the CSV formatter) sets it up when it loads.
+    Same results as in this process."""
+    import json
+    import subprocess
+    import sys
+
+    pytest.importorskip("numba")
+    from mavahrs.evaluation.csvout import format_rows
+    from mavahrs.protocol.fast_tlog import scan_tlog
+
+    scan = scan_tlog(ideal_400hz_tlog)  # (all three in the disk cache from here on)
+    expected_q = create("madgwick").run(sensor_rows)[:, :4]
+    expected_csv = format_rows(np.array([[1.25, -2.5]]), [2, 1]).decode()
+    path = tmp_path / "rows.npy"
+    np.save(path, sensor_rows)
+    res = subprocess.run([sys.executable, "-c", _NO_RUNTIME, str(ideal_400hz_tlog), str(path)],
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    if not got["compiled"]:  # (a cold cache compiles, and compiling sets the runtime up)
+        assert got["runtime_before"] is False
+    assert got["runtime_after"] is True
+    assert got["t_us"] == scan.t_us.tolist()
+    np.testing.assert_array_equal(np.array(got["q"]), expected_q)
+    assert got["csv"] == expected_csv

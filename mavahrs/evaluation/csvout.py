@@ -36,7 +36,7 @@ _PAIRS = np.frombuffer(b"".join(b"%02d" % i for i in range(100)), np.uint8).copy
 _POW10 = np.array([10**i for i in range(20)], np.uint64)
 
 
-@kernel(nogil=True)
+@kernel(nogil=True, allocates=True)
 def _format(values, decimals, out):  # type: ignore[no-untyped-def]
     """Write rows of ``values`` (n, c) into ``out`` (uint8); return bytes used or < 0 if a value is too large.
 

@@ -56,6 +56,10 @@ __all__ = [
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+#: code objects of the cached kernels compiled without reference counting: loading one from the
+#: cache needs no numba runtime (:func:`quick_start`)
+_NO_RUNTIME: set[types.CodeType] = set()
+
 
 def _import_numba() -> Any:
     """``import numba`` without the two optional imports it makes on the way that mavahrs never uses.
@@ -129,6 +133,19 @@ def _filters_source_stamp() -> str:
     return stamp
 
 
+_JIT_STAMP: list[str] = []
+
+
+def _jit_module_stamp() -> str:
+    """A hash of this module's source (the compile options of every kernel of the package are set here)."""
+    if not _JIT_STAMP:
+        import hashlib
+
+        with open(os.path.abspath(__file__), "rb") as f:
+            _JIT_STAMP.append(hashlib.sha256(f.read()).hexdigest())
+    return _JIT_STAMP[0]
+
+
 def user_cache_dir() -> str:
     """The kernels' cache outside the installation: ``$XDG_CACHE_HOME/mavahrs/kernels`` (``~/.cache/…``;
     the platform's user cache folder elsewhere), so that reinstalling the package keeps it."""
@@ -171,12 +188,18 @@ if HAVE_NUMBA:
         """… else (no writable home) ``mavahrs/filters/__pycache__``, numba's own default place."""
 
     class _MavahrsCacheLocator(_caching.UserWideCacheLocator):  # type: ignore[misc]
-        """The other kernels of the package (tlog decoder, replay, CSV, fast lane: numba's own stamp, a hash of
-        their file) go to the same user cache folder, unless ``NUMBA_CACHE_DIR`` is set."""
+        """The other kernels of the package (tlog decoder, replay, CSV, fast lane) go to the same user cache
+        folder, unless ``NUMBA_CACHE_DIR`` is set.  Their stamp is numba's own (their file's time and size)
+        with this module's contents: the options every kernel is compiled with (reference counting or
+        not) are decided here, and numba's cache index does not tell them apart — a kernel cached with
+        other options must be compiled again, not loaded."""
 
         def __init__(self, py_func: Any, py_file: str) -> None:
             super().__init__(py_func, py_file)
             self._cache_path = os.path.join(user_cache_dir(), self.get_suitable_cache_subpath(py_file))
+
+        def get_source_stamp(self) -> Any:
+            return (super().get_source_stamp(), _jit_module_stamp())
 
         @classmethod
         def from_function(cls, py_func: Any, py_file: str) -> Any:
@@ -241,13 +264,16 @@ def _pure(func: Any, memo: dict[int, Callable[..., Any]]) -> Callable[..., Any]:
     return clone
 
 
-def kernel(func: F | None = None, *, inline: bool = False, nogil: bool = False) -> Any:
+def kernel(func: F | None = None, *, inline: bool = False, nogil: bool = False, allocates: bool = False) -> Any:
     """Compile ``func`` lazily with numba (``cache=True``), keeping ``.py_func``.
 
     No ``fastmath``: the compiled and the interpreted kernels must agree to
-    rounding (tested to 1e-9).  Kernels in ``mavahrs/filters`` are compiled
-    without reference counting (they must not allocate arrays: numba then
-    refuses to compile them).  ``inline=True`` inlines the kernel into the
+    rounding (tested to 1e-9).  Kernels are compiled without reference
+    counting: they work in arrays their caller owns and must not allocate
+    (numba then refuses to compile them), which also spares a command's
+    start numba's runtime (:func:`quick_start`).  ``allocates=True`` (not for
+    ``mavahrs/filters``) keeps reference counting for a kernel that creates
+    arrays.  ``inline=True`` inlines the kernel into the
     compiled kernels that call it (numba IR inlining; for large helpers called
     on every sample).  ``nogil=True`` releases the GIL while the compiled
     kernel runs, so another thread can work meanwhile (replay's CSV writer).
@@ -257,8 +283,11 @@ def kernel(func: F | None = None, *, inline: bool = False, nogil: bool = False) 
     def wrap(f: F) -> F:
         if HAVE_NUMBA:
             options: dict[str, Any] = {"cache": True, "error_model": "numpy"}
-            if _is_filter_kernel(f):
+            if allocates and _is_filter_kernel(f):
+                raise ValueError(f"{f.__qualname__}: kernels of mavahrs/filters must not allocate")
+            if not allocates:
                 options["_nrt"] = False
+                _NO_RUNTIME.add(f.__code__)
             if inline:
                 options["inline"] = "always"
             if nogil:
@@ -318,6 +347,7 @@ def bound_loop(template: Callable[..., Any], qualname: str, *, parallel: bool = 
     func.__module__ = template.__module__
     func.__doc__ = template.__doc__
     # nogil: a batch run leaves the interpreter to other threads (replay's CSV writer formats meanwhile)
+    _NO_RUNTIME.add(func.__code__)
     return _numba.njit(cache=True, parallel=parallel, error_model="numpy", _nrt=False, nogil=True)(func)
 
 
@@ -331,7 +361,9 @@ def quick_start() -> bool:
     and numba's compiler loads the registries itself then.  When they load, one of them probes
     for BLAS by importing ``scipy.linalg`` (0.14 s), which only code compiling ``np.dot``-like
     calls with numba needs; the kernels of mavahrs use none, so ``scipy.linalg`` is hidden for
-    that moment (it imports as usual afterwards).  Neither changes a result: the same machine
+    that moment (it imports as usual afterwards).  Kernels compiled without reference counting
+    (every one but those declared ``allocates``) load without numba's runtime, which is set up
+    (17 ms) only for one that calls into it.  None of this changes a result: the same machine
     code runs.  Not done when the library is imported: a user's own numba code in the same
     process may need BLAS.  Returns whether it was installed (False: numba absent, its
     registries already loaded, or numba's internals not as expected).
@@ -352,7 +384,9 @@ def quick_start() -> bool:
         return True
 
     def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
-        rtsys.initialize(target_context)  # numba's runtime (kernels with reference counting call into it)
+        if getattr(getattr(self, "_py_func", None), "__code__", None) not in _NO_RUNTIME:
+            # numba's runtime (kernels with reference counting call into it; 17 ms to set up)
+            rtsys.initialize(target_context)
         with guard(self):
             return load(self, sig, target_context)
         return None  # (the guard swallowed an I/O error: compile, as numba does)

@@ -372,6 +372,24 @@ def _emit(data, st, ts, buf, out_t, out_off, out_side, out_len, out_id, side, st
     stats[_S_EMITTED] = j + 1
 
 
+@_inline
+def _copy_into(dst, src):  # type: ignore[no-untyped-def]
+    """``dst[:] = src`` element by element (a whole-array assignment needs numba's runtime)."""
+    for k in range(src.shape[0]):
+        dst[k] = src[k]
+
+
+def _emulate_scratch() -> tuple[Any, ...]:
+    """The reader state and scratch arrays :func:`_emulate` works in (initialised by it)."""
+    return (
+        np.empty(_ST_LEN, np.int64), np.empty(_ST_LEN, np.int64),  # state, its initial copy
+        np.empty(1, np.uint64),  # the current record's timestamp
+        np.empty(2, np.float64), np.empty(2, np.float64),  # times, their initial copy
+        np.empty(_BUF_CAP, np.uint8), np.empty(_BUF_CAP, np.uint8),  # frame buffer, its initial copy
+        np.empty(65536, np.uint8), np.empty(65536, np.int16),  # types seen, instance field per type
+    )  # fmt: skip
+
+
 @kernel
 def _emulate(  # type: ignore[no-untyped-def]
     data,
@@ -392,26 +410,38 @@ def _emulate(  # type: ignore[no-untyped-def]
     out_id,
     side,
     stats,
+    st,
+    st0,
+    ts,
+    tf,
+    tf0,
+    buf,
+    buf0,
+    seen,
+    inst,
 ):
     """pymavlink's tlog reading: ``mavmmaplog`` index + ``recv_match(type=…)``, or plain ``mavlogfile``.
 
     One loop with a single ``_recv_msg`` call site (it is inlined; one copy
     keeps compilation short).  Phases: 0 index, 1 read indexed records,
-    2 read sequentially to the end of file.
+    2 read sequentially to the end of file.  The reader's state and scratch
+    arrays (``st`` … ``inst``, :func:`_emulate_scratch`) come from the caller
+    and are initialised here: the kernel allocates nothing, so it runs without
+    numba's reference counting (:func:`mavahrs.filters.jit.kernel`).
     """
     n = data.shape[0]
-    st = np.zeros(_ST_LEN, np.int64)
+    st[:] = 0
     st[_EXP] = 8  # HEADER_LEN_V1 + 2
     st[_LASTPOS] = -2
-    ts = np.zeros(1, np.uint64)
-    tf = np.zeros(2, np.float64)
-    buf = np.zeros(_BUF_CAP, np.uint8)
-    st0 = st.copy()
-    tf0 = tf.copy()
-    buf0 = buf.copy()
+    ts[:] = 0
+    tf[:] = 0.0
+    buf[:] = 0
+    _copy_into(st0, st)
+    _copy_into(tf0, tf)
+    _copy_into(buf0, buf)
     ts0 = ts[0]
-    seen = np.zeros(65536, np.uint8)
-    inst = np.full(65536, -1, np.int16)
+    seen[:] = 0
+    inst[:] = -1
     nidx = 0
     r = 0
     ofs = 0
@@ -466,9 +496,9 @@ def _emulate(  # type: ignore[no-untyped-def]
                 st[_FPOS] = 0  # _rewind
                 phase = 1 if indexed_read else 2
                 continue
-            st0[:] = st
-            tf0[:] = tf
-            buf0[:] = buf
+            _copy_into(st0, st)
+            _copy_into(tf0, tf)
+            _copy_into(buf0, buf)
             ts0 = ts[0]
             st[_FPOS] = ofs
         elif phase == 1:
@@ -485,10 +515,10 @@ def _emulate(  # type: ignore[no-untyped-def]
                 # pymavlink raises here (AttributeError on None._instance_field);
                 # carry on as if this read had not happened
                 stats[_S_RAISES] += 1
-                st[:] = st0
+                _copy_into(st, st0)
                 ts[0] = ts0
-                tf[:] = tf0
-                buf[:] = buf0
+                _copy_into(tf, tf0)
+                _copy_into(buf, buf0)
             elif kind == _OK and inst_tab[st[_RES_ID]] >= 0:
                 inst[p_type] = inst_tab[st[_RES_ID]]
             if inst[p_type] >= 0 and p_end > n:
@@ -697,7 +727,7 @@ def scan_tlog(
         m = int(
             _emulate(
                 data, _CRC_EXTRA, _CRC_TABLE, _INSTANCE, visit, want, want_unknown, index_pass, indexed_read,
-                idx_off, idx_id, out_t, out_off, out_side, out_len, out_id, side, stats,
+                idx_off, idx_id, out_t, out_off, out_side, out_len, out_id, side, stats, *_emulate_scratch(),
             )
         )  # fmt: skip
         if stats[_S_SIDE_NEEDED] <= side_cap:
