@@ -162,12 +162,14 @@ SAMPLE_STEPS = {
     "scale_float_row": "sensors/scaling.py",
     "blank_unusable": "sensors/sample.py",
     "calibrate_row": "sensors/calibration.py",
+    "resend_row": "ingest/resend.py",
 }
 #: who runs the steps: the live pipeline (through Scaler / Calibrator / write_row), the daemon's fast
 #: lane, and the readers (the loops)
 STEP_USERS = {
     "service/fastlane.py": {"scale_int_row"},
-    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows"},
+    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows", "resend_rows"},
+    "service/pipeline.py": {"ResendFilter"},
     "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows"},
     "logs/dataflash.py": {"si_rows"},
     "logs/ulog.py": {"si_rows"},
@@ -201,3 +203,4 @@ def test_the_pipeline_the_fast_lane_and_every_reader_run_those_steps() -> None:
     scaling = (PKG / "sensors" / "scaling.py").read_text(encoding="utf-8")
     assert "scale_int_row(" in scaling.split("class Scaler", 1)[1] and "scale_float_row(" in scaling.split("class Scaler", 1)[1]
     assert "calibrate_row(" in (PKG / "sensors" / "calibration.py").read_text(encoding="utf-8").split("class Calibrator", 1)[1]
+    assert "resend_row(" in (PKG / "ingest" / "resend.py").read_text(encoding="utf-8").split("class ResendFilter", 1)[1]

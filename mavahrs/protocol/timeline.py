@@ -40,15 +40,8 @@ Robustness rules:
 what an output stamped with the IMU sample's time must carry; it restarts at
 a reboot.  ``t_mono_us`` never goes back, across reboots too.
 
-:class:`ResendFilter` comes before all of this, for every message of every
-instance: a message with the same stamp *and* the same values as the previous
-one of its kind is the autopilot sending it again (ArduPilot at
-``SCHED_LOOP_RATE`` 800 keeps a 400 Hz request as a 2 ms interval, and its
-400 Hz telemetry task catches up by sending RAW_IMU twice in one pass: about
-one message in four), not a sample; it is dropped and counted, never warned
-about.  A new stamp with the same values is a genuine sample (a noiseless
-sensor in a steady state) and is kept; the same stamp with *different* values
-is counted and passed on (the timeline drops it as ``stale``).
+Exact re-sends of a message (same stamp and values, :mod:`mavahrs.ingest.resend`) are
+dropped before a sample gets here.
 """
 
 from __future__ import annotations
@@ -72,10 +65,6 @@ __all__ = [
     "REBOOT",
     "HELD",
     "DROP_KINDS",
-    "ResendFilter",
-    "NEW",
-    "RESENT",
-    "RESTAMPED",
 ]
 
 #: ``time_boot_ms`` is a uint32 of milliseconds: it wraps after 2³² ms, here in µs
@@ -91,11 +80,6 @@ REBOOT = "reboot"
 HELD = "drop"
 #: kinds whose sample must not reach the filter
 DROP_KINDS = frozenset({DUPLICATE, STALE, REORDERED, HELD})
-
-#: :meth:`ResendFilter.check` verdicts
-NEW = "new"
-RESENT = "resent"
-RESTAMPED = "same stamp, new values"
 
 _NAN = math.nan
 
@@ -337,44 +321,3 @@ class Timeline:
                 m = srt[len(srt) // 2]
                 self._median_us = m
                 self._jitter_us = sum(abs(x - m) for x in iv) / len(iv)
-
-
-class ResendFilter:
-    """Recognises messages the autopilot sent twice: same stamp and same values as the previous one of its kind.
-
-    One per link; ``kind`` is whatever identifies a stream (the pipeline uses
-    (message name, IMU instance)).  Values are compared exactly (NaN equals
-    NaN: a missing magnetometer is still the same message).
-
-    Attributes:
-        resent: messages found to be exact re-sends (to drop).
-        restamped: messages with the previous one's stamp but different values
-            (a fault of the sender; passed on, the timeline drops them as ``stale``).
-    """
-
-    __slots__ = ("_last", "resent", "restamped")
-
-    def __init__(self) -> None:
-        self._last: dict[object, tuple[int, tuple[float, ...]]] = {}
-        self.resent = 0
-        self.restamped = 0
-
-    def reset(self) -> None:
-        """Forget the streams (an autopilot reboot); the counts are kept."""
-        self._last.clear()
-
-    def check(self, kind: object, t_raw_us: int, values: tuple[float, ...]) -> str:
-        """``NEW``, ``RESENT`` (drop it) or ``RESTAMPED`` for one message."""
-        last = self._last.get(kind)
-        self._last[kind] = (t_raw_us, values)
-        if last is None or last[0] != t_raw_us:
-            return NEW
-        if last[1] == values or _same_with_nan(last[1], values):
-            self.resent += 1
-            return RESENT
-        self.restamped += 1
-        return RESTAMPED
-
-
-def _same_with_nan(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
-    return len(a) == len(b) and all(x == y or (x != x and y != y) for x, y in zip(a, b, strict=True))

@@ -17,7 +17,7 @@ Per message from the master link (:meth:`Pipeline.handle`):
 * IMU messages (RAW_IMU, SCALED_IMU/2/3, HIGHRES_IMU) — scaled to SI
   (:mod:`mavahrs.sensors.scaling`); an exact re-send of the previous message
   (same stamp, same values: ArduPilot's 400 Hz telemetry catching up) is
-  dropped and counted (``exact_duplicates``); the rest is offered to the IMU selector
+  dropped and counted (``exact_duplicates``, :mod:`mavahrs.ingest.resend`); the rest is offered to the IMU selector
   (:mod:`mavahrs.sensors.imu_select`); the selected instance's samples are
   timed by the timeline (duplicates and reordered samples dropped and counted,
   a reboot resets everything, a gap reaches the filter as a long ``dt`` so it
@@ -78,13 +78,12 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.filters.magfield import mag_state_text
+from mavahrs.ingest.resend import RESENT, ResendFilter, stream_code
 from mavahrs.protocol.codec import MavCodec, mavlink
 from mavahrs.protocol.timeline import (
     DROP_KINDS,
     GAP,
     REBOOT,
-    RESENT,
-    ResendFilter,
     Timeline,
     TimelineSettings,
 )
@@ -827,7 +826,7 @@ class Pipeline:
         if v is None:
             self._count(self._drops, "no_new_gyro")
             return []
-        if self._resends.check((name, v[0]), v[1], v[2:11]) == RESENT:
+        if self._resends.check(stream_code(name, v[0]), v[1], self._scaler.row) == RESENT:
             return []  # the autopilot sent the same sample twice: not a loss, counted, no notice
         sat, inv = v[12], v[13]
         if sat or inv:
