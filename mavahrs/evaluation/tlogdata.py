@@ -60,8 +60,8 @@ from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays
     _GAP_DT_S,
     FastPathUnsupported,
     PreparedInputs,
-    _timeline,
     _velocity_setting,
+    timeline_over_arrays,
 )
 
 __all__ = [
@@ -496,7 +496,7 @@ def prepare_inputs(
         return mg[k] if sel is None else mg[k][sel]
 
     sel = None if every else idx
-    keep, dt = _timeline(take("t_us", sel), td.t_us[take("pos", sel)], take("gyro", sel), take("accel", sel), s)
+    keep, dt = timeline_over_arrays(take("t_us", sel), td.t_us[take("pos", sel)], take("gyro", sel), take("accel", sel), s.timeline)
     if not keep.all():
         idx = idx[keep]
         dt = dt[keep]

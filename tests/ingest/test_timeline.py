@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavahrs.protocol.timeline import (
+from mavahrs.ingest.timeline import (
     DROP_KINDS,
     TIME_BOOT_MS_WRAP_US,
     Timeline,
