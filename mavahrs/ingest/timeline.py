@@ -199,8 +199,8 @@ KEY_MAX = 6
 #: raw stamps are clipped to this (µs, 146 000 years): room for the unwrapping offsets in int64
 T_RAW_MAX = 1 << 62
 
-# int64 state: what the stream is at, the counters (TimelineCounters' order), the settings, then the
-# ring of recent intervals and room to sort it
+# int64 state: what the stream is at (T_*, all before T_COUNTERS), the counters (TimelineCounters' order),
+# the settings, then the ring of recent intervals and room to sort it
 (T_LAST, T_HAVE_LAST, T_WRAP_OFF, T_MONO_OFF, T_LAST_MONO, T_HAVE_MONO, T_LAST_NOW, T_PENDING, T_HAVE_PENDING,
  T_PENDING_BACK, T_RING_I, T_RING_N, T_SINCE_MEDIAN, T_MEDIAN, T_KEY_N) = range(15)  # fmt: skip
 T_COUNTERS = 15
@@ -232,20 +232,8 @@ def new_state(settings: TimelineSettings | None = None) -> tuple[NDArray[np.int6
 @kernel
 def _forget(st, fs):  # type: ignore[no-untyped-def]
     """Forget the stream (a new time base); the counters and settings are kept."""
-    st[T_HAVE_LAST] = 0
-    st[T_LAST] = 0
-    st[T_WRAP_OFF] = 0
-    st[T_MONO_OFF] = 0
-    st[T_HAVE_MONO] = 0
-    st[T_LAST_MONO] = 0
+    st[:T_COUNTERS] = 0  # no last sample, offsets, pending sample, intervals or median
     st[T_LAST_NOW] = NO_NOW
-    st[T_HAVE_PENDING] = 0
-    st[T_PENDING] = 0
-    st[T_PENDING_BACK] = 0
-    st[T_RING_I] = 0
-    st[T_RING_N] = 0
-    st[T_SINCE_MEDIAN] = 0
-    st[T_MEDIAN] = 0
     st[T_KEY_N] = -1
     fs[F_JITTER] = 0.0
 
