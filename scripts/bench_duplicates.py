@@ -16,7 +16,7 @@ IMU selection with fail-over, timeline and filters; every filter at its defaults
 * **as sent** — the log itself;
 * **stripped** — a copy without the exact duplicates: every RAW_IMU / SCALED_IMU* record whose message
   repeats the previous one of its type (same stamp, same values, same instance) is left out; found here with numpy on the raw fields, independently of the
-  pipeline's own ``ResendFilter``. Genuine repeats (new stamp, same values) stay.
+  pipeline's own re-send step (:mod:`mavahrs.ingest.resend`). Genuine repeats (new stamp, same values) stay.
 
 Fail-overs: a :class:`~mavahrs.service.pipeline.Pipeline` is fed every message of the log (message by
 message, as the daemon) and its ``imu_switches`` counter read, with ``exact_duplicates`` (what it

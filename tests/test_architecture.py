@@ -43,7 +43,7 @@ RANK = {
 #: evaluation tools (metrics, plots, truth loaders); evaluation may use the service's pipeline.
 FORBIDDEN_SIDEWAYS = {"service": {"evaluation"}}
 
-SANS_IO = ("geometry", "filters", "sensors", "protocol")
+SANS_IO = ("geometry", "filters", "sensors", "protocol", "ingest")
 FORBIDDEN_IN_SANS_IO = {"socket", "selectors", "serial", "subprocess", "threading", "asyncio", "time"}
 
 
@@ -155,20 +155,23 @@ def test_evaluation_does_not_hold_or_import_the_replay_engine() -> None:
 
 # --------------------------------------------------------------------------- the one sample chain
 
-#: each step of the sample chain: the module that defines it (once), as a compiled per-sample function
-#: and the loop over it
+#: each step of the sample chain: the module that defines it (once), as a compiled per-sample function,
+#: and the loop over it beside it
 SAMPLE_STEPS = {
-    "scale_int_row": "sensors/scaling.py",
-    "scale_float_row": "sensors/scaling.py",
-    "blank_unusable": "sensors/sample.py",
-    "calibrate_row": "sensors/calibration.py",
+    "scale_int_row": ("sensors/scaling.py", "scale_int_rows"),
+    "scale_float_row": ("sensors/scaling.py", "scale_float_rows"),
+    "blank_unusable": ("sensors/sample.py", "blank_unusable_rows"),
+    "calibrate_row": ("sensors/calibration.py", "calibrate_rows"),
+    "resend_row": ("ingest/resend.py", "resend_rows"),
+    "timeline_step": ("ingest/timeline.py", "timeline_loop"),
 }
 #: who runs the steps: the live pipeline (through Scaler / Calibrator / write_row), the daemon's fast
 #: lane, and the readers (the loops)
 STEP_USERS = {
-    "service/fastlane.py": {"scale_int_row"},
-    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows"},
-    "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows"},
+    "service/fastlane.py": {"scale_int_row", "timeline_step"},
+    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows", "resend_rows"},
+    "service/pipeline.py": {"ResendFilter", "Timeline"},
+    "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows", "timeline_loop"},
     "logs/dataflash.py": {"si_rows"},
     "logs/ulog.py": {"si_rows"},
 }
@@ -184,9 +187,8 @@ def test_each_sample_step_is_defined_once_with_its_loop_beside_it() -> None:
     for path in _modules():
         for name in _defined(path):
             defs.setdefault(name, []).append(str(path.relative_to(PKG)))
-    for step, home in SAMPLE_STEPS.items():
+    for step, (home, loop) in SAMPLE_STEPS.items():
         assert defs.get(step) == [home], f"{step}: defined in {defs.get(step)}, expected once in {home}"
-        loop = step.removesuffix("_row") + "_rows" if step.endswith("_row") else step + "_rows"
         assert defs.get(loop) == [home], f"{loop} (the loop over {step}) belongs beside it in {home}"
 
 
@@ -201,3 +203,7 @@ def test_the_pipeline_the_fast_lane_and_every_reader_run_those_steps() -> None:
     scaling = (PKG / "sensors" / "scaling.py").read_text(encoding="utf-8")
     assert "scale_int_row(" in scaling.split("class Scaler", 1)[1] and "scale_float_row(" in scaling.split("class Scaler", 1)[1]
     assert "calibrate_row(" in (PKG / "sensors" / "calibration.py").read_text(encoding="utf-8").split("class Calibrator", 1)[1]
+    assert "resend_row(" in (PKG / "ingest" / "resend.py").read_text(encoding="utf-8").split("class ResendFilter", 1)[1]
+    timeline = (PKG / "ingest" / "timeline.py").read_text(encoding="utf-8")
+    assert "timeline_step(" in timeline.split("class Timeline", 1)[1] and "timeline_step(" in timeline.split("def timeline_loop", 1)[1]
+    assert not (PKG / "protocol" / "timeline.py").exists(), "the timeline is a step of the sample chain (mavahrs/ingest)"

@@ -10,8 +10,8 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
 * scaling with the profile's units, saturation and validity checks
   (the compiled steps :class:`mavahrs.sensors.scaling.Scaler` calls per message, in a loop);
 * exact re-sends (same stamp and values as the previous message of the same
-  kind and instance, :class:`~mavahrs.protocol.timeline.ResendFilter`) dropped
-  before anything else and counted (``counts["exact_duplicates"]``);
+  kind and instance: the pipeline's step, :mod:`mavahrs.ingest.resend`, in its
+  compiled loop) dropped before anything else and counted (``counts["exact_duplicates"]``);
 * the IMU instance the selector (:class:`~mavahrs.sensors.imu_select.ImuSelector`)
   would feed: instances whose accelerometer and gyro are all zero are absent
   (an ArduSub SCALED_IMU2); all-zero samples are never fed;
@@ -60,8 +60,8 @@ from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays
     _GAP_DT_S,
     FastPathUnsupported,
     PreparedInputs,
-    _timeline,
     _velocity_setting,
+    timeline_over_arrays,
 )
 
 __all__ = [
@@ -361,26 +361,17 @@ def scale_imu_messages(name: str, a: np.ndarray, ms: Any, scaling: Any) -> dict[
     }  # fmt: skip
 
 
-def _resends(mg: dict[str, Any]) -> tuple[NDArray[np.bool_], int]:
-    """:class:`mavahrs.protocol.timeline.ResendFilter` over the merged messages, per (message, instance):
-    which are exact re-sends of the previous one (dropped), and how many repeat its stamp with new values."""
-    n = mg["t_us"].shape[0]
-    resent = np.zeros(n, bool)
-    restamped = 0
-    use = mg["use"]
-    kind = mg["kind"].astype(np.int64) * 256 + mg["imu"].astype(np.int64)
-    for k in np.unique(kind[use]).tolist():
-        idx = np.flatnonzero(use & (kind == k))
-        t = mg["t_us"][idx]
-        same_t = t[1:] == t[:-1]
-        if not same_t.any():
-            continue
-        v = np.concatenate([mg["gyro"][idx], mg["accel"][idx], mg["mag"][idx]], axis=1)
-        a, b = v[1:], v[:-1]
-        same_v = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
-        resent[idx[1:][same_t & same_v]] = True
-        restamped += int(np.count_nonzero(same_t & ~same_v))
-    return resent, restamped
+def _resends(mg: dict[str, Any], names: list[str]) -> tuple[NDArray[np.bool_], int]:
+    """The re-send step (:func:`mavahrs.ingest.resend.resend_rows`, the pipeline's per-message step in a loop)
+    over the merged messages: which are exact re-sends of the previous one of their stream (dropped), and how
+    many repeat its stamp with new values."""
+    from mavahrs.ingest.resend import RESENT, RESTAMPED, new_state, resend_rows, stream_code
+
+    first = np.array([stream_code(name, 0) for name in names], np.int64)
+    k = first[mg["kind"]] + mg["imu"].astype(np.int64)
+    out = np.empty(mg["t_us"].shape[0], np.int64)
+    resend_rows(*new_state(), k, mg["t_us"], mg["gyro"], mg["accel"], mg["mag"], mg["use"], out)
+    return out == RESENT, int(np.count_nonzero(out == RESTAMPED))
 
 
 def _run_selector(mg: dict[str, Any], names: list[str], settings: Any) -> NDArray[np.bool_]:
@@ -466,7 +457,7 @@ def prepare_inputs(
         order = np.argsort(mg["pos"], kind="stable")
         mg = {k: v[order] for k, v in mg.items()}
     names = [sc["name"] for sc in parts]
-    resent, restamped = _resends(mg)
+    resent, restamped = _resends(mg, names)
     if resent.any():
         mg["use"] = mg["use"] & ~resent
     mg["zero"] = mg["zero"] & mg["use"]
@@ -505,7 +496,7 @@ def prepare_inputs(
         return mg[k] if sel is None else mg[k][sel]
 
     sel = None if every else idx
-    keep, dt = _timeline(take("t_us", sel), td.t_us[take("pos", sel)], take("gyro", sel), take("accel", sel), s)
+    keep, dt = timeline_over_arrays(take("t_us", sel), td.t_us[take("pos", sel)], take("gyro", sel), take("accel", sel), s.timeline)
     if not keep.all():
         idx = idx[keep]
         dt = dt[keep]

@@ -5,9 +5,11 @@ The steps every log reader shares after decoding (telemetry logs in
 each the array form of the live pipeline's per-sample step
 (:mod:`mavahrs.service.pipeline`):
 
-* :func:`_timeline` — :class:`mavahrs.protocol.timeline.Timeline` over the samples
-  (dt, gaps, drops; a reboot or a corrected time stamp raises
-  :class:`FastPathUnsupported`: the per-message pipeline then replays the log);
+* :func:`timeline_over_arrays` — the timeline step (:func:`mavahrs.ingest.timeline.timeline_step`,
+  the pipeline's per sample) in its compiled loop over the samples (dt, gaps, drops; a reboot
+  or a corrected time stamp raises :class:`FastPathUnsupported`: the per-message pipeline then
+  replays the log); :func:`onboard_timeline` — the same over an onboard log (DataFlash, ULog),
+  every forward jump beyond the gap limit confirmed by the next sample;
 * calibration — :meth:`mavahrs.sensors.calibration.Calibrator.apply_rows`, the compiled
   per-row step (:func:`~mavahrs.sensors.calibration.calibrate_row`) over all rows;
 * :func:`si_rows` — the scaling step (:func:`~mavahrs.sensors.scaling.scale_float_row`) and the
@@ -20,6 +22,7 @@ each the array form of the live pipeline's per-sample step
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -29,6 +32,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavahrs.filters.layout import IN_WIDTH, OUT_WIDTH
+from mavahrs.ingest.timeline import (
+    K_DUPLICATE,
+    K_GAP,
+    K_HELD,
+    K_REBOOT,
+    K_REORDERED,
+    K_STALE,
+    TimelineSettings,
+    new_state,
+    timeline_loop,
+)
 from mavahrs.sensors.sample import ACCEL, blank_unusable_rows
 from mavahrs.sensors.scaling import (
     C_KA,
@@ -40,7 +54,7 @@ from mavahrs.sensors.scaling import (
     scale_float_rows,
 )
 
-__all__ = ["FastPathUnsupported", "PreparedInputs", "si_rows"]
+__all__ = ["FastPathUnsupported", "PreparedInputs", "si_rows", "timeline_over_arrays", "onboard_timeline"]
 
 Array = NDArray[np.float64]
 _NAN = math.nan
@@ -154,55 +168,63 @@ def _velocity_setting(s: Any) -> str:
 _GAP_DT_S = 1.0e6
 
 
-def _timeline(
-    t_us: NDArray[np.int64], now_us: NDArray[np.int64], gyro: Array, accel: Array, settings: Any
+def timeline_over_arrays(
+    t_us: NDArray[np.int64], now_us: NDArray[np.int64], gyro: Array, accel: Array, settings: TimelineSettings
 ) -> tuple[NDArray[np.bool_], Array]:
-    """Which samples the pipeline's timeline passes, and their dt (s).
+    """Which samples the pipeline's timeline passes, and their dt (s): the timeline step over the samples.
 
-    Runs :class:`mavahrs.protocol.timeline.Timeline` — with the arguments the
-    pipeline gives it (raw time, receive time, the gyro+accel values as the
-    sample key) — sample by sample, unless the timestamps strictly increase
-    by no more than the gap limit: then every event is ``ok`` with
-    dt = Δt, which the timeline itself confirms on the first samples.
+    :func:`mavahrs.ingest.timeline.timeline_loop` — the step the pipeline calls per sample, with the
+    arguments the pipeline gives it (raw time, receive time, the gyro+accel values as the
+    sample key) — in a compiled loop from a new stream with ``settings``.  Dropped samples
+    (duplicate, stale, reordered, held) are not kept; a gap reaches the filters as a dt longer
+    than any filter's ``max_gap_s`` (:data:`_GAP_DT_S`), as the pipeline gives it, so they
+    re-initialise instead of integrating one gyro sample across it; the first sample's dt is NaN.
+
+    Raises:
+        FastPathUnsupported: the autopilot rebooted, or the timeline corrects time stamps
+            (``time_boot_ms`` wrap-around): the per-message pipeline then replays the log.
     """
-
-    def key(i: int) -> tuple[float, ...]:  # Pipeline: the scaled v[2:8]
-        return (*gyro[i].tolist(), *accel[i].tolist())
-
-    from mavahrs.protocol.timeline import DROP_KINDS, GAP, OK, REBOOT, Timeline
-
     n = t_us.shape[0]
-    keep = np.ones(n, bool)
-    dt = np.full(n, _NAN)
-    if n == 0:
-        return keep, dt
-    d = np.diff(t_us)
-    max_gap_us = int(settings.timeline.max_gap_s * 1e6)
-    simple = bool(np.all(d > 0)) and not bool(np.any(d > max_gap_us))
-    if simple:
-        tl = Timeline(settings.timeline)
-        for i in range(min(n, 64)):  # the timeline's own verdict on a prefix: plain "ok"
-            ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
-            if i and (ev.kind != OK or ev.t_us != t_us[i] or ev.dt_s != (t_us[i] - t_us[i - 1]) * 1e-6):
-                simple = False
-                break
-    if simple:
-        dt[1:] = d * 1e-6
-        return keep, dt
-    tl = Timeline(settings.timeline)
-    for i in range(n):
-        ev = tl.push(int(t_us[i]), int(now_us[i]), key(i))
-        if ev.kind == REBOOT and i:
-            raise FastPathUnsupported("the autopilot rebooted during the log")
-        if ev.kind in DROP_KINDS:
-            keep[i] = False
-            continue
-        if ev.t_us != t_us[i]:
-            raise FastPathUnsupported("the timeline corrects timestamps (wrap-around)")
-        # As the pipeline does: a gap reaches the filter as a dt longer than any filter's
-        # max_gap_s, so it re-initialises instead of integrating one gyro sample across it.
-        dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
+    kind = np.empty(n, np.int64)
+    t = np.empty(n, np.int64)
+    dt = np.empty(n)
+    timeline_loop(*new_state(settings), np.ascontiguousarray(t_us, np.int64),
+                  np.ascontiguousarray(now_us, np.int64), gyro, accel, kind, t, dt)  # fmt: skip
+    keep = (kind != K_DUPLICATE) & (kind != K_STALE) & (kind != K_REORDERED) & (kind != K_HELD)
+    reboot = np.flatnonzero(kind[1:] == K_REBOOT)
+    moved = np.flatnonzero(keep & (t != t_us))
+    if reboot.size and (not moved.size or reboot[0] + 1 < moved[0]):
+        raise FastPathUnsupported("the autopilot rebooted during the log")
+    if moved.size:
+        raise FastPathUnsupported("the timeline corrects timestamps (wrap-around)")
+    gap = kind == K_GAP
+    if gap.any():
+        dt[gap] = np.maximum(dt[gap], _GAP_DT_S)
+    dt[~keep] = _NAN
     return keep, dt
+
+
+def onboard_timeline(path: Any, t_us: NDArray[np.int64], gyro: Array, accel: Array, settings: TimelineSettings
+                     ) -> tuple[NDArray[np.bool_], Array]:  # fmt: skip
+    """:func:`timeline_over_arrays` over an onboard log's samples (DataFlash, ULog), stamps on the log's clock.
+
+    The same step with the same settings, except that every forward jump beyond the gap limit needs
+    the next sample to confirm it (``jump_confirm_s`` = ``max_gap_s``): an onboard log has no link
+    whose outage would explain one, so a lone damaged stamp ahead of its neighbours is dropped
+    instead of re-initialising the filters (and the samples after it, back on the clock, dropped
+    as late); a real gap (a logger dropout) reaches the filters at its second sample.  The sample's
+    stamp is its receive time.
+
+    Raises:
+        DataError: the clock starts again inside the log (a reboot), or wraps.
+    """
+    from mavahrs.errors import DataError
+
+    s = dataclasses.replace(settings, jump_confirm_s=settings.max_gap_s)
+    try:
+        return timeline_over_arrays(t_us, t_us, gyro, accel, s)
+    except FastPathUnsupported as exc:
+        raise DataError(f"{path}: {exc}") from None
 
 
 def si_rows(

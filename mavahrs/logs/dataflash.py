@@ -525,7 +525,7 @@ def read_dataflash(
         DataError: not a DataFlash log, no IMU records, nothing usable.
     """
     from mavahrs.filters.layout import IN_DT, IN_MAG, IN_VEL, IN_VEL_AGE
-    from mavahrs.ingest.arrays import PreparedInputs, _timeline, _velocity_setting, si_rows
+    from mavahrs.ingest.arrays import PreparedInputs, _velocity_setting, onboard_timeline, si_rows
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource, decimal_year_from_unix_s, rotate_true_to_magnetic
     from mavahrs.sensors.profiles import get_profile
@@ -594,12 +594,17 @@ def read_dataflash(
     feed, sel_notes = _select_imu(sub, s, sat[window])
     notes += sel_notes
     idx = np.flatnonzero(feed)
-    idx = idx[np.argsort(sub["TimeUS"][idx], kind="stable")]
+    if np.unique(sub["I"][idx]).size > 1:
+        # a fail-over: the instances' records in time order (the timeline runs over them as one stream); one
+        # instance's records stay in the log's order, and the timeline step judges their stamps as it judges
+        # a link's (a record behind the last one used, or a lone one far ahead, is dropped)
+        idx = idx[np.argsort(sub["TimeUS"][idx], kind="stable")]
     t_us = sub["TimeUS"][idx].astype(np.int64)
     gyro, accel = g_all[window][idx], a_all[window][idx]
     finite = np.all(np.isfinite(gyro), axis=1) & np.all(np.isfinite(accel), axis=1)
-    keep, dt = _timeline_or_error(p, t_us, gyro, accel, s, _timeline)
-    keep &= finite
+    if not finite.all():  # not samples (a damaged record): not timed either
+        idx, t_us, gyro, accel = idx[finite], t_us[finite], gyro[finite], accel[finite]
+    keep, dt = onboard_timeline(p, t_us, gyro, accel, s.timeline)
     idx, t_us, gyro, accel, dt = idx[keep], t_us[keep], gyro[keep], accel[keep], dt[keep]
     mag = decode(sc, "MAG")
     mag_sel = _mag_samples(mag, params)
@@ -612,9 +617,7 @@ def read_dataflash(
             idx, t_us, gyro, accel, dt = idx[first:], t_us[first:], gyro[first:], accel[first:], dt[first:]
     if t_us.size == 0:
         raise DataError(f"{p}: no IMU sample would reach the filter")
-    if t_us.size > 1 and not np.all(keep):
-        dt = np.concatenate([[_NAN], np.diff(t_us) * 1e-6])  # recomputed across dropped samples
-    dt[0] = _NAN
+    dt[0] = _NAN  # the first sample fed initialises the filters
     m = t_us.shape[0]
     chosen = int(np.bincount(sub["I"][idx].astype(np.int64)).argmax())
     loop = params.get("SCHED_LOOP_RATE")
@@ -719,7 +722,7 @@ def read_dataflash(
     # √2 / (2π · INS_GYRO_FILTER), as the ardupilot profile takes it for RAW_IMU at the default 20 Hz
     fc = params.get("INS_GYRO_FILTER", 20.0)
     delay_s = math.sqrt(2.0) / (2.0 * math.pi * fc) if fc and math.isfinite(fc) and fc > 0 else 0.0
-    counts = {"imu_messages": int(t_all.shape[0]), "fed": m, "dropped_timeline": int((~keep).sum()),
+    counts = {"imu_messages": int(t_all.shape[0]), "fed": m, "dropped_timeline": int((~keep).sum() + (~finite).sum()),
               "exact_duplicates": 0, "same_stamp_changed": 0}  # fmt: skip
     prep = PreparedInputs(
         rows=rows, t_us=t_us, frame_pos=idx.astype(np.int64), tlog_us=t_us.copy(), temperature_c=temp,
@@ -743,13 +746,3 @@ def _is_multicopter(sc: DataflashScan, params: dict[str, float]) -> bool:
         return False
     copter = any(bytes(m).split(b"\0", 1)[0].startswith(b"ArduCopter") for m in msg["Message"][:50])
     return copter and int(params.get("FRAME_CLASS", 1)) not in _HELI_FRAME_CLASSES
-
-
-def _timeline_or_error(p: Path, t_us: Any, gyro: Any, accel: Any, s: Any, timeline: Any) -> tuple[Any, Any]:
-    """The pipeline's timeline over the fed samples (a reboot inside one log is not expected: say so)."""
-    from mavahrs.ingest.arrays import FastPathUnsupported
-
-    try:
-        return timeline(t_us, t_us, gyro, accel, s)
-    except FastPathUnsupported as exc:
-        raise DataError(f"{p}: {exc}") from None

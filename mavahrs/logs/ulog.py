@@ -255,41 +255,6 @@ def _imu(topics: dict[str, Any], s: Any, path: Path) -> tuple[str, int, dict[str
     return "sensor_combined", 0, {"t_us": t, "gyro": _vec(sc, "gyro_rad"), "accel": accel, "clip": clip}, lines
 
 
-def _timeline(t_us: NDArray[np.int64], max_gap_s: float) -> tuple[NDArray[np.bool_], Array]:
-    """Which samples to keep and their dt, s.
-
-    Kept: strictly increasing stamps.  A lone stamp far ahead of both its
-    neighbours (a damaged record: the next one is back on the clock) is
-    dropped first, so it does not hide the samples after it; repeated and
-    backward stamps are dropped.  A real gap (the clock stays ahead) reaches the
-    filter as a long dt, as on the pipeline: the filters re-initialise.
-    """
-    from mavahrs.ingest.arrays import _GAP_DT_S
-
-    n = t_us.shape[0]
-    keep = np.ones(n, bool)
-    if n > 2:
-        t = t_us.astype(np.float64)
-        far = max_gap_s * 1e6
-        spike = np.zeros(n, bool)
-        spike[1:-1] = (t[1:-1] - t[:-2] > far) & (t[1:-1] - t[2:] > far)
-        spike[-1] = t[-1] - t[-2] > 100 * far  # the last record: only an absurd jump
-        keep &= ~spike
-    if n > 1:
-        idx = np.flatnonzero(keep)
-        tk = t_us[idx]
-        run = np.maximum.accumulate(tk)
-        ok = np.ones(idx.shape[0], bool)
-        ok[1:] = tk[1:] > run[:-1]
-        keep[idx[~ok]] = False
-    t = t_us[keep]
-    dt = np.full(t.shape[0], _NAN)
-    if t.shape[0] > 1:
-        dt[1:] = np.diff(t) * 1e-6
-        dt[1:][dt[1:] > max_gap_s] = _GAP_DT_S  # as the pipeline: the filters re-initialise after a gap
-    return keep, dt
-
-
 def _source(topics: dict[str, Any]) -> tuple[int, int]:
     """(system, component) of the vehicle: vehicle_status' ids (MAV_SYS_ID), else PX4's defaults (1, 1)."""
     vs = topics.get("vehicle_status", {}).get(0)
@@ -328,7 +293,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     Raises:
         DataError: empty, not a ULog, damaged beyond reading, no IMU data.
     """
-    from mavahrs.ingest.arrays import PreparedInputs, si_rows
+    from mavahrs.ingest.arrays import PreparedInputs, onboard_timeline, si_rows
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource
     from mavahrs.sensors.profiles import get_profile
@@ -360,15 +325,18 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
         win &= t_all >= t0 + int(start_s * 1e6)
     if end_s is not None:
         win &= t_all <= t0 + int(end_s * 1e6)
-    keep, dt = _timeline(t_all[win], s.timeline.max_gap_s)
+    # the timeline step over the samples, as for every log (a lone damaged stamp dropped, a gap a re-initialising dt)
+    keep, dt = onboard_timeline(p, t_all[win], imu["gyro"][win], imu["accel"][win], s.timeline)
     sel = np.flatnonzero(win)[keep]
+    dt = dt[keep]
     m = sel.shape[0]
     if m == 0:
         raise DataError(f"{p}: no IMU sample of {topic} in the requested window" if (start_s or end_s)
                         else f"{p}: {topic} has no usable samples")  # fmt: skip
     dropped = int(win.sum()) - m
     if dropped:
-        notes.append(f"{dropped} IMU samples with a time stamp not after the previous one dropped")
+        notes.append(f"{dropped} IMU samples dropped by the timeline (a stamp not after the last one used, or a "
+                     "lone jump ahead)")  # fmt: skip
     t_us = t_all[sel]
     gyro, accel, clip = imu["gyro"][sel], imu["accel"][sel], imu["clip"][sel]
     # --- the scaling and row steps as for HIGHRES_IMU (the px4 profile's full scales, the scaling settings)

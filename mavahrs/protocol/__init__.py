@@ -1,1 +1,1 @@
-"""Sans-I/O MAVLink layer: codec (bytes ↔ messages), tlog framing, timelines."""
+"""Sans-I/O MAVLink layer: codec (bytes ↔ messages), tlog framing, signing (sample timing is in mavahrs.ingest)."""

@@ -213,6 +213,9 @@ class Scaler:
     def __init__(self, profile: AutopilotProfile | str, settings: ScalingSettings | None = None) -> None:
         self.profile = get_profile(profile) if isinstance(profile, str) else profile
         self.settings = settings or ScalingSettings()
+        #: the last message scaled, in a filter input row (:mod:`mavahrs.filters.layout`): its gyro,
+        #: accelerometer and magnetometer columns, as :meth:`scale` returns them (the next steps read it)
+        self.row = np.full(IN_WIDTH, _NAN)
         self._fns: dict[str, Callable[[Any], Scaled | None]] = {}
         for name, ms in self.profile.messages.items():
             self._fns[name] = self._make(ms)
@@ -278,7 +281,7 @@ class Scaler:
         fixed_id = INSTANCE_OF_MESSAGE[ms.message]
         has_id = ms.message in ("RAW_IMU", "HIGHRES_IMU")
         c = self.scale_constants(ms)
-        buf = np.empty(IN_WIDTH)
+        buf = self.row
         if ms.integer_fields:
 
             def scale_int(msg: Any) -> Scaled | None:

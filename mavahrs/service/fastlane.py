@@ -10,8 +10,9 @@ the part that decides the answer in three compiled calls:
    frame with a valid CRC from the autopilot (what follows it in the same
    datagram is handled after it, so cannot change its answer), its sample scales like
    :class:`mavahrs.sensors.scaling.Scaler` with nothing saturated or
-   invalid, belongs to the IMU instance the selector feeds, and continues
-   that instance's timeline by 0 < Δt ≤ the timeline's gap limit; with
+   invalid, belongs to the IMU instance the selector feeds, and the timeline
+   step (:func:`mavahrs.ingest.timeline.timeline_step`, the pipeline's own, on a
+   copy of that instance's timeline state) calls it plainly ``ok``; with
    several instances, also before the selector's next evaluation (which may
    switch) is due; then the filter's input row is
    written as ``Pipeline._feed`` writes it and the filter state is copied;
@@ -50,6 +51,7 @@ import numpy as np
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
+    IN_ACCEL,
     IN_DT,
     IN_GYRO,
     IN_VEL,
@@ -60,6 +62,8 @@ from mavahrs.filters.layout import (
     OUT_Q,
     OUT_WIDTH,
 )
+from mavahrs.ingest.timeline import F_LEN as TL_F_LEN
+from mavahrs.ingest.timeline import K_OK, NO_NOW, T_RAW_MAX, new_state, timeline_step
 from mavahrs.protocol.codec import mavlink
 from mavahrs.protocol.fast_tlog import _CRC_TABLE, _wire_dtype, _x25_crc
 from mavahrs.sensors.scaling import C_LEN, scale_int_row
@@ -76,13 +80,18 @@ _O_XGYRO, _O_YGYRO, _O_ZGYRO = (_RAW_WIRE.fields[f][1] for f in ("xgyro", "ygyro
 _O_XMAG, _O_YMAG, _O_ZMAG, _O_ID = (_RAW_WIRE.fields[f][1] for f in ("xmag", "ymag", "zmag", "id"))
 
 # integer mirror
-I_ON, I_SYS, I_COMP, I_IMU, I_T_LAST, I_WRAP_OFF, I_MAX_GAP, I_EVAL_DUE = range(8)
-I_LAST_OUT_T, I_NEXT_OUT_T, I_HAVE_NEXT, I_PERIOD, I_TOL, I_OUR_SYS, I_OUR_COMP, I_SEQ = range(8, 16)
-I_CHAIN = 16  # answers may be chained over queued datagrams (nothing but the attitude takes sequence numbers)
-I_LEN = 17
-# float mirror: the scaling step's constants (sensors.scaling C_*), then the declination
+I_ON, I_SYS, I_COMP, I_IMU, I_EVAL_DUE = range(5)
+I_LAST_OUT_T, I_NEXT_OUT_T, I_HAVE_NEXT, I_PERIOD, I_TOL, I_OUR_SYS, I_OUR_COMP, I_SEQ = range(5, 13)
+I_CHAIN = 13  # answers may be chained over queued datagrams (nothing but the attitude takes sequence numbers)
+I_TL_LEN = 14  # length of the timeline state's int part
+# then the selected instance's timeline state (int part: a copy of the pipeline's), then the copy the
+# timeline step runs on
+I_TL = 15
+# float mirror: the scaling step's constants (sensors.scaling C_*), the declination, then the timeline
+# state's float part and the copy the step runs on
 F_DECL = C_LEN
-F_LEN = C_LEN + 1
+F_TL = C_LEN + 1
+F_LEN = F_TL + 2 * TL_F_LEN
 
 
 _RAW_ID, _RAW_CRC = int(_RAW_IMU.id), int(_RAW_IMU.crc_extra)
@@ -145,14 +154,21 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
     # rule) takes the Python path; the gyro, accelerometer and magnetometer columns of the row are written
     if scale_int_row(xg, yg, zg, xa, ya, za, xm, ym, zm, fcfg, row) != 0:
         return -1
-    # ImuSelector.observe: no evaluation due (its clock is the raw time); Timeline.push: plainly "ok"
-    if t >= icfg[I_EVAL_DUE]:
+    # ImuSelector.observe: no evaluation due (its clock is the raw time)
+    if t >= icfg[I_EVAL_DUE] or t > T_RAW_MAX:
         return -1
-    tt = t + icfg[I_WRAP_OFF]
-    d = tt - icfg[I_T_LAST]
-    if d <= 0 or d > icfg[I_MAX_GAP]:
+    # the timeline step on a copy of the stream's state, keyed by gyro and accelerometer as the pipeline
+    # keys it: plainly "ok", or the Python path decides
+    k = icfg[I_TL_LEN]
+    tst = icfg[I_TL + k : I_TL + 2 * k]
+    tst[:] = icfg[I_TL : I_TL + k]
+    tfs = fcfg[F_TL + TL_F_LEN : F_TL + 2 * TL_F_LEN]
+    tfs[:] = fcfg[F_TL : F_TL + TL_F_LEN]
+    kind, tt, dt, _mono = timeline_step(tst, tfs, t, NO_NOW, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
+                                        row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], 6)  # fmt: skip
+    if kind != K_OK:
         return -1
-    row[IN_DT] = d * 1e-6
+    row[IN_DT] = dt
     row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = np.nan
     for i in range(state.shape[0]):
         scratch[i] = state[i]
@@ -213,7 +229,9 @@ class FastLane:
         self._state = getattr(f, "_state", None)
         self._params = getattr(f, "_params", None)
         self.usable = self._step is not None and isinstance(self._state, np.ndarray)
-        self.icfg = np.zeros(I_LEN, np.int64)
+        tl_len = new_state(pipeline.settings.timeline)[0].shape[0]
+        self.icfg = np.zeros(I_TL + 2 * tl_len, np.int64)
+        self.icfg[I_TL_LEN] = tl_len
         self.fcfg = np.zeros(F_LEN)
         self._row = np.full(IN_WIDTH, np.nan)
         self._scratch = np.zeros(self._state.shape[0] if self.usable else 1)
@@ -257,7 +275,7 @@ class FastLane:
         taken: list[bytes | None] = []
         if icfg[I_ON] == 0 or icfg[I_CHAIN] == 0:
             return taken
-        saved = icfg.copy()
+        saved, saved_f = icfg.copy(), self.fcfg.copy()
         source = self._state
         try:
             for data in datas:
@@ -272,9 +290,10 @@ class FastLane:
                 if len(data) != data[1] + 12:
                     break
                 source = self._scratch  # the next sample continues from this one
-                _advance(icfg, t, n > 0)
+                _advance(icfg, self.fcfg, t, n > 0)
         finally:
             icfg[:] = saved
+            self.fcfg[:] = saved_f
         return taken
 
     def disable(self) -> None:
@@ -313,16 +332,16 @@ class FastLane:
             return
         if inst.source != "RAW_IMU" or inst.absent or p._backlog.get(imu) or cal.active:
             return
-        if tl._last is None or tl._pending is not None or p._last_fed_imu != imu or p._last_fed_t is None:
+        if p._last_fed_imu != imu or p._last_fed_t is None or tl.st.shape[0] != icfg[I_TL_LEN]:
             return
         if p._vel is not None:
             return
         fcfg[:C_LEN] = scaler.scale_constants(ms)
         fcfg[F_DECL] = p._decl.declination_rad
         icfg[I_SYS], icfg[I_COMP], icfg[I_IMU] = src[0], src[1], imu
-        # "ok" needs 0 < Δt ≤ the gap limit and ≤ the jump limit (beyond it the timeline holds the sample)
-        icfg[I_T_LAST], icfg[I_WRAP_OFF] = tl._last, tl._wrap_off
-        icfg[I_MAX_GAP] = min(tl._max_gap_us, tl._jump_us)
+        k = tl.st.shape[0]  # the instance's timeline state, for the step to run on a copy of
+        icfg[I_TL : I_TL + k] = tl.st
+        fcfg[F_TL : F_TL + TL_F_LEN] = tl.fs
         if len(sel._inst) == 1 or sel.settings.fixed is not None:
             icfg[I_EVAL_DUE] = _NO_LIMIT  # one instance, or a fixed one: no evaluation can change the choice
         else:
@@ -340,9 +359,11 @@ class FastLane:
         icfg[I_ON] = 1
 
 
-def _advance(icfg: np.ndarray, t: int, sent: bool) -> None:
+def _advance(icfg: np.ndarray, fcfg: np.ndarray, t: int, sent: bool) -> None:
     """The mirror after a sample at time ``t`` was fed (``sent``: its attitude went out): as ``Pipeline._feed``."""
-    icfg[I_T_LAST] = t
+    k = int(icfg[I_TL_LEN])  # the timeline state the step left in the copy is the stream's now
+    icfg[I_TL : I_TL + k] = icfg[I_TL + k : I_TL + 2 * k]
+    fcfg[F_TL : F_TL + TL_F_LEN] = fcfg[F_TL + TL_F_LEN : F_TL + 2 * TL_F_LEN]
     if not sent:
         return
     icfg[I_SEQ] = (int(icfg[I_SEQ]) + 1) & 0xFF

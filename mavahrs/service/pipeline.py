@@ -17,7 +17,7 @@ Per message from the master link (:meth:`Pipeline.handle`):
 * IMU messages (RAW_IMU, SCALED_IMU/2/3, HIGHRES_IMU) — scaled to SI
   (:mod:`mavahrs.sensors.scaling`); an exact re-send of the previous message
   (same stamp, same values: ArduPilot's 400 Hz telemetry catching up) is
-  dropped and counted (``exact_duplicates``); the rest is offered to the IMU selector
+  dropped and counted (``exact_duplicates``, :mod:`mavahrs.ingest.resend`); the rest is offered to the IMU selector
   (:mod:`mavahrs.sensors.imu_select`); the selected instance's samples are
   timed by the timeline (duplicates and reordered samples dropped and counted,
   a reboot resets everything, a gap reaches the filter as a long ``dt`` so it
@@ -78,16 +78,19 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.filters.magfield import mag_state_text
-from mavahrs.protocol.codec import MavCodec, mavlink
-from mavahrs.protocol.timeline import (
+from mavahrs.ingest.resend import RESENT, ResendFilter, stream_code
+from mavahrs.ingest.timeline import (
     DROP_KINDS,
-    GAP,
-    REBOOT,
-    RESENT,
-    ResendFilter,
+    K_DUPLICATE,
+    K_GAP,
+    K_REBOOT,
+    KIND_NAMES,
+    T_RAW_MAX,
     Timeline,
     TimelineSettings,
+    timeline_step,
 )
+from mavahrs.protocol.codec import MavCodec, mavlink
 from mavahrs.sensors.calibration import CalibrationSettings, Calibrator
 from mavahrs.sensors.current import CURRENT_STALE_S, battery_current_a
 from mavahrs.sensors.geomag import (
@@ -133,6 +136,8 @@ _MAV_TYPE_ONBOARD_CONTROLLER = 18
 #: MAV_TYPE of multirotors (coaxial, quad-, hexa-, octo-, tri-, dodeca-, decarotor, generic): rotor drag applies
 _MAV_STATE_ACTIVE = 4
 _NAN = math.nan
+#: the drop counter of each timeline kind code that drops its sample (the timeline's "drop": a held jump)
+_DROP_NAMES = tuple(("held_jump" if k == "drop" else k) if k in DROP_KINDS else None for k in KIND_NAMES)
 _ZERO_Q = [0.0, 0.0, 0.0, 0.0]
 _RAD2DEG = 180.0 / math.pi
 _BACKLOG = 1024  # samples kept per unselected IMU instance for a seamless fail-over (2.5 s at 400 Hz)
@@ -249,7 +254,7 @@ class PipelineSettings:
         monitor: the second opinion on the autopilot's attitude
             (NAMED_VALUE_FLOAT divergence, STATUSTEXT warnings).
         timeline: timestamp rules per IMU stream
-            (:class:`mavahrs.protocol.timeline.TimelineSettings`: gap, reboot,
+            (:class:`mavahrs.ingest.timeline.TimelineSettings`: gap, reboot,
             forward-jump thresholds, wrap-around).
     """
 
@@ -827,7 +832,7 @@ class Pipeline:
         if v is None:
             self._count(self._drops, "no_new_gyro")
             return []
-        if self._resends.check((name, v[0]), v[1], v[2:11]) == RESENT:
+        if self._resends.check(stream_code(name, v[0]), v[1], self._scaler.row) == RESENT:
             return []  # the autopilot sent the same sample twice: not a loss, counted, no notice
         sat, inv = v[12], v[13]
         if sat or inv:
@@ -877,31 +882,31 @@ class Pipeline:
         tl = self._timelines.get(imu_id)
         if tl is None:
             tl = self._timelines[imu_id] = Timeline(self.settings.timeline)
-        ev = tl.push(t, now_us, v[2:8])
-        kind = ev.kind
-        t = ev.t_us
-        if kind == REBOOT:
+        # the timeline step (Timeline's own, called directly on its state: the hot path), keyed by gyro and accel
+        kind, t, ev_dt, _mono = timeline_step(tl.st, tl.fs, t if t <= T_RAW_MAX else T_RAW_MAX, now_us, v[2], v[3],
+                                              v[4], v[5], v[6], v[7], 6)  # fmt: skip
+        if kind == K_REBOOT:
             if not may_reset:
                 self._count(self._drops, "reboot_repeat")
                 return []
             self._on_reboot(name, now_us)
             return self._filter_sample(name, v, now_us, False)
-        if kind in DROP_KINDS:
-            self._count(self._drops, "held_jump" if kind == "drop" else kind)
+        if kind >= K_DUPLICATE:  # duplicate, stale, reordered, held (K_REBOOT handled above)
+            self._count(self._drops, _DROP_NAMES[kind])
             return []
-        if kind == GAP:
+        if kind == K_GAP:
             self._count(self._counters, "gaps")
         last_t = self._last_fed_t
         if last_t is None:
             dt = _NAN  # first sample: the filter initialises from it
-        elif imu_id == self._last_fed_imu and ev.dt_s == ev.dt_s:
-            dt = ev.dt_s
+        elif imu_id == self._last_fed_imu and ev_dt == ev_dt:
+            dt = ev_dt
         else:
             dt = (t - last_t) * 1e-6  # switched instance: time since the last sample fed
             if dt <= 0.0:
                 self._count(self._drops, "switch_overlap")
                 return []
-        if kind == GAP and dt == dt:
+        if kind == K_GAP and dt == dt:
             # The timeline's gap threshold may be shorter than the filter's own max_gap_s: make sure a gap
             # re-initialises the filter (from this sample's accelerometer) instead of integrating this one
             # gyro sample over the whole gap (tens of degrees off while the vehicle turns).

@@ -31,7 +31,7 @@ SETTINGS = [
     ("mavahrs.sensors.calibration", "CalibrationSettings"),
     ("mavahrs.sensors.scaling", "ScalingSettings"),
     ("mavahrs.sensors.imu_select", "ImuSelectSettings"),
-    ("mavahrs.protocol.timeline", "TimelineSettings"),
+    ("mavahrs.ingest.timeline", "TimelineSettings"),
     ("mavahrs.fleet.audit", "AuditSettings"),
     ("mavahrs.fleet.audit", "FleetRow"),  # the audit table's columns
 ]

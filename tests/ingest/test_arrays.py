@@ -1,10 +1,12 @@
-"""The sample chain over arrays (mavahrs.ingest.arrays) is the per-sample step run over the samples.
+"""The sample chain over arrays (mavahrs.ingest.arrays): the per-sample steps run over a log's samples.
 
-VQF's rule for the batch path, checked step by step: ``_timeline`` against
-:class:`~mavahrs.protocol.timeline.Timeline` pushed one sample at a time (the pipeline's call),
-and :meth:`PreparedInputs.run_filter` against the filter's own per-row update.  Every log reader
-(tlog, DataFlash, ULog) builds its rows with these functions; the compiled steps themselves
-(scaling, row, calibration) are tested against hand-computed values in ``test_chain.py``.
+The timeline over a log (:func:`timeline_over_arrays`, the compiled loop over the timeline step the
+pipeline calls per sample) on known input: a clean clock, re-sent and restamped samples, a late
+sample, a lone corrupt stamp far ahead, a confirmed jump, a gap, a ``time_boot_ms`` wrap and a reboot
+(those two need the per-message pipeline); :meth:`PreparedInputs.run_filter` against the filter's own
+per-row update.  Every log reader (tlog, DataFlash, ULog) builds its rows with these functions; the
+compiled steps themselves (scaling, row, calibration) are tested against hand-computed values in
+``test_chain.py``, the timeline step in ``test_timeline.py``.
 """
 
 from __future__ import annotations
@@ -14,57 +16,57 @@ import pytest
 
 from mavahrs.filters import create
 from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_WIDTH, OUT_WIDTH
-from mavahrs.ingest.arrays import _GAP_DT_S, FastPathUnsupported, PreparedInputs, _timeline
-from mavahrs.protocol.timeline import DROP_KINDS, GAP, Timeline
+from mavahrs.ingest.arrays import _GAP_DT_S, FastPathUnsupported, PreparedInputs, timeline_over_arrays
+from mavahrs.ingest.timeline import KIND_NAMES, TIME_BOOT_MS_WRAP_US, new_state, timeline_loop
 from mavahrs.service.pipeline import PipelineSettings
 
+S = PipelineSettings()
 
-def _stream(rng: np.random.Generator, n: int = 3000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    t = 1_000_000 + np.arange(n, dtype=np.int64) * 2500
-    g = rng.normal(0.0, 0.1, (n, 3))
-    a = rng.normal(0.0, 0.1, (n, 3)) + (0.0, 0.0, -9.81)
+
+def _samples(stamps: list[int], values: list[int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stamps (µs) and, per sample, a gyro x value (the sample's identity: same value, same data)."""
+    t = np.array(stamps, np.int64)
+    g = np.zeros((t.size, 3))
+    g[:, 0] = np.arange(t.size) if values is None else values
+    a = np.tile((0.0, 0.0, -9.80665), (t.size, 1))
     return t, g, a
 
 
-def _per_sample(t, g, a, s):  # type: ignore[no-untyped-def]
-    """What the pipeline's timeline decides, one sample at a time (Pipeline: raw time, receive time, values)."""
-    tl = Timeline(s.timeline)
-    keep = np.ones(t.size, bool)
-    dt = np.full(t.size, np.nan)
-    for i in range(t.size):
-        ev = tl.push(int(t[i]), int(t[i]), (*g[i].tolist(), *a[i].tolist()))
-        if ev.kind in DROP_KINDS:
-            keep[i] = False
-            continue
-        dt[i] = max(ev.dt_s, _GAP_DT_S) if ev.kind == GAP else ev.dt_s
-    return keep, dt
+def test_a_clean_clock_passes_every_sample_with_its_interval() -> None:
+    t, g, a = _samples([1_000_000 + 2500 * i + (500 if i % 3 == 0 else 0) for i in range(2000)])
+    keep, dt = timeline_over_arrays(t, t, g, a, S.timeline)
+    assert keep.all() and np.isnan(dt[0])
+    np.testing.assert_array_equal(dt[1:], np.diff(t) * 1e-6)  # exactly (t - t_prev) · 1e-6
 
 
-def test_timeline_over_arrays_is_the_timeline_per_sample(rng: np.random.Generator) -> None:
-    s = PipelineSettings()
-    t, g, a = _stream(rng)
-    # a clean stream: the shortcut (every sample ok, dt = Δt)
-    np.testing.assert_array_equal(_timeline(t, t, g, a, s)[0], _per_sample(t, g, a, s)[0])
-    np.testing.assert_allclose(_timeline(t, t, g, a, s)[1][1:], _per_sample(t, g, a, s)[1][1:])
-    # re-sent samples (same stamp and values), a step back, a 3 s gap: the per-sample loop over the Timeline
-    t2, g2, a2 = t.copy(), g.copy(), a.copy()
-    for i in (100, 101, 900):
-        t2[i + 1], g2[i + 1], a2[i + 1] = t2[i], g2[i], a2[i]
-    t2[1500] = t2[1499] - 5000
-    t2[2000:] += 3_000_000
-    keep, dt = _timeline(t2, t2, g2, a2, s)
-    ref_keep, ref_dt = _per_sample(t2, g2, a2, s)
-    np.testing.assert_array_equal(keep, ref_keep)
-    np.testing.assert_array_equal(np.isnan(dt), np.isnan(ref_dt))
-    np.testing.assert_allclose(dt[keep][1:], ref_dt[keep][1:])
-    assert (~keep).sum() >= 4 and dt[2000] == _GAP_DT_S  # the drops, and the gap as a re-initialising dt
+def test_drops_and_gaps_on_known_stamps() -> None:
+    ms = 1000
+    stamps = [10 * ms, 12 * ms, 14 * ms, 14 * ms, 14 * ms, 16 * ms, 15 * ms, 10_018 * ms, 18 * ms, 20 * ms,
+              3_020 * ms, 3_022 * ms, 9_022 * ms, 9_024 * ms, 9_026 * ms]  # fmt: skip
+    values = [0, 1, 2, 2, 9, 3, 4, 5, 6, 7, 8, 10, 11, 12, 13]  # sample 3 re-sent as it was, 4 other values
+    t, g, a = _samples(stamps, values)
+    want = ["first", "ok", "ok", "duplicate", "stale", "ok", "reordered", "drop", "ok", "ok", "gap", "ok", "drop",
+            "gap", "ok"]  # fmt: skip
+    kind, tt, dts = np.empty(t.size, np.int64), np.empty(t.size, np.int64), np.empty(t.size)
+    timeline_loop(*new_state(S.timeline), t, t, g, a, kind, tt, dts)
+    assert [KIND_NAMES[k] for k in kind] == want
+    keep, dt = timeline_over_arrays(t, t, g, a, S.timeline)
+    assert keep.tolist() == [k not in ("duplicate", "stale", "reordered", "drop") for k in want]
+    assert np.isnan(dt[~keep]).all() and np.isnan(dt[0])
+    # the lone stamp 10 s ahead is held and dropped: the next sample's dt is from the last accepted one
+    assert dt[8] == pytest.approx(0.002) and dt[5] == pytest.approx(0.002) and dt[9] == pytest.approx(0.002)
+    # a 3 s gap, and a 6 s jump the next sample confirms: both reach the filters as a re-initialising dt
+    assert dt[10] == _GAP_DT_S and dt[13] == _GAP_DT_S and dt[11] == pytest.approx(0.002)
 
 
-def test_a_reboot_needs_the_per_message_pipeline(rng: np.random.Generator) -> None:
-    t, g, a = _stream(rng)
-    t[2000:] -= t[2000] - 10_000  # the autopilot's clock starts again
+def test_a_time_boot_ms_wrap_and_a_reboot_need_the_per_message_pipeline() -> None:
+    w = TIME_BOOT_MS_WRAP_US
+    t, g, a = _samples([w - 40_000, w - 20_000, 0, 20_000, 40_000])
+    with pytest.raises(FastPathUnsupported, match="wrap-around"):
+        timeline_over_arrays(t, t, g, a, S.timeline)
+    t, g, a = _samples([600_000_000 + 2500 * i for i in range(10)] + [1_000_000 + 2500 * i for i in range(5)])
     with pytest.raises(FastPathUnsupported, match="rebooted"):
-        _timeline(t, t, g, a, PipelineSettings())
+        timeline_over_arrays(t, t, g, a, S.timeline)
 
 
 def test_run_filter_is_the_per_row_update(rng: np.random.Generator) -> None:

@@ -206,6 +206,31 @@ def test_logs_without_imu_or_without_fmt_say_so(tmp_path: Path, df_writer) -> No
         read_dataflash(headless)
 
 
+def test_the_timeline_step_over_the_imu_records(tmp_path: Path, df_writer) -> None:
+    """The sample chain's timeline (the pipeline's step, an onboard log's settings) on known TimeUS: a record
+    logged twice, a lone stamp 0.7 s ahead, a 1 s logger dropout (at rest, level: every record alike)."""
+    from mavahrs.ingest.arrays import _GAP_DT_S
+
+    w = df_writer()
+    w.fmt(129, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
+    t = (5_000_000 + 2500 * np.arange(2000)).tolist()
+    t = t[:1500] + [x + 1_000_000 for x in t[1500:]]  # the logger lost 1 s: the clock stays ahead
+    stamps = t[:501] + [t[500]] + t[501:]  # record 500 logged twice
+    stamps[stamps.index(t[1200])] = t[1200] + 700_001  # a damaged stamp, 0.7 s ahead of both neighbours
+    for x in stamps:
+        w.rec("IMU", x, 0, 0.0, 0.0, 0.0, 0.0, 0.0, -9.80665, 0, 0, 25.0, 1, 1, 400, 400)
+    path = tmp_path / "stamps.BIN"
+    path.write_bytes(bytes(w.buf))
+    inp = read_dataflash(path).inputs
+    assert inp.counts["dropped_timeline"] == 3  # the repeat, the damaged one, the dropout's first
+    assert inp.n == 2001 - 3 and np.all(np.diff(inp.t_us) > 0)
+    assert t[1200] + 700_001 not in inp.t_us.tolist() and t[1500] not in inp.t_us.tolist()
+    dt = inp.rows[:, IN_DT]
+    gap = int(np.flatnonzero(inp.t_us == t[1501])[0])
+    assert dt[gap] == _GAP_DT_S  # the dropout re-initialises the filters, at its second sample
+    assert dt[int(np.flatnonzero(inp.t_us == t[1201])[0])] == pytest.approx(0.005)  # from the last one used
+
+
 # --------------------------------------------------------------------------- the shared SITL log
 
 

@@ -175,8 +175,9 @@ def _field_bytes(fields: list[tuple[str, str]], values: dict[str, object]) -> by
 
 
 def write_ulog(path: Path, topics: dict[str, tuple[list[tuple[str, str]], list[dict[str, object]]]],
-               params: dict[str, float] | None = None) -> None:  # fmt: skip
-    """A minimal ULog (version 1): header, flag bits, formats, parameters, subscriptions, data in time order."""
+               params: dict[str, float] | None = None, *, in_time_order: bool = True) -> None:  # fmt: skip
+    """A minimal ULog (version 1): header, flag bits, formats, parameters, subscriptions, data in time order
+    (``in_time_order=False``: each topic's records as given, one topic after the other)."""
 
     def msg(kind: bytes, body: bytes) -> bytes:
         return struct.pack("<HB", len(body), kind[0]) + body
@@ -193,7 +194,7 @@ def write_ulog(path: Path, topics: dict[str, tuple[list[tuple[str, str]], list[d
     for msg_id, (name, (fields, rows)) in enumerate(topics.items()):
         out += msg(b"A", struct.pack("<BH", 0, msg_id) + name.encode())
         records += [(int(r["timestamp"]), msg_id, _field_bytes(fields, r)) for r in rows]
-    for _, msg_id, body in sorted(records, key=lambda x: (x[0], x[1])):
+    for _, msg_id, body in sorted(records, key=lambda x: (x[0], x[1])) if in_time_order else records:
         out += msg(b"D", struct.pack("<H", msg_id) + body)
     path.write_bytes(bytes(out))
 
@@ -237,6 +238,33 @@ def test_unknown_topics_and_fields_are_read_past(tmp_path: Path) -> None:
     # exact sensors: the filter follows the turn (heading from the gyro alone: no magnetometer)
     incl, head, n = _score(li, "best", "SIH truth")
     assert n > 3000 and incl < 0.2 and head < 1.0, (incl, head)
+
+
+def test_the_timeline_step_over_the_samples_drops_bad_stamps_and_marks_a_dropout(tmp_path: Path) -> None:
+    """The sample chain's timeline (the pipeline's step, an onboard log's settings) on known stamps: a record
+    logged twice, a late one, a lone damaged stamp 2 s ahead, a 1 s logger dropout."""
+    from mavahrs.ingest.arrays import _GAP_DT_S
+
+    fields, sc = _turning(8.0)["sensor_combined"]  # 2000 records, 4 ms apart
+    rows = list(sc)
+    rows.insert(501, dict(sc[500]))  # logged twice: same stamp, same values
+    late = dict(sc[999], timestamp=int(sc[999]["timestamp"]) - 6000)
+    rows.insert(rows.index(sc[1000]), late)  # 6 ms behind the record before it
+    rows[rows.index(sc[1200])] = dict(sc[1200], timestamp=int(sc[1200]["timestamp"]) + 2_000_000)  # damaged
+    for r in sc[1500:]:
+        r["timestamp"] = int(r["timestamp"]) + 1_000_000  # the logger lost 1 s: the clock stays ahead
+    path = tmp_path / "stamps.ulg"
+    write_ulog(path, {"sensor_combined": (fields, rows)}, in_time_order=False)
+    li = read_ulog(path)
+    t, dt = li.inputs.t_us, li.inputs.rows[:, IN_DT]
+    assert li.inputs.counts["dropped_timeline"] == 4  # the repeat, the late one, the damaged one, the dropout's first
+    assert li.inputs.n == 2000 - 2 and np.all(np.diff(t) > 0)
+    assert int(sc[1200]["timestamp"]) not in t.tolist() and int(sc[1500]["timestamp"]) not in t.tolist()
+    gap = int(np.flatnonzero(t == int(sc[1501]["timestamp"]))[0])
+    assert dt[gap] == _GAP_DT_S  # the dropout re-initialises the filters, at its second sample
+    others = np.delete(dt, [0, gap])
+    np.testing.assert_allclose(others[np.delete(np.diff(t), gap - 1) == 4000], 0.004)
+    assert any("dropped by the timeline" in n for n in li.inputs.notes)
 
 
 def test_no_imu_topic_names_the_topics_found(tmp_path: Path) -> None:

@@ -9,13 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavahrs.protocol.timeline import (
+from mavahrs.ingest.timeline import (
     DROP_KINDS,
-    NEW,
-    RESENT,
-    RESTAMPED,
     TIME_BOOT_MS_WRAP_US,
-    ResendFilter,
     Timeline,
     TimelineSettings,
 )
@@ -69,25 +65,6 @@ def test_duplicates_and_stale_timestamps_dropped():
     assert e.kind == "stale" and e.dt_s == 0.0 and e.kind in DROP_KINDS
     assert tl.push(6000).dt_s == 0.0025  # dt from the last accepted sample
     assert (tl.counters.duplicates, tl.counters.stale, tl.counters.accepted) == (2, 1, 3)
-
-
-def test_resend_filter_drops_exact_resends_keeps_repeated_values():
-    """ArduPilot's 400 Hz telemetry sending a message twice; a noiseless sensor repeating its values."""
-    rf = ResendFilter()
-    v = (0.0, 0.001, 0.0, 0.0, 0.0, -9.80665, 20.0, 1.5, 45.0)
-    assert rf.check(("RAW_IMU", 0), 1000, v) == NEW
-    assert rf.check(("RAW_IMU", 0), 1000, v) == RESENT  # same stamp, same values: sent twice
-    assert rf.check(("RAW_IMU", 0), 3500, v) == NEW  # new stamp, same values: a genuine sample
-    assert rf.check(("SCALED_IMU2", 1), 3500, v) == NEW  # another stream is judged on its own
-    assert rf.check(("RAW_IMU", 0), 3500, (*v[:8], 46.0)) == RESTAMPED  # same stamp, other values
-    assert rf.check(("RAW_IMU", 0), 3500, (*v[:8], 46.0)) == RESENT
-    assert (rf.resent, rf.restamped) == (2, 1)
-    nan = float("nan")
-    no_mag = (*v[:6], nan, nan, nan)
-    assert rf.check(("HIGHRES_IMU", 0), 6000, no_mag) == NEW
-    assert rf.check(("HIGHRES_IMU", 0), 6000, (*v[:6], float("nan"), nan, nan)) == RESENT  # NaN equals NaN
-    rf.reset()  # an autopilot reboot: streams forgotten, counts kept
-    assert rf.check(("RAW_IMU", 0), 3500, v) == NEW and (rf.resent, rf.restamped) == (3, 1)
 
 
 def test_reordered_samples_dropped_and_counted():
