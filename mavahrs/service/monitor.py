@@ -108,13 +108,17 @@ class MonitorSettings:
             ``min_heading_threshold_deg``.  Our σ is the filter's own (the
             ESKF's tilt covariance, while GNSS-velocity-aided) or the
             ``unaided_*`` figure; the ESKF's σ is conservative (≈ 0.5° where its
-            error is 0.05–0.2°), hence a k of 2 (1.15° of tilt, 3.6° of heading
+            error is 0.05–0.2°), hence a k of 2 (1.4° of tilt, 3.6° of heading
             while aided).
         autopilot_tilt_sigma_deg, autopilot_heading_sigma_deg: the autopilot's
-            typical 1-σ error, deg (EKF3 on SITL: ≈ 0.25° inclination, ≈ 1°
-            heading; heading 1.5: an autopilot within 3° of the truth — 2σ —
-            is not one to warn about, and with our own heading error of about
-            1° in the other direction the divergence reaches 3–4°).
+            1-σ error as the test allows it, deg: the tolerance, an autopilot
+            within 1° of tilt and 3° of heading of the truth is not one to warn
+            about, at ``sigma_k`` = 2 σ (0.5°, 1.5°).  (Its typical error is
+            less — EKF3 on SITL ≈ 0.25° inclination, ≈ 1° heading; firmware_sim's
+            simulated autopilot 0.3° per tilt axis — but within the tolerance it
+            reaches 0.8–0.9° of tilt for seconds, and with our own error of
+            about 0.5° the other way the divergence then reaches 1.2–1.3°, which
+            a tilt term of 0.3° warned about on firmware_sim's magnetic flight.)
         heading_sigma_deg: our heading 1-σ while velocity-aided, deg.
         unaided_tilt_sigma_deg, unaided_heading_sigma_deg: our 1-σ without
             GNSS velocity (Madgwick configuration: ≈ 2° inclination RMS in
@@ -226,7 +230,7 @@ class MonitorSettings:
     rate_hz: float = 2.0
     mode: str = "uncertainty"
     sigma_k: float = 2.0
-    autopilot_tilt_sigma_deg: float = 0.3
+    autopilot_tilt_sigma_deg: float = 0.5
     autopilot_heading_sigma_deg: float = 1.5
     heading_sigma_deg: float = 1.0
     unaided_tilt_sigma_deg: float = 1.5

@@ -1,0 +1,123 @@
+"""Never cry wolf: on firmware_sim flights, whose SIMSTATE gives the truth, our filter's tilt σ holds its
+tilt error once airborne, and no in-flight WARNING comes while the simulated autopilot is within 1° of
+tilt and 3° of heading of the truth (issue 24).
+
+The flights are the ones on which the monitor benchmark (``scripts/bench_monitor.py --sim 3``) found
+false WARNINGs: the aggressive one right after take-off (our heading, 2.5° off from the magnetometer,
+taken for 0.9° and put into our tilt by the GNSS velocity at the first bank: 2.1° of tilt error at a σ
+of 0.73°), the magnetic one in flight (the autopilot 0.8–0.9° off, inside the tolerance, and ours
+0.45° the other way).  Each is cut to the part that matters; firmware_sim's flight of a seed is the
+same for any duration.  Times come from the flight itself (the phase the monitor classifies, the
+warnings it raises), none are written in.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
+
+#: (scenario, seed, simulated seconds)
+FLIGHTS = [("aggressive", 11, 40.0), ("magnetic", 13, 45.0)]
+TOLERANCE_TILT_DEG, TOLERANCE_HEADING_DEG = 1.0, 3.0  # issue 24: an autopilot this close is not warned about
+
+
+@pytest.fixture(scope="module", params=FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
+def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    from mavahrs.fleet.audit import phase_events, replay_monitor
+    from mavahrs.replay import ReplaySettings, replay
+    from mavahrs.service.monitor import FlightPhase, MonitorSettings
+
+    scenario, seed, duration = request.param
+    path = tmp_path_factory.mktemp("consistency") / f"{scenario}_{seed}.tlog"
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", scenario,
+                    "--duration", str(duration), "--seed", str(seed), "-q"],
+                   check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    res = replay(path, ReplaySettings())
+    truth = next((k for k in res.references if k.endswith("truth")), None)
+    assert truth is not None, f"no truth in the simulated flight: {sorted(res.references)}"
+    events = phase_events(res.tlog, res.inputs, res.inputs.source)
+    mon = MonitorSettings()
+    series, _ = replay_monitor(res, mon, "autopilot ATTITUDE", events)
+    # the phase as the monitor classifies it, at every event: when the vehicle is airborne
+    ph, speed, air = FlightPhase(mon), float("nan"), []
+    for t, kind, v in events:
+        if kind == "heartbeat":
+            ph.on_heartbeat(int(v), t)
+        elif kind == "landed":
+            ph.on_landed_state(int(v), t)
+        elif kind == "speed":
+            speed = v
+        else:
+            ph.on_position(t, v, speed)
+        air.append((t / 1000.0, ph.phase(t) not in ("disarmed", "ground", "unknown")))
+    return {"res": res, "truth": truth, "series": series, "air": air, "settings": mon}
+
+
+def _runs(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
+    """(start, end) times of the stretches where ``mask`` holds."""
+    out, start = [], None
+    for ti, m in zip(t, mask, strict=True):
+        if m and start is None:
+            start = ti
+        elif not m and start is not None:
+            out.append((start, ti))
+            start = None
+    if start is not None:
+        out.append((start, float(t[-1])))
+    return out
+
+
+def test_our_tilt_sigma_holds_our_tilt_error_once_airborne(flight: dict) -> None:
+    """From leaving the ground on (take-off included: the first bank is where a heading taken for certain
+    turns into a tilt error), our tilt error never stays beyond the monitor's k·σ for as long as the
+    monitor's trigger time: the monitor takes that σ as what our error can be."""
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
+    from mavahrs.service.monitor import align_attitudes, divergence_series
+
+    res, s = flight["res"], flight["settings"]
+    takeoff = next((t for t, a in flight["air"] if a), None)
+    assert takeoff is not None, "the simulated flight never left the ground"
+    track = next(iter(res.tracks.values()))
+    t_s = res.inputs.t_us / 1e6
+    aided = (track.out[:, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
+    sel = (t_s >= takeoff) & aided
+    assert sel.sum() > 1000, "our filter was not GNSS-aided in flight"
+    q = track.out[:, OUT_Q : OUT_Q + 4]  # the published attitude (the replay applies the declination)
+    t_tr, q_tr = res.references[flight["truth"]]
+    q_true = align_attitudes(t_tr / 1e6, q_tr, t_s[sel], tolerance_ms=30.0)
+    err_deg, _ = divergence_series(t_s[sel], q[sel], t_s[sel], q_true)
+    sigma_deg = np.degrees(track.out[sel, OUT_GAIN])
+    beyond = np.nan_to_num(err_deg, nan=0.0) > s.sigma_k * sigma_deg
+    long = [(a, b) for a, b in _runs(t_s[sel], beyond) if b - a >= s.trigger_s]
+    worst = float(np.nanmax(err_deg / sigma_deg))
+    assert not long, f"our tilt error beyond {s.sigma_k:g}σ for ≥ {s.trigger_s:g} s at {long} (worst {worst:.1f}σ)"
+
+
+def test_no_in_flight_warning_while_the_autopilot_is_within_tolerance(flight: dict) -> None:
+    """Every in-flight WARNING must come with the (simulated) autopilot beyond 1° of tilt or 3° of heading
+    of the truth at some moment of the 2 s before it; the monitor's own events, judged against the truth."""
+    from mavahrs.protocol.codec import mavlink
+    from mavahrs.service.monitor import FLIGHT_PHASES, align_attitudes, divergence_series
+
+    res = flight["res"]
+    warnings = [e for e in flight["series"].events
+                if e.severity == mavlink.MAV_SEVERITY_WARNING and not e.update and e.phase in FLIGHT_PHASES]
+    t_ap, q_ap = res.references["autopilot ATTITUDE"]
+    t_tr, q_tr = res.references[flight["truth"]]
+    q_true = align_attitudes(t_tr / 1e6, q_tr, t_ap / 1e6, tolerance_ms=30.0)
+    tilt, hdg = divergence_series(t_ap / 1e6, q_ap, t_ap / 1e6, q_true)
+    assert np.isfinite(tilt).mean() > 0.9, "the autopilot's attitude could not be judged against the truth"
+    t_ap_s = t_ap / 1e6
+    false = []
+    for e in warnings:
+        t = e.t_ms / 1000.0
+        m = (t_ap_s > t - 2.0) & (t_ap_s <= t)
+        if np.nanmax(tilt[m]) < TOLERANCE_TILT_DEG and np.nanmax(np.abs(hdg[m])) < TOLERANCE_HEADING_DEG:
+            false.append((round(t, 2), e.text, f"AP off {np.nanmax(tilt[m]):.2f}° / {np.nanmax(np.abs(hdg[m])):.2f}°"))
+    assert not false, f"in-flight WARNINGs with the autopilot within {TOLERANCE_TILT_DEG:g}°/{TOLERANCE_HEADING_DEG:g}°: {false}"
