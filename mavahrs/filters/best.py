@@ -70,10 +70,12 @@ from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
 from mavahrs.filters.eskf import (
     GRAVITY_LOWPASS_STATE,
     MAG_MODEL_STATE,
+    MULTIROTOR_AXIS_SIGMA_RAD,
     MULTIROTOR_DRAG_1_S,
     Eskf,
     EskfSettings,
     eskf_aided,
+    thrust_axis_of,
 )
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
@@ -447,7 +449,9 @@ class Best(AttitudeFilter):
         """
         s = self._settings
         assert isinstance(s, BestSettings)
-        self._set_eskf(vehicle_eskf_settings(s.eskf), unaided_filter="eskf")
+        self._vehicle_stream = True
+        # an autopilot's IMU is in the body frame: the thrust axis stays the running mean (as measured)
+        self._set_eskf(replace(vehicle_eskf_settings(s.eskf), thrust_axis_sigma_rad=0.0), unaided_filter="eskf")
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
         """The vehicle is a multirotor: the ESKF with a vehicle's models and the rotor-drag measurement.
@@ -465,7 +469,15 @@ class Best(AttitudeFilter):
         k = drag_coefficient_1_s
         if k is None:
             k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
-        self._set_eskf(vehicle_eskf_settings(replace(s.eskf, drag_coefficient_1_s=float(k))), unaided_filter="eskf")
+        # a raw IMU through the API, any mounting: the thrust axis as two states of the error state
+        # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
+        axis = 0.0 if getattr(self, "_vehicle_stream", False) else (s.eskf.thrust_axis_sigma_rad or MULTIROTOR_AXIS_SIGMA_RAD)
+        eskf = replace(s.eskf, drag_coefficient_1_s=float(k), thrust_axis_sigma_rad=axis)
+        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
+
+    def thrust_axis(self) -> np.ndarray | None:
+        """The ESKF's thrust axis (unit, IMU frame; None: not learnt, or not a multirotor)."""
+        return thrust_axis_of(self._state, _SE + S_FILTER)
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps (s), for the velocity-aided filter's output and fixes."""
