@@ -93,6 +93,10 @@ BEST_FILTER = "madgwick"
 #: a vehicle's gravity measurement: the specific force averaged over 0.1 s in NED (the drag measurement's
 #: period), not the single sample, so that a raw IMU's rotor vibration does not fail its 5 % norm gate
 VEHICLE_GRAVITY_LOWPASS_S = 0.1
+#: the drag measurement's noise, m/s², with the thrust axis as states (a raw IMU declared a multirotor): the
+#: default 0.5 (EK3_DRAG_M_NSE) also covered a learnt axis's error, which is now a state (raw SITL set
+#: declared a multirotor 1.11 → 1.00°, vibrating 1.47 → 1.24°; 0.8: 1.28 / 1.66°; docs/accuracy.md)
+AXIS_STATES_DRAG_NOISE_M_S2 = 0.35
 
 
 def best_settings() -> MadgwickSettings:
@@ -451,7 +455,10 @@ class Best(AttitudeFilter):
         assert isinstance(s, BestSettings)
         self._vehicle_stream = True
         # an autopilot's IMU is in the body frame: the thrust axis stays the running mean (as measured)
-        self._set_eskf(replace(vehicle_eskf_settings(s.eskf), thrust_axis_sigma_rad=0.0), unaided_filter="eskf")
+        eskf = s.eskf
+        if eskf.thrust_axis_sigma_rad > 0.0:  # set by set_multirotor() before: its drag noise undone too
+            eskf = replace(eskf, thrust_axis_sigma_rad=0.0, drag_noise_m_s2=EskfSettings().drag_noise_m_s2)
+        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
         """The vehicle is a multirotor: the ESKF with a vehicle's models and the rotor-drag measurement.
@@ -462,7 +469,10 @@ class Best(AttitudeFilter):
         Without GNSS the drag makes the velocity, hence the tilt, observable even through
         sustained manoeuvres: ArduCopter SITL without GNSS 1.41 → 0.62° mean inclination RMS
         (``docs/accuracy.md``).  ``None``: a coefficient already set, else 0.5 /s
-        (``EskfSettings.drag_coefficient_1_s``).
+        (``EskfSettings.drag_coefficient_1_s``).  Through the API (not an autopilot's stream:
+        a raw IMU, any mounting) the thrust axis is two states of the ESKF
+        (``EskfSettings.thrust_axis_sigma_rad``, 15°) and the drag noise 0.35 m/s²: the raw
+        SITL set declared a multirotor 1.89 → 1.00°, its vibrating 200 Hz version 2.25 → 1.24°.
         """
         s = self._settings
         assert isinstance(s, BestSettings)
@@ -471,8 +481,9 @@ class Best(AttitudeFilter):
             k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
         # a raw IMU through the API, any mounting: the thrust axis as two states of the error state
         # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
-        axis = 0.0 if getattr(self, "_vehicle_stream", False) else (s.eskf.thrust_axis_sigma_rad or MULTIROTOR_AXIS_SIGMA_RAD)
-        eskf = replace(s.eskf, drag_coefficient_1_s=float(k), thrust_axis_sigma_rad=axis)
+        eskf = replace(s.eskf, drag_coefficient_1_s=float(k))
+        if not getattr(self, "_vehicle_stream", False) and eskf.thrust_axis_sigma_rad == 0.0:
+            eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
         self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
 
     def thrust_axis(self) -> np.ndarray | None:
