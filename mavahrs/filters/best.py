@@ -36,7 +36,7 @@ BROAD 9-axis (16 trials): incl. / heading  0.66 / 1.66     0.705 / 1.69        0
 BROAD 6-axis                               0.655           0.704               0.71
 BROAD as a raw IMU (1–5 °/s bias, no rest)  1.09            1.98                4.85
 SITL raw, 200 Hz, vibration, plain API      5.43            –                   11.67
-the same, ``set_multirotor()``              2.25            23.8 (diverged)     –
+the same, ``set_multirotor()``              1.24            2.25; 23.8          –
 ArduCopter SITL with GNSS / without         0.22 / 0.63     (unchanged)         8.2
 =========================================  ==============  ==================  ========
 
