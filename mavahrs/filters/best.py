@@ -36,7 +36,7 @@ BROAD 9-axis (16 trials): incl. / heading  0.66 / 1.66     0.705 / 1.69        0
 BROAD 6-axis                               0.655           0.704               0.71
 BROAD as a raw IMU (1–5 °/s bias, no rest)  1.09            1.98                4.85
 SITL raw, 200 Hz, vibration, plain API      5.43            –                   11.67
-the same, ``set_multirotor()``              2.25            23.8 (diverged)     –
+the same, ``set_multirotor()``              1.24            2.25; 23.8          –
 ArduCopter SITL with GNSS / without         0.22 / 0.63     (unchanged)         8.2
 =========================================  ==============  ==================  ========
 
@@ -70,10 +70,12 @@ from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
 from mavahrs.filters.eskf import (
     GRAVITY_LOWPASS_STATE,
     MAG_MODEL_STATE,
+    MULTIROTOR_AXIS_SIGMA_RAD,
     MULTIROTOR_DRAG_1_S,
     Eskf,
     EskfSettings,
     eskf_aided,
+    thrust_axis_of,
 )
 from mavahrs.filters.eskf import step as _eskf_step
 from mavahrs.filters.gnss import gnss_compensation_fresh
@@ -91,6 +93,10 @@ BEST_FILTER = "madgwick"
 #: a vehicle's gravity measurement: the specific force averaged over 0.1 s in NED (the drag measurement's
 #: period), not the single sample, so that a raw IMU's rotor vibration does not fail its 5 % norm gate
 VEHICLE_GRAVITY_LOWPASS_S = 0.1
+#: the drag measurement's noise, m/s², with the thrust axis as states (a raw IMU declared a multirotor): the
+#: default 0.5 (EK3_DRAG_M_NSE) also covered a learnt axis's error, which is now a state (raw SITL set
+#: declared a multirotor 1.11 → 1.00°, vibrating 1.47 → 1.24°; 0.8: 1.28 / 1.66°; docs/accuracy.md)
+AXIS_STATES_DRAG_NOISE_M_S2 = 0.35
 
 
 def best_settings() -> MadgwickSettings:
@@ -447,7 +453,12 @@ class Best(AttitudeFilter):
         """
         s = self._settings
         assert isinstance(s, BestSettings)
-        self._set_eskf(vehicle_eskf_settings(s.eskf), unaided_filter="eskf")
+        self._vehicle_stream = True
+        # an autopilot's IMU is in the body frame: the thrust axis stays the running mean (as measured)
+        eskf = s.eskf
+        if eskf.thrust_axis_sigma_rad > 0.0:  # set by set_multirotor() before: its drag noise undone too
+            eskf = replace(eskf, thrust_axis_sigma_rad=0.0, drag_noise_m_s2=EskfSettings().drag_noise_m_s2)
+        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
         """The vehicle is a multirotor: the ESKF with a vehicle's models and the rotor-drag measurement.
@@ -458,14 +469,26 @@ class Best(AttitudeFilter):
         Without GNSS the drag makes the velocity, hence the tilt, observable even through
         sustained manoeuvres: ArduCopter SITL without GNSS 1.41 → 0.62° mean inclination RMS
         (``docs/accuracy.md``).  ``None``: a coefficient already set, else 0.5 /s
-        (``EskfSettings.drag_coefficient_1_s``).
+        (``EskfSettings.drag_coefficient_1_s``).  Through the API (not an autopilot's stream:
+        a raw IMU, any mounting) the thrust axis is two states of the ESKF
+        (``EskfSettings.thrust_axis_sigma_rad``, 15°) and the drag noise 0.35 m/s²: the raw
+        SITL set declared a multirotor 1.89 → 1.00°, its vibrating 200 Hz version 2.25 → 1.24°.
         """
         s = self._settings
         assert isinstance(s, BestSettings)
         k = drag_coefficient_1_s
         if k is None:
             k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
-        self._set_eskf(vehicle_eskf_settings(replace(s.eskf, drag_coefficient_1_s=float(k))), unaided_filter="eskf")
+        # a raw IMU through the API, any mounting: the thrust axis as two states of the error state
+        # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
+        eskf = replace(s.eskf, drag_coefficient_1_s=float(k))
+        if not getattr(self, "_vehicle_stream", False) and eskf.thrust_axis_sigma_rad == 0.0:
+            eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
+        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
+
+    def thrust_axis(self) -> np.ndarray | None:
+        """The ESKF's thrust axis (unit, IMU frame; None: not learnt, or not a multirotor)."""
+        return thrust_axis_of(self._state, _SE + S_FILTER)
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps (s), for the velocity-aided filter's output and fixes."""

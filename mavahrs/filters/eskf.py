@@ -119,12 +119,15 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of",
 ]  # fmt: skip
 
-N = 9  # error-state size: δθ (0–2), δv (3–5), δb (6–8)
+N = 11  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad)
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
+#: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
+#: a start in forward flight puts the first mean specific force ≈ atan(k·v/g) ≈ 10° off the axis at 4 m/s
+MULTIROTOR_AXIS_SIGMA_RAD = math.radians(15.0)
 HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 400 Hz
 
 #: variances the attitude covariance is re-opened to after persistent rejection, rad²
@@ -173,7 +176,9 @@ _THRUST_TAU = _DRAG_K + 2  # s: averaging time of the body-frame thrust-axis est
 _R_REST_RATE = _DRAG_K + 3  # zero-rate measurement noise² at detected rest, (rad/s)² (0: off)
 _R_REST_VEL = _DRAG_K + 4  # zero-velocity measurement noise² at detected rest, (m/s)²
 _REST_P = _DRAG_K + 5  # the rest detector's parameters (:mod:`mavahrs.filters.rest`, RP_LEN)
-_N_PARAMS = _REST_P + RP_LEN
+_AXIS_P0 = _REST_P + RP_LEN  # initial variance of the thrust-axis states, rad² (0: the axis is a running mean)
+_AXIS_Q = _AXIS_P0 + 1  # their random walk², rad²/s
+_N_PARAMS = _AXIS_Q + 1
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -214,7 +219,8 @@ _REST = _FSUM + 4  # the rest detector (:mod:`mavahrs.filters.rest`, REST_LEN)
 _RSCR = _REST + REST_LEN  # scratch of the detector's own bias follower (3; not used as the bias)
 _LAST_REST = _RSCR + 3  # clock time of the last zero-rate / zero-velocity update at rest
 _GW = _LAST_REST + 1  # the low-passed gravity measurement's trust, smoothed as the sample's (0 … 1)
-_N_STATE = _GW + 1
+_TREF = _GW + 1  # the body axis (0, 1, 2) the thrust axis's error basis is built from (states mode)
+_N_STATE = _TREF + 1
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
 MAG_MODEL_STATE = _MAGF
 #: offset of the gravity low-pass (:func:`mavahrs.filters.prefilter.ned_butterworth_step`) in the ESKF's state
@@ -328,7 +334,22 @@ class EskfSettings(FilterSettings):
             wind, a k off by a factor of two at low speed).
         thrust_axis_tau_s: the thrust axis (across which drag acts) is the
             running mean of the specific force's body-frame direction over
-            this time constant, s: any IMU mounting.
+            this time constant, s: any IMU mounting (unless
+            ``thrust_axis_sigma_rad`` makes it states).
+        thrust_axis_sigma_rad: > 0: the thrust axis is two states of the
+            error state instead (small angles across it, in the IMU frame),
+            starting from the first drag period's mean specific-force
+            direction with this 1-σ uncertainty, rad, and corrected by the drag
+            measurement (∂h/∂α = the thrust's specific force: in hover the
+            force across the axis is the axis error, in flight the filter
+            weighs it against the velocity through their covariance), so the
+            filter knows how little it knows of the axis early on instead of
+            averaging a start in forward flight into it as truth.  ``best``
+            sets it for a multirotor declared through the Python API (a raw
+            IMU, any mounting; :meth:`mavahrs.filters.best.Best.set_multirotor`).
+            0 = the running mean of ``thrust_axis_tau_s`` (the default; an
+            autopilot's stream, whose IMU is in the body frame).
+        thrust_axis_walk_rad_s: the thrust-axis states' random walk, rad/√s.
         rest: the rest detector (:mod:`mavahrs.filters.rest`: gyro and
             accelerometer steady within 2°/s and 0.5 m/s² of their 0.5 s
             low-passes for 1.5 s, the low-passed rate below
@@ -387,6 +408,8 @@ class EskfSettings(FilterSettings):
     drag_coefficient_1_s: float = 0.0
     drag_noise_m_s2: float = 0.5
     thrust_axis_tau_s: float = 60.0
+    thrust_axis_sigma_rad: float = 0.0
+    thrust_axis_walk_rad_s: float = 1e-4
     rest: RestBiasSettings = field(
         default_factory=lambda: RestBiasSettings(bias_tau_s=1.0, rate_limit_rad_s=math.radians(6.0))
     )
@@ -421,7 +444,7 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
-        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s"):
+        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -505,8 +528,11 @@ def _restart_velocity(s, k, vn, ve, vd, r_h, r_v):  # type: ignore[no-untyped-de
 
 
 @kernel(inline=True)
-def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias):  # type: ignore[no-untyped-def]
-    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb, δv̇ = M δθ with M = −[f]×; scratch C, M)."""
+def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis):  # type: ignore[no-untyped-def]
+    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb, δv̇ = M δθ with M = −[f]×; scratch C, M).
+
+    The thrust-axis states (9, 10) are constant (Φ's identity rows), their random walk ``q_axis``.
+    """
     kp = k + _P
     ka = k + _A
     kc = k + _C
@@ -523,6 +549,8 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias):  # type: ignore[no
                 acc += s[km + 3 * i + m] * s[kp + m * N + j]
             s[ka + (3 + i) * N + j] = s[kp + (3 + i) * N + j] + dt * acc
             s[ka + (6 + i) * N + j] = s[kp + (6 + i) * N + j]
+        for r in range(9, N):
+            s[ka + r * N + j] = s[kp + r * N + j]
     # P = A Φᵀ
     for i in range(N):
         for j in range(3):
@@ -535,10 +563,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias):  # type: ignore[no
                 acc += s[ka + i * N + m] * s[km + 3 * j + m]
             s[kp + i * N + 3 + j] = s[ka + i * N + 3 + j] + dt * acc
             s[kp + i * N + 6 + j] = s[ka + i * N + 6 + j]
+        for j in range(9, N):
+            s[kp + i * N + j] = s[ka + i * N + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
         s[kp + (6 + i) * N + 6 + i] += q_bias * dt
+    if q_axis > 0.0:
+        for i in range(9, N):
+            s[kp + i * N + i] += q_axis * dt
     # keep P symmetric against round-off
     for i in range(N):
         for j in range(i + 1, N):
@@ -664,7 +697,7 @@ def _drag_update_prepare(s, k, params, ax, ay, az, dt):  # type: ignore[no-untyp
     s[k + _FSUM + 1] += ay * dt
     s[k + _FSUM + 2] += az * dt
     s[k + _FSUM + 3] += dt
-    if not n > 0.0:
+    if not n > 0.0 or params[P_FILTER + _AXIS_P0] > 0.0:  # (states: the axis is estimated by the updates)
         return
     t2 = s[kt] * s[kt] + s[kt + 1] * s[kt + 1] + s[kt + 2] * s[kt + 2]
     # the mean since the start while shorter than the time constant (no weight on the first sample alone)
@@ -675,12 +708,37 @@ def _drag_update_prepare(s, k, params, ax, ay, az, dt):  # type: ignore[no-untyp
 
 
 @kernel(inline=True)
+def _axis_basis(tx, ty, tz, ref):  # type: ignore[no-untyped-def]
+    """Unit axis t and two unit body axes across it: e1 = the body axis ``ref`` made orthogonal to t, e2 = t × e1."""
+    tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+    tx, ty, tz = tx / tn, ty / tn, tz / tn
+    ax, ay, az = (1.0, 0.0, 0.0) if ref == 0 else ((0.0, 1.0, 0.0) if ref == 1 else (0.0, 0.0, 1.0))
+    d = ax * tx + ay * ty + az * tz
+    e1x, e1y, e1z = ax - d * tx, ay - d * ty, az - d * tz
+    en = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / en, e1y / en, e1z / en
+    return tx, ty, tz, e1x, e1y, e1z, ty * e1z - tz * e1y, tz * e1x - tx * e1z, tx * e1y - ty * e1x
+
+
+@kernel(inline=True)
+def _least_aligned(tx, ty, tz):  # type: ignore[no-untyped-def]
+    """The body axis (0, 1, 2) least aligned with t."""
+    if abs(tx) <= abs(ty) and abs(tx) <= abs(tz):
+        return 0
+    return 1 if abs(ty) <= abs(tz) else 2
+
+
+@kernel(inline=True)
 def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
     """Rotor drag: the mean specific force across the thrust axis = −k × the body velocity across it.
 
     With ``v_b = Cᵀ v`` and a body axis e across the thrust axis, u = C e (NED):
     h = −k uᵀv, ∂h/∂δv = −k uᵀ, ∂h/∂δθ = −k (u × v)ᵀ (q_true = exp(δθ/2) ⊗ q: v_b,true = v_b + Cᵀ(v × δθ)).
-    Leishman et al. 2014, eqs. (9)–(10).  Returns True if a component was fused.
+    Leishman et al. 2014, eqs. (9)–(10).  With the thrust axis as states (``thrust_axis_sigma_rad``):
+    t_true = t + α₁e₁ + α₂e₂ turns e_c to e_c − α_c t, so h_c = −k e_cᵀv_b + α_c tᵀ(f + k v_b) and
+    ∂h_c/∂α_c = tᵀ(f + k v_b) (the thrust's specific force, ≈ g in hover); the axis starts as the
+    first period's mean specific-force direction with σ = ``thrust_axis_sigma_rad``.
+    Returns True if a component was fused.
     """
     kt = k + _TAX
     tx, ty, tz = s[kt], s[kt + 1], s[kt + 2]
@@ -689,29 +747,43 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
     fx, fy, fz = s[k + _FSUM] / cnt, s[k + _FSUM + 1] / cnt, s[k + _FSUM + 2] / cnt
     for i in range(4):
         s[k + _FSUM + i] = 0.0
+    p0 = params[P_FILTER + _AXIS_P0]
+    states = p0 > 0.0
+    if states and tn == 0.0:
+        # the prior: this period's mean specific-force direction (the thrust's, but for drag and
+        # accelerations: a start in forward flight is ≈ 10° off, within the prior's σ)
+        fn_ = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if not fn_ > 0.5 * G_M_S2:
+            return False
+        tx, ty, tz = fx / fn_, fy / fn_, fz / fn_
+        s[kt], s[kt + 1], s[kt + 2] = tx, ty, tz
+        s[k + _TREF] = _least_aligned(tx, ty, tz)
+        kp = k + _P
+        for i in range(9, N):
+            for j in range(N):
+                s[kp + i * N + j] = 0.0
+                s[kp + j * N + i] = 0.0
+            s[kp + i * N + i] = p0
+        tn = 1.0
     if not tn > 0.5:  # no steady thrust direction (tumbling, or not yet learnt)
         return False
-    tx, ty, tz = tx / tn, ty / tn, tz / tn
-    # a body axis least aligned with t, made orthogonal to it: e1; e2 = t × e1
-    if abs(tx) <= abs(ty) and abs(tx) <= abs(tz):
-        ax, ay, az = 1.0, 0.0, 0.0
-    elif abs(ty) <= abs(tz):
-        ax, ay, az = 0.0, 1.0, 0.0
-    else:
-        ax, ay, az = 0.0, 0.0, 1.0
-    d = ax * tx + ay * ty + az * tz
-    e1x, e1y, e1z = ax - d * tx, ay - d * ty, az - d * tz
-    en = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
-    e1x, e1y, e1z = e1x / en, e1y / en, e1z / en
+    ref = int(s[k + _TREF]) if states else _least_aligned(tx, ty, tz)
+    tx, ty, tz, e1x, e1y, e1z, e2x, e2y, e2z = _axis_basis(tx, ty, tz, ref)
     kc = k + _C
     vn, ve, vd = s[k + _V], s[k + _V + 1], s[k + _V + 2]
     r = params[P_FILTER + _R_DRAG]
+    thrust = 0.0
+    if states:  # tᵀ(f + k v_b), v_b = Cᵀv
+        utn = s[kc + 0] * tx + s[kc + 1] * ty + s[kc + 2] * tz
+        ute = s[kc + 3] * tx + s[kc + 4] * ty + s[kc + 5] * tz
+        utd = s[kc + 6] * tx + s[kc + 7] * ty + s[kc + 8] * tz
+        thrust = fx * tx + fy * ty + fz * tz + k_drag * (utn * vn + ute * ve + utd * vd)
     fused = False
     for c in range(2):
         if c == 0:
             ex, ey, ez = e1x, e1y, e1z
         else:
-            ex, ey, ez = ty * e1z - tz * e1y, tz * e1x - tx * e1z, tx * e1y - ty * e1x
+            ex, ey, ez = e2x, e2y, e2z
         un = s[kc + 0] * ex + s[kc + 1] * ey + s[kc + 2] * ez
         ue = s[kc + 3] * ex + s[kc + 4] * ey + s[kc + 5] * ez
         ud = s[kc + 6] * ex + s[kc + 7] * ey + s[kc + 8] * ez
@@ -724,6 +796,8 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[k + _H + 3] = -k_drag * un
         s[k + _H + 4] = -k_drag * ue
         s[k + _H + 5] = -k_drag * ud
+        if states:
+            s[k + _H + 9 + c] = thrust
         if _scalar_update(s, k, y, r, params[P_FILTER + _VEL_GATE]):
             fused = True
     return fused
@@ -807,7 +881,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         state[kq + 3], state[kq + 4], state[kq + 5] = (ax, ay, az) if accel_ok else (math.nan, math.nan, math.nan)
         q_gyro = max(q_gyro, state[k + _VIB] * dt)
         q_accel = max(q_accel, state[k + _VIB + 1] * dt)
-    _propagate_covariance(state, k, dt, q_gyro, q_accel, params[p + _Q_BIAS])
+    # the thrust-axis states' random walk once they exist (their variance is 0 until the axis is first set)
+    q_axis = params[p + _AXIS_Q] if state[k + _P + 9 * N + 9] > 0.0 else 0.0
+    _propagate_covariance(state, k, dt, q_gyro, q_accel, params[p + _Q_BIAS], q_axis)
     integrate_body_rate(state, S_Q, gx, gy, gz, dt)
     # history of the INS velocity (the state after this sample, at its time)
     pos = int(state[k + _HPOS])
@@ -1127,6 +1203,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         for i in range(3):
             b = state[S_BIAS + i] + state[kdx + 6 + i]
             state[S_BIAS + i] = min(max(b, -lim), lim)
+        kt = k + _TAX
+        if params[p + _AXIS_P0] > 0.0 and state[k + _P + 9 * N + 9] > 0.0:
+            # the thrust axis moved across itself: t ← (t + α₁e₁ + α₂e₂)/‖·‖
+            tx, ty, tz, e1x, e1y, e1z, e2x, e2y, e2z = _axis_basis(
+                state[kt], state[kt + 1], state[kt + 2], int(state[k + _TREF]))
+            a1, a2 = state[kdx + 9], state[kdx + 10]
+            tx, ty, tz = tx + a1 * e1x + a2 * e2x, ty + a1 * e1y + a2 * e2y, tz + a1 * e1z + a2 * e2z
+            tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+            state[kt], state[kt + 1], state[kt + 2] = tx / tn, ty / tn, tz / tn
 
     kp = k + _P
     tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
@@ -1150,6 +1235,13 @@ def eskf_aided(s, params):  # type: ignore[no-untyped-def]
     """True while a velocity fix was fused within ``aiding_timeout_s`` (``s``/``params``: a whole ESKF's)."""
     last = s[S_FILTER + _LAST_FIX]
     return last >= 0.0 and s[S_FILTER + _CLK] - last <= params[P_FILTER + _AID_TIMEOUT]
+
+
+def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
+    """The thrust axis held in an ESKF state whose own block starts at ``k`` (unit, IMU frame), or None."""
+    t = np.array(state[k + _TAX : k + _TAX + 3], dtype=float)
+    n = float(np.linalg.norm(t))
+    return t / n if n > 0.0 else None
 
 
 @kernel
@@ -1202,6 +1294,8 @@ class Eskf(AttitudeFilter):
         p[_DRAG_K] = settings.drag_coefficient_1_s
         p[_R_DRAG] = settings.drag_noise_m_s2**2
         p[_THRUST_TAU] = settings.thrust_axis_tau_s
+        p[_AXIS_P0] = settings.thrust_axis_sigma_rad**2
+        p[_AXIS_Q] = settings.thrust_axis_walk_rad_s**2
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
@@ -1219,6 +1313,10 @@ class Eskf(AttitudeFilter):
             k = self._settings.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
         self._settings = replace(self._settings, drag_coefficient_1_s=float(k))
         self._params[P_FILTER + _DRAG_K] = self._settings.drag_coefficient_1_s
+
+    def thrust_axis(self) -> np.ndarray | None:
+        """The thrust axis the drag measurement uses: a unit vector in the IMU frame (None: not yet learnt)."""
+        return thrust_axis_of(self._state, S_FILTER)
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps, s (see ``EskfSettings.sensor_delay_s``)."""
