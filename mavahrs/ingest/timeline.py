@@ -286,8 +286,15 @@ def _add_interval(st, fs, d):  # type: ignore[no-untyped-def]
         st[T_SINCE_MEDIAN] = 0
         if n >= 4:
             srt = st[T_RING + w : T_RING + w + n]
-            srt[:] = st[T_RING : T_RING + n]
-            srt.sort()
+            # an insertion sort of a copy, in place (numba's sort and whole-array copies need its
+            # runtime): 32 intervals by default, every quarter window
+            for i in range(n):
+                v = st[T_RING + i]
+                j = i
+                while j > 0 and srt[j - 1] > v:
+                    srt[j] = srt[j - 1]
+                    j -= 1
+                srt[j] = v
             m = srt[n // 2]
             st[T_MEDIAN] = m
             total = 0

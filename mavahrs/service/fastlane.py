@@ -161,9 +161,11 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
     # keys it: plainly "ok", or the Python path decides
     k = icfg[I_TL_LEN]
     tst = icfg[I_TL + k : I_TL + 2 * k]
-    tst[:] = icfg[I_TL : I_TL + k]
+    for i in range(k):  # (element by element: a whole-array copy needs numba's runtime)
+        tst[i] = icfg[I_TL + i]
     tfs = fcfg[F_TL + TL_F_LEN : F_TL + 2 * TL_F_LEN]
-    tfs[:] = fcfg[F_TL : F_TL + TL_F_LEN]
+    for i in range(TL_F_LEN):
+        tfs[i] = fcfg[F_TL + i]
     kind, tt, dt, _mono = timeline_step(tst, tfs, t, NO_NOW, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
                                         row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2], 6)  # fmt: skip
     if kind != K_OK:
