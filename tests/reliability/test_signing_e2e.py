@@ -115,7 +115,10 @@ def test_required_signing_drops_unsigned_wrong_key_and_replayed_and_none_reaches
     assert len(answered) >= 0.99 * n_good
     keys = [k for k in genuine_ms if k in answered and k >= genuine_ms[0] + 1000]
     err = rt.tilt_errors_deg(answered, rt.motion_truth(good, keys), keys)
-    assert err.max() < 2.0, err.max()  # the spoofed 3 rad/s would have thrown it off by tens of degrees
+    # the spoofed 3 rad/s would have thrown it off by tens of degrees; the filter's own error on this
+    # short synthetic motion without GNSS is 1-2 degrees (max 1.83 before the vehicle's 0.1 s gravity
+    # mean, 2.03 after; mean 0.97)
+    assert err.max() < 3.0, err.max()
     # everything we sent is signed with our key, link id 5, increasing timestamps
     n_frames, n_ok = _signed_frames_ok(gcs.frames, KEY, 5)
     assert n_frames > n_good and n_ok == n_frames
