@@ -105,17 +105,9 @@ def airborne(path: Path) -> tuple[float, float, dict]:
     res = replay(path, ReplaySettings(pipeline=PipelineSettings()))
     ev = phase_events(res.tlog, res.inputs, res.inputs.source)
     ph = FlightPhase(MonitorSettings())
-    speed = math.nan
     air = []
     for t, kind, v in ev:
-        if kind == "heartbeat":
-            ph.on_heartbeat(int(v), t)
-        elif kind == "landed":
-            ph.on_landed_state(int(v), t)
-        elif kind == "speed":
-            speed = v
-        else:
-            ph.on_position(t, v, speed)
+        ph.on_event(t, kind, v)
         if ph.phase(t) == "air":
             air.append(t / 1000.0)
     t_ap, q_ap = res.references["autopilot ATTITUDE"]

@@ -581,11 +581,9 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis):  # type: i
 
 
 @kernel(inline=True)
-def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
-    """One scalar measurement: innovation ``y`` (before this update's δx), h in scratch, noise ``r``.
-
-    Returns False (and changes nothing) when the innovation fails the χ gate.
-    """
+def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
+    """For a scalar update, h in scratch: P hᵀ into scratch (``_PH``) and (innovation less what this
+    sample's corrections already explain, its variance h P hᵀ + r)."""
     kp = k + _P
     kh = k + _H
     kph = k + _PH
@@ -596,11 +594,24 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
         for j in range(N):
             acc += s[kp + i * N + j] * s[kh + j]
         s[kph + i] = acc
-        hs += s[kh + i] * s[k + _DX + i]
+        hs += s[kh + i] * s[kdx + i]
     y -= hs  # what the corrections already found this sample explain
     sv = r
     for i in range(N):
         sv += s[kh + i] * s[kph + i]
+    return y, sv
+
+
+@kernel(inline=True)
+def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
+    """One scalar measurement: innovation ``y`` (before this update's δx), h in scratch, noise ``r``.
+
+    Returns False (and changes nothing) when the innovation fails the χ gate.
+    """
+    kp = k + _P
+    kph = k + _PH
+    kdx = k + _DX
+    y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
     inv = 1.0 / sv
@@ -622,20 +633,9 @@ def _heading_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     the innovation fails the χ gate.
     """
     kp = k + _P
-    kh = k + _H
     kph = k + _PH
     kdx = k + _DX
-    hs = 0.0
-    for i in range(N):
-        acc = 0.0
-        for j in range(N):
-            acc += s[kp + i * N + j] * s[kh + j]
-        s[kph + i] = acc
-        hs += s[kh + i] * s[kdx + i]
-    y -= hs  # what the corrections already found this sample explain
-    sv = r
-    for i in range(N):
-        sv += s[kh + i] * s[kph + i]
+    y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
     inv = 1.0 / sv

@@ -446,6 +446,7 @@ class FlightPhase:
         self._ess_state = 0
         self._since_ms: float | None = None  # when ``landed`` last changed
         self._last_ms = 0.0
+        self._speed = math.nan  # the latest "speed" event's, m/s (:meth:`on_event`)
 
     def _set_landed(self, landed: bool, t_ms: float) -> None:
         if self.landed is not None and landed != self.landed:
@@ -479,6 +480,17 @@ class FlightPhase:
             self._set_landed(True, t_ms)
         elif relative_alt_m > self._air_alt:
             self._set_landed(False, t_ms)
+
+    def on_event(self, t_ms: float, kind: str, value: float) -> None:
+        """One ``(t_ms, kind, value)`` of :func:`phase_events_of_arrays` (a position takes the latest speed)."""
+        if kind == "heartbeat":
+            self.on_heartbeat(int(value), t_ms)
+        elif kind == "landed":
+            self.on_landed_state(int(value), t_ms)
+        elif kind == "speed":
+            self._speed = value
+        elif kind == "position":
+            self.on_position(t_ms, value, self._speed)
 
     def handle(self, msg: Any) -> None:
         """HEARTBEAT / EXTENDED_SYS_STATE / GLOBAL_POSITION_INT from the autopilot (others ignored)."""
@@ -1493,21 +1505,12 @@ def monitor_series(
     mon.heading_valid = heading_valid
     sig = np.full(len(np.asarray(t_ms)), np.nan) if tilt_sigma_rad is None else np.asarray(tilt_sigma_rad, float)
     ph = mon.phase
-    speed = math.nan
     k, n_ph = 0, len(phase_events)
 
     def phase_until(t: float) -> None:
-        nonlocal k, speed
+        nonlocal k
         while k < n_ph and phase_events[k][0] <= t:
-            te, kind, v = phase_events[k]
-            if kind == "heartbeat":
-                ph.on_heartbeat(int(v), te)
-            elif kind == "landed":
-                ph.on_landed_state(int(v), te)
-            elif kind == "speed":
-                speed = v
-            elif kind == "position":
-                ph.on_position(te, v, speed)
+            ph.on_event(*phase_events[k])
             k += 1
 
     t = np.asarray(t_ms, dtype=np.float64)

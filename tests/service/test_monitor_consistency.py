@@ -45,16 +45,9 @@ def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFact
     mon = MonitorSettings()
     series, _ = replay_monitor(res, mon, "autopilot ATTITUDE", events)
     # the phase as the monitor classifies it, at every event: when the vehicle is airborne
-    ph, speed, air = FlightPhase(mon), float("nan"), []
+    ph, air = FlightPhase(mon), []
     for t, kind, v in events:
-        if kind == "heartbeat":
-            ph.on_heartbeat(int(v), t)
-        elif kind == "landed":
-            ph.on_landed_state(int(v), t)
-        elif kind == "speed":
-            speed = v
-        else:
-            ph.on_position(t, v, speed)
+        ph.on_event(t, kind, v)
         air.append((t / 1000.0, ph.phase(t) not in ("disarmed", "ground", "unknown")))
     return {"res": res, "truth": truth, "series": series, "air": air, "settings": mon}
 
