@@ -313,7 +313,8 @@ def _daemon_run(
 
     ``sabotage``: the lane's mirror gets a wrong sequence number after every refresh from the 200th on;
     ``stall``: the daemon sleeps 40 ms there (as if not scheduled), so datagrams queue up;
-    ``sabotage_chain``: the first chain of five or more datagrams starts from a wrong sequence number."""
+    ``sabotage_chain``: the first chain of five or more datagrams that the lane answers starts from a wrong
+    sequence number."""
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     gcs.bind(("127.0.0.1", 0))
     gcs.settimeout(0.05)
@@ -347,10 +348,17 @@ def _daemon_run(
             datas = list(datas)
             if len(datas) < 5 or done[0]:
                 return real_queue(datas)
-            done[0] = True
-            chain_lane.icfg[I_SEQ] = (chain_lane.icfg[I_SEQ] + 1) % 256  # (refresh() mends it)
+            seq = chain_lane.icfg[I_SEQ]
+            chain_lane.icfg[I_SEQ] = (seq + 1) % 256  # (refresh() mends it)
             taken = real_queue(datas)
-            sabotaged.append(sum(a is not None for a in taken))
+            answered = sum(a is not None for a in taken)
+            if answered == 0:
+                # no chain went out (the lane not on yet on a loaded machine, a HEARTBEAT first):
+                # nothing sabotaged; the next queue of five is
+                chain_lane.icfg[I_SEQ] = seq
+                return taken
+            done[0] = True
+            sabotaged.append(answered)
             return taken
 
         chain_lane.answer_queue = answer_queue
