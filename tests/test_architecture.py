@@ -164,16 +164,18 @@ SAMPLE_STEPS = {
     "calibrate_row": ("sensors/calibration.py", "calibrate_rows"),
     "resend_row": ("ingest/resend.py", "resend_rows"),
     "timeline_step": ("ingest/timeline.py", "timeline_loop"),
+    "select_step": ("sensors/imu_select.py", "select_loop"),
 }
 #: who runs the steps: the live pipeline (through Scaler / Calibrator / write_row), the daemon's fast
 #: lane, and the readers (the loops)
 STEP_USERS = {
     "service/fastlane.py": {"scale_int_row", "timeline_step"},
-    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows", "resend_rows"},
-    "service/pipeline.py": {"ResendFilter", "Timeline"},
-    "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows", "timeline_loop"},
-    "logs/dataflash.py": {"si_rows"},
-    "logs/ulog.py": {"si_rows"},
+    "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows", "resend_rows",
+                               "select_over_arrays"},
+    "service/pipeline.py": {"ResendFilter", "Timeline", "ImuSelector"},
+    "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows", "timeline_loop", "select_loop"},
+    "logs/dataflash.py": {"si_rows", "select_over_arrays"},
+    "logs/ulog.py": {"si_rows", "select_over_arrays"},
 }
 
 
@@ -207,3 +209,14 @@ def test_the_pipeline_the_fast_lane_and_every_reader_run_those_steps() -> None:
     timeline = (PKG / "ingest" / "timeline.py").read_text(encoding="utf-8")
     assert "timeline_step(" in timeline.split("class Timeline", 1)[1] and "timeline_step(" in timeline.split("def timeline_loop", 1)[1]
     assert not (PKG / "protocol" / "timeline.py").exists(), "the timeline is a step of the sample chain (mavahrs/ingest)"
+    selector = (PKG / "sensors" / "imu_select.py").read_text(encoding="utf-8")
+    assert "select_step(" in selector.split("class ImuSelector", 1)[1] and "select_step(" in selector.split("def select_loop", 1)[1]
+
+
+def test_no_reader_re_implements_the_imu_selector_s_rules() -> None:
+    """The health rules (all-zero, stale, frozen, saturated, disagreeing) live in the selector's step alone: the
+    readers run its loop and keep no shortcut that judges an instance healthy by themselves."""
+    for rel in ("evaluation/tlogdata.py", "logs/dataflash.py", "logs/ulog.py", "ingest/arrays.py", "replay/engine.py"):
+        src = (PKG / rel).read_text(encoding="utf-8")
+        for word in ("freeze_s", "stale_s", "freeze_min_samples", ".observe("):
+            assert word not in src, f"mavahrs/{rel} uses {word}: the IMU selector's rule outside its step"

@@ -12,9 +12,11 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
 * exact re-sends (same stamp and values as the previous message of the same
   kind and instance: the pipeline's step, :mod:`mavahrs.ingest.resend`, in its
   compiled loop) dropped before anything else and counted (``counts["exact_duplicates"]``);
-* the IMU instance the selector (:class:`~mavahrs.sensors.imu_select.ImuSelector`)
-  would feed: instances whose accelerometer and gyro are all zero are absent
-  (an ArduSub SCALED_IMU2); all-zero samples are never fed;
+* the IMU instance the selector feeds: the pipeline's step
+  (:func:`mavahrs.sensors.imu_select.select_step`) in its compiled loop over every
+  message of every instance (``ingest/arrays.py`` ``select_over_arrays``): instances
+  whose accelerometer and gyro are all zero are absent (an ArduSub SCALED_IMU2);
+  all-zero samples are never fed;
 * timing from the sample timestamps (the pipeline's timeline: duplicates and
   reordered samples dropped; a gap reaches the filter as a long ``dt``);
 * the calibration (gyro temperature model, magnetometer calibration, axis
@@ -27,9 +29,7 @@ arrays, what :class:`mavahrs.service.pipeline.Pipeline` does per message:
   to outputs, from a real :class:`~mavahrs.sensors.geomag.DeclinationSource`
   fed the position and time messages in order.
 
-Several live IMU instances with ``imu=auto`` are decided by the pipeline's
-own :class:`~mavahrs.sensors.imu_select.ImuSelector`, run over the messages;
-what it cannot mirror in bulk — a fail-over to another instance (the pipeline
+What the arrays cannot mirror in bulk — a fail-over to another instance (the pipeline
 back-fills the new instance's recent samples), an autopilot reboot, a timeline
 that corrects timestamps — raises :class:`FastPathUnsupported`; replay then
 runs the pipeline itself, message by message (same results, slower).  A test
@@ -61,8 +61,10 @@ from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays
     FastPathUnsupported,
     PreparedInputs,
     _velocity_setting,
+    select_over_arrays,
     timeline_over_arrays,
 )
+from mavahrs.sensors.sample import ACCEL, GYRO
 
 __all__ = [
     "recording_from_inputs",
@@ -374,27 +376,6 @@ def _resends(mg: dict[str, Any], names: list[str]) -> tuple[NDArray[np.bool_], i
     return out == RESENT, int(np.count_nonzero(out == RESTAMPED))
 
 
-def _run_selector(mg: dict[str, Any], names: list[str], settings: Any) -> NDArray[np.bool_]:
-    """The pipeline's own ImuSelector over every message (several live instances, ``imu=auto``)."""
-    from mavahrs.sensors.imu_select import ImuSelector
-
-    sel = ImuSelector(settings.selection_settings)
-    n = mg["pos"].shape[0]
-    feed = np.zeros(n, bool)
-    imu, t, use = mg["imu"].tolist(), mg["t_us"].tolist(), mg["use"].tolist()
-    g, a, m = mg["gyro"].tolist(), mg["accel"].tolist(), mg["mag"].tolist()
-    temp, sat, inv, kind = mg["temp"].tolist(), mg["sat"].tolist(), mg["inv"].tolist(), mg["kind"].tolist()
-    for i in range(n):
-        if not use[i]:
-            continue
-        tc = temp[i]
-        v = (imu[i], t[i], *g[i], *a[i], *m[i], None if tc != tc else tc, sat[i], inv[i])
-        feed[i] = sel.observe(names[kind[i]], v)
-        if sel._changes:
-            sel.pop_changes()
-    return feed
-
-
 def prepare_inputs(
     td: TlogData,
     settings: Any = None,
@@ -477,12 +458,9 @@ def prepare_inputs(
         raise DataError(f"{td.path}: IMU instance {fixed} has no usable data (instances: {sorted(live) or 'none'})")
     if not live:
         raise DataError(f"{td.path}: every IMU instance sends all-zero accelerometer and gyro")
-    shared = any(len(v) > 1 for v in carriers.values())
-    if not shared and (fixed is not None or len(live) == 1):
-        chosen = fixed if fixed is not None else next(iter(live))
-        feed = (mg["imu"] == chosen) & mg["use"] & ~mg["zero"]
-    else:
-        feed = _run_selector(mg, names, s)
+    # the pipeline's IMU selector, its compiled step over every message in the log's order
+    feed, _ = select_over_arrays(s.selection_settings, mg["kind"], mg["imu"], mg["t_us"], mg["gyro"], mg["accel"],
+                                 (mg["sat"] & (GYRO | ACCEL)) != 0, mg["use"])  # fmt: skip
     idx = np.flatnonzero(feed)
     if idx.size == 0:
         raise DataError(f"{td.path}: no IMU sample would reach the filter")

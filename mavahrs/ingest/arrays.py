@@ -10,6 +10,8 @@ each the array form of the live pipeline's per-sample step
   or a corrected time stamp raises :class:`FastPathUnsupported`: the per-message pipeline then
   replays the log); :func:`onboard_timeline` — the same over an onboard log (DataFlash, ULog),
   every forward jump beyond the gap limit confirmed by the next sample;
+* :func:`select_over_arrays` — the IMU selector's step (:func:`mavahrs.sensors.imu_select.select_step`,
+  the pipeline's per sample) in its compiled loop over every instance's samples in order;
 * calibration — :meth:`mavahrs.sensors.calibration.Calibrator.apply_rows`, the compiled
   per-row step (:func:`~mavahrs.sensors.calibration.calibrate_row`) over all rows;
 * :func:`si_rows` — the scaling step (:func:`~mavahrs.sensors.scaling.scale_float_row`) and the
@@ -43,6 +45,8 @@ from mavahrs.ingest.timeline import (
     new_state,
     timeline_loop,
 )
+from mavahrs.sensors.imu_select import G_CHANGES_TOTAL, select_loop
+from mavahrs.sensors.imu_select import new_state as selector_state
 from mavahrs.sensors.sample import ACCEL, blank_unusable_rows
 from mavahrs.sensors.scaling import (
     C_KA,
@@ -54,7 +58,8 @@ from mavahrs.sensors.scaling import (
     scale_float_rows,
 )
 
-__all__ = ["FastPathUnsupported", "PreparedInputs", "si_rows", "timeline_over_arrays", "onboard_timeline"]
+__all__ = ["FastPathUnsupported", "PreparedInputs", "si_rows", "timeline_over_arrays", "onboard_timeline",
+           "select_over_arrays"]
 
 Array = NDArray[np.float64]
 _NAN = math.nan
@@ -202,6 +207,28 @@ def timeline_over_arrays(
         dt[gap] = np.maximum(dt[gap], _GAP_DT_S)
     dt[~keep] = _NAN
     return keep, dt
+
+
+def select_over_arrays(settings: Any, source: NDArray[np.int64], imu: NDArray[np.int64], t_us: NDArray[np.int64],
+                       gyro: Array, accel: Array, saturated: NDArray[np.bool_], use: NDArray[np.bool_] | None = None
+                       ) -> tuple[NDArray[np.bool_], int]:  # fmt: skip
+    """Which samples the pipeline's IMU selector feeds to the filter, and how many times it chose an instance.
+
+    :func:`mavahrs.sensors.imu_select.select_loop` — the step the pipeline calls per sample — from a new
+    selector with ``settings`` (:class:`~mavahrs.sensors.imu_select.ImuSelectSettings`) over every
+    instance's samples in the order given (the pipeline's: as received; an onboard log's: by time).
+    ``source``: a number per message type (two types carrying one instance: the later is refused while
+    the first speaks); ``imu``: the instance; ``saturated``: a gyro or accelerometer axis at its limit;
+    ``use``: whether the message is a sample at all (None: every one).
+    """
+    n = t_us.shape[0]
+    feed = np.zeros(n, np.bool_)
+    st, fs = selector_state(settings)
+    select_loop(st, fs, np.ascontiguousarray(source, np.int64), np.ascontiguousarray(imu, np.int64),
+                np.ascontiguousarray(t_us, np.int64), np.ascontiguousarray(gyro, np.float64),
+                np.ascontiguousarray(accel, np.float64), np.ascontiguousarray(saturated, np.bool_),
+                np.ones(n, np.bool_) if use is None else np.ascontiguousarray(use, np.bool_), feed)  # fmt: skip
+    return feed, int(st[G_CHANGES_TOTAL])
 
 
 def onboard_timeline(path: Any, t_us: NDArray[np.int64], gyro: Array, accel: Array, settings: TimelineSettings

@@ -26,8 +26,9 @@ ArduPilot's body frame is FRD, its earth frame NED, angles in degrees, yaw
   autopilot's boot clock; ``GyrX/Y/Z`` rad/s and ``AccX/Y/Z`` m/s², already
   calibrated, board-rotated and low-pass filtered (``INS_GYRO_FILTER`` /
   ``INS_ACCEL_FILTER``), i.e. what the EKF gets and what RAW_IMU would send;
-  ``T`` °C.  The instance fed is chosen by the pipeline's own
-  :class:`~mavahrs.sensors.imu_select.ImuSelector` (``--imu`` fixes one).
+  ``T`` °C.  The instance fed is chosen by the pipeline's own IMU selector, its
+  compiled step (:func:`~mavahrs.sensors.imu_select.select_step`) run over every
+  instance's records in time order (``--imu`` fixes one).
 * ``MAG`` (``I``, the compass instance; ``Health``): ``MagX/Y/Z`` mGauss
   (× 0.1 → µT), with offsets and motor compensation applied (as RAW_IMU's
   ``xmag``); put into the first IMU row at or after its time, NaN elsewhere.
@@ -75,6 +76,7 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.filters.jit import kernel
+from mavahrs.ingest.arrays import select_over_arrays
 from mavahrs.logs import LogInputs
 
 __all__ = ["DataflashScan", "scan", "decode", "read_dataflash", "DTYPE_OF_FORMAT"]
@@ -279,15 +281,8 @@ def _gps_unix_s(week: np.ndarray, ms: np.ndarray) -> np.ndarray:
 
 
 def _select_imu(imu: dict[str, np.ndarray], settings: Any, sat: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Which IMU records feed the filter: the pipeline's ImuSelector over all instances in time order.
-
-    When the lowest-numbered live instance shows none of what makes the
-    selector look elsewhere (all-zero, silent for ``stale_s``, saturated,
-    identical values for ``freeze_s``), the selector keeps it throughout: then
-    its records are taken directly (the per-sample loop would decide the same).
-    """
-    from mavahrs.sensors.imu_select import ImuSelector
-
+    """Which IMU records feed the filter: the pipeline's IMU selector (its compiled step,
+    :func:`~mavahrs.ingest.arrays.select_over_arrays`) over every instance's records in time order."""
     sel_s = settings.selection_settings
     inst = imu["I"].astype(np.int64)
     t = imu["TimeUS"].astype(np.int64)
@@ -299,47 +294,15 @@ def _select_imu(imu: dict[str, np.ndarray], settings: Any, sat: np.ndarray) -> t
     for i in sorted(set(np.unique(inst).tolist()) - set(live)):
         notes.append(f"IMU instance {i} logs all-zero accelerometer and gyro (no such IMU): not used")
     fixed = sel_s.fixed
-    if fixed is not None:
-        if fixed not in live:
-            raise DataError(f"IMU instance {fixed} has no usable data (instances: {live or 'none'})")
-        return (inst == fixed) & ~zero, notes
+    if fixed is not None and fixed not in live:
+        raise DataError(f"IMU instance {fixed} has no usable data (instances: {live or 'none'})")
     if not live:
         raise DataError("every IMU instance logs all-zero accelerometer and gyro")
-    first = live[0]
-    mine = inst == first
-    tm, gm, am = t[mine], g[mine], a[mine]
-    healthy = len(live) == 1
-    if not healthy:
-        step = np.diff(tm)
-        same = np.all(gm[1:] == gm[:-1], axis=1) & np.all(am[1:] == am[:-1], axis=1)
-        longest_us, longest_n = 0, 0
-        if same.any():  # the longest run of identical values
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
-            starts, ends = edges[::2], edges[1::2]
-            k = int(np.argmax(ends - starts))
-            longest_n = int(ends[k] - starts[k]) + 1
-            longest_us = int(tm[ends[k]] - tm[starts[k]])
-        healthy = (
-            not bool(np.any(step > int(sel_s.stale_s * 1e6)))
-            and not bool(np.any(zero[mine]))
-            and not bool(np.any(sat[mine]))
-            and not (longest_us >= sel_s.freeze_s * 1e6 and longest_n >= sel_s.freeze_min_samples)
-        )
-    if healthy:
-        return mine, notes
-    from mavahrs.sensors.sample import ACCEL, GYRO
-
-    s = ImuSelector(sel_s)
-    feed = np.zeros(t.shape[0], bool)
     order = np.argsort(t, kind="stable")
-    nan3 = (_NAN, _NAN, _NAN)
-    tl, il, gl, al = t.tolist(), inst.tolist(), g.tolist(), a.tolist()
-    satl = sat.tolist()
-    for j in order.tolist():
-        v = (il[j], tl[j], *gl[j], *al[j], *nan3, None, (GYRO | ACCEL) if satl[j] else 0, 0)
-        feed[j] = s.observe("IMU", v)  # type: ignore[arg-type]
-        if s._changes:
-            s.pop_changes()
+    feed_sorted, _ = select_over_arrays(sel_s, np.zeros(t.shape[0], np.int64), inst[order], t[order], g[order],
+                                        a[order], np.asarray(sat, np.bool_)[order])  # fmt: skip
+    feed = np.zeros(t.shape[0], bool)
+    feed[order] = feed_sorted
     fed = sorted(set(inst[feed].tolist()))
     if len(fed) > 1:
         notes.append(f"the IMU selector switched between instances {fed} during the log (fail-over)")

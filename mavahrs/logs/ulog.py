@@ -88,6 +88,7 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.filters.layout import IN_DT, IN_MAG, IN_VEL, IN_VEL_AGE
+from mavahrs.ingest.arrays import select_over_arrays
 from mavahrs.logs import LogInputs
 from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES
 
@@ -219,25 +220,34 @@ def _imu(topics: dict[str, Any], s: Any, path: Path) -> tuple[str, int, dict[str
     if fixed is not None and vimu and fixed not in vimu:
         raise DataError(f"{path}: IMU instance {fixed} is not in the log (vehicle_imu instances: {sorted(vimu)})")
     usable = {i for i, r in rates.items() if r >= VEHICLE_IMU_MIN_SHARE * sc_rate and r > 0}
-    for i in sorted(vimu):
-        tag = "used" if (i in usable and i == (fixed if fixed is not None else min(usable))) else "not used"
-        why = "" if i in usable else f" (below {VEHICLE_IMU_MIN_SHARE:.0%} of sensor_combined's {sc_rate:.1f} Hz)"
-        lines.append(f"vehicle_imu[{i}]: {rates[i]:.1f} Hz, {len(vimu[i]['timestamp'])} samples — {tag}{why}")
     if usable and (fixed is None or fixed in usable):
-        inst = fixed if fixed is not None else min(usable)
-        d = vimu[inst]
-        t = np.asarray(d["timestamp"], np.int64)
-        dta = np.asarray(d["delta_angle_dt"], np.float64) * 1e-6
-        dtv = np.asarray(d["delta_velocity_dt"], np.float64) * 1e-6
-        with np.errstate(divide="ignore", invalid="ignore"):
-            gyro = _vec(d, "delta_angle") / np.where(dta > 0, dta, _NAN)[:, None]
-            accel = _vec(d, "delta_velocity") / np.where(dtv > 0, dtv, _NAN)[:, None]
-        clip = np.asarray(d.get("delta_velocity_clipping", np.zeros(t.shape[0])), np.int64) != 0
+        # every usable instance's samples in time order through the pipeline's IMU selector (its compiled step)
+        cols = {i: _vehicle_imu_columns(vimu[i]) for i in sorted(usable)}
+        inst_of = np.concatenate([np.full(c["t_us"].shape[0], i, np.int64) for i, c in cols.items()])
+        t = np.concatenate([c["t_us"] for c in cols.values()])
+        order = np.argsort(t, kind="stable")
+        merged = {k: np.concatenate([c[k] for c in cols.values()])[order] for k in ("t_us", "gyro", "accel", "clip")}
+        inst_of = inst_of[order]
+        feed, _ = select_over_arrays(s.selection_settings, np.zeros(t.shape[0], np.int64), inst_of, merged["t_us"],
+                                     merged["gyro"], merged["accel"], merged["clip"])  # fmt: skip
+        fed = sorted(set(inst_of[feed].tolist()))
+        if not fed:
+            raise DataError(f"{path}: no vehicle_imu sample would reach the filter (every instance all-zero)")
+        inst = int(np.bincount(inst_of[feed]).argmax())
+        for i in sorted(vimu):
+            tag = "used" if i in fed else "not used"
+            why = "" if i in usable else f" (below {VEHICLE_IMU_MIN_SHARE:.0%} of sensor_combined's {sc_rate:.1f} Hz)"
+            lines.append(f"vehicle_imu[{i}]: {rates[i]:.1f} Hz, {len(vimu[i]['timestamp'])} samples — {tag}{why}")
+        if len(fed) > 1:
+            lines.append(f"the IMU selector switched between vehicle_imu instances {fed} during the log (fail-over)")
         if sc is not None:
             lines.append(f"sensor_combined: {sc_rate:.1f} Hz — not used (vehicle_imu at the loop rate instead)")
         lines.insert(0, f"IMU: vehicle_imu[{inst}] at {rates[inst]:.1f} Hz: delta angle / velocity over their "
                         "intervals (mean rate and specific force), board FRD, static calibration applied")  # fmt: skip
-        return "vehicle_imu", inst, {"t_us": t, "gyro": gyro, "accel": accel, "clip": clip}, lines
+        return "vehicle_imu", inst, {k: v[feed] for k, v in merged.items()}, lines
+    for i in sorted(vimu):
+        why = "" if i in usable else f" (below {VEHICLE_IMU_MIN_SHARE:.0%} of sensor_combined's {sc_rate:.1f} Hz)"
+        lines.append(f"vehicle_imu[{i}]: {rates[i]:.1f} Hz, {len(vimu[i]['timestamp'])} samples — not used{why}")
     if fixed is not None and fixed != 0:
         raise DataError(f"{path}: IMU instance {fixed} is not logged at the loop rate "
                         f"(vehicle_imu[{fixed}] at {rates.get(fixed, 0.0):.1f} Hz; sensor_combined is the voted IMU)")  # fmt: skip
@@ -253,6 +263,18 @@ def _imu(topics: dict[str, Any], s: Any, path: Path) -> tuple[str, int, dict[str
                     "mean rate and specific force over each interval, board FRD, static calibration "
                     "applied, not EKF2's bias estimates)")  # fmt: skip
     return "sensor_combined", 0, {"t_us": t, "gyro": _vec(sc, "gyro_rad"), "accel": accel, "clip": clip}, lines
+
+
+def _vehicle_imu_columns(d: Any) -> dict[str, Any]:
+    """One vehicle_imu instance's samples: time, mean rate (delta angle / its interval), specific force, clipping."""
+    t = np.asarray(d["timestamp"], np.int64)
+    dta = np.asarray(d["delta_angle_dt"], np.float64) * 1e-6
+    dtv = np.asarray(d["delta_velocity_dt"], np.float64) * 1e-6
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gyro = _vec(d, "delta_angle") / np.where(dta > 0, dta, _NAN)[:, None]
+        accel = _vec(d, "delta_velocity") / np.where(dtv > 0, dtv, _NAN)[:, None]
+    clip = np.asarray(d.get("delta_velocity_clipping", np.zeros(t.shape[0])), np.int64) != 0
+    return {"t_us": t, "gyro": gyro, "accel": accel, "clip": clip}
 
 
 def _source(topics: dict[str, Any]) -> tuple[int, int]:

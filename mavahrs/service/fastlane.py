@@ -320,19 +320,19 @@ class FastLane:
         if self._rx is not None and getattr(self._rx, "_signing", None) is not None:
             return
         ms = scaler.profile.messages.get("RAW_IMU")
-        inst = sel._inst.get(imu)
+        inst_source = sel.source_of(imu)
         tl = p._timelines.get(imu)
         cal = p._calibrators.get("RAW_IMU")
         if (
             ms is None
             or not ms.integer_fields
             or ms.time_to_us != 1
-            or inst is None
+            or inst_source is None
             or tl is None
             or cal is None
         ):
             return
-        if inst.source != "RAW_IMU" or inst.absent or p._backlog.get(imu) or cal.active:
+        if inst_source != "RAW_IMU" or sel.is_absent(imu) or p._backlog.get(imu) or cal.active:
             return
         if p._last_fed_imu != imu or p._last_fed_t is None or tl.st.shape[0] != icfg[I_TL_LEN]:
             return
@@ -344,10 +344,10 @@ class FastLane:
         k = tl.st.shape[0]  # the instance's timeline state, for the step to run on a copy of
         icfg[I_TL : I_TL + k] = tl.st
         fcfg[F_TL : F_TL + TL_F_LEN] = tl.fs
-        if len(sel._inst) == 1 or sel.settings.fixed is not None:
+        if sel.n_instances() == 1 or sel.settings.fixed is not None:
             icfg[I_EVAL_DUE] = _NO_LIMIT  # one instance, or a fixed one: no evaluation can change the choice
         else:
-            icfg[I_EVAL_DUE] = sel._last_eval_us + sel._eval_us  # a re-evaluation may switch: the Python path
+            icfg[I_EVAL_DUE] = sel.next_evaluation_us  # a re-evaluation may switch: the Python path
         icfg[I_LAST_OUT_T] = p._last_out_t
         icfg[I_HAVE_NEXT] = p._next_out_t is not None
         icfg[I_NEXT_OUT_T] = p._next_out_t or 0

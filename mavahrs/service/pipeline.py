@@ -18,7 +18,7 @@ Per message from the master link (:meth:`Pipeline.handle`):
   (:mod:`mavahrs.sensors.scaling`); an exact re-send of the previous message
   (same stamp, same values: ArduPilot's 400 Hz telemetry catching up) is
   dropped and counted (``exact_duplicates``, :mod:`mavahrs.ingest.resend`); the rest is offered to the IMU selector
-  (:mod:`mavahrs.sensors.imu_select`); the selected instance's samples are
+  (:mod:`mavahrs.sensors.imu_select`, its compiled step per sample); the selected instance's samples are
   timed by the timeline (duplicates and reordered samples dropped and counted,
   a reboot resets everything, a gap reaches the filter as a long ``dt`` so it
   re-initialises), calibrated (:mod:`mavahrs.sensors.calibration`), written
@@ -847,7 +847,7 @@ class Pipeline:
     def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:
         sel = self._selector
         feed = sel.observe(name, v)
-        if sel._changes:
+        if sel.changed:
             self._selection_changed(now_us)
         if not feed:
             imu_id = v[0]

@@ -419,3 +419,45 @@ def test_shared_log_battery_vibration_and_ekf3_cores(shared_bin: Path) -> None:
     assert set(np.unique(vib["imu"]).tolist()) == {0, 1}
     assert li.parameters["SCHED_LOOP_RATE"] == 400.0 and li.parameters["INS_GYRO_FILTER"] == 20.0
     assert "COMPASS_DEC" in li.parameters
+
+
+def test_the_imu_selector_step_fails_over_from_a_frozen_imu(tmp_path: Path, df_writer) -> None:
+    """The pipeline's IMU selector (its compiled step, looped over the records in time order) on a log whose IMU 0
+    repeats one value from 2 s on while IMU 1 keeps measuring: the reader feeds IMU 0 until the freeze is
+    recognised (``freeze_s`` 0.5 s, judged every 20 ms), IMU 1 from then on, and the per-sample
+    :class:`ImuSelector` over the same records decides exactly the same."""
+    from mavahrs.sensors.imu_select import ImuSelector
+    from mavahrs.sensors.scaling import S_SAT
+
+    w = df_writer()
+    w.fmt(129, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
+    rng = np.random.default_rng(3)
+    n = 2400  # 6 s at 400 Hz
+    t = 5_000_000 + 2500 * np.arange(n)
+    recs = []
+    for i in range(n):
+        for inst in (0, 1):
+            g = rng.normal(0.0, 0.01, 3)
+            a = rng.normal(0.0, 0.05, 3) + (0.0, 0.0, -9.80665)
+            if inst == 0 and t[i] >= 7_000_000:
+                g, a = (0.01, 0.02, 0.03), (0.1, 0.2, -9.7)
+            v = (int(t[i]), inst, *map(float, g), *map(float, a))
+            recs.append(v)
+            w.rec("IMU", *v, 0, 0, 25.0, 1, 1, 400, 400)
+    path = tmp_path / "frozen.BIN"
+    path.write_bytes(bytes(w.buf))
+    inp = read_dataflash(path).inputs
+    assert any("switched between instances [0, 1]" in x for x in inp.notes)
+    sel = ImuSelector()
+    fed = []
+    for tt, inst, *va in recs:
+        v = np.float32(va).astype(np.float64).tolist()  # as logged (float32)
+        sample = (inst, tt, *v, np.nan, np.nan, np.nan, None, 0, 0)
+        assert sample[S_SAT] == 0
+        if sel.observe("IMU", sample):  # type: ignore[arg-type]
+            fed.append((tt, inst))
+    switch = next(tt for tt, inst in fed if inst == 1)
+    assert 7_500_000 <= switch <= 7_600_000  # freeze_s after the freeze began, at the next evaluation
+    # the reader feeds what the per-sample selector feeds (less the samples before the first compass, none here)
+    assert inp.t_us.tolist() == [tt for tt, _ in fed]
+    assert np.all(inp.rows[inp.t_us >= switch, IN_ACCEL + 2] != np.float32(-9.7))

@@ -177,7 +177,8 @@ def _field_bytes(fields: list[tuple[str, str]], values: dict[str, object]) -> by
 def write_ulog(path: Path, topics: dict[str, tuple[list[tuple[str, str]], list[dict[str, object]]]],
                params: dict[str, float] | None = None, *, in_time_order: bool = True) -> None:  # fmt: skip
     """A minimal ULog (version 1): header, flag bits, formats, parameters, subscriptions, data in time order
-    (``in_time_order=False``: each topic's records as given, one topic after the other)."""
+    (``in_time_order=False``: each topic's records as given, one topic after the other); a key
+    ``"topic[N]"`` is instance N of the topic."""
 
     def msg(kind: bytes, body: bytes) -> bytes:
         return struct.pack("<HB", len(body), kind[0]) + body
@@ -185,14 +186,18 @@ def write_ulog(path: Path, topics: dict[str, tuple[list[tuple[str, str]], list[d
     out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0))
     out += msg(b"B", bytes(40))
     out += msg(b"I", bytes([len("char[4] sys_name")]) + b"char[4] sys_name" + b"PX4\x00")
-    for name, (fields, _) in topics.items():
+    formats: dict[str, list[tuple[str, str]]] = {}
+    for key, (fields, _) in topics.items():  # "topic" or "topic[instance]"
+        formats.setdefault(key.split("[")[0], fields)
+    for name, fields in formats.items():
         out += msg(b"F", (name + ":" + "".join(f"{t} {n};" for t, n in fields)).encode())
     for k, v in (params or {}).items():
         key = f"float {k}".encode()
         out += msg(b"P", bytes([len(key)]) + key + struct.pack("<f", v))
     records = []
-    for msg_id, (name, (fields, rows)) in enumerate(topics.items()):
-        out += msg(b"A", struct.pack("<BH", 0, msg_id) + name.encode())
+    for msg_id, (key, (fields, rows)) in enumerate(topics.items()):
+        name, _, inst = key.partition("[")
+        out += msg(b"A", struct.pack("<BH", int(inst[:-1] or 0), msg_id) + name.encode())
         records += [(int(r["timestamp"]), msg_id, _field_bytes(fields, r)) for r in rows]
     for _, msg_id, body in sorted(records, key=lambda x: (x[0], x[1])) if in_time_order else records:
         out += msg(b"D", struct.pack("<H", msg_id) + body)
@@ -374,6 +379,40 @@ def test_vehicle_imu_at_the_loop_rate_is_preferred_and_its_integrals_are_divided
     assert np.allclose(r[ok, IN_ACCEL : IN_ACCEL + 3], [0.0, 0.0, -G], atol=1e-5)
     assert any(line.startswith("IMU: vehicle_imu[0]") for line in li.found)
     assert any(line.startswith("sensor_combined:") and "not used" in line for line in li.found)
+
+
+def test_the_imu_selector_step_fails_over_between_vehicle_imu_instances(tmp_path: Path) -> None:
+    """Two vehicle_imu instances at the loop rate, instance 0 repeating one value from 2 s on while instance 1
+    keeps measuring (noise): the pipeline's IMU selector, looped over both in time order, feeds instance 0
+    until the freeze is recognised (``freeze_s`` 0.5 s, judged every 20 ms), then instance 1."""
+    rng = np.random.default_rng(5)
+    topics = _turning(6.0, rate_z=0.5)
+    ts = [r["timestamp"] for r in topics["sensor_combined"][1]]
+    for inst in (0, 1):
+        recs = []
+        for t in ts:
+            da = [float(x) for x in rng.normal(0.0, 1e-5, 3) + (0.0, 0.0, 0.5 * 0.004)]
+            dv = [float(x) for x in rng.normal(0.0, 1e-4, 3) + (0.0, 0.0, -G * 0.004)]
+            if inst == 0 and t >= ts[0] + 2_000_000:
+                da, dv = [0.0, 0.0, 0.002], [0.0, 0.0, -0.039]
+            recs.append({"timestamp": t + 100 * (inst + 1), "timestamp_sample": t, "accel_device_id": 1 + inst,
+                         "gyro_device_id": 3 + inst, "delta_angle": da, "delta_velocity": dv,
+                         "delta_angle_dt": 4000, "delta_velocity_dt": 4000, "delta_angle_clipping": 0,
+                         "delta_velocity_clipping": 0})  # fmt: skip
+        topics[f"vehicle_imu[{inst}]"] = (VIMU_FIELDS, recs)
+    path = tmp_path / "frozen.ulg"
+    write_ulog(path, topics)
+    li = read_ulog(path)
+    prep = li.inputs
+    assert any("switched between vehicle_imu instances [0, 1]" in line for line in li.found)
+    freeze = ts[0] + 2_000_000
+    switch = int(prep.t_us[np.flatnonzero(np.diff(prep.t_us % 1000) != 0)[0] + 1])  # where the stamps' offset changes
+    assert freeze + 500_000 <= switch <= freeze + 600_000
+    inst1 = prep.t_us >= switch
+    assert np.all(prep.t_us[~inst1] % 1000 == 100) and np.all(prep.t_us[inst1] % 1000 == 200)
+    assert np.all(np.diff(prep.t_us) > 0)
+    after = np.array(ts) + 200
+    assert np.array_equal(prep.t_us[inst1], after[after >= switch])  # every sample of instance 1 from the switch on
 
 
 def test_the_vehicle_is_known_to_the_filters_as_in_the_daemon(sitl, bench) -> None:
