@@ -15,6 +15,7 @@ linear acceleration with the matching NED velocity (a GNSS stand-in).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -202,3 +203,37 @@ def gnss_inclination() -> Callable[..., tuple[float, float]]:
         return res[0], res[1]
 
     return run
+
+
+#: raw-IMU flights: 200 Hz; body → IMU, the IMU's x axis up (rotated 90° about the body's y axis)
+RAW_RATE_HZ = 200
+RAW_Q_MOUNT = np.array([math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0])
+
+
+def raw_imu_flight(scenario: str, seed: int, seconds: float = 90.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ``firmware_sim`` flight as a raw IMU reaches the Python API: filter rows, true attitude, gyro bias.
+
+    The simulator's raw preset (a constant gyro bias of up to 5 °/s per axis, no calibration), the
+    IMU mounted x axis up (``RAW_Q_MOUNT``), ``RAW_RATE_HZ``, no GNSS, no magnetometer, started in
+    flight.  Returns the rows (:func:`make_inputs`, dt from the stamps), the true IMU → NED
+    attitude per row and the gyro's bias (IMU frame, rad/s).  Skips without ``firmware_sim``.
+    """
+    sim_mod = pytest.importorskip("firmware_sim.simulation")
+    from firmware_sim.imu_model import ImuErrorSettings
+
+    sim = sim_mod.Simulation(sim_mod.SimSettings(
+        scenario=scenario, seed=seed, start_in_motion=True, imu_mount_deg=(0.0, 90.0, 0.0),
+        imu=ImuErrorSettings.raw(), gnss=False, mag_count=0, imu_count=1, loop_rate_hz=RAW_RATE_HZ,
+    ))  # fmt: skip
+    blk = sim.next_block(int(RAW_RATE_HZ * seconds))
+    dt = np.diff(blk.t_us, prepend=blk.t_us[0] - 1e6 / RAW_RATE_HZ) / 1e6
+    assert abs(float(np.median(dt)) - 1.0 / RAW_RATE_HZ) < 1e-4
+    rows = make_inputs(blk.gyro_rad_s[0], blk.accel_m_s2[0], None, dt_s=dt)
+    q_ref = multiply(blk.truth.q_body_to_ned, np.broadcast_to(RAW_Q_MOUNT, blk.truth.q_body_to_ned.shape).copy())
+    return rows, q_ref, np.asarray(blk.gyro_bias_rad_s[0][0], dtype=float)
+
+
+@pytest.fixture(scope="session")
+def raw_flight() -> Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The :func:`raw_imu_flight` factory (``raw_flight(scenario, seed)``)."""
+    return raw_imu_flight

@@ -23,34 +23,20 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 
 from mavahrs.evaluation.metrics import summarize
 from mavahrs.filters import create
-from mavahrs.filters.base import make_inputs
 from mavahrs.filters.layout import OUT_BIAS, OUT_Q
-from mavahrs.geometry.quaternion import multiply
 
 RATE_HZ = 200
 #: body → IMU: the IMU's x axis up (rotated 90° about the body's y axis)
 Q_MOUNT = np.array([math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0])
 
 
-def test_best_through_the_plain_api_holds_the_tilt_of_a_raw_imu_started_in_flight() -> None:
-    sim_mod = pytest.importorskip("firmware_sim.simulation")
-    from firmware_sim.imu_model import ImuErrorSettings
-
-    sim = sim_mod.Simulation(sim_mod.SimSettings(
-        scenario="hover", seed=3, start_in_motion=True, imu_mount_deg=(0.0, 90.0, 0.0),
-        imu=ImuErrorSettings.raw(), gnss=False, mag_count=0, imu_count=1, loop_rate_hz=RATE_HZ,
-    ))  # fmt: skip
-    blk = sim.next_block(RATE_HZ * 90)
-    bias_dps = np.degrees(blk.gyro_bias_rad_s[0][0])
+def test_best_through_the_plain_api_holds_the_tilt_of_a_raw_imu_started_in_flight(raw_flight) -> None:  # type: ignore[no-untyped-def]
+    rows, q_ref, bias_rad_s = raw_flight("hover", 3)
+    bias_dps = np.degrees(bias_rad_s)
     assert np.abs(bias_dps).max() > 3.0  # a raw gyro's bias: nothing subtracted beforehand
-    dt = np.diff(blk.t_us, prepend=blk.t_us[0] - 1e6 / RATE_HZ) / 1e6
-    assert abs(float(np.median(dt)) - 1.0 / RATE_HZ) < 1e-4
-    rows = make_inputs(blk.gyro_rad_s[0], blk.accel_m_s2[0], None, dt_s=dt)
-    q_ref = multiply(blk.truth.q_body_to_ned, np.broadcast_to(Q_MOUNT, blk.truth.q_body_to_ned.shape).copy())
 
     f = create("best")  # the plain API: no set_multirotor(), no vehicle stream
     out = f.run(rows)
@@ -63,23 +49,8 @@ def test_best_through_the_plain_api_holds_the_tilt_of_a_raw_imu_started_in_fligh
     assert bias_err.max() < 0.3
 
 
-def _raw_flight(scenario: str, seed: int):  # type: ignore[no-untyped-def]
-    sim_mod = pytest.importorskip("firmware_sim.simulation")
-    from firmware_sim.imu_model import ImuErrorSettings
-
-    sim = sim_mod.Simulation(sim_mod.SimSettings(
-        scenario=scenario, seed=seed, start_in_motion=True, imu_mount_deg=(0.0, 90.0, 0.0),
-        imu=ImuErrorSettings.raw(), gnss=False, mag_count=0, imu_count=1, loop_rate_hz=RATE_HZ,
-    ))  # fmt: skip
-    blk = sim.next_block(RATE_HZ * 90)
-    dt = np.diff(blk.t_us, prepend=blk.t_us[0] - 1e6 / RATE_HZ) / 1e6
-    rows = make_inputs(blk.gyro_rad_s[0], blk.accel_m_s2[0], None, dt_s=dt)
-    q_ref = multiply(blk.truth.q_body_to_ned, np.broadcast_to(Q_MOUNT, blk.truth.q_body_to_ned.shape).copy())
-    return rows, q_ref, blk.gyro_bias_rad_s[0][0]
-
-
-def test_an_undeclared_multirotor_in_sustained_thrust_tilts_does_not_learn_its_tilt_as_bias() -> None:
-    rows, q_ref, bias = _raw_flight("aggressive", 2)
+def test_an_undeclared_multirotor_in_sustained_thrust_tilts_does_not_learn_its_tilt_as_bias(raw_flight) -> None:  # type: ignore[no-untyped-def]
+    rows, q_ref, bias = raw_flight("aggressive", 2)
     assert np.abs(np.degrees(bias)).max() > 2.0  # a raw gyro's bias
     f = create("best")  # the plain API: nothing says "multirotor"
     out = f.run(rows)

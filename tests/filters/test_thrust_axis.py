@@ -20,9 +20,7 @@ import pytest
 
 from mavahrs.evaluation.metrics import summarize
 from mavahrs.filters import create
-from mavahrs.filters.base import make_inputs
 from mavahrs.filters.layout import OUT_Q
-from mavahrs.geometry.quaternion import multiply
 
 RATE_HZ = 200
 #: body → IMU: the IMU's x axis up (rotated 90° about the body's y axis)
@@ -35,21 +33,10 @@ TRUE_AXIS = np.array([1.0, 0.0, 0.0])
     ("scenario", "seed", "incl_bound_deg", "axis_bound_deg"),
     [("aggressive", 2, 2.2, 1.5), ("hover", 3, 1.0, 2.0)],
 )
-def test_the_thrust_axis_of_a_raw_imu_mounted_x_up_is_estimated(
-    scenario: str, seed: int, incl_bound_deg: float, axis_bound_deg: float
+def test_the_thrust_axis_of_a_raw_imu_mounted_x_up_is_estimated(  # type: ignore[no-untyped-def]
+    scenario: str, seed: int, incl_bound_deg: float, axis_bound_deg: float, raw_flight
 ) -> None:
-    sim_mod = pytest.importorskip("firmware_sim.simulation")
-    from firmware_sim.imu_model import ImuErrorSettings
-
-    sim = sim_mod.Simulation(sim_mod.SimSettings(
-        scenario=scenario, seed=seed, start_in_motion=True, imu_mount_deg=(0.0, 90.0, 0.0),
-        imu=ImuErrorSettings.raw(), gnss=False, mag_count=0, imu_count=1, loop_rate_hz=RATE_HZ,
-    ))  # fmt: skip
-    blk = sim.next_block(RATE_HZ * 90)
-    dt = np.diff(blk.t_us, prepend=blk.t_us[0] - 1e6 / RATE_HZ) / 1e6
-    rows = make_inputs(blk.gyro_rad_s[0], blk.accel_m_s2[0], None, dt_s=dt)
-    q_ref = multiply(blk.truth.q_body_to_ned, np.broadcast_to(Q_MOUNT, blk.truth.q_body_to_ned.shape).copy())
-
+    rows, q_ref, _ = raw_flight(scenario, seed)
     f = create("best")
     f.set_multirotor()  # type: ignore[attr-defined]
     assert f.settings.eskf.thrust_axis_sigma_rad > 0.0  # type: ignore[attr-defined]
