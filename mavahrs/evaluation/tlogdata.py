@@ -372,7 +372,8 @@ def _resends(mg: dict[str, Any], names: list[str]) -> tuple[NDArray[np.bool_], i
     first = np.array([stream_code(name, 0) for name in names], np.int64)
     k = first[mg["kind"]] + mg["imu"].astype(np.int64)
     out = np.empty(mg["t_us"].shape[0], np.int64)
-    resend_rows(*new_state(), k, mg["t_us"], mg["gyro"], mg["accel"], mg["mag"], mg["use"], out)
+    c = np.ascontiguousarray  # one compiled signature for every log (one IMU message: views into its rows)
+    resend_rows(*new_state(), c(k), c(mg["t_us"]), c(mg["gyro"]), c(mg["accel"]), c(mg["mag"]), c(mg["use"]), out)
     return out == RESENT, int(np.count_nonzero(out == RESTAMPED))
 
 
