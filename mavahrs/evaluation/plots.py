@@ -538,5 +538,6 @@ def plot_second_opinion(path: str | Path, series: Any, *, title: str = "", t0_s:
     n_warn = sum(1 for e in series.events if e.in_flight)
     axes[0].set_title((title + " — " if title else "") + f"second opinion: {n_warn} in-flight WARNING(s)")
     axes[0].legend(loc="upper right", fontsize=8)
-    axes[1].set_xlabel("time, s" if not t0_s else f"time from boot {t0_s:.0f} s, s")
+    # the autopilot's boot clock, as the WARNING times replay and audit print
+    axes[1].set_xlabel("autopilot boot time, s" if not t0_s else f"time from boot {t0_s:.0f} s, s")
     return _save(fig, path)
