@@ -11,8 +11,11 @@ takes through compiled code once, on a short synthetic recording:
   pipeline's per-sample step and the fast lane that answers a RAW_IMU
   datagram;
 * the bulk path (``replay``, ``evaluate``, ``tune``, ``plot``,
-  ``calibrate-mag``): the tlog decoder, the batch loops of every filter, the
-  CSV writer, and the pipeline engine;
+  ``calibrate-mag``, ``audit``): the tlog decoder, the batch loops of every
+  filter, the CSV writer, and the pipeline engine; the sample chain's loops
+  for one and for two IMU instances and for PX4's HIGHRES_IMU, and the
+  DataFlash reader's record walk (a first replay of a shared tlog, .BIN or
+  PX4 tlog after a warm-up compiled these, 1–2 s with the compile notice);
 * the gain sweeps (``evaluate --study``): the parallel many-filter loop.
 
 With a warm cache each step only loads the cached code (about a second in
@@ -44,25 +47,36 @@ class WarmUpStep:
     seconds: float
 
 
-def synthetic_frames(seconds: float = _SECONDS) -> list[tuple[int, bytes]]:
-    """A short ArduPilot-like recording at rest: (time µs, MAVLink 2 frame) pairs.
+def synthetic_frames(seconds: float = _SECONDS, autopilot: str = "ardupilot") -> list[tuple[int, bytes]]:
+    """A short recording at rest: (time µs, MAVLink 2 frame) pairs.
 
-    A HEARTBEAT once a second, RAW_IMU at 200 Hz (level, a slight gyro bias,
+    A HEARTBEAT once a second, the IMU at 200 Hz (level, a slight gyro bias,
     the magnetometer pointing north-down), GLOBAL_POSITION_INT and ATTITUDE
-    at 10 Hz: every message the daemon and replay read.
+    at 10 Hz: every message the daemon and replay read.  ``autopilot``
+    ``"ardupilot"``: RAW_IMU; ``"ardupilot2"``: RAW_IMU and SCALED_IMU2 (two
+    IMU instances, the selection's path); ``"px4"``: HIGHRES_IMU (SI floats).
     """
     from mavahrs.protocol.codec import MavCodec, mavlink
 
     ap = MavCodec(1, 1)
+    px4 = autopilot == "px4"
+    kind = mavlink.MAV_AUTOPILOT_PX4 if px4 else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
     t0 = 1_000_000
     out: list[tuple[int, bytes]] = []
     for k in range(int(seconds * _RATE_HZ)):
         t = t0 + k * 1_000_000 // _RATE_HZ
         if k % _RATE_HZ == 0:
-            hb = ap.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4)
+            hb = ap.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, kind, 0, 0, 4)
             out.append((t, ap.encode(hb)))
-        imu = ap.mav.raw_imu_encode(t, 0, 0, -1000, 1, -1, 0, 200, 30, 450, 0, 3500)
+        if px4:  # m/s², rad/s, gauss; fields_updated: gyro, accel and magnetometer new
+            imu = ap.mav.highres_imu_encode(t, 0.0, 0.0, -9.81, 0.001, -0.001, 0.0, 0.2, 0.03, 0.45,
+                                            1013.0, 0.0, 0.0, 35.0, 0x1FF)  # fmt: skip
+        else:
+            imu = ap.mav.raw_imu_encode(t, 0, 0, -1000, 1, -1, 0, 200, 30, 450, 0, 3500)
         out.append((t, ap.encode(imu)))
+        if autopilot == "ardupilot2":
+            imu2 = ap.mav.scaled_imu2_encode(t // 1000, 0, 0, -1000, 1, -1, 0, 200, 30, 450, 3500)
+            out.append((t, ap.encode(imu2)))
         if k % (_RATE_HZ // 10) == 0:
             gpi = ap.mav.global_position_int_encode(t // 1000, 473_977_000, 85_455_000, 500_000, 10_000, 0, 0, 0, 0)
             att = ap.mav.attitude_encode(t // 1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -100,6 +114,17 @@ def _replay_path(tmp: Path) -> None:
     every = (*NAMES, *ALIASES)
     replay(tlog, ReplaySettings(filters=every, engine="fast"), csv_path=tmp / "warm-up.csv")
     replay(tlog, ReplaySettings(filters=every, engine="pipeline"), csv_path=tmp / "warm-up-pipeline.csv")
+    # the readers' other compiled steps: two IMU instances (the selection), PX4's HIGHRES_IMU (float scaling)
+    for autopilot in ("ardupilot2", "px4"):
+        other = tmp / f"warm-up-{autopilot}.tlog"
+        other.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames(autopilot=autopilot)))
+        replay(other, ReplaySettings(filters=("best",), engine="fast"))
+    # a DataFlash .BIN's record walk (its samples then take the steps above); a ULog compiles nothing of its own
+    import numpy as np
+
+    from mavahrs.logs.dataflash import scan
+
+    scan(np.zeros(8, np.uint8))  # a writable array, as np.fromfile gives (bytes: a read-only one, another signature)
 
 
 def _sweeps() -> None:

@@ -36,7 +36,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=20.0, metavar="S", help="flight time, s (default: 20)")
     p.add_argument(
         "--scenario", default="aggressive", metavar="NAME",
-        help="simulated flight: rest, hover, aggressive, flips, highg, magnetic, vibration, temperature "
+        help="simulated flight: rest, hover, aggressive, flips, highg, magnetic, mag_anomaly, vibration, temperature "
         "(default: aggressive; `mavahrs-sim --list-scenarios` describes them)",
     )
     p.add_argument("--filter", default="best", metavar="NAME", help="attitude filter (default: best)")

@@ -107,4 +107,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.output}: {report.text()}", file=sys.stdout)
     if not report.modified:
         logging.getLogger("mavahrs").warning("no message was rewritten: is --at within the log's boot times?")
+    elif report.first_s > args.at + 1.0:  # --at read as seconds into the log, or a log that starts later
+        logging.getLogger("mavahrs").warning(
+            "--at %g s is before the first message rewritten, at %.3f s boot time: the fault starts there (--at "
+            "is the autopilot's boot clock, as audit and replay report times, not seconds into the log)",
+            args.at, report.first_s)  # fmt: skip
     return 0

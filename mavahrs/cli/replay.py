@@ -27,7 +27,9 @@ EKF3's XKQ, ATT, AHR2 and in SITL the SIM truth) or a PX4 ULog (.ulg).
              Euler angles (deg), gain, accelerometer/magnetometer trust and
              rejection, gyro bias; flushed as it goes (Ctrl-C keeps every row
              computed, and --output gets the log up to the last of them).
-  --plot     truth/estimate/error per angle, gain and rejection underneath.
+  --plot     truth/estimate/error per angle, gain and rejection underneath;
+             beside it OUT_second_opinion.png, the second-opinion monitor's
+             chart against the log's autopilot attitude (when it has one).
   --stream   after replaying, present the first filter's attitude to a ground
              station as a vehicle of its own (its own system id, component 1,
              HEARTBEAT as a quadrotor), paced in real time (x --speed), so
@@ -47,7 +49,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--output", "-o", metavar="OUT.tlog", help="write the log with the filters' ATTITUDE_QUATERNION "
                    "(of an onboard log: a tlog of those frames alone)")
     p.add_argument("--csv", metavar="OUT.csv", help="write one row per IMU sample")
-    p.add_argument("--plot", metavar="OUT.png", help="write a plot (needs the plot extra: matplotlib)")
+    p.add_argument("--plot", metavar="OUT.png", help="write a plot (needs the plot extra: matplotlib); also OUT_second_opinion.png")
     p.add_argument("--out-rate", type=float, default=0.0, metavar="HZ",
                    help="ATTITUDE_QUATERNION rate in the output tlog, Hz of log time; 0 = every sample (default 0)")
     p.add_argument("--start", type=float, metavar="S", help="replay from S seconds after the log's start")

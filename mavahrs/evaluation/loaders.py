@@ -108,5 +108,11 @@ def load_any(path: str | Path, **kwargs: Any) -> list[Recording]:
         files = sorted(f for f in p.iterdir() if f.is_file() and (f.suffix.lower() in SUFFIXES or sniff(f)))
         if not files:
             raise _missing(p, "no .mat, .csv, .tlog, .BIN or .ulg files in this folder")
-        return [load_one(f, **kwargs) for f in files]
+        recs = [load_one(f, **kwargs) for f in files]
+        # one flight's .tlog and .BIN share a stem: name both by their file name, else the tables show it twice
+        stems = [r.name for r in recs]
+        for f, r in zip(files, recs, strict=True):
+            if stems.count(r.name) > 1:
+                r.name = f.name
+        return recs
     return [load_one(p, **kwargs)]

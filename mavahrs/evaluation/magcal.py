@@ -226,6 +226,26 @@ def _algebraic_fit(m: Array) -> tuple[Array, Array]:
     return mu + scale * centre, w / scale
 
 
+def _sphere_fit(m: Array) -> tuple[Array, Array]:
+    """Least-squares sphere → (centre, I / radius): the starting point when the general quadric is no ellipsoid.
+
+    A nearly calibrated magnetometer (soft iron ≈ I) turned through half the sphere or so, with noise of
+    ~1 % of the field, can give a quadric whose smallest singular vector is a hyperboloid (firmware_sim's
+    `flips`: coverage 50 %, |B| 57.0–59.3 µT).  A sphere, ‖m‖² = 2 m·c + k (linear in c and k), always
+    exists; :func:`_refine` then fits the full ellipsoid from it.  Raises DataError when it is degenerate.
+    """
+    design = np.column_stack([2.0 * m, np.ones(len(m))])
+    sol, *_ = np.linalg.lstsq(design, np.sum(m * m, axis=1), rcond=None)
+    centre = sol[:3]
+    r2 = float(sol[3] + centre @ centre)
+    if not (math.isfinite(r2) and r2 > 0.0):
+        raise DataError(
+            "magnetometer data do not fit an ellipsoid (the orientations cover too little of the sphere, "
+            "or the field was disturbed): record again while turning the vehicle through all attitudes"
+        )
+    return centre, np.eye(3) / math.sqrt(r2)
+
+
 def _sym(p: Array) -> Array:
     return np.array([[p[0], p[3], p[4]], [p[3], p[1], p[5]], [p[4], p[5], p[2]]])
 
@@ -330,7 +350,10 @@ def fit_ellipsoid(
     if expected_strength_ut is not None and not (math.isfinite(expected_strength_ut) and expected_strength_ut > 0):
         raise ValueError(f"expected_strength_ut must be a positive number of µT, got {expected_strength_ut!r}")
 
-    centre0, w0 = _algebraic_fit(m)
+    try:
+        centre0, w0 = _algebraic_fit(m)
+    except DataError:
+        centre0, w0 = _sphere_fit(m)  # the refinement below fits the soft iron and judges the coverage
     if expected_strength_ut is None:
         ev = np.linalg.eigvalsh(w0)
         strength = float(np.prod(1.0 / ev) ** (1.0 / 3.0))  # geometric mean semi-axis

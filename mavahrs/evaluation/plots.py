@@ -96,8 +96,11 @@ def _fitted_legend(fig: Any, ax: Any, *, loc: str, fontsize: float) -> Any:
 def _unwrap(y: Array, like: Array | None = None) -> Array:
     """Unwrap an angle in degrees (no ±180° jumps drawn as lines), NaN kept.
 
-    Without ``like`` the result is shifted by whole turns so that its median
-    lies in (−180°, 180°]; with it, so that it lies on the same turn as ``like``.
+    Without ``like`` the result is shifted by whole turns so that the middle of
+    its range lies in [−180°, 180°] (the largest |angle| drawn is then as
+    small as it can be: a heading from 355° turning 320° to the right is drawn
+    −5° … 315°, not −365° … −45° as a median rule put it); with ``like``, so
+    that it lies on the same turn as ``like``.
     """
     y = np.asarray(y, dtype=float).copy()
     fin = np.isfinite(y)
@@ -109,7 +112,7 @@ def _unwrap(y: Array, like: Array | None = None) -> Array:
         if both.any():
             y -= 360.0 * np.round(np.median(y[both] - like[both]) / 360.0)
             return y
-    y -= 360.0 * np.round(np.median(y[fin]) / 360.0)
+    y -= 360.0 * np.round(0.5 * (np.min(y[fin]) + np.max(y[fin])) / 360.0)
     return y
 
 
@@ -535,5 +538,6 @@ def plot_second_opinion(path: str | Path, series: Any, *, title: str = "", t0_s:
     n_warn = sum(1 for e in series.events if e.in_flight)
     axes[0].set_title((title + " — " if title else "") + f"second opinion: {n_warn} in-flight WARNING(s)")
     axes[0].legend(loc="upper right", fontsize=8)
-    axes[1].set_xlabel("time, s" if not t0_s else f"time from boot {t0_s:.0f} s, s")
+    # the autopilot's boot clock, as the WARNING times replay and audit print
+    axes[1].set_xlabel("autopilot boot time, s" if not t0_s else f"time from boot {t0_s:.0f} s, s")
     return _save(fig, path)

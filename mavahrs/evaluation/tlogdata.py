@@ -305,6 +305,10 @@ def _no_source_message(td: TlogData, s: Any) -> str:
         listed = ", ".join(f"{a}:{b}" for a, b in senders)
         return (f"{td.path}: no autopilot HEARTBEAT{wanted}, and IMU data from several senders "
                 f"(SYSID:COMPID {listed}): choose one with {SOURCE_HINT}")  # fmt: skip
+    if Path(td.path).suffix.lower() in (".mat", ".csv"):  # a recording with truth: BROAD, RepoIMU, the CSV format
+        return (f"{td.path}: not a flight log (no MAVLink IMU messages): a recording with a reference attitude "
+                "(BROAD .mat, RepoIMU or documented .csv) is scored with `mavahrs evaluate` and drawn with "
+                "`mavahrs plot`")  # fmt: skip
     if td.frames == 0 and scan_tlog(td.data, None).msgid.shape[0] == 0:
         return (f"{td.path}: no MAVLink messages in this file: expected a telemetry log (.tlog, "
                 "as MAVProxy, QGroundControl, Mission Planner and mavahrs write them), an ArduPilot DataFlash "
@@ -372,7 +376,8 @@ def _resends(mg: dict[str, Any], names: list[str]) -> tuple[NDArray[np.bool_], i
     first = np.array([stream_code(name, 0) for name in names], np.int64)
     k = first[mg["kind"]] + mg["imu"].astype(np.int64)
     out = np.empty(mg["t_us"].shape[0], np.int64)
-    resend_rows(*new_state(), k, mg["t_us"], mg["gyro"], mg["accel"], mg["mag"], mg["use"], out)
+    c = np.ascontiguousarray  # one compiled signature for every log (one IMU message: views into its rows)
+    resend_rows(*new_state(), c(k), c(mg["t_us"]), c(mg["gyro"]), c(mg["accel"]), c(mg["mag"]), c(mg["use"]), out)
     return out == RESENT, int(np.count_nonzero(out == RESTAMPED))
 
 

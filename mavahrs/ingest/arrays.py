@@ -193,8 +193,11 @@ def timeline_over_arrays(
     kind = np.empty(n, np.int64)
     t = np.empty(n, np.int64)
     dt = np.empty(n)
+    # every argument C-contiguous: one compiled signature for every caller (a single-instance tlog's columns
+    # are views into its rows), the one `mavahrs warm-up` compiles
     timeline_loop(*new_state(settings), np.ascontiguousarray(t_us, np.int64),
-                  np.ascontiguousarray(now_us, np.int64), gyro, accel, kind, t, dt)  # fmt: skip
+                  np.ascontiguousarray(now_us, np.int64), np.ascontiguousarray(gyro, np.float64),
+                  np.ascontiguousarray(accel, np.float64), kind, t, dt)  # fmt: skip
     keep = (kind != K_DUPLICATE) & (kind != K_STALE) & (kind != K_REORDERED) & (kind != K_HELD)
     reboot = np.flatnonzero(kind[1:] == K_REBOOT)
     moved = np.flatnonzero(keep & (t != t_us))
@@ -270,11 +273,12 @@ def si_rows(
     c[C_KG] = c[C_KA] = 1.0  # already rad/s and m/s²
     rows = np.full((n, IN_WIDTH), _NAN)
     codes = np.empty(n, np.int64)
-    g = np.ascontiguousarray(gyro_rad_s, np.float64)
-    a = np.ascontiguousarray(accel_m_s2, np.float64)
+    # one contiguous column per axis: the signature a tlog's HIGHRES_IMU compiles (and `mavahrs warm-up`)
+    g = np.ascontiguousarray(np.asarray(gyro_rad_s, np.float64).T)
+    a = np.ascontiguousarray(np.asarray(accel_m_s2, np.float64).T)
     zeros = np.zeros(n)
     upd = np.full(n, HIGHRES_GYRO_BITS | HIGHRES_ACCEL_BITS, np.int64)
-    scale_float_rows(g[:, 0], g[:, 1], g[:, 2], a[:, 0], a[:, 1], a[:, 2], zeros, zeros, zeros, upd, c, rows, codes)
+    scale_float_rows(g[0], g[1], g[2], a[0], a[1], a[2], zeros, zeros, zeros, upd, c, rows, codes)
     sat = codes & 7
     inv = (codes >> INVALID_SHIFT) & 7
     if accel_clipped is not None:

@@ -170,3 +170,16 @@ def test_messages_are_log_lines_and_the_field_is_logged_once(sim_hover_tlog: Pat
     assert main(["replay", str(sim_hover_tlog), "--no-progress", "-f", "all", "--engine", "pipeline"]) == 0
     err = capsys.readouterr().err
     assert err.count("magnetic field from") == 1, err
+
+
+def test_a_folder_with_one_flights_tlog_and_bin_names_both_apart(shared_data: Path, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """`evaluate ../shared/data/sitl/` listed `arducopter_onboard` twice (its .tlog and its .BIN share the stem)
+    and its --json kept one of them under that key; a folder's recordings whose stems collide are named by their file names, the others by their stems."""
+    folder = tmp_path / "sitl"
+    folder.mkdir()
+    for name in ("arducopter_onboard.tlog", "arducopter_onboard.BIN", "arducopter_gentle.tlog"):
+        (folder / name).symlink_to(shared_data / "sitl" / name)
+    assert main(["evaluate", str(folder), "--skip", "10", "--json"]) == 0
+    names = sorted(json.loads(capsys.readouterr().out)["per_recording"])  # was one key: the .BIN's lost
+    assert names == ["arducopter_gentle", "arducopter_onboard.BIN", "arducopter_onboard.tlog"], names

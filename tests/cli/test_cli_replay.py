@@ -163,6 +163,20 @@ def test_replay_says_what_is_wrong_with_a_file_that_is_no_log(tmp_path: Path, ca
     ]
 
 
+def test_replay_of_a_recording_with_truth_points_to_evaluate_and_plot(
+    broad_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A BROAD .mat given to replay said "no autopilot HEARTBEAT and no IMU messages" (its bytes hold stray
+    MAVLink-like frames); a RepoIMU .csv "no MAVLink messages … expected a telemetry log": neither said which
+    command takes such a file."""
+    trial = broad_dir / "02_undisturbed_slow_rotation_B.mat"
+    assert main(["replay", str(trial)]) == 1
+    assert [m for m in _err_lines(capsys.readouterr().err) if m.startswith("replay:")] == [
+        f"replay: {trial}: not a flight log (no MAVLink IMU messages): a recording with a reference attitude "
+        "(BROAD .mat, RepoIMU or documented .csv) is scored with `mavahrs evaluate` and drawn with `mavahrs plot`"
+    ]
+
+
 def test_replay_without_heartbeat_takes_the_only_imu_sender_and_says_so(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -21,6 +21,8 @@ from mavahrs.warmup import STEPS, synthetic_frames
 
 pytestmark = pytest.mark.slow
 
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"  # ../shared/data, as tests/conftest.py
+
 
 def _mavahrs(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
@@ -57,10 +59,15 @@ def test_compile_notice_on_a_cold_cache_only_and_warm_up_compiles_everything(tmp
     assert re.fullmatch(r"warm-up: done in \d+\.\d s; later commands start without compiling", lines[-1])
     assert _notices(warm.stderr) == []
 
+    # the shared logs' other paths: two IMU instances (a SITL tlog), PX4's HIGHRES_IMU, a DataFlash .BIN; each
+    # compiled 1-2 s on its first replay after a warm-up, with the notice (absent data: those cases are left out)
+    shared = [DATA / "sitl/arducopter_gentle.tlog", DATA / "px4_sitl/px4_aggressive.tlog",
+              DATA / "sitl/arducopter_onboard.BIN"]  # fmt: skip
     for args in (
         ("replay", str(tlog), "--filter", "all", "--csv", str(tmp_path / "out.csv")),
         ("replay", str(tlog), "--filter", "all", "--engine", "pipeline"),
         ("tune", str(tlog)),
+        *(("replay", str(p), "--no-progress") for p in shared if p.exists()),
     ):
         again = _mavahrs(env, *args)
         # the synthetic log is noiseless: tune refuses it (a gyro axis that never changes), after its kernels ran

@@ -117,7 +117,7 @@ def test_imu_bias_round_trip(original, tmp_path: Path) -> None:  # type: ignore[
         assert (b.xgyro, b.ygyro, b.xacc, b.zacc, b.xmag) == (a.xgyro, a.ygyro, a.xacc, a.zacc, a.xmag)
 
 
-def test_usage_errors(original, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_usage_errors(original, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # type: ignore[no-untyped-def]
     from mavahrs.cli import main
 
     src = original[0]
@@ -131,6 +131,13 @@ def test_usage_errors(original, tmp_path: Path) -> None:  # type: ignore[no-unty
     assert not (tmp_path / "x.tlog").exists()
     assert main(["inject-fault", str(src), str(tmp_path / "y.tlog"), "--at", "100", "--roll", "2"]) == 0
     assert (tmp_path / "y.tlog").stat().st_size == src.stat().st_size
+    # --at before the log's first ATTITUDE (72.6 s boot time): done, and it says where the fault really starts
+    capsys.readouterr()
+    assert main(["inject-fault", str(src), str(tmp_path / "early.tlog"), "--at", "30", "--roll", "2"]) == 0
+    early = [ln for ln in capsys.readouterr().err.splitlines() if "before the first message rewritten" in ln]
+    assert len(early) == 1 and "WARNING" in early[0] and "at 72.641 s" in early[0], early
+    assert main(["inject-fault", str(src), str(tmp_path / "late.tlog"), "--at", "100", "--roll", "2"]) == 0
+    assert "before the first message" not in capsys.readouterr().err
     empty = tmp_path / "empty.tlog"
     empty.write_bytes(b"")
     assert main(["inject-fault", str(empty), str(tmp_path / "z.tlog"), "--at", "1", "--roll", "2"]) == 2  # no data

@@ -181,3 +181,18 @@ def test_fleet_plot_names_flagged_flights_inside_the_figure_with_whole_counts(
     for ax in fig.axes[1:]:
         ticks = [v for v in ax.get_yticks() if ax.get_ylim()[0] <= v <= ax.get_ylim()[1]]
         assert ticks and all(float(v).is_integer() for v in ticks), ticks
+
+
+def test_a_turning_heading_is_drawn_within_the_smallest_angles() -> None:
+    """A heading from 355° turning 320° to the right (arducopter_gentle's yaw: 19 s at 355°, 26 s at 315°) is
+    drawn −5° … 315°, not −365° … −45° (the median rule's turn); a level BROAD roll at ±180° stays near 180°."""
+    from mavahrs.evaluation.plots import _angle
+
+    yaw = np.concatenate([np.full(190, -5.0), np.linspace(-5.0, 315.0, 140), np.full(260, 315.0)])
+    wrapped = (yaw + 180.0) % 360.0 - 180.0  # as Euler angles come: −5 … 180, −180 … −45
+    drawn = _angle(wrapped, 2)
+    assert drawn[0] == pytest.approx(-5.0) and drawn[-1] == pytest.approx(315.0)
+    assert np.all(np.abs(np.diff(drawn)) < 10.0), "no wrap-around drawn"
+    roll = 180.0 + 3.0 * np.sin(np.linspace(0.0, 20.0, 500))
+    drawn_roll = _angle((roll + 180.0) % 360.0 - 180.0, 0)
+    assert np.allclose(drawn_roll, roll) or np.allclose(drawn_roll, roll - 360.0)  # one turn, no jumps
