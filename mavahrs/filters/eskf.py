@@ -242,8 +242,10 @@ class EskfSettings(FilterSettings):
             (ICM-42688-P's datasheet: ±0.5 % initial tolerance; ArduPilot does
             not calibrate it; firmware_sim draws σ 0.2 %): in a fast yaw it is
             a heading error no noise density covers (a 720° spin at 0.3 %:
-            2.2°).  Process noise of the attitude proportional to the rate
-            (:func:`_rate_noise`), so the covariance grows in fast rotation.
+            2.2°).  Process noise of the heading proportional to the rate
+            (:func:`_rate_noise`: its down component; the tilt, which every
+            GNSS fix observes, is left as it was), so the heading's variance
+            grows in fast yaw.
             0 = not modelled.  0.3 % (with ``gyro_scale_tau_s`` 1.5 s) measured
             on ten firmware_sim flights (aggressive 1–4, flips 1, hover 1–2,
             magnetic 1–3): our heading beyond 2σ 6.9 → 0.1 % of the aided
@@ -610,29 +612,26 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis):  # type: i
 
 @kernel(inline=True)
 def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-def]
-    """The gyro's scale-factor and cross-axis errors as process noise of the attitude, proportional to the rate.
+    """The gyro's scale-factor and cross-axis errors as process noise of the heading, proportional to the rate.
 
     An error matrix E (scale σ_sf on the diagonal, misalignment σ_ma off it) turns the body rate ω into a
     rate error E ω, body axis i's variance σ_sf² ω_i² + σ_ma² (‖ω‖² − ω_i²); taken as a first-order
     Gauss–Markov error of correlation time τ its white-noise equivalent density is 2 σ² τ (Gelb 1974, table
-    4.4-1; the integrated error's variance 2 σ² τ T for T ≫ τ), and in the NED error state
-    δθ̇ = C (E ω): P₀₋₂,₀₋₂ += C diag(q_i ω-terms) Cᵀ dt (scratch C = C_body_to_ned).  ``q_sf`` = 2 σ_sf² τ,
-    ``q_ma`` = 2 σ_ma² τ, s.
+    4.4-1; the integrated error's variance 2 σ² τ T for T ≫ τ), and in the NED error state δθ̇ = C (E ω).
+    Only its down component is added, to the heading's variance: P_DD += Σ_i C_Di² q_i dt (scratch C =
+    C_body_to_ned; ``q_sf`` = 2 σ_sf² τ, ``q_ma`` = 2 σ_ma² τ, s).  The tilt's share is left out: every
+    GNSS velocity fix observes the tilt, so a rate error there is corrected within a second, and the tilt
+    σ is already conservative (firmware_sim: error 0.3° RMS at σ 0.5°); added, it raised the tilt σ in
+    every manoeuvre and delayed the monitor's 2° tilt step (PX4 SITL aggressive 1.2 → 4.8 s).  The heading
+    is observed only by the magnetometer and by horizontal acceleration: a fast yaw's scale error stays.
     """
-    kp = k + _P
     kc = k + _C
     w2 = wx * wx + wy * wy + wz * wz
     d0 = (q_sf - q_ma) * wx * wx + q_ma * w2
     d1 = (q_sf - q_ma) * wy * wy + q_ma * w2
     d2 = (q_sf - q_ma) * wz * wz + q_ma * w2
-    for i in range(3):
-        for j in range(3):
-            acc = (
-                s[kc + 3 * i] * d0 * s[kc + 3 * j]
-                + s[kc + 3 * i + 1] * d1 * s[kc + 3 * j + 1]
-                + s[kc + 3 * i + 2] * d2 * s[kc + 3 * j + 2]
-            )
-            s[kp + i * N + j] += acc * dt
+    c0, c1, c2 = s[kc + 6], s[kc + 7], s[kc + 8]
+    s[k + _P + 2 * N + 2] += (c0 * c0 * d0 + c1 * c1 * d1 + c2 * c2 * d2) * dt
 
 
 @kernel(inline=True)
