@@ -19,6 +19,7 @@ flights written on the fly (``--sim``).  One flight at a time (the machine is sh
 
     python scripts/bench_monitor.py                      # all shared flights + 2 simulated
     python scripts/bench_monitor.py --flights gentle --faults roll2,yaw6
+    python scripts/bench_monitor.py --sim 0 --no-shared --sim-seeds aggressive:1-4,flips:1   # firmware_sim seeds
 """
 
 from __future__ import annotations
