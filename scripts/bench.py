@@ -427,7 +427,7 @@ def bench_batch(rec: Any, quick: bool) -> tuple[list[Row], dict[str, Any]]:
     import numpy as np
 
     from mavahrs.filters import NAMES, create
-    from mavahrs.filters.layout import IN_MAG
+    from mavahrs.filters.layout import IN_MAG, OUT_WIDTH
 
     prep = rec.extra["prepared"]
     rows_marg = np.ascontiguousarray(prep.rows)
@@ -440,7 +440,7 @@ def bench_batch(rec: Any, quick: bool) -> tuple[list[Row], dict[str, Any]]:
     for name in (*NAMES, "best"):
         for mode, data in (("MARG", rows_marg), ("IMU", rows_imu)):
             f = create(name)
-            out = np.empty((window, 11))
+            out = np.empty((window, OUT_WIDTH))
             f.run(data[:100])  # load the compiled kernel
             f.reset()
 
@@ -452,7 +452,7 @@ def bench_batch(rec: Any, quick: bool) -> tuple[list[Row], dict[str, Any]]:
             res["ns_per_sample"][f"{name} {mode}"] = _min_window(run, n, window, budget) * 1e9
     # the same kernel doing only the report's filter (no rest detection, no gain schedule)
     f = create("madgwick", _report_settings())
-    out = np.empty((window, 11))
+    out = np.empty((window, OUT_WIDTH))
     f.run(rows_marg[:100])
 
     def run_report(a: int, b: int) -> None:

@@ -19,6 +19,7 @@ flights written on the fly (``--sim``).  One flight at a time (the machine is sh
 
     python scripts/bench_monitor.py                      # all shared flights + 2 simulated
     python scripts/bench_monitor.py --flights gentle --faults roll2,yaw6
+    python scripts/bench_monitor.py --sim 0 --no-shared --sim-seeds aggressive:1-4,flips:1   # firmware_sim seeds
 """
 
 from __future__ import annotations
@@ -83,12 +84,24 @@ def shared_flights() -> list[Path]:
 
 
 def sim_flights(tmp: Path, n: int) -> list[Path]:
+    return [_sim(tmp, scen, 11 + i, f"sim_{scen}") for i, scen in enumerate(("aggressive", "hover", "magnetic")[:n])]
+
+
+def _sim(tmp: Path, scenario: str, seed: int, name: str) -> Path:
+    p = tmp / f"{name}.tlog"
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(p), "--scenario", scenario,
+                    "--duration", "150", "--seed", str(seed), "-q"], check=True, cwd=REPO)  # fmt: skip
+    return p
+
+
+def sim_seed_flights(tmp: Path, spec: str) -> list[Path]:
+    """``aggressive:1-4,flips:1,hover:21``: firmware_sim flights of those scenarios and seeds, 150 s each."""
     out = []
-    for i, scen in enumerate(("aggressive", "hover", "magnetic")[:n]):
-        p = tmp / f"sim_{scen}.tlog"
-        subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(p), "--scenario", scen,
-                        "--duration", "150", "--seed", str(11 + i), "-q"], check=True, cwd=REPO)  # fmt: skip
-        out.append(p)
+    for part in (x for x in spec.split(",") if x):
+        scen, _, seeds = part.partition(":")
+        lo, _, hi = seeds.partition("-")
+        for seed in range(int(lo), int(hi or lo) + 1):
+            out.append(_sim(tmp, scen, seed, f"sim_{scen}{seed}"))
     return out
 
 
@@ -146,13 +159,17 @@ def main() -> int:
     ap.add_argument("--faults", default="", help="comma-separated fault names (default: all): "
                     + ",".join(f.name for f in FAULTS))  # fmt: skip
     ap.add_argument("--sim", type=int, default=2, help="firmware_sim flights (0–3; default 2)")
+    ap.add_argument("--sim-seeds", default="", metavar="SPEC",
+                    help="more firmware_sim flights by scenario and seed, e.g. aggressive:1-4,flips:1,hover:1-2")
+    ap.add_argument("--no-shared", action="store_true", help="leave out the shared SITL flights")
     args = ap.parse_args()
     want = [w for w in args.flights.split(",") if w]
     faults = [f for f in FAULTS if not args.faults or f.name in args.faults.split(",")]
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_monitor_") as td:
         tmp = Path(td)
-        flights = (sim_flights(tmp, args.sim) if args.sim and not want else []) + shared_flights()
+        flights = (sim_flights(tmp, args.sim) if args.sim and not want else []) + sim_seed_flights(tmp, args.sim_seeds)
+        flights += [] if args.no_shared else shared_flights()
         flights = [f for f in flights if not want or any(w in f.name for w in want)]
         lat: dict[str, dict[str, str]] = {}
         clean_rows = []

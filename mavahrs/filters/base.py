@@ -51,6 +51,7 @@ from mavahrs.filters.layout import (
     OUT_BIAS,
     OUT_FLAGS,
     OUT_GAIN,
+    OUT_HEADING_SIGMA,
     OUT_MAG_WEIGHT,
     OUT_Q,
     OUT_WIDTH,
@@ -252,6 +253,7 @@ def finish_step(state, out, gain, accel_weight, mag_weight):  # type: ignore[no-
     out[OUT_GAIN] = gain
     out[OUT_ACCEL_WEIGHT] = accel_weight
     out[OUT_MAG_WEIGHT] = mag_weight
+    out[OUT_HEADING_SIGMA] = math.nan  # no covariance (the ESKF writes its own after this)
 
 
 @kernel

@@ -37,6 +37,9 @@ OUT_ACCEL_WEIGHT trust in the accelerometer this sample, 0 (rejected) … 1
 OUT_MAG_WEIGHT   trust in the magnetometer this sample, 0 … 1 (0 without one)
 OUT_BIAS+k       gyro bias estimate, body axes, rad/s
 OUT_FLAGS        bit field of FLAG_* below
+OUT_HEADING_SIGMA ``eskf`` (and ``best`` while it sends the ESKF's): its 1-σ
+                 heading uncertainty, rad (√P of the error state's rotation
+                 about down, NED); NaN for filters without a covariance
 ===============  ==========================================================
 """
 
@@ -57,7 +60,8 @@ OUT_ACCEL_WEIGHT = 5
 OUT_MAG_WEIGHT = 6
 OUT_BIAS = 7
 OUT_FLAGS = 10
-OUT_WIDTH = 11
+OUT_HEADING_SIGMA = 11
+OUT_WIDTH = 12
 
 #: The accelerometer vector was zero or non-finite: its correction was skipped.
 FLAG_ACCEL_INVALID = 1
@@ -76,7 +80,8 @@ FLAG_STARTUP = 64
 #: A sensor reading is at or beyond its saturation limit (caller-detected).
 FLAG_SATURATED = 128
 #: The attitude is GNSS-velocity-aided (``eskf``, and ``best`` while it sends the ESKF's): OUT_GAIN is then
-#: the filter's 1-σ tilt uncertainty, which the second-opinion monitor's thresholds use.
+#: the filter's 1-σ tilt uncertainty and OUT_HEADING_SIGMA its heading's, which the second-opinion monitor's
+#: thresholds use.
 FLAG_VELOCITY_AIDED = 256
 
 __all__ = [name for name in dir() if name.isupper()]

@@ -394,7 +394,7 @@ def replay_monitor(
     published attitudes against the log's attitude ``ref``, with our confidence and the samples behind each
     estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and our estimates'
     times, ms."""
-    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_HEADING_SIGMA, OUT_Q
     from mavahrs.service.monitor import monitor_series
 
     prep = result.inputs
@@ -411,8 +411,9 @@ def replay_monitor(
     heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
     aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
     sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
+    sigma_hdg = np.where(aided, track.out[sent, OUT_HEADING_SIGMA], np.nan)  # … and heading (NaN: none)
     series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
-                            tilt_sigma_rad=sigma, phase_events=phase_events,
+                            tilt_sigma_rad=sigma, heading_sigma_rad=sigma_hdg, phase_events=phase_events,
                             sensors=monitor_sensors(prep, sent, imus))  # fmt: skip
     return series, t_est_ms
 

@@ -74,6 +74,7 @@ from mavahrs.filters.layout import (
     OUT_BIAS,
     OUT_FLAGS,
     OUT_GAIN,
+    OUT_HEADING_SIGMA,
     OUT_MAG_WEIGHT,
     OUT_Q,
 )
@@ -976,11 +977,13 @@ class Pipeline:
         to_master, to_outputs = self._to_master, self._to_outputs
         frames = [Outgoing(frame, to_master, to_outputs)]
         if self._monitor_on:
-            sigma = float(out[OUT_GAIN]) if int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED else math.nan
+            aided = int(out[OUT_FLAGS]) & FLAG_VELOCITY_AIDED
+            sigma = float(out[OUT_GAIN]) if aided else math.nan
+            sigma_hdg = float(out[OUT_HEADING_SIGMA]) if aided else math.nan  # NaN from a filter without one
             fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
             self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist(),
                                       fix, fix[2] if fix is not None else math.nan)  # fmt: skip
-            for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma):
+            for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma, sigma_hdg):
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
             roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))

@@ -389,3 +389,27 @@ def test_simulated_autopilot_at_every_attitude_rate(sim_flight: SimFlight, att_h
     """Issue 9 / the MAVProxy report: ATTITUDE at 4 Hz (MAVProxy --streamrate=4) or lower is no reason to warn,
     and the injected fault is still found in time."""
     _check_fault_events(_monitor_at(sim_flight, att_hz), att_hz)
+
+
+@pytest.mark.parametrize(("heading_sigma_deg", "warns"), [(0.5, True), (3.0, False), (math.nan, True)])
+def test_our_heading_sigma_sets_the_heading_threshold(heading_sigma_deg: float, warns: bool) -> None:
+    """A steady 5° heading disagreement: judged against k·√(σ_ours² + σ_autopilot²) with our filter's own
+    heading σ where it gives one larger than ``heading_sigma_deg`` (3°, as after a fast yaw: threshold 6.7°,
+    not warned), and ``heading_sigma_deg`` (1°: 3.6°, warned) where it gives less (0.5°) or none (NaN).  (The learnt floor is off: inside the
+    threshold the disagreement would be learnt as this flight's normal and raise it further.)"""
+    s = MonitorSettings(startup_grace_s=0.0, learn_k=0.0)
+    mon = AttitudeMonitor(s)
+    q_ours = (1.0, 0.0, 0.0, 0.0)
+    q_ap = tuple(from_euler_rad(0.0, 0.0, math.radians(5.0)))
+    out = []
+    for k in range(2000):  # 20 s, ours at 100 Hz, the autopilot's at 10 Hz
+        t = 1000.0 + 10.0 * k
+        out += mon.add_estimate(t, q_ours, math.radians(0.3), math.radians(heading_sigma_deg))
+        if k % 10 == 0:
+            out += mon.add_autopilot(t, q_ap)
+    sig_h = max(heading_sigma_deg, s.heading_sigma_deg) if math.isfinite(heading_sigma_deg) else s.heading_sigma_deg
+    expected = max(s.min_heading_threshold_deg, s.sigma_k * math.hypot(sig_h, s.autopilot_heading_sigma_deg))
+    assert mon.status.heading_threshold_deg == pytest.approx(expected, rel=1e-6)
+    assert abs(mon.status.heading_deg) == pytest.approx(5.0, abs=1e-6)
+    warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
+    assert bool(warned) is warns, [m.text for m in out]
