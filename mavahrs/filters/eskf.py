@@ -112,6 +112,7 @@ from mavahrs.filters.magfield import (
     mag_model_reset,
     mag_model_summary,
     mag_model_update,
+    mag_status,
     magfield_params,
 )
 from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
@@ -119,7 +120,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of",
 ]  # fmt: skip
 
 N = 12  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -1276,6 +1277,13 @@ def eskf_aided(s, params):  # type: ignore[no-untyped-def]
     return last >= 0.0 and s[S_FILTER + _CLK] - last <= params[P_FILTER + _AID_TIMEOUT]
 
 
+def declination_of(state: np.ndarray, k: int) -> tuple[float, float]:
+    """The learnt declination correction and its 1-σ, rad, of an ESKF state whose own block starts at ``k``
+    (the local field's azimuth east of the WMM's magnetic north; ``EskfSettings.declination_sigma_rad``)."""
+    var = float(state[k + _P + _I_DECL * N + _I_DECL])
+    return float(state[k + _DECL]), math.sqrt(var) if var > 0.0 else 0.0
+
+
 def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
     """The thrust axis held in an ESKF state whose own block starts at ``k`` (unit, IMU frame), or None."""
     t = np.array(state[k + _TAX : k + _TAX + 3], dtype=float)
@@ -1372,7 +1380,14 @@ class Eskf(AttitudeFilter):
 
     def declination_correction_rad(self) -> float:
         """The learnt declination correction: the local field's azimuth east of the WMM's magnetic north, rad."""
-        return float(self._state[S_FILTER + _DECL])
+        return declination_of(self._state, S_FILTER)[0]
+
+    def mag_status(self) -> dict[str, object]:
+        """The magnetometer's state for the status page (:func:`magfield.mag_status`): the learnt model's
+        summary when it is on, else the schedule's trust in the last reading; the learnt declination."""
+        k = S_FILTER + _MAGF
+        model = mag_model_summary(self._state[k : k + MF_LEN]) if self._settings.mag_model.enabled else None  # type: ignore[attr-defined]
+        return mag_status(model, self._out, *declination_of(self._state, S_FILTER))
 
     def mag_model_state(self) -> dict[str, object] | None:
         """The learnt magnetometer model (state, offsets, earth field; :func:`mag_model_summary`), None when off."""

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mavahrs.filters.jit import kernel
+from mavahrs.filters.layout import FLAG_MAG_INVALID, FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_MAG_WEIGHT
 
 __all__ = [
     "MagFieldSettings",
@@ -78,6 +79,8 @@ __all__ = [
     "mag_model_summary",
     "mag_state_text",
     "DISTURBED_TEXT",
+    "DISTURBED_GYRO_TEXT",
+    "mag_status",
     "export_model",
     "import_model",
 ]
@@ -517,14 +520,54 @@ def import_model(block: np.ndarray, settings: MagFieldSettings, saved: object) -
     return None
 
 
+#: the status line while the magnetometer is not used and no GNSS velocity holds the heading
+DISTURBED_GYRO_TEXT = "magnetometer disturbed: heading from the gyro"
+
+
+def mag_status(
+    model: dict[str, object] | None, out: np.ndarray, declination_rad: float, declination_sigma_rad: float
+) -> dict[str, object]:
+    """The magnetometer's state for the status page, ``/status.json`` and the status line.
+
+    ``model``: the learnt model's summary (:func:`mag_model_summary`), or None while it is off; then
+    the state is the trust the filter gave the last reading (``out``, its output row: weight ≥ 0.5
+    trusted, a valid reading below it disturbed — the replay header's criterion), ``"absent"``
+    without a magnetometer reading.  ``heading_from`` says what holds the heading while the
+    compass is not used: GNSS while velocity-aided, else the gyro.  ``declination_*``: the
+    filter's learnt correction of the WMM declination (``EskfSettings.declination_sigma_rad``).
+    """
+    flags = int(out[OUT_FLAGS]) if np.isfinite(out[OUT_FLAGS]) else 0
+    if model is not None:
+        status: dict[str, object] = dict(model)
+        status["model"] = "on"
+    else:
+        if flags & FLAG_MAG_INVALID:
+            state = "absent"
+        else:
+            state = "trusted" if float(out[OUT_MAG_WEIGHT]) >= 0.5 else "disturbed"
+        status = {"state": state, "model": "off"}
+    status["heading_from"] = "GNSS" if flags & FLAG_VELOCITY_AIDED else "gyro"
+    status["declination_correction_deg"] = round(math.degrees(declination_rad), 2)
+    status["declination_sigma_deg"] = round(math.degrees(declination_sigma_rad), 2)
+    return status
+
+
 def mag_state_text(summary: dict[str, object] | None) -> str:
-    """The status line's magnetometer part, e.g. ``mag trusted (offset +0.2 −1.3 +0.7 µT, 0.41 −0.29 0.79 µT/A)``."""
+    """The status line's magnetometer part, e.g. ``mag trusted (offset +0.2 −1.3 +0.7 µT, 0.41 −0.29 0.79 µT/A)``
+    (with the model off: ``mag trusted``), and the learnt declination where it moved
+    (``, declination −0.52 ± 0.26° from the WMM's``)."""
     if not summary:
         return ""
     state = summary.get("state")
     if state == "disturbed":
-        return DISTURBED_TEXT
+        return DISTURBED_GYRO_TEXT if summary.get("heading_from") == "gyro" else DISTURBED_TEXT
+    decl = summary.get("declination_correction_deg")
+    d_text = ""
+    if isinstance(decl, (int, float)) and decl != 0.0:
+        d_text = f", declination {decl:+.2f} ± {summary.get('declination_sigma_deg', 0.0):.2f}° from the WMM's"
+    if "offset_ut" not in summary:
+        return f"mag {state}{d_text}"
     off = summary.get("offset_ut") or (0.0, 0.0, 0.0)
     mot = summary.get("motor_ut_per_a") or (0.0, 0.0, 0.0)
     return (f"mag {state} (offset {off[0]:+.1f} {off[1]:+.1f} {off[2]:+.1f} µT, "  # type: ignore[index]
-            f"{mot[0]:+.2f} {mot[1]:+.2f} {mot[2]:+.2f} µT/A)")  # type: ignore[index]
+            f"{mot[0]:+.2f} {mot[1]:+.2f} {mot[2]:+.2f} µT/A){d_text}")  # type: ignore[index]

@@ -791,3 +791,16 @@ def test_with_signing_the_codec_encodes_and_signs(autopilot, trajectory):
         (m,) = rx.receive_datagram(f)
         twin.mav.seq = _seq(f)
         assert twin.encode(m) == f
+
+
+def test_status_tells_the_magnetometer_state(autopilot, trajectory):
+    """The status (page, ``/status.json``, status line) says the magnetometer's state with the model off too:
+    the clean synthetic field is trusted, no GNSS holds the heading (the gyro does between compass readings),
+    and the WMM's declination is not corrected without GNSS."""
+    pipe = Pipeline(settings(filter_name="best"))
+    feed(pipe, imu_frames(autopilot, trajectory, 0, 4000))
+    st = pipe.status()
+    mag = st.magnetometer
+    assert mag is not None and mag["state"] == "trusted" and mag["model"] == "off", mag
+    assert mag["heading_from"] == "gyro" and mag["declination_correction_deg"] == 0.0, mag
+    assert st.line().endswith("| mag trusted")
