@@ -1132,7 +1132,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             params[P_SCHED + _g.GP_MAG_REF_DIP], clk, scr[0:4], scr[4:12], scr[12:20],
         )  # fmt: skip
         bx, by, bz = mx - scr[0], my - scr[1], mz - scr[2]  # the body field the model removes
-        if bx * bx + by * by + bz * bz >= params[p + _MIN_BODY]:
+        if w_m >= 0.5:
+            # the reading's norm and dip are the WMM's (the schedule): used as it is, gated by the ESKF
+            # as without the model (a model that misfits here is more likely wrong than the compass: a
+            # heading gone wrong looks like this, and persistent refusals re-open the attitude,
+            # ``rejection_reset_s``); the model's corrected reading serves the readings the schedule
+            # rejects (the vehicle's own field)
+            use_mag = True
+        elif bx * bx + by * by + bz * bz >= params[p + _MIN_BODY]:
             # the vehicle's own field matters: the corrected reading, weighed by what is known of it;
             # disturbed, or the offset across the field still too uncertain to tell a heading: none
             mx, my, mz, r_model = scr[0], scr[1], scr[2], scr[3]
