@@ -174,7 +174,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
     declared a multirotor, 23.8° (one flight diverged, 108°) → 2.25° mean inclination.  The
     magnetometer at most 10 Hz, σ 5°, gated at 3σ (an autopilot's compass is read at 10 Hz), and
     its learnt model (:mod:`mavahrs.filters.magfield`) on unless set either way: ArduCopter's
-    motor-interference flight 1.76 → 0.79° heading, the other shared flights within 0.02°.
+    motor-interference flight 1.76 → 0.54° heading, the other shared flights within 0.02°.
     """
     d = EskfSettings()
     # the magnetometer model: on unless set either way (an autopilot's compass, motor current in the stream)

@@ -146,10 +146,11 @@ class MagFieldSettings:
             used as it is (gated by the ESKF as without the model), the model's
             corrected reading serves the readings the schedule rejects, and
             only while its heading σ is within ``max_heading_sigma_rad`` = 5°.
-            ArduCopter's motor-interference flight 1.76 → 0.79°, firmware_sim
-            ``mag_anomaly`` seeds 3/11/5/7/19/23 no worse than off (±0.06°)
-            or better (seed 19 4.13 → 3.19°), the other SITL flights
-            unchanged, PX4 1.18 → 1.16° (``docs/filters/magfield.md``).
+            ArduCopter's motor-interference flight 1.76 → 0.54°, firmware_sim
+            ``mag_anomaly`` seeds 3/11/5/7/19/23 within 0.03° of off or
+            better (seed 19 4.13 → 3.50°), the other SITL flights unchanged,
+            PX4 1.18 → 1.16°; worse on firmware_sim's ``magnetic`` seed 5
+            (0.40 → 1.07°) (``docs/filters/magfield.md``).
         noise_ut: 1-σ noise of one reading per axis, µT (quantisation,
             the field's wander in a flight).
         initial_offset_ut: 1-σ of the body offset before anything is learnt,
