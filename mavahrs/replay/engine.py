@@ -176,6 +176,8 @@ class FilterTrack:
         sent: (M,) an ATTITUDE_QUATERNION was sent for this sample.
         frames: the encoded frames, in sample order (one per sent sample, two
             with ``send_attitude_euler``), or None until :meth:`ReplayResult.frames` encodes them.
+        magnetometer: the filter's magnetometer state at the end (``mag_status``: the learnt model or
+            the trust in the last reading, the learnt declination), None for filters without one.
     """
 
     name: str
@@ -183,6 +185,7 @@ class FilterTrack:
     out: Array
     sent: NDArray[np.bool_]
     frames: list[bytes] | None = None
+    magnetometer: dict[str, Any] | None = None
 
 
 @dataclass
@@ -481,6 +484,7 @@ def _replay_log(
     result.references = dict(li.references)
     result.log = li
     result.notes = notes + list(prep.notes)
+    result.notes += _mag_notes(result)  # (onboard logs too: the compass disturbed, the learnt declination)
     gaps = gap_note(prep, int(li.start_us), ps.timeline.max_gap_s)
     if gaps is not None:
         result.notes.append(gaps)
@@ -492,9 +496,10 @@ def _replay_log(
 
 
 def _mag_notes(result: ReplayResult) -> list[str]:
-    """``magnetometer disturbed: heading from GNSS`` for the velocity-aided filters, with how long."""
+    """``magnetometer disturbed: heading from GNSS`` for the velocity-aided filters, with how long; the
+    magnetometer's state at the end (model, offsets, learnt declination) where the filter has one."""
     from mavahrs.filters.layout import FLAG_MAG_INVALID, FLAG_VELOCITY_AIDED, OUT_MAG_WEIGHT
-    from mavahrs.filters.magfield import DISTURBED_TEXT
+    from mavahrs.filters.magfield import DISTURBED_TEXT, mag_state_text
 
     notes = []
     t = result.inputs.t_us
@@ -509,6 +514,10 @@ def _mag_notes(result: ReplayResult) -> list[str]:
         secs = float(dt[off].sum())
         if secs >= 1.0:
             notes.append(f"{name}: {DISTURBED_TEXT} for {secs:.0f} s ({100.0 * off.mean():.0f} % of the samples)")
+    for name, tr in result.tracks.items():
+        text = mag_state_text(tr.magnetometer) if tr.magnetometer else ""
+        if text and text != "mag trusted":  # a model, a learnt declination or a disturbance to tell
+            notes.append(f"{name}: at the end {text}")
     return notes
 
 
@@ -624,9 +633,15 @@ def _replay_fast(
             bar.close()
     sysid = ps.system_id or prep.source[0]
     tracks = {
-        n: FilterTrack(n, ps.component_id + i, outs[i], sents[i]) for i, (n, _) in enumerate(filters)
+        n: FilterTrack(n, ps.component_id + i, outs[i], sents[i], magnetometer=_mag_status(filts[i]))
+        for i, (n, _) in enumerate(filters)
     }
     return ReplayResult(path, prep, tracks, sysid, s)
+
+
+def _mag_status(f: Any) -> dict[str, Any] | None:
+    get = getattr(f, "mag_status", None)
+    return get() if get is not None else None
 
 
 def _first_samples(prep: PreparedInputs, n: int) -> PreparedInputs:

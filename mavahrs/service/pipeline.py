@@ -1358,7 +1358,7 @@ class Pipeline:
             velocity_skipped=dict(vs.counters),
             monitor_state=self._monitor.status if self._monitor_on else None,
             gnss_velocity=self._gnss_state(now),
-            magnetometer=self._mag_model_state(),
+            magnetometer=self._mag_status(),
         )
 
     def _monitor_mag_model(self) -> None:
@@ -1369,6 +1369,11 @@ class Pipeline:
             self._monitor.set_mag_offsets(None)
             return
         self._monitor.set_mag_offsets(state.get("offset_ut"), disturbed=state.get("state") == "disturbed")
+
+    def _mag_status(self) -> dict[str, Any] | None:
+        """The magnetometer's state for the status (the filter's ``mag_status``: model or trust, declination)."""
+        get = getattr(self._filter, "mag_status", None)
+        return get() if get is not None else self._mag_model_state()
 
     def _mag_model_state(self) -> dict[str, Any] | None:
         get = getattr(self._filter, "mag_model_state", None)

@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from mavahrs.filters import create
+from mavahrs.filters.best import BestSettings
+from mavahrs.filters.eskf import EskfSettings
 from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_VEL
+from mavahrs.filters.magfield import MagFieldSettings
 from mavahrs.geometry import quaternion as Q
 from mavahrs.geometry import rotation
 from mavahrs.protocol.codec import MavCodec
@@ -791,3 +794,22 @@ def test_with_signing_the_codec_encodes_and_signs(autopilot, trajectory):
         (m,) = rx.receive_datagram(f)
         twin.mav.seq = _seq(f)
         assert twin.encode(m) == f
+
+
+def test_status_tells_the_magnetometer_state(autopilot, trajectory):
+    """The status (page, ``/status.json``, status line) says the magnetometer's state: the model's (on by
+    default; with it off, the trust in the last reading), what holds the heading between compass readings
+    (no GNSS here: the gyro), and the WMM's declination, not corrected without GNSS."""
+    pipe = Pipeline(settings(filter_name="best"))
+    feed(pipe, imu_frames(autopilot, trajectory, 0, 4000))
+    st = pipe.status()
+    mag = st.magnetometer
+    assert mag is not None and mag["state"] in ("trusted", "learning") and mag["model"] == "on", mag
+    assert len(mag["offset_ut"]) == 3 and len(mag["motor_ut_per_a"]) == 3, mag
+    assert mag["heading_from"] == "gyro" and mag["declination_correction_deg"] == 0.0, mag
+    assert f"| mag {mag['state']} (offset " in st.line()
+    off = Pipeline(settings(filter_name="best"), BestSettings(eskf=EskfSettings(mag_model=MagFieldSettings(enabled=False))))
+    feed(off, imu_frames(autopilot, trajectory, 0, 4000))
+    st = off.status()
+    assert st.magnetometer is not None and st.magnetometer["state"] == "trusted", st.magnetometer
+    assert st.magnetometer["model"] == "off" and st.line().endswith("| mag trusted")

@@ -208,10 +208,13 @@
     set("mag-rej", fmt(s.mag_rejection_pct, 0));
     set("bias", s.bias_deg_s ? s.bias_deg_s.map((v) => signed(v, 2)).join("  ") : "–");
     set("gnss", s.gnss_velocity || "–");
-    const mm = s.magnetometer;  // the learnt magnetometer model (best / eskf)
-    set("mag-state", mm ? (mm.state === "disturbed" ? "disturbed: heading from GNSS" : mm.state) : "–");
-    set("mag-offset", mm ? "offset " + mm.offset_ut.map((v) => signed(v, 1)).join(" ") + " µT · "
-      + mm.motor_ut_per_a.map((v) => signed(v, 2)).join(" ") + " µT/A" : "");
+    const mm = s.magnetometer;  // the magnetometer's state: the learnt model, or the filter's trust (best / eskf)
+    set("mag-state", mm ? (mm.state === "disturbed" ? "disturbed: heading from " + (mm.heading_from || "GNSS")
+      : mm.state + (mm.model === "off" ? " (model off)" : "")) : "–");
+    const decl = mm && typeof mm.declination_correction_deg === "number"
+      ? "declination " + signed(mm.declination_correction_deg, 2) + " ± " + fmt(mm.declination_sigma_deg, 2) + "° from the WMM's" : "";
+    set("mag-offset", mm && mm.offset_ut ? "offset " + mm.offset_ut.map((v) => signed(v, 1)).join(" ") + " µT · "
+      + mm.motor_ut_per_a.map((v) => signed(v, 2)).join(" ") + " µT/A" + (decl ? " · " + decl : "") : decl);
     set("imu", s.imu === null || s.imu === undefined ? "none" : String(s.imu));
     set("imu-reason", s.imu_reason || "");
     set("lat50", fmt(s.latency_p50_us, 0));
