@@ -178,6 +178,21 @@ class MonitorSettings:
             estimators' errors are larger than the model says (an autopilot
             whose own tilt error is 0.6° RMS), the test widens to what they
             really are, s.
+        learn_max_rate_dps: … learnt only while our angular rate is at most
+            this, deg/s: in a fast rotation the two estimates' timing (the
+            ``sync_s`` term, ω·sync_s: 2° at 400°/s) dominates the divergence;
+            it has its own term in the threshold, and learnt as the flight's
+            normal divergence it raised the threshold everywhere after the
+            spins and flips (firmware_sim aggressive 3, flips 1: a learnt
+            1.9° that delayed a 2° tilt step to 3.6–4.0 s).  At 60°/s the
+            timing term is 0.3°, under half the estimators' combined σ.
+        learn_max_factor: … and the learnt threshold is at most this many
+            times the error model's own (tilt and heading each): what is learnt
+            widens the test by at most this share, so that a flight whose
+            divergence runs near the model's threshold for a while (the
+            autopilot's own heading 2° off on ArduCopter SITL's magnetic flight:
+            a learnt 5.0° against the model's 3.6°) still warns of a step of
+            the size the model is built for.
         tilt_threshold_deg: ``fixed``: tilt divergence that counts as a disagreement, deg.
         heading_threshold_deg: ``fixed``: heading divergence that counts, deg
             (0 = never alarm on heading, in either mode).
@@ -251,6 +266,8 @@ class MonitorSettings:
     cusum_leak_per_s: float = 0.2
     learn_k: float = 2.5
     learn_s: float = 60.0
+    learn_max_rate_dps: float = 60.0
+    learn_max_factor: float = 1.25
     mag_norm_tolerance: float = 0.08
     mag_dip_tolerance_deg: float = 6.0
     gnss_window_s: float = 3.0
@@ -285,8 +302,8 @@ class MonitorSettings:
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
-                     "transition_s", "learn_k", "learn_s", "strip_s", "imu_rate_tolerance_dps", "gnss_heading_min_m_s",
-                     "imu_window_s"):  # fmt: skip
+                     "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
+                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -692,6 +709,7 @@ class AttitudeMonitor:
         self._min_thr = (math.radians(s.min_tilt_threshold_deg), math.radians(s.min_heading_threshold_deg))
         self._uncertainty = u
         self._h = (1.0 - s.cusum_reference) * s.trigger_s
+        self._learn_rate = math.radians(s.learn_max_rate_dps)
         self.reset()
 
     def reset(self) -> None:
@@ -936,9 +954,9 @@ class AttitudeMonitor:
         self._model_thr = (tilt, min(hdg, hdg_learn))
         n, m_t, m_h = self._learnt
         if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
-            lk = self.settings.learn_k
-            tilt = max(tilt, lk * math.sqrt(m_t))
-            hdg = max(hdg, lk * math.sqrt(m_h)) if hdg_on else 0.0
+            lk, cap = self.settings.learn_k, self.settings.learn_max_factor
+            tilt = max(tilt, min(lk * math.sqrt(m_t), cap * tilt))
+            hdg = max(hdg, min(lk * math.sqrt(m_h), cap * hdg)) if hdg_on else 0.0
         return tilt, hdg
 
     def _imu_warning(self, t_ms: float) -> list[Any]:
@@ -1013,7 +1031,8 @@ class AttitudeMonitor:
         self._evidence.heading_only = hdg_on and tilt <= t_thr and abs(heading) > h_thr
         m_t, m_h = self._model_thr
         inside = tilt <= m_t and (not hdg_on or abs(heading) <= m_h)
-        if self._uncertainty and not self._warning and inside and prev is not None and not gap:
+        slow = self._rate <= self._learn_rate  # the timing term small: what is learnt is the estimators' errors
+        if self._uncertainty and not self._warning and inside and slow and prev is not None and not gap:
             self._learn(tilt, heading if hdg_on else 0.0, 1e-3 * (t_ms - prev))  # also in the start-up grace
         first = self._first_est_ms if self._first_est_ms is not None else t_ms
         if t_ms - first < 1000.0 * s.startup_grace_s:
