@@ -79,6 +79,7 @@ from mavahrs.filters.base import (
     finish_step,
 )
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
+from mavahrs.filters.initial import START_LEN, start_average_step
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import integrate_body_rate, quat_multiply
 from mavahrs.filters.layout import (
@@ -123,7 +124,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "START_DONE_STATE",
 ]  # fmt: skip
 
 N = 12  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -187,7 +188,8 @@ _AXIS_Q = _AXIS_P0 + 1  # their random walk², rad²/s
 _Q_SCALE = _AXIS_Q + 1  # gyro scale-factor error as rate-proportional noise: 2 σ_sf² τ, s (× ω² → rad²/s)
 _Q_CROSS = _AXIS_Q + 2  # … cross-axis (misalignment) error: 2 σ_ma² τ, s
 _DECL_P0 = _AXIS_Q + 3  # prior variance of the declination's error against the WMM, rad² (0: WMM exact)
-_N_PARAMS = _DECL_P0 + 1
+_INIT_AVG = _DECL_P0 + 1  # s: the start window the tilt is averaged over (0: the first sample)
+_N_PARAMS = _INIT_AVG + 1
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -230,7 +232,11 @@ _LAST_REST = _RSCR + 3  # clock time of the last zero-rate / zero-velocity updat
 _GW = _LAST_REST + 1  # the low-passed gravity measurement's trust, smoothed as the sample's (0 … 1)
 _TREF = _GW + 1  # the body axis (0, 1, 2) the thrust axis's error basis is built from (states mode)
 _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the filter's (WMM-magnetic) frame, rad
-_N_STATE = _DECL + 1
+_START = _DECL + 1  # the start window's sums (:func:`mavahrs.filters.initial.start_average_step`, START_LEN)
+_STARTED = _START + START_LEN  # 1: the start window is over (or there is none)
+_N_STATE = _STARTED + 1
+#: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
+START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
 MAG_MODEL_STATE = _MAGF
 #: offset of the gravity low-pass (:func:`mavahrs.filters.prefilter.ned_butterworth_step`) in the ESKF's state
@@ -299,6 +305,16 @@ class EskfSettings(FilterSettings):
             reads its compass at 10 Hz and repeats the value in between).
         initial_tilt_rad, initial_heading_rad: 1-σ uncertainty of the
             initial attitude from the accelerometer (+ magnetometer).
+        initial_average_s: the initial tilt is the specific force averaged
+            over this long, s, in the NED frame the gyro carries from the
+            first sample (:func:`mavahrs.filters.initial.start_average_step`);
+            until then the attitude is the first sample's carried by the
+            gyro, flagged ``FLAG_STARTUP``, and nothing is fused (a velocity
+            fix, the magnetometer): a raw IMU's single sample on a vibrating
+            multirotor is 60–120° off (firmware_sim ``vibration``), the mean
+            over 1 s 2–11°.  Also after a re-initialisation (a gap).  0 = the
+            first sample (the default; ``best`` sets 1 s,
+            :func:`mavahrs.filters.best.best_eskf_settings`).
         initial_bias_rad_s: 1-σ uncertainty of the initial gyro bias.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
         velocity_reset_s: every fix rejected for this long resets the INS
@@ -441,6 +457,7 @@ class EskfSettings(FilterSettings):
     mag_rate_hz: float = 10.0
     initial_tilt_rad: float = math.radians(3.0)
     initial_heading_rad: float = math.radians(20.0)
+    initial_average_s: float = 0.0
     initial_bias_rad_s: float = math.radians(3.0)
     bias_limit_rad_s: float = math.radians(10.0)
     velocity_reset_s: float = 5.0
@@ -501,6 +518,8 @@ class EskfSettings(FilterSettings):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(self.initial_average_s) and 0.0 <= self.initial_average_s <= 10.0):
+            raise ValueError(f"EskfSettings.initial_average_s must be in [0, 10] s, got {self.initial_average_s!r}")
         if not (math.isfinite(self.realign_after_s) and self.realign_after_s >= 0.0):
             raise ValueError(f"EskfSettings.realign_after_s must be ≥ 0 s, got {self.realign_after_s!r}")
         if not (math.isfinite(self.sensor_delay_s) and 0.0 <= self.sensor_delay_s <= 0.1):
@@ -544,6 +563,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         s[k + _PREV_VEL + i] = math.nan
     for i in range(6):
         s[k + _PREV_IMU + i] = math.nan
+    s[k + _STARTED] = 0.0 if params[p + _INIT_AVG] > 0.0 else 1.0
 
 
 @kernel
@@ -893,10 +913,24 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     p = P_FILTER
     accel_ok = (flags & FLAG_ACCEL_INVALID) == 0
     mag_ok = (flags & FLAG_MAG_INVALID) == 0
-    q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     gx = row[IN_GYRO] - state[S_BIAS]
     gy = row[IN_GYRO + 1] - state[S_BIAS + 1]
     gz = row[IN_GYRO + 2] - state[S_BIAS + 2]
+    if state[k + _STARTED] == 0.0:
+        # the start window (``initial_average_s``): the gyro carries the first sample's attitude, the
+        # specific force is averaged in its frame, and at the end the tilt is set from the mean; the
+        # filter then starts afresh from that attitude (covariance, velocity, clock)
+        integrate_body_rate(state, S_Q, gx, gy, gz, dt)
+        if accel_ok and start_average_step(
+            state, S_Q, state, k + _START, row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2],
+            row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok, dt, params[p + _INIT_AVG],
+        ):  # fmt: skip
+            eskf_reset(state, k, params)
+            state[k + _STARTED] = 1.0
+        finish_step(state, out, 0.0, 0.0, 0.0)
+        add_flag(out, FLAG_STARTUP)
+        return
+    q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
     boost, w_a, w_m = schedule_step(
@@ -1422,6 +1456,7 @@ class Eskf(AttitudeFilter):
         p[_Q_SCALE] = 2.0 * settings.gyro_scale_sigma**2 * settings.gyro_scale_tau_s
         p[_Q_CROSS] = 2.0 * settings.gyro_cross_axis_sigma**2 * settings.gyro_scale_tau_s
         p[_DECL_P0] = settings.declination_sigma_rad**2
+        p[_INIT_AVG] = settings.initial_average_s
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
