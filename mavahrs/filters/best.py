@@ -108,7 +108,7 @@ BEST_BIAS_LIMIT_RAD_S = math.radians(6.0)
 #: the initial tilt from the specific force averaged over this long in the gyro-carried frame, s
 #: (``EskfSettings.initial_average_s``; every path of ``best``): firmware_sim's ``vibration`` flights declared
 #: a multirotor started 61–118° off from the first sample and diverged (docs/accuracy.md)
-BEST_INITIAL_AVERAGE_S = 1.0
+BEST_INITIAL_AVERAGE_S = 2.0
 
 
 def best_settings() -> MadgwickSettings:

@@ -79,7 +79,7 @@ from mavahrs.filters.base import (
     finish_step,
 )
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
-from mavahrs.filters.initial import START_LEN, start_average_step
+from mavahrs.filters.initial import align_tilt_to_force
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import integrate_body_rate, quat_multiply
 from mavahrs.filters.layout import (
@@ -188,8 +188,9 @@ _AXIS_Q = _AXIS_P0 + 1  # their random walk², rad²/s
 _Q_SCALE = _AXIS_Q + 1  # gyro scale-factor error as rate-proportional noise: 2 σ_sf² τ, s (× ω² → rad²/s)
 _Q_CROSS = _AXIS_Q + 2  # … cross-axis (misalignment) error: 2 σ_ma² τ, s
 _DECL_P0 = _AXIS_Q + 3  # prior variance of the declination's error against the WMM, rad² (0: WMM exact)
-_INIT_AVG = _DECL_P0 + 1  # s: the start window the tilt is averaged over (0: the first sample)
-_N_PARAMS = _INIT_AVG + 1
+_INIT_AVG = _DECL_P0 + 1  # s: the start window the specific force is averaged over (0: no check of the start)
+_INIT_COS = _INIT_AVG + 1  # cos of the angle between that mean and the estimate's up beyond which the tilt re-aligns
+_N_PARAMS = _INIT_COS + 1
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -232,8 +233,8 @@ _LAST_REST = _RSCR + 3  # clock time of the last zero-rate / zero-velocity updat
 _GW = _LAST_REST + 1  # the low-passed gravity measurement's trust, smoothed as the sample's (0 … 1)
 _TREF = _GW + 1  # the body axis (0, 1, 2) the thrust axis's error basis is built from (states mode)
 _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the filter's (WMM-magnetic) frame, rad
-_START = _DECL + 1  # the start window's sums (:func:`mavahrs.filters.initial.start_average_step`, START_LEN)
-_STARTED = _START + START_LEN  # 1: the start window is over (or there is none)
+_START = _DECL + 1  # the start window: ∫ f_NED dt in the estimate's frame (3), the time (1)
+_STARTED = _START + 4  # 1: the start window is over (or there is none)
 _N_STATE = _STARTED + 1
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
@@ -305,16 +306,26 @@ class EskfSettings(FilterSettings):
             reads its compass at 10 Hz and repeats the value in between).
         initial_tilt_rad, initial_heading_rad: 1-σ uncertainty of the
             initial attitude from the accelerometer (+ magnetometer).
-        initial_average_s: the initial tilt is the specific force averaged
-            over this long, s, in the NED frame the gyro carries from the
-            first sample (:func:`mavahrs.filters.initial.start_average_step`);
-            until then the attitude is the first sample's carried by the
-            gyro, flagged ``FLAG_STARTUP``, and nothing is fused (a velocity
-            fix, the magnetometer): a raw IMU's single sample on a vibrating
-            multirotor is 60–120° off (firmware_sim ``vibration``), the mean
-            over 1 s 2–11°.  Also after a re-initialisation (a gap).  0 = the
-            first sample (the default; ``best`` sets 1 s,
-            :func:`mavahrs.filters.best.best_eskf_settings`).
+        initial_average_s: the start is checked against the specific force
+            averaged over this long, s, after the (re)initialisation, in the
+            estimate's NED frame (the sum turns with every correction, as the
+            gravity low-pass does): the mean is gravity up to the vehicle's mean
+            acceleration over the window, while the first sample, which the
+            filter starts from, is a raw IMU's on a vibrating multirotor
+            60–120° off (firmware_sim ``vibration``: one clipped, aliased motor
+            tone of tens of m/s²; the 2 s mean 3–12°).  If the estimate's up
+            and the mean differ by more than ``initial_realign_rad`` at the
+            window's end, the tilt is re-aligned to the mean
+            (:func:`mavahrs.filters.initial.align_tilt_to_force`; TRIAD with
+            the magnetometer), the gyro bias learnt from the wrong start
+            forgotten and the filter restarted (covariance, velocity, clock);
+            otherwise nothing changes.  The output is flagged
+            ``FLAG_STARTUP`` until then.  0 = no check (the default; ``best``
+            sets 2 s, :func:`mavahrs.filters.best.best_eskf_settings`).
+        initial_realign_rad: that angle, rad: beyond what the window mean's
+            own error (a multirotor's mean acceleration over 2 s: 4–16° on
+            firmware_sim's ``aggressive`` and ``hover`` flights) and a good
+            start's error explain.
         initial_bias_rad_s: 1-σ uncertainty of the initial gyro bias.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
         velocity_reset_s: every fix rejected for this long resets the INS
@@ -458,6 +469,7 @@ class EskfSettings(FilterSettings):
     initial_tilt_rad: float = math.radians(3.0)
     initial_heading_rad: float = math.radians(20.0)
     initial_average_s: float = 0.0
+    initial_realign_rad: float = math.radians(30.0)
     initial_bias_rad_s: float = math.radians(3.0)
     bias_limit_rad_s: float = math.radians(10.0)
     velocity_reset_s: float = 5.0
@@ -501,6 +513,7 @@ class EskfSettings(FilterSettings):
             "vertical_velocity_noise_m_s", "heading_noise_rad", "gravity_noise_m_s2", "gate_sigma", "velocity_gate_sigma",
             "aiding_timeout_s", "mag_rate_hz", "initial_tilt_rad", "initial_heading_rad",
             "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s", "realign_innovation_rad",
+            "initial_realign_rad",
         ):  # fmt: skip
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -916,20 +929,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     gx = row[IN_GYRO] - state[S_BIAS]
     gy = row[IN_GYRO + 1] - state[S_BIAS + 1]
     gz = row[IN_GYRO + 2] - state[S_BIAS + 2]
-    if state[k + _STARTED] == 0.0:
-        # the start window (``initial_average_s``): the gyro carries the first sample's attitude, the
-        # specific force is averaged in its frame, and at the end the tilt is set from the mean; the
-        # filter then starts afresh from that attitude (covariance, velocity, clock)
-        integrate_body_rate(state, S_Q, gx, gy, gz, dt)
-        if accel_ok and start_average_step(
-            state, S_Q, state, k + _START, row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2],
-            row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok, dt, params[p + _INIT_AVG],
-        ):  # fmt: skip
-            eskf_reset(state, k, params)
-            state[k + _STARTED] = 1.0
-        finish_step(state, out, 0.0, 0.0, 0.0)
-        add_flag(out, FLAG_STARTUP)
-        return
     q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
@@ -972,6 +971,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     state[k + _CLK] += dt
     clk = state[k + _CLK]
     aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
+    if accel_ok and state[k + _STARTED] == 0.0:  # the start window's mean specific force (initial_average_s)
+        state[k + _START] += fn * dt
+        state[k + _START + 1] += fe * dt
+        state[k + _START + 2] += fd * dt
+        state[k + _START + 3] += dt
     if accel_ok:  # also while not aided: a restart needs the velocity change since a late fix's time
         state[k + _V] += fn * dt
         state[k + _V + 1] += fe * dt
@@ -1342,6 +1346,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if tau_g > 0.0:  # the stored NED vectors move with the estimate's frame
                 nav_lowpass_rotate(state, k + _GLP, rx, ry, rz)
                 nav_lowpass_rotate(state, k + _GLP + BW_LEN // 2, rx, ry, rz)
+            if state[k + _STARTED] == 0.0:  # … and so does the start window's sum
+                nav_lowpass_rotate(state, k + _START, rx, ry, rz)
         if aided or r_zv > 0.0 or k_drag > 0.0 or at_rest:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
@@ -1362,6 +1368,22 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             tn = math.sqrt(tx * tx + ty * ty + tz * tz)
             state[kt], state[kt + 1], state[kt + 2] = tx / tn, ty / tn, tz / tn
 
+    if state[k + _STARTED] == 0.0:
+        if state[k + _START + 3] >= params[p + _INIT_AVG]:
+            # the start window is over: the estimate's up against the mean specific force over it
+            state[k + _STARTED] = 1.0
+            mn, me, md = state[k + _START], state[k + _START + 1], state[k + _START + 2]
+            m = math.sqrt(mn * mn + me * me + md * md)
+            if m > 0.0 and -md < params[p + _INIT_COS] * m:
+                # farther off than the mean's own error explains: the first sample was wrong (vibration);
+                # the tilt from the mean, the bias learnt from the wrong start forgotten, the filter restarted
+                if align_tilt_to_force(state, S_Q, mn, me, md, row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok):
+                    for i in range(3):
+                        state[S_BIAS + i] = 0.0
+                    eskf_reset(state, k, params)
+                    state[k + _STARTED] = 1.0
+        else:
+            add_flag(out, FLAG_STARTUP)
     kp = k + _P
     tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
     finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_out)
@@ -1457,6 +1479,7 @@ class Eskf(AttitudeFilter):
         p[_Q_CROSS] = 2.0 * settings.gyro_cross_axis_sigma**2 * settings.gyro_scale_tau_s
         p[_DECL_P0] = settings.declination_sigma_rad**2
         p[_INIT_AVG] = settings.initial_average_s
+        p[_INIT_COS] = math.cos(min(settings.initial_realign_rad, math.pi))
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()

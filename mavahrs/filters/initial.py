@@ -11,15 +11,13 @@ vectors and the same two vectors in NED, the first matched exactly; the
 filters use it with the specific force against ``v̇ − g`` (GNSS) when the
 vehicle is not at rest.
 
-:func:`start_average_step` is the vibration-robust start: the first sample
-gives a provisional attitude, the gyro carries it, and the specific force is
-averaged over a short window in the frame it defines (the NED of the
-provisional attitude); at the window's end the tilt is set from that mean.
-One sample of a raw IMU on a vibrating multirotor can be 60–120° off (an
-aliased motor tone of tens of m/s², clipped); the mean over the window is the
-gravity direction up to the vehicle's mean acceleration over it (VQF's and the
-autopilots' practice of averaging the first samples; Laidig & Seel 2023 §3 the
-NED-frame average).
+:func:`align_tilt_to_force` is the check of a start: one sample of a raw IMU
+on a vibrating multirotor can be 60–120° off (an aliased motor tone of tens of
+m/s², clipped), while the specific force averaged over the first seconds in
+the estimate's NED frame is gravity up to the vehicle's mean acceleration over
+them (VQF's and the autopilots' practice of averaging the first samples; the
+NED-frame average of Laidig & Seel 2023); a filter whose estimate disagrees
+with that mean by far more than the mean's own error re-aligns its tilt to it.
 """
 
 from __future__ import annotations
@@ -27,12 +25,9 @@ from __future__ import annotations
 import math
 
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.kinematics import body_to_ned, ned_to_body, rotate_nav
+from mavahrs.filters.kinematics import ned_to_body, rotate_nav
 
-__all__ = ["quat_from_matrix_rows", "initial_attitude", "triad_attitude", "start_average_step", "START_LEN"]
-
-#: state values :func:`start_average_step` keeps: ∫ f_NED dt (3), the time averaged (1)
-START_LEN = 4
+__all__ = ["quat_from_matrix_rows", "initial_attitude", "triad_attitude", "align_tilt_to_force"]
 
 
 @kernel
@@ -135,32 +130,20 @@ def triad_attitude(b1x, b1y, b1z, b2x, b2y, b2z, r1x, r1y, r1z, r2x, r2y, r2z, o
 
 
 @kernel
-def start_average_step(q_state, kq, acc, ka, ax, ay, az, mx, my, mz, mag_ok, dt, window_s):  # type: ignore[no-untyped-def]
-    """One sample of the start window: add the specific force, rotated into the frame of the attitude at
-    ``q_state[kq:kq+4]`` (already carried to this sample by the gyro), to ``acc[ka:ka+START_LEN]``; once
-    ``window_s`` is averaged, set the tilt from the mean and return True.
+def align_tilt_to_force(q_state, kq, mn, me, md, mx, my, mz, mag_ok):  # type: ignore[no-untyped-def]
+    """Re-align ``q_state[kq:kq+4]`` so that the mean specific force ``(mn, me, md)`` (NED of that attitude)
+    points up: (0, 0, −‖f̄‖).
 
-    The mean specific force in NED, f̄ = (1/T)∫C f dt = v̇̄ − g (Titterton & Weston 2004, eq. 3.23, the
-    navigation equation averaged), is gravity up to the mean acceleration Δv/T over the window, while one
-    sample is gravity up to the acceleration *and* vibration of that instant.  The tilt is re-aligned by the
-    smallest rotation taking f̄'s direction to (0, 0, −g), which keeps the heading the gyro carried; with a
-    valid magnetometer sample the attitude is instead TRIAD from the mean force (in today's body axes, Cᵀf̄)
-    and that field (:func:`initial_attitude`), since a tilt wrong at the first sample made its heading wrong.
+    The smallest rotation taking f̄'s direction to (0, 0, −1), which keeps the heading; with a valid
+    magnetometer sample instead TRIAD from the mean force in today's body axes (Cᵀf̄) and that field
+    (:func:`initial_attitude`), since a tilt far off at the first sample made the first heading wrong too.
+    Returns False (nothing changed) when the mean is zero or not finite.
     """
-    q0, q1, q2, q3 = q_state[kq], q_state[kq + 1], q_state[kq + 2], q_state[kq + 3]
-    fn, fe, fd = body_to_ned(q0, q1, q2, q3, ax, ay, az)
-    acc[ka] += fn * dt
-    acc[ka + 1] += fe * dt
-    acc[ka + 2] += fd * dt
-    acc[ka + 3] += dt
-    if acc[ka + 3] < window_s:
-        return False
-    mn, me, md = acc[ka], acc[ka + 1], acc[ka + 2]
     m = math.sqrt(mn * mn + me * me + md * md)
     if not (m > 0.0 and math.isfinite(m)):
-        return True  # nothing to align to: keep the attitude as it is
+        return False
     if mag_ok:
-        bx, by, bz = ned_to_body(q0, q1, q2, q3, mn, me, md)
+        bx, by, bz = ned_to_body(q_state[kq], q_state[kq + 1], q_state[kq + 2], q_state[kq + 3], mn, me, md)
         initial_attitude(bx, by, bz, mx, my, mz, True, q_state, kq)
         return True
     # the measured down u = −f̄/‖f̄‖ to (0, 0, 1): about u × ẑ = (u_E, −u_N, 0) by the angle between them
