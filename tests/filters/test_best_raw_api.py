@@ -77,9 +77,10 @@ def test_the_raw_bias_range_is_the_plain_apis_only() -> None:
 def test_a_declared_multirotor_starting_in_strong_vibration_does_not_diverge(raw_flight) -> None:  # type: ignore[no-untyped-def]
     # firmware_sim's ``vibration`` scenario (an aliased, clipping motor tone of tens of m/s²) as a raw IMU
     # declared a multirotor: its first accelerometer sample is 76° from the truth here, and a filter that
-    # starts from it diverged (81° inclination RMS after 20 s; seeds 1–6 31.7° mean).  The start window
-    # (``EskfSettings.initial_average_s``) averages the specific force first: 6.6° (VQF 12.6°).  The bound
-    # catches the divergence, not a tuning.
+    # starts from it diverged (81° inclination RMS after 20 s; seeds 1–6 31.7° mean).  The start check
+    # (``EskfSettings.initial_average_s``: the estimate against the specific force averaged over 2 s, the tilt
+    # re-aligned when they are more than 30° apart): 6.6° (VQF 12.6°).  The bound catches the divergence, not
+    # a tuning.
     from mavahrs.evaluation.metrics import attitude_errors_rad
     from mavahrs.filters.layout import FLAG_STARTUP, OUT_FLAGS
 
