@@ -79,6 +79,7 @@ from mavahrs.filters.base import (
     finish_step,
 )
 from mavahrs.filters.gains import G_M_S2, GainScheduleSettings, schedule_step
+from mavahrs.filters.initial import align_tilt_to_force
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import integrate_body_rate, quat_multiply
 from mavahrs.filters.layout import (
@@ -123,7 +124,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "START_DONE_STATE",
 ]  # fmt: skip
 
 N = 12  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -187,7 +188,9 @@ _AXIS_Q = _AXIS_P0 + 1  # their random walk², rad²/s
 _Q_SCALE = _AXIS_Q + 1  # gyro scale-factor error as rate-proportional noise: 2 σ_sf² τ, s (× ω² → rad²/s)
 _Q_CROSS = _AXIS_Q + 2  # … cross-axis (misalignment) error: 2 σ_ma² τ, s
 _DECL_P0 = _AXIS_Q + 3  # prior variance of the declination's error against the WMM, rad² (0: WMM exact)
-_N_PARAMS = _DECL_P0 + 1
+_INIT_AVG = _DECL_P0 + 1  # s: the start window the specific force is averaged over (0: no check of the start)
+_INIT_COS = _INIT_AVG + 1  # cos of the angle between that mean and the estimate's up beyond which the tilt re-aligns
+_N_PARAMS = _INIT_COS + 1
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -230,7 +233,11 @@ _LAST_REST = _RSCR + 3  # clock time of the last zero-rate / zero-velocity updat
 _GW = _LAST_REST + 1  # the low-passed gravity measurement's trust, smoothed as the sample's (0 … 1)
 _TREF = _GW + 1  # the body axis (0, 1, 2) the thrust axis's error basis is built from (states mode)
 _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the filter's (WMM-magnetic) frame, rad
-_N_STATE = _DECL + 1
+_START = _DECL + 1  # the start window: ∫ f_NED dt in the estimate's frame (3), the time (1)
+_STARTED = _START + 4  # 1: the start window is over (or there is none)
+_N_STATE = _STARTED + 1
+#: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
+START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
 MAG_MODEL_STATE = _MAGF
 #: offset of the gravity low-pass (:func:`mavahrs.filters.prefilter.ned_butterworth_step`) in the ESKF's state
@@ -299,6 +306,26 @@ class EskfSettings(FilterSettings):
             reads its compass at 10 Hz and repeats the value in between).
         initial_tilt_rad, initial_heading_rad: 1-σ uncertainty of the
             initial attitude from the accelerometer (+ magnetometer).
+        initial_average_s: the start is checked against the specific force
+            averaged over this long, s, after the (re)initialisation, in the
+            estimate's NED frame (the sum turns with every correction, as the
+            gravity low-pass does): the mean is gravity up to the vehicle's mean
+            acceleration over the window, while the first sample, which the
+            filter starts from, is a raw IMU's on a vibrating multirotor
+            60–120° off (firmware_sim ``vibration``: one clipped, aliased motor
+            tone of tens of m/s²; the 2 s mean 3–12°).  If the estimate's up
+            and the mean differ by more than ``initial_realign_rad`` at the
+            window's end, the tilt is re-aligned to the mean
+            (:func:`mavahrs.filters.initial.align_tilt_to_force`; TRIAD with
+            the magnetometer), the gyro bias learnt from the wrong start
+            forgotten and the filter restarted (covariance, velocity, clock);
+            otherwise nothing changes.  The output is flagged
+            ``FLAG_STARTUP`` until then.  0 = no check (the default; ``best``
+            sets 2 s, :func:`mavahrs.filters.best.best_eskf_settings`).
+        initial_realign_rad: that angle, rad: beyond what the window mean's
+            own error (a multirotor's mean acceleration over 2 s: 4–16° on
+            firmware_sim's ``aggressive`` and ``hover`` flights) and a good
+            start's error explain.
         initial_bias_rad_s: 1-σ uncertainty of the initial gyro bias.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
         velocity_reset_s: every fix rejected for this long resets the INS
@@ -441,6 +468,8 @@ class EskfSettings(FilterSettings):
     mag_rate_hz: float = 10.0
     initial_tilt_rad: float = math.radians(3.0)
     initial_heading_rad: float = math.radians(20.0)
+    initial_average_s: float = 0.0
+    initial_realign_rad: float = math.radians(30.0)
     initial_bias_rad_s: float = math.radians(3.0)
     bias_limit_rad_s: float = math.radians(10.0)
     velocity_reset_s: float = 5.0
@@ -484,6 +513,7 @@ class EskfSettings(FilterSettings):
             "vertical_velocity_noise_m_s", "heading_noise_rad", "gravity_noise_m_s2", "gate_sigma", "velocity_gate_sigma",
             "aiding_timeout_s", "mag_rate_hz", "initial_tilt_rad", "initial_heading_rad",
             "initial_bias_rad_s", "bias_limit_rad_s", "velocity_reset_s", "realign_innovation_rad",
+            "initial_realign_rad",
         ):  # fmt: skip
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -501,6 +531,8 @@ class EskfSettings(FilterSettings):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(self.initial_average_s) and 0.0 <= self.initial_average_s <= 10.0):
+            raise ValueError(f"EskfSettings.initial_average_s must be in [0, 10] s, got {self.initial_average_s!r}")
         if not (math.isfinite(self.realign_after_s) and self.realign_after_s >= 0.0):
             raise ValueError(f"EskfSettings.realign_after_s must be ≥ 0 s, got {self.realign_after_s!r}")
         if not (math.isfinite(self.sensor_delay_s) and 0.0 <= self.sensor_delay_s <= 0.1):
@@ -544,6 +576,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         s[k + _PREV_VEL + i] = math.nan
     for i in range(6):
         s[k + _PREV_IMU + i] = math.nan
+    s[k + _STARTED] = 0.0 if params[p + _INIT_AVG] > 0.0 else 1.0
 
 
 @kernel
@@ -893,10 +926,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     p = P_FILTER
     accel_ok = (flags & FLAG_ACCEL_INVALID) == 0
     mag_ok = (flags & FLAG_MAG_INVALID) == 0
-    q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     gx = row[IN_GYRO] - state[S_BIAS]
     gy = row[IN_GYRO + 1] - state[S_BIAS + 1]
     gz = row[IN_GYRO + 2] - state[S_BIAS + 2]
+    q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
     boost, w_a, w_m = schedule_step(
@@ -938,6 +971,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     state[k + _CLK] += dt
     clk = state[k + _CLK]
     aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
+    if accel_ok and state[k + _STARTED] == 0.0:  # the start window's mean specific force (initial_average_s)
+        state[k + _START] += fn * dt
+        state[k + _START + 1] += fe * dt
+        state[k + _START + 2] += fd * dt
+        state[k + _START + 3] += dt
     if accel_ok:  # also while not aided: a restart needs the velocity change since a late fix's time
         state[k + _V] += fn * dt
         state[k + _V + 1] += fe * dt
@@ -1308,6 +1346,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if tau_g > 0.0:  # the stored NED vectors move with the estimate's frame
                 nav_lowpass_rotate(state, k + _GLP, rx, ry, rz)
                 nav_lowpass_rotate(state, k + _GLP + BW_LEN // 2, rx, ry, rz)
+            if state[k + _STARTED] == 0.0:  # … and so does the start window's sum
+                nav_lowpass_rotate(state, k + _START, rx, ry, rz)
         if aided or r_zv > 0.0 or k_drag > 0.0 or at_rest:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
@@ -1328,6 +1368,22 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             tn = math.sqrt(tx * tx + ty * ty + tz * tz)
             state[kt], state[kt + 1], state[kt + 2] = tx / tn, ty / tn, tz / tn
 
+    if state[k + _STARTED] == 0.0:
+        if state[k + _START + 3] >= params[p + _INIT_AVG]:
+            # the start window is over: the estimate's up against the mean specific force over it
+            state[k + _STARTED] = 1.0
+            mn, me, md = state[k + _START], state[k + _START + 1], state[k + _START + 2]
+            m = math.sqrt(mn * mn + me * me + md * md)
+            if m > 0.0 and -md < params[p + _INIT_COS] * m:
+                # farther off than the mean's own error explains: the first sample was wrong (vibration);
+                # the tilt from the mean, the bias learnt from the wrong start forgotten, the filter restarted
+                if align_tilt_to_force(state, S_Q, mn, me, md, row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok):
+                    for i in range(3):
+                        state[S_BIAS + i] = 0.0
+                    eskf_reset(state, k, params)
+                    state[k + _STARTED] = 1.0
+        else:
+            add_flag(out, FLAG_STARTUP)
     kp = k + _P
     tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
     finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_out)
@@ -1422,6 +1478,8 @@ class Eskf(AttitudeFilter):
         p[_Q_SCALE] = 2.0 * settings.gyro_scale_sigma**2 * settings.gyro_scale_tau_s
         p[_Q_CROSS] = 2.0 * settings.gyro_cross_axis_sigma**2 * settings.gyro_scale_tau_s
         p[_DECL_P0] = settings.declination_sigma_rad**2
+        p[_INIT_AVG] = settings.initial_average_s
+        p[_INIT_COS] = math.cos(min(settings.initial_realign_rad, math.pi))
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()

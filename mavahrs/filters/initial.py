@@ -10,6 +10,14 @@ east is ``e = d × m`` and north ``n = e × d`` (TRIAD); the rows of
 vectors and the same two vectors in NED, the first matched exactly; the
 filters use it with the specific force against ``v̇ − g`` (GNSS) when the
 vehicle is not at rest.
+
+:func:`align_tilt_to_force` is the check of a start: one sample of a raw IMU
+on a vibrating multirotor can be 60–120° off (an aliased motor tone of tens of
+m/s², clipped), while the specific force averaged over the first seconds in
+the estimate's NED frame is gravity up to the vehicle's mean acceleration over
+them (VQF's and the autopilots' practice of averaging the first samples; the
+NED-frame average of Laidig & Seel 2023); a filter whose estimate disagrees
+with that mean by far more than the mean's own error re-aligns its tilt to it.
 """
 
 from __future__ import annotations
@@ -17,8 +25,9 @@ from __future__ import annotations
 import math
 
 from mavahrs.filters.jit import kernel
+from mavahrs.filters.kinematics import ned_to_body, rotate_nav
 
-__all__ = ["quat_from_matrix_rows", "initial_attitude", "triad_attitude"]
+__all__ = ["quat_from_matrix_rows", "initial_attitude", "triad_attitude", "align_tilt_to_force"]
 
 
 @kernel
@@ -117,4 +126,32 @@ def triad_attitude(b1x, b1y, b1z, b2x, b2y, b2z, r1x, r1y, r1z, r2x, r2y, r2z, o
         t1rz * t1bz + t2rz * t2bz + t3rz * t3bz,
         out, k,
     )  # fmt: skip
+    return True
+
+
+@kernel
+def align_tilt_to_force(q_state, kq, mn, me, md, mx, my, mz, mag_ok):  # type: ignore[no-untyped-def]
+    """Re-align ``q_state[kq:kq+4]`` so that the mean specific force ``(mn, me, md)`` (NED of that attitude)
+    points up: (0, 0, −‖f̄‖).
+
+    The smallest rotation taking f̄'s direction to (0, 0, −1), which keeps the heading; with a valid
+    magnetometer sample instead TRIAD from the mean force in today's body axes (Cᵀf̄) and that field
+    (:func:`initial_attitude`), since a tilt far off at the first sample made the first heading wrong too.
+    Returns False (nothing changed) when the mean is zero or not finite.
+    """
+    m = math.sqrt(mn * mn + me * me + md * md)
+    if not (m > 0.0 and math.isfinite(m)):
+        return False
+    if mag_ok:
+        bx, by, bz = ned_to_body(q_state[kq], q_state[kq + 1], q_state[kq + 2], q_state[kq + 3], mn, me, md)
+        initial_attitude(bx, by, bz, mx, my, mz, True, q_state, kq)
+        return True
+    # the measured down u = −f̄/‖f̄‖ to (0, 0, 1): about u × ẑ = (u_E, −u_N, 0) by the angle between them
+    un, ue, ud = -mn / m, -me / m, -md / m
+    s = math.sqrt(un * un + ue * ue)
+    ang = math.atan2(s, ud)
+    if s > 1e-12:
+        rotate_nav(q_state, kq, ue / s * ang, -un / s * ang, 0.0)
+    elif ud < 0.0:
+        rotate_nav(q_state, kq, math.pi, 0.0, 0.0)  # exactly upside down: about north
     return True
