@@ -565,7 +565,7 @@ def mag_status(
     without a magnetometer reading.  ``heading_from`` says what holds the heading while the
     compass is not used: GNSS while velocity-aided, else the gyro, and ``"unknown"`` while the
     compass is not trusted and the filter's heading 1-σ (``OUT_HEADING_SIGMA``, NaN for filters
-    without one) is at or above :data:`HEADING_UNKNOWN_SIGMA_DEG`; ``heading_sigma_deg`` where the
+    without one) is at or above :data:`HEADING_UNKNOWN_SIGMA_DEG`; ``filter_heading_sigma_deg`` where the
     filter gives it.  ``declination_*``: the filter's learnt correction of the WMM declination
     (``EskfSettings.declination_sigma_rad``).
     """
@@ -582,7 +582,7 @@ def mag_status(
     status["heading_from"] = "GNSS" if flags & FLAG_VELOCITY_AIDED else "gyro"
     sigma = float(out[OUT_HEADING_SIGMA])
     if math.isfinite(sigma):
-        status["heading_sigma_deg"] = round(math.degrees(sigma), 1)
+        status["filter_heading_sigma_deg"] = round(math.degrees(sigma), 1)
         if status.get("state") != "trusted" and math.degrees(sigma) >= HEADING_UNKNOWN_SIGMA_DEG:
             status["heading_from"] = "unknown"
     status["declination_correction_deg"] = round(math.degrees(declination_rad), 2)

@@ -96,7 +96,7 @@ def test_status_says_disturbed_in_the_anomaly(flight) -> None:  # type: ignore[n
     outs = [res.inputs.run_filter(off, 0, i8)]  # as the pipeline runs it (WMM reference)
     st = off.mag_status()
     assert st["state"] == "disturbed" and st["model"] == "off" and st["heading_from"] == "unknown", st
-    assert st["heading_sigma_deg"] >= HEADING_UNKNOWN_SIGMA_DEG, st
+    assert st["filter_heading_sigma_deg"] >= HEADING_UNKNOWN_SIGMA_DEG, st
     assert mag_state_text(st) == HEADING_UNKNOWN_TEXT
     # wait for the heading to become known (GNSS), in 0.5 s steps as a status reader polls
     i0, known_at = i8, None
