@@ -24,8 +24,9 @@ firmware_sim flights (``--sim-seeds``): scenario ``mag_anomaly`` with
 ArduPilot-like magnitudes — a ground anomaly of (12, −8, 15) µT NED decaying
 to 1/8 at 3 m, motor interference (−0.4, 0.2, 0.5) µT/A at 28 A in hover
 (``arducopter_magnetic``'s SIM_MAG_MOT) — 200 s, written to a temporary
-folder and deleted.  Also printed per flight: the model's learnt field per
-ampere and its state at the end (``mag_model_summary``).
+folder and deleted.  Also printed per flight: how long and until when the
+status said "heading unknown: compass disturbed" (the replay header's note,
+model on).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ if str(REPO) not in sys.path:
 from mavahrs.evaluation.tlogdata import interpolate_attitude  # noqa: E402
 from mavahrs.filters.best import BestSettings  # noqa: E402
 from mavahrs.filters.eskf import EskfSettings  # noqa: E402
-from mavahrs.filters.magfield import MagFieldSettings  # noqa: E402
+from mavahrs.filters.magfield import HEADING_UNKNOWN_TEXT, MagFieldSettings  # noqa: E402
 from mavahrs.replay import ReplaySettings, attitude_at_reference, replay  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location("bench_sitl", REPO / "scripts" / "bench_sitl.py")
@@ -85,6 +86,8 @@ def run(path: Path, skip_s: float) -> dict[str, object]:
     }
     if "autopilot ATTITUDE" in on.references:
         out["autopilot ATTITUDE"] = _score(on, "autopilot ATTITUDE", skip_s)
+    unknown = [n for n in on.notes if n.startswith("best: ") and HEADING_UNKNOWN_TEXT in n]
+    out["heading unknown"] = unknown[0].split("for ", 1)[1] if unknown else "never"
     cur = on.inputs.rows[:, 14]
     out["current"] = "yes" if np.isfinite(cur).any() else "none"
     return out
@@ -117,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
                 cells = " | ".join(
                     f"{n}: {v[0]:.2f} / {v[1]:.2f}" for n, v in r.items() if isinstance(v, tuple)
                 )
-                print(f"{key} (current: {r['current']}) | {cells}", flush=True)
+                print(f"{key} (current: {r['current']}) | {cells} | heading unknown: {r['heading unknown']}", flush=True)
                 if path != log:
                     path.unlink()
     print("\n(inclination / heading RMS, degrees; truth SIMSTATE / HIL_STATE_QUATERNION; first "

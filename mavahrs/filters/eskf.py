@@ -119,6 +119,9 @@ from mavahrs.filters.magfield import (
     mag_status,
     magfield_params,
 )
+from mavahrs.filters.magfield import (
+    NX as MF_NX,
+)
 from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
@@ -145,6 +148,14 @@ _P0_VEL_FLYING = 5.0**2
 #: … and when velocity aiding (re)starts
 _RESTART_TILT = math.radians(20.0) ** 2
 _RESTART_HEADING = math.radians(45.0) ** 2
+#: the heading variance at or above which it is unknown (magfield.HEADING_UNKNOWN_SIGMA_DEG), rad²
+_UNKNOWN_HEADING_VAR = math.radians(30.0) ** 2
+#: the magnetometer model's field-per-ampere variance below which it is known, (µT/A)²
+_KNOWN_MOTOR_VAR = 0.06**2
+#: the model's motor field, µT², at or above which its corrected reading may reset an unknown heading
+_MIN_MOTOR_FIELD_UT2 = 3.0**2
+#: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
+_FIT_DIP_RAD = math.radians(3.0)
 
 # filter parameters, offsets from P_FILTER
 _Q_GYRO = 0  # gyro noise density², rad²/s
@@ -235,7 +246,8 @@ _TREF = _GW + 1  # the body axis (0, 1, 2) the thrust axis's error basis is buil
 _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the filter's (WMM-magnetic) frame, rad
 _START = _DECL + 1  # the start window: ∫ f_NED dt in the estimate's frame (3), the time (1)
 _STARTED = _START + 4  # 1: the start window is over (or there is none)
-_N_STATE = _STARTED + 1
+_FIT_T = _STARTED + 1  # clock since when the model's corrected readings fit the WMM while the heading is unknown (0: not)
+_N_STATE = _FIT_T + 1
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -914,6 +926,59 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
 
 
 @kernel
+def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-untyped-def]
+    """The heading set from the model's corrected reading while it is unknown (σ ≥ 30°, a start in a
+    ground anomaly) and the model's field per ampere is known (every σ ≤ 0.06 µT/A: a model loaded
+    from an earlier flight, or learnt): once the corrected reading's norm and dip have fitted the WMM's
+    (5 %, 3°) for 1 s while the motors' field is ≥ 3 µT (the vehicle in the air, out of the anomaly), the heading is rotated to it and its variance
+    set to the heading noise (ArduPilot's EKF3 resets its yaw to the compass after take-off for the
+    same reason).  firmware_sim ``mag_anomaly``: with a model saved from another flight the corrected
+    readings point within 1° of the field's azimuth 2–3 s after take-off (docs/accuracy.md)."""
+    p = P_FILTER
+    kp = k + _P
+    km = k + _MAGF
+    ref_norm = params[P_SCHED + _g.GP_MAG_REF_NORM]
+    ok = s_pos(s[kp + 2 * N + 2]) >= _UNKNOWN_HEADING_VAR and ref_norm > 0.0 and amps == amps
+    if ok:  # the model explains a field of note (the motors run): on the ground at rest the reading is the raw one
+        kx = km + MF_X
+        bx, by, bz = amps * s[kx + 3], amps * s[kx + 4], amps * s[kx + 5]
+        ok = bx * bx + by * by + bz * bz >= _MIN_MOTOR_FIELD_UT2
+    for i in range(3, 6):
+        ok = ok and s_pos(s[km + MF_P + i * MF_NX + i]) <= _KNOWN_MOTOR_VAR
+    kc = k + _C
+    mx, my, mz = scr[0], scr[1], scr[2]
+    hn = s[kc + 0] * mx + s[kc + 1] * my + s[kc + 2] * mz
+    he = s[kc + 3] * mx + s[kc + 4] * my + s[kc + 5] * mz
+    hd = s[kc + 6] * mx + s[kc + 7] * my + s[kc + 8] * mz
+    bh = math.sqrt(hn * hn + he * he)
+    if ok:
+        norm = math.sqrt(bh * bh + hd * hd)
+        ok = abs(norm / ref_norm - 1.0) <= 0.05 and abs(math.atan2(hd, bh) - params[P_SCHED + _g.GP_MAG_REF_DIP]) <= _FIT_DIP_RAD
+    if not ok:
+        s[k + _FIT_T] = 0.0
+        return
+    if s[k + _FIT_T] <= 0.0:
+        s[k + _FIT_T] = clk
+        return
+    if clk - s[k + _FIT_T] < 1.0:
+        return
+    s[k + _FIT_T] = 0.0
+    psi = math.atan2(he, hn) - s[k + _DECL]
+    psi = math.atan2(math.sin(psi), math.cos(psi))
+    # ψ ≈ −δθ_D: rotate the estimate about down by −ψ (the error state's injection, q ← δq ⊗ q)
+    h = -0.5 * psi
+    a0, a1, a2, a3 = s[S_Q], s[S_Q + 1], s[S_Q + 2], s[S_Q + 3]
+    s[S_Q], s[S_Q + 1], s[S_Q + 2], s[S_Q + 3] = quat_multiply(math.cos(h), 0.0, 0.0, math.sin(h), a0, a1, a2, a3)
+    if params[p + _GRAV_TAU] > 0.0:
+        nav_lowpass_rotate(s, k + _GLP, 0.0, 0.0, -psi)
+        nav_lowpass_rotate(s, k + _GLP + BW_LEN // 2, 0.0, 0.0, -psi)
+    for j in range(N):
+        s[kp + 2 * N + j] = 0.0
+        s[kp + j * N + 2] = 0.0
+    s[kp + 2 * N + 2] = params[p + _R_HEADING]
+
+
+@kernel
 def step(state, params, row, out):  # type: ignore[no-untyped-def]
     """One ESKF update (see the module docstring for the equations)."""
     dt = begin_step(state, params, row, out)
@@ -1262,6 +1327,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 and s_pos(state[k + _P + 2 * N + 2]) < params[p + _R_MODEL_MAX]
             ):  # fmt: skip
                 eskf_reopen_attitude(state, k, params, 0.0, params[p + _R_MODEL_MAX])
+        _heading_reset_from_model(state, k, params, scr, row[IN_CURRENT], clk)
         if not use_mag:
             state[k + _LAST_MAG] = clk
     if model_on:

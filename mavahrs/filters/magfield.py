@@ -63,7 +63,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import FLAG_MAG_INVALID, FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_MAG_WEIGHT
+from mavahrs.filters.layout import (
+    FLAG_MAG_INVALID,
+    FLAG_VELOCITY_AIDED,
+    OUT_FLAGS,
+    OUT_HEADING_SIGMA,
+    OUT_MAG_WEIGHT,
+)
 
 __all__ = [
     "MagFieldSettings",
@@ -80,6 +86,8 @@ __all__ = [
     "mag_state_text",
     "DISTURBED_TEXT",
     "DISTURBED_GYRO_TEXT",
+    "HEADING_UNKNOWN_TEXT",
+    "HEADING_UNKNOWN_SIGMA_DEG",
     "mag_status",
     "export_model",
     "import_model",
@@ -536,6 +544,14 @@ def import_model(block: np.ndarray, settings: MagFieldSettings, saved: object) -
 
 #: the status line while the magnetometer is not used and no GNSS velocity holds the heading
 DISTURBED_GYRO_TEXT = "magnetometer disturbed: heading from the gyro"
+#: … while the compass is not trusted and nothing has told the heading yet (its 1-σ at or above
+#: :data:`HEADING_UNKNOWN_SIGMA_DEG`): a start in a ground anomaly, where the heading at take-off is the
+#: disturbed compass's until the first horizontal acceleration (firmware_sim ``mag_anomaly`` seed 11:
+#: 28–31° off, σ 40–50°, until 16 s)
+HEADING_UNKNOWN_TEXT = "heading unknown: compass disturbed"
+#: heading 1-σ, degrees, at or above which an untrusted compass's heading is reported unknown (the ESKF's
+#: re-opened heading is 45°; after the first horizontal accelerations it falls below 30° within 2 s)
+HEADING_UNKNOWN_SIGMA_DEG = 30.0
 
 
 def mag_status(
@@ -547,8 +563,11 @@ def mag_status(
     the state is the trust the filter gave the last reading (``out``, its output row: weight ≥ 0.5
     trusted, a valid reading below it disturbed — the replay header's criterion), ``"absent"``
     without a magnetometer reading.  ``heading_from`` says what holds the heading while the
-    compass is not used: GNSS while velocity-aided, else the gyro.  ``declination_*``: the
-    filter's learnt correction of the WMM declination (``EskfSettings.declination_sigma_rad``).
+    compass is not used: GNSS while velocity-aided, else the gyro, and ``"unknown"`` while the
+    compass is not trusted and the filter's heading 1-σ (``OUT_HEADING_SIGMA``, NaN for filters
+    without one) is at or above :data:`HEADING_UNKNOWN_SIGMA_DEG`; ``filter_heading_sigma_deg`` where the
+    filter gives it.  ``declination_*``: the filter's learnt correction of the WMM declination
+    (``EskfSettings.declination_sigma_rad``).
     """
     flags = int(out[OUT_FLAGS]) if np.isfinite(out[OUT_FLAGS]) else 0
     if model is not None:
@@ -561,6 +580,11 @@ def mag_status(
             state = "trusted" if float(out[OUT_MAG_WEIGHT]) >= 0.5 else "disturbed"
         status = {"state": state, "model": "off"}
     status["heading_from"] = "GNSS" if flags & FLAG_VELOCITY_AIDED else "gyro"
+    sigma = float(out[OUT_HEADING_SIGMA])
+    if math.isfinite(sigma):
+        status["filter_heading_sigma_deg"] = round(math.degrees(sigma), 1)
+        if status.get("state") != "trusted" and math.degrees(sigma) >= HEADING_UNKNOWN_SIGMA_DEG:
+            status["heading_from"] = "unknown"
     status["declination_correction_deg"] = round(math.degrees(declination_rad), 2)
     status["declination_sigma_deg"] = round(math.degrees(declination_sigma_rad), 2)
     return status
@@ -573,6 +597,8 @@ def mag_state_text(summary: dict[str, object] | None) -> str:
     if not summary:
         return ""
     state = summary.get("state")
+    if summary.get("heading_from") == "unknown":
+        return HEADING_UNKNOWN_TEXT
     if state == "disturbed":
         return DISTURBED_GYRO_TEXT if summary.get("heading_from") == "gyro" else DISTURBED_TEXT
     decl = summary.get("declination_correction_deg")

@@ -496,10 +496,22 @@ def _replay_log(
 
 
 def _mag_notes(result: ReplayResult) -> list[str]:
-    """``magnetometer disturbed: heading from GNSS`` for the velocity-aided filters, with how long; the
+    """``magnetometer disturbed: heading from GNSS`` for the velocity-aided filters, with how long;
+    ``heading unknown: compass disturbed`` with how long and until when (the compass not trusted and the
+    heading 1-σ at or above ``HEADING_UNKNOWN_SIGMA_DEG``: a start in a ground anomaly); the
     magnetometer's state at the end (model, offsets, learnt declination) where the filter has one."""
-    from mavahrs.filters.layout import FLAG_MAG_INVALID, FLAG_VELOCITY_AIDED, OUT_MAG_WEIGHT
-    from mavahrs.filters.magfield import DISTURBED_TEXT, mag_state_text
+    from mavahrs.filters.layout import (
+        FLAG_MAG_INVALID,
+        FLAG_VELOCITY_AIDED,
+        OUT_HEADING_SIGMA,
+        OUT_MAG_WEIGHT,
+    )
+    from mavahrs.filters.magfield import (
+        DISTURBED_TEXT,
+        HEADING_UNKNOWN_SIGMA_DEG,
+        HEADING_UNKNOWN_TEXT,
+        mag_state_text,
+    )
 
     notes = []
     t = result.inputs.t_us
@@ -507,10 +519,17 @@ def _mag_notes(result: ReplayResult) -> list[str]:
         if name not in ("best", "eskf") or tr.out.shape[0] < 2:
             continue
         flags = tr.out[:, OUT_FLAGS].astype(np.int64)
+        dt = np.diff(t, prepend=t[0]) * 1e-6
+        sigma = tr.out[:, OUT_HEADING_SIGMA]
+        with np.errstate(invalid="ignore"):
+            unknown = (tr.out[:, OUT_MAG_WEIGHT] < 1.0) & (np.degrees(sigma) >= HEADING_UNKNOWN_SIGMA_DEG)
+        if float(dt[unknown].sum()) >= 1.0:
+            last = float((t[np.flatnonzero(unknown)[-1]] - t[0]) * 1e-6)
+            notes.append(f"{name}: {HEADING_UNKNOWN_TEXT} for {float(dt[unknown].sum()):.0f} s (last at "
+                         f"{last:.0f} s after the first sample)")  # fmt: skip
         off = ((flags & FLAG_VELOCITY_AIDED) != 0) & ((flags & FLAG_MAG_INVALID) == 0) & (tr.out[:, OUT_MAG_WEIGHT] == 0.0)
         if not off.any():
             continue
-        dt = np.diff(t, prepend=t[0]) * 1e-6
         secs = float(dt[off].sum())
         if secs >= 1.0:
             notes.append(f"{name}: {DISTURBED_TEXT} for {secs:.0f} s ({100.0 * off.mean():.0f} % of the samples)")

@@ -209,7 +209,8 @@
     set("bias", s.bias_deg_s ? s.bias_deg_s.map((v) => signed(v, 2)).join("  ") : "–");
     set("gnss", s.gnss_velocity || "–");
     const mm = s.magnetometer;  // the magnetometer's state: the learnt model, or the filter's trust (best / eskf)
-    set("mag-state", mm ? (mm.state === "disturbed" ? "disturbed: heading from " + (mm.heading_from || "GNSS")
+    set("mag-state", mm ? (mm.heading_from === "unknown" ? "heading unknown: compass disturbed"
+      : mm.state === "disturbed" ? "disturbed: heading from " + (mm.heading_from || "GNSS")
       : mm.state + (mm.model === "off" ? " (model off)" : "")) : "–");
     const decl = mm && typeof mm.declination_correction_deg === "number"
       ? "declination " + signed(mm.declination_correction_deg, 2) + " ± " + fmt(mm.declination_sigma_deg, 2) + "° from the WMM's" : "";
