@@ -166,7 +166,10 @@ def best_eskf_settings() -> EskfSettings:
     undeclared multirotor's sustained thrust tilt pulls less on the tilt (firmware_sim raw
     ``aggressive`` 1/2/4/5 12.7 → 8.7° mean, better than VQF on all 20 raw flights measured; the
     vibrating SITL set 5.49 → 5.01°) for BROAD 9-axis heading 1.66 → 1.70° (VQF 2.30°),
-    inclination 0.656 → 0.660°, raw 1.09 → 1.10°.  On an autopilot's stream or a
+    inclination 0.656 → 0.660°, raw 1.09 → 1.10°.  No gyro scale-factor noise here
+    (``gyro_scale_sigma`` 0; a vehicle's stream has it, where the monitor reads the heading σ): on
+    BROAD it let the magnetometer pull harder in rotation, heading 1.70 → 1.76° (magnet trials
+    1.92 / 1.73 → 2.13 / 2.04°, rotation 1.82 → 1.66°).  On an autopilot's stream or a
     declared multirotor :func:`vehicle_eskf_settings` replaces these.  ``sensor_delay_s`` is set per stream by the
     pipeline from the autopilot's scaling profile (:meth:`Best.set_sensor_delay`).
     """
@@ -178,6 +181,7 @@ def best_eskf_settings() -> EskfSettings:
         mag_rate_hz=100.0,
         gate_sigma=4.0,
         initial_average_s=BEST_INITIAL_AVERAGE_S,
+        gyro_scale_sigma=0.0,
     )
 
 
@@ -209,6 +213,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         mag_rate_hz=d.mag_rate_hz,
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,
+        gyro_scale_sigma=d.gyro_scale_sigma,
     )
 
 
