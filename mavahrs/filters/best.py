@@ -500,6 +500,9 @@ class Best(AttitudeFilter):
         eskf = s.eskf
         if eskf.thrust_axis_sigma_rad > 0.0:  # set by set_multirotor() before: its drag noise undone too
             eskf = replace(eskf, thrust_axis_sigma_rad=0.0, drag_noise_m_s2=EskfSettings().drag_noise_m_s2)
+        # an autopilot's IMU is calibrated and low-passed: its first sample is the start, no start window
+        # (``initial_average_s``, built for a raw IMU's vibration through the API)
+        eskf = replace(eskf, initial_average_s=0.0)
         self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:

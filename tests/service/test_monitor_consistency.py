@@ -70,14 +70,12 @@ def _runs(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
     return out
 
 
-def test_our_tilt_sigma_holds_our_tilt_error_once_airborne(flight: dict) -> None:
-    """From leaving the ground on (take-off included: the first bank is where a heading taken for certain
-    turns into a tilt error), our tilt error never stays beyond the monitor's k·σ for as long as the
-    monitor's trigger time: the monitor takes that σ as what our error can be."""
-    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_Q
-    from mavahrs.service.monitor import align_attitudes, divergence_series
+def _airborne_aided(flight: dict) -> tuple:
+    """Our track from take-off on while GNSS-aided: the track, its times (s), the selection and the truth there."""
+    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS
+    from mavahrs.service.monitor import align_attitudes
 
-    res, s = flight["res"], flight["settings"]
+    res = flight["res"]
     takeoff = next((t for t, a in flight["air"] if a), None)
     assert takeoff is not None, "the simulated flight never left the ground"
     track = next(iter(res.tracks.values()))
@@ -85,9 +83,21 @@ def test_our_tilt_sigma_holds_our_tilt_error_once_airborne(flight: dict) -> None
     aided = (track.out[:, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
     sel = (t_s >= takeoff) & aided
     assert sel.sum() > 1000, "our filter was not GNSS-aided in flight"
-    q = track.out[:, OUT_Q : OUT_Q + 4]  # the published attitude (the replay applies the declination)
     t_tr, q_tr = res.references[flight["truth"]]
     q_true = align_attitudes(t_tr / 1e6, q_tr, t_s[sel], tolerance_ms=30.0)
+    return track, t_s, sel, q_true
+
+
+def test_our_tilt_sigma_holds_our_tilt_error_once_airborne(flight: dict) -> None:
+    """From leaving the ground on (take-off included: the first bank is where a heading taken for certain
+    turns into a tilt error), our tilt error never stays beyond the monitor's k·σ for as long as the
+    monitor's trigger time: the monitor takes that σ as what our error can be."""
+    from mavahrs.filters.layout import OUT_GAIN, OUT_Q
+    from mavahrs.service.monitor import divergence_series
+
+    s = flight["settings"]
+    track, t_s, sel, q_true = _airborne_aided(flight)
+    q = track.out[:, OUT_Q : OUT_Q + 4]  # the published attitude (the replay applies the declination)
     err_deg, _ = divergence_series(t_s[sel], q[sel], t_s[sel], q_true)
     sigma_deg = np.degrees(track.out[sel, OUT_GAIN])
     beyond = np.nan_to_num(err_deg, nan=0.0) > s.sigma_k * sigma_deg
@@ -100,21 +110,13 @@ def test_our_heading_sigma_holds_our_heading_error_once_airborne(flight: dict) -
     """The same for the heading, which the monitor takes from the ESKF's own covariance
     (``OUT_HEADING_SIGMA``): through fast yaw (spins up to 400°/s, where the gyro's scale-factor error turns
     into heading error) our heading error never stays beyond k·σ for the trigger time."""
-    from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, IN_GYRO, OUT_FLAGS, OUT_HEADING_SIGMA, OUT_Q
-    from mavahrs.service.monitor import align_attitudes, divergence_series
+    from mavahrs.filters.layout import IN_GYRO, OUT_HEADING_SIGMA, OUT_Q
+    from mavahrs.service.monitor import divergence_series
 
     res, s = flight["res"], flight["settings"]
-    takeoff = next((t for t, a in flight["air"] if a), None)
-    assert takeoff is not None, "the simulated flight never left the ground"
-    track = next(iter(res.tracks.values()))
-    t_s = res.inputs.t_us / 1e6
-    aided = (track.out[:, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
-    sel = (t_s >= takeoff) & aided
-    assert sel.sum() > 1000, "our filter was not GNSS-aided in flight"
+    track, t_s, sel, q_true = _airborne_aided(flight)
     sigma_deg = np.degrees(track.out[sel, OUT_HEADING_SIGMA])
     assert np.isfinite(sigma_deg).all() and (sigma_deg > 0).all(), "the ESKF gave no heading σ while aided"
-    t_tr, q_tr = res.references[flight["truth"]]
-    q_true = align_attitudes(t_tr / 1e6, q_tr, t_s[sel], tolerance_ms=30.0)
     _, hdg_err_deg = divergence_series(t_s[sel], track.out[sel, OUT_Q : OUT_Q + 4], t_s[sel], q_true)
     beyond = np.abs(np.nan_to_num(hdg_err_deg, nan=0.0)) > s.sigma_k * sigma_deg
     long = [(a, b) for a, b in _runs(t_s[sel], beyond) if b - a >= s.trigger_s]
