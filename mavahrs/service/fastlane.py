@@ -52,6 +52,7 @@ from mavahrs.filters.jit import kernel
 from mavahrs.filters.layout import (
     FLAG_NOT_INITIALISED,
     IN_ACCEL,
+    IN_CURRENT,
     IN_DT,
     IN_GYRO,
     IN_VEL,
@@ -66,6 +67,7 @@ from mavahrs.ingest.timeline import F_LEN as TL_F_LEN
 from mavahrs.ingest.timeline import K_OK, NO_NOW, T_RAW_MAX, new_state, timeline_step
 from mavahrs.protocol.codec import mavlink
 from mavahrs.protocol.fast_tlog import _CRC_TABLE, _wire_dtype, _x25_crc
+from mavahrs.sensors.current import CURRENT_STALE_S
 from mavahrs.sensors.scaling import C_LEN, scale_int_row
 
 __all__ = ["FastLane"]
@@ -338,6 +340,17 @@ class FastLane:
             return
         if p._vel is not None:
             return
+        # the battery current the pipeline puts in every sample's row (the magnetometer model's motor field):
+        # the same here, held while it stays fresh; about to go stale, the Python path decides
+        current_us = p._current_us
+        current = math.nan
+        if current_us is not None:
+            left_s = CURRENT_STALE_S - (p._last_now_us - current_us) * 1e-6
+            if abs(left_s) < 1.0:
+                return
+            if left_s > 0.0:
+                current = p._current_a
+        self._row[IN_CURRENT] = current
         fcfg[:C_LEN] = scaler.scale_constants(ms)
         fcfg[F_DECL] = p._decl.declination_rad
         icfg[I_SYS], icfg[I_COMP], icfg[I_IMU] = src[0], src[1], imu

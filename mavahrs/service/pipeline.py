@@ -627,6 +627,7 @@ class Pipeline:
         self._monitor_fix: tuple[float, float, float] | None = None  # GNSS velocity (true N, E) and fix time, ms
         self._current_a = _NAN  # battery current (the compass's motor interference model), A
         self._current_us: int | None = None
+        self._last_now_us = 0  # the receive time of the last message handled (µs)
         self._vel_written = True  # row's velocity columns hold NaN already
         if hasattr(self, "_velocity"):
             self._velocity.reset()
@@ -643,6 +644,7 @@ class Pipeline:
     # ------------------------------------------------------------------ entry points
     def handle(self, msg: Any, now_us: int) -> list[Outgoing]:
         """Process one decoded message from the master link; return frames to send."""
+        self._last_now_us = now_us  # (the fast lane's clock: how fresh the battery current still is)
         h = self._handlers.get(msg.get_type())
         if h is None:
             return []

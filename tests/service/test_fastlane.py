@@ -115,6 +115,33 @@ def test_every_answer_is_the_pipelines_frame(name: str, out_rate: float) -> None
     assert answers >= attitudes - 3, f"the lane stood aside on {aside}"  # all but the start
 
 
+def test_the_battery_current_in_the_pipelines_rows_is_the_lanes_too() -> None:
+    # ``best`` on an autopilot's stream runs the magnetometer model, whose motor field scales with the
+    # battery current (SYS_STATUS) the pipeline puts in every sample's row: the lane's rows carry the
+    # same current while it is fresh, and no current once it has gone stale (5 s without SYS_STATUS)
+    from mavahrs.filters.layout import IN_CURRENT
+
+    ap = Autopilot()
+    dgrams = []
+    for i, d in enumerate(ap.stream(3200)):
+        dgrams.append(d)
+        if i % 40 == 1 and i < 1200:  # 10 Hz for the first 3 s, then none
+            msg = ap.codec.mav.sys_status_encode(0, 0, 0, 500, 11100, 1500 + (i % 400), 80, 0, 0, 0, 0, 0, 0)
+            dgrams.append(ap.codec.encode(msg))
+    pipe = Pipeline(PipelineSettings(filter_name="best"))
+    answers, attitudes, aside, _ = _run(pipe, dgrams)
+    assert answers >= attitudes - 200, f"the lane stood aside on {len(aside)} samples"
+    assert pipe._row[IN_CURRENT] != pipe._row[IN_CURRENT]  # stale at the end: NaN in the pipeline's row …
+    lane = FastLane(pipe)
+    lane.refresh()
+    assert math.isnan(lane._row[IN_CURRENT])  # … and in the lane's
+    fresh = Pipeline(PipelineSettings(filter_name="best"))
+    _run(fresh, dgrams[:1100])  # 2.7 s in: SYS_STATUS at 10 Hz
+    lane = FastLane(fresh)
+    lane.refresh()
+    assert 15.0 <= fresh._row[IN_CURRENT] <= 19.0 and lane._row[IN_CURRENT] == fresh._row[IN_CURRENT]
+
+
 def test_it_stands_aside_where_the_steady_state_ends() -> None:
     """Saturation, a gap, a duplicate, MAVLink 1, a bad CRC, a foreign source, GNSS velocity, declination."""
     ap = Autopilot(seed=2)
