@@ -35,15 +35,21 @@ ON = BestSettings(eskf=EskfSettings(mag_model=MagFieldSettings(enabled=True)))
 OFF = BestSettings(eskf=EskfSettings(mag_model=MagFieldSettings(enabled=False)))
 
 
-@pytest.fixture(scope="module")
-def flight(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    path = tmp_path_factory.mktemp("mag") / "mag_anomaly.tlog"
-    args = ["--tlog", str(path), "--fast", "-q", "--scenario", "mag_anomaly", "--seed", "5", "--duration", "120",
+def _anomaly_replay(path, seed: int):  # type: ignore[no-untyped-def]
+    """firmware_sim's ``mag_anomaly`` flight (120 s, ArduPilot-like magnitudes) written to ``path``, replayed
+    with ``best`` and removed."""
+    args = ["--tlog", str(path), "--fast", "-q", "--scenario", "mag_anomaly", "--seed", str(seed), "--duration", "120",
             "--mag-anomaly-ut", "12,-8,15", "--mag-anomaly-height-m", "3",
             "--mag-motor-ut-per-a=" + ",".join(str(v) for v in MOTOR_UT_PER_A), "--hover-current-a", "28"]  # fmt: skip
     assert sim_main(args) == 0
     res = replay(path, ReplaySettings(filters=("best",)))
     path.unlink()
+    return res
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    res = _anomaly_replay(tmp_path_factory.mktemp("mag") / "mag_anomaly.tlog", 5)
     truth = next(k for k in res.references if "truth" in k)
     return res, res.references[truth]
 
@@ -137,13 +143,7 @@ def test_saved_model_resets_the_unknown_heading_after_take_off(flight, tmp_path)
     the ground anomaly left unknown once the vehicle is in the air, before any horizontal acceleration:
     the status says the heading is known, and it is near the truth; without it the heading stays unknown."""
     res, truth = flight
-    other = tmp_path / "other.tlog"
-    args = ["--tlog", str(other), "--fast", "-q", "--scenario", "mag_anomaly", "--seed", "3", "--duration", "120",
-            "--mag-anomaly-ut", "12,-8,15", "--mag-anomaly-height-m", "3",
-            "--mag-motor-ut-per-a=" + ",".join(str(v) for v in MOTOR_UT_PER_A), "--hover-current-a", "28"]  # fmt: skip
-    assert sim_main(args) == 0
-    prev = replay(other, ReplaySettings(filters=("best",)))
-    other.unlink()
+    prev = _anomaly_replay(tmp_path / "other.tlog", 3)
     first = Best(ON)
     prev.inputs.run_filter(first)
     saved = first.export_mag_model()
