@@ -51,6 +51,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     add_velocity_source_option(p, default_text="auto; flight logs only")
     p.add_argument("--no-mag", action="store_true", help="6-axis: do not give the filters the magnetometer")
     p.add_argument(
+        "--multirotor", action="store_true",
+        help="the recording's IMU flew on a multirotor: filters that model one (best, eskf) use the rotor-drag "
+        "measurement, as the daemon does on a multirotor's HEARTBEAT (a flight log's own HEARTBEAT decides "
+        "without it)",
+    )  # fmt: skip
+    p.add_argument(
         "--align", default="auto", choices=("auto", "none", "heading", "heading+body"),
         help="reference alignment: auto = none for a north-referenced reference scored 9-axis, "
         "else a fitted heading offset; heading+body also fits a constant body misalignment "
@@ -91,6 +97,9 @@ def _run(args: argparse.Namespace) -> int:
 
     recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto",
                           source=args.source)
+    if args.multirotor:
+        for rec in recordings:
+            rec.extra["multirotor"] = True
     if args.study:
         return _study(args, recordings)
     filters = resolve_filter_names(args.filters)

@@ -118,6 +118,8 @@ def run_filter(
 
         configure_filter(f, float(rec.extra["sensor_delay_s"]), bool(rec.extra.get("vehicle_stream")),  # type: ignore[arg-type]
                          bool(rec.extra.get("multirotor")))  # fmt: skip
+    elif rec.extra.get("multirotor") and hasattr(f, "set_multirotor"):  # a raw recording declared a multirotor
+        f.set_multirotor()
     events = rec.extra.get("mag_reference_events") or ()
     if not events:
         return f.run(inputs)
