@@ -132,6 +132,25 @@ def bench_broad() -> dict[str, dict[str, object]]:
     return res
 
 
+def bench_tstick() -> dict[str, dict[str, object]]:
+    """RepoIMU TStick (hand-held, a check set): inclination 9D / 6D and the decision per recording."""
+    from mavahrs.evaluation.loaders import load_any
+    from mavahrs.filters.base import make_inputs
+
+    res: dict[str, dict[str, object]] = {}
+    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "repoimu_tstick"
+    for rec in load_any(data):
+        r: dict[str, object] = {}
+        for tag, mag in (("9D", rec.mag_ut), ("6D", None)):
+            q, det = run_best(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s))
+            s = summarize(q, rec.q_ref_body_to_ned, rec.scored)
+            r[tag] = (s.inclination_rms_deg, s.heading_rms_deg)
+            r[f"{tag} decision"] = det
+        res[rec.name] = r
+        print(f"{rec.name}: " + ", ".join(f"{k} {v}" for k, v in r.items()), flush=True)
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenarios", nargs="+", default=["aggressive", "hover", "flips", "highg", "vibration"])
@@ -140,6 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--declared", action="store_true", help="also best with set_multirotor()")
     ap.add_argument("--vqf", action="store_true", help="also VQF 2.x 6D")
     ap.add_argument("--broad", action="store_true", help="the BROAD trials instead (decision per trial)")
+    ap.add_argument("--tstick", action="store_true", help="RepoIMU TStick instead (decision per recording)")
     ap.add_argument("--no-detect", action="store_true", help="the plain path without the multirotor hypothesis")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
@@ -147,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     DETECT = not a.no_detect
     if a.broad:
         res = bench_broad()
+    elif a.tstick:
+        res = bench_tstick()
     else:
         res = bench_sim(a.scenarios, a.seeds, a.cache, a.declared, a.vqf)
         for sc in a.scenarios:

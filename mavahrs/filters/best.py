@@ -283,11 +283,11 @@ class MultirotorDetectSettings:
     enabled: bool = True
     accel_sigma_m_s2: float = 0.5
     period_s: float = 0.1
-    forget_s: float = 30.0
-    switch_nats: float = 60.0
+    forget_s: float = 60.0
+    switch_nats: float = 25.0
     back_nats: float = 0.0
-    clip_nats: float = 3.0
-    accel_tau_s: float = 1.0
+    clip_nats: float = 1.0
+    accel_tau_s: float = 0.15
     bias_sigma_rad_s: float = math.radians(0.5)
     force_tolerance: float = 0.4
 
