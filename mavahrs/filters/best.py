@@ -14,7 +14,12 @@ accelerometer is chosen by what is known of the source, never by a separately tu
   low-passed for 2 s in the estimated NED frame (VQF's quasi-inertial low-pass, Laidig & Seel
   2023, as the ESKF's measurement): short accelerations and rotor vibration average out, so
   the gyro bias is learnt in motion through the tilt it causes; every magnetometer reading up
-  to 100 Hz, heading only (:func:`best_eskf_settings`);
+  to 100 Hz, heading only (:func:`best_eskf_settings`); beside it runs the multirotor
+  hypothesis (:func:`multirotor_eskf_settings`, what :meth:`Best.set_multirotor` sets), and its
+  attitude is the output once the likelihood ratio of the two hypotheses' predictions of the
+  specific force across the thrust axis says "multirotor" (:class:`MultirotorDetectSettings`;
+  firmware_sim raw ``aggressive`` 7.0 → 1.1°, the vibrating SITL set 5.01 → 1.29°, no BROAD or
+  RepoIMU TStick trial switched);
 * **without, on an autopilot's stream** (the pipeline calls :meth:`Best.set_vehicle_stream`) —
   a vehicle's accelerations last the whole manoeuvre, which a 2 s low-pass would carry: the
   specific force averaged over 0.1 s in NED (an autopilot-filtered stream's sample; a raw
@@ -35,7 +40,7 @@ data                                       ``best``        ``best`` before     V
 BROAD 9-axis (16 trials): incl. / heading  0.66 / 1.66     0.705 / 1.69        0.71 / 2.30
 BROAD 6-axis                               0.655           0.704               0.71
 BROAD as a raw IMU (1–5 °/s bias, no rest)  1.09            1.98                4.85
-SITL raw, 200 Hz, vibration, plain API      5.49            5.43                11.67
+SITL raw, 200 Hz, vibration, plain API      1.29            5.01                11.67
 the same, ``set_multirotor()``              1.24            2.25; 23.8          –
 ArduCopter SITL with GNSS / without         0.22 / 0.63     (unchanged)         8.2
 =========================================  ==============  ==================  ========
