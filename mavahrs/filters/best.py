@@ -322,7 +322,8 @@ class BestSettings(FilterSettings):
             the gyro less the ESKF's bias estimate (learnt in motion).
         fade_s: after the velocity-aided filter loses its aiding
             (``eskf.aiding_timeout_s`` without a fix), the output moves from
-            its attitude to the Madgwick attitude over this long, s.
+            its attitude to the Madgwick attitude over this long, s; and on the
+            plain path from one hypothesis's attitude to the other's (``detect``).
         unaided_filter: the filter whose attitude is sent without velocity
             aiding: ``"eskf"`` (the default: one estimator in every condition,
             its zero-velocity and gravity updates; the Madgwick part runs beside
@@ -375,7 +376,8 @@ _SWITCHES = _T_MODE + 1  # how often the output changed hypothesis
 _LLR_MAX = _SWITCHES + 1  # the largest evidence seen
 _AG = _LLR_MAX + 1  # the generic hypothesis's last motion acceleration (its residual, body, 3)
 _DH = _AG + 3  # scratch: a prediction's h on the error state (ERROR_STATE_LEN)
-_N_STATE = _DH + ERROR_STATE_LEN - S_FILTER
+_W2 = _DH + ERROR_STATE_LEN  # output weight of the multirotor hypothesis, 0 … 1 (moves over fade_s)
+_N_STATE = _W2 + 1 - S_FILTER
 _PM = P_FILTER  # Madgwick params
 _PE = _PM + _PLM  # ESKF params
 _FADE = _PE + _PLE
@@ -618,15 +620,37 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # re-aligns it by TRIAD, and the ESKF restarts its aiding from that attitude (above); without
         # it the ESKF restarted from the accelerometer 20–45° off and took 5 s to recover (60° at 3–5 s)
         state[_W] = 1.0 if aided else 0.0
-        src = oe2 if multirotor else oe
+        # the output moves between the hypotheses over fade_s (a switch is not a step in the attitude)
+        w2 = state[_W2]
+        if detect:
+            fade = params[_FADE]
+            d = row[IN_DT]
+            inc = d / fade if (fade > 0.0 and d > 0.0 and d < 1.0) else 1.0
+            w2 = min(w2 + inc, 1.0) if multirotor else max(w2 - inc, 0.0)
+        else:
+            w2 = 0.0
+        state[_W2] = w2
+        src = oe2 if w2 >= 0.5 else oe
         for i in range(OUT_WIDTH):
             out[i] = src[i]
+        if 0.0 < w2 < 1.0:  # normalised linear blend, same hemisphere
+            dot = 0.0
+            for i in range(4):
+                dot += oe2[OUT_Q + i] * oe[OUT_Q + i]
+            sgn = 1.0 if dot >= 0.0 else -1.0
+            nq = 0.0
+            for i in range(4):
+                out[OUT_Q + i] = w2 * oe2[OUT_Q + i] + (1.0 - w2) * sgn * oe[OUT_Q + i]
+                nq += out[OUT_Q + i] * out[OUT_Q + i]
+            nq = math.sqrt(nq)
+            for i in range(4):
+                out[OUT_Q + i] /= nq
         for i in range(4):
             state[S_Q + i] = out[OUT_Q + i]
             state[_QOUT + i] = out[OUT_Q + i]
         for i in range(3):
             state[S_BIAS + i] = out[OUT_BIAS + i]
-        state[S_INIT] = se2[S_INIT] if multirotor else se[S_INIT]
+        state[S_INIT] = se2[S_INIT] if w2 >= 0.5 else se[S_INIT]
         return
     if aided:
         w = 1.0
@@ -796,6 +820,7 @@ class Best(AttitudeFilter):
             self._params[_DET_ON] = 1.0 if changes["detect"].enabled else 0.0
             if not changes["detect"].enabled:  # declared: one ESKF, the one just set
                 self._state[_MODE] = 0.0
+                self._state[_W2] = 0.0
         if "unaided_filter" in changes:
             self._params[_ESKF_ONLY] = 1.0 if changes["unaided_filter"] == "eskf" else 0.0
 
