@@ -14,7 +14,12 @@ accelerometer is chosen by what is known of the source, never by a separately tu
   low-passed for 2 s in the estimated NED frame (VQF's quasi-inertial low-pass, Laidig & Seel
   2023, as the ESKF's measurement): short accelerations and rotor vibration average out, so
   the gyro bias is learnt in motion through the tilt it causes; every magnetometer reading up
-  to 100 Hz, heading only (:func:`best_eskf_settings`);
+  to 100 Hz, heading only (:func:`best_eskf_settings`); beside it runs the multirotor
+  hypothesis (:func:`multirotor_eskf_settings`, what :meth:`Best.set_multirotor` sets), and its
+  attitude is the output once the likelihood ratio of the two hypotheses' predictions of the
+  specific force across the thrust axis says "multirotor" (:class:`MultirotorDetectSettings`;
+  firmware_sim raw ``aggressive`` 7.0 → 1.1°, the vibrating SITL set 5.01 → 1.29°, no BROAD or
+  RepoIMU TStick trial switched);
 * **without, on an autopilot's stream** (the pipeline calls :meth:`Best.set_vehicle_stream`) —
   a vehicle's accelerations last the whole manoeuvre, which a 2 s low-pass would carry: the
   specific force averaged over 0.1 s in NED (an autopilot-filtered stream's sample; a raw
@@ -35,7 +40,7 @@ data                                       ``best``        ``best`` before     V
 BROAD 9-axis (16 trials): incl. / heading  0.66 / 1.66     0.705 / 1.69        0.71 / 2.30
 BROAD 6-axis                               0.655           0.704               0.71
 BROAD as a raw IMU (1–5 °/s bias, no rest)  1.09            1.98                4.85
-SITL raw, 200 Hz, vibration, plain API      5.49            5.43                11.67
+SITL raw, 200 Hz, vibration, plain API      1.29            5.01                11.67
 the same, ``set_multirotor()``              1.24            2.25; 23.8          –
 ArduCopter SITL with GNSS / without         0.22 / 0.63     (unchanged)         8.2
 =========================================  ==============  ==================  ========
@@ -66,29 +71,39 @@ from mavahrs.filters.base import (
     FilterSettings,
     FilterState,
 )
-from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
 from mavahrs.filters.eskf import (
+    COVARIANCE_STATE,
+    DRAG_PARAM,
+    ERROR_STATE_LEN,
     GRAVITY_LOWPASS_STATE,
     MAG_MODEL_STATE,
+    MEASURED_NOISE_STATE,
     MULTIROTOR_AXIS_SIGMA_RAD,
     MULTIROTOR_DRAG_1_S,
     START_DONE_STATE,
+    THRUST_AXIS_REF_STATE,
+    THRUST_AXIS_STATE,
+    VELOCITY_STATE,
     Eskf,
     EskfSettings,
+    axis_basis,
     declination_of,
     eskf_aided,
     thrust_axis_of,
 )
+from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
 from mavahrs.filters.eskf import step as _eskf_step
+from mavahrs.filters.gains import G_M_S2
 from mavahrs.filters.gnss import gnss_compensation_fresh
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import IN_DT, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_BIAS, OUT_Q, OUT_WIDTH
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_VEL, IN_VEL_AGE, IN_WIDTH, OUT_BIAS, OUT_Q, OUT_WIDTH
 from mavahrs.filters.madgwick import FM_GNSS, PM_GNSS, Madgwick, MadgwickSettings
 from mavahrs.filters.madgwick import step as _madgwick_step
 from mavahrs.filters.magfield import MF_LEN, export_model, import_model, mag_model_summary, mag_status
 from mavahrs.filters.rest import RestBiasSettings
 
-__all__ = ["best_settings", "best_eskf_settings", "vehicle_eskf_settings", "BestSettings", "Best", "create_best", "BEST_FILTER"]
+__all__ = ["best_settings", "best_eskf_settings", "vehicle_eskf_settings", "multirotor_eskf_settings",
+           "MultirotorDetectSettings", "BestSettings", "Best", "create_best", "BEST_FILTER"]
 
 #: the registry name of the filter ``"best"`` uses without GNSS velocity
 BEST_FILTER = "madgwick"
@@ -217,6 +232,80 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
     )
 
 
+def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
+    """``eskf`` with a raw IMU's multirotor models (what :meth:`Best.set_multirotor` sets through the API).
+
+    A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
+    (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
+    error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``).
+    """
+    k = drag_coefficient_1_s
+    if k is None:
+        k = eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
+    eskf = replace(eskf, drag_coefficient_1_s=float(k))
+    if eskf.thrust_axis_sigma_rad == 0.0:
+        eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
+    return vehicle_eskf_settings(eskf)
+
+
+@dataclass(frozen=True)
+class MultirotorDetectSettings:
+    r"""The plain path's choice between "nothing known" and "a multirotor", by likelihood (:class:`Best`).
+
+    Two hypotheses run side by side on the plain path (nothing declared): *generic* (the ESKF
+    of :func:`best_eskf_settings`: the specific force is gravity plus a motion acceleration of
+    no particular direction) and *multirotor* (the ESKF of :func:`multirotor_eskf_settings`: the
+    specific force is thrust along an axis fixed in the body, and across it the rotor drag
+    −k·v_b).  Both predict the same measurement every ``period_s``: the mean specific force over
+    the period, body frame, on the two axes across the multirotor hypothesis's thrust axis.
+    The generic prediction is gravity, −Cᵀ g e_d, with variance ``accel_sigma_m_s2``² plus its
+    tilt uncertainty (h = u × w, u = C e, w = −g e_d); the multirotor one is −k e·Cᵀv with its
+    drag noise plus its velocity, tilt and axis uncertainty (the drag measurement's h); both
+    add the mean's share of the measured sensor noise.  Each period adds the log-likelihood
+    ratio ½Σ_c [y_G²/S_G + ln S_G − y_M²/S_M − ln S_M] (clipped to ±``clip_nats``: one
+    period never decides) to a sum forgotten with ``forget_s`` (the predictions are made from
+    each filter's state before the period's samples: the prediction-error decomposition of
+    the likelihood; Magill 1965, Bar-Shalom et al. 2001 §11.6 — a multiple-model test with
+    the two filters run independently, no interaction).  The output is the multirotor
+    hypothesis's once the sum exceeds ``switch_nats`` (the prior in favour of "generic": short
+    ambiguous stretches never switch) and the generic one's again below ``back_nats``.
+
+    Attributes:
+        enabled: run the multirotor hypothesis beside on the plain path (False: one ESKF, as before).
+        accel_sigma_m_s2: the generic hypothesis's motion acceleration across the axis, 0.1 s mean, m/s².
+        period_s: the comparison's period (the drag measurement's), s.
+        forget_s: time constant of the evidence's forgetting, s.
+        switch_nats: evidence for "multirotor" beyond which its attitude is the output.
+        back_nats: evidence below which the output is the generic hypothesis's again.
+        clip_nats: the most one period adds either way.
+        accel_tau_s: correlation time of the generic hypothesis's motion acceleration (Singer), s.
+        bias_sigma_rad_s: no evidence while the generic hypothesis's gyro bias across the vertical is
+            less certain than this (its 1-σ, the mean of the two horizontal axes'), rad/s.
+        force_tolerance: no evidence from a period whose mean specific force is further than this
+            fraction from g (a sensor shaken or swung hard fits neither hypothesis's noise).
+    """
+
+    enabled: bool = True
+    accel_sigma_m_s2: float = 0.5
+    period_s: float = 0.1
+    forget_s: float = 60.0
+    switch_nats: float = 25.0
+    back_nats: float = 0.0
+    clip_nats: float = 1.0
+    accel_tau_s: float = 0.15
+    bias_sigma_rad_s: float = math.radians(0.5)
+    force_tolerance: float = 0.4
+
+    def __post_init__(self) -> None:
+        for name in ("accel_sigma_m_s2", "period_s", "forget_s", "clip_nats", "accel_tau_s", "bias_sigma_rad_s",
+                     "force_tolerance"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"MultirotorDetectSettings.{name} must be > 0, got {v!r}")
+        if not (math.isfinite(self.switch_nats) and math.isfinite(self.back_nats) and self.back_nats < self.switch_nats):
+            raise ValueError("MultirotorDetectSettings: back_nats must be below switch_nats (both finite)")
+
+
 @dataclass(frozen=True)
 class BestSettings(FilterSettings):
     """Settings of :class:`Best`.
@@ -226,11 +315,15 @@ class BestSettings(FilterSettings):
         eskf: the estimator (:func:`best_eskf_settings`: nothing known of the source; an
             autopilot's stream or a declared multirotor switches its measurement models to
             :func:`vehicle_eskf_settings`).
+        multirotor_eskf: the multirotor hypothesis run beside ``eskf`` on the plain path
+            (:func:`multirotor_eskf_settings`; :class:`MultirotorDetectSettings`).
+        detect: the choice between the two by likelihood (``detect.enabled`` False: ``eskf`` alone).
         shared_bias: without velocity aiding the Madgwick part integrates
             the gyro less the ESKF's bias estimate (learnt in motion).
         fade_s: after the velocity-aided filter loses its aiding
             (``eskf.aiding_timeout_s`` without a fix), the output moves from
-            its attitude to the Madgwick attitude over this long, s.
+            its attitude to the Madgwick attitude over this long, s; and on the
+            plain path from one hypothesis's attitude to the other's (``detect``).
         unaided_filter: the filter whose attitude is sent without velocity
             aiding: ``"eskf"`` (the default: one estimator in every condition,
             its zero-velocity and gravity updates; the Madgwick part runs beside
@@ -243,6 +336,8 @@ class BestSettings(FilterSettings):
 
     madgwick: MadgwickSettings = field(default_factory=best_settings)
     eskf: EskfSettings = field(default_factory=best_eskf_settings)
+    multirotor_eskf: EskfSettings = field(default_factory=lambda: multirotor_eskf_settings(best_eskf_settings()))
+    detect: MultirotorDetectSettings = field(default_factory=MultirotorDetectSettings)
     fade_s: float = 2.0
     shared_bias: bool = True
     unaided_filter: str = "eskf"
@@ -253,7 +348,8 @@ class BestSettings(FilterSettings):
             raise ValueError(f"BestSettings.fade_s must be ≥ 0 s, got {self.fade_s!r}")
         if self.unaided_filter not in ("eskf", "madgwick"):
             raise ValueError(f"BestSettings.unaided_filter must be 'eskf' or 'madgwick', got {self.unaided_filter!r}")
-        if self.madgwick.max_gap_s != self.max_gap_s or self.eskf.max_gap_s != self.max_gap_s:
+        if (self.madgwick.max_gap_s != self.max_gap_s or self.eskf.max_gap_s != self.max_gap_s
+                or self.multirotor_eskf.max_gap_s != self.max_gap_s):  # fmt: skip
             raise ValueError("BestSettings: max_gap_s must be the same for best and both of its filters")
 
 
@@ -269,13 +365,191 @@ _OE = _OM + OUT_WIDTH  # ESKF's output row
 _W = _OE + OUT_WIDTH  # output weight of the ESKF, 0 … 1
 _QOUT = _W + 1  # the attitude last written to the common prefix (4): detects a state set by hand
 _ROW = _QOUT + 4  # scratch: the input row as the ESKF sees it
-_N_STATE = _ROW + IN_WIDTH - S_FILTER
+_SE2 = _ROW + IN_WIDTH  # the multirotor hypothesis's ESKF state (plain path)
+_OE2 = _SE2 + _LE  # its output row
+_DF = _OE2 + OUT_WIDTH  # this period's sums, body frame: specific force (3), generic prediction (3),
+#                         multirotor prediction (3), samples (1), time (1)
+_LLR = _DF + 11  # the evidence for "multirotor" against "generic", nats (forgotten)
+_MODE = _LLR + 1  # 1: the output is the multirotor hypothesis's
+_T_MODE = _MODE + 1  # seconds the output was the multirotor hypothesis's
+_SWITCHES = _T_MODE + 1  # how often the output changed hypothesis
+_LLR_MAX = _SWITCHES + 1  # the largest evidence seen
+_AG = _LLR_MAX + 1  # the generic hypothesis's last motion acceleration (its residual, body, 3)
+_DH = _AG + 3  # scratch: a prediction's h on the error state (ERROR_STATE_LEN)
+_W2 = _DH + ERROR_STATE_LEN  # output weight of the multirotor hypothesis, 0 … 1 (moves over fade_s)
+_N_STATE = _W2 + 1 - S_FILTER
 _PM = P_FILTER  # Madgwick params
 _PE = _PM + _PLM  # ESKF params
 _FADE = _PE + _PLE
 _SHARE_BIAS = _FADE + 1
 _ESKF_ONLY = _SHARE_BIAS + 1  # 1: the ESKF's attitude in every condition, the Madgwick part not run
-_N_PARAMS = _ESKF_ONLY + 1 - P_FILTER
+_PE2 = _ESKF_ONLY + 1  # the multirotor hypothesis's ESKF params
+_DET_ON = _PE2 + _PLE  # 1: the multirotor hypothesis runs beside (the plain path)
+_DET_SIGMA = _DET_ON + 1  # MultirotorDetectSettings: accel_sigma_m_s2, period_s, forget_s, switch/back/clip nats
+_DET_PERIOD = _DET_ON + 2
+_DET_FORGET = _DET_ON + 3
+_DET_SWITCH = _DET_ON + 4
+_DET_BACK = _DET_ON + 5
+_DET_CLIP = _DET_ON + 6
+_DET_ACCEL_TAU = _DET_ON + 7
+_DET_BIAS_VAR = _DET_ON + 8
+_DET_NORM_TOL = _DET_ON + 9
+_N_PARAMS = _DET_NORM_TOL + 1 - P_FILTER
+_NE = ERROR_STATE_LEN
+_KV = S_FILTER + VELOCITY_STATE  # offsets inside an ESKF's own block
+_KP = S_FILTER + COVARIANCE_STATE
+_KT = S_FILTER + THRUST_AXIS_STATE
+
+
+@kernel(inline=True)
+def _body_down(s):  # type: ignore[no-untyped-def]
+    """The NED down axis in the body frame (C's third row) of the ESKF state ``s`` (its q)."""
+    q0, q1, q2, q3 = s[S_Q], s[S_Q + 1], s[S_Q + 2], s[S_Q + 3]
+    return 2.0 * (q1 * q3 - q0 * q2), 2.0 * (q2 * q3 + q0 * q1), 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+
+
+@kernel(inline=True)
+def _to_ned(s, x, y, z):  # type: ignore[no-untyped-def]
+    """C x: a body vector in NED with the attitude of the ESKF state ``s``."""
+    q0, q1, q2, q3 = s[S_Q], s[S_Q + 1], s[S_Q + 2], s[S_Q + 3]
+    n = (1.0 - 2.0 * (q2 * q2 + q3 * q3)) * x + 2.0 * (q1 * q2 - q0 * q3) * y + 2.0 * (q1 * q3 + q0 * q2) * z
+    e = 2.0 * (q1 * q2 + q0 * q3) * x + (1.0 - 2.0 * (q1 * q1 + q3 * q3)) * y + 2.0 * (q2 * q3 - q0 * q1) * z
+    d = 2.0 * (q1 * q3 - q0 * q2) * x + 2.0 * (q2 * q3 + q0 * q1) * y + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * z
+    return n, e, d
+
+
+@kernel(inline=True)
+def _detect_accumulate(state, se, se2, pe2, row):  # type: ignore[no-untyped-def]
+    """This sample's specific force and both hypotheses' predictions of it (from their states before it)."""
+    ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
+    dt = row[IN_DT]
+    if not (ax == ax and ay == ay and az == az and dt > 0.0 and dt < 1.0):
+        return
+    if not (se[S_INIT] > 0.0 and se2[S_INIT] > 0.0):
+        return
+    k = pe2[P_FILTER + DRAG_PARAM]
+    dx, dy, dz = _body_down(se)
+    q0, q1, q2, q3 = se2[S_Q], se2[S_Q + 1], se2[S_Q + 2], se2[S_Q + 3]
+    vn, ve, vd = se2[_KV], se2[_KV + 1], se2[_KV + 2]
+    # v_b = Cᵀ v
+    vbx = (1.0 - 2.0 * (q2 * q2 + q3 * q3)) * vn + 2.0 * (q1 * q2 + q0 * q3) * ve + 2.0 * (q1 * q3 - q0 * q2) * vd
+    vby = 2.0 * (q1 * q2 - q0 * q3) * vn + (1.0 - 2.0 * (q1 * q1 + q3 * q3)) * ve + 2.0 * (q2 * q3 + q0 * q1) * vd
+    vbz = 2.0 * (q1 * q3 + q0 * q2) * vn + 2.0 * (q2 * q3 - q0 * q1) * ve + (1.0 - 2.0 * (q1 * q1 + q2 * q2)) * vd
+    state[_DF] += ax
+    state[_DF + 1] += ay
+    state[_DF + 2] += az
+    state[_DF + 3] -= G_M_S2 * dx  # generic: f = −Cᵀ g e_d
+    state[_DF + 4] -= G_M_S2 * dy
+    state[_DF + 5] -= G_M_S2 * dz
+    state[_DF + 6] -= k * vbx  # multirotor: across the thrust axis, f = −k v_b
+    state[_DF + 7] -= k * vby
+    state[_DF + 8] -= k * vbz
+    state[_DF + 9] += 1.0
+    state[_DF + 10] += dt
+
+
+@kernel(inline=True)
+def _quad_form(s, h):  # type: ignore[no-untyped-def]
+    """h P hᵀ with P the covariance of the ESKF state ``s`` (h: the 12 entries of the scratch ``h``)."""
+    acc = 0.0
+    for i in range(_NE):
+        if h[i] != 0.0:
+            for j in range(_NE):
+                acc += h[i] * s[_KP + i * _NE + j] * h[j]
+    return acc
+
+
+@kernel(inline=True)
+def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-def]
+    """At the end of a period: its log-likelihood ratio into the evidence, the hypothesis chosen."""
+    n = state[_DF + 9]
+    tp = state[_DF + 10]
+    if tp < params[_DET_PERIOD]:
+        return
+    tx, ty, tz = se2[_KT], se2[_KT + 1], se2[_KT + 2]
+    tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+    # the generic hypothesis's gyro bias across the vertical learnt: before, its gravity prediction turns
+    # with the bias (a hand-held sensor with an unlearnt raw bias looks like thrust fixed in the body)
+    dx, dy, dz = _body_down(se)
+    kb = _KP + 6 * _NE + 6
+    var_b = se[kb] + se[kb + _NE + 1] + se[kb + 2 * _NE + 2]
+    var_v = 0.0
+    for i in range(3):
+        di = dx if i == 0 else (dy if i == 1 else dz)
+        for j in range(3):
+            dj = dx if j == 0 else (dy if j == 1 else dz)
+            var_v += di * se[kb + i * _NE + j] * dj
+    ready = (
+        n > 0.0 and tn > 0.5
+        and se[S_FILTER + START_DONE_STATE] > 0.0 and se2[S_FILTER + START_DONE_STATE] > 0.0
+        and 0.5 * (var_b - var_v) < params[_DET_BIAS_VAR]
+    )  # fmt: skip
+    if ready:
+        # the mean specific force near g: thrust ≈ weight (a multirotor) or gravity with little motion
+        # acceleration; a hand-held sensor shaken or swung hard fits neither hypothesis's noise
+        fx, fy, fz = state[_DF] / n, state[_DF + 1] / n, state[_DF + 2] / n
+        ready = abs(math.sqrt(fx * fx + fy * fy + fz * fz) / G_M_S2 - 1.0) < params[_DET_NORM_TOL]
+    if ready:
+        k = pe2[P_FILTER + DRAG_PARAM]
+        sig = params[_DET_SIGMA]
+        # the mean's share of the measured white noise of the specific force (per axis, per sample)
+        r_c = se[S_FILTER + MEASURED_NOISE_STATE + 1] / n
+        fx, fy, fz = state[_DF] / n, state[_DF + 1] / n, state[_DF + 2] / n
+        _, _, _, e1x, e1y, e1z, e2x, e2y, e2z = axis_basis(tx, ty, tz, int(se2[S_FILTER + THRUST_AXIS_REF_STATE]))
+        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        vn, ve, vd = se2[_KV], se2[_KV + 1], se2[_KV + 2]
+        utn, ute, utd = _to_ned(se2, tx, ty, tz)
+        thrust = fx * tx + fy * ty + fz * tz + k * (utn * vn + ute * ve + utd * vd)
+        # the generic hypothesis's motion acceleration as a first-order Markov process (Singer 1970): the
+        # next period's is the last one's times ρ = exp(−T/τ); no acceleration model at all predicted a
+        # hand-held translation's smooth acceleration worse than the multirotor's states did
+        rho = math.exp(-tp / params[_DET_ACCEL_TAU])
+        agx, agy, agz = rho * state[_AG], rho * state[_AG + 1], rho * state[_AG + 2]
+        inc = 0.0
+        for c in range(2):
+            if c == 0:
+                ex, ey, ez = e1x, e1y, e1z
+            else:
+                ex, ey, ez = e2x, e2y, e2z
+            z = fx * ex + fy * ey + fz * ez
+            # generic: gravity; h on the tilt error = u × w, u = C e, w = (0, 0, −g)
+            yg = z - (state[_DF + 3] * ex + state[_DF + 4] * ey + state[_DF + 5] * ez) / n - (agx * ex + agy * ey + agz * ez)
+            un, ue, ud = _to_ned(se, ex, ey, ez)
+            for i in range(_NE):
+                h[i] = 0.0
+            h[0] = -ue * G_M_S2
+            h[1] = un * G_M_S2
+            sg = sig * sig + r_c + _quad_form(se, h)
+            # multirotor: the drag measurement's prediction and h (eskf._drag_update)
+            ym = z - (state[_DF + 6] * ex + state[_DF + 7] * ey + state[_DF + 8] * ez) / n
+            un, ue, ud = _to_ned(se2, ex, ey, ez)
+            h[0] = -k * (ue * vd - ud * ve)
+            h[1] = -k * (ud * vn - un * vd)
+            h[2] = -k * (un * ve - ue * vn)
+            h[3] = -k * un
+            h[4] = -k * ue
+            h[5] = -k * ud
+            h[9 + c] = thrust
+            sm = sig * sig + r_c + _quad_form(se2, h)
+            inc += 0.5 * (yg * yg / sg + math.log(sg) - ym * ym / sm - math.log(sm))
+        clip = params[_DET_CLIP]
+        inc = min(max(inc, -clip), clip)
+        forget = math.exp(-tp / params[_DET_FORGET])
+        llr = state[_LLR] * forget + inc
+        state[_LLR] = llr
+        if llr > state[_LLR_MAX]:
+            state[_LLR_MAX] = llr
+        if state[_MODE] == 0.0 and llr > params[_DET_SWITCH]:
+            state[_MODE] = 1.0
+            state[_SWITCHES] += 1.0
+        elif state[_MODE] > 0.0 and llr < params[_DET_BACK]:
+            state[_MODE] = 0.0
+            state[_SWITCHES] += 1.0
+    if n > 0.0:  # the generic hypothesis's motion acceleration in this period (its residual)
+        for i in range(3):
+            state[_AG + i] = (state[_DF + i] - state[_DF + 3 + i]) / n
+    for i in range(11):
+        state[_DF + i] = 0.0
 
 
 @kernel
@@ -287,6 +561,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     pe = params[_PE : _PE + _PLE]
     om = state[_OM : _OM + OUT_WIDTH]
     oe = state[_OE : _OE + OUT_WIDTH]
+    detect = params[_DET_ON] > 0.0 and params[_ESKF_ONLY] > 0.0
+    se2 = state[_SE2 : _SE2 + _LE]
+    pe2 = params[_PE2 : _PE2 + _PLE]
+    oe2 = state[_OE2 : _OE2 + OUT_WIDTH]
+    if detect:  # both hypotheses' predictions from their states before this sample
+        _detect_accumulate(state, se, se2, pe2, row)
     fix = (
         not (row[IN_VEL] != row[IN_VEL])
         or not (row[IN_VEL + 1] != row[IN_VEL + 1])
@@ -314,6 +594,18 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             erow[IN_VEL_AGE] = math.nan
     _eskf_step(se, pe, erow, oe)
     aided = eskf_aided(se, pe)
+    multirotor = False
+    if detect:
+        _eskf_step(se2, pe2, erow, oe2)
+        if aided:  # velocity-aided: the fixes tell; no evidence gathered
+            for i in range(11):
+                state[_DF + i] = 0.0
+        else:
+            _detect_period(state, params, se, se2, pe2, state[_DH : _DH + ERROR_STATE_LEN])
+            multirotor = state[_MODE] > 0.0
+            d = row[IN_DT]
+            if multirotor and d > 0.0 and d < 1.0:
+                state[_T_MODE] += d
     if not aided and se[S_INIT] > 0.0 and sm[S_INIT] > 0.0 and params[_SHARE_BIAS] > 0.0:
         # one gyro bias: the ESKF's (a state, learnt in motion from the velocity it integrates); the
         # Madgwick part integrates the gyro less it and does not learn its own
@@ -328,14 +620,37 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # re-aligns it by TRIAD, and the ESKF restarts its aiding from that attitude (above); without
         # it the ESKF restarted from the accelerometer 20–45° off and took 5 s to recover (60° at 3–5 s)
         state[_W] = 1.0 if aided else 0.0
+        # the output moves between the hypotheses over fade_s (a switch is not a step in the attitude)
+        w2 = state[_W2]
+        if detect:
+            fade = params[_FADE]
+            d = row[IN_DT]
+            inc = d / fade if (fade > 0.0 and d > 0.0 and d < 1.0) else 1.0
+            w2 = min(w2 + inc, 1.0) if multirotor else max(w2 - inc, 0.0)
+        else:
+            w2 = 0.0
+        state[_W2] = w2
+        src = oe2 if w2 >= 0.5 else oe
         for i in range(OUT_WIDTH):
-            out[i] = oe[i]
+            out[i] = src[i]
+        if 0.0 < w2 < 1.0:  # normalised linear blend, same hemisphere
+            dot = 0.0
+            for i in range(4):
+                dot += oe2[OUT_Q + i] * oe[OUT_Q + i]
+            sgn = 1.0 if dot >= 0.0 else -1.0
+            nq = 0.0
+            for i in range(4):
+                out[OUT_Q + i] = w2 * oe2[OUT_Q + i] + (1.0 - w2) * sgn * oe[OUT_Q + i]
+                nq += out[OUT_Q + i] * out[OUT_Q + i]
+            nq = math.sqrt(nq)
+            for i in range(4):
+                out[OUT_Q + i] /= nq
         for i in range(4):
             state[S_Q + i] = out[OUT_Q + i]
             state[_QOUT + i] = out[OUT_Q + i]
         for i in range(3):
             state[S_BIAS + i] = out[OUT_BIAS + i]
-        state[S_INIT] = se[S_INIT]
+        state[S_INIT] = se2[S_INIT] if w2 >= 0.5 else se[S_INIT]
         return
     if aided:
         w = 1.0
@@ -389,6 +704,19 @@ class Best(AttitudeFilter):
         p[_FADE - P_FILTER] = settings.fade_s
         p[_SHARE_BIAS - P_FILTER] = 1.0 if settings.shared_bias else 0.0
         p[_ESKF_ONLY - P_FILTER] = 1.0 if settings.unaided_filter == "eskf" else 0.0
+        e2 = np.concatenate([settings.multirotor_eskf.common_params(), Eskf.filter_params(settings.multirotor_eskf)])
+        p[_PE2 - P_FILTER : _PE2 - P_FILTER + _PLE] = e2
+        d = settings.detect
+        p[_DET_ON - P_FILTER] = 1.0 if d.enabled else 0.0
+        p[_DET_SIGMA - P_FILTER] = d.accel_sigma_m_s2
+        p[_DET_PERIOD - P_FILTER] = d.period_s
+        p[_DET_FORGET - P_FILTER] = d.forget_s
+        p[_DET_SWITCH - P_FILTER] = d.switch_nats
+        p[_DET_BACK - P_FILTER] = d.back_nats
+        p[_DET_CLIP - P_FILTER] = d.clip_nats
+        p[_DET_ACCEL_TAU - P_FILTER] = d.accel_tau_s
+        p[_DET_BIAS_VAR - P_FILTER] = d.bias_sigma_rad_s**2
+        p[_DET_NORM_TOL - P_FILTER] = d.force_tolerance
         return p
 
     def initial_internal(self) -> np.ndarray:
@@ -397,6 +725,7 @@ class Best(AttitudeFilter):
         internal = np.zeros(_N_STATE)
         internal[_SM - S_FILTER : _SM - S_FILTER + _LM] = Madgwick(s.madgwick, compiled=False).raw_state
         internal[_SE - S_FILTER : _SE - S_FILTER + _LE] = Eskf(s.eskf, compiled=False).raw_state
+        internal[_SE2 - S_FILTER : _SE2 - S_FILTER + _LE] = Eskf(s.multirotor_eskf, compiled=False).raw_state
         internal[_QOUT - S_FILTER] = 1.0
         return internal
 
@@ -411,14 +740,15 @@ class Best(AttitudeFilter):
         s = self._state
         if not np.array_equal(s[S_Q : S_Q + 4], s[_QOUT : _QOUT + 4]):
             # the attitude was set from outside: both filters continue from it
-            for base in (_SM, _SE):
+            for base in (_SM, _SE, _SE2):
                 s[base + S_Q : base + S_Q + 4] = s[S_Q : S_Q + 4]
                 s[base + S_BIAS : base + S_BIAS + 3] = s[S_BIAS : S_BIAS + 3]
                 s[base + S_INIT] = s[S_INIT]
-            # the ESKF's low-passed gravity reference is in the old frame: it is built again
-            s[_SE + S_FILTER + GRAVITY_LOWPASS_STATE + 3] = 0.0
-            # … and a start window still open would re-align the attitude just set: it is over
-            s[_SE + S_FILTER + START_DONE_STATE] = 1.0
+            for base in (_SE, _SE2):
+                # the ESKF's low-passed gravity reference is in the old frame: it is built again
+                s[base + S_FILTER + GRAVITY_LOWPASS_STATE + 3] = 0.0
+                # … and a start window still open would re-align the attitude just set: it is over
+                s[base + S_FILTER + START_DONE_STATE] = 1.0
             s[_QOUT : _QOUT + 4] = s[S_Q : S_Q + 4]
 
     def set_mag_reference(self, norm_ut: float, dip_rad: float) -> None:
@@ -426,7 +756,8 @@ class Best(AttitudeFilter):
         s = self._settings
         assert isinstance(s, BestSettings)
         for sub, base, pbase in ((Madgwick(s.madgwick, compiled=False), _SM, _PM),
-                                 (Eskf(s.eskf, compiled=False), _SE, _PE)):  # fmt: skip
+                                 (Eskf(s.eskf, compiled=False), _SE, _PE),
+                                 (Eskf(s.multirotor_eskf, compiled=False), _SE2, _PE2)):  # fmt: skip
             n = _LM if base == _SM else _LE
             pn = _PLM if base == _SM else _PLE
             sub._state[:] = self._state[base : base + n]
@@ -440,6 +771,8 @@ class Best(AttitudeFilter):
                                                           mag_reference_dip_rad=dip_rad)),
             eskf=replace(s.eskf, schedule=replace(s.eskf.schedule, mag_reference_norm_ut=norm_ut,
                                                   mag_reference_dip_rad=dip_rad)),
+            multirotor_eskf=replace(s.multirotor_eskf, schedule=replace(
+                s.multirotor_eskf.schedule, mag_reference_norm_ut=norm_ut, mag_reference_dip_rad=dip_rad)),
         )  # fmt: skip
         AttitudeFilter.set_mag_reference(self, norm_ut, dip_rad)
 
@@ -483,6 +816,11 @@ class Best(AttitudeFilter):
         assert isinstance(s, BestSettings)
         self._settings = replace(s, eskf=eskf, **changes)
         self._params[_PE : _PE + _PLE] = np.concatenate([eskf.common_params(), Eskf.filter_params(eskf)])
+        if "detect" in changes:
+            self._params[_DET_ON] = 1.0 if changes["detect"].enabled else 0.0
+            if not changes["detect"].enabled:  # declared: one ESKF, the one just set
+                self._state[_MODE] = 0.0
+                self._state[_W2] = 0.0
         if "unaided_filter" in changes:
             self._params[_ESKF_ONLY] = 1.0 if changes["unaided_filter"] == "eskf" else 0.0
 
@@ -503,7 +841,7 @@ class Best(AttitudeFilter):
         # an autopilot's IMU is calibrated and low-passed: its first sample is the start, no start window
         # (``initial_average_s``, built for a raw IMU's vibration through the API)
         eskf = replace(eskf, initial_average_s=0.0)
-        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
+        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf", detect=replace(s.detect, enabled=False))
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
         """The vehicle is a multirotor: the ESKF with a vehicle's models and the rotor-drag measurement.
@@ -521,27 +859,45 @@ class Best(AttitudeFilter):
         """
         s = self._settings
         assert isinstance(s, BestSettings)
-        k = drag_coefficient_1_s
-        if k is None:
-            k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
         # a raw IMU through the API, any mounting: the thrust axis as two states of the error state
         # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
-        eskf = replace(s.eskf, drag_coefficient_1_s=float(k))
-        if not getattr(self, "_vehicle_stream", False) and eskf.thrust_axis_sigma_rad == 0.0:
-            eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
-        self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf")
+        if not getattr(self, "_vehicle_stream", False):
+            eskf = multirotor_eskf_settings(s.eskf, drag_coefficient_1_s)
+        else:
+            k = drag_coefficient_1_s
+            if k is None:
+                k = s.eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
+            eskf = vehicle_eskf_settings(replace(s.eskf, drag_coefficient_1_s=float(k)))
+        # declared: the multirotor hypothesis is the estimator; nothing is left to detect
+        self._set_eskf(eskf, unaided_filter="eskf", detect=replace(s.detect, enabled=False))
+
+    def multirotor_detection(self) -> dict[str, float]:
+        """The plain path's choice (:class:`MultirotorDetectSettings`): whether the output is now the multirotor
+        hypothesis's (``multirotor`` 0/1), the seconds it was, how often it changed, the evidence (nats) now
+        and its largest, and whether detection runs at all (``enabled``)."""
+        s = self._state
+        return {
+            "enabled": float(self._params[_DET_ON]),
+            "multirotor": float(s[_MODE]),
+            "seconds_as_multirotor": float(s[_T_MODE]),
+            "switches": float(s[_SWITCHES]),
+            "evidence_nats": float(s[_LLR]),
+            "max_evidence_nats": float(s[_LLR_MAX]),
+        }
 
     def thrust_axis(self) -> np.ndarray | None:
         """The ESKF's thrust axis (unit, IMU frame; None: not learnt, or not a multirotor)."""
-        return thrust_axis_of(self._state, _SE + S_FILTER)
+        return thrust_axis_of(self._state, (_SE2 if self._state[_MODE] > 0.0 else _SE) + S_FILTER)
 
     def set_sensor_delay(self, delay_s: float) -> None:
         """The IMU data's delay behind its time stamps (s), for the velocity-aided filter's output and fixes."""
         s = self._settings
         assert isinstance(s, BestSettings)
         eskf = replace(s.eskf, sensor_delay_s=delay_s)
-        self._settings = replace(s, eskf=eskf)
+        multirotor = replace(s.multirotor_eskf, sensor_delay_s=delay_s)
+        self._settings = replace(s, eskf=eskf, multirotor_eskf=multirotor)
         self._params[_PE + P_FILTER + _DELAY_OFFSET] = eskf.sensor_delay_s
+        self._params[_PE2 + P_FILTER + _DELAY_OFFSET] = multirotor.sensor_delay_s
 
 
 
@@ -556,5 +912,7 @@ def create_best(settings: FilterSettings | None = None, **kwargs: Any) -> Attitu
     """
     if isinstance(settings, MadgwickSettings):
         settings = BestSettings(madgwick=settings, max_gap_s=settings.max_gap_s,
-                                eskf=replace(best_eskf_settings(), max_gap_s=settings.max_gap_s))  # fmt: skip
+                                eskf=replace(best_eskf_settings(), max_gap_s=settings.max_gap_s),
+                                multirotor_eskf=replace(multirotor_eskf_settings(best_eskf_settings()),
+                                                        max_gap_s=settings.max_gap_s))  # fmt: skip
     return Best(settings, **kwargs)

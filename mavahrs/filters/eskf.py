@@ -254,6 +254,16 @@ START_DONE_STATE = _STARTED
 MAG_MODEL_STATE = _MAGF
 #: offset of the gravity low-pass (:func:`mavahrs.filters.prefilter.ned_butterworth_step`) in the ESKF's state
 GRAVITY_LOWPASS_STATE = _GLP
+#: offsets in the ESKF's own state read by ``best``'s multirotor detection (:mod:`mavahrs.filters.best`): the NED
+#: velocity, the error covariance (row-major N×N), the thrust axis (body, 3), its error basis's body axis, and the
+#: measured per-sample noise (gyro, specific force)
+VELOCITY_STATE = _V
+COVARIANCE_STATE = _P
+THRUST_AXIS_STATE = _TAX
+THRUST_AXIS_REF_STATE = _TREF
+MEASURED_NOISE_STATE = _VIB
+#: the error-state size
+ERROR_STATE_LEN = N
 
 
 @dataclass(frozen=True)
@@ -840,6 +850,10 @@ def _axis_basis(tx, ty, tz, ref):  # type: ignore[no-untyped-def]
     en = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
     e1x, e1y, e1z = e1x / en, e1y / en, e1z / en
     return tx, ty, tz, e1x, e1y, e1z, ty * e1z - tz * e1y, tz * e1x - tx * e1z, tx * e1y - ty * e1x
+
+
+#: the thrust axis's error basis (``best``'s multirotor detection projects on the same axes)
+axis_basis = _axis_basis
 
 
 @kernel(inline=True)

@@ -13,9 +13,10 @@ regression — a bias not learnt in motion, a diverged tilt — not a tuning.
 
 The same through the plain API on the ``aggressive`` scenario (sustained 30–45°
 thrust tilts, which the 2 s low-passed gravity measurement holds as gravity), seed 2:
-7.98° after 20 s (VQF 12.98°); 21.0° before the plain path held the bias estimate
-within a raw gyro's range (6 °/s; the bias state learnt the thrust tilt as 9–10 °/s).
-The bound (12°) catches that regression.
+7.28° after 20 s with the generic hypothesis alone (VQF 12.98°; 21.0° before the plain
+path held the bias estimate within a raw gyro's range, 6 °/s); since the plain path tells
+a multirotor from the data (``MultirotorDetectSettings``) 1.34°, as declared.  The bound
+(3°) catches the detection's regression.
 """
 
 from __future__ import annotations
@@ -56,9 +57,12 @@ def test_an_undeclared_multirotor_in_sustained_thrust_tilts_does_not_learn_its_t
     out = f.run(rows)
     scored = slice(RATE_HZ * 20, None)
     incl = summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg
-    assert incl < 12.0
-    # the bias estimate stays within a raw MEMS gyro's range on every axis, the vertical one too
-    assert np.abs(np.degrees(out[:, OUT_BIAS : OUT_BIAS + 3])).max() <= 6.0 + 1e-9
+    assert incl < 3.0
+    # taken for a multirotor from the data (test_best_detect.py), the output is the multirotor hypothesis's:
+    # its bias estimate follows the true bias after 20 s on every axis, the vertical one too (within 0.53 °/s)
+    assert f.multirotor_detection()["multirotor"] == 1.0  # type: ignore[attr-defined]
+    err = np.abs(np.degrees(out[scored, OUT_BIAS : OUT_BIAS + 3]) - np.degrees(bias))
+    assert err.max() < 1.0
 
 
 def test_the_raw_bias_range_is_the_plain_apis_only() -> None:

@@ -20,6 +20,7 @@ import pytest
 from mavahrs.evaluation.metrics import summarize
 from mavahrs.filters import create
 from mavahrs.filters.base import make_inputs
+from mavahrs.filters.best import BestSettings, MultirotorDetectSettings
 from mavahrs.filters.eskf import MULTIROTOR_DRAG_1_S, Eskf, EskfSettings
 from mavahrs.filters.layout import OUT_Q
 from mavahrs.geometry.quaternion import multiply
@@ -51,7 +52,9 @@ def test_drag_holds_the_tilt_of_a_raw_imu_without_gnss(scenario: str, seed: int,
     scored = slice(RATE_HZ * 20, None)  # after 20 s of convergence from a start in flight
 
     def incl(multirotor: bool) -> float:
-        f = create("best")
+        # without: the generic hypothesis alone (the plain path's multirotor detection off, which would take
+        # these flights for a multirotor and use the drag measurement too: tests/filters/test_best_detect.py)
+        f = create("best", None if multirotor else BestSettings(detect=MultirotorDetectSettings(enabled=False)))
         if multirotor:
             f.set_multirotor()  # type: ignore[attr-defined]
         q = f.run(rows)[:, OUT_Q : OUT_Q + 4]
