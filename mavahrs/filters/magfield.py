@@ -34,6 +34,9 @@ updates; Solà 2017 eq. (275)–(279) with a diagonal R):
 * while it is not, only the heading-free parts are learnt: the vertical
   component and the horizontal magnitude (the field's direction changes in
   the body as the vehicle turns, so turns make every axis observable);
+* the pair update (:func:`_pair_update`) learns the field per ampere on every axis from the
+  current's changes and the offset from turns without the heading, from a reading and one
+  ``pair_lag_s`` earlier; near the ground (GNSS-aided height) nothing is learnt (an anomaly);
 * the earth field starts from the World Magnetic Model (``set_mag_reference``:
   the pipeline's WMM field at the vehicle's position) with σ
   ``earth_field_sigma_ut`` — a prior, not a constraint — or, before a
