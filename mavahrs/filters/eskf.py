@@ -1304,6 +1304,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             row[IN_CURRENT], s_pos(state[k + _P + 2 * N + 2]),
             params[p + _MAG_STALE] * math.sqrt(gx * gx + gy * gy + gz * gz), params[P_SCHED + _g.GP_MAG_REF_NORM],
             params[P_SCHED + _g.GP_MAG_REF_DIP], clk, scr[0:4], scr[4:12], scr[12:20],
+            state[k + _V] if aided else math.nan, state[k + _V + 1] if aided else math.nan,
             state[k + _V + 2] if aided else math.nan,
         )  # fmt: skip
         bx, by, bz = mx - scr[0], my - scr[1], mz - scr[2]  # the body field the model removes

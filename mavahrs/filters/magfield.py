@@ -133,8 +133,10 @@ MF_REF_C = MF_REF_M + 3  # its C_body_to_ned (9, row-major)
 MF_REF_I = MF_REF_C + 9  # its battery current, A
 MF_REF_R = MF_REF_I + 1  # its noise variance, µT²
 MF_PAIRS = MF_REF_R + 1  # pair updates fused
-MF_LOW = MF_PAIRS + 1  # 1 while below the pair updates' height (GNSS-aided)
-MF_LEN = MF_LOW + 1
+MF_LOW = MF_PAIRS + 1  # 1 while near the ground it started on (GNSS-aided: below the height, near the start)
+MF_NORTH = MF_LOW + 1  # horizontal position from where the aided track began, m (north, east)
+MF_EAST = MF_NORTH + 1
+MF_LEN = MF_EAST + 1
 
 # parameter offsets
 MP_ON = 0
@@ -154,7 +156,8 @@ MP_K0 = 13  # initial σ of the field per ampere, µT/A
 MP_Q_K = 14  # its random walk², (µT/A)²/s
 MP_PAIR_LAG = 15  # s between the two readings of a pair update; 0: no pair updates
 MP_PAIR_HEIGHT = 16  # m above the lowest point seen before pair updates are made
-MP_LEN = 17
+MP_GROUND_RADIUS = 17  # m: … or this far (horizontally) from where the aided track began
+MP_LEN = 18
 
 
 @dataclass(frozen=True)
@@ -246,7 +249,12 @@ class MagFieldSettings:
             the lowest point it was seen at (the ESKF's vertical velocity
             integrated while GNSS-aided): a ground anomaly changes with height
             and would be learnt as the motors' field at take-off (the current
-            jumps as the anomaly fades).
+            jumps as the anomaly fades).  Below it nothing is learnt from a
+            reading (it is only judged), and on the way up the offset and the
+            earth field start again from their priors.
+        ground_radius_m: … unless the vehicle is this far horizontally from
+            where its GNSS-aided track began (a rover or a boat never climbs:
+            away from the start it learns as before).
     """
 
     enabled: bool | None = None
@@ -269,6 +277,7 @@ class MagFieldSettings:
     reopen_heading: bool = False
     pair_lag_s: float = 2.0
     pair_min_height_m: float = 5.0
+    ground_radius_m: float = 10.0
 
     def __post_init__(self) -> None:
         for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
@@ -278,7 +287,7 @@ class MagFieldSettings:
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be a finite number > 0, got {v!r}")
         for name in ("offset_walk_ut_s", "earth_field_walk_ut_s", "hold_s", "motor_walk_ut_per_a_s", "step_sigma_ut",
-                     "min_body_field_ut", "pair_lag_s", "pair_min_height_m"):
+                     "min_body_field_ut", "pair_lag_s", "pair_min_height_m", "ground_radius_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be ≥ 0, got {v!r}")
@@ -304,6 +313,7 @@ def magfield_params(s: MagFieldSettings) -> np.ndarray:
     p[MP_Q_K] = s.motor_walk_ut_per_a_s**2
     p[MP_PAIR_LAG] = s.pair_lag_s
     p[MP_PAIR_HEIGHT] = s.pair_min_height_m
+    p[MP_GROUND_RADIUS] = s.ground_radius_m
     return p
 
 
@@ -347,7 +357,7 @@ def _h_row(c, j, amps, h):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph, vd):  # type: ignore[no-untyped-def]
+def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph, vn, ve, vd):  # type: ignore[no-untyped-def]
     """Fuse one new reading ``m`` (µT, body) into the model; return its trust (``MAG_*``).
 
     ``c``: C_body_to_ned (9, row-major) of the ESKF; ``p_psi``: its heading
@@ -358,7 +368,8 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     is then left out); ``stale_rad``: how far the vehicle turns over the
     reading's possible age (rate × the ESKF's ``mag_staleness_s``), rad —
     the field moves by that much times its strength in every component; ``h``, ``ph``: scratch of ``NX``;
-    ``vd``: the ESKF's down velocity, m/s, NaN while not GNSS-aided (the height for the pair update).
+    ``vn``, ``ve``, ``vd``: the ESKF's NED velocity, m/s, NaN while not GNSS-aided (the height and the
+    distance from the start: near the ground it started on nothing is learnt, no pair update).
     """
     if not (amps == amps):
         amps = 0.0
@@ -393,6 +404,9 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
         s[k + MF_HEIGHT] -= vd * min(dt, 1.0)
         if s[k + MF_HEIGHT] < s[k + MF_HEIGHT_MIN]:
             s[k + MF_HEIGHT_MIN] = s[k + MF_HEIGHT]
+        if vn == vn and ve == ve:
+            s[k + MF_NORTH] += vn * min(dt, 1.0)
+            s[k + MF_EAST] += ve * min(dt, 1.0)
     if dt > 0.0:
         if dt > 10.0:
             dt = 10.0
@@ -409,7 +423,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     # above, the offset and the earth field start again from their priors (the WMM's)
     learn = True
     if p[MP_PAIR_LAG] > 0.0 and vd == vd:
-        if s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN] < p[MP_PAIR_HEIGHT]:
+        if _near_start(s, k, p):
             learn = False
             s[k + MF_LOW] = 1.0
         elif s[k + MF_LOW] > 0.0:
@@ -517,6 +531,17 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     return trust
 
 
+@kernel(inline=True)
+def _near_start(s, k, p):  # type: ignore[no-untyped-def]
+    """Near the ground the vehicle started on: below ``MP_PAIR_HEIGHT`` above the lowest point seen and
+    within ``MP_GROUND_RADIUS`` of where the aided track began (a ground anomaly's reach)."""
+    dn, de = s[k + MF_NORTH], s[k + MF_EAST]
+    return (
+        s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN] < p[MP_PAIR_HEIGHT]
+        and dn * dn + de * de < p[MP_GROUND_RADIUS] * p[MP_GROUND_RADIUS]
+    )
+
+
 @kernel
 def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type: ignore[no-untyped-def]
     """Fuse the reading with the reference held ``MP_PAIR_LAG`` s earlier, then hold this one.
@@ -535,7 +560,7 @@ def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type:
     kx = k + MF_X
     kp = k + MF_P
     kr = k + MF_REF_C
-    ok = vd == vd and s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN] >= p[MP_PAIR_HEIGHT]
+    ok = vd == vd and not _near_start(s, k, p)
     if not ok:
         s[k + MF_REF_ON] = 0.0
         return
