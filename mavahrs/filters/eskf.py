@@ -936,7 +936,8 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
 def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-untyped-def]
     """The heading set from the model's corrected reading while it is unknown (σ ≥ 30°, a start in a
     ground anomaly) and the model's field per ampere is known (every σ ≤ 0.06 µT/A: a model loaded
-    from an earlier flight, or learnt): once the corrected reading's norm and dip have fitted the WMM's
+    from an earlier flight, or learnt), or the model's own heading σ is ≤ 10° (learnt in this flight by
+    its pair updates; the heading variance is then set to that σ × ``heading_sigma_factor``): once the corrected reading's norm and dip have fitted the WMM's
     (5 %, 3°) for 1 s while the motors' field is ≥ 3 µT (the vehicle in the air, out of the anomaly), the heading is rotated to it and its variance
     set to the heading noise (ArduPilot's EKF3 resets its yaw to the compass after take-off for the
     same reason).  firmware_sim ``mag_anomaly``: with a model saved from another flight the corrected
