@@ -119,6 +119,7 @@ from mavahrs.filters.magfield import (
     mag_model_reset,
     mag_model_summary,
     mag_model_update,
+    mag_ref_rotate,
     mag_status,
     magfield_params,
 )
@@ -1438,7 +1439,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[S_BIAS + i] = min(max(b, -lim), lim)
         # the declination correction (bounded by 5σ of its prior: a disturbed compass taken for it is undone)
         lim_d = 5.0 * math.sqrt(params[p + _DECL_P0])
+        d_old = state[k + _DECL]
         state[k + _DECL] = min(max(state[k + _DECL] + state[kdx + _I_DECL], -lim_d), lim_d)
+        if params[p + _MAGF_P] > 0.0:  # the magnetometer model's pair reference moves with the frame
+            mag_ref_rotate(state, k + _MAGF, rx, ry, rz, d_old, state[k + _DECL])
         kt = k + _TAX
         if params[p + _AXIS_P0] > 0.0 and state[k + _P + 9 * N + 9] > 0.0:
             # the thrust axis moved across itself: t ← (t + α₁e₁ + α₂e₂)/‖·‖

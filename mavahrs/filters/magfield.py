@@ -87,6 +87,7 @@ __all__ = [
     "MAG_STATES",
     "mag_model_reset",
     "mag_model_update",
+    "mag_ref_rotate",
     "magfield_params",
     "mag_model_summary",
     "mag_state_text",
@@ -129,7 +130,7 @@ MF_HEIGHT_MIN = MF_HEIGHT + 1  # the lowest height seen, m (the ground the anoma
 MF_REF_ON = MF_HEIGHT_MIN + 1  # 1: a reference reading is held for a pair (heading-free) update
 MF_REF_T = MF_REF_ON + 1  # its clock, s
 MF_REF_M = MF_REF_T + 1  # its reading, µT, body (3)
-MF_REF_C = MF_REF_M + 3  # its C_body_to_ned (9, row-major)
+MF_REF_C = MF_REF_M + 3  # its C_body_to_ned transposed (9: the body axes x, y, z in NED, 3 each)
 MF_REF_I = MF_REF_C + 9  # its battery current, A
 MF_REF_R = MF_REF_I + 1  # its noise variance, µT²
 MF_PAIRS = MF_REF_R + 1  # pair updates fused
@@ -531,6 +532,34 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     return trust
 
 
+@kernel
+def mag_ref_rotate(s, k, rx, ry, rz, d_old, d_new):  # type: ignore[no-untyped-def]
+    """Move the pair update's reference attitude with the estimate's frame (as the ESKF's stored NED
+    vectors move): the ESKF corrected its attitude by δθ = (rx, ry, rz) (C ← Exp(δθ) C) and its
+    declination correction from ``d_old`` to ``d_new`` (the model's frame is C rotated by it), so that
+    ``R = C_iᵀ C_j`` stays the rotation the vehicle made, not the corrections GNSS made in between
+    (a heading corrected by 2° within the pair's 2 s moves a 23 µT field by 0.8 µT)."""
+    if s[k + MF_REF_ON] == 0.0:
+        return
+    kr = k + MF_REF_C
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+    ca, sa = math.cos(ang), math.sin(ang)
+    ux, uy, uz = (rx / ang, ry / ang, rz / ang) if ang > 0.0 else (0.0, 0.0, 1.0)
+    co, so = math.cos(d_old), math.sin(d_old)
+    cn, sn = math.cos(d_new), math.sin(d_new)
+    for b in range(3):
+        v0, v1, v2 = s[kr + 3 * b], s[kr + 3 * b + 1], s[kr + 3 * b + 2]
+        # out of the model's frame (D_oldᵀ), rotated (Rodrigues), into the new one (D_new)
+        a0, a1, a2 = co * v0 - so * v1, so * v0 + co * v1, v2
+        dot = ux * a0 + uy * a1 + uz * a2
+        b0 = a0 * ca + (uy * a2 - uz * a1) * sa + ux * dot * (1.0 - ca)
+        b1 = a1 * ca + (uz * a0 - ux * a2) * sa + uy * dot * (1.0 - ca)
+        b2 = a2 * ca + (ux * a1 - uy * a0) * sa + uz * dot * (1.0 - ca)
+        s[kr + 3 * b] = cn * b0 + sn * b1
+        s[kr + 3 * b + 1] = -sn * b0 + cn * b1
+        s[kr + 3 * b + 2] = b2
+
+
 @kernel(inline=True)
 def _near_start(s, k, p):  # type: ignore[no-untyped-def]
     """Near the ground the vehicle started on: below ``MP_PAIR_HEIGHT`` above the lowest point seen and
@@ -576,9 +605,9 @@ def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type:
                 break
             for a in range(3):
                 # row a of R = C_iᵀ C_j, and z_a = m_a − (R m_j)_a
-                r0 = c[a] * s[kr + 0] + c[3 + a] * s[kr + 3] + c[6 + a] * s[kr + 6]
-                r1 = c[a] * s[kr + 1] + c[3 + a] * s[kr + 4] + c[6 + a] * s[kr + 7]
-                r2 = c[a] * s[kr + 2] + c[3 + a] * s[kr + 5] + c[6 + a] * s[kr + 8]
+                r0 = c[a] * s[kr + 0] + c[3 + a] * s[kr + 1] + c[6 + a] * s[kr + 2]
+                r1 = c[a] * s[kr + 3] + c[3 + a] * s[kr + 4] + c[6 + a] * s[kr + 5]
+                r2 = c[a] * s[kr + 6] + c[3 + a] * s[kr + 7] + c[6 + a] * s[kr + 8]
                 ma = mx if a == 0 else (my if a == 1 else mz)
                 z = ma - (r0 * s[k + MF_REF_M] + r1 * s[k + MF_REF_M + 1] + r2 * s[k + MF_REF_M + 2])
                 h[0] = (1.0 if a == 0 else 0.0) - r0
@@ -622,8 +651,9 @@ def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type:
         s[k + MF_REF_M] = mx
         s[k + MF_REF_M + 1] = my
         s[k + MF_REF_M + 2] = mz
-        for i in range(9):
-            s[kr + i] = c[i]
+        for b in range(3):
+            for n in range(3):
+                s[kr + 3 * b + n] = c[3 * n + b]
         s[k + MF_REF_I] = amps
         s[k + MF_REF_R] = sig_m2
 
