@@ -101,14 +101,17 @@ from mavahrs.filters.layout import (
 from mavahrs.filters.magfield import (
     MAG_DISTURBED,
     MAG_TRUSTED,
+    MF_HEAD_SIGMA,
     MF_LEN,
     MF_P,
+    MF_REF_ON,
     MF_STEP_T,
     MF_STEPS,
     MF_T,
     MF_TRUST,
     MF_X,
     MP_B0,
+    MP_HFACTOR,
     MP_LEN,
     MagFieldSettings,
     export_model,
@@ -116,6 +119,7 @@ from mavahrs.filters.magfield import (
     mag_model_reset,
     mag_model_summary,
     mag_model_update,
+    mag_ref_rotate,
     mag_status,
     magfield_params,
 )
@@ -152,6 +156,10 @@ _RESTART_HEADING = math.radians(45.0) ** 2
 _UNKNOWN_HEADING_VAR = math.radians(30.0) ** 2
 #: the magnetometer model's field-per-ampere variance below which it is known, (µT/A)²
 _KNOWN_MOTOR_VAR = 0.06**2
+#: … or its own heading σ (the corrected reading's east uncertainty over F_H, magfield ``MF_HEAD_SIGMA``) at or
+#: below which its corrected reading may reset an unknown heading, rad (a model learnt in this flight
+#: by its pair updates: 8–9° on firmware_sim mag_anomaly 3 s after take-off, the offset's prior 3 µT of it)
+_RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 #: the model's motor field, µT², at or above which its corrected reading may reset an unknown heading
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
@@ -943,7 +951,8 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
 def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-untyped-def]
     """The heading set from the model's corrected reading while it is unknown (σ ≥ 30°, a start in a
     ground anomaly) and the model's field per ampere is known (every σ ≤ 0.06 µT/A: a model loaded
-    from an earlier flight, or learnt): once the corrected reading's norm and dip have fitted the WMM's
+    from an earlier flight, or learnt), or the model's own heading σ is ≤ 10° (learnt in this flight by
+    its pair updates; the heading variance is then set to that σ × ``heading_sigma_factor``): once the corrected reading's norm and dip have fitted the WMM's
     (5 %, 3°) for 1 s while the motors' field is ≥ 3 µT (the vehicle in the air, out of the anomaly), the heading is rotated to it and its variance
     set to the heading noise (ArduPilot's EKF3 resets its yaw to the compass after take-off for the
     same reason).  firmware_sim ``mag_anomaly``: with a model saved from another flight the corrected
@@ -957,8 +966,10 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
         kx = km + MF_X
         bx, by, bz = amps * s[kx + 3], amps * s[kx + 4], amps * s[kx + 5]
         ok = bx * bx + by * by + bz * bz >= _MIN_MOTOR_FIELD_UT2
+    known = True
     for i in range(3, 6):
-        ok = ok and s_pos(s[km + MF_P + i * MF_NX + i]) <= _KNOWN_MOTOR_VAR
+        known = known and s_pos(s[km + MF_P + i * MF_NX + i]) <= _KNOWN_MOTOR_VAR
+    ok = ok and (known or s[km + MF_HEAD_SIGMA] <= _RESET_MODEL_SIGMA_RAD)
     kc = k + _C
     mx, my, mz = scr[0], scr[1], scr[2]
     hn = s[kc + 0] * mx + s[kc + 1] * my + s[kc + 2] * mz
@@ -989,7 +1000,10 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     for j in range(N):
         s[kp + 2 * N + j] = 0.0
         s[kp + j * N + 2] = 0.0
-    s[kp + 2 * N + 2] = params[p + _R_HEADING]
+    # the heading noise, or what the model leaves unknown of the field across (×``heading_sigma_factor``)
+    hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
+    s[kp + 2 * N + 2] = params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv)
+    s[km + MF_REF_ON] = 0.0  # the model's pair reference was held in the former heading
 
 
 @kernel
@@ -1306,6 +1320,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             row[IN_CURRENT], s_pos(state[k + _P + 2 * N + 2]),
             params[p + _MAG_STALE] * math.sqrt(gx * gx + gy * gy + gz * gz), params[P_SCHED + _g.GP_MAG_REF_NORM],
             params[P_SCHED + _g.GP_MAG_REF_DIP], clk, scr[0:4], scr[4:12], scr[12:20],
+            state[k + _V] if aided else math.nan, state[k + _V + 1] if aided else math.nan,
+            state[k + _V + 2] if aided else math.nan,
         )  # fmt: skip
         bx, by, bz = mx - scr[0], my - scr[1], mz - scr[2]  # the body field the model removes
         if w_m >= 0.5:
@@ -1437,7 +1453,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[S_BIAS + i] = min(max(b, -lim), lim)
         # the declination correction (bounded by 5σ of its prior: a disturbed compass taken for it is undone)
         lim_d = 5.0 * math.sqrt(params[p + _DECL_P0])
+        d_old = state[k + _DECL]
         state[k + _DECL] = min(max(state[k + _DECL] + state[kdx + _I_DECL], -lim_d), lim_d)
+        if params[p + _MAGF_P] > 0.0:  # the magnetometer model's pair reference moves with the frame
+            mag_ref_rotate(state, k + _MAGF, rx, ry, rz, d_old, state[k + _DECL])
         kt = k + _TAX
         if params[p + _AXIS_P0] > 0.0 and state[k + _P + 9 * N + 9] > 0.0:
             # the thrust axis moved across itself: t ← (t + α₁e₁ + α₂e₂)/‖·‖

@@ -34,6 +34,9 @@ updates; Solà 2017 eq. (275)–(279) with a diagonal R):
 * while it is not, only the heading-free parts are learnt: the vertical
   component and the horizontal magnitude (the field's direction changes in
   the body as the vehicle turns, so turns make every axis observable);
+* the pair update (:func:`_pair_update`) learns the field per ampere on every axis from the
+  current's changes and the offset from turns without the heading, from a reading and one
+  ``pair_lag_s`` earlier; near the ground (GNSS-aided height) nothing is learnt (an anomaly);
 * the earth field starts from the World Magnetic Model (``set_mag_reference``:
   the pipeline's WMM field at the vehicle's position) with σ
   ``earth_field_sigma_ut`` — a prior, not a constraint — or, before a
@@ -73,7 +76,10 @@ from mavahrs.filters.layout import (
 
 __all__ = [
     "MagFieldSettings",
+    "MF_HEAD_SIGMA",
     "MF_LEN",
+    "MF_REF_ON",
+    "MP_HFACTOR",
     "MP_LEN",
     "MAG_TRUSTED",
     "MAG_LEARNING",
@@ -81,6 +87,7 @@ __all__ = [
     "MAG_STATES",
     "mag_model_reset",
     "mag_model_update",
+    "mag_ref_rotate",
     "magfield_params",
     "mag_model_summary",
     "mag_state_text",
@@ -118,7 +125,19 @@ MF_TRUST = MF_STEP_T + 1  # MAG_* of the last reading
 MF_STEPS = MF_TRUST + 1  # disturbances counted
 MF_HEAD_SIGMA = MF_STEPS + 1  # 1-σ heading noise the model gives the last reading, rad
 MF_RESID = MF_HEAD_SIGMA + 1  # the last reading's residual in NED (3), µT
-MF_LEN = MF_RESID + 3
+MF_HEIGHT = MF_RESID + 3  # height above the start, m (the ESKF's vertical velocity integrated while aided)
+MF_HEIGHT_MIN = MF_HEIGHT + 1  # the lowest height seen, m (the ground the anomaly is in)
+MF_REF_ON = MF_HEIGHT_MIN + 1  # 1: a reference reading is held for a pair (heading-free) update
+MF_REF_T = MF_REF_ON + 1  # its clock, s
+MF_REF_M = MF_REF_T + 1  # its reading, µT, body (3)
+MF_REF_C = MF_REF_M + 3  # its C_body_to_ned transposed (9: the body axes x, y, z in NED, 3 each)
+MF_REF_I = MF_REF_C + 9  # its battery current, A
+MF_REF_R = MF_REF_I + 1  # its noise variance, µT²
+MF_PAIRS = MF_REF_R + 1  # pair updates fused
+MF_LOW = MF_PAIRS + 1  # 1 while near the ground it started on (GNSS-aided: below the height, near the start)
+MF_NORTH = MF_LOW + 1  # horizontal position from where the aided track began, m (north, east)
+MF_EAST = MF_NORTH + 1
+MF_LEN = MF_EAST + 1
 
 # parameter offsets
 MP_ON = 0
@@ -136,7 +155,10 @@ MP_EAST = 11  # 1: learn the offset from the ESKF's heading too (the east residu
 MP_HFACTOR = 12  # the model's heading σ is multiplied by this before the ESKF uses it
 MP_K0 = 13  # initial σ of the field per ampere, µT/A
 MP_Q_K = 14  # its random walk², (µT/A)²/s
-MP_LEN = 15
+MP_PAIR_LAG = 15  # s between the two readings of a pair update; 0: no pair updates
+MP_PAIR_HEIGHT = 16  # m above the lowest point seen before pair updates are made
+MP_GROUND_RADIUS = 17  # m: … or this far (horizontally) from where the aided track began
+MP_LEN = 18
 
 
 @dataclass(frozen=True)
@@ -216,6 +238,24 @@ class MagFieldSettings:
             before may be wrong: a start in a ground anomaly).  Off by
             default: on PX4's SITL flight the model's disturbances re-opened
             a heading GNSS held well (1.05° without, 1.90° with it).
+        pair_lag_s: the heading-free pair update (2026-12-06, third round): a
+            reading and one ``pair_lag_s`` earlier, related by the rotation
+            between them that the gyro measured (the estimate's C at both times,
+            whose common heading error cancels), ``m_i − R m_j = (1 − R) b₀ +
+            (I_i − I_j R) k`` with ``R = C_iᵀ C_j`` — the field per ampere is
+            learnt on every axis from the current's changes, the offset from
+            turns, neither needing the heading (the absolute update's east
+            component needs it).  0 = off.
+        pair_min_height_m: pair updates only once the vehicle is this far above
+            the lowest point it was seen at (the ESKF's vertical velocity
+            integrated while GNSS-aided): a ground anomaly changes with height
+            and would be learnt as the motors' field at take-off (the current
+            jumps as the anomaly fades).  Below it nothing is learnt from a
+            reading (it is only judged), and on the way up the offset and the
+            earth field start again from their priors.
+        ground_radius_m: … unless the vehicle is this far horizontally from
+            where its GNSS-aided track began (a rover or a boat never climbs:
+            away from the start it learns as before).
     """
 
     enabled: bool | None = None
@@ -236,6 +276,9 @@ class MagFieldSettings:
     motor_walk_ut_per_a_s: float = 0.0005
     min_body_field_ut: float = 4.0
     reopen_heading: bool = False
+    pair_lag_s: float = 2.0
+    pair_min_height_m: float = 5.0
+    ground_radius_m: float = 10.0
 
     def __post_init__(self) -> None:
         for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
@@ -245,7 +288,7 @@ class MagFieldSettings:
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be a finite number > 0, got {v!r}")
         for name in ("offset_walk_ut_s", "earth_field_walk_ut_s", "hold_s", "motor_walk_ut_per_a_s", "step_sigma_ut",
-                     "min_body_field_ut"):
+                     "min_body_field_ut", "pair_lag_s", "pair_min_height_m", "ground_radius_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be ≥ 0, got {v!r}")
@@ -269,6 +312,9 @@ def magfield_params(s: MagFieldSettings) -> np.ndarray:
     p[MP_HFACTOR] = s.heading_sigma_factor
     p[MP_K0] = s.motor_ut_per_a_sigma
     p[MP_Q_K] = s.motor_walk_ut_per_a_s**2
+    p[MP_PAIR_LAG] = s.pair_lag_s
+    p[MP_PAIR_HEIGHT] = s.pair_min_height_m
+    p[MP_GROUND_RADIUS] = s.ground_radius_m
     return p
 
 
@@ -312,7 +358,7 @@ def _h_row(c, j, amps, h):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph):  # type: ignore[no-untyped-def]
+def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph, vn, ve, vd):  # type: ignore[no-untyped-def]
     """Fuse one new reading ``m`` (µT, body) into the model; return its trust (``MAG_*``).
 
     ``c``: C_body_to_ned (9, row-major) of the ESKF; ``p_psi``: its heading
@@ -322,7 +368,9 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     ``amps``: the battery current, A (NaN: not known, the per-ampere term
     is then left out); ``stale_rad``: how far the vehicle turns over the
     reading's possible age (rate × the ESKF's ``mag_staleness_s``), rad —
-    the field moves by that much times its strength in every component; ``h``, ``ph``: scratch of ``NX``.
+    the field moves by that much times its strength in every component; ``h``, ``ph``: scratch of ``NX``;
+    ``vn``, ``ve``, ``vd``: the ESKF's NED velocity, m/s, NaN while not GNSS-aided (the height and the
+    distance from the start: near the ground it started on nothing is learnt, no pair update).
     """
     if not (amps == amps):
         amps = 0.0
@@ -353,6 +401,13 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
         s[k + MF_T] = clk
     # ---- process noise since the last reading
     dt = clk - s[k + MF_T]
+    if vd == vd and dt > 0.0:
+        s[k + MF_HEIGHT] -= vd * min(dt, 1.0)
+        if s[k + MF_HEIGHT] < s[k + MF_HEIGHT_MIN]:
+            s[k + MF_HEIGHT_MIN] = s[k + MF_HEIGHT]
+        if vn == vn and ve == ve:
+            s[k + MF_NORTH] += vn * min(dt, 1.0)
+            s[k + MF_EAST] += ve * min(dt, 1.0)
     if dt > 0.0:
         if dt > 10.0:
             dt = 10.0
@@ -362,6 +417,27 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
         for i in range(_FH, NX):
             s[kp + i * NX + i] += p[MP_Q_F] * dt
     s[k + MF_T] = clk
+    # below the pair updates' height (GNSS-aided: the height is known) nothing is learnt from the
+    # reading, it is only judged (fits or disturbed): at take-off a ground anomaly fades as the current
+    # jumps, and each disturbance's re-opened offset passed part of it to the earth field (firmware_sim
+    # mag_anomaly seed 29: the field down 14 µT off after take-off) and to the field per ampere; once
+    # above, the offset and the earth field start again from their priors (the WMM's)
+    learn = True
+    if p[MP_PAIR_LAG] > 0.0 and vd == vd:
+        if _near_start(s, k, p):
+            learn = False
+            s[k + MF_LOW] = 1.0
+        elif s[k + MF_LOW] > 0.0:
+            s[k + MF_LOW] = 0.0
+            for i in range(3):
+                s[kx + i] = 0.0
+                for j in range(NX):
+                    s[kp + i * NX + j] = 0.0
+                    s[kp + j * NX + i] = 0.0
+                s[kp + i * NX + i] = p[MP_B0] * p[MP_B0]
+            if s[k + MF_REF_NORM] > 0.0:
+                _seed_field(s, k, p, s[k + MF_REF_NORM] * math.cos(s[k + MF_REF_DIP]),
+                            s[k + MF_REF_NORM] * math.sin(s[k + MF_REF_DIP]), p[MP_F0])  # fmt: skip
     f_h = s[kx + _FH]
     pp = max(p_psi, 0.0)
     r_e = sig_m2 + f_h * f_h * pp
@@ -398,9 +474,11 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
                 s[kp + i * NX + i] = p[MP_B0] * p[MP_B0]
         s[k + MF_STEP_T] = clk
         s[k + MF_STEPS] += 1.0
+    # ---- the heading-free pair update (this reading against one ``MP_PAIR_LAG`` earlier)
+    _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph)
     # ---- sequential scalar updates (R diagonal in NED)
     for j in range(3):
-        if j == 1 and p[MP_EAST] == 0.0:
+        if (j == 1 and p[MP_EAST] == 0.0) or not learn:
             continue
         _h_row(c, j, amps, h)
         y = _residual(s, kx, c, mx, my, mz, amps, j)
@@ -454,6 +532,132 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     return trust
 
 
+@kernel
+def mag_ref_rotate(s, k, rx, ry, rz, d_old, d_new):  # type: ignore[no-untyped-def]
+    """Move the pair update's reference attitude with the estimate's frame (as the ESKF's stored NED
+    vectors move): the ESKF corrected its attitude by δθ = (rx, ry, rz) (C ← Exp(δθ) C) and its
+    declination correction from ``d_old`` to ``d_new`` (the model's frame is C rotated by it), so that
+    ``R = C_iᵀ C_j`` stays the rotation the vehicle made, not the corrections GNSS made in between
+    (a heading corrected by 2° within the pair's 2 s moves a 23 µT field by 0.8 µT)."""
+    if s[k + MF_REF_ON] == 0.0:
+        return
+    kr = k + MF_REF_C
+    ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+    ca, sa = math.cos(ang), math.sin(ang)
+    ux, uy, uz = (rx / ang, ry / ang, rz / ang) if ang > 0.0 else (0.0, 0.0, 1.0)
+    co, so = math.cos(d_old), math.sin(d_old)
+    cn, sn = math.cos(d_new), math.sin(d_new)
+    for b in range(3):
+        v0, v1, v2 = s[kr + 3 * b], s[kr + 3 * b + 1], s[kr + 3 * b + 2]
+        # out of the model's frame (D_oldᵀ), rotated (Rodrigues), into the new one (D_new)
+        a0, a1, a2 = co * v0 - so * v1, so * v0 + co * v1, v2
+        dot = ux * a0 + uy * a1 + uz * a2
+        b0 = a0 * ca + (uy * a2 - uz * a1) * sa + ux * dot * (1.0 - ca)
+        b1 = a1 * ca + (uz * a0 - ux * a2) * sa + uy * dot * (1.0 - ca)
+        b2 = a2 * ca + (ux * a1 - uy * a0) * sa + uz * dot * (1.0 - ca)
+        s[kr + 3 * b] = cn * b0 + sn * b1
+        s[kr + 3 * b + 1] = -sn * b0 + cn * b1
+        s[kr + 3 * b + 2] = b2
+
+
+@kernel(inline=True)
+def _near_start(s, k, p):  # type: ignore[no-untyped-def]
+    """Near the ground the vehicle started on: below ``MP_PAIR_HEIGHT`` above the lowest point seen and
+    within ``MP_GROUND_RADIUS`` of where the aided track began (a ground anomaly's reach)."""
+    dn, de = s[k + MF_NORTH], s[k + MF_EAST]
+    return (
+        s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN] < p[MP_PAIR_HEIGHT]
+        and dn * dn + de * de < p[MP_GROUND_RADIUS] * p[MP_GROUND_RADIUS]
+    )
+
+
+@kernel
+def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type: ignore[no-untyped-def]
+    """Fuse the reading with the reference held ``MP_PAIR_LAG`` s earlier, then hold this one.
+
+    The earth field in the body at both times, ``e = m − b₀ − k·I``, is related by the rotation the
+    vehicle made in between, ``e_i = R e_j`` with ``R = C_iᵀ C_j`` (the estimate's attitudes: a heading
+    error common to both cancels), so ``z = m_i − R m_j = (1 − R) b₀ + (I_i·1 − I_j·R) k + w`` with
+    ``w ~ N(0, (σ_i² + σ_j²) I)`` (R is a rotation: the noise stays isotropic and the three components
+    independent; sequential scalar updates, Solà 2017 eq. (275)–(279)).  The current's changes teach
+    k on every axis, turns teach b₀, without the heading; an anomaly that changes with height does
+    not fit it, hence only above ``MP_PAIR_HEIGHT``.  A pair beyond the gate in any component is dropped.
+    """
+    lag = p[MP_PAIR_LAG]
+    if not (lag > 0.0):
+        return
+    kx = k + MF_X
+    kp = k + MF_P
+    kr = k + MF_REF_C
+    ok = vd == vd and not _near_start(s, k, p)
+    if not ok:
+        s[k + MF_REF_ON] = 0.0
+        return
+    if s[k + MF_REF_ON] > 0.0 and clk - s[k + MF_REF_T] > 3.0 * lag:
+        s[k + MF_REF_ON] = 0.0  # a gap: the reference is too old
+    if s[k + MF_REF_ON] > 0.0 and clk - s[k + MF_REF_T] >= lag:
+        ij = s[k + MF_REF_I]
+        sv0 = sig_m2 + s[k + MF_REF_R]
+        gate = p[MP_GATE]
+        fits = True
+        for rnd in range(2):  # 0: the gate on every component; 1: the updates
+            if rnd == 1 and not fits:
+                break
+            for a in range(3):
+                # row a of R = C_iᵀ C_j, and z_a = m_a − (R m_j)_a
+                r0 = c[a] * s[kr + 0] + c[3 + a] * s[kr + 1] + c[6 + a] * s[kr + 2]
+                r1 = c[a] * s[kr + 3] + c[3 + a] * s[kr + 4] + c[6 + a] * s[kr + 5]
+                r2 = c[a] * s[kr + 6] + c[3 + a] * s[kr + 7] + c[6 + a] * s[kr + 8]
+                ma = mx if a == 0 else (my if a == 1 else mz)
+                z = ma - (r0 * s[k + MF_REF_M] + r1 * s[k + MF_REF_M + 1] + r2 * s[k + MF_REF_M + 2])
+                h[0] = (1.0 if a == 0 else 0.0) - r0
+                h[1] = (1.0 if a == 1 else 0.0) - r1
+                h[2] = (1.0 if a == 2 else 0.0) - r2
+                h[3] = (amps if a == 0 else 0.0) - ij * r0
+                h[4] = (amps if a == 1 else 0.0) - ij * r1
+                h[5] = (amps if a == 2 else 0.0) - ij * r2
+                h[_FH] = 0.0
+                h[_FD] = 0.0
+                y = z
+                for b in range(6):
+                    y -= h[b] * s[kx + b]
+                sv = sv0
+                for b in range(6):
+                    acc = 0.0
+                    for e in range(6):
+                        acc += s[kp + b * NX + e] * h[e]
+                    sv += h[b] * acc
+                if rnd == 0:
+                    if y * y > gate * gate * sv:
+                        fits = False
+                    continue
+                for b in range(NX):
+                    acc = 0.0
+                    for e in range(6):
+                        acc += s[kp + b * NX + e] * h[e]
+                    ph[b] = acc
+                inv = 1.0 / sv
+                for b in range(NX):
+                    s[kx + b] += ph[b] * inv * y
+                for b in range(NX):
+                    for e in range(NX):
+                        s[kp + b * NX + e] -= ph[b] * inv * ph[e]
+        if fits:
+            s[k + MF_PAIRS] += 1.0
+        s[k + MF_REF_ON] = 0.0
+    if s[k + MF_REF_ON] == 0.0:
+        s[k + MF_REF_ON] = 1.0
+        s[k + MF_REF_T] = clk
+        s[k + MF_REF_M] = mx
+        s[k + MF_REF_M + 1] = my
+        s[k + MF_REF_M + 2] = mz
+        for b in range(3):
+            for n in range(3):
+                s[kr + 3 * b + n] = c[3 * n + b]
+        s[k + MF_REF_I] = amps
+        s[k + MF_REF_R] = sig_m2
+
+
 @kernel(inline=True)
 def _residual(s, kx, c, mx, my, mz, amps, j):  # type: ignore[no-untyped-def]
     """Component j of r = C (m − b₀ − k·I) − (F_H, 0, F_D)."""
@@ -482,6 +686,7 @@ def mag_model_summary(block: np.ndarray) -> dict[str, object]:
         "earth_field_ut": {"horizontal": round(float(b[MF_X + _FH]), 2), "down": round(float(b[MF_X + _FD]), 2)},
         "heading_sigma_deg": round(math.degrees(float(b[MF_HEAD_SIGMA])), 2),
         "disturbances": int(b[MF_STEPS]),
+        "pair_updates": int(b[MF_PAIRS]),
     }
 
 
