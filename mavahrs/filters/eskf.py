@@ -495,12 +495,16 @@ class EskfSettings(FilterSettings):
             receiver's slow wander, which white noise alone does not cover).
         bias_walk_aided_rad_s2: the gyro-bias random walk while velocity-aided,
             rad/s per √s (0 = ``bias_walk_rad_s2`` throughout): the GNSS
-            velocity observes the tilt, hence the horizontal bias, well enough
-            to follow a drifting bias; without it a faster walk only lets the
-            accelerometer's manoeuvre errors into the bias (ArduCopter SITL
-            without GNSS, the walk 2e-4 throughout: 0.56–0.79 → 0.55–0.80°
-            inclination, gentle heading 0.38 → 0.51°).  ``best`` on a vehicle
-            sets it (``best.VEHICLE_BIAS_WALK_RAD_S2``).
+            velocity observes the tilt and (in horizontal accelerations) the
+            heading well enough to follow a drifting bias.  Not without GNSS,
+            where a faster walk only lets the accelerometer's manoeuvre errors
+            into the bias (ArduCopter SITL without GNSS, 2e-4 throughout:
+            0.56–0.79 → 0.55–0.80° inclination, gentle heading 0.38 →
+            0.51°).  Tried: the faster walk on the bias's horizontal (NED)
+            components only, the heading's kept: at 2e-4 the magnetic flight's
+            heading 0.61 → 0.58° but the aggressive one's 0.33 → 0.45° and the
+            .BIN's inclination 0.117 → 0.129° (SITL drifts every axis).
+            ``best`` on a vehicle sets it (``best.VEHICLE_BIAS_WALK_RAD_S2``).
     """
 
     gyro_noise_rad_s: float = 0.003
