@@ -62,10 +62,12 @@ class PositionOrigin:
 
     def ned(self, lat_deg: float, lon_deg: float, alt_m: float, declination_rad: float | None) -> tuple[float, float, float]:
         """(north, east, down) m of a fix from the origin (set from it if none), magnetic NED when
-        ``declination_rad`` is given (true NED when None)."""
+        ``declination_rad`` is given (true NED when None); NaN without a latitude and longitude."""
         self.set(lat_deg, lon_deg, alt_m)
+        if self.lat0_deg is None or not (math.isfinite(lat_deg) and math.isfinite(lon_deg)):
+            return math.nan, math.nan, math.nan  # no position in this fix
         k_n, k_e = self._scales()
-        n = (lat_deg - self.lat0_deg) * k_n  # type: ignore[operator]
+        n = (lat_deg - self.lat0_deg) * k_n
         dlon = (lon_deg - self.lon0_deg + 180.0) % 360.0 - 180.0
         e = dlon * k_e
         d = -(alt_m - self.alt0_m) if math.isfinite(alt_m) and math.isfinite(self.alt0_m) else math.nan
