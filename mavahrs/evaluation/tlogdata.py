@@ -55,7 +55,17 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
 from mavahrs.evaluation.datasets import Recording
-from mavahrs.filters.layout import IN_ACCEL, IN_CURRENT, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+from mavahrs.filters.layout import (
+    IN_ACCEL,
+    IN_CURRENT,
+    IN_DT,
+    IN_GYRO,
+    IN_MAG,
+    IN_POS,
+    IN_VEL,
+    IN_VEL_AGE,
+    IN_WIDTH,
+)
 from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays, shared by every log reader
     _GAP_DT_S,
     FastPathUnsupported,
@@ -499,6 +509,7 @@ def prepare_inputs(
         rows = parts[0]["block"]
         rows[:, IN_VEL : IN_VEL + 3] = _NAN
         rows[:, IN_VEL_AGE] = _NAN
+        rows[:, IN_POS : IN_POS + 3] = _NAN
     else:
         rows = np.full((m, IN_WIDTH), _NAN)
     rows[:, IN_DT] = dt
@@ -520,7 +531,7 @@ def prepare_inputs(
     events.sort()
     decl_at = np.full(m, decl.declination_rad)
     decl_steps: list[tuple[int, float]] = []  # (first sample, declination from there on), filled in once below
-    vel_rows: list[tuple[int, tuple[float, float, float], int | None]] = []
+    vel_rows: list[tuple[int, tuple[float, float, float], int | None, tuple[float, float, float]]] = []
     vsel = VelocitySelector(s.effective_velocity_source, s.monitor.receiver_velocity_only, profile.velocity_order)
     mag_events: list[tuple[int, float, float]] = []  # Pipeline._field_changed → filter.set_mag_reference
     ref0 = decl.mag_reference()
@@ -540,12 +551,13 @@ def prepare_inputs(
             f = decl.field
             got = vsel.offer(msg, int(td.t_us[frame_pos]), f.declination_rad if f is not None else None)
             if got is not None and i < m:
-                vel_rows.append((i, got[1:], got[0].fix_time_us))
+                vel_rows.append((i, got[1:], got[0].fix_time_us, vsel.position_ned))
     for j, (i, d) in enumerate(decl_steps):  # one pass, not one fill per position message
         decl_at[i : decl_steps[j + 1][0] if j + 1 < len(decl_steps) else m] = d
-    for i, v, fix_t in vel_rows:  # later messages before the same sample overwrite earlier ones
+    for i, v, fix_t, p_ned in vel_rows:  # later messages before the same sample overwrite earlier ones
         rows[i, IN_VEL : IN_VEL + 3] = v
         rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), fix_t)
+        rows[i, IN_POS : IN_POS + 3] = p_ned
     _fill_current(td, src, pos, rows)
     # --- calibration (the step Calibrator.apply_row runs, in a compiled loop; one calibrator per message type)
     for kind in np.flatnonzero(np.bincount(kinds)):

@@ -110,6 +110,16 @@ BEST_FILTER = "madgwick"
 #: a vehicle's gravity measurement: the specific force averaged over 0.1 s in NED (the drag measurement's
 #: period), not the single sample, so that a raw IMU's rotor vibration does not fail its 5 % norm gate
 VEHICLE_GRAVITY_LOWPASS_S = 0.1
+#: a vehicle's gyro-bias random walk while velocity-aided, rad/s per √s (``EskfSettings.bias_walk_aided_rad_s2``;
+#: the ESKF's default walk 5e-5 stays without GNSS): an autopilot's gyro drifts in flight (ArduPilot SITL's
+#: SIM_DRIFT_SPEED ramps it ≈ 0.001 °/s per second on every axis; a real MEMS gyro with temperature), and a ramp the
+#: bias state cannot follow is a steady tilt error in hover and after landing (ArduCopter SITL .BIN: 0.22° in roll
+#: and pitch from 215 s to the end, EKF3 0.14°; EKF3's EK3_GBIAS_P_NSE is 1e-3).  ArduCopter SITL onboard .BIN
+#: 0.216 → 0.146° inclination (EKF3 0.170°), the five shared tlogs 0.08–0.26 → 0.08–0.21°; 2e-4 gave 0.117° and
+#: 1.5e-4 0.124° on the .BIN but cost more where the drift is small: PX4 SITL's ULog 0.98 → 1.02° (1e-4: 0.99°),
+#: the onboard tlog with the receiver's velocity 0.38 → 0.42° (1e-4: 0.38°), the magnetic flight's heading
+#: 0.54 → 0.61° (1e-4: 0.57°); docs/accuracy.md
+VEHICLE_BIAS_WALK_RAD_S2 = 1e-4
 #: the drag measurement's noise, m/s², with the thrust axis as states (a raw IMU declared a multirotor): the
 #: default 0.5 (EK3_DRAG_M_NSE) also covered a learnt axis's error, which is now a state (raw SITL set
 #: declared a multirotor 1.11 → 1.00°, vibrating 1.47 → 1.24°; 0.8: 1.28 / 1.66°; docs/accuracy.md)
@@ -229,6 +239,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,
         gyro_scale_sigma=d.gyro_scale_sigma,
+        bias_walk_aided_rad_s2=VEHICLE_BIAS_WALK_RAD_S2,
     )
 
 

@@ -91,6 +91,7 @@ from mavahrs.filters.layout import (
     IN_CURRENT,
     IN_GYRO,
     IN_MAG,
+    IN_POS,
     IN_VEL,
     IN_VEL_AGE,
     OUT_ACCEL_WEIGHT,
@@ -134,9 +135,10 @@ __all__ = [
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "START_DONE_STATE",
 ]  # fmt: skip
 
-N = 12  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
-#        δD (11: the declination's error against the WMM, see declination_sigma_rad)
+N = 15  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
+#        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position)
 _I_DECL = 11  # index of the declination error in the error state
+_I_POS = 12  # index of the position error (3) in the error state
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
@@ -209,7 +211,12 @@ _Q_CROSS = _AXIS_Q + 2  # … cross-axis (misalignment) error: 2 σ_ma² τ, s
 _DECL_P0 = _AXIS_Q + 3  # prior variance of the declination's error against the WMM, rad² (0: WMM exact)
 _INIT_AVG = _DECL_P0 + 1  # s: the start window the specific force is averaged over (0: no check of the start)
 _INIT_COS = _INIT_AVG + 1  # cos of the angle between that mean and the estimate's up beyond which the tilt re-aligns
-_N_PARAMS = _INIT_COS + 1
+_R_POS_H = _INIT_COS + 1  # horizontal GNSS position noise², m² (0: the position is not fused)
+_R_POS_V = _INIT_COS + 2  # vertical position noise², m² (0: not fused)
+_POS_GATE = _INIT_COS + 3  # χ gate of the position fixes (σ)
+_Q_POS = _INIT_COS + 4  # position random walk², m²/s (the receiver's slow wander)
+_Q_BIAS_AIDED = _INIT_COS + 5  # bias random walk² while velocity-aided, rad²/s³ (0: _Q_BIAS)
+_N_PARAMS = _INIT_COS + 6
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -255,7 +262,12 @@ _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the f
 _START = _DECL + 1  # the start window: ∫ f_NED dt in the estimate's frame (3), the time (1)
 _STARTED = _START + 4  # 1: the start window is over (or there is none)
 _FIT_T = _STARTED + 1  # clock since when the model's corrected readings fit the WMM while the heading is unknown (0: not)
-_N_STATE = _FIT_T + 1
+_POS = _FIT_T + 1  # INS position, NED from the GNSS origin (3), m
+_POS_ON = _POS + 3  # 1: the horizontal position is started from a fix (0: not)
+_POS_ON_V = _POS + 4  # 1: the vertical position is started from a fix (0: not)
+_PREJ_T = _POS + 5  # clock time since when every position fix has been rejected (−1: none)
+_PREV_POS = _POS + 6  # the previous row's position (3): a held value is not a new fix
+_N_STATE = _POS + 9
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -478,6 +490,39 @@ class EskfSettings(FilterSettings):
         mag_model: the magnetometer's body offset and earth field learnt in
             flight, and the trust in each reading
             (:class:`mavahrs.filters.magfield.MagFieldSettings`).
+        position_noise_m: 1-σ noise of a horizontal GNSS position fix
+            (``IN_POS``), m: the position is three more error states (12–14,
+            δṗ = δv), started from the first fix while velocity-aided and
+            corrected by each later one at the fix's own time (the INS
+            position then = now less the velocity history's integral since,
+            :func:`_history_displacement`).  A tilt error δ shows as ½·g·δ·t²
+            of position drift: at hover the position holds the tilt where
+            the velocity's noise lets it wander.  0 = not fused (the default:
+            on ArduCopter SITL's onboard .BIN, whose GNSS has no noise, 0.1–1 m
+            measured 0.216 → 0.218–0.221° inclination, and 0.117 → 0.118°
+            with the vehicle's bias walk: the velocity fixes already hold the
+            INS velocity within mm/s, so the position adds next to nothing;
+            the gap to EKF3 was the gyro bias's drift,
+            ``best.VEHICLE_BIAS_WALK_RAD_S2``; docs/filters/eskf.md).
+        vertical_position_noise_m: … of the vertical (GNSS altitude), m;
+            0 = not fused.
+        position_gate_sigma: a position innovation beyond this many σ is
+            rejected (every one for ``velocity_reset_s``: the position
+            restarts from the next fix).
+        position_walk_m_s: random walk of the position states, m/√s (a
+            receiver's slow wander, which white noise alone does not cover).
+        bias_walk_aided_rad_s2: the gyro-bias random walk while velocity-aided,
+            rad/s per √s (0 = ``bias_walk_rad_s2`` throughout): the GNSS
+            velocity observes the tilt and (in horizontal accelerations) the
+            heading well enough to follow a drifting bias.  Not without GNSS,
+            where a faster walk only lets the accelerometer's manoeuvre errors
+            into the bias (ArduCopter SITL without GNSS, 2e-4 throughout:
+            0.56–0.79 → 0.55–0.80° inclination, gentle heading 0.38 →
+            0.51°).  Tried: the faster walk on the bias's horizontal (NED)
+            components only, the heading's kept: at 2e-4 the magnetic flight's
+            heading 0.61 → 0.58° but the aggressive one's 0.33 → 0.45° and the
+            .BIN's inclination 0.117 → 0.129° (SITL drifts every axis).
+            ``best`` on a vehicle sets it (``best.VEHICLE_BIAS_WALK_RAD_S2``).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -535,6 +580,11 @@ class EskfSettings(FilterSettings):
         )
     )
     mag_model: MagFieldSettings = field(default_factory=MagFieldSettings)
+    position_noise_m: float = 0.0
+    vertical_position_noise_m: float = 0.0
+    position_gate_sigma: float = 5.0
+    position_walk_m_s: float = 0.0
+    bias_walk_aided_rad_s2: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -553,11 +603,12 @@ class EskfSettings(FilterSettings):
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
-                     "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad"):
+                     "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
+                     "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
-        for name in ("drag_noise_m_s2", "thrust_axis_tau_s"):
+        for name in ("drag_noise_m_s2", "thrust_axis_tau_s", "position_gate_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
@@ -599,6 +650,9 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
             s[kp + i * N + i] = _P0_VEL_FLYING
     rest_reset(s, k + _REST)
     s[k + _LAST_FIX] = -1.0
+    s[k + _PREJ_T] = -1.0
+    for i in range(3):
+        s[k + _PREV_POS + i] = math.nan
     s[k + _LAST_MAG] = -1.0e9
     s[k + _GREJ] = -1.0
     s[k + _BIG] = -1.0
@@ -643,18 +697,21 @@ def _restart_velocity(s, k, vn, ve, vd, r_h, r_v):  # type: ignore[no-untyped-de
 
 
 @kernel(inline=True)
-def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis):  # type: ignore[no-untyped-def]
-    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb, δv̇ = M δθ with M = −[f]×; scratch C, M).
+def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on):  # type: ignore[no-untyped-def]
+    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb, δv̇ = M δθ with M = −[f]×, δṗ = δv; scratch C, M).
 
     The thrust-axis states (9, 10) are constant (Φ's identity rows), their random walk ``q_axis``; so is
-    the declination error (11), without a walk (the WMM's error does not change over a flight).
+    the declination error (11), without a walk (the WMM's error does not change over a flight).  The
+    position's rows and columns (12–14) are left at 0 while no position is started (``pos_on`` False):
+    they cost nothing then, and a start sets them from the fix.
     """
     kp = k + _P
     ka = k + _A
     kc = k + _C
     km = k + _M
+    n = N if pos_on else _I_POS
     # A = Φ P
-    for j in range(N):
+    for j in range(n):
         for i in range(3):
             acc = 0.0
             for m in range(3):
@@ -665,10 +722,13 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis):  # type: i
                 acc += s[km + 3 * i + m] * s[kp + m * N + j]
             s[ka + (3 + i) * N + j] = s[kp + (3 + i) * N + j] + dt * acc
             s[ka + (6 + i) * N + j] = s[kp + (6 + i) * N + j]
-        for r in range(9, N):
+        for r in range(9, _I_POS):
             s[ka + r * N + j] = s[kp + r * N + j]
+        if pos_on:
+            for i in range(3):  # δṗ = δv
+                s[ka + (_I_POS + i) * N + j] = s[kp + (_I_POS + i) * N + j] + dt * s[kp + (3 + i) * N + j]
     # P = A Φᵀ
-    for i in range(N):
+    for i in range(n):
         for j in range(3):
             acc = 0.0
             for m in range(3):
@@ -679,18 +739,25 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis):  # type: i
                 acc += s[ka + i * N + m] * s[km + 3 * j + m]
             s[kp + i * N + 3 + j] = s[ka + i * N + 3 + j] + dt * acc
             s[kp + i * N + 6 + j] = s[ka + i * N + 6 + j]
-        for j in range(9, N):
+        for j in range(9, _I_POS):
             s[kp + i * N + j] = s[ka + i * N + j]
+        if pos_on:
+            for j in range(3):
+                s[kp + i * N + _I_POS + j] = s[ka + i * N + _I_POS + j] + dt * s[ka + i * N + 3 + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
         s[kp + (6 + i) * N + 6 + i] += q_bias * dt
+    if q_pos > 0.0:
+        for i in range(_I_POS, N):
+            if s[kp + i * N + i] > 0.0:  # (a position not started stays at 0)
+                s[kp + i * N + i] += q_pos * dt
     if q_axis > 0.0:
         for i in range(9, _I_DECL):
             s[kp + i * N + i] += q_axis * dt
     # keep P symmetric against round-off
-    for i in range(N):
-        for j in range(i + 1, N):
+    for i in range(n):
+        for j in range(i + 1, n):
             a = 0.5 * (s[kp + i * N + j] + s[kp + j * N + i])
             s[kp + i * N + j] = a
             s[kp + j * N + i] = a
@@ -903,7 +970,7 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[kt], s[kt + 1], s[kt + 2] = tx, ty, tz
         s[k + _TREF] = _least_aligned(tx, ty, tz)
         kp = k + _P
-        for i in range(9, N):
+        for i in range(9, _I_POS):  # (as before the position states: 9–11)
             for j in range(N):
                 s[kp + i * N + j] = 0.0
                 s[kp + j * N + i] = 0.0
@@ -944,6 +1011,119 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
             s[k + _H + 9 + c] = thrust
         if _scalar_update(s, k, y, r, params[P_FILTER + _VEL_GATE]):
             fused = True
+    return fused
+
+
+@kernel
+def _history_displacement(s, k, t, out3):  # type: ignore[no-untyped-def]
+    """∫ v dt from clock time ``t`` to now over the INS velocity history (trapezoid between entries),
+    into ``out3``: the INS position at ``t`` is the position now less this.  False if ``t`` is older than
+    the history holds (``out3`` then holds the newest velocity × the time, an estimate)."""
+    n = min(int(s[k + _HCOUNT]), HISTORY_LEN)
+    pos = int(s[k + _HPOS])
+    for i in range(3):
+        out3[i] = 0.0
+    if n <= 0 or not 0 <= pos < HISTORY_LEN:
+        return False
+    kh = k + _HIST
+    later = (pos - 1) % HISTORY_LEN
+    tl = s[kh + 4 * later]
+    if t >= tl:
+        return True
+    for _back in range(1, n):
+        idx = (later - 1) % HISTORY_LEN
+        te = s[kh + 4 * idx]
+        if te <= t:  # the part of [te, tl] after t: v interpolated at t, trapezoid to tl
+            w = (t - te) / (tl - te) if tl > te else 0.0
+            for i in range(3):
+                vt = s[kh + 4 * idx + 1 + i] + w * (s[kh + 4 * later + 1 + i] - s[kh + 4 * idx + 1 + i])
+                out3[i] += 0.5 * (vt + s[kh + 4 * later + 1 + i]) * (tl - t)
+            return True
+        for i in range(3):
+            out3[i] += 0.5 * (s[kh + 4 * idx + 1 + i] + s[kh + 4 * later + 1 + i]) * (tl - te)
+        later = idx
+        tl = te
+    for i in range(3):  # older than the history: the oldest velocity over the rest
+        out3[i] += s[kh + 4 * later + 1 + i] * (tl - t)
+    return False
+
+
+@kernel
+def _position_start(s, k, c, value, r):  # type: ignore[no-untyped-def]
+    """Position component ``c`` := ``value``, variance ``r``, uncorrelated with the rest."""
+    kp = k + _P
+    i = _I_POS + c
+    for j in range(N):
+        s[kp + i * N + j] = 0.0
+        s[kp + j * N + i] = 0.0
+    s[kp + i * N + i] = r
+    s[k + _POS + c] = value
+
+
+@kernel
+def _position_off(s, k):  # type: ignore[no-untyped-def]
+    """No position: its rows and columns of P to 0 (the next fix starts it again)."""
+    kp = k + _P
+    for i in range(_I_POS, N):
+        for j in range(N):
+            s[kp + i * N + j] = 0.0
+            s[kp + j * N + i] = 0.0
+    s[k + _POS_ON] = 0.0
+    s[k + _POS_ON_V] = 0.0
+    s[k + _PREJ_T] = -1.0
+
+
+@kernel
+def _position_fix(s, k, params, pn, pe, pd, t_fix, clk):  # type: ignore[no-untyped-def]
+    """A GNSS position fix (``IN_POS``) taken at clock time ``t_fix``: started, or fused against the INS
+    position at that time (now less the history's displacement since), one scalar update per component
+    with the position gate.  Returns True if a component was fused.
+
+    h = ∂(p_fix − p_INS)/∂δx = 1 at δp_c (12 + c): a tilt error δ accelerates the INS by g·δ, so the
+    position residual grows as ½ g δ t² (Groves 2013, §14.2.2: position-aided INS), a low-frequency tilt
+    reference the velocity's noise does not give at hover.
+    """
+    p = P_FILTER
+    r_h, r_v = params[p + _R_POS_H], params[p + _R_POS_V]
+    d3 = s[k + _H : k + _H + 3]  # borrow scratch h[0:3] for the displacement
+    _history_displacement(s, k, t_fix, d3)
+    dn, de, dd = d3[0], d3[1], d3[2]
+    fused = False
+    tried = False
+    gate = params[p + _POS_GATE]
+    if r_h > 0.0 and math.isfinite(pn) and math.isfinite(pe):
+        if s[k + _POS_ON] == 0.0:
+            _position_start(s, k, 0, pn + dn, r_h)
+            _position_start(s, k, 1, pe + de, r_h)
+            s[k + _POS_ON] = 1.0
+        else:
+            tried = True
+            y0, y1 = pn - (s[k + _POS] - dn), pe - (s[k + _POS + 1] - de)
+            for c in range(2):
+                for i in range(N):
+                    s[k + _H + i] = 0.0
+                s[k + _H + _I_POS + c] = 1.0
+                if _scalar_update(s, k, y0 if c == 0 else y1, r_h, gate):
+                    fused = True
+    if r_v > 0.0 and math.isfinite(pd):
+        if s[k + _POS_ON_V] == 0.0:
+            _position_start(s, k, 2, pd + dd, r_v)
+            s[k + _POS_ON_V] = 1.0
+        else:
+            tried = True
+            y2 = pd - (s[k + _POS + 2] - dd)
+            for i in range(N):
+                s[k + _H + i] = 0.0
+            s[k + _H + _I_POS + 2] = 1.0
+            if _scalar_update(s, k, y2, r_v, gate):
+                fused = True
+    if fused or not tried:
+        s[k + _PREJ_T] = -1.0
+    elif s[k + _PREJ_T] < 0.0:
+        s[k + _PREJ_T] = clk
+    elif clk - s[k + _PREJ_T] > params[p + _VEL_RESET]:
+        # every position fix refused for that long (a receiver's jump, a new origin): start again from the next
+        _position_off(s, k)
     return fused
 
 
@@ -1069,6 +1249,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         state[k + _START + 1] += fe * dt
         state[k + _START + 2] += fd * dt
         state[k + _START + 3] += dt
+    if state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0:  # p ← p + v dt + ½ (f + g) dt²
+        hd = 0.5 * dt if accel_ok else 0.0
+        state[k + _POS] += (state[k + _V] + hd * fn) * dt
+        state[k + _POS + 1] += (state[k + _V + 1] + hd * fe) * dt
+        state[k + _POS + 2] += (state[k + _V + 2] + hd * (fd + G_M_S2)) * dt
     if accel_ok:  # also while not aided: a restart needs the velocity change since a late fix's time
         state[k + _V] += fn * dt
         state[k + _V + 1] += fe * dt
@@ -1091,7 +1276,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         q_accel = max(q_accel, state[k + _VIB + 1] * dt)
     # the thrust-axis states' random walk once they exist (their variance is 0 until the axis is first set)
     q_axis = params[p + _AXIS_Q] if state[k + _P + 9 * N + 9] > 0.0 else 0.0
-    _propagate_covariance(state, k, dt, q_gyro, q_accel, params[p + _Q_BIAS], q_axis)
+    q_bias = params[p + _Q_BIAS_AIDED] if aided and params[p + _Q_BIAS_AIDED] > 0.0 else params[p + _Q_BIAS]
+    _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
+                          state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     if q_sf > 0.0 or q_ma > 0.0:
         _rate_noise(state, k, dt, gx, gy, gz, q_sf, q_ma)
@@ -1148,6 +1335,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 ve += state[k + _V + 1] - vh[1]
                 vd += state[k + _V + 2] - vh[2]
             _restart_velocity(state, k, vn, ve, vd, r_h, r_v)
+            _position_off(state, k)
             # the first fixes tell the tilt within a second even from far off: let them
             eskf_reopen_attitude(state, k, params, _RESTART_TILT, _RESTART_HEADING)
             state[k + _LAST_FIX] = clk
@@ -1174,8 +1362,26 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                     state[k + _VREJ] += dt if state[k + _VREJ] > 0.0 else 1e-9
                     if clk - state[k + _LAST_FIX] > params[p + _VEL_RESET]:
                         _restart_velocity(state, k, vn, ve, vd, r_h, r_v)
+                        _position_off(state, k)
                         state[k + _LAST_FIX] = clk
     aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
+
+    # ---- position fix (same fix, same time as the velocity's) ---------------------------------
+    pn, pe, pd = row[IN_POS], row[IN_POS + 1], row[IN_POS + 2]
+    new_pos = (math.isfinite(pn) or math.isfinite(pd)) and not (
+        (pn == state[k + _PREV_POS] or not (math.isfinite(pn) or math.isfinite(state[k + _PREV_POS])))
+        and (pe == state[k + _PREV_POS + 1] or not (math.isfinite(pe) or math.isfinite(state[k + _PREV_POS + 1])))
+        and (pd == state[k + _PREV_POS + 2] or not (math.isfinite(pd) or math.isfinite(state[k + _PREV_POS + 2])))
+    )
+    state[k + _PREV_POS] = pn
+    state[k + _PREV_POS + 1] = pe
+    state[k + _PREV_POS + 2] = pd
+    if not aided:
+        if state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0:
+            _position_off(state, k)  # restarted with the velocity aiding
+    elif (new_pos or (any_fix and not held)) and (math.isfinite(pn) or math.isfinite(pd)):
+        if _position_fix(state, k, params, pn, pe, pd, t_fix, clk):
+            updated = True
 
     # ---- at rest while not aided: the rate and the velocity are zero ------------------------
     at_rest = False
@@ -1447,6 +1653,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if aided or r_zv > 0.0 or k_drag > 0.0 or at_rest:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
+        if state[k + _POS_ON] > 0.0:
+            state[k + _POS] += state[kdx + _I_POS]
+            state[k + _POS + 1] += state[kdx + _I_POS + 1]
+        if state[k + _POS_ON_V] > 0.0:
+            state[k + _POS + 2] += state[kdx + _I_POS + 2]
         lim = params[p + _BIAS_LIMIT]
         for i in range(3):
             b = state[S_BIAS + i] + state[kdx + 6 + i]
@@ -1582,6 +1793,11 @@ class Eskf(AttitudeFilter):
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
+        p[_R_POS_H] = settings.position_noise_m**2
+        p[_R_POS_V] = settings.vertical_position_noise_m**2
+        p[_POS_GATE] = settings.position_gate_sigma
+        p[_Q_POS] = settings.position_walk_m_s**2
+        p[_Q_BIAS_AIDED] = settings.bias_walk_aided_rad_s2**2
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:

@@ -24,6 +24,11 @@ IN_VEL_AGE  age of the velocity in IN_VEL at this sample's time:   s
 IN_CURRENT  battery current (SYS_STATUS / BATTERY_STATUS), the     A
             compass's motor interference scales with it; NaN =
             not known
+IN_POS+k    GNSS position of the same fix as IN_VEL (its age is    m
+            IN_VEL_AGE), (magnetic) NED relative to the first
+            fix's position (the origin: lat, lon, alt of the
+            first fix the reader used); NaN = no fix in this
+            row; a NaN down = no altitude
 ==========  =====================================================  ==========
 
 Output row (``OUT_WIDTH`` values): the attitude and the diagnostics.
@@ -52,7 +57,8 @@ IN_MAG = 7
 IN_VEL = 10
 IN_VEL_AGE = 13
 IN_CURRENT = 14
-IN_WIDTH = 15
+IN_POS = 15
+IN_WIDTH = 18
 
 OUT_Q = 0
 OUT_GAIN = 4

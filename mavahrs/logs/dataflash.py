@@ -35,7 +35,9 @@ ArduPilot's body frame is FRD, its earth frame NED, angles in degrees, yaw
 * ``GPS`` (``Status`` ≥ 3 = 3D fix): ``Spd`` m/s ground speed, ``GCrs`` deg
   course over ground, ``VZ`` m/s down → NED velocity (true north, rotated
   into the filter's magnetic frame as the pipeline does), ``Lat/Lng/Alt`` for
-  the magnetic model and ``GWk/GMS`` for its date.  The record's ``TimeUS`` is
+  the magnetic model and, as NED metres from the first fix used (magnetic
+  frame, :class:`~mavahrs.sensors.position.PositionOrigin`), the filter's
+  ``IN_POS`` beside the velocity, and ``GWk/GMS`` for its date.  The record's ``TimeUS`` is
   when the autopilot got the fix; the receiver's own lag (``GPS_DELAY_MS`` /
   ``GPS1_DELAY_MS``, else the driver's) comes on top and is not added, as for
   GPS_RAW_INT's ``time_usec`` in a tlog.
@@ -487,10 +489,11 @@ def read_dataflash(
     Raises:
         DataError: not a DataFlash log, no IMU records, nothing usable.
     """
-    from mavahrs.filters.layout import IN_DT, IN_MAG, IN_VEL, IN_VEL_AGE
+    from mavahrs.filters.layout import IN_DT, IN_MAG, IN_POS, IN_VEL, IN_VEL_AGE
     from mavahrs.ingest.arrays import PreparedInputs, _velocity_setting, onboard_timeline, si_rows
     from mavahrs.sensors.calibration import Calibrator
     from mavahrs.sensors.geomag import DeclinationSource, decimal_year_from_unix_s, rotate_true_to_magnetic
+    from mavahrs.sensors.position import PositionOrigin
     from mavahrs.sensors.profiles import get_profile
     from mavahrs.sensors.velocity import fix_age_s
     from mavahrs.service.pipeline import PipelineSettings
@@ -632,6 +635,7 @@ def read_dataflash(
     if gps is not None and gps_ok.any():
         tg = gps["TimeUS"].astype(np.int64)
         last_stamp = None
+        origin = PositionOrigin()
         steps: list[tuple[int, float]] = []
         for k in np.flatnonzero(gps_ok).tolist():
             i = int(np.searchsorted(t_us, tg[k], side="left"))
@@ -652,12 +656,16 @@ def read_dataflash(
                 vn, ve = rotate_true_to_magnetic(vn, ve, f.declination_rad)
             rows[i, IN_VEL : IN_VEL + 3] = (vn, ve, float(gps["VZ"][k]) if "VZ" in gps else _NAN)
             rows[i, IN_VEL_AGE] = fix_age_s(int(t_us[i]), int(tg[k]) - lag_us)
+            # the same fix's position, NED m from the first fix used (magnetic frame, as the velocity)
+            rows[i, IN_POS : IN_POS + 3] = origin.ned(float(gps["Lat"][k]), float(gps["Lng"][k]), float(gps["Alt"][k]),
+                                                      f.declination_rad if f is not None else None)
             fixes += 1
         for j, (i, d) in enumerate(steps):
             decl_at[i : steps[j + 1][0] if j + 1 < len(steps) else m] = d
         found.append(f"GPS: {int(gps_ok.sum())} 3D fixes at {_rate_hz(tg[gps_ok]):.0f} Hz, "
                      + (f"{fixes} velocities fed (Spd/GCrs/VZ; the fix taken as {lag_us / 1000:g} ms older than "
-                        f"its record: {lag_why})" if use_vel else "velocity not used (velocity_source none)"))  # fmt: skip
+                        f"its record: {lag_why}), with their position (Lat/Lng/Alt from the first fix)"
+                        if use_vel else "velocity not used (velocity_source none)"))  # fmt: skip
     else:
         found.append("GPS: no 3D fix (no declination from the magnetic model unless configured; no velocity)")
     # no position for the magnetic model and no declination configured: the autopilot's own COMPASS_DEC

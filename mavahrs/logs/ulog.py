@@ -87,7 +87,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavahrs.errors import DataError
-from mavahrs.filters.layout import IN_DT, IN_MAG, IN_VEL, IN_VEL_AGE
+from mavahrs.filters.layout import IN_DT, IN_MAG, IN_POS, IN_VEL, IN_VEL_AGE
 from mavahrs.ingest.arrays import select_over_arrays
 from mavahrs.logs import LogInputs
 from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES
@@ -430,7 +430,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
         vel_line = ("GNSS velocity: not fed (velocity_source = none)" if s.effective_velocity_source == "none"
                     else "GNSS velocity: none in the log")  # fmt: skip
     else:
-        vname, v_t, v_ts, v, fix_ok, what = vel
+        vname, v_t, v_ts, v, fix_ok, what, p_ned = vel
         fresh = np.ones(v_t.shape[0], bool)
         fresh[1:] = v_ts[1:] != v_ts[:-1]  # a repeated fix is not fed again
         use = np.flatnonzero(fix_ok & fresh)
@@ -445,6 +445,11 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
         rows[at, IN_VEL + 1] = -sn * v[use, 0] + c * v[use, 1]
         rows[at, IN_VEL + 2] = v[use, 2]
         rows[at, IN_VEL_AGE] = (t_us[at] - v_ts[use]) * 1e-6
+        if use.size:  # the same fixes' position, NED m from the first fix fed, in the velocity's frame
+            pu = p_ned[use] - p_ned[use[0]]
+            rows[at, IN_POS] = c * pu[:, 0] + sn * pu[:, 1]
+            rows[at, IN_POS + 1] = -sn * pu[:, 0] + c * pu[:, 1]
+            rows[at, IN_POS + 2] = pu[:, 2]
         vel_used = int(np.unique(at).size)
         every = "" if vname not in _EKF_VELOCITY or s.gnss_rate_hz <= 0 else f" taken at {s.gnss_rate_hz:g} Hz"
         vel_line = (f"GNSS velocity: {vname} ({what}) at {_rate_hz(v_t):.1f} Hz{every}, {vel_used} fixes fed "
@@ -501,8 +506,10 @@ def _decimate(t_us: NDArray[np.int64], idx: NDArray[np.int64], rate_hz: float) -
     return np.asarray(out, np.int64)
 
 
-def _velocity_source(topics: dict[str, Any], s: Any) -> tuple[str, Any, Any, Array, Any, str] | None:
-    """(topic, arrival µs, fix time µs, (N, 3) true-NED velocity, valid, what) for the setting, or None."""
+def _velocity_source(topics: dict[str, Any], s: Any) -> tuple[str, Any, Any, Array, Any, str, Array] | None:
+    """(topic, arrival µs, fix time µs, (N, 3) true-NED velocity, valid, what, (N, 3) true-NED position m
+    from an arbitrary origin: EKF2's local x/y/z, or the receiver's lat/lon/alt from its first record;
+    NaN where not valid) for the setting, or None."""
     src = str(s.effective_velocity_source)
     if src == "none":
         return None
@@ -526,6 +533,10 @@ def _velocity_source(topics: dict[str, Any], s: Any) -> tuple[str, Any, Any, Arr
             vz_ok = np.asarray(d.get("v_z_valid", np.ones(t.shape[0])), np.int64) != 0
             v[~vz_ok, 2] = _NAN
             what = "EKF2's velocity, as GLOBAL_POSITION_INT sends it"
+            nan = np.full(t.shape[0], _NAN)
+            p = np.column_stack([np.asarray(d.get(k, nan), np.float64) for k in ("x", "y", "z")])
+            p[np.asarray(d.get("xy_valid", np.ones(t.shape[0])), np.int64) == 0, :2] = _NAN
+            p[np.asarray(d.get("z_valid", np.ones(t.shape[0])), np.int64) == 0, 2] = _NAN
         else:
             if not all(k in d for k in ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s")):
                 continue
@@ -533,9 +544,26 @@ def _velocity_source(topics: dict[str, Any], s: Any) -> tuple[str, Any, Any, Arr
             ok = np.asarray(d.get("vel_ned_valid", np.ones(t.shape[0])), np.int64) != 0
             ok &= np.asarray(d.get("fix_type", np.zeros(t.shape[0])), np.int64) >= _GPS_FIX_3D
             what = "the receiver's, 3D fix"
+            p = _receiver_position(d, t.shape[0])
         ok &= np.isfinite(v[:, 0]) & np.isfinite(v[:, 1])
-        return name, t, _sample_time(d), v, ok, what
+        return name, t, _sample_time(d), v, ok, what, p
     return None
+
+
+def _receiver_position(d: dict[str, Any], n: int) -> Array:
+    """A vehicle_gps_position / sensor_gps record's lat/lon/alt as true-NED metres from its first record
+    (:class:`~mavahrs.sensors.position.PositionOrigin`; altitude above mean sea level, NaN where absent)."""
+    from mavahrs.sensors.position import PositionOrigin
+
+    zeros = np.zeros(n)
+    lat = np.asarray(d.get("latitude_deg", d.get("lat", zeros)), np.float64)
+    lon = np.asarray(d.get("longitude_deg", d.get("lon", zeros)), np.float64)
+    if "lat" in d and "latitude_deg" not in d:  # PX4 ≤ 1.13: degrees × 1e7, altitude mm
+        lat, lon = lat * 1e-7, lon * 1e-7
+        alt = np.asarray(d.get("alt", np.full(n, _NAN)), np.float64) * 1e-3
+    else:
+        alt = np.asarray(d.get("altitude_msl_m", np.full(n, _NAN)), np.float64)
+    return PositionOrigin().ned_arrays(lat, lon, alt, None)
 
 
 def _magnetometer(topics: dict[str, Any], t_us: NDArray[np.int64], rows: Array, max_ut: float) -> str:

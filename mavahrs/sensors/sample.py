@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_VEL, IN_VEL_AGE, IN_WIDTH
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_POS, IN_VEL, IN_VEL_AGE, IN_WIDTH
 
 __all__ = ["ImuSample", "GYRO", "ACCEL", "MAG", "Vector3", "write_row", "blank_unusable", "blank_unusable_rows", "new_row", "flag_names"]
 
@@ -76,7 +76,7 @@ class ImuSample:
         return not any(self.gyro_rad_s) and not any(self.accel_m_s2)
 
     def to_row(self, row: NDArray[np.float64] | None = None, *, dt_s: float = _NAN) -> NDArray[np.float64]:
-        """The filter input row for this sample (velocity and its age NaN); fills ``row`` if given."""
+        """The filter input row for this sample (velocity, its age and the position NaN); fills ``row`` if given."""
         if row is None:
             row = new_row()
         g, a = self.gyro_rad_s, self.accel_m_s2
@@ -84,6 +84,7 @@ class ImuSample:
         write_row(row, dt_s, g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], self.saturated, self.invalid)
         row[IN_VEL : IN_VEL + 3] = _NAN
         row[IN_VEL_AGE] = _NAN
+        row[IN_POS : IN_POS + 3] = _NAN
         return row
 
 

@@ -38,6 +38,12 @@ With ``receiver_only`` (the second-opinion monitor's ``receiver_velocity_only``)
 ``auto`` means GPS_RAW_INT, else GPS2_RAW: an estimate independent of the
 autopilot's EKF.
 
+Each fix fed also gives its position (``lat``, ``lon``, ``alt`` of the same message: the receiver's
+for GPS_RAW_INT / GPS2_RAW, the autopilot EKF's for GLOBAL_POSITION_INT, as for the velocity), as
+NED metres from the first fix fed since the start or the last :meth:`VelocitySelector.reset`, in
+the same frame as the velocity (:class:`~mavahrs.sensors.position.PositionOrigin`):
+:attr:`VelocitySelector.position_ned` after a fix is returned, for the filter's ``IN_POS``.
+
 A fix whose time stamp equals the last one used from that message is a repeat
 and is not fed again (ArduPilot sends each GPS_RAW_INT fix twice at 10 Hz); one
 older than it (by less than 2 s: a reordered message) neither.  The row the
@@ -51,6 +57,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mavahrs.sensors.geomag import rotate_true_to_magnetic
+from mavahrs.sensors.position import PositionOrigin
 
 __all__ = [
     "VELOCITY_SOURCES",
@@ -116,6 +123,8 @@ class VelocityFix:
         fix_time_us: the fix time on the autopilot's boot clock, µs; None when
             its time stamp is on another clock (UNIX time) or absent: the fix
             is then taken to be as old as the sample it is fed with.
+        lat_deg, lon_deg, alt_m: the same fix's position (WGS-84 degrees,
+            altitude above mean sea level, m; NaN when not given).
     """
 
     message: str
@@ -124,6 +133,9 @@ class VelocityFix:
     vd_m_s: float
     stamp_us: int
     fix_time_us: int | None
+    lat_deg: float = math.nan
+    lon_deg: float = math.nan
+    alt_m: float = math.nan
 
 
 def decode_fix(msg: Any) -> VelocityFix | str:
@@ -138,7 +150,7 @@ def decode_fix(msg: Any) -> VelocityFix | str:
         if msg.lat == 0 and msg.lon == 0:
             return "no_fix"  # autopilots send zeros until they have a position
         t = int(msg.time_boot_ms) * 1000
-        return VelocityFix(kind, msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01, t, t)
+        return VelocityFix(kind, msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01, t, t, *_lat_lon_alt(msg))
     if msg.fix_type < _GPS_FIX_TYPE_3D:
         return "no_fix"
     vel, cog = int(msg.vel), int(msg.cog)
@@ -152,7 +164,16 @@ def decode_fix(msg: Any) -> VelocityFix | str:
     c = cog * _CDEG_TO_RAD
     stamp = int(msg.time_usec)
     fix_t = stamp if 0 < stamp < UNIX_TIME_MIN_US else None
-    return VelocityFix(kind, speed * math.cos(c), speed * math.sin(c), math.nan, stamp, fix_t)
+    return VelocityFix(kind, speed * math.cos(c), speed * math.sin(c), math.nan, stamp, fix_t, *_lat_lon_alt(msg))
+
+
+def _lat_lon_alt(msg: Any) -> tuple[float, float, float]:
+    """The message's ``lat``, ``lon`` (degE7) and ``alt`` (mm above mean sea level) in degrees and metres
+    (NaN for a field the message does not carry)."""
+    lat, lon, alt = (getattr(msg, k, None) for k in ("lat", "lon", "alt"))
+    if lat is None or lon is None:
+        return math.nan, math.nan, math.nan
+    return lat * 1e-7, lon * 1e-7, alt * 1e-3 if alt is not None else math.nan
 
 
 def fix_age_s(sample_t_us: int, fix_time_us: int | None) -> float:
@@ -181,6 +202,9 @@ class VelocitySelector:
         counters: fixes not fed, by reason (``no_fix``, ``unknown_velocity``,
             ``repeated``, ``reordered``, ``standby`` = a valid fix of a source
             not in use).
+        position_ned: the position of the last fix :meth:`offer` returned,
+            (north, east, down) m from the first fix fed (the origin), in the
+            velocity's frame.
     """
 
     source: str = "auto"
@@ -193,6 +217,8 @@ class VelocitySelector:
         self._states = {m: _SourceState() for m in self.messages}
         self.current: str | None = None
         self.switches = 0
+        self.origin = PositionOrigin()
+        self.position_ned: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
     def set_auto_order(self, order: tuple[str, ...]) -> None:
         """What ``auto`` prefers, once the autopilot's profile is known (its ``velocity_order``).
@@ -210,6 +236,7 @@ class VelocitySelector:
         for st in self._states.values():
             st.last_valid_us = st.last_stamp_us = None
         self.current = None
+        self.origin.reset()
 
     def used(self, message: str) -> int:
         """Fixes of ``message`` fed so far."""
@@ -258,6 +285,7 @@ class VelocitySelector:
         vn, ve = fix.vn_m_s, fix.ve_m_s
         if declination_rad is not None:
             vn, ve = rotate_true_to_magnetic(vn, ve, declination_rad)
+        self.position_ned = self.origin.ned(fix.lat_deg, fix.lon_deg, fix.alt_m, declination_rad)
         return fix, vn, ve, fix.vd_m_s
 
     def _preferred(self, now_us: int) -> str | None:

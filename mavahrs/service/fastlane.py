@@ -55,6 +55,7 @@ from mavahrs.filters.layout import (
     IN_CURRENT,
     IN_DT,
     IN_GYRO,
+    IN_POS,
     IN_VEL,
     IN_VEL_AGE,
     IN_WIDTH,
@@ -174,6 +175,7 @@ def _parse(data, icfg, fcfg, row, state, scratch):  # type: ignore[no-untyped-de
         return -1
     row[IN_DT] = dt
     row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = np.nan
+    row[IN_POS] = row[IN_POS + 1] = row[IN_POS + 2] = np.nan
     for i in range(state.shape[0]):
         scratch[i] = state[i]
     return tt

@@ -67,6 +67,7 @@ from mavahrs.filters.layout import (
     IN_CURRENT,
     IN_GYRO,
     IN_MAG,
+    IN_POS,
     IN_VEL,
     IN_VEL_AGE,
     IN_WIDTH,
@@ -922,10 +923,12 @@ class Pipeline:
         if vel is not None:
             row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], fix_t = vel
             row[IN_VEL_AGE] = fix_age_s(t, fix_t)
+            row[IN_POS], row[IN_POS + 1], row[IN_POS + 2] = self._velocity.position_ned
             self._vel = None
             self._vel_written = False
         elif not self._vel_written:
             row[IN_VEL] = row[IN_VEL + 1] = row[IN_VEL + 2] = row[IN_VEL_AGE] = _NAN
+            row[IN_POS] = row[IN_POS + 1] = row[IN_POS + 2] = _NAN
             self._vel_written = True
         fresh = self._current_us is not None and now_us - self._current_us <= CURRENT_STALE_S * 1e6
         row[IN_CURRENT] = self._current_a if fresh else _NAN

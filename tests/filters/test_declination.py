@@ -46,8 +46,10 @@ def test_onboard_flight_heading_offset_learnt(shared_data) -> None:  # type: ign
     mag = learnt.tracks["best"].magnetometer
     assert mag is not None
     print(f"mean heading error: learnt {m_learnt:+.2f}°, WMM exact {m_exact:+.2f}°; {mag}")
-    # measured: +0.48° learnt, +0.67° with the WMM exact; the learnt correction −0.52 ± 0.26°
-    assert m_exact > 0.55  # the offset this guards against is still in the data
+    # measured: +0.30° learnt, +0.51° with the WMM exact; the learnt correction −0.57 ± 0.26° (before the
+    # vehicle's aided gyro-bias walk, best.VEHICLE_BIAS_WALK_RAD_S2: +0.48 / +0.67°, −0.52°: part of the offset
+    # was the drifting gyro's heading)
+    assert m_exact > 0.45  # the offset this guards against is still in the data
     assert m_learnt < 0.58 and m_learnt < m_exact - 0.1
     assert -1.2 < mag["declination_correction_deg"] < -0.2, mag
     assert 0.0 < mag["declination_sigma_deg"] < 1.0, mag

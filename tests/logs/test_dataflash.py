@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from mavahrs.errors import DataError
-from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG
+from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO, IN_MAG, IN_POS, IN_VEL, IN_VEL_AGE
 from mavahrs.logs import FORMATS, read_log, sniff, unsupported_message
 from mavahrs.logs.dataflash import decode, read_dataflash, scan
 
@@ -266,6 +266,37 @@ def test_shared_log_agrees_with_dfreader(shared_bin: Path) -> None:
     r.rewind()
     m = r.recv_match(type="XKQ")
     assert (xkq["TimeUS"][0], xkq["Q1"][0], xkq["Q4"][0]) == pytest.approx((m.TimeUS, m.Q1, m.Q4))
+
+
+
+def test_shared_log_fills_the_position_column_from_the_first_fix(shared_bin: Path) -> None:
+    """``IN_POS`` beside every velocity fed: NED metres from the first fix used (the origin), which the
+    simulator's own position (SIM Lat/Lng, 120 ms earlier: the receiver's lag) confirms within 0.1 m."""
+    from mavahrs.sensors.position import PositionOrigin
+
+    li = read_dataflash(shared_bin)
+    rows = li.inputs.rows
+    has_pos = np.isfinite(rows[:, IN_POS])
+    assert np.array_equal(has_pos, np.isfinite(rows[:, IN_VEL]))  # the same fix's rows
+    assert has_pos.sum() > 1000
+    first = rows[np.flatnonzero(has_pos)[0], IN_POS : IN_POS + 3]
+    assert np.allclose(first, 0.0)
+    pos = rows[has_pos, IN_POS : IN_POS + 3]
+    assert np.ptp(pos[:, 0]) > 50.0 and np.ptp(pos[:, 1]) > 50.0  # the flight's legs (≈ 100 m × 250 m)
+    # against the truth: the simulator's position at the fix time, rotated into the rows' magnetic frame
+    sc = scan(shared_bin)
+    sim, gps = decode(sc, "SIM"), decode(sc, "GPS")
+    assert sim is not None and gps is not None
+    ok = gps["Status"] >= 3
+    o = PositionOrigin()
+    o.set(float(gps["Lat"][ok][0]), float(gps["Lng"][ok][0]), float(gps["Alt"][ok][0]))
+    t_row = li.inputs.t_us[has_pos] - rows[has_pos, IN_VEL_AGE] * 1e6 - 20_000  # fix time (IN_VEL_AGE) + the lag left over
+    d = li.inputs.declination_rad[has_pos]
+    true_ned = o.ned_arrays(sim["Lat"], sim["Lng"], sim["Alt"], None)
+    n_t = np.interp(t_row, sim["TimeUS"], true_ned[:, 0])
+    e_t = np.interp(t_row, sim["TimeUS"], true_ned[:, 1])
+    n_m, e_m = np.cos(d) * n_t + np.sin(d) * e_t, -np.sin(d) * n_t + np.cos(d) * e_t
+    assert np.sqrt(np.mean((pos[:, 0] - n_m) ** 2 + (pos[:, 1] - e_m) ** 2)) < 0.1
 
 
 # --------------------------------------------------------------------------- replay X.BIN --filter all --csv
