@@ -1238,8 +1238,6 @@ class _ChangeTest:
     change rather than on the level: Basseville & Nikiforov 1993, a change in the mean.)
     """
 
-    _READY_S = 3.0  # the baseline is used once it has been fed this long, s
-
     def __init__(self, s: MonitorSettings) -> None:
         self.s = s
         self._delay_ms = 1000.0 * s.change_delay_s
@@ -1283,8 +1281,8 @@ class _ChangeTest:
                 self._fed_ms = t0  # the time frozen does not count as fed
             else:
                 self._feed(t0, (x, y, z))
-        if self._fed_s < self._READY_S:
-            return False
+        if self._fed_s < self._tau:  # used once fed for its time constant (after GNSS comes back: our own
+            return False  # error converging is not a change to warn of)
         m = self._mean
         self.tilt = math.hypot(e[0] - m[0], e[1] - m[1])
         self.heading = e[2] - m[2]
