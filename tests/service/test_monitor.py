@@ -497,3 +497,29 @@ def test_an_autopilot_error_swinging_within_its_tolerance_is_not_warned() -> Non
         mon = AttitudeMonitor(MonitorSettings())
         out = _steady(mon, 1000.0, 120.0, lambda t, o=offset: o + 0.9 * math.sin(2.0 * math.pi * t / 8.0))
         assert [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING] == [], (offset, [m.text for m in out])
+
+
+def test_the_change_test_starts_again_when_gnss_aiding_returns() -> None:
+    """While our estimate is not GNSS-aided (tilt σ NaN) the change test is off, and its baseline starts again
+    when the aiding returns: our own error, drifted while unaided and settling after, is not a change to warn
+    of.  Aided, the autopilot 0.9° off for a minute; 20 s unaided in which the divergence moves to +1.1°
+    (inside the unaided thresholds); aided again at +1.1°: no WARNING (kept, the old baseline at −0.9° would
+    see a change of 2° and warn, as it does for the same divergence without the gap in the aiding)."""
+
+    def fly(mon: AttitudeMonitor, t0_ms: float, seconds: float, tilt_deg: float, aided: bool) -> list:
+        out: list = []
+        sigma = math.radians(0.5) if aided else math.nan
+        for k in range(int(seconds * 100)):
+            t = t0_ms + 10.0 * k
+            out += mon.add_estimate(t, (1.0, 0.0, 0.0, 0.0), sigma, math.radians(1.0))
+            if k % 10 == 0:
+                out += mon.add_autopilot(t, tuple(from_rotation_vector([math.radians(tilt_deg), 0.0, 0.0])))
+        return out
+
+    for gap, warns in ((True, False), (False, True)):
+        mon = AttitudeMonitor(MonitorSettings())
+        out = fly(mon, 1000.0, 60.0, -0.9, aided=True)
+        out += fly(mon, 61000.0, 20.0, 1.1, aided=not gap)
+        out += fly(mon, 81000.0, 20.0, 1.1, aided=True)
+        warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
+        assert bool(warned) is warns, (gap, [m.text for m in out])
