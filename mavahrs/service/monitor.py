@@ -1056,13 +1056,8 @@ class AttitudeMonitor:
         return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
 
     def _learn(self, tilt: float, heading: float, dt_s: float) -> None:
-        """The divergence's mean square: running mean over the first ``learn_s``, then exponential."""
-        if not dt_s > 0.0:
-            return
-        n, m_t, m_h = self._learnt
-        n += dt_s
-        w = dt_s / min(n, self.settings.learn_s) if self.settings.learn_s > 0 else 1.0
-        self._learnt = [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
+        """The divergence's mean square (:func:`_mean_squares`)."""
+        self._learnt = _mean_squares(self._learnt, tilt, heading, dt_s, self.settings.learn_s)
 
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         out = self._judge(t_ms, q_est, q_ap)
@@ -1306,11 +1301,20 @@ class _ChangeTest:
         # square so far at 2 × change_k: the first seconds' noise is not cut off at a floor)
         gate_t = t_thr if ready else 2.0 * k * math.sqrt(max(m_t, f_t) + sync2)
         gate_h = h_thr if ready else 2.0 * k * math.sqrt(max(m_h, f_h) + sync2)
-        if learn and dt_s > 0.0 and self.tilt <= gate_t and abs(self.heading) <= gate_h:
-            n += dt_s
-            w = dt_s / min(n, self.s.learn_s) if self.s.learn_s > 0 else 1.0
-            self._learnt = [n, m_t + w * (self.tilt ** 2 - m_t), m_h + w * (self.heading ** 2 - m_h)]
+        if learn and self.tilt <= gate_t and abs(self.heading) <= gate_h:
+            self._learnt = _mean_squares(self._learnt, self.tilt, self.heading, dt_s, self.s.learn_s)
         return t_thr, h_thr
+
+
+def _mean_squares(learnt: list[float], tilt: float, heading: float, dt_s: float, learn_s: float) -> list[float]:
+    """``[seconds learnt, mean tilt², mean heading²]`` after ``dt_s`` more: a running mean over the first
+    ``learn_s``, then exponential with that time constant (unchanged when ``dt_s`` ≤ 0)."""
+    if not dt_s > 0.0:
+        return learnt
+    n, m_t, m_h = learnt
+    n += dt_s
+    w = dt_s / min(n, learn_s) if learn_s > 0 else 1.0
+    return [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
 
 
 def _fit(template: str, tilt_rad: float, heading_rad: float, phase: str, cause: str = "") -> str:

@@ -47,11 +47,17 @@ def _first_after(path: Path, fault: AttitudeFault, tmp: Path) -> tuple[float, li
     return (after[0] if after else float("inf")), [float(x) for x in clean.alarm_times_s.split(";") if x]
 
 
-def test_a_tilt_step_after_flips_is_warned_within_2_s(tmp_path: Path) -> None:
+def _sim_flight(tmp: Path, scenario: str, seed: int, duration_s: float) -> Path:
     pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
-    path = tmp_path / "flips_1.tlog"
-    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", "flips",
-                    "--duration", "106", "--seed", "1", "-q"], check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    path = tmp / f"{scenario}_{seed}.tlog"
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", scenario,
+                    "--duration", str(duration_s), "--seed", str(seed), "-q"],
+                   check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    return path
+
+
+def test_a_tilt_step_after_flips_is_warned_within_2_s(tmp_path: Path) -> None:
+    path = _sim_flight(tmp_path, "flips", 1, 106.0)
     latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
     assert not [t for t in clean if t >= ONSET_S - 5.0], clean  # the latency is the fault's, not a warning already on
     assert 0.1 < latency <= 2.0, latency  # 0.1 s: the least a CUSUM at three times its threshold needs
@@ -64,15 +70,6 @@ def test_a_heading_step_on_the_magnetic_flight_is_not_hidden_by_the_learnt_thres
     latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), heading_deg=-6.0), tmp_path)
     assert not [t for t in clean if ONSET_S - 5.0 <= t <= ONSET_S + 10.0], clean
     assert 0.1 < latency <= 3.0, latency  # 11.1 s with the learnt threshold uncapped, 3.8 s without the change test
-
-
-def _sim_flight(tmp: Path, scenario: str, seed: int, duration_s: float) -> Path:
-    pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
-    path = tmp / f"{scenario}_{seed}.tlog"
-    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", scenario,
-                    "--duration", str(duration_s), "--seed", str(seed), "-q"],
-                   check=True, cwd=Path(__file__).parents[2])  # fmt: skip
-    return path
 
 
 def _false_warnings(path: Path, times_s: list[float]) -> list[tuple[float, float, float]]:
