@@ -193,6 +193,38 @@ class MonitorSettings:
             autopilot's own heading 2° off on ArduCopter SITL's magnetic flight:
             a learnt 5.0° against the model's 3.6°) still warns of a step of
             the size the model is built for.
+        change_test: ``uncertainty``: also test the divergence for a *change*
+            (:class:`_ChangeTest`): a step fault is a change of the divergence
+            against its own recent baseline, found whatever standing error of
+            the autopilot's it lands on (an autopilot 0.9° off the other way
+            hides most of a 2° step from the absolute test above).  The
+            baseline is an exponential mean of the divergence vector (earth
+            frame) over ``change_baseline_s`` of comparisons ``change_delay_s``
+            old, frozen while a warning is on (at most 3 × ``change_baseline_s``);
+            the change's tilt and heading are each divided by ``change_k`` ×
+            their own RMS learnt over the flight (as ``learn_s``, below
+            ``learn_max_rate_dps``, only within the change's thresholds), at
+            least ``change_min_tilt_deg`` / ``change_min_heading_deg``, with the
+            timing term, and at most ``change_max_factor`` × the error model's
+            thresholds above; the change counts only where the divergence
+            itself is beyond the floors ``min_tilt_threshold_deg`` /
+            ``min_heading_threshold_deg`` (an autopilot within 1° / 3° is not one
+            to warn about, whatever its error did).  Its own CUSUM
+            (``change_cusum_reference``).  Only while our estimate is
+            GNSS-velocity-aided (our unaided error drifts); the baseline starts
+            again when the aiding comes back.
+        change_k: see ``change_test``.
+        change_baseline_s, change_delay_s: see ``change_test``, s.
+        change_min_tilt_deg, change_min_heading_deg: see ``change_test``, deg.
+        change_max_factor: see ``change_test``: the change's thresholds at most
+            this many times the error model's (the absolute test's without the
+            learnt part).
+        change_cusum_reference: the change test's own CUSUM, as
+            ``cusum_reference`` (a WARNING when it reaches
+            ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
+            its threshold): higher than the absolute test's, so that a change
+            that lingers below its threshold (the autopilot's own error
+            wandering for seconds) does not add up to one.
         tilt_threshold_deg: ``fixed``: tilt divergence that counts as a disagreement, deg.
         heading_threshold_deg: ``fixed``: heading divergence that counts, deg
             (0 = never alarm on heading, in either mode).
@@ -274,6 +306,14 @@ class MonitorSettings:
     gnss_ratio: float = 2.0
     gnss_min_m_s: float = 0.3
     gnss_heading_min_m_s: float = 1.0
+    change_test: bool = True
+    change_k: float = 3.0
+    change_baseline_s: float = 10.0
+    change_delay_s: float = 2.0
+    change_min_tilt_deg: float = 0.3
+    change_min_heading_deg: float = 1.5
+    change_cusum_reference: float = 0.8
+    change_max_factor: float = 1.0
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -303,11 +343,13 @@ class MonitorSettings:
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
                      "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
-                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s"):  # fmt: skip
+                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s", "change_k",
+                     "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
+                     "change_max_factor"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
-        if not 0.0 < self.cusum_reference < 1.0:
+        if not (0.0 < self.cusum_reference < 1.0 and 0.0 < self.change_cusum_reference < 1.0):
             raise ValueError(f"monitor cusum_reference must be in (0, 1), got {self.cusum_reference!r}")
         if not (self.sigma_k > 0 and self.min_tilt_threshold_deg + self.unaided_tilt_sigma_deg > 0):
             raise ValueError("monitor sigma_k and the tilt thresholds must be > 0")
@@ -709,6 +751,7 @@ class AttitudeMonitor:
         self._min_thr = (math.radians(s.min_tilt_threshold_deg), math.radians(s.min_heading_threshold_deg))
         self._uncertainty = u
         self._h = (1.0 - s.cusum_reference) * s.trigger_s
+        self._h_c = (1.0 - s.change_cusum_reference) * s.trigger_s
         self._learn_rate = math.radians(s.learn_max_rate_dps)
         self.reset()
 
@@ -732,7 +775,11 @@ class AttitudeMonitor:
         self._hdg_thr_now = math.nan
         self._model_thr = (math.inf, math.inf)
         self._cusum = 0.0
+        self._cusum_c = 0.0  # the change test's (MonitorSettings.change_test)
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
+        self._change = _ChangeTest(self.settings) if self._uncertainty and self.settings.change_test else None
+        self._change_aided = False
+        self._warning_since_ms = -math.inf
         old = getattr(self, "_evidence", None)
         self._evidence = _Evidence(self.settings)
         self._imus = _ImuCheck(self.settings)
@@ -959,6 +1006,34 @@ class AttitudeMonitor:
             hdg = max(hdg, min(lk * math.sqrt(m_h), cap * hdg)) if hdg_on else 0.0
         return tilt, hdg
 
+    def _change_test(
+        self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float], learn: bool, dt_s: float
+    ) -> tuple[float, float]:
+        """The change test's (tilt, heading) ratios to its thresholds (0: not judged now)."""
+        ch = self._change
+        assert ch is not None
+        if not (math.isfinite(self._sigma) and self._sigma > 0.0):  # not GNSS-aided: our error drifts
+            if self._change_aided:
+                ch.restart()
+            self._change_aided = False
+            return 0.0, 0.0
+        self._change_aided = True
+        a, b = q_est, q_ap
+        na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] + a[3] * a[3])
+        nb = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2] + b[3] * b[3])
+        sgn = 2.0 / (na * nb) if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] >= 0.0 else -2.0 / (na * nb)
+        # e = a ⊗ b*: vector part −a_w b_v + b_w a_v − a_v × b_v (small angle: 2·v), earth frame
+        e = (sgn * (-a[0] * b[1] + b[0] * a[1] - (a[2] * b[3] - a[3] * b[2])),
+             sgn * (-a[0] * b[2] + b[0] * a[2] - (a[3] * b[1] - a[1] * b[3])),
+             sgn * (-a[0] * b[3] + b[0] * a[3] - (a[1] * b[2] - a[2] * b[1])))  # fmt: skip
+        hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
+        if not ch.update(t_ms, e, frozen=hold):
+            return 0.0, 0.0
+        f = self.settings.change_max_factor
+        t_thr, h_thr = ch.judge(self._rate, learn and not self._warning, dt_s,
+                                (f * self._model_thr[0], f * self._model_thr[1]))
+        return ch.tilt / t_thr, abs(ch.heading) / h_thr
+
     def _imu_warning(self, t_ms: float) -> list[Any]:
         """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
         name, err = self._imus.named(self._imu_named) if self._imus._err else ("", math.nan)
@@ -981,13 +1056,8 @@ class AttitudeMonitor:
         return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
 
     def _learn(self, tilt: float, heading: float, dt_s: float) -> None:
-        """The divergence's mean square: running mean over the first ``learn_s``, then exponential."""
-        if not dt_s > 0.0:
-            return
-        n, m_t, m_h = self._learnt
-        n += dt_s
-        w = dt_s / min(n, self.settings.learn_s) if self.settings.learn_s > 0 else 1.0
-        self._learnt = [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
+        """The divergence's mean square (:func:`_mean_squares`)."""
+        self._learnt = _mean_squares(self._learnt, tilt, heading, dt_s, self.settings.learn_s)
 
     def _compare(self, t_ms: float, q_est: Sequence[float], q_ap: Sequence[float]) -> list[Any]:
         out = self._judge(t_ms, q_est, q_ap)
@@ -1019,19 +1089,30 @@ class AttitudeMonitor:
         self._last_cmp_ms = t_ms
         if gap:
             self._above_since_ms = self._below_since_ms = None
-            self._cusum = 0.0
+            self._cusum = self._cusum_c = 0.0
         t_thr, h_thr = self._thresholds()
         self._tilt_thr_now, self._hdg_thr_now = t_thr, h_thr
         hdg_on = h_thr > 0.0
-        z = tilt / t_thr
-        if hdg_on:
-            z = max(z, abs(heading) / h_thr)
+        z_t = tilt / t_thr
+        z_h = abs(heading) / h_thr if hdg_on else 0.0
+        slow = self._rate <= self._learn_rate  # the timing term small: what is learnt is the estimators' errors
+        z = max(z_t, z_h)
+        z_c = 0.0  # the change against the divergence's own baseline (see _ChangeTest), its own CUSUM
+        if self._change is not None:
+            c_t, c_h = self._change_test(t_ms, q_est, q_ap, slow and prev is not None and not gap,
+                                         0.0 if prev is None else 1e-3 * (t_ms - prev))
+            # a change that leaves the divergence within the thresholds' floors is not one to warn of (an
+            # autopilot within 1° of tilt and 3° of heading is not, whatever its error did)
+            c_t = min(c_t, tilt / self._min_thr[0]) if self._min_thr[0] > 0.0 else c_t
+            c_h = min(c_h, abs(heading) / self._min_thr[1]) if self._min_thr[1] > 0.0 else c_h
+            z_c = max(c_t, c_h if hdg_on else 0.0)
+            z_t = max(z_t, c_t)
+            z_h = max(z_h, c_h) if hdg_on else 0.0
         # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
         # itself let through, else a slowly growing fault would raise the threshold ahead of it)
-        self._evidence.heading_only = hdg_on and tilt <= t_thr and abs(heading) > h_thr
+        self._evidence.heading_only = hdg_on and z_t <= 1.0 and z_h > 1.0
         m_t, m_h = self._model_thr
         inside = tilt <= m_t and (not hdg_on or abs(heading) <= m_h)
-        slow = self._rate <= self._learn_rate  # the timing term small: what is learnt is the estimators' errors
         if self._uncertainty and not self._warning and inside and slow and prev is not None and not gap:
             self._learn(tilt, heading if hdg_on else 0.0, 1e-3 * (t_ms - prev))  # also in the start-up grace
         first = self._first_est_ms if self._first_est_ms is not None else t_ms
@@ -1042,7 +1123,7 @@ class AttitudeMonitor:
             return imu_out
         k = s.clear_fraction
         above = z > 1.0
-        below = z < k
+        below = z < k and z_c < 1.0  # (a change still beyond its threshold is not over)
         if above:
             self._below_since_ms = None
             if self._above_since_ms is None:
@@ -1057,7 +1138,9 @@ class AttitudeMonitor:
             dt = 0.0 if (prev is None or gap) else 1e-3 * (t_ms - prev)
             step = (min(z, 3.0) - s.cusum_reference) * dt
             self._cusum = min(2.0 * self._h, max(0.0, self._cusum + max(step, -s.cusum_leak_per_s * dt)))
-            confirmed = above and self._cusum >= self._h
+            step = (min(z_c, 3.0) - s.change_cusum_reference) * dt
+            self._cusum_c = min(2.0 * self._h_c, max(0.0, self._cusum_c + max(step, -s.cusum_leak_per_s * dt)))
+            confirmed = (above and self._cusum >= self._h) or (z_c > 1.0 and self._cusum_c >= self._h_c)
         else:
             confirmed = self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s
         # an episode raised on the ground that is still on once airborne is raised again, in flight
@@ -1066,6 +1149,7 @@ class AttitudeMonitor:
             if self._warning and phase not in FLIGHT_PHASES:
                 return []
             self._warning = True
+            self._warning_since_ms = t_ms
             self._episodes += 1
             self.last_phase = phase
             self._warned_in_flight = phase in FLIGHT_PHASES
@@ -1098,7 +1182,7 @@ class AttitudeMonitor:
                 return [_statustext(severity, _fit(template, tilt, heading, PHASE_WORDS.get(self.last_phase, self.last_phase), ev.cause))]
         if self._warning and self._below_since_ms is not None and t_ms - self._below_since_ms >= 1000.0 * s.clear_s:
             self._warning = False
-            self._cusum = 0.0
+            self._cusum = self._cusum_c = 0.0
             return [_statustext(mavlink.MAV_SEVERITY_INFO, CLEARED_TEXT)]
         return []
 
@@ -1132,6 +1216,105 @@ class AttitudeMonitor:
         """The evidence of who is likely wrong as it stands now (whether or not a warning is on)."""
         self._evidence.sigma, self._evidence.sigma_hdg = self._sigma, self._sigma_hdg
         return self._evidence.evidence()
+
+
+class _ChangeTest:
+    r"""The divergence's *change* against its own recent baseline (``MonitorSettings.change_test``; pure).
+
+    Per comparison the divergence vector ``e`` (earth frame, rad: ``2·xyz`` of ``q_ours ⊗ q_autopilot*``).
+    The baseline ``ê`` is its exponential mean (time constant ``change_baseline_s``, a running mean at first)
+    over comparisons at least ``change_delay_s`` old, not fed while a warning is on; the change ``d = e − ê``
+    is split as the divergence: tilt ``|d_n, d_e|``, heading ``d_d``.  Its mean squares are learnt as the
+    absolute divergence's (running mean over ``learn_s``, then exponential; slow rotation only; within the
+    change's own thresholds; never during a warning); the thresholds are
+    ``change_k·√(max(learnt, min²) + (ω·sync_s)²)``, at most the cap given.  A step fault of size δ is a
+    change of δ for ``change_delay_s`` and fades with the baseline's time constant after; a ramp of rate r
+    settles to a change of about ``r·(change_delay_s + change_baseline_s)``.  (The CUSUM of Page 1954 on the
+    change rather than on the level: Basseville & Nikiforov 1993, a change in the mean.)
+    """
+
+    def __init__(self, s: MonitorSettings) -> None:
+        self.s = s
+        self._delay_ms = 1000.0 * s.change_delay_s
+        self._tau = s.change_baseline_s
+        self._floor2 = (math.radians(s.change_min_tilt_deg) ** 2, math.radians(s.change_min_heading_deg) ** 2)
+        self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt change², mean heading change² (rad²)
+        self.thresholds = (math.inf, math.inf)
+        self.tilt = self.heading = 0.0
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget the baseline (not the learnt noise): e.g. GNSS aiding lost and back."""
+        self._buf: deque[tuple[float, float, float, float]] = deque()  # (t_ms, e) not yet fed
+        self._fed_s = 0.0
+        self._fed_ms: float | None = None
+        self._mean = [0.0, 0.0, 0.0]
+
+    def _feed(self, t: float, e: Sequence[float]) -> None:
+        prev = self._fed_ms
+        self._fed_ms = t
+        if prev is None:
+            w = 1.0
+        else:
+            dt = 1e-3 * (t - prev)
+            if not dt > 0.0:
+                return
+            self._fed_s += dt
+            w = min(1.0, dt / max(min(self._fed_s, self._tau), 1e-9))  # a running mean at first
+        m = self._mean
+        for i in range(3):
+            m[i] += w * (e[i] - m[i])
+
+    def update(self, t: float, e: Sequence[float], frozen: bool) -> bool:
+        """A comparison; True when the baseline is ready and :attr:`tilt` / :attr:`heading` hold the change."""
+        buf = self._buf
+        buf.append((t, e[0], e[1], e[2]))
+        horizon = t - self._delay_ms
+        while buf and buf[0][0] <= horizon:
+            t0, x, y, z = buf.popleft()
+            if frozen:
+                self._fed_ms = t0  # the time frozen does not count as fed
+            else:
+                self._feed(t0, (x, y, z))
+        if self._fed_s < self._tau:  # used once fed for its time constant (after GNSS comes back: our own
+            return False  # error converging is not a change to warn of)
+        m = self._mean
+        self.tilt = math.hypot(e[0] - m[0], e[1] - m[1])
+        self.heading = e[2] - m[2]
+        return True
+
+    def judge(self, rate: float, learn: bool, dt_s: float, cap: tuple[float, float]) -> tuple[float, float]:
+        """(tilt, heading) thresholds of the change now, rad, at most ``cap`` (the absolute test's error
+        model's); learns the change's noise when ``learn``."""
+        n, m_t, m_h = self._learnt
+        sync2 = (rate * self.s.sync_s) ** 2
+        k = self.s.change_k
+        ready = n >= 0.1 * self.s.learn_s
+        f_t, f_h = self._floor2
+        if ready:
+            t_thr = min(k * math.sqrt(max(m_t, f_t) + sync2), cap[0])
+            h_thr = min(k * math.sqrt(max(m_h, f_h) + sync2), cap[1]) if cap[1] > 0.0 else math.inf
+        else:
+            t_thr = h_thr = math.inf
+        self.thresholds = (t_thr, h_thr)
+        # learnt: what lies within the change's own thresholds (from the start, within those of the mean
+        # square so far at 2 × change_k: the first seconds' noise is not cut off at a floor)
+        gate_t = t_thr if ready else 2.0 * k * math.sqrt(max(m_t, f_t) + sync2)
+        gate_h = h_thr if ready else 2.0 * k * math.sqrt(max(m_h, f_h) + sync2)
+        if learn and self.tilt <= gate_t and abs(self.heading) <= gate_h:
+            self._learnt = _mean_squares(self._learnt, self.tilt, self.heading, dt_s, self.s.learn_s)
+        return t_thr, h_thr
+
+
+def _mean_squares(learnt: list[float], tilt: float, heading: float, dt_s: float, learn_s: float) -> list[float]:
+    """``[seconds learnt, mean tilt², mean heading²]`` after ``dt_s`` more: a running mean over the first
+    ``learn_s``, then exponential with that time constant (unchanged when ``dt_s`` ≤ 0)."""
+    if not dt_s > 0.0:
+        return learnt
+    n, m_t, m_h = learnt
+    n += dt_s
+    w = dt_s / min(n, learn_s) if learn_s > 0 else 1.0
+    return [n, m_t + w * (tilt * tilt - m_t), m_h + w * (heading * heading - m_h)]
 
 
 def _fit(template: str, tilt_rad: float, heading_rad: float, phase: str, cause: str = "") -> str:

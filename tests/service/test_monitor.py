@@ -440,7 +440,8 @@ def test_the_learnt_threshold_is_capped_by_the_models() -> None:
     s = MonitorSettings()
     model = s.sigma_k * math.hypot(0.5, s.autopilot_tilt_sigma_deg)
     for cap, warns in ((s.learn_max_factor, True), (1e9, False)):
-        mon = AttitudeMonitor(MonitorSettings(learn_max_factor=cap))
+        # the absolute test alone (the change test would see the 0.9° change: below)
+        mon = AttitudeMonitor(MonitorSettings(learn_max_factor=cap, change_test=False))
         quiet = _steady(mon, 1000.0, 90.0, lambda t: 1.1)
         assert quiet == [], [m.text for m in quiet]
         assert mon.status.tilt_threshold_deg == pytest.approx(min(cap, 2.5 * 1.1 / model) * model, rel=0.02)
@@ -457,7 +458,7 @@ def test_a_divergence_in_fast_rotation_is_not_learnt() -> None:
     s = MonitorSettings()
     model = s.sigma_k * math.hypot(0.5, s.autopilot_tilt_sigma_deg)
     for max_rate, learnt in ((s.learn_max_rate_dps, False), (1e9, True)):
-        mon = AttitudeMonitor(MonitorSettings(learn_max_rate_dps=max_rate, learn_max_factor=1e9))
+        mon = AttitudeMonitor(MonitorSettings(learn_max_rate_dps=max_rate, learn_max_factor=1e9, change_test=False))
         _steady(mon, 1000.0, 10.0, lambda t: 0.2)
         # 60 s of turning at 300°/s with a divergence of 1.2° (inside the threshold, widened by the rate)
         quiet = _steady(mon, 11000.0, 60.0, lambda t: 1.2, rate_dps=300.0)
@@ -468,3 +469,57 @@ def test_a_divergence_in_fast_rotation_is_not_learnt() -> None:
         out = _steady(mon, 76000.0, 2.0, lambda t: 2.0)
         warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
         assert bool(warned) is not learnt, (max_rate, [m.text for m in out], thr)
+
+
+def test_a_step_against_the_autopilots_own_error_is_warned_by_the_change_test() -> None:
+    """The autopilot 0.9° off (inside its 1° tolerance) for a minute, then a 2° tilt step the other way: the
+    divergence goes 0.9° → 1.1°, under the error model's 1.41°, so the absolute test alone never warns (as on
+    firmware_sim aggressive 1, 3.9 s); the change test sees 2° against its baseline and warns within 2 s, and
+    the episode stays on while the step does."""
+    for change, warns in ((True, True), (False, False)):
+        mon = AttitudeMonitor(MonitorSettings(change_test=change))
+        quiet = _steady(mon, 1000.0, 60.0, lambda t: -0.9)
+        assert quiet == [], [m.text for m in quiet]
+        out = _steady(mon, 61000.0, 2.0, lambda t: 1.1)
+        warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
+        assert bool(warned) is warns, (change, [m.text for m in out], mon.status)
+        later = _steady(mon, 63000.0, 20.0, lambda t: 1.1)
+        assert not [m for m in later if m.severity == mavlink.MAV_SEVERITY_INFO], [m.text for m in later]
+        assert mon.status.warning is warns
+
+
+def test_an_autopilot_error_swinging_within_its_tolerance_is_not_warned() -> None:
+    """The autopilot's own error swings ±0.9° every 8 s (a change of 1.8° within 4 s, beyond the change's
+    threshold) but stays inside the 1° tolerance: the change test counts a change only where the divergence
+    itself is beyond the floor (``min_tilt_threshold_deg``), so no warning; with a 0.5° offset on top (the
+    divergence up to 1.4°, inside the model's 1.41°) none either over two minutes."""
+    for offset in (0.0, 0.5):
+        mon = AttitudeMonitor(MonitorSettings())
+        out = _steady(mon, 1000.0, 120.0, lambda t, o=offset: o + 0.9 * math.sin(2.0 * math.pi * t / 8.0))
+        assert [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING] == [], (offset, [m.text for m in out])
+
+
+def test_the_change_test_starts_again_when_gnss_aiding_returns() -> None:
+    """While our estimate is not GNSS-aided (tilt σ NaN) the change test is off, and its baseline starts again
+    when the aiding returns: our own error, drifted while unaided and settling after, is not a change to warn
+    of.  Aided, the autopilot 0.9° off for a minute; 20 s unaided in which the divergence moves to +1.1°
+    (inside the unaided thresholds); aided again at +1.1°: no WARNING (kept, the old baseline at −0.9° would
+    see a change of 2° and warn, as it does for the same divergence without the gap in the aiding)."""
+
+    def fly(mon: AttitudeMonitor, t0_ms: float, seconds: float, tilt_deg: float, aided: bool) -> list:
+        out: list = []
+        sigma = math.radians(0.5) if aided else math.nan
+        for k in range(int(seconds * 100)):
+            t = t0_ms + 10.0 * k
+            out += mon.add_estimate(t, (1.0, 0.0, 0.0, 0.0), sigma, math.radians(1.0))
+            if k % 10 == 0:
+                out += mon.add_autopilot(t, tuple(from_rotation_vector([math.radians(tilt_deg), 0.0, 0.0])))
+        return out
+
+    for gap, warns in ((True, False), (False, True)):
+        mon = AttitudeMonitor(MonitorSettings())
+        out = fly(mon, 1000.0, 60.0, -0.9, aided=True)
+        out += fly(mon, 61000.0, 20.0, 1.1, aided=not gap)
+        out += fly(mon, 81000.0, 20.0, 1.1, aided=True)
+        warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
+        assert bool(warned) is warns, (gap, [m.text for m in out])

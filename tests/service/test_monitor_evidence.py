@@ -75,7 +75,10 @@ def test_gnss_velocity_says_the_autopilot_is_wrong() -> None:
     (w,) = _warnings("ap")
     ev = w.evidence
     assert ev is not None and ev.gnss_verdict == "AP" and ev.cause == "AP?", ev
-    assert ev.gnss_blames_us < 0.2 and ev.gnss_m_s > 0.5  # 2° of tilt: g·sin 2° ≈ 0.34 m/s² over 3 s ≈ 1 m/s
+    # 2° of tilt: g·sin 2° ≈ 0.34 m/s² of false acceleration, 1 m/s over a whole 3 s window; the verdict comes as
+    # soon as the windows since the onset hold the verdict's least difference (the change test warns 0.25 s
+    # after the onset, and the verdict is said again 1 s later at 0.43 m/s; 0.57 m/s without the change test)
+    assert ev.gnss_blames_us < 0.2 and MonitorSettings().gnss_min_m_s <= ev.gnss_m_s < 1.2
     assert not ev.mag_disturbed and abs(ev.mag_norm_dev) < 0.01 and abs(ev.mag_dip_dev_deg) < 0.5
     assert ev.tilt_sigma_deg == pytest.approx(0.3)
     assert w.text.endswith(" [AP?]") and len(w.text.encode()) <= 50

@@ -1,14 +1,19 @@
-"""Steps in the autopilot's attitude on flights where the learnt threshold once hid them (issue 24), through
-``mavahrs audit``'s path as ``scripts/bench_monitor.py`` runs it: a fault from boot time 100 s in the
-autopilot's ATTITUDE, the first in-flight WARNING after it.
+"""Steps in the autopilot's attitude on flights where the learnt threshold, or the autopilot's own error, once
+hid them (issue 24), through ``mavahrs audit``'s path as ``scripts/bench_monitor.py`` runs it: a fault from
+boot time 100 s in the autopilot's ATTITUDE, the first in-flight WARNING after it.
 
 * firmware_sim flips 1: the flips' divergence, at 300–600°/s mostly the two estimates' timing (the
   ``sync_s`` term), was learnt as the flight's normal and raised the tilt threshold to 1.87°: a 2° tilt
   step warned after 4.0 s.  Learnt only below ``learn_max_rate_dps``: 1.1 s.
 * ArduCopter SITL magnetic: EKF3's own heading 2° off (inside the model's 3.6°) was learnt and the heading
   threshold rose to 5.0°: a −6° heading step (which the autopilot's own error partly cancels) warned after
-  11.1 s.  The learnt threshold at most ``learn_max_factor`` × the model's: 3.8 s (issue 24 asks ≤ 3 s; not
-  met here, see docs/monitor.md).
+  11.1 s.  The learnt threshold at most ``learn_max_factor`` × the model's: 3.8 s; with the change test
+  (``MonitorSettings.change_test``: the divergence against its own baseline) 0.8 s.
+* firmware_sim aggressive 1: the simulated autopilot's own tilt error, ≈ 0.9°, lies against a 2° tilt step
+  (the faulted autopilot only 1.1–1.5° from the truth): 3.9 s with the absolute test alone, 0.6 s with the
+  change test; the flight as recorded has no WARNING while the autopilot is within 1° / 3° of the truth.
+* firmware_sim magnetic 2: the autopilot's own heading 2–3° off the other way of a −6° step: 6.0 s with
+  the absolute test alone, 2.4 s with the change test.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mavahrs.evaluation.faults import AttitudeFault, FaultShape, inject_faults
@@ -41,14 +47,20 @@ def _first_after(path: Path, fault: AttitudeFault, tmp: Path) -> tuple[float, li
     return (after[0] if after else float("inf")), [float(x) for x in clean.alarm_times_s.split(";") if x]
 
 
-def test_a_tilt_step_after_flips_is_warned_within_2_s(tmp_path: Path) -> None:
+def _sim_flight(tmp: Path, scenario: str, seed: int, duration_s: float) -> Path:
     pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
-    path = tmp_path / "flips_1.tlog"
-    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", "flips",
-                    "--duration", "106", "--seed", "1", "-q"], check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    path = tmp / f"{scenario}_{seed}.tlog"
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", scenario,
+                    "--duration", str(duration_s), "--seed", str(seed), "-q"],
+                   check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    return path
+
+
+def test_a_tilt_step_after_flips_is_warned_within_2_s(tmp_path: Path) -> None:
+    path = _sim_flight(tmp_path, "flips", 1, 106.0)
     latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
     assert not [t for t in clean if t >= ONSET_S - 5.0], clean  # the latency is the fault's, not a warning already on
-    assert 0.3 < latency <= 2.0, latency
+    assert 0.1 < latency <= 2.0, latency  # 0.1 s: the least a CUSUM at three times its threshold needs
 
 
 def test_a_heading_step_on_the_magnetic_flight_is_not_hidden_by_the_learnt_threshold(
@@ -57,4 +69,44 @@ def test_a_heading_step_on_the_magnetic_flight_is_not_hidden_by_the_learnt_thres
     path = shared_data / "sitl" / "arducopter_magnetic.tlog"
     latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), heading_deg=-6.0), tmp_path)
     assert not [t for t in clean if ONSET_S - 5.0 <= t <= ONSET_S + 10.0], clean
-    assert 0.3 < latency <= 4.0, latency  # 11.1 s with the learnt threshold uncapped
+    assert 0.1 < latency <= 3.0, latency  # 11.1 s with the learnt threshold uncapped, 3.8 s without the change test
+
+
+def _false_warnings(path: Path, times_s: list[float]) -> list[tuple[float, float, float]]:
+    """Of the WARNING times on a firmware_sim flight as recorded, those that came while the simulated
+    autopilot was within 1° of tilt and 3° of heading of the truth (SIMSTATE) over the 2 s before:
+    (time s, its largest tilt error °, heading error °) — the benchmark's "false"."""
+    from mavahrs.replay import ReplaySettings, replay
+    from mavahrs.service.monitor import align_attitudes, divergence_series
+
+    res = replay(path, ReplaySettings())
+    truth = next(k for k in res.references if k.endswith("truth"))
+    t_ap, q_ap = res.references["autopilot ATTITUDE"]
+    t_tr, q_tr = res.references[truth]
+    q_t = align_attitudes(t_tr / 1000.0, q_tr, t_ap / 1000.0, tolerance_ms=30.0)
+    tilt, hdg = divergence_series(t_ap / 1000.0, q_ap, t_ap / 1000.0, q_t)
+    t_s = t_ap / 1e6
+    out = []
+    for t in times_s:
+        m = (t_s > t - 2.0) & (t_s <= t)
+        e_t, e_h = float(np.nanmax(tilt[m])), float(np.nanmax(np.abs(hdg[m])))
+        if e_t < 1.0 and e_h < 3.0:
+            out.append((t, e_t, e_h))
+    return out
+
+
+def test_a_tilt_step_against_the_autopilots_own_error_is_warned_within_2_s(tmp_path: Path) -> None:
+    path = _sim_flight(tmp_path, "aggressive", 1, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    assert not [t for t in clean if t >= ONSET_S - 5.0], clean
+    assert 0.1 < latency <= 2.0, latency  # 3.9 s with the absolute test alone
+    assert _false_warnings(path, clean) == []  # and no crying wolf on the flight as recorded
+
+
+def test_a_heading_step_against_the_autopilots_own_heading_error_is_warned_within_3_s(tmp_path: Path) -> None:
+    path = _sim_flight(tmp_path, "magnetic", 2, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), heading_deg=-6.0), tmp_path)
+    # (the flight as recorded has a correct WARNING of its own at 101.6 s: the simulated autopilot's heading
+    # 3.4° off, the other way of the step, which on the faulted copy it partly cancels)
+    assert 0.1 < latency <= 3.0, latency  # 6.0 s with the absolute test alone
+    assert _false_warnings(path, clean) == []
