@@ -970,7 +970,7 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[kt], s[kt + 1], s[kt + 2] = tx, ty, tz
         s[k + _TREF] = _least_aligned(tx, ty, tz)
         kp = k + _P
-        for i in range(9, _I_POS):  # (as before the position states: 9–11)
+        for i in range(9, _I_DECL):  # the two axis states only (the declination, 11, keeps its own prior)
             for j in range(N):
                 s[kp + i * N + j] = 0.0
                 s[kp + j * N + i] = 0.0

@@ -63,3 +63,21 @@ def test_an_autopilot_stream_keeps_the_running_mean_axis(vehicle_first: bool) ->
     eskf = f.settings.eskf  # type: ignore[attr-defined]
     assert eskf.drag_coefficient_1_s > 0.0
     assert eskf.thrust_axis_sigma_rad == 0.0
+
+
+def test_starting_the_axis_states_leaves_the_declinations_prior_alone(raw_flight) -> None:  # type: ignore[no-untyped-def]
+    """The thrust axis's prior is set where the first drag period starts the states; the declination
+    (the next error state) is never learnt without GNSS, so its σ stays the prior it started with."""
+    from mavahrs.filters.base import S_FILTER
+    from mavahrs.filters.best import multirotor_eskf_settings
+    from mavahrs.filters.eskf import EskfSettings, declination_of
+
+    rows, _, _ = raw_flight("hover", 3, seconds=10.0)
+    settings = multirotor_eskf_settings(EskfSettings())
+    assert settings.thrust_axis_sigma_rad > 0.0
+    prior_deg = math.degrees(settings.declination_sigma_rad)
+    f = create("eskf", settings)
+    f.run(rows)
+    assert f.thrust_axis() is not None  # type: ignore[attr-defined]
+    _, sigma = declination_of(f._state, S_FILTER)  # type: ignore[attr-defined]
+    assert math.degrees(sigma) == pytest.approx(prior_deg, rel=1e-6)
