@@ -275,6 +275,7 @@ def _second_opinion_extra(mon: Any) -> dict[str, Any]:
         "heading_threshold_deg": _finite(getattr(mon, "heading_threshold_deg", math.nan)),
         "phase": getattr(mon, "phase", None),
         "cause": getattr(mon, "cause", "") or "",
+        "trigger": getattr(mon, "trigger", "") or "",
         "evidence": ev.as_dict() if ev is not None else None,
         "evidence_text": ev.text() if ev is not None else "",
         "strip": _strip(getattr(mon, "strip", ())),

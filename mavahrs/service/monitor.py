@@ -400,6 +400,11 @@ class MonitorStatus:
             ``IMU2?`` (that IMU's own estimate is the odd one out); "" = none.
         evidence: the whole :class:`Evidence` of the latest disagreement
             while it is on (None otherwise).
+        trigger: which test raised the warning that is on: ``level`` (the
+            divergence beyond its threshold, the dashed line of the strip
+            chart), ``step`` (a change of the divergence against its own
+            recent baseline, which can warn below the line: an autopilot that
+            was off one way and jumped 2° the other); "" = no warning.
         strip: the last ``strip_s`` of comparisons for the status page's strip
             chart, a point every 0.5 s and at each STATUSTEXT: ``(boot time s,
             tilt°, heading° signed, tilt threshold°, heading threshold° (0 = not
@@ -419,6 +424,7 @@ class MonitorStatus:
     ground_episodes: int = 0
     cause: str = ""
     evidence: Evidence | None = None
+    trigger: str = ""
     strip: tuple[tuple[float, float, float, float, float, bool, int], ...] = ()
 
     def text(self) -> str:
@@ -730,6 +736,7 @@ class AttitudeMonitor:
         self.last_phase = ""
         #: the evidence of who is likely wrong with it: "mag", "AP?", "us?", "mag AP?" … ("" = none)
         self.last_cause = ""
+        self._trigger = ""  # which test raised the warning that is on (MonitorStatus.trigger)
         #: … and the whole evidence (None before the first disagreement)
         self.last_evidence: Evidence | None = None
         #: the latest STATUSTEXT was the same disagreement said again with new evidence (not a new episode)
@@ -1140,15 +1147,17 @@ class AttitudeMonitor:
             self._cusum = min(2.0 * self._h, max(0.0, self._cusum + max(step, -s.cusum_leak_per_s * dt)))
             step = (min(z_c, 3.0) - s.change_cusum_reference) * dt
             self._cusum_c = min(2.0 * self._h_c, max(0.0, self._cusum_c + max(step, -s.cusum_leak_per_s * dt)))
-            confirmed = (above and self._cusum >= self._h) or (z_c > 1.0 and self._cusum_c >= self._h_c)
+            level = above and self._cusum >= self._h
+            confirmed = level or (z_c > 1.0 and self._cusum_c >= self._h_c)
         else:
-            confirmed = self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s
+            level = confirmed = self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s
         # an episode raised on the ground that is still on once airborne is raised again, in flight
         if confirmed and (not self._warning or not self._warned_in_flight):
             phase = self.phase.phase(t_ms)
             if self._warning and phase not in FLIGHT_PHASES:
                 return []
             self._warning = True
+            self._trigger = "level" if level else "step"
             self._warning_since_ms = t_ms
             self._episodes += 1
             self.last_phase = phase
@@ -1208,6 +1217,7 @@ class AttitudeMonitor:
             ground_episodes=self._ground_episodes,
             cause=self.last_cause if self._warning else "",
             evidence=self.last_evidence if self._warning else None,
+            trigger=self._trigger if self._warning else "",
             strip=tuple(self._strip),
         )
 

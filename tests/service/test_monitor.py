@@ -486,6 +486,24 @@ def test_a_step_against_the_autopilots_own_error_is_warned_by_the_change_test() 
         later = _steady(mon, 63000.0, 20.0, lambda t: 1.1)
         assert not [m for m in later if m.severity == mavlink.MAV_SEVERITY_INFO], [m.text for m in later]
         assert mon.status.warning is warns
+        # the status page says which test raised it (it lies under the dashed line)
+        assert mon.status.trigger == ("step" if warns else "")
+
+
+def test_a_divergence_beyond_the_threshold_is_a_level_warning() -> None:
+    """A 3° tilt divergence (beyond the error model's 1.41°) warned by the absolute test alone is a ``level``
+    warning; with both tests on, once it is over the status names no trigger."""
+    mon = AttitudeMonitor(MonitorSettings())
+    out = _steady(mon, 1000.0, 20.0, lambda t: 0.2)
+    assert out == [] and mon.status.trigger == ""
+    out = _steady(mon, 21000.0, 30.0, lambda t: 3.0 if t < 36.0 else 0.2)
+    warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
+    assert warned, [m.text for m in out]
+    assert mon.status.warning is False and mon.status.trigger == ""
+    mon2 = AttitudeMonitor(MonitorSettings(change_test=False))
+    _steady(mon2, 1000.0, 20.0, lambda t: 0.2)
+    _steady(mon2, 21000.0, 5.0, lambda t: 3.0)
+    assert mon2.status.warning and mon2.status.trigger == "level"
 
 
 def test_an_autopilot_error_swinging_within_its_tolerance_is_not_warned() -> None:

@@ -183,7 +183,8 @@
   function showEvidence(so) {
     const e = $("so-evidence");
     e.dataset.cause = so.warning ? so.cause || "" : "";
-    e.textContent = so.warning && so.evidence_text ? "likely: " + (so.cause || "unclear") + " — " + so.evidence_text : "";
+    var how = so.warning && so.trigger === "step" ? " (raised by a step against its recent baseline, not the dashed line)" : "";
+    e.textContent = so.warning && so.evidence_text ? "likely: " + (so.cause || "unclear") + " — " + so.evidence_text + how : "";
   }
 
   function onStatus(s) {
