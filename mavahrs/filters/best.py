@@ -563,6 +563,33 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
         state[_DF + i] = 0.0
 
 
+@kernel(inline=True)
+def _blend_output(state, out, a, b, w):  # type: ignore[no-untyped-def]
+    """``out`` = output row ``a`` (weight ``w``) moving to/from ``b``: the nearer one's row, its attitude the
+    normalised linear blend of the two (same hemisphere) while 0 < w < 1; ``best``'s own attitude and bias
+    (``S_Q``, ``S_BIAS``) follow it."""
+    src = a if w >= 0.5 else b
+    for i in range(OUT_WIDTH):
+        out[i] = src[i]
+    if 0.0 < w < 1.0:
+        dot = 0.0
+        for i in range(4):
+            dot += a[OUT_Q + i] * b[OUT_Q + i]
+        sgn = 1.0 if dot >= 0.0 else -1.0
+        n = 0.0
+        for i in range(4):
+            out[OUT_Q + i] = w * a[OUT_Q + i] + (1.0 - w) * sgn * b[OUT_Q + i]
+            n += out[OUT_Q + i] * out[OUT_Q + i]
+        n = math.sqrt(n)
+        for i in range(4):
+            out[OUT_Q + i] /= n
+    for i in range(4):
+        state[S_Q + i] = out[OUT_Q + i]
+        state[_QOUT + i] = out[OUT_Q + i]
+    for i in range(3):
+        state[S_BIAS + i] = out[OUT_BIAS + i]
+
+
 @kernel
 def step(state, params, row, out):  # type: ignore[no-untyped-def]
     """Both filters, then the output: the ESKF's while velocity-aided, else Madgwick's (faded)."""
@@ -641,26 +668,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         else:
             w2 = 0.0
         state[_W2] = w2
-        src = oe2 if w2 >= 0.5 else oe
-        for i in range(OUT_WIDTH):
-            out[i] = src[i]
-        if 0.0 < w2 < 1.0:  # normalised linear blend, same hemisphere
-            dot = 0.0
-            for i in range(4):
-                dot += oe2[OUT_Q + i] * oe[OUT_Q + i]
-            sgn = 1.0 if dot >= 0.0 else -1.0
-            nq = 0.0
-            for i in range(4):
-                out[OUT_Q + i] = w2 * oe2[OUT_Q + i] + (1.0 - w2) * sgn * oe[OUT_Q + i]
-                nq += out[OUT_Q + i] * out[OUT_Q + i]
-            nq = math.sqrt(nq)
-            for i in range(4):
-                out[OUT_Q + i] /= nq
-        for i in range(4):
-            state[S_Q + i] = out[OUT_Q + i]
-            state[_QOUT + i] = out[OUT_Q + i]
-        for i in range(3):
-            state[S_BIAS + i] = out[OUT_BIAS + i]
+        _blend_output(state, out, oe2, oe, w2)
         state[S_INIT] = se2[S_INIT] if w2 >= 0.5 else se[S_INIT]
         return
     if aided:
@@ -671,26 +679,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if w < 0.0 or not (w == w):
             w = 0.0
     state[_W] = w
-    src = oe if w >= 0.5 else om
-    for i in range(OUT_WIDTH):
-        out[i] = src[i]
-    if 0.0 < w < 1.0:  # normalised linear blend, same hemisphere
-        dot = 0.0
-        for i in range(4):
-            dot += oe[OUT_Q + i] * om[OUT_Q + i]
-        sgn = 1.0 if dot >= 0.0 else -1.0
-        n = 0.0
-        for i in range(4):
-            out[OUT_Q + i] = w * oe[OUT_Q + i] + (1.0 - w) * sgn * om[OUT_Q + i]
-            n += out[OUT_Q + i] * out[OUT_Q + i]
-        n = math.sqrt(n)
-        for i in range(4):
-            out[OUT_Q + i] /= n
-    for i in range(4):
-        state[S_Q + i] = out[OUT_Q + i]
-        state[_QOUT + i] = out[OUT_Q + i]
-    for i in range(3):
-        state[S_BIAS + i] = out[OUT_BIAS + i]
+    _blend_output(state, out, oe, om, w)
     state[S_INIT] = 1.0 if (sm[S_INIT] > 0.0 or se[S_INIT] > 0.0) else 0.0
 
 
