@@ -490,7 +490,7 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
             var_v += di * se[kb + i * _NE + j] * dj
     ready = (
         n > 0.0 and tn > 0.5
-        and se[S_FILTER + START_DONE_STATE] > 0.0 and se2[S_FILTER + START_DONE_STATE] > 0.0
+        and se[S_FILTER + START_DONE_STATE] > 0.0
         and 0.5 * (var_b - var_v) < params[_DET_BIAS_VAR]
     )  # fmt: skip
     if ready:
