@@ -125,12 +125,13 @@ BEST_BIAS_LIMIT_RAD_S = math.radians(6.0)
 #: path's gravity low-pass τ): firmware_sim's ``vibration`` flights declared a multirotor started 61–118° off from
 #: the first sample and diverged, seeds 1–6 31.7 → 6.7° mean; nothing else measured changed (docs/accuracy.md)
 BEST_INITIAL_AVERAGE_S = 2.0
-#: the multirotor hypothesis's start window, s (``multirotor_eskf_settings``; a raw IMU through the API): a
-#: multirotor started in a manoeuvre accelerates for seconds, and the 2 s window's mean specific force was 34° off
-#: the vertical on firmware_sim raw ``aggressive`` seed 13 while the estimate was 8° off — the re-alignment put it
-#: 34° off, the thrust axis restarted 19° off settled 42° off (6.0° RMS); the mean acceleration over the window
-#: falls as 1/T (Δv/T), and a vibrating start (61–118° off) is still re-aligned 3 s later (docs/accuracy.md)
-MULTIROTOR_INITIAL_AVERAGE_S = 5.0
+#: the multirotor hypothesis's re-alignment at the end of its start window only beyond this, rad
+#: (``EskfSettings.initial_realign_rad``, 30° elsewhere; ``multirotor_eskf_settings``): a multirotor accelerates
+#: through whole manoeuvres at its tilt, so the 2 s window's mean specific force is off the vertical by up to that
+#: tilt — 34° on firmware_sim raw ``aggressive`` seed 13 while the estimate was 8° off: the re-alignment put it 34°
+#: off and its thrust axis settled 42° off (6.0° RMS; 1.7° without the re-alignment) — while a vibrating raw IMU's
+#: first sample is 60–120° off, still re-aligned (docs/accuracy.md)
+MULTIROTOR_INITIAL_REALIGN_RAD = math.radians(45.0)
 
 
 def best_settings() -> MadgwickSettings:
@@ -244,7 +245,7 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
     (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
     error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
-    a start window (``EskfSettings.initial_average_s``) of at least ``MULTIROTOR_INITIAL_AVERAGE_S``.
+    the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°).
     """
     k = drag_coefficient_1_s
     if k is None:
@@ -252,8 +253,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     eskf = replace(eskf, drag_coefficient_1_s=float(k))
     if eskf.thrust_axis_sigma_rad == 0.0:
         eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
-    if 0.0 < eskf.initial_average_s < MULTIROTOR_INITIAL_AVERAGE_S:
-        eskf = replace(eskf, initial_average_s=MULTIROTOR_INITIAL_AVERAGE_S)
+    if eskf.initial_realign_rad < MULTIROTOR_INITIAL_REALIGN_RAD:
+        eskf = replace(eskf, initial_realign_rad=MULTIROTOR_INITIAL_REALIGN_RAD)
     return vehicle_eskf_settings(eskf)
 
 
@@ -490,7 +491,7 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
             var_v += di * se[kb + i * _NE + j] * dj
     ready = (
         n > 0.0 and tn > 0.5
-        and se[S_FILTER + START_DONE_STATE] > 0.0
+        and se[S_FILTER + START_DONE_STATE] > 0.0 and se2[S_FILTER + START_DONE_STATE] > 0.0
         and 0.5 * (var_b - var_v) < params[_DET_BIAS_VAR]
     )  # fmt: skip
     if ready:

@@ -1479,17 +1479,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 if align_tilt_to_force(state, S_Q, mn, me, md, row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok):
                     for i in range(3):
                         state[S_BIAS + i] = 0.0
-                    # the thrust axis (states mode) is a body-frame direction learnt from the specific force's,
-                    # not from the tilt: it is kept, with its prior variance (restarting it from the next
-                    # period's mean force in a manoeuvre started it 19° off and it settled 42° off)
-                    kt = k + _TAX
-                    t0, t1, t2, tref = state[kt], state[kt + 1], state[kt + 2], state[k + _TREF]
                     eskf_reset(state, k, params)
-                    p0 = params[p + _AXIS_P0]
-                    if p0 > 0.0 and t0 * t0 + t1 * t1 + t2 * t2 > 0.0:
-                        state[kt], state[kt + 1], state[kt + 2], state[k + _TREF] = t0, t1, t2, tref
-                        state[k + _P + 9 * N + 9] = p0
-                        state[k + _P + 10 * N + 10] = p0
                     state[k + _STARTED] = 1.0
         else:
             add_flag(out, FLAG_STARTUP)

@@ -62,8 +62,8 @@ def test_a_hand_held_sensor_is_never_taken_for_a_multirotor(broad_trials) -> Non
 def test_a_multirotor_started_in_a_manoeuvre_keeps_its_thrust_axis(raw_flight) -> None:  # type: ignore[no-untyped-def]
     # firmware_sim raw ``aggressive`` seed 13 starts in a sustained manoeuvre: over the first 2 s the mean specific
     # force is 34° off the vertical while the estimate is 8° off.  With a 2 s start window the multirotor hypothesis
-    # re-aligned its tilt to that mean, restarted its thrust axis from the next 0.1 s (19° off) and settled 42° off
-    # the true axis (IMU x): 6.0° RMS declared.  MULTIROTOR_INITIAL_AVERAGE_S (5 s): 1.7° (docs/accuracy.md).
+    # re-aligned its tilt to that mean (30° apart), restarted its thrust axis from the next 0.1 s (19° off) and it
+    # settled 42° off the true axis (IMU x): 6.0° RMS declared.  MULTIROTOR_INITIAL_REALIGN_RAD (45°): 1.7°.
     rows, q_ref, _bias = raw_flight("aggressive", 13)
     f = create("best")
     f.set_multirotor()  # type: ignore[attr-defined]
