@@ -135,6 +135,13 @@ BEST_BIAS_LIMIT_RAD_S = math.radians(6.0)
 #: path's gravity low-pass τ): firmware_sim's ``vibration`` flights declared a multirotor started 61–118° off from
 #: the first sample and diverged, seeds 1–6 31.7 → 6.7° mean; nothing else measured changed (docs/accuracy.md)
 BEST_INITIAL_AVERAGE_S = 2.0
+#: the multirotor hypothesis's re-alignment at the end of its start window only beyond this, rad
+#: (``EskfSettings.initial_realign_rad``, 30° elsewhere; ``multirotor_eskf_settings``): a multirotor accelerates
+#: through whole manoeuvres at its tilt, so the 2 s window's mean specific force is off the vertical by up to that
+#: tilt — 34° on firmware_sim raw ``aggressive`` seed 13 while the estimate was 8° off: the re-alignment put it 34°
+#: off and its thrust axis settled 42° off (6.0° RMS; 1.7° without the re-alignment) — while a vibrating raw IMU's
+#: first sample is 60–120° off, still re-aligned (docs/accuracy.md)
+MULTIROTOR_INITIAL_REALIGN_RAD = math.radians(45.0)
 
 
 def best_settings() -> MadgwickSettings:
@@ -248,7 +255,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
 
     A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
     (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
-    error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``).
+    error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
+    the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°).
     """
     k = drag_coefficient_1_s
     if k is None:
@@ -256,6 +264,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     eskf = replace(eskf, drag_coefficient_1_s=float(k))
     if eskf.thrust_axis_sigma_rad == 0.0:
         eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
+    if eskf.initial_realign_rad < MULTIROTOR_INITIAL_REALIGN_RAD:
+        eskf = replace(eskf, initial_realign_rad=MULTIROTOR_INITIAL_REALIGN_RAD)
     return vehicle_eskf_settings(eskf)
 
 
@@ -776,21 +786,29 @@ class Best(AttitudeFilter):
         )  # fmt: skip
         AttitudeFilter.set_mag_reference(self, norm_ut, dip_rad)
 
-    def mag_model_state(self) -> dict[str, object] | None:
-        """The velocity-aided filter's learnt magnetometer model (:meth:`Eskf.mag_model_state`), None when off."""
+    def _output_eskf(self) -> tuple[EskfSettings, int]:
+        """The settings and state offset of the ESKF whose attitude is output: on the plain path the multirotor
+        hypothesis's once the detection chose it (:meth:`multirotor_detection`), else the ESKF's."""
         s = self._settings
         assert isinstance(s, BestSettings)
-        if not s.eskf.mag_model.enabled:
+        if self._state[_MODE] > 0.0:
+            return s.multirotor_eskf, _SE2
+        return s.eskf, _SE
+
+    def mag_model_state(self) -> dict[str, object] | None:
+        """The output ESKF's learnt magnetometer model (:meth:`Eskf.mag_model_state`), None when off."""
+        eskf, base = self._output_eskf()
+        if not eskf.mag_model.enabled:
             return None
-        k = _SE + S_FILTER + MAG_MODEL_STATE
+        k = base + S_FILTER + MAG_MODEL_STATE
         return mag_model_summary(self._state[k : k + MF_LEN])
 
     def mag_status(self) -> dict[str, object]:
-        """The magnetometer's state for the status page (:func:`magfield.mag_status`): the velocity-aided
-        filter's learnt model when on, else the trust in the last reading; its learnt declination."""
-        s = self._settings
-        assert isinstance(s, BestSettings)
-        return mag_status(self.mag_model_state(), self._out, *declination_of(self._state, _SE + S_FILTER))
+        """The magnetometer's state for the status page (:func:`magfield.mag_status`): the output ESKF's
+        learnt model when on, else the trust in the last reading; its learnt declination (on the plain
+        path the multirotor hypothesis's while its attitude is output)."""
+        _eskf, base = self._output_eskf()
+        return mag_status(self.mag_model_state(), self._out, *declination_of(self._state, base + S_FILTER))
 
     def export_mag_model(self) -> dict[str, object] | None:
         """The velocity-aided filter's model to keep across a restart (:func:`magfield.export_model`)."""
