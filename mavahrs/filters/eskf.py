@@ -131,7 +131,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "START_DONE_STATE",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "START_DONE_STATE",
 ]  # fmt: skip
 
 N = 12  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -164,6 +164,8 @@ _RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
 _FIT_DIP_RAD = math.radians(3.0)
+#: yaw rate, rad/s, whose mean square shrinks the compass's learnt delay towards 0 (no turns: nothing learnt)
+_LAG_RATE0_RAD_S = math.radians(10.0)
 
 # filter parameters, offsets from P_FILTER
 _Q_GYRO = 0  # gyro noise density², rad²/s
@@ -209,7 +211,9 @@ _Q_CROSS = _AXIS_Q + 2  # … cross-axis (misalignment) error: 2 σ_ma² τ, s
 _DECL_P0 = _AXIS_Q + 3  # prior variance of the declination's error against the WMM, rad² (0: WMM exact)
 _INIT_AVG = _DECL_P0 + 1  # s: the start window the specific force is averaged over (0: no check of the start)
 _INIT_COS = _INIT_AVG + 1  # cos of the angle between that mean and the estimate's up beyond which the tilt re-aligns
-_N_PARAMS = _INIT_COS + 1
+_MAG_DELAY = _INIT_COS + 1  # s: the magnetometer reading's delay behind the IMU stamps (the heading read is that old)
+_MAG_LEARN_TAU = _MAG_DELAY + 1  # s: averaging time of the compass's learnt delay (0: ``_MAG_DELAY`` as set)
+_N_PARAMS = _MAG_DELAY + 2
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -255,7 +259,8 @@ _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the f
 _START = _DECL + 1  # the start window: ∫ f_NED dt in the estimate's frame (3), the time (1)
 _STARTED = _START + 4  # 1: the start window is over (or there is none)
 _FIT_T = _STARTED + 1  # clock since when the model's corrected readings fit the WMM while the heading is unknown (0: not)
-_N_STATE = _FIT_T + 1
+_MLAG = _FIT_T + 1  # the compass's learnt delay: running means of ψ₀·r_D and r_D² (2; ψ₀: no delay applied)
+_N_STATE = _MLAG + 2
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -365,6 +370,20 @@ class EskfSettings(FilterSettings):
             message): the heading noise grows by yaw rate × this, so readings
             taken in a fast yaw count less.  A reading is fused when it
             changes (at most ``mag_rate_hz``), or after 1 s of repeats.
+        mag_delay_s: the magnetometer reading's delay behind the IMU stamps,
+            s: the heading it reads is compared with the attitude that much
+            earlier (the heading now less yaw rate × (this − ``sensor_delay_s``),
+            the IMU's own delay being in the attitude already).  0 = none (the
+            default: a raw IMU's compass read with its gyro); a vehicle's stream
+            sets none and learns it (``mag_learn_tau_s``).
+        mag_learn_tau_s: the compass's delay (behind the IMU's attitude) is
+            learnt from its readings, averaged over this long, s (0 =
+            ``mag_delay_s`` as set): the heading innovation without a delay,
+            ψ₀, is r_D·L + e for a reading L s old at yaw rate r_D and a heading
+            error e that does not follow the yaw rate, so
+            L = ⟨ψ₀·r_D⟩ / (⟨r_D²⟩ + (10°/s)²) (least squares, shrunk to 0 while
+            the vehicle does not turn; at most one compass period; innovations
+            beyond the gate are not counted).
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
@@ -535,6 +554,8 @@ class EskfSettings(FilterSettings):
         )
     )
     mag_model: MagFieldSettings = field(default_factory=MagFieldSettings)
+    mag_delay_s: float = 0.0
+    mag_learn_tau_s: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -553,7 +574,8 @@ class EskfSettings(FilterSettings):
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
-                     "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad"):
+                     "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
+                     "mag_delay_s", "mag_learn_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1372,7 +1394,26 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if bh > 0.05 * math.sqrt(mx * mx + my * my + mz * mz):
             # the estimate's heading error: the field's azimuth in the filter's frame less the learnt
             # declination correction (WMM magnetic north = 0); ψ ≈ −δθ_D + δD
-            psi = math.atan2(he, hn) - state[k + _DECL]
+            # a reading L s older than the IMU's attitude (its delay behind the stamps less the IMU's own)
+            # was taken r_D·L of yaw ago: rotated with today's attitude it reads the heading + r_D·L
+            rate_d = state[kc + 6] * gx + state[kc + 7] * gy + state[kc + 8] * gz
+            psi0 = math.atan2(he, hn) - state[k + _DECL]
+            psi0 = math.atan2(math.sin(psi0), math.cos(psi0))
+            lag = max(params[p + _MAG_DELAY] - params[p + _DELAY], 0.0)
+            tau_m = params[p + _MAG_LEARN_TAU]
+            if tau_m > 0.0:
+                # learnt from the readings themselves: ψ₀ ≈ r_D·L + e (the heading error e varies slowly, not
+                # with the yaw rate), so L = ⟨ψ₀ r_D⟩ / (⟨r_D²⟩ + r₀²), least squares shrunk to 0 without turns
+                # (r₀ 10°/s), at most one compass period; innovations beyond the gate are not counted (a
+                # disturbance, not the delay)
+                kl = k + _MLAG
+                lag = min(max(state[kl] / (state[kl + 1] + _LAG_RATE0_RAD_S**2), 0.0), params[p + _MAG_PERIOD])
+                psi_l = psi0 - rate_d * lag
+                if psi_l * psi_l <= gate * gate * params[p + _R_HEADING]:
+                    a = min(min(since, 1.0) / tau_m, 1.0)
+                    state[kl] += a * (psi0 * rate_d - state[kl])
+                    state[kl + 1] += a * (rate_d * rate_d - state[kl + 1])
+            psi = psi0 - rate_d * lag
             psi = math.atan2(math.sin(psi), math.cos(psi))
             for i in range(N):
                 state[k + _H + i] = 0.0
@@ -1404,7 +1445,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 state[k + _H + 1] = cdip * he / bh
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age
-            stale = params[p + _MAG_STALE] * (state[kc + 6] * gx + state[kc + 7] * gy + state[kc + 8] * gz)
+            stale = params[p + _MAG_STALE] * rate_d
             r_m = (params[p + _R_HEADING] + stale * stale) / (w_m * w_m) + r_model
             tried = True
             if consider:
@@ -1515,6 +1556,16 @@ def declination_of(state: np.ndarray, k: int) -> tuple[float, float]:
     return float(state[k + _DECL]), math.sqrt(var) if var > 0.0 else 0.0
 
 
+def mag_delay_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
+    """The compass reading's delay behind the IMU's attitude the heading update uses, s, of an ESKF state whose
+    own block starts at ``k`` (learnt: ``EskfSettings.mag_learn_tau_s``; else ``mag_delay_s`` less ``sensor_delay_s``)."""
+    p = P_FILTER
+    if params[p + _MAG_LEARN_TAU] > 0.0:
+        a, b = float(state[k + _MLAG]), float(state[k + _MLAG + 1])
+        return min(max(a / (b + _LAG_RATE0_RAD_S**2), 0.0), float(params[p + _MAG_PERIOD]))
+    return max(float(params[p + _MAG_DELAY] - params[p + _DELAY]), 0.0)
+
+
 def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
     """The thrust axis held in an ESKF state whose own block starts at ``k`` (unit, IMU frame), or None."""
     t = np.array(state[k + _TAX : k + _TAX + 3], dtype=float)
@@ -1558,6 +1609,8 @@ class Eskf(AttitudeFilter):
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
         p[_VEL_RESET] = settings.velocity_reset_s
         p[_MAG_STALE] = settings.mag_staleness_s
+        p[_MAG_DELAY] = settings.mag_delay_s
+        p[_MAG_LEARN_TAU] = settings.mag_learn_tau_s
         p[_REJECT_RESET] = settings.rejection_reset_s
         p[_R_ZV] = settings.unaided_velocity_noise_m_s**2
         p[_ZV_PERIOD] = settings.unaided_velocity_period_s
@@ -1612,6 +1665,10 @@ class Eskf(AttitudeFilter):
         s = np.zeros(_N_STATE)
         eskf_reset(s, 0, self._params)
         return s
+
+    def mag_delay_s(self) -> float:
+        """The compass reading's delay behind the IMU's attitude the heading update uses, s (:func:`mag_delay_of`)."""
+        return mag_delay_of(self._state, S_FILTER, self._params)
 
     def declination_correction_rad(self) -> float:
         """The learnt declination correction: the local field's azimuth east of the WMM's magnetic north, rad."""
