@@ -259,7 +259,7 @@ _DECL = _TREF + 1  # learnt declination correction: the field's azimuth in the f
 _START = _DECL + 1  # the start window: ∫ f_NED dt in the estimate's frame (3), the time (1)
 _STARTED = _START + 4  # 1: the start window is over (or there is none)
 _FIT_T = _STARTED + 1  # clock since when the model's corrected readings fit the WMM while the heading is unknown (0: not)
-_MLAG = _FIT_T + 1  # the compass's learnt delay: running means of ψ₀·r_D and r_D² (2; ψ₀: no delay applied)
+_MLAG = _FIT_T + 1  # the compass's learnt delay behind the IMU's attitude, s, and the running mean of r_D² in turns (2)
 _N_STATE = _MLAG + 2
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
@@ -380,10 +380,12 @@ class EskfSettings(FilterSettings):
             learnt from its readings, averaged over this long, s (0 =
             ``mag_delay_s`` as set): the heading innovation without a delay,
             ψ₀, is r_D·L + e for a reading L s old at yaw rate r_D and a heading
-            error e that does not follow the yaw rate, so
-            L = ⟨ψ₀·r_D⟩ / (⟨r_D²⟩ + (10°/s)²) (least squares, shrunk to 0 while
-            the vehicle does not turn; at most one compass period; innovations
-            beyond the gate are not counted).
+            error e that does not follow the yaw rate; L moves by
+            ψ·r_D / (⟨r_D²⟩ + (10°/s)²) with ψ the innovation with L applied
+            (normalised least mean squares: at its fixed point nothing in the
+            innovation follows the yaw rate), only while turning faster than
+            10°/s, at most one compass period, innovations beyond the gate not
+            counted.
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
@@ -1402,17 +1404,22 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             lag = max(params[p + _MAG_DELAY] - params[p + _DELAY], 0.0)
             tau_m = params[p + _MAG_LEARN_TAU]
             if tau_m > 0.0:
-                # learnt from the readings themselves: ψ₀ ≈ r_D·L + e (the heading error e varies slowly, not
-                # with the yaw rate), so L = ⟨ψ₀ r_D⟩ / (⟨r_D²⟩ + r₀²), least squares shrunk to 0 without turns
-                # (r₀ 10°/s), at most one compass period; innovations beyond the gate are not counted (a
-                # disturbance, not the delay)
+                # learnt from the readings themselves: the innovation with the delay L applied is
+                # ψ ≈ r_D·(L_true − L) + e (the heading error e varies slowly, not with the yaw rate), so L moves
+                # by ψ·r_D / (⟨r_D²⟩ + r₀²) (normalised least mean squares, r₀ 10°/s; its fixed point has no
+                # innovation left that follows the yaw rate, what the heading estimate absorbs included),
+                # at most one compass period; only in turns (|r_D| ≥ r₀: at rest it holds) and not from
+                # innovations beyond the gate (a disturbance, not the delay)
                 kl = k + _MLAG
-                lag = min(max(state[kl] / (state[kl + 1] + _LAG_RATE0_RAD_S**2), 0.0), params[p + _MAG_PERIOD])
+                lag = state[kl]
                 psi_l = psi0 - rate_d * lag
-                if psi_l * psi_l <= gate * gate * params[p + _R_HEADING]:
+                r2 = rate_d * rate_d
+                if r2 >= _LAG_RATE0_RAD_S**2 and psi_l * psi_l <= gate * gate * params[p + _R_HEADING]:
                     a = min(min(since, 1.0) / tau_m, 1.0)
-                    state[kl] += a * (psi0 * rate_d - state[kl])
-                    state[kl + 1] += a * (rate_d * rate_d - state[kl + 1])
+                    state[kl + 1] += a * (r2 - state[kl + 1])
+                    lag += a * psi_l * rate_d / (state[kl + 1] + _LAG_RATE0_RAD_S**2)
+                    state[kl] = min(max(lag, 0.0), params[p + _MAG_PERIOD])
+                lag = state[kl]
             psi = psi0 - rate_d * lag
             psi = math.atan2(math.sin(psi), math.cos(psi))
             for i in range(N):
@@ -1561,8 +1568,7 @@ def mag_delay_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
     own block starts at ``k`` (learnt: ``EskfSettings.mag_learn_tau_s``; else ``mag_delay_s`` less ``sensor_delay_s``)."""
     p = P_FILTER
     if params[p + _MAG_LEARN_TAU] > 0.0:
-        a, b = float(state[k + _MLAG]), float(state[k + _MLAG + 1])
-        return min(max(a / (b + _LAG_RATE0_RAD_S**2), 0.0), float(params[p + _MAG_PERIOD]))
+        return float(state[k + _MLAG])
     return max(float(params[p + _MAG_DELAY] - params[p + _DELAY]), 0.0)
 
 
