@@ -132,7 +132,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "START_DONE_STATE",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "START_DONE_STATE",
 ]  # fmt: skip
 
 N = 15  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -166,6 +166,8 @@ _RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
 _FIT_DIP_RAD = math.radians(3.0)
+#: yaw rate, rad/s, whose mean square shrinks the compass's learnt delay towards 0 (no turns: nothing learnt)
+_LAG_RATE0_RAD_S = math.radians(10.0)
 
 # filter parameters, offsets from P_FILTER
 _Q_GYRO = 0  # gyro noise density², rad²/s
@@ -216,7 +218,9 @@ _R_POS_V = _INIT_COS + 2  # vertical position noise², m² (0: not fused)
 _POS_GATE = _INIT_COS + 3  # χ gate of the position fixes (σ)
 _Q_POS = _INIT_COS + 4  # position random walk², m²/s (the receiver's slow wander)
 _Q_BIAS_AIDED = _INIT_COS + 5  # bias random walk² while velocity-aided, rad²/s³ (0: _Q_BIAS)
-_N_PARAMS = _INIT_COS + 6
+_MAG_DELAY = _INIT_COS + 6  # s: the magnetometer reading's delay behind the IMU stamps (the heading read is that old)
+_MAG_LEARN_TAU = _MAG_DELAY + 1  # s: averaging time of the compass's learnt delay (0: ``_MAG_DELAY`` as set)
+_N_PARAMS = _MAG_DELAY + 2
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -267,7 +271,8 @@ _POS_ON = _POS + 3  # 1: the horizontal position is started from a fix (0: not)
 _POS_ON_V = _POS + 4  # 1: the vertical position is started from a fix (0: not)
 _PREJ_T = _POS + 5  # clock time since when every position fix has been rejected (−1: none)
 _PREV_POS = _POS + 6  # the previous row's position (3): a held value is not a new fix
-_N_STATE = _POS + 9
+_MLAG = _POS + 9  # the compass's learnt delay behind the IMU's attitude, s, and the running mean of r_D² in turns (2)
+_N_STATE = _MLAG + 2
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -377,6 +382,22 @@ class EskfSettings(FilterSettings):
             message): the heading noise grows by yaw rate × this, so readings
             taken in a fast yaw count less.  A reading is fused when it
             changes (at most ``mag_rate_hz``), or after 1 s of repeats.
+        mag_delay_s: the magnetometer reading's delay behind the IMU stamps,
+            s: the heading it reads is compared with the attitude that much
+            earlier (the heading now less yaw rate × (this − ``sensor_delay_s``),
+            the IMU's own delay being in the attitude already).  0 = none (the
+            default: a raw IMU's compass read with its gyro); a vehicle's stream
+            sets none and learns it (``mag_learn_tau_s``).
+        mag_learn_tau_s: the compass's delay (behind the IMU's attitude) is
+            learnt from its readings, averaged over this long, s (0 =
+            ``mag_delay_s`` as set): the heading innovation without a delay,
+            ψ₀, is r_D·L + e for a reading L s old at yaw rate r_D and a heading
+            error e that does not follow the yaw rate; L moves by
+            ψ·r_D / (⟨r_D²⟩ + (10°/s)²) with ψ the innovation with L applied
+            (normalised least mean squares: at its fixed point nothing in the
+            innovation follows the yaw rate), only while turning faster than
+            10°/s, at most one compass period, innovations beyond the gate not
+            counted.
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
@@ -585,6 +606,8 @@ class EskfSettings(FilterSettings):
     position_gate_sigma: float = 5.0
     position_walk_m_s: float = 0.0
     bias_walk_aided_rad_s2: float = 0.0
+    mag_delay_s: float = 0.0
+    mag_learn_tau_s: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -604,7 +627,8 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
-                     "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2"):
+                     "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
+                     "mag_delay_s", "mag_learn_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1578,7 +1602,31 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if bh > 0.05 * math.sqrt(mx * mx + my * my + mz * mz):
             # the estimate's heading error: the field's azimuth in the filter's frame less the learnt
             # declination correction (WMM magnetic north = 0); ψ ≈ −δθ_D + δD
-            psi = math.atan2(he, hn) - state[k + _DECL]
+            # a reading L s older than the IMU's attitude (its delay behind the stamps less the IMU's own)
+            # was taken r_D·L of yaw ago: rotated with today's attitude it reads the heading + r_D·L
+            rate_d = state[kc + 6] * gx + state[kc + 7] * gy + state[kc + 8] * gz
+            psi0 = math.atan2(he, hn) - state[k + _DECL]
+            psi0 = math.atan2(math.sin(psi0), math.cos(psi0))
+            lag = max(params[p + _MAG_DELAY] - params[p + _DELAY], 0.0)
+            tau_m = params[p + _MAG_LEARN_TAU]
+            if tau_m > 0.0:
+                # learnt from the readings themselves: the innovation with the delay L applied is
+                # ψ ≈ r_D·(L_true − L) + e (the heading error e varies slowly, not with the yaw rate), so L moves
+                # by ψ·r_D / (⟨r_D²⟩ + r₀²) (normalised least mean squares, r₀ 10°/s; its fixed point has no
+                # innovation left that follows the yaw rate, what the heading estimate absorbs included),
+                # at most one compass period; only in turns (|r_D| ≥ r₀: at rest it holds) and not from
+                # innovations beyond the gate (a disturbance, not the delay)
+                kl = k + _MLAG
+                lag = state[kl]
+                psi_l = psi0 - rate_d * lag
+                r2 = rate_d * rate_d
+                if r2 >= _LAG_RATE0_RAD_S**2 and psi_l * psi_l <= gate * gate * params[p + _R_HEADING]:
+                    a = min(min(since, 1.0) / tau_m, 1.0)
+                    state[kl + 1] += a * (r2 - state[kl + 1])
+                    lag += a * psi_l * rate_d / (state[kl + 1] + _LAG_RATE0_RAD_S**2)
+                    state[kl] = min(max(lag, 0.0), params[p + _MAG_PERIOD])
+                lag = state[kl]
+            psi = psi0 - rate_d * lag
             psi = math.atan2(math.sin(psi), math.cos(psi))
             for i in range(N):
                 state[k + _H + i] = 0.0
@@ -1610,7 +1658,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 state[k + _H + 1] = cdip * he / bh
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age
-            stale = params[p + _MAG_STALE] * (state[kc + 6] * gx + state[kc + 7] * gy + state[kc + 8] * gz)
+            stale = params[p + _MAG_STALE] * rate_d
             r_m = (params[p + _R_HEADING] + stale * stale) / (w_m * w_m) + r_model
             tried = True
             if consider:
@@ -1726,6 +1774,15 @@ def declination_of(state: np.ndarray, k: int) -> tuple[float, float]:
     return float(state[k + _DECL]), math.sqrt(var) if var > 0.0 else 0.0
 
 
+def mag_delay_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
+    """The compass reading's delay behind the IMU's attitude the heading update uses, s, of an ESKF state whose
+    own block starts at ``k`` (learnt: ``EskfSettings.mag_learn_tau_s``; else ``mag_delay_s`` less ``sensor_delay_s``)."""
+    p = P_FILTER
+    if params[p + _MAG_LEARN_TAU] > 0.0:
+        return float(state[k + _MLAG])
+    return max(float(params[p + _MAG_DELAY] - params[p + _DELAY]), 0.0)
+
+
 def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
     """The thrust axis held in an ESKF state whose own block starts at ``k`` (unit, IMU frame), or None."""
     t = np.array(state[k + _TAX : k + _TAX + 3], dtype=float)
@@ -1769,6 +1826,8 @@ class Eskf(AttitudeFilter):
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
         p[_VEL_RESET] = settings.velocity_reset_s
         p[_MAG_STALE] = settings.mag_staleness_s
+        p[_MAG_DELAY] = settings.mag_delay_s
+        p[_MAG_LEARN_TAU] = settings.mag_learn_tau_s
         p[_REJECT_RESET] = settings.rejection_reset_s
         p[_R_ZV] = settings.unaided_velocity_noise_m_s**2
         p[_ZV_PERIOD] = settings.unaided_velocity_period_s
@@ -1828,6 +1887,10 @@ class Eskf(AttitudeFilter):
         s = np.zeros(_N_STATE)
         eskf_reset(s, 0, self._params)
         return s
+
+    def mag_delay_s(self) -> float:
+        """The compass reading's delay behind the IMU's attitude the heading update uses, s (:func:`mag_delay_of`)."""
+        return mag_delay_of(self._state, S_FILTER, self._params)
 
     def declination_correction_rad(self) -> float:
         """The learnt declination correction: the local field's azimuth east of the WMM's magnetic north, rad."""
