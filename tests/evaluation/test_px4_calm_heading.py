@@ -1,0 +1,61 @@
+"""Issue 23: ``best``'s heading where GNSS cannot observe it, on the PX4 SITL flight in ../shared.
+
+``px4_sitl/px4_aggressive.tlog`` ends in a hover (220–250 s on the fed samples' clock: the GNSS
+horizontal speed below 1 m/s).  There the heading is the magnetometer's alone, and mavahrs's own
+complementary filter follows the truth (HIL_STATE_QUATERNION) within 0.2–0.5° per 10 s window, while
+``best`` carries +1.2…+2.1° built up in the manoeuvre before it (hover RMS 1.61°, measured 2026-12-06; docs/accuracy.md,
+"PX4 calm-segment heading").  Target of issue 23: ``best`` within 0.1° of the best mavahrs filter on
+every flight, so here within 0.1° of the complementary filter in the hover.  Fails today: marked
+``xfail(strict=True)`` so the fix flips it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mavahrs.evaluation.loaders import load_any
+from mavahrs.evaluation.metrics import attitude_errors_rad
+from mavahrs.evaluation.report import run_filter
+
+HOVER_S = (220.0, 250.0)
+
+
+@pytest.fixture(scope="module")
+def px4_recording(shared_data: Path):
+    path = shared_data / "px4_sitl" / "px4_aggressive.tlog"
+    if not path.exists():
+        pytest.skip(f"reference data not found at {path} (expected ../shared/data/px4_sitl beside the checkout)")
+    return load_any(path)[0]
+
+
+def _hover_heading_rms_deg(rec, name: str) -> float:
+    t_s = np.cumsum(rec.dt_s)
+    window = (t_s >= HOVER_S[0]) & (t_s < HOVER_S[1])
+    out = run_filter(rec, name)
+    heading_rad = attitude_errors_rad(out[:, :4], rec.q_ref_body_to_ned)[1]
+    return float(np.degrees(np.sqrt(np.nanmean(heading_rad[window] ** 2))))
+
+
+def test_hover_window_is_calm(px4_recording) -> None:
+    """The window is a hover by the GNSS velocity the filters are fed, not by assumption."""
+    t_s = np.cumsum(px4_recording.dt_s)
+    v = px4_recording.extra["velocity_ned_m_s"]
+    window = (t_s >= HOVER_S[0]) & (t_s < HOVER_S[1]) & np.isfinite(v[:, 0])
+    assert window.sum() > 100
+    assert np.max(np.hypot(v[window, 0], v[window, 1])) < 1.0
+
+
+def test_complementary_follows_the_truth_in_the_hover(px4_recording) -> None:
+    """The magnetometer itself is good there (the SIH field agrees with WMM: declination ≈ 0 against the truth)."""
+    assert _hover_heading_rms_deg(px4_recording, "complementary") < 0.8
+
+
+@pytest.mark.xfail(strict=True, reason="issue 23: best 1.61 deg (1.77 before the learnt compass delay) vs complementary 0.38 deg heading RMS in the "
+                   "PX4 SITL hover (220-250 s); the heading error built in the manoeuvre decays only slowly")
+def test_best_heading_in_the_hover_within_0_1_deg_of_complementary(px4_recording) -> None:
+    best = _hover_heading_rms_deg(px4_recording, "best")
+    complementary = _hover_heading_rms_deg(px4_recording, "complementary")
+    assert best <= complementary + 0.1, (best, complementary)
