@@ -455,8 +455,8 @@ def _detect_accumulate(state, se, se2, pe2, row):  # type: ignore[no-untyped-def
     """This sample's specific force and both hypotheses' predictions of it (from their states before it)."""
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
     dt = row[IN_DT]
-    if not (ax == ax and ay == ay and az == az and dt > 0.0 and dt < 1.0):
-        return
+    if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az) and dt > 0.0 and dt < 1.0):
+        return  # an invalid sample (NaN, ±inf, a bad dt) is no evidence either way
     if not (se[S_INIT] > 0.0 and se2[S_INIT] > 0.0):
         return
     k = pe2[P_FILTER + DRAG_PARAM]
@@ -565,7 +565,7 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
             sm = sig * sig + r_c + _quad_form(se2, h)
             inc += 0.5 * (yg * yg / sg + math.log(sg) - ym * ym / sm - math.log(sm))
         clip = params[_DET_CLIP]
-        inc = min(max(inc, -clip), clip)
+        inc = min(max(inc, -clip), clip) if math.isfinite(inc) else 0.0  # a state gone bad is no evidence
         forget = math.exp(-tp / params[_DET_FORGET])
         llr = state[_LLR] * forget + inc
         state[_LLR] = llr
@@ -579,7 +579,8 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
             state[_SWITCHES] += 1.0
     if n > 0.0:  # the generic hypothesis's motion acceleration in this period (its residual)
         for i in range(3):
-            state[_AG + i] = (state[_DF + i] - state[_DF + 3 + i]) / n
+            a = (state[_DF + i] - state[_DF + 3 + i]) / n
+            state[_AG + i] = a if math.isfinite(a) else 0.0
     for i in range(11):
         state[_DF + i] = 0.0
 

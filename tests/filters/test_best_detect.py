@@ -73,3 +73,27 @@ def test_a_multirotor_started_in_a_manoeuvre_keeps_its_thrust_axis(raw_flight) -
     assert np.degrees(np.arccos(min(1.0, abs(float(axis[0]))))) < 10.0  # the IMU's x axis is up: the thrust axis
     scored = slice(RATE_HZ * 20, None)
     assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 3.0
+
+
+def test_invalid_samples_are_no_evidence(raw_flight) -> None:  # type: ignore[no-untyped-def]
+    """±inf and NaN accelerometer samples, a zero vector and a negative dt in an undeclared multirotor's
+    stream: the evidence stays a number (an inf once made it NaN for the rest of the flight, the decision
+    frozen), the flight is still taken for a multirotor and the attitude is as good as without them."""
+    from mavahrs.filters.layout import IN_ACCEL, IN_DT, IN_GYRO
+
+    rows, q_ref, _bias = raw_flight("aggressive", 2, seconds=40.0)
+    bad = rows.copy()
+    bad[3000:3005, IN_ACCEL] = np.inf
+    bad[3100, IN_ACCEL : IN_ACCEL + 3] = 0.0
+    bad[3200, IN_GYRO] = np.nan
+    bad[3300, IN_DT] = -0.01
+    bad[3400, IN_ACCEL + 1] = -np.inf
+    clean, f = create("best"), create("best")
+    ref = clean.run(rows)
+    out = f.run(bad)
+    det = f.multirotor_detection()  # type: ignore[attr-defined]
+    assert np.isfinite(det["evidence_nats"]) and det["multirotor"] == 1.0, det
+    scored = np.arange(len(rows)) >= 2000
+    err = summarize(out[:, OUT_Q : OUT_Q + 4], q_ref, scored).inclination_rms_deg
+    err_ref = summarize(ref[:, OUT_Q : OUT_Q + 4], q_ref, scored).inclination_rms_deg
+    assert np.isfinite(out[:, OUT_Q : OUT_Q + 4]).all() and err < err_ref + 0.1, (err, err_ref)
