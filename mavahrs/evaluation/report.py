@@ -38,7 +38,7 @@ from mavahrs.evaluation.metrics import (
     summarize,
 )
 from mavahrs.filters.base import FilterSettings, make_inputs
-from mavahrs.filters.layout import OUT_Q, OUT_WIDTH
+from mavahrs.filters.layout import IN_CURRENT, IN_POS, OUT_Q, OUT_WIDTH
 
 __all__ = [
     "FilterScore",
@@ -112,6 +112,10 @@ def run_filter(
         rec.gyro_rad_s, rec.accel_m_s2, mag, dt_s=rec.dt_s, velocity_ned_m_s=vel,
         velocity_age_s=rec.extra.get("velocity_age_s") if vel is not None else None,
     )  # fmt: skip
+    for key, col, width in (("current_a", IN_CURRENT, 1), ("position_ned_m", IN_POS, 3)):
+        values = rec.extra.get(key)  # a flight log's other chain columns, as replay feeds them
+        if values is not None and len(values) == inputs.shape[0]:
+            inputs[:, col : col + width] = np.asarray(values, dtype=np.float64).reshape(inputs.shape[0], width)
     f = create(name, settings)
     if "sensor_delay_s" in rec.extra:  # a flight log: the filter is told what the daemon's pipeline tells it
         from mavahrs.ingest.arrays import configure_filter

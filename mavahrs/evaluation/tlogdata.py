@@ -1031,6 +1031,10 @@ def recording_from_inputs(
             "temperature_c": prep.temperature_c,
             "velocity_ned_m_s": np.ascontiguousarray(vel) if np.isfinite(vel).any() else None,
             "velocity_age_s": rows[:, IN_VEL_AGE].copy() if np.isfinite(vel).any() else None,
+            # the chain's other columns, as the replay feeds them (the magnetometer model's motor current, the
+            # GNSS position): evaluate runs a filter on the same rows as replay
+            "current_a": rows[:, IN_CURRENT].copy() if np.isfinite(rows[:, IN_CURRENT]).any() else None,
+            "position_ned_m": rows[:, IN_POS : IN_POS + 3].copy() if np.isfinite(rows[:, IN_POS : IN_POS + 3]).any() else None,
             "has_reference": bool(np.isfinite(q_ref).all(axis=1).any()),
             "notes": notes,
             "imu": f"{prep.message} (instance {prep.instance}), {rate:.1f} Hz",
