@@ -100,3 +100,23 @@ def test_audit_a_folder_mixing_the_formats(dataflash_log, tmp_path: Path, shared
     if ulg.exists():
         assert rows["px4.ulg"].error == "" and rows["px4.ulg"].log_format == "ulog"
     assert "unreadable:" in cap.out and "Traceback" not in cap.err
+    # the same folder on a Dask cluster (a scheduler and two workers over loopback): the same rows
+    pytest.importorskip("distributed", reason="the fleet extra (Dask) is not installed")
+    import os
+
+    from mavahrs.fleet.audit import TIMING_FIELDS
+    from mavahrs.fleet.dask_engine import loopback_cluster
+
+    repo = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(repo), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    with loopback_cluster(tmp_path / "cluster", 2, env=env) as address:
+        cluster_table = tmp_path / "cluster.csv"
+        rc = main(["audit", str(folder), "--scheduler", address, "--no-progress", "-o", str(cluster_table)])
+    cap = capsys.readouterr()
+    assert rc == 1 and f"on the cluster at {address}" in cap.out, cap.out[-2000:]
+
+    def fixed(r):  # type: ignore[no-untyped-def]
+        return {k: repr(v) for k, v in r.as_dict().items() if k not in TIMING_FIELDS}
+
+    on_cluster = {Path(r.path).name: fixed(r) for r in read_table(cluster_table)}
+    assert on_cluster == {name: fixed(r) for name, r in rows.items()}
