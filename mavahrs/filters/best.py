@@ -152,6 +152,14 @@ BEST_INITIAL_AVERAGE_S = 2.0
 #: first sample is 60–120° off, still re-aligned (docs/accuracy.md)
 MULTIROTOR_INITIAL_REALIGN_RAD = math.radians(45.0)
 
+#: the multirotor hypothesis takes a detected rest only once the bias of at least one axis is known within this
+#: (1-σ, rad/s; ``EskfSettings.rest_check_sigma_rad_s``; the detection's own bias gate, ``bias_sigma_rad_s``): a
+#: multirotor hovering in a slow turn is as still as rest to the detector, and before its bias is learnt in flight the
+#: 3σ check passes the turn — firmware_sim raw ``hover`` seed 5 took a rest at 1.5 s, its bias σ collapsed to
+#: 0.03 °/s with 1–2 °/s of error left (declared 5.37°, the plain path stayed generic, 4.29°); with it 0.71° both
+#: (the raw SITL set declared unchanged, 1.00°; docs/accuracy.md)
+MULTIROTOR_REST_CHECK_SIGMA_RAD_S = math.radians(0.5)
+
 
 def best_settings() -> MadgwickSettings:
     """The Madgwick configuration ``best`` runs without velocity aiding (a new frozen dataclass).
@@ -267,7 +275,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
     (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
     error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
-    the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°).
+    the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°); a detected rest taken only once
+    the bias is known within ``MULTIROTOR_REST_CHECK_SIGMA_RAD_S`` on some axis (a hover is as still as rest).
     """
     k = drag_coefficient_1_s
     if k is None:
@@ -277,6 +286,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
         eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
     if eskf.initial_realign_rad < MULTIROTOR_INITIAL_REALIGN_RAD:
         eskf = replace(eskf, initial_realign_rad=MULTIROTOR_INITIAL_REALIGN_RAD)
+    if eskf.rest_check_sigma_rad_s == 0.0:
+        eskf = replace(eskf, rest_check_sigma_rad_s=MULTIROTOR_REST_CHECK_SIGMA_RAD_S)
     return vehicle_eskf_settings(eskf)
 
 

@@ -220,7 +220,8 @@ _Q_POS = _INIT_COS + 4  # position random walk², m²/s (the receiver's slow wan
 _Q_BIAS_AIDED = _INIT_COS + 5  # bias random walk² while velocity-aided, rad²/s³ (0: _Q_BIAS)
 _MAG_DELAY = _INIT_COS + 6  # s: the magnetometer reading's delay behind the IMU stamps (the heading read is that old)
 _MAG_LEARN_TAU = _MAG_DELAY + 1  # s: averaging time of the compass's learnt delay (0: ``_MAG_DELAY`` as set)
-_N_PARAMS = _MAG_DELAY + 2
+_REST_CHECK_VAR = _MAG_DELAY + 2  # (rad/s)²: a rest is checked and fused only on axes whose bias variance is within this (0: all)
+_N_PARAMS = _MAG_DELAY + 3
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -501,6 +502,17 @@ class EskfSettings(FilterSettings):
             ``docs/accuracy.md``.)
         rest_rate_noise_rad_s: 1-σ noise of the low-passed gyro as a
             bias measurement at rest, rad/s (0 = no rest updates).
+        rest_check_sigma_rad_s: a detected rest is taken only where the bias is
+            known well enough for the 3 σ check to tell a slow steady turn
+            from it: at least one axis's bias 1-σ within this, rad/s, and every
+            such axis passing the check (then fused on all three; 0: every
+            axis checked, as before).  Where the bias is hardly known the
+            check passes any slow turn and one rest update takes the turn for
+            the bias: a multirotor hovering in a slow turn is as still as rest
+            to the detector (firmware_sim's raw ``hover``: the accelerometer
+            within 0.08 m/s² of its low-pass, the gyro 0.3–0.5 °/s), and raw
+            ``hover`` seed 5 declared a multirotor measured 5.37° (0.71°
+            with this at 0.5 °/s).  Set by ``best``'s multirotor hypothesis.
         rest_velocity_noise_m_s: 1-σ noise of a zero velocity fused at rest,
             m/s; 0 = not fused (the default: SITL's hover is as still as a
             landed vehicle and drifts; 0.05 m/s measured 1.94 → 2.07°).
@@ -588,6 +600,7 @@ class EskfSettings(FilterSettings):
     )
     rest_rate_noise_rad_s: float = math.radians(0.1)
     rest_velocity_noise_m_s: float = 0.0
+    rest_check_sigma_rad_s: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -625,7 +638,7 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
-        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
+        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s"):
@@ -1414,14 +1427,24 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state, k + _REST, state, k + _RSCR, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
             ax, ay, az, accel_ok, math.nan, math.nan, math.nan, dt, params, p + _REST_P,
         )  # fmt: skip
+        n_known = 0
         if at_rest:
             # a low-passed rate the bias cannot explain is a slow steady turn (a hover's yaw), not rest:
-            # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise)
+            # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise);
+            # with rest_check_sigma_rad_s only the axes whose bias is known well enough for that check to
+            # tell a slow turn, and at least one of them (before that a still stretch is not taken for rest)
             kp = k + _P
+            v_max = params[p + _REST_CHECK_VAR]
             for c in range(3):
+                pb = s_pos(state[kp + (6 + c) * N + 6 + c])
+                if v_max > 0.0 and pb > v_max:
+                    continue
+                n_known += 1
                 d = state[k + _REST + c] - state[S_BIAS + c]
-                if d * d > 9.0 * (s_pos(state[kp + (6 + c) * N + 6 + c]) + params[p + _R_REST_RATE]):
+                if d * d > 9.0 * (pb + params[p + _R_REST_RATE]):
                     at_rest = False
+            if n_known == 0:
+                at_rest = False
         if at_rest and clk - state[k + _LAST_REST] >= params[p + _ZV_PERIOD]:
             # the low-passed gyro is the bias (Madgwick's and VQF's rest phase, here as a measurement of
             # the bias state: its covariance with the tilt corrects that too); optionally the velocity is zero
@@ -1850,6 +1873,7 @@ class Eskf(AttitudeFilter):
         p[_INIT_AVG] = settings.initial_average_s
         p[_INIT_COS] = math.cos(min(settings.initial_realign_rad, math.pi))
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
+        p[_REST_CHECK_VAR] = settings.rest_check_sigma_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
         p[_R_POS_H] = settings.position_noise_m**2
