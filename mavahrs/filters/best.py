@@ -317,7 +317,12 @@ class MultirotorDetectSettings:
         enabled: run the multirotor hypothesis beside on the plain path (False: one ESKF, as before).
         accel_sigma_m_s2: the generic hypothesis's motion acceleration across the axis, 0.1 s mean, m/s².
         period_s: the comparison's period (the drag measurement's), s.
-        forget_s: time constant of the evidence's forgetting, s.
+        forget_s: time constant of the evidence's forgetting, s: how long the prior lets old evidence count (a
+            recording does not change its kind; the forgetting only lets a wrong early decision be undone).  120 s
+            rather than 60: a gentle hover's evidence rises at ≈ 0.25 nats/s and levelled off at 15–24 nats over
+            60 s (firmware_sim raw ``hover`` 4 stayed generic, 1.67°; 120 s: a multirotor from 44 s, 1.27°) while
+            the hand-held trials' evidence comes in bursts (BROAD 9D/6D/raw largest 11.8 → 11.9 nats, RepoIMU
+            TStick ≤ 0.8, none switched either way; docs/accuracy.md).
         switch_nats: evidence for "multirotor" beyond which its attitude is the output.
         back_nats: evidence below which the output is the generic hypothesis's again.
         clip_nats: the most one period adds either way.
@@ -331,7 +336,7 @@ class MultirotorDetectSettings:
     enabled: bool = True
     accel_sigma_m_s2: float = 0.5
     period_s: float = 0.1
-    forget_s: float = 60.0
+    forget_s: float = 120.0
     switch_nats: float = 25.0
     back_nats: float = 0.0
     clip_nats: float = 1.0
