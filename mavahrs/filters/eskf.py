@@ -278,9 +278,10 @@ _PREV_POS = _POS + 6  # the previous row's position (3): a held value is not a n
 _MLAG = _POS + 9  # the compass's learnt delay behind the IMU's attitude, s, and the running mean of r_D² in turns (2)
 #: the compass's learnt noise (``mag_noise_tau_s``, :func:`_mag_noise_step`): ½⟨Δ₁ψ²⟩, ½⟨Δ₂ψ²⟩ (2); the last two
 #: readings' heading innovations, carried to the current estimate (2); the clock time of the last (1); its
-#: innovation's sensitivity to the tilt (δθ_N, δθ_E: 2)
+#: innovation's sensitivity to the tilt (δθ_N, δθ_E: 2); the process noise's share of the heading innovation
+#: accumulated since the last reading and over the interval before (2)
 _MNOISE = _MLAG + 2
-_N_STATE = _MNOISE + 7
+_N_STATE = _MNOISE + 9
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -670,6 +671,7 @@ def mag_noise_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[kn + 2] = s[kn + 3] = math.nan
     s[kn + 4] = -1.0e9
     s[kn + 5] = s[kn + 6] = 0.0
+    s[kn + 7] = s[kn + 8] = 0.0
 
 
 @kernel(inline=True)
@@ -677,13 +679,16 @@ def _mag_noise_step(s, k, params, psi, cn, ce, learn, clk):  # type: ignore[no-u
     """The compass's heading noise per reading, learnt from its own innovations; returns it, rad².
 
     The heading innovation ψ_k = n_k + e_k is the reading's noise n plus the estimate's heading error e.
-    The error moves only by the gyro's noise between readings (q·Δt: (0.05°)² at 14 Hz, left out) and by
-    the filter's own corrections, which are known: ψ of the previous readings is carried to the current
-    estimate by each injected δx (ψ ← ψ − h·δx, :func:`_mag_noise_carry`).  So the differences of
-    consecutive innovations are the noise's alone, whatever error the estimate carries (a bias learnt
+    The error moves between readings by the gyro's white noise (q·Δt on the heading and, through the
+    field's dip, (h_N² + h_E²)·q·Δt via the tilt, plus the rate noise of the scale factor: accumulated per
+    sample and subtracted, Q₁ since the last reading, Q₂ since the one before: (0.05°)² at PX4's 14 Hz,
+    ≈ 1–2° on firmware_sim's vibrating stream) and by the filter's own corrections, which are known: ψ of
+    the previous readings is carried to the current estimate by each injected δx (ψ ← ψ − h·δx,
+    :func:`_mag_noise_carry`).  So the differences of consecutive innovations, less Q, are the noise's
+    alone, whatever slow error the estimate carries (a bias learnt
     in a manoeuvre: a slow error that would inflate ⟨ψ²⟩ − hPhᵀ, Mehra 1972's estimate, and so slow
     the compass that should remove it).  For noise of variance σ² and lag-1 correlation ρ (AR(1)):
-    D₁ = ½⟨(ψ_k − ψ_{k−1})²⟩ = σ²(1 − ρ), D₂ = ½⟨(ψ_k − ψ_{k−2})²⟩ = σ²(1 − ρ²), so ρ = D₂/D₁ − 1, and
+    D₁ = ½⟨(ψ_k − ψ_{k−1})² − Q₁⟩ = σ²(1 − ρ), D₂ = ½⟨(ψ_k − ψ_{k−2})² − Q₂⟩ = σ²(1 − ρ²), so ρ = D₂/D₁ − 1, and
     the variance per reading that makes a white-noise update as informative as those readings really
     are is the noise's spectral density at 0 times the reading interval, σ²(1 + ρ)/(1 − ρ)
     = D₁(1 + ρ)/(1 − ρ)² (Box & Jenkins: the variance of the mean of n AR(1) values ≈ σ²(1+ρ)/(1−ρ)/n):
@@ -698,15 +703,19 @@ def _mag_noise_step(s, k, params, psi, cn, ce, learn, clk):  # type: ignore[no-u
     kn = k + _MNOISE
     gate2 = params[p + _GATE] * params[p + _GATE]
     dt_r = clk - s[kn + 4]
+    q1 = s[kn + 7]  # the process noise's share of the change since the last reading …
+    q2 = q1 + s[kn + 8]  # … and since the one before
     if learn and dt_r <= 1.0 and s[kn + 2] == s[kn + 2]:
         a = min(dt_r / params[p + _MAG_NOISE_TAU], 1.0)
         d = psi - s[kn + 2]
         d = math.atan2(math.sin(d), math.cos(d))
-        s[kn] += a * (min(0.5 * d * d, gate2 * s[kn]) - s[kn])
+        s[kn] = max(s[kn] + a * (min(0.5 * d * d, gate2 * s[kn]) - 0.5 * q1 - s[kn]), 1.0e-12)
         if s[kn + 3] == s[kn + 3]:
             d = psi - s[kn + 3]
             d = math.atan2(math.sin(d), math.cos(d))
-            s[kn + 1] += a * (min(0.5 * d * d, gate2 * s[kn + 1]) - s[kn + 1])
+            s[kn + 1] = max(s[kn + 1] + a * (min(0.5 * d * d, gate2 * s[kn + 1]) - 0.5 * q2 - s[kn + 1]), 1.0e-12)
+    s[kn + 8] = q1
+    s[kn + 7] = 0.0
     # the readings held move back by one; pairs across a gap are not pairs
     s[kn + 3] = s[kn + 2] if dt_r <= 1.0 else math.nan
     s[kn + 2] = psi
@@ -1388,8 +1397,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
+    p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
         _rate_noise(state, k, dt, gx, gy, gz, q_sf, q_ma)
+    if params[p + _MAG_NOISE_TAU] > 0.0:
+        # the white part of the heading innovation's change since the last compass reading: the gyro's noise
+        # (on the heading and, through the field's dip, the tilt) and its rate noise (:func:`_mag_noise_step`)
+        kn = k + _MNOISE
+        state[kn + 7] += q_gyro * dt * (1.0 + state[kn + 5] ** 2 + state[kn + 6] ** 2) + state[k + _P + 2 * N + 2] - p_dd
     integrate_body_rate(state, S_Q, gx, gy, gz, dt)
     # history of the INS velocity (the state after this sample, at its time)
     pos = int(state[k + _HPOS])
