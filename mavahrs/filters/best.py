@@ -90,6 +90,7 @@ from mavahrs.filters.eskf import (
     declination_of,
     eskf_aided,
     mag_delay_of,
+    mag_noise_of,
     thrust_axis_of,
 )
 from mavahrs.filters.eskf import DELAY_PARAM as _DELAY_OFFSET
@@ -129,6 +130,15 @@ VEHICLE_BIAS_WALK_RAD_S2 = 1e-4
 #: aggressive 0.60 → 0.50, gentle 0.25 → 0.12, magnetic 0.45 → 0.33, onboard 0.78 → 0.73, .BIN 0.66 → 0.61,
 #: PX4 1.15 → 1.13; firmware_sim unchanged within 0.03; docs/accuracy.md
 VEHICLE_MAG_LEARN_TAU_S = 20.0
+#: a vehicle's compass noise per reading is learnt from its own heading innovations over this long, s
+#: (``EskfSettings.mag_noise_tau_s``; still at most 10 readings/s): PX4 SITL's readings scatter 2.9–3.3° about
+#: the truth, learnt 3.0–3.5° (σ 5° fixed before); ArduCopter SITL's 0.1–0.2°, learnt down to the 1° floor.
+#: PX4 SITL tlog heading 1.11 → 1.11° (hover 220–250 s 1.61 → 1.31°), its ULog 1.41 → 1.29° (hover 1.82 →
+#: 1.45°); ArduCopter SITL 400 Hz 0.56 → 0.54, onboard 0.52 → 0.47, others within 0.01.  Every reading
+#: (PX4's 14/s; ``mag_rate_hz`` 20) took the PX4 hover to 1.10° but ArduCopter's gentle flight 0.12 → 0.16° and
+#: the magnetic one with the receiver's velocity 0.30 → 0.46°: ArduPilot's compass errors beyond 10 Hz are not
+#: independent in a way the learnt lag-2 correlation did not show; docs/accuracy.md ("PX4 calm-segment heading")
+VEHICLE_MAG_NOISE_TAU_S = 30.0
 #: the drag measurement's noise, m/s², with the thrust axis as states (a raw IMU declared a multirotor): the
 #: default 0.5 (EK3_DRAG_M_NSE) also covered a learnt axis's error, which is now a state (raw SITL set
 #: declared a multirotor 1.11 → 1.00°, vibrating 1.47 → 1.24°; 0.8: 1.28 / 1.66°; docs/accuracy.md)
@@ -261,6 +271,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         gravity_noise_m_s2=d.gravity_noise_m_s2,
         heading_noise_rad=d.heading_noise_rad,
         mag_rate_hz=d.mag_rate_hz,
+        mag_noise_tau_s=VEHICLE_MAG_NOISE_TAU_S,
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,
         gyro_scale_sigma=d.gyro_scale_sigma,
@@ -842,6 +853,11 @@ class Best(AttitudeFilter):
         """The compass reading's delay behind the IMU's attitude the velocity-aided filter's heading update uses, s
         (learnt on a vehicle's stream, ``VEHICLE_MAG_LEARN_TAU_S``; :func:`mavahrs.filters.eskf.mag_delay_of`)."""
         return mag_delay_of(self._state, _SE + S_FILTER, self._params[_PE:])
+
+    def mag_noise_rad(self) -> tuple[float, float]:
+        """The compass heading's noise per reading the velocity-aided filter uses, rad, and its learnt lag-1
+        correlation (learnt on a vehicle's stream, ``VEHICLE_MAG_NOISE_TAU_S``; :func:`mavahrs.filters.eskf.mag_noise_of`)."""
+        return mag_noise_of(self._state, _SE + S_FILTER, self._params[_PE:])
 
     def export_mag_model(self) -> dict[str, object] | None:
         """The velocity-aided filter's model to keep across a restart (:func:`magfield.export_model`)."""

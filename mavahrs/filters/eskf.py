@@ -132,7 +132,8 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
-    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "START_DONE_STATE",
+    "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
+    "START_DONE_STATE",
 ]  # fmt: skip
 
 N = 15  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -221,7 +222,10 @@ _Q_BIAS_AIDED = _INIT_COS + 5  # bias random walk² while velocity-aided, rad²/
 _MAG_DELAY = _INIT_COS + 6  # s: the magnetometer reading's delay behind the IMU stamps (the heading read is that old)
 _MAG_LEARN_TAU = _MAG_DELAY + 1  # s: averaging time of the compass's learnt delay (0: ``_MAG_DELAY`` as set)
 _REST_CHECK_VAR = _MAG_DELAY + 2  # (rad/s)²: a rest is checked and fused only on axes whose bias variance is within this (0: all)
-_N_PARAMS = _MAG_DELAY + 3
+_MAG_NOISE_TAU = _MAG_DELAY + 3  # s: averaging time of the compass's learnt noise (0: ``_R_HEADING`` as set)
+_MAG_NOISE_MIN = _MAG_DELAY + 4  # rad²: the learnt per-reading heading noise is held at or above this …
+_MAG_NOISE_MAX = _MAG_DELAY + 5  # rad²: … and at or below this
+_N_PARAMS = _MAG_DELAY + 6
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -273,7 +277,12 @@ _POS_ON_V = _POS + 4  # 1: the vertical position is started from a fix (0: not)
 _PREJ_T = _POS + 5  # clock time since when every position fix has been rejected (−1: none)
 _PREV_POS = _POS + 6  # the previous row's position (3): a held value is not a new fix
 _MLAG = _POS + 9  # the compass's learnt delay behind the IMU's attitude, s, and the running mean of r_D² in turns (2)
-_N_STATE = _MLAG + 2
+#: the compass's learnt noise (``mag_noise_tau_s``, :func:`_mag_noise_step`): ½⟨Δ₁ψ²⟩, ½⟨Δ₂ψ²⟩ (2); the last two
+#: readings' heading innovations, carried to the current estimate (2); the clock time of the last (1); its
+#: innovation's sensitivity to the tilt (δθ_N, δθ_E: 2); the process noise's share of the heading innovation
+#: accumulated since the last reading and over the interval before (2)
+_MNOISE = _MLAG + 2
+_N_STATE = _MNOISE + 9
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -399,6 +408,24 @@ class EskfSettings(FilterSettings):
             innovation follows the yaw rate), only while turning faster than
             10°/s, at most one compass period, innovations beyond the gate not
             counted.
+        mag_noise_tau_s: the compass heading's noise per reading is learnt
+            from its own innovations, averaged over this long, s (0 =
+            ``heading_noise_rad`` as set; a vehicle's stream: 30 s,
+            ``best.VEHICLE_MAG_NOISE_TAU_S``): half the mean square
+            difference of consecutive heading innovations (each carried to the
+            current estimate by the filter's corrections, less the gyro noise
+            between them) is the readings' noise alone, not a slow heading
+            error the estimate carries; the second difference gives their
+            lag-1 correlation ρ, and the variance per reading is
+            σ²(1 + ρ)/(1 − ρ) (:func:`_mag_noise_step`).  Learnt only from
+            readings used as they are (not a model-corrected one), with no
+            disturbance flagged, turning slower than 10°/s; it starts at
+            ``heading_noise_rad``.  PX4 SITL: readings 3.0° off the truth,
+            learnt 2.9°; ArduCopter SITL 0.1–0.2°, held at the floor.
+        mag_noise_min_rad, mag_noise_max_rad: the learnt noise is held within
+            these, rad (1° and 20°: a compass's heading is not trusted beyond
+            what its unmodelled errors — the WMM's, the tilt's projection —
+            allow, nor dropped entirely).
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
@@ -621,6 +648,9 @@ class EskfSettings(FilterSettings):
     bias_walk_aided_rad_s2: float = 0.0
     mag_delay_s: float = 0.0
     mag_learn_tau_s: float = 0.0
+    mag_noise_tau_s: float = 0.0
+    mag_noise_min_rad: float = math.radians(1.0)
+    mag_noise_max_rad: float = math.radians(20.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -641,7 +671,7 @@ class EskfSettings(FilterSettings):
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
-                     "mag_delay_s", "mag_learn_tau_s"):
+                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -653,11 +683,90 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.initial_average_s must be in [0, 10] s, got {self.initial_average_s!r}")
         if not (math.isfinite(self.realign_after_s) and self.realign_after_s >= 0.0):
             raise ValueError(f"EskfSettings.realign_after_s must be ≥ 0 s, got {self.realign_after_s!r}")
+        if not (math.isfinite(self.mag_noise_min_rad) and 0.0 < self.mag_noise_min_rad <= self.mag_noise_max_rad
+                and math.isfinite(self.mag_noise_max_rad)):
+            raise ValueError("EskfSettings.mag_noise_min_rad must be > 0 and ≤ mag_noise_max_rad (finite), got "
+                             f"{self.mag_noise_min_rad!r}, {self.mag_noise_max_rad!r}")
         if not (math.isfinite(self.sensor_delay_s) and 0.0 <= self.sensor_delay_s <= 0.1):
             raise ValueError(f"EskfSettings.sensor_delay_s must be in [0, 0.1] s, got {self.sensor_delay_s!r}")
 
 
 # --------------------------------------------------------------------------- kernels
+
+
+@kernel
+def mag_noise_reset(s, k, params):  # type: ignore[no-untyped-def]
+    """The compass's learnt noise back to its prior (``heading_noise_rad``, white) and no reading held."""
+    kn = k + _MNOISE
+    s[kn] = s[kn + 1] = params[P_FILTER + _R_HEADING]
+    s[kn + 2] = s[kn + 3] = math.nan
+    s[kn + 4] = -1.0e9
+    s[kn + 5] = s[kn + 6] = 0.0
+    s[kn + 7] = s[kn + 8] = 0.0
+
+
+@kernel(inline=True)
+def _mag_noise_step(s, k, params, psi, cn, ce, learn, clk):  # type: ignore[no-untyped-def]
+    """The compass's heading noise per reading, learnt from its own innovations; returns it, rad².
+
+    The heading innovation ψ_k = n_k + e_k is the reading's noise n plus the estimate's heading error e.
+    The error moves between readings by the gyro's white noise (q·Δt on the heading and, through the
+    field's dip, (h_N² + h_E²)·q·Δt via the tilt, plus the rate noise of the scale factor: accumulated per
+    sample and subtracted, Q₁ since the last reading, Q₂ since the one before: (0.05°)² at PX4's 14 Hz,
+    ≈ 1–2° on firmware_sim's vibrating stream) and by the filter's own corrections, which are known: ψ of
+    the previous readings is carried to the current estimate by each injected δx (ψ ← ψ − h·δx,
+    :func:`_mag_noise_carry`).  So the differences of consecutive innovations, less Q, are the noise's
+    alone, whatever slow error the estimate carries (a bias learnt
+    in a manoeuvre: a slow error that would inflate ⟨ψ²⟩ − hPhᵀ, Mehra 1972's estimate, and so slow
+    the compass that should remove it).  For noise of variance σ² and lag-1 correlation ρ (AR(1)):
+    D₁ = ½⟨(ψ_k − ψ_{k−1})² − Q₁⟩ = σ²(1 − ρ), D₂ = ½⟨(ψ_k − ψ_{k−2})² − Q₂⟩ = σ²(1 − ρ²), so ρ = D₂/D₁ − 1, and
+    the variance per reading that makes a white-noise update as informative as those readings really
+    are is the noise's spectral density at 0 times the reading interval, σ²(1 + ρ)/(1 − ρ)
+    = D₁(1 + ρ)/(1 − ρ)² (Box & Jenkins: the variance of the mean of n AR(1) values ≈ σ²(1+ρ)/(1−ρ)/n):
+    the reading rate is accounted for, independent readings at 14 Hz counting fully, a 10 Hz compass
+    repeated or smoothed into every sample counting as what it is.  ρ within [0, 0.9].  D₁, D₂ are
+    averaged over ``mag_noise_tau_s`` (per reading: weight Δt/τ), each term at most gate² × its mean
+    (one spike does not set it), only while ``learn`` (the reading trusted as it is, no disturbance
+    flagged, turning slower than 10°/s: the compass's timing is not its noise); the result is held within
+    ``mag_noise_min_rad`` … ``mag_noise_max_rad``.  Pairs more than 1 s (2 s) apart are not counted.
+    """
+    p = P_FILTER
+    kn = k + _MNOISE
+    gate2 = params[p + _GATE] * params[p + _GATE]
+    dt_r = clk - s[kn + 4]
+    q1 = s[kn + 7]  # the process noise's share of the change since the last reading …
+    q2 = q1 + s[kn + 8]  # … and since the one before
+    if learn and dt_r <= 1.0 and s[kn + 2] == s[kn + 2]:
+        a = min(dt_r / params[p + _MAG_NOISE_TAU], 1.0)
+        d = psi - s[kn + 2]
+        d = math.atan2(math.sin(d), math.cos(d))
+        s[kn] = max(s[kn] + a * (min(0.5 * d * d, gate2 * s[kn]) - 0.5 * q1 - s[kn]), 1.0e-12)
+        if s[kn + 3] == s[kn + 3]:
+            d = psi - s[kn + 3]
+            d = math.atan2(math.sin(d), math.cos(d))
+            s[kn + 1] = max(s[kn + 1] + a * (min(0.5 * d * d, gate2 * s[kn + 1]) - 0.5 * q2 - s[kn + 1]), 1.0e-12)
+    s[kn + 8] = q1
+    s[kn + 7] = 0.0
+    # the readings held move back by one; pairs across a gap are not pairs
+    s[kn + 3] = s[kn + 2] if dt_r <= 1.0 else math.nan
+    s[kn + 2] = psi
+    s[kn + 4] = clk
+    s[kn + 5] = cn
+    s[kn + 6] = ce
+    d1 = s[kn]
+    rho = min(max(s[kn + 1] / d1 - 1.0, 0.0), 0.9) if d1 > 0.0 else 0.0
+    r = d1 * (1.0 + rho) / ((1.0 - rho) * (1.0 - rho))
+    return min(max(r, params[p + _MAG_NOISE_MIN]), params[p + _MAG_NOISE_MAX])
+
+
+@kernel(inline=True)
+def _mag_noise_carry(s, k, dx0, dx1, dx2, dx_decl):  # type: ignore[no-untyped-def]
+    """The held readings' innovations carried to the estimate after an injected correction: ψ ← ψ − h·δx with
+    h = (∂ψ/∂δθ_N, ∂ψ/∂δθ_E, −1, …, 1 at the declination) (the tilt's sensitivity as of the last reading)."""
+    kn = k + _MNOISE
+    c = s[kn + 5] * dx0 + s[kn + 6] * dx1 - dx2 + dx_decl
+    s[kn + 2] -= c
+    s[kn + 3] -= c
 
 
 @kernel
@@ -698,6 +807,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     for i in range(6):
         s[k + _PREV_IMU + i] = math.nan
     s[k + _STARTED] = 0.0 if params[p + _INIT_AVG] > 0.0 else 1.0
+    mag_noise_reset(s, k, params)
 
 
 @kernel
@@ -1221,6 +1331,7 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
     s[kp + 2 * N + 2] = params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv)
     s[km + MF_REF_ON] = 0.0  # the model's pair reference was held in the former heading
+    s[k + _MNOISE + 2] = s[k + _MNOISE + 3] = math.nan  # … and so were the readings held for the learnt noise
 
 
 @kernel
@@ -1317,8 +1428,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
+    p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
         _rate_noise(state, k, dt, gx, gy, gz, q_sf, q_ma)
+    if params[p + _MAG_NOISE_TAU] > 0.0:
+        # the white part of the heading innovation's change since the last compass reading: the gyro's noise
+        # (on the heading and, through the field's dip, the tilt) and its rate noise (:func:`_mag_noise_step`)
+        kn = k + _MNOISE
+        state[kn + 7] += q_gyro * dt * (1.0 + state[kn + 5] ** 2 + state[kn + 6] ** 2) + state[k + _P + 2 * N + 2] - p_dd
     integrate_body_rate(state, S_Q, gx, gy, gz, dt)
     # history of the INS velocity (the state after this sample, at its time)
     pos = int(state[k + _HPOS])
@@ -1675,14 +1792,23 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[k + _H + 2] = -1.0
             kp = k + _P
             consider = aided and max(state[kp], state[kp + N + 1]) <= params[p + _P0_TILT]
+            cdip = (state[kc + 6] * mx + state[kc + 7] * my + state[kc + 8] * mz) / bh
             if consider:
-                cdip = (state[kc + 6] * mx + state[kc + 7] * my + state[kc + 8] * mz) / bh
                 state[k + _H + 0] = cdip * hn / bh
                 state[k + _H + 1] = cdip * he / bh
+            r_head = params[p + _R_HEADING]
+            if params[p + _MAG_NOISE_TAU] > 0.0:
+                # the compass's own noise per reading, learnt from its innovations (:func:`_mag_noise_step`):
+                # only from readings used as they are, no disturbance flagged, not in a turn
+                learn = (
+                    r_model == 0.0 and rate_d * rate_d < _LAG_RATE0_RAD_S**2
+                    and (not model_on or state[k + _MAGF + MF_TRUST] != MAG_DISTURBED)
+                )  # fmt: skip
+                r_head = _mag_noise_step(state, k, params, psi, cdip * hn / bh, cdip * he / bh, learn, clk)
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age
             stale = params[p + _MAG_STALE] * rate_d
-            r_m = (params[p + _R_HEADING] + stale * stale) / (w_m * w_m) + r_model
+            r_m = (r_head + stale * stale) / (w_m * w_m) + r_model
             tried = True
             if consider:
                 ok = _heading_update(state, k, psi, r_m, gate)
@@ -1737,6 +1863,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         lim_d = 5.0 * math.sqrt(params[p + _DECL_P0])
         d_old = state[k + _DECL]
         state[k + _DECL] = min(max(state[k + _DECL] + state[kdx + _I_DECL], -lim_d), lim_d)
+        if params[p + _MAG_NOISE_TAU] > 0.0:  # the compass readings held for the learnt noise follow the correction
+            _mag_noise_carry(state, k, rx, ry, rz, state[k + _DECL] - d_old)
         if params[p + _MAGF_P] > 0.0:  # the magnetometer model's pair reference moves with the frame
             mag_ref_rotate(state, k + _MAGF, rx, ry, rz, d_old, state[k + _DECL])
         kt = k + _TAX
@@ -1806,6 +1934,19 @@ def mag_delay_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
     return max(float(params[p + _MAG_DELAY] - params[p + _DELAY]), 0.0)
 
 
+def mag_noise_of(state: np.ndarray, k: int, params: np.ndarray) -> tuple[float, float]:
+    """The compass heading's noise per reading the update uses, rad, and the learnt lag-1 correlation of the
+    readings, of an ESKF state whose own block starts at ``k`` (learnt: ``EskfSettings.mag_noise_tau_s``, as
+    :func:`_mag_noise_step` computes it; else ``heading_noise_rad`` and 0)."""
+    p = P_FILTER
+    if not params[p + _MAG_NOISE_TAU] > 0.0:
+        return math.sqrt(float(params[p + _R_HEADING])), 0.0
+    d1, d2 = float(state[k + _MNOISE]), float(state[k + _MNOISE + 1])
+    rho = min(max(d2 / d1 - 1.0, 0.0), 0.9) if d1 > 0.0 else 0.0
+    r = d1 * (1.0 + rho) / (1.0 - rho) ** 2
+    return math.sqrt(min(max(r, float(params[p + _MAG_NOISE_MIN])), float(params[p + _MAG_NOISE_MAX]))), rho
+
+
 def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
     """The thrust axis held in an ESKF state whose own block starts at ``k`` (unit, IMU frame), or None."""
     t = np.array(state[k + _TAX : k + _TAX + 3], dtype=float)
@@ -1851,6 +1992,9 @@ class Eskf(AttitudeFilter):
         p[_MAG_STALE] = settings.mag_staleness_s
         p[_MAG_DELAY] = settings.mag_delay_s
         p[_MAG_LEARN_TAU] = settings.mag_learn_tau_s
+        p[_MAG_NOISE_TAU] = settings.mag_noise_tau_s
+        p[_MAG_NOISE_MIN] = settings.mag_noise_min_rad**2
+        p[_MAG_NOISE_MAX] = settings.mag_noise_max_rad**2
         p[_REJECT_RESET] = settings.rejection_reset_s
         p[_R_ZV] = settings.unaided_velocity_noise_m_s**2
         p[_ZV_PERIOD] = settings.unaided_velocity_period_s
@@ -1915,6 +2059,10 @@ class Eskf(AttitudeFilter):
     def mag_delay_s(self) -> float:
         """The compass reading's delay behind the IMU's attitude the heading update uses, s (:func:`mag_delay_of`)."""
         return mag_delay_of(self._state, S_FILTER, self._params)
+
+    def mag_noise_rad(self) -> tuple[float, float]:
+        """The compass heading's noise per reading and its lag-1 correlation (:func:`mag_noise_of`)."""
+        return mag_noise_of(self._state, S_FILTER, self._params)
 
     def declination_correction_rad(self) -> float:
         """The learnt declination correction: the local field's azimuth east of the WMM's magnetic north, rad."""
