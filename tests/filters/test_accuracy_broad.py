@@ -83,7 +83,9 @@ def test_translation_trials_accelerations_do_not_reach_the_tilt(broad_trials) ->
     for rec in trials:
         inputs = make_inputs(rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut, dt_s=rec.dt_s)
         best = summarize(create("best").run(inputs)[:, OUT_Q : OUT_Q + 4], rec.q_ref_body_to_ned, rec.scored)
-        alone = summarize(Eskf(gyro_alone).run(inputs)[:, OUT_Q : OUT_Q + 4], rec.q_ref_body_to_ned, rec.scored)
+        alone = summarize(
+            Eskf(gyro_alone).run(inputs)[:, OUT_Q : OUT_Q + 4], rec.q_ref_body_to_ned, rec.scored
+        )
         assert best.inclination_rms_deg <= 0.9, f"{rec.name}: {best.inclination_rms_deg:.2f}°"
         assert best.inclination_rms_deg <= alone.inclination_rms_deg + 0.15, (
             f"{rec.name}: best {best.inclination_rms_deg:.2f}° against the gyro alone {alone.inclination_rms_deg:.2f}°"
