@@ -133,6 +133,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "START_DONE_STATE",
+    "gyro_scale_of",
 ]  # fmt: skip
 
 N = 18  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -1872,6 +1873,12 @@ def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
     t = np.array(state[k + _TAX : k + _TAX + 3], dtype=float)
     n = float(np.linalg.norm(t))
     return t / n if n > 0.0 else None
+
+
+def gyro_scale_of(state: np.ndarray, k: int) -> np.ndarray:
+    """The gyro's estimated scale-factor errors (per axis, a fraction: reading = (1 + s)·ω + b) held in an
+    ESKF state whose own block starts at ``k`` (0 where not estimated)."""
+    return np.array(state[k + _GSCALE : k + _GSCALE + 3], dtype=float)
 
 
 @kernel
