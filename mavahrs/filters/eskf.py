@@ -867,6 +867,13 @@ def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-de
 
 
 @kernel(inline=True)
+def _n_active(s, k):  # type: ignore[no-untyped-def]
+    """The error state's size in use: without the gyro scale-factor states their rows and columns of P (and
+    of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the daemon's per-sample cost)."""
+    return N if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
+
+
+@kernel(inline=True)
 def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
     """For a scalar update, h in scratch: P hᵀ into scratch (``_PH``) and (innovation less what this
     sample's corrections already explain, its variance h P hᵀ + r)."""
@@ -874,16 +881,17 @@ def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
     kh = k + _H
     kph = k + _PH
     kdx = k + _DX
+    n = _n_active(s, k)
     hs = 0.0
-    for i in range(N):
+    for i in range(n):
         acc = 0.0
-        for j in range(N):
+        for j in range(n):
             acc += s[kp + i * N + j] * s[kh + j]
         s[kph + i] = acc
         hs += s[kh + i] * s[kdx + i]
     y -= hs  # what the corrections already found this sample explain
     sv = r
-    for i in range(N):
+    for i in range(n):
         sv += s[kh + i] * s[kph + i]
     return y, sv
 
@@ -900,12 +908,13 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
+    n = _n_active(s, k)
     inv = 1.0 / sv
-    for i in range(N):
+    for i in range(n):
         s[kdx + i] += s[kph + i] * inv * y
-    for i in range(N):
+    for i in range(n):
         ki = s[kph + i] * inv
-        for j in range(N):
+        for j in range(n):
             s[kp + i * N + j] -= ki * s[kph + j]
     return True
 
@@ -924,14 +933,15 @@ def _heading_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
+    n = _n_active(s, k)
     inv = 1.0 / sv
-    for i in range(2, N):
+    for i in range(2, n):
         s[kdx + i] += s[kph + i] * inv * y
     # Joseph form with the gain 0 on the tilt rows: P − K uᵀ − u Kᵀ + K S Kᵀ, u = P hᵀ, K = u/S off the
     # tilt: the standard update everywhere but in the tilt's own block, which keeps its value
-    for i in range(N):
+    for i in range(n):
         ki = s[kph + i] * inv
-        for j in range(N):
+        for j in range(n):
             if i >= 2 or j >= 2:
                 s[kp + i * N + j] -= ki * s[kph + j]
     return True
