@@ -127,19 +127,21 @@ from mavahrs.filters.magfield import (
 from mavahrs.filters.magfield import (
     NX as MF_NX,
 )
-from mavahrs.filters.prefilter import BW_LEN, nav_lowpass_rotate, ned_butterworth_step
+from mavahrs.filters.prefilter import BW_LEN, LP_LEN, nav_lowpass_rotate, ned_butterworth_step
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
-    "START_DONE_STATE",
+    "START_DONE_STATE", "gyro_scale_of",
 ]  # fmt: skip
 
-N = 15  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
-#        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position)
+N = 18  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
+#        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position),
+#        δs (15–17: the gyro's scale-factor errors, see gyro_scale_state_sigma)
 _I_DECL = 11  # index of the declination error in the error state
 _I_POS = 12  # index of the position error (3) in the error state
+_I_SCALE = 15  # index of the gyro scale-factor errors (3) in the error state
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
@@ -225,7 +227,10 @@ _REST_CHECK_VAR = _MAG_DELAY + 2  # (rad/s)²: a rest is checked and fused only 
 _MAG_NOISE_TAU = _MAG_DELAY + 3  # s: averaging time of the compass's learnt noise (0: ``_R_HEADING`` as set)
 _MAG_NOISE_MIN = _MAG_DELAY + 4  # rad²: the learnt per-reading heading noise is held at or above this …
 _MAG_NOISE_MAX = _MAG_DELAY + 5  # rad²: … and at or below this
-_N_PARAMS = _MAG_DELAY + 6
+_SCALE_P0 = _MAG_DELAY + 6  # prior variance of each gyro axis's scale-factor error (0: not estimated)
+_SCALE_Q = _MAG_DELAY + 7  # their random walk², 1/s
+_SCALE_LIM = _MAG_DELAY + 8  # bound of each estimated scale-factor error (a fraction)
+_N_PARAMS = _MAG_DELAY + 9
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -282,7 +287,12 @@ _MLAG = _POS + 9  # the compass's learnt delay behind the IMU's attitude, s, and
 #: innovation's sensitivity to the tilt (δθ_N, δθ_E: 2); the process noise's share of the heading innovation
 #: accumulated since the last reading and over the interval before (2)
 _MNOISE = _MLAG + 2
-_N_STATE = _MNOISE + 9
+_GSCALE = _MNOISE + 9  # the gyro's estimated scale-factor errors s (3): ω = (reading − bias) / (1 + s) per axis
+_JS = _GSCALE + 3  # J = ∫ C diag(ω) dt and K = ∫ C dt, NED, one LP_LEN block per body axis (6 × 4; slot 3 unused)
+_JLP = _JS + 6 * LP_LEN  # J and K low-passed as the gravity measurement is (6 Butterworth blocks, 6 × BW_LEN)
+_JG = _JLP + 6 * BW_LEN  # J − LP[J], K − LP[K] (2 × 3 × 3, column per body axis): the low-passed tilt's
+#                          sensitivity to δs and δb
+_N_STATE = _JG + 18
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -583,6 +593,19 @@ class EskfSettings(FilterSettings):
             heading 0.61 → 0.58° but the aggressive one's 0.33 → 0.45° and the
             .BIN's inclination 0.117 → 0.129° (SITL drifts every axis).
             ``best`` on a vehicle sets it (``best.VEHICLE_BIAS_WALK_RAD_S2``).
+        gyro_scale_state_sigma: prior 1-σ of each gyro axis's scale-factor
+            error as an error state (a fraction; 0 = not estimated, the
+            default): the reading is (1 + s)·ω + b per axis, the rate used
+            ω̂ = (reading − b̂)/(1 + ŝ), and δθ̇ = −C δb − C diag(ω̂) δs
+            (Groves 2013, §14.2.7: gyro scale-factor states; Farrell 2008,
+            §11.4).  What the gravity measurement sees of a rotation's
+            integrated error is learnt as scale where it follows the rate
+            and as bias where it does not.  The estimate is bounded by 3σ.
+            ``best`` through the Python API sets it
+            (``best.BEST_GYRO_SCALE_SIGMA``; docs/accuracy.md, "Gyro
+            scale-factor states").
+        gyro_scale_state_walk_1_s: random walk of those states, 1/√s
+            (temperature; 0 = constant).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -651,6 +674,8 @@ class EskfSettings(FilterSettings):
     mag_noise_tau_s: float = 0.0
     mag_noise_min_rad: float = math.radians(1.0)
     mag_noise_max_rad: float = math.radians(20.0)
+    gyro_scale_state_sigma: float = 0.0
+    gyro_scale_state_walk_1_s: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -671,7 +696,8 @@ class EskfSettings(FilterSettings):
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
-                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s"):
+                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s",
+                     "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -790,6 +816,8 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     # the declination starts from the WMM's (the pipeline rotates GNSS velocities by it) with its prior σ;
     # a re-initialisation aligns the heading with the compass again and so starts it afresh too
     s[kp + _I_DECL * N + _I_DECL] = params[p + _DECL_P0]
+    for i in range(_I_SCALE, _I_SCALE + 3):  # the gyro's scale-factor errors (0: not estimated; ŝ restarts at 0)
+        s[kp + i * N + i] = params[p + _SCALE_P0]
     if params[p + _DRAG_K] > 0.0:
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
@@ -823,6 +851,8 @@ def eskf_reopen_attitude(s, k, params, big_tilt, big_heading):  # type: ignore[n
     # the low-passed gravity reference was built in a frame now doubted: it is built again from
     # the samples to come (averaged over its τ, then filtered), in the frame the attitude goes to
     s[k + _GLP + 3] = 0.0
+    for m in range(6):  # … and so are the scale and bias states' sensitivities (J and K, see step)
+        s[k + _JLP + m * BW_LEN + 3] = 0.0
 
 
 @kernel
@@ -844,25 +874,31 @@ def _restart_velocity(s, k, vn, ve, vd, r_h, r_v):  # type: ignore[no-untyped-de
 
 
 @kernel(inline=True)
-def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on):  # type: ignore[no-untyped-def]
-    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb, δv̇ = M δθ with M = −[f]×, δṗ = δv; scratch C, M).
+def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz):  # type: ignore[no-untyped-def]
+    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ with M = −[f]×, δṗ = δv;
+    scratch C, M).
 
     The thrust-axis states (9, 10) are constant (Φ's identity rows), their random walk ``q_axis``; so is
     the declination error (11), without a walk (the WMM's error does not change over a flight).  The
     position's rows and columns (12–14) are left at 0 while no position is started (``pos_on`` False):
-    they cost nothing then, and a start sets them from the fix.
+    they cost nothing then, and a start sets them from the fix.  The gyro's scale-factor errors (15–17),
+    with ω the rate used this sample, are constant but for ``q_scale``; left at 0 unless ``scale_on``.
     """
     kp = k + _P
     ka = k + _A
     kc = k + _C
     km = k + _M
-    n = N if pos_on else _I_POS
+    n = N if scale_on else (_I_SCALE if pos_on else _I_POS)
     # A = Φ P
     for j in range(n):
         for i in range(3):
             acc = 0.0
             for m in range(3):
                 acc += s[kc + 3 * i + m] * s[kp + (6 + m) * N + j]
+            if scale_on:
+                acc += s[kc + 3 * i] * wx * s[kp + _I_SCALE * N + j]
+                acc += s[kc + 3 * i + 1] * wy * s[kp + (_I_SCALE + 1) * N + j]
+                acc += s[kc + 3 * i + 2] * wz * s[kp + (_I_SCALE + 2) * N + j]
             s[ka + i * N + j] = s[kp + i * N + j] - dt * acc
             acc = 0.0
             for m in range(3):
@@ -874,12 +910,22 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for i in range(3):  # δṗ = δv
                 s[ka + (_I_POS + i) * N + j] = s[kp + (_I_POS + i) * N + j] + dt * s[kp + (3 + i) * N + j]
+        elif scale_on:
+            for r in range(_I_POS, _I_SCALE):
+                s[ka + r * N + j] = s[kp + r * N + j]
+        if scale_on:
+            for r in range(_I_SCALE, N):
+                s[ka + r * N + j] = s[kp + r * N + j]
     # P = A Φᵀ
     for i in range(n):
         for j in range(3):
             acc = 0.0
             for m in range(3):
                 acc += s[ka + i * N + 6 + m] * s[kc + 3 * j + m]
+            if scale_on:
+                acc += s[ka + i * N + _I_SCALE] * s[kc + 3 * j] * wx
+                acc += s[ka + i * N + _I_SCALE + 1] * s[kc + 3 * j + 1] * wy
+                acc += s[ka + i * N + _I_SCALE + 2] * s[kc + 3 * j + 2] * wz
             s[kp + i * N + j] = s[ka + i * N + j] - dt * acc
             acc = 0.0
             for m in range(3):
@@ -891,17 +937,26 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for j in range(3):
                 s[kp + i * N + _I_POS + j] = s[ka + i * N + _I_POS + j] + dt * s[ka + i * N + 3 + j]
+        elif scale_on:
+            for j in range(_I_POS, _I_SCALE):
+                s[kp + i * N + j] = s[ka + i * N + j]
+        if scale_on:
+            for j in range(_I_SCALE, N):
+                s[kp + i * N + j] = s[ka + i * N + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
         s[kp + (6 + i) * N + 6 + i] += q_bias * dt
     if q_pos > 0.0:
-        for i in range(_I_POS, N):
+        for i in range(_I_POS, _I_SCALE):
             if s[kp + i * N + i] > 0.0:  # (a position not started stays at 0)
                 s[kp + i * N + i] += q_pos * dt
     if q_axis > 0.0:
         for i in range(9, _I_DECL):
             s[kp + i * N + i] += q_axis * dt
+    if scale_on and q_scale > 0.0:
+        for i in range(_I_SCALE, N):
+            s[kp + i * N + i] += q_scale * dt
     # keep P symmetric against round-off
     for i in range(n):
         for j in range(i + 1, n):
@@ -935,6 +990,13 @@ def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-de
 
 
 @kernel(inline=True)
+def _n_active(s, k):  # type: ignore[no-untyped-def]
+    """The error state's size in use: without the gyro scale-factor states their rows and columns of P (and
+    of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the daemon's per-sample cost)."""
+    return N if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
+
+
+@kernel(inline=True)
 def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
     """For a scalar update, h in scratch: P hᵀ into scratch (``_PH``) and (innovation less what this
     sample's corrections already explain, its variance h P hᵀ + r)."""
@@ -942,16 +1004,17 @@ def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
     kh = k + _H
     kph = k + _PH
     kdx = k + _DX
+    n = _n_active(s, k)
     hs = 0.0
-    for i in range(N):
+    for i in range(n):
         acc = 0.0
-        for j in range(N):
+        for j in range(n):
             acc += s[kp + i * N + j] * s[kh + j]
         s[kph + i] = acc
         hs += s[kh + i] * s[kdx + i]
     y -= hs  # what the corrections already found this sample explain
     sv = r
-    for i in range(N):
+    for i in range(n):
         sv += s[kh + i] * s[kph + i]
     return y, sv
 
@@ -968,12 +1031,13 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
+    n = _n_active(s, k)
     inv = 1.0 / sv
-    for i in range(N):
+    for i in range(n):
         s[kdx + i] += s[kph + i] * inv * y
-    for i in range(N):
+    for i in range(n):
         ki = s[kph + i] * inv
-        for j in range(N):
+        for j in range(n):
             s[kp + i * N + j] -= ki * s[kph + j]
     return True
 
@@ -992,14 +1056,15 @@ def _heading_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
+    n = _n_active(s, k)
     inv = 1.0 / sv
-    for i in range(2, N):
+    for i in range(2, n):
         s[kdx + i] += s[kph + i] * inv * y
     # Joseph form with the gain 0 on the tilt rows: P − K uᵀ − u Kᵀ + K S Kᵀ, u = P hᵀ, K = u/S off the
     # tilt: the standard update everywhere but in the tilt's own block, which keeps its value
-    for i in range(N):
+    for i in range(n):
         ki = s[kph + i] * inv
-        for j in range(N):
+        for j in range(n):
             if i >= 2 or j >= 2:
                 s[kp + i * N + j] -= ki * s[kph + j]
     return True
@@ -1211,7 +1276,7 @@ def _position_start(s, k, c, value, r):  # type: ignore[no-untyped-def]
 def _position_off(s, k):  # type: ignore[no-untyped-def]
     """No position: its rows and columns of P to 0 (the next fix starts it again)."""
     kp = k + _P
-    for i in range(_I_POS, N):
+    for i in range(_I_POS, _I_SCALE):
         for j in range(N):
             s[kp + i * N + j] = 0.0
             s[kp + j * N + i] = 0.0
@@ -1347,9 +1412,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     p = P_FILTER
     accel_ok = (flags & FLAG_ACCEL_INVALID) == 0
     mag_ok = (flags & FLAG_MAG_INVALID) == 0
-    gx = row[IN_GYRO] - state[S_BIAS]
-    gy = row[IN_GYRO + 1] - state[S_BIAS + 1]
-    gz = row[IN_GYRO + 2] - state[S_BIAS + 2]
+    # the reading is (1 + s)·ω + b per axis (s = 0 unless gyro_scale_state_sigma)
+    gx = (row[IN_GYRO] - state[S_BIAS]) / (1.0 + state[k + _GSCALE])
+    gy = (row[IN_GYRO + 1] - state[S_BIAS + 1]) / (1.0 + state[k + _GSCALE + 1])
+    gz = (row[IN_GYRO + 2] - state[S_BIAS + 2]) / (1.0 + state[k + _GSCALE + 2])
     q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
@@ -1426,7 +1492,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     q_axis = params[p + _AXIS_Q] if state[k + _P + 9 * N + 9] > 0.0 else 0.0
     q_bias = params[p + _Q_BIAS_AIDED] if aided and params[p + _Q_BIAS_AIDED] > 0.0 else params[p + _Q_BIAS]
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
-                          state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0)
+                          state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
+                          params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -1608,6 +1675,21 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 updated = True
     gn, ge, gd = fn, fe, fd  # the gravity measurement, NED
     tau_g = params[p + _GRAV_TAU]
+    if tau_g > 0.0 and params[p + _SCALE_P0] > 0.0:
+        # the low-passed measurement holds the tilt errors of the last seconds, not this sample's: with
+        # δθ(τ) = δθ(t) + ∫_τ^t C diag(ω) dt' δs (+ the bias's share), its error is δθ(t) + G δs with
+        # G = J − LP[J], J = ∫ C diag(ω) dt (the low-pass has unit gain at DC), so h carries g·G on δs
+        for m in range(6):
+            wm = gx if m == 0 else (gy if m == 1 else (gz if m == 2 else 1.0))
+            kj = k + _JS + m * LP_LEN
+            for i in range(3):
+                state[kj + i] += state[k + _C + 3 * i + m % 3] * wm * dt
+            jn, je, jd = ned_butterworth_step(state, k + _JLP + m * BW_LEN, state[kj], state[kj + 1], state[kj + 2],
+                                              dt, tau_g)
+            kg = k + _JG + 9 * (m // 3) + m % 3
+            state[kg] = state[kj] - jn
+            state[kg + 3] = state[kj + 1] - je
+            state[kg + 6] = state[kj + 2] - jd
     if tau_g > 0.0 and accel_ok:
         gn, ge, gd = ned_butterworth_step(state, k + _GLP, fn, fe, fd, dt, tau_g)
     w_g = w_a
@@ -1655,12 +1737,20 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(N):
                 state[k + _H + i] = 0.0
             state[k + _H + 1] = G_M_S2
+            if tau_g > 0.0 and params[p + _SCALE_P0] > 0.0:
+                for m in range(3):
+                    state[k + _H + _I_SCALE + m] = G_M_S2 * state[k + _JG + 3 + m]
+                    state[k + _H + 6 + m] = G_M_S2 * state[k + _JG + 9 + 3 + m]
             tried = True
             if not big and _scalar_update(state, k, gn * sc, r_g, gate):
                 updated = passed = True
             for i in range(N):
                 state[k + _H + i] = 0.0
             state[k + _H + 0] = -G_M_S2
+            if tau_g > 0.0 and params[p + _SCALE_P0] > 0.0:
+                for m in range(3):
+                    state[k + _H + _I_SCALE + m] = -G_M_S2 * state[k + _JG + m]
+                    state[k + _H + 6 + m] = -G_M_S2 * state[k + _JG + 9 + m]
             if not big and _scalar_update(state, k, ge * sc, r_g, gate):
                 updated = passed = True
 
@@ -1859,6 +1949,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         for i in range(3):
             b = state[S_BIAS + i] + state[kdx + 6 + i]
             state[S_BIAS + i] = min(max(b, -lim), lim)
+        lim_s = params[p + _SCALE_LIM]
+        if lim_s > 0.0:
+            for i in range(3):
+                sc = state[k + _GSCALE + i] + state[kdx + _I_SCALE + i]
+                state[k + _GSCALE + i] = min(max(sc, -lim_s), lim_s)
         # the declination correction (bounded by 5σ of its prior: a disturbed compass taken for it is undone)
         lim_d = 5.0 * math.sqrt(params[p + _DECL_P0])
         d_old = state[k + _DECL]
@@ -1954,6 +2049,12 @@ def thrust_axis_of(state: np.ndarray, k: int) -> np.ndarray | None:
     return t / n if n > 0.0 else None
 
 
+def gyro_scale_of(state: np.ndarray, k: int) -> np.ndarray:
+    """The gyro's estimated scale-factor errors (per axis, a fraction: reading = (1 + s)·ω + b) held in an
+    ESKF state whose own block starts at ``k`` (0 where not estimated)."""
+    return np.array(state[k + _GSCALE : k + _GSCALE + 3], dtype=float)
+
+
 @kernel
 def s_pos(x):  # type: ignore[no-untyped-def]
     """x if positive, else 0."""
@@ -2025,6 +2126,9 @@ class Eskf(AttitudeFilter):
         p[_POS_GATE] = settings.position_gate_sigma
         p[_Q_POS] = settings.position_walk_m_s**2
         p[_Q_BIAS_AIDED] = settings.bias_walk_aided_rad_s2**2
+        p[_SCALE_P0] = settings.gyro_scale_state_sigma**2
+        p[_SCALE_Q] = settings.gyro_scale_state_walk_1_s**2
+        p[_SCALE_LIM] = 3.0 * settings.gyro_scale_state_sigma
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
