@@ -797,6 +797,8 @@ class AttitudeMonitor:
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._sigma_hdg = math.nan  # our latest 1-σ heading, rad (NaN: not given: heading_sigma_deg)
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
+        self._rate_h = 0.0  # … its earth-frame horizontal part (what turns the tilt), rad/s
+        self._rate_v = 0.0  # … and vertical part (what turns the heading), rad/s
         self._fresh = False  # a comparison since the last publication
 
     # ------------------------------------------------------------------ inputs
@@ -830,8 +832,18 @@ class AttitudeMonitor:
         q = (float(q_body_to_ned[0]), float(q_body_to_ned[1]), float(q_body_to_ned[2]), float(q_body_to_ned[3]))
         if est and t > est[-1][0]:
             p = est[-1][1]
-            dot = abs(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3])
-            self._rate = 2.0 * math.acos(min(1.0, dot)) / (1e-3 * (t - est[-1][0]))
+            dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3]
+            dt = 1e-3 * (t - est[-1][0])
+            self._rate = 2.0 * math.acos(min(1.0, abs(dot))) / dt
+            # the same turn in the earth frame, q ⊗ p* (vector part −q_w p_v + p_w q_v − q_v × p_v): its
+            # horizontal part tilts, its vertical part turns the heading — a timing error δ between the two
+            # estimates shows as that turn over δ, split the same way (see MonitorSettings.sync_s)
+            k = (2.0 if dot >= 0.0 else -2.0) / dt
+            ex = -q[0] * p[1] + p[0] * q[1] - (q[2] * p[3] - q[3] * p[2])
+            ey = -q[0] * p[2] + p[0] * q[2] - (q[3] * p[1] - q[1] * p[3])
+            ez = -q[0] * p[3] + p[0] * q[3] - (q[1] * p[2] - q[2] * p[1])
+            self._rate_h = abs(k) * math.sqrt(ex * ex + ey * ey)
+            self._rate_v = abs(k * ez)
         est.append((t, q))
         if self._first_est_ms is None:
             self._first_est_ms = t
@@ -995,9 +1007,12 @@ class AttitudeMonitor:
         s_t = sig if aided else self._sig_unaided[0]
         sh = self._sigma_hdg
         s_h = (max(sh, self._sig_hdg) if math.isfinite(sh) else self._sig_hdg) if aided else self._sig_unaided[1]
-        sync2 = (self._rate * self.settings.sync_s) ** 2
+        # the timing term: the earth-frame turn over sync_s, its horizontal part for the tilt, its vertical
+        # part for the heading (a yaw spin does not tilt the divergence, a flip does not turn its heading)
+        sync_t2 = (self._rate_h * self.settings.sync_s) ** 2
+        sync2 = (self._rate_v * self.settings.sync_s) ** 2
         k = self._k
-        tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync2))
+        tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync_t2))
         hdg = max(self._min_thr[1], k * math.sqrt(s_h * s_h + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
         # what is learnt as this flight's normal divergence: within the heading threshold of our floor σ, not
         # of a σ raised for a while (a fast yaw, a rejected magnetometer), which would learn the autopilot's
@@ -1037,7 +1052,7 @@ class AttitudeMonitor:
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
         f = self.settings.change_max_factor
-        t_thr, h_thr = ch.judge(self._rate, learn and not self._warning, dt_s,
+        t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s,
                                 (f * self._model_thr[0], f * self._model_thr[1]))
         return ch.tilt / t_thr, abs(ch.heading) / h_thr
 
@@ -1293,23 +1308,27 @@ class _ChangeTest:
         self.heading = e[2] - m[2]
         return True
 
-    def judge(self, rate: float, learn: bool, dt_s: float, cap: tuple[float, float]) -> tuple[float, float]:
+    def judge(
+        self, rate: tuple[float, float], learn: bool, dt_s: float, cap: tuple[float, float]
+    ) -> tuple[float, float]:
         """(tilt, heading) thresholds of the change now, rad, at most ``cap`` (the absolute test's error
-        model's); learns the change's noise when ``learn``."""
+        model's); ``rate``: our earth-frame turn rate, horizontal and vertical, rad/s (the timing term of each);
+        learns the change's noise when ``learn``."""
         n, m_t, m_h = self._learnt
-        sync2 = (rate * self.s.sync_s) ** 2
+        sync_t2 = (rate[0] * self.s.sync_s) ** 2
+        sync2 = (rate[1] * self.s.sync_s) ** 2
         k = self.s.change_k
         ready = n >= 0.1 * self.s.learn_s
         f_t, f_h = self._floor2
         if ready:
-            t_thr = min(k * math.sqrt(max(m_t, f_t) + sync2), cap[0])
+            t_thr = min(k * math.sqrt(max(m_t, f_t) + sync_t2), cap[0])
             h_thr = min(k * math.sqrt(max(m_h, f_h) + sync2), cap[1]) if cap[1] > 0.0 else math.inf
         else:
             t_thr = h_thr = math.inf
         self.thresholds = (t_thr, h_thr)
         # learnt: what lies within the change's own thresholds (from the start, within those of the mean
         # square so far at 2 × change_k: the first seconds' noise is not cut off at a floor)
-        gate_t = t_thr if ready else 2.0 * k * math.sqrt(max(m_t, f_t) + sync2)
+        gate_t = t_thr if ready else 2.0 * k * math.sqrt(max(m_t, f_t) + sync_t2)
         gate_h = h_thr if ready else 2.0 * k * math.sqrt(max(m_h, f_h) + sync2)
         if learn and self.tilt <= gate_t and abs(self.heading) <= gate_h:
             self._learnt = _mean_squares(self._learnt, self.tilt, self.heading, dt_s, self.s.learn_s)
