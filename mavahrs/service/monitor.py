@@ -133,8 +133,13 @@ class MonitorSettings:
             GNSS velocity (Madgwick configuration: ≈ 2° inclination RMS in
             aggressive flight), deg.
         sync_s: timing uncertainty between the two estimates (the autopilot's
-            attitude vs our sample of the same ``time_boot_ms``), s: at ω it
-            adds ω·sync_s of apparent divergence.
+            attitude vs our sample of the same ``time_boot_ms``), s: a time
+            offset δ makes the divergence ``q(t) ⊗ q(t − δ)*``, the earth-frame
+            turn over δ, so its horizontal part ω_h·sync_s enters the tilt
+            thresholds and its vertical part ω_v·sync_s the heading's (a yaw spin
+            at 400°/s adds 2° to the heading's, not to the tilt's: firmware_sim
+            aggressive 3, a 2° tilt step mid-spin warned after 3.6 s with the
+            whole rate in both, 0.5 s split).
         min_tilt_threshold_deg, min_heading_threshold_deg: floors of the
             ``uncertainty`` thresholds, deg.
         cusum_reference: ``uncertainty``: the sequential test (a one-sided
@@ -219,6 +224,16 @@ class MonitorSettings:
         change_max_factor: see ``change_test``: the change's thresholds at most
             this many times the error model's (the absolute test's without the
             learnt part).
+        change_in_warning_s: a new step while a warning is already on (the
+            autopilot off for a while, then a fault on top): the divergence
+            vector against its own mean *since the warning* (comparisons
+            ``change_delay_s`` old, as the baseline above, used once fed this
+            long), judged with the change test's thresholds and floors and
+            CUSUM, raises a new in-flight WARNING (a new episode) — without it
+            the warning already on hides the fault, s (0 = off).  (firmware_sim
+            aggressive 21: a correct WARNING at 95.8 s, the simulated autopilot
+            1.6° off, was still on when a 2° step came at 100 s: no WARNING for
+            it.)
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -314,6 +329,7 @@ class MonitorSettings:
     change_min_heading_deg: float = 1.5
     change_cusum_reference: float = 0.8
     change_max_factor: float = 1.0
+    change_in_warning_s: float = 2.0
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -345,7 +361,7 @@ class MonitorSettings:
                      "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
                      "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s", "change_k",
                      "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
-                     "change_max_factor"):  # fmt: skip
+                     "change_max_factor", "change_in_warning_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -783,8 +799,12 @@ class AttitudeMonitor:
         self._model_thr = (math.inf, math.inf)
         self._cusum = 0.0
         self._cusum_c = 0.0  # the change test's (MonitorSettings.change_test)
+        self._cusum_w = 0.0  # … and its test of a new step while a warning is on (change_in_warning_s)
+        self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
         self._change = _ChangeTest(self.settings) if self._uncertainty and self.settings.change_test else None
+        in_warning = self._change is not None and self.settings.change_in_warning_s > 0.0
+        self._in_warning = _ChangeTest(self.settings, self.settings.change_in_warning_s) if in_warning else None
         self._change_aided = False
         self._warning_since_ms = -math.inf
         old = getattr(self, "_evidence", None)
@@ -1048,6 +1068,7 @@ class AttitudeMonitor:
         e = (sgn * (-a[0] * b[1] + b[0] * a[1] - (a[2] * b[3] - a[3] * b[2])),
              sgn * (-a[0] * b[2] + b[0] * a[2] - (a[3] * b[1] - a[1] * b[3])),
              sgn * (-a[0] * b[3] + b[0] * a[3] - (a[1] * b[2] - a[2] * b[1])))  # fmt: skip
+        self._e = e
         hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
@@ -1055,6 +1076,28 @@ class AttitudeMonitor:
         t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s,
                                 (f * self._model_thr[0], f * self._model_thr[1]))
         return ch.tilt / t_thr, abs(ch.heading) / h_thr
+
+    def _in_warning_test(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
+        """A new step while an in-flight warning is on (``MonitorSettings.change_in_warning_s``): the divergence
+        vector against its mean since the warning, as the change test's ratio to its thresholds, with the
+        thresholds' floors (0: not judged now)."""
+        iw, ch = self._in_warning, self._change
+        if iw is None or ch is None:
+            return 0.0
+        if not (self._warning and self._warned_in_flight and self._change_aided):
+            if iw._fed_ms is not None or iw._buf:
+                iw.restart()
+            return 0.0
+        if not iw.update(t_ms, self._e, frozen=False):
+            return 0.0
+        t_thr, h_thr = ch.thresholds
+        c_t = iw.tilt / t_thr
+        c_h = abs(iw.heading) / h_thr if hdg_on else 0.0
+        if self._min_thr[0] > 0.0:
+            c_t = min(c_t, tilt / self._min_thr[0])
+        if self._min_thr[1] > 0.0:
+            c_h = min(c_h, abs(heading) / self._min_thr[1])
+        return max(c_t, c_h)
 
     def _imu_warning(self, t_ms: float) -> list[Any]:
         """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
@@ -1111,7 +1154,7 @@ class AttitudeMonitor:
         self._last_cmp_ms = t_ms
         if gap:
             self._above_since_ms = self._below_since_ms = None
-            self._cusum = self._cusum_c = 0.0
+            self._cusum = self._cusum_c = self._cusum_w = 0.0
         t_thr, h_thr = self._thresholds()
         self._tilt_thr_now, self._hdg_thr_now = t_thr, h_thr
         hdg_on = h_thr > 0.0
@@ -1130,6 +1173,7 @@ class AttitudeMonitor:
             z_c = max(c_t, c_h if hdg_on else 0.0)
             z_t = max(z_t, c_t)
             z_h = max(z_h, c_h) if hdg_on else 0.0
+        z_w = self._in_warning_test(t_ms, tilt, heading, hdg_on)
         # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
         # itself let through, else a slowly growing fault would raise the threshold ahead of it)
         self._evidence.heading_only = hdg_on and z_t <= 1.0 and z_h > 1.0
@@ -1162,17 +1206,26 @@ class AttitudeMonitor:
             self._cusum = min(2.0 * self._h, max(0.0, self._cusum + max(step, -s.cusum_leak_per_s * dt)))
             step = (min(z_c, 3.0) - s.change_cusum_reference) * dt
             self._cusum_c = min(2.0 * self._h_c, max(0.0, self._cusum_c + max(step, -s.cusum_leak_per_s * dt)))
+            step = (min(z_w, 3.0) - s.change_cusum_reference) * dt
+            self._cusum_w = min(2.0 * self._h_c, max(0.0, self._cusum_w + max(step, -s.cusum_leak_per_s * dt)))
             level = above and self._cusum >= self._h
             confirmed = level or (z_c > 1.0 and self._cusum_c >= self._h_c)
+            # a new step while a warning is on (change_in_warning_s) that leaves the divergence beyond its
+            # threshold: a new episode (a step back toward agreement is not one to say again)
+            again = z_w > 1.0 and self._cusum_w >= self._h_c and z > 1.0
         else:
             level = confirmed = self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s
+            again = False
         # an episode raised on the ground that is still on once airborne is raised again, in flight
-        if confirmed and (not self._warning or not self._warned_in_flight):
+        if (confirmed and (not self._warning or not self._warned_in_flight)) or again:
             phase = self.phase.phase(t_ms)
             if self._warning and phase not in FLIGHT_PHASES:
                 return []
+            if self._in_warning is not None:  # its baseline: the divergence from this warning on
+                self._in_warning.restart()
+                self._cusum_w = 0.0
             self._warning = True
-            self._trigger = "level" if level else "step"
+            self._trigger = "step" if again or not level else "level"
             self._warning_since_ms = t_ms
             self._episodes += 1
             self.last_phase = phase
@@ -1206,7 +1259,7 @@ class AttitudeMonitor:
                 return [_statustext(severity, _fit(template, tilt, heading, PHASE_WORDS.get(self.last_phase, self.last_phase), ev.cause))]
         if self._warning and self._below_since_ms is not None and t_ms - self._below_since_ms >= 1000.0 * s.clear_s:
             self._warning = False
-            self._cusum = self._cusum_c = 0.0
+            self._cusum = self._cusum_c = self._cusum_w = 0.0
             return [_statustext(mavlink.MAV_SEVERITY_INFO, CLEARED_TEXT)]
         return []
 
@@ -1255,13 +1308,16 @@ class _ChangeTest:
     ``change_k·√(max(learnt, min²) + (ω·sync_s)²)``, at most the cap given.  A step fault of size δ is a
     change of δ for ``change_delay_s`` and fades with the baseline's time constant after; a ramp of rate r
     settles to a change of about ``r·(change_delay_s + change_baseline_s)``.  (The CUSUM of Page 1954 on the
-    change rather than on the level: Basseville & Nikiforov 1993, a change in the mean.)
+    change rather than on the level: Basseville & Nikiforov 1993, a change in the mean.)  ``ready_s``: fed this
+    long before it judges (default ``change_baseline_s``; the test of a new step within a warning,
+    ``change_in_warning_s``, its baseline the divergence since the warning).
     """
 
-    def __init__(self, s: MonitorSettings) -> None:
+    def __init__(self, s: MonitorSettings, ready_s: float | None = None) -> None:
         self.s = s
         self._delay_ms = 1000.0 * s.change_delay_s
         self._tau = s.change_baseline_s
+        self._ready_s = self._tau if ready_s is None else ready_s  # fed this long before it judges
         self._floor2 = (math.radians(s.change_min_tilt_deg) ** 2, math.radians(s.change_min_heading_deg) ** 2)
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt change², mean heading change² (rad²)
         self.thresholds = (math.inf, math.inf)
@@ -1301,8 +1357,8 @@ class _ChangeTest:
                 self._fed_ms = t0  # the time frozen does not count as fed
             else:
                 self._feed(t0, (x, y, z))
-        if self._fed_s < self._tau:  # used once fed for its time constant (after GNSS comes back: our own
-            return False  # error converging is not a change to warn of)
+        if self._fed_s < self._ready_s:  # used once fed for its time constant (after GNSS comes back: our
+            return False  # own error converging is not a change to warn of)
         m = self._mean
         self.tilt = math.hypot(e[0] - m[0], e[1] - m[1])
         self.heading = e[2] - m[2]
