@@ -1079,8 +1079,10 @@ class AttitudeMonitor:
 
     def _in_warning_test(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
         """A new step while an in-flight warning is on (``MonitorSettings.change_in_warning_s``): the divergence
-        vector against its mean since the warning, as the change test's ratio to its thresholds, with the
-        thresholds' floors (0: not judged now)."""
+        vector ``e`` against its mean ``ê`` since the warning, as the change test's ratio to its thresholds, with
+        the thresholds' floors; 0 where the change leads back toward agreement, ``(e − ê)·e ≤ 0`` (ArduCopter
+        SITL magnetic: EKF3's heading 36.9° off, then 21.0°, 7.5° — said again as new WARNINGs without it), or
+        where it is not judged now."""
         iw, ch = self._in_warning, self._change
         if iw is None or ch is None:
             return 0.0
@@ -1088,7 +1090,11 @@ class AttitudeMonitor:
             if iw._fed_ms is not None or iw._buf:
                 iw.restart()
             return 0.0
-        if not iw.update(t_ms, self._e, frozen=False):
+        e = self._e
+        if not iw.update(t_ms, e, frozen=False):
+            return 0.0
+        m = iw._mean  # a change back toward agreement (e − ê against e) is not a new fault
+        if (e[0] - m[0]) * e[0] + (e[1] - m[1]) * e[1] + (e[2] - m[2]) * e[2] <= 0.0:
             return 0.0
         t_thr, h_thr = ch.thresholds
         c_t = iw.tilt / t_thr
