@@ -801,6 +801,7 @@ class AttitudeMonitor:
         self._cusum_c = 0.0  # the change test's (MonitorSettings.change_test)
         self._cusum_w = 0.0  # … and its test of a new step while a warning is on (change_in_warning_s)
         self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
+        self._e_warned = (0.0, 0.0, 0.0)  # … when the warning that is on was raised
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
         self._change = _ChangeTest(self.settings) if self._uncertainty and self.settings.change_test else None
         in_warning = self._change is not None and self.settings.change_in_warning_s > 0.0
@@ -1082,7 +1083,9 @@ class AttitudeMonitor:
         vector ``e`` against its mean ``ê`` since the warning, as the change test's ratio to its thresholds, with
         the thresholds' floors; 0 where the change leads back toward agreement, ``(e − ê)·e ≤ 0`` (ArduCopter
         SITL magnetic: EKF3's heading 36.9° off, then 21.0°, 7.5° — said again as new WARNINGs without it), or
-        where it is not judged now."""
+        where it is not judged now.  The change is also at most the divergence's distance from ``e`` when the
+        warning was raised: the same disagreement coming back is the warning already on (an intermittent fault,
+        1 s in every 4 s: a new WARNING every 4–8 s without it)."""
         iw, ch = self._in_warning, self._change
         if iw is None or ch is None:
             return 0.0
@@ -1097,8 +1100,9 @@ class AttitudeMonitor:
         if (e[0] - m[0]) * e[0] + (e[1] - m[1]) * e[1] + (e[2] - m[2]) * e[2] <= 0.0:
             return 0.0
         t_thr, h_thr = ch.thresholds
-        c_t = iw.tilt / t_thr
-        c_h = abs(iw.heading) / h_thr if hdg_on else 0.0
+        w = self._e_warned  # … nor the disagreement warned of coming back (an intermittent fault)
+        c_t = min(iw.tilt, math.hypot(e[0] - w[0], e[1] - w[1])) / t_thr
+        c_h = min(abs(iw.heading), abs(e[2] - w[2])) / h_thr if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
             c_t = min(c_t, tilt / self._min_thr[0])
         if self._min_thr[1] > 0.0:
@@ -1230,6 +1234,7 @@ class AttitudeMonitor:
             if self._in_warning is not None:  # its baseline: the divergence from this warning on
                 self._in_warning.restart()
                 self._cusum_w = 0.0
+            self._e_warned = self._e
             self._warning = True
             self._trigger = "step" if again or not level else "level"
             self._warning_since_ms = t_ms
