@@ -1085,7 +1085,9 @@ class AttitudeMonitor:
         SITL magnetic: EKF3's heading 36.9° off, then 21.0°, 7.5° — said again as new WARNINGs without it), or
         where it is not judged now.  The change is also at most the divergence's distance from ``e`` when the
         warning was raised: the same disagreement coming back is the warning already on (an intermittent fault,
-        1 s in every 4 s: a new WARNING every 4–8 s without it)."""
+        1 s in every 4 s: a new WARNING every 4–8 s without it), and at most its change over the last
+        ``change_delay_s``: a disagreement growing on (a ramp, 0.2°/s: a new WARNING every 7–10 s without it)
+        is the warning already on."""
         iw, ch = self._in_warning, self._change
         if iw is None or ch is None:
             return 0.0
@@ -1101,8 +1103,14 @@ class AttitudeMonitor:
             return 0.0
         t_thr, h_thr = ch.thresholds
         w = self._e_warned  # … nor the disagreement warned of coming back (an intermittent fault)
-        c_t = min(iw.tilt, math.hypot(e[0] - w[0], e[1] - w[1])) / t_thr
-        c_h = min(abs(iw.heading), abs(e[2] - w[2])) / h_thr if hdg_on else 0.0
+        c_t = min(iw.tilt, math.hypot(e[0] - w[0], e[1] - w[1]))
+        c_h = min(abs(iw.heading), abs(e[2] - w[2]))
+        if iw._buf:  # … nor one growing on (a ramp): a step is a change within the last change_delay_s too
+            r = iw._buf[0]
+            c_t = min(c_t, math.hypot(e[0] - r[1], e[1] - r[2]))
+            c_h = min(c_h, abs(e[2] - r[3]))
+        c_t /= t_thr
+        c_h = c_h / h_thr if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
             c_t = min(c_t, tilt / self._min_thr[0])
         if self._min_thr[1] > 0.0:
