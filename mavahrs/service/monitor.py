@@ -229,11 +229,16 @@ class MonitorSettings:
             vector against its own mean *since the warning* (comparisons
             ``change_delay_s`` old, as the baseline above, used once fed this
             long), judged with the change test's thresholds and floors and
-            CUSUM, raises a new in-flight WARNING (a new episode) — without it
-            the warning already on hides the fault, s (0 = off).  (firmware_sim
-            aggressive 21: a correct WARNING at 95.8 s, the simulated autopilot
-            1.6° off, was still on when a 2° step came at 100 s: no WARNING for
-            it.)
+            CUSUM, raises a new in-flight WARNING (a new episode) where the
+            divergence is also beyond its absolute threshold — without it the
+            warning already on hides the fault, s (0 = off).  The change counts
+            only where it leads away from agreement, and at most as far as the
+            divergence is from where it was when the warning was raised and as
+            it moved over the last ``change_delay_s`` (the same disagreement
+            coming and going, or growing on, is the warning already on).
+            (firmware_sim aggressive 21: a correct WARNING at 95.4 s, the
+            simulated autopilot 1.6° off, was still on when a 2° step came at
+            100 s: no WARNING for it; now 0.2 s.)
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
