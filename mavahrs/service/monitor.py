@@ -133,8 +133,13 @@ class MonitorSettings:
             GNSS velocity (Madgwick configuration: ≈ 2° inclination RMS in
             aggressive flight), deg.
         sync_s: timing uncertainty between the two estimates (the autopilot's
-            attitude vs our sample of the same ``time_boot_ms``), s: at ω it
-            adds ω·sync_s of apparent divergence.
+            attitude vs our sample of the same ``time_boot_ms``), s: a time
+            offset δ makes the divergence ``q(t) ⊗ q(t − δ)*``, the earth-frame
+            turn over δ, so its horizontal part ω_h·sync_s enters the tilt
+            thresholds and its vertical part ω_v·sync_s the heading's (a yaw spin
+            at 400°/s adds 2° to the heading's, not to the tilt's: firmware_sim
+            aggressive 3, a 2° tilt step mid-spin warned after 3.6 s with the
+            whole rate in both, 0.5 s split).
         min_tilt_threshold_deg, min_heading_threshold_deg: floors of the
             ``uncertainty`` thresholds, deg.
         cusum_reference: ``uncertainty``: the sequential test (a one-sided
@@ -219,6 +224,21 @@ class MonitorSettings:
         change_max_factor: see ``change_test``: the change's thresholds at most
             this many times the error model's (the absolute test's without the
             learnt part).
+        change_in_warning_s: a new step while a warning is already on (the
+            autopilot off for a while, then a fault on top): the divergence
+            vector against its own mean *since the warning* (comparisons
+            ``change_delay_s`` old, as the baseline above, used once fed this
+            long), judged with the change test's thresholds and floors and
+            CUSUM, raises a new in-flight WARNING (a new episode) where the
+            divergence is also beyond its absolute threshold — without it the
+            warning already on hides the fault, s (0 = off).  The change counts
+            only where it leads away from agreement, and at most as far as the
+            divergence is from where it was when the warning was raised and as
+            it moved over the last ``change_delay_s`` (the same disagreement
+            coming and going, or growing on, is the warning already on).
+            (firmware_sim aggressive 21: a correct WARNING at 95.4 s, the
+            simulated autopilot 1.6° off, was still on when a 2° step came at
+            100 s: no WARNING for it; now 0.2 s.)
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -314,6 +334,7 @@ class MonitorSettings:
     change_min_heading_deg: float = 1.5
     change_cusum_reference: float = 0.8
     change_max_factor: float = 1.0
+    change_in_warning_s: float = 2.0
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -345,7 +366,7 @@ class MonitorSettings:
                      "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
                      "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s", "change_k",
                      "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
-                     "change_max_factor"):  # fmt: skip
+                     "change_max_factor", "change_in_warning_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -783,8 +804,13 @@ class AttitudeMonitor:
         self._model_thr = (math.inf, math.inf)
         self._cusum = 0.0
         self._cusum_c = 0.0  # the change test's (MonitorSettings.change_test)
+        self._cusum_w = 0.0  # … and its test of a new step while a warning is on (change_in_warning_s)
+        self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
+        self._e_warned = (0.0, 0.0, 0.0)  # … when the warning that is on was raised
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
         self._change = _ChangeTest(self.settings) if self._uncertainty and self.settings.change_test else None
+        in_warning = self._change is not None and self.settings.change_in_warning_s > 0.0
+        self._in_warning = _ChangeTest(self.settings, self.settings.change_in_warning_s) if in_warning else None
         self._change_aided = False
         self._warning_since_ms = -math.inf
         old = getattr(self, "_evidence", None)
@@ -797,6 +823,8 @@ class AttitudeMonitor:
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._sigma_hdg = math.nan  # our latest 1-σ heading, rad (NaN: not given: heading_sigma_deg)
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
+        self._rate_h = 0.0  # … its earth-frame horizontal part (what turns the tilt), rad/s
+        self._rate_v = 0.0  # … and vertical part (what turns the heading), rad/s
         self._fresh = False  # a comparison since the last publication
 
     # ------------------------------------------------------------------ inputs
@@ -830,8 +858,18 @@ class AttitudeMonitor:
         q = (float(q_body_to_ned[0]), float(q_body_to_ned[1]), float(q_body_to_ned[2]), float(q_body_to_ned[3]))
         if est and t > est[-1][0]:
             p = est[-1][1]
-            dot = abs(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3])
-            self._rate = 2.0 * math.acos(min(1.0, dot)) / (1e-3 * (t - est[-1][0]))
+            dot = p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3]
+            dt = 1e-3 * (t - est[-1][0])
+            self._rate = 2.0 * math.acos(min(1.0, abs(dot))) / dt
+            # the same turn in the earth frame, q ⊗ p* (vector part −q_w p_v + p_w q_v − q_v × p_v): its
+            # horizontal part tilts, its vertical part turns the heading — a timing error δ between the two
+            # estimates shows as that turn over δ, split the same way (see MonitorSettings.sync_s)
+            k = (2.0 if dot >= 0.0 else -2.0) / dt
+            ex = -q[0] * p[1] + p[0] * q[1] - (q[2] * p[3] - q[3] * p[2])
+            ey = -q[0] * p[2] + p[0] * q[2] - (q[3] * p[1] - q[1] * p[3])
+            ez = -q[0] * p[3] + p[0] * q[3] - (q[1] * p[2] - q[2] * p[1])
+            self._rate_h = abs(k) * math.sqrt(ex * ex + ey * ey)
+            self._rate_v = abs(k * ez)
         est.append((t, q))
         if self._first_est_ms is None:
             self._first_est_ms = t
@@ -995,9 +1033,12 @@ class AttitudeMonitor:
         s_t = sig if aided else self._sig_unaided[0]
         sh = self._sigma_hdg
         s_h = (max(sh, self._sig_hdg) if math.isfinite(sh) else self._sig_hdg) if aided else self._sig_unaided[1]
-        sync2 = (self._rate * self.settings.sync_s) ** 2
+        # the timing term: the earth-frame turn over sync_s, its horizontal part for the tilt, its vertical
+        # part for the heading (a yaw spin does not tilt the divergence, a flip does not turn its heading)
+        sync_t2 = (self._rate_h * self.settings.sync_s) ** 2
+        sync2 = (self._rate_v * self.settings.sync_s) ** 2
         k = self._k
-        tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync2))
+        tilt = max(self._min_thr[0], k * math.sqrt(s_t * s_t + self._sig_ap[0] ** 2 + sync_t2))
         hdg = max(self._min_thr[1], k * math.sqrt(s_h * s_h + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
         # what is learnt as this flight's normal divergence: within the heading threshold of our floor σ, not
         # of a σ raised for a while (a fast yaw, a rejected magnetometer), which would learn the autopilot's
@@ -1033,13 +1074,53 @@ class AttitudeMonitor:
         e = (sgn * (-a[0] * b[1] + b[0] * a[1] - (a[2] * b[3] - a[3] * b[2])),
              sgn * (-a[0] * b[2] + b[0] * a[2] - (a[3] * b[1] - a[1] * b[3])),
              sgn * (-a[0] * b[3] + b[0] * a[3] - (a[1] * b[2] - a[2] * b[1])))  # fmt: skip
+        self._e = e
         hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
         f = self.settings.change_max_factor
-        t_thr, h_thr = ch.judge(self._rate, learn and not self._warning, dt_s,
+        t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s,
                                 (f * self._model_thr[0], f * self._model_thr[1]))
         return ch.tilt / t_thr, abs(ch.heading) / h_thr
+
+    def _in_warning_test(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
+        """A new step while an in-flight warning is on (``MonitorSettings.change_in_warning_s``): the divergence
+        vector ``e`` against its mean ``ê`` since the warning, as the change test's ratio to its thresholds, with
+        the thresholds' floors; 0 where the change leads back toward agreement, ``(e − ê)·e ≤ 0`` (ArduCopter
+        SITL magnetic: EKF3's heading 36.9° off, then 21.0°, 7.5° — said again as new WARNINGs without it), or
+        where it is not judged now.  The change is also at most the divergence's distance from ``e`` when the
+        warning was raised: the same disagreement coming back is the warning already on (an intermittent fault,
+        1 s in every 4 s: a new WARNING every 4–8 s without it), and at most its change over the last
+        ``change_delay_s``: a disagreement growing on (a ramp, 0.2°/s: a new WARNING every 7–10 s without it)
+        is the warning already on."""
+        iw, ch = self._in_warning, self._change
+        if iw is None or ch is None:
+            return 0.0
+        if not (self._warning and self._warned_in_flight and self._change_aided):
+            if iw._fed_ms is not None or iw._buf:
+                iw.restart()
+            return 0.0
+        e = self._e
+        if not iw.update(t_ms, e, frozen=False):
+            return 0.0
+        m = iw._mean  # a change back toward agreement (e − ê against e) is not a new fault
+        if (e[0] - m[0]) * e[0] + (e[1] - m[1]) * e[1] + (e[2] - m[2]) * e[2] <= 0.0:
+            return 0.0
+        t_thr, h_thr = ch.thresholds
+        w = self._e_warned  # … nor the disagreement warned of coming back (an intermittent fault)
+        c_t = min(iw.tilt, math.hypot(e[0] - w[0], e[1] - w[1]))
+        c_h = min(abs(iw.heading), abs(e[2] - w[2]))
+        if iw._buf:  # … nor one growing on (a ramp): a step is a change within the last change_delay_s too
+            r = iw._buf[0]
+            c_t = min(c_t, math.hypot(e[0] - r[1], e[1] - r[2]))
+            c_h = min(c_h, abs(e[2] - r[3]))
+        c_t /= t_thr
+        c_h = c_h / h_thr if hdg_on else 0.0
+        if self._min_thr[0] > 0.0:
+            c_t = min(c_t, tilt / self._min_thr[0])
+        if self._min_thr[1] > 0.0:
+            c_h = min(c_h, abs(heading) / self._min_thr[1])
+        return max(c_t, c_h)
 
     def _imu_warning(self, t_ms: float) -> list[Any]:
         """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
@@ -1096,7 +1177,7 @@ class AttitudeMonitor:
         self._last_cmp_ms = t_ms
         if gap:
             self._above_since_ms = self._below_since_ms = None
-            self._cusum = self._cusum_c = 0.0
+            self._cusum = self._cusum_c = self._cusum_w = 0.0
         t_thr, h_thr = self._thresholds()
         self._tilt_thr_now, self._hdg_thr_now = t_thr, h_thr
         hdg_on = h_thr > 0.0
@@ -1115,6 +1196,7 @@ class AttitudeMonitor:
             z_c = max(c_t, c_h if hdg_on else 0.0)
             z_t = max(z_t, c_t)
             z_h = max(z_h, c_h) if hdg_on else 0.0
+        z_w = self._in_warning_test(t_ms, tilt, heading, hdg_on)
         # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
         # itself let through, else a slowly growing fault would raise the threshold ahead of it)
         self._evidence.heading_only = hdg_on and z_t <= 1.0 and z_h > 1.0
@@ -1147,17 +1229,27 @@ class AttitudeMonitor:
             self._cusum = min(2.0 * self._h, max(0.0, self._cusum + max(step, -s.cusum_leak_per_s * dt)))
             step = (min(z_c, 3.0) - s.change_cusum_reference) * dt
             self._cusum_c = min(2.0 * self._h_c, max(0.0, self._cusum_c + max(step, -s.cusum_leak_per_s * dt)))
+            step = (min(z_w, 3.0) - s.change_cusum_reference) * dt
+            self._cusum_w = min(2.0 * self._h_c, max(0.0, self._cusum_w + max(step, -s.cusum_leak_per_s * dt)))
             level = above and self._cusum >= self._h
             confirmed = level or (z_c > 1.0 and self._cusum_c >= self._h_c)
+            # a new step while a warning is on (change_in_warning_s) that leaves the divergence beyond its
+            # threshold: a new episode (a step back toward agreement is not one to say again)
+            again = z_w > 1.0 and self._cusum_w >= self._h_c and z > 1.0
         else:
             level = confirmed = self._above_since_ms is not None and t_ms - self._above_since_ms >= 1000.0 * s.trigger_s
+            again = False
         # an episode raised on the ground that is still on once airborne is raised again, in flight
-        if confirmed and (not self._warning or not self._warned_in_flight):
+        if (confirmed and (not self._warning or not self._warned_in_flight)) or again:
             phase = self.phase.phase(t_ms)
             if self._warning and phase not in FLIGHT_PHASES:
                 return []
+            if self._in_warning is not None:  # its baseline: the divergence from this warning on
+                self._in_warning.restart()
+                self._cusum_w = 0.0
+            self._e_warned = self._e
             self._warning = True
-            self._trigger = "level" if level else "step"
+            self._trigger = "step" if again or not level else "level"
             self._warning_since_ms = t_ms
             self._episodes += 1
             self.last_phase = phase
@@ -1191,7 +1283,7 @@ class AttitudeMonitor:
                 return [_statustext(severity, _fit(template, tilt, heading, PHASE_WORDS.get(self.last_phase, self.last_phase), ev.cause))]
         if self._warning and self._below_since_ms is not None and t_ms - self._below_since_ms >= 1000.0 * s.clear_s:
             self._warning = False
-            self._cusum = self._cusum_c = 0.0
+            self._cusum = self._cusum_c = self._cusum_w = 0.0
             return [_statustext(mavlink.MAV_SEVERITY_INFO, CLEARED_TEXT)]
         return []
 
@@ -1240,13 +1332,16 @@ class _ChangeTest:
     ``change_k·√(max(learnt, min²) + (ω·sync_s)²)``, at most the cap given.  A step fault of size δ is a
     change of δ for ``change_delay_s`` and fades with the baseline's time constant after; a ramp of rate r
     settles to a change of about ``r·(change_delay_s + change_baseline_s)``.  (The CUSUM of Page 1954 on the
-    change rather than on the level: Basseville & Nikiforov 1993, a change in the mean.)
+    change rather than on the level: Basseville & Nikiforov 1993, a change in the mean.)  ``ready_s``: fed this
+    long before it judges (default ``change_baseline_s``; the test of a new step within a warning,
+    ``change_in_warning_s``, its baseline the divergence since the warning).
     """
 
-    def __init__(self, s: MonitorSettings) -> None:
+    def __init__(self, s: MonitorSettings, ready_s: float | None = None) -> None:
         self.s = s
         self._delay_ms = 1000.0 * s.change_delay_s
         self._tau = s.change_baseline_s
+        self._ready_s = self._tau if ready_s is None else ready_s  # fed this long before it judges
         self._floor2 = (math.radians(s.change_min_tilt_deg) ** 2, math.radians(s.change_min_heading_deg) ** 2)
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt change², mean heading change² (rad²)
         self.thresholds = (math.inf, math.inf)
@@ -1286,30 +1381,34 @@ class _ChangeTest:
                 self._fed_ms = t0  # the time frozen does not count as fed
             else:
                 self._feed(t0, (x, y, z))
-        if self._fed_s < self._tau:  # used once fed for its time constant (after GNSS comes back: our own
-            return False  # error converging is not a change to warn of)
+        if self._fed_s < self._ready_s:  # used once fed for its time constant (after GNSS comes back: our
+            return False  # own error converging is not a change to warn of)
         m = self._mean
         self.tilt = math.hypot(e[0] - m[0], e[1] - m[1])
         self.heading = e[2] - m[2]
         return True
 
-    def judge(self, rate: float, learn: bool, dt_s: float, cap: tuple[float, float]) -> tuple[float, float]:
+    def judge(
+        self, rate: tuple[float, float], learn: bool, dt_s: float, cap: tuple[float, float]
+    ) -> tuple[float, float]:
         """(tilt, heading) thresholds of the change now, rad, at most ``cap`` (the absolute test's error
-        model's); learns the change's noise when ``learn``."""
+        model's); ``rate``: our earth-frame turn rate, horizontal and vertical, rad/s (the timing term of each);
+        learns the change's noise when ``learn``."""
         n, m_t, m_h = self._learnt
-        sync2 = (rate * self.s.sync_s) ** 2
+        sync_t2 = (rate[0] * self.s.sync_s) ** 2
+        sync2 = (rate[1] * self.s.sync_s) ** 2
         k = self.s.change_k
         ready = n >= 0.1 * self.s.learn_s
         f_t, f_h = self._floor2
         if ready:
-            t_thr = min(k * math.sqrt(max(m_t, f_t) + sync2), cap[0])
+            t_thr = min(k * math.sqrt(max(m_t, f_t) + sync_t2), cap[0])
             h_thr = min(k * math.sqrt(max(m_h, f_h) + sync2), cap[1]) if cap[1] > 0.0 else math.inf
         else:
             t_thr = h_thr = math.inf
         self.thresholds = (t_thr, h_thr)
         # learnt: what lies within the change's own thresholds (from the start, within those of the mean
         # square so far at 2 × change_k: the first seconds' noise is not cut off at a floor)
-        gate_t = t_thr if ready else 2.0 * k * math.sqrt(max(m_t, f_t) + sync2)
+        gate_t = t_thr if ready else 2.0 * k * math.sqrt(max(m_t, f_t) + sync_t2)
         gate_h = h_thr if ready else 2.0 * k * math.sqrt(max(m_h, f_h) + sync2)
         if learn and self.tilt <= gate_t and abs(self.heading) <= gate_h:
             self._learnt = _mean_squares(self._learnt, self.tilt, self.heading, dt_s, self.s.learn_s)

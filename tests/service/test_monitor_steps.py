@@ -110,3 +110,27 @@ def test_a_heading_step_against_the_autopilots_own_heading_error_is_warned_withi
     # 3.4° off, the other way of the step, which on the faulted copy it partly cancels)
     assert 0.1 < latency <= 3.0, latency  # 6.0 s with the absolute test alone
     assert _false_warnings(path, clean) == []
+
+
+def test_a_tilt_step_in_a_yaw_spin_is_warned_within_2_s(tmp_path: Path) -> None:
+    # firmware_sim aggressive 3 spins about the vertical at 350–440°/s from 99.2 s to 101.3 s, then turns at
+    # 120–130°/s: the timing term ω·sync_s of the whole rate made the tilt thresholds 3.8–4.6° in the spin and
+    # 1.9° after it (3.6 s); a yaw turn over a timing error turns the divergence's heading, not its tilt, so the
+    # tilt's term takes the earth-frame turn's horizontal part only
+    path = _sim_flight(tmp_path, "aggressive", 3, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    assert not [t for t in clean if t >= ONSET_S - 5.0], clean
+    assert 0.1 < latency <= 2.0, latency  # 3.6 s with the whole turn rate in the tilt's timing term
+    assert _false_warnings(path, clean) == []
+
+
+def test_a_step_while_a_warning_is_already_on_is_warned_within_2_s(tmp_path: Path) -> None:
+    # firmware_sim aggressive 21: a correct WARNING at 95.4 s (the simulated autopilot 1.6° off in tilt) is
+    # still on when the fault comes at 100 s; without a test of a new step within the warning no WARNING came
+    # for the fault at all
+    path = _sim_flight(tmp_path, "aggressive", 21, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    assert [t for t in clean if ONSET_S - 10.0 <= t < ONSET_S], clean  # the warning already on
+    assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
+    assert 0.1 < latency <= 2.0, latency  # none before
+    assert _false_warnings(path, clean) == []
