@@ -105,7 +105,6 @@ from mavahrs.filters.magfield import (
     MF_HEAD_SIGMA,
     MF_LEN,
     MF_P,
-    MF_REF_ON,
     MF_STEP_T,
     MF_STEPS,
     MF_T,
@@ -121,6 +120,7 @@ from mavahrs.filters.magfield import (
     mag_model_summary,
     mag_model_update,
     mag_ref_rotate,
+    mag_refs_drop,
     mag_status,
     magfield_params,
 )
@@ -1207,7 +1207,7 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     # the heading noise, or what the model leaves unknown of the field across (×``heading_sigma_factor``)
     hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
     s[kp + 2 * N + 2] = params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv)
-    s[km + MF_REF_ON] = 0.0  # the model's pair reference was held in the former heading
+    mag_refs_drop(s, km)  # the model's pair references were held in the former heading
 
 
 @kernel
