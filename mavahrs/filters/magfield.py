@@ -320,7 +320,7 @@ class MagFieldSettings:
     ground_radius_m: float = 10.0
     pair_references: int = PAIR_SLOTS_MAX
     takeoff_anomaly_height_m: float = 2.0
-    takeoff_variance_factor: float = 10.0
+    takeoff_variance_factor: float = 40.0
 
     def __post_init__(self) -> None:
         for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
