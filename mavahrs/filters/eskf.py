@@ -164,6 +164,8 @@ _KNOWN_MOTOR_VAR = 0.06**2
 _RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 #: the model's motor field, µT², at or above which its corrected reading may reset an unknown heading
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
+#: how long the corrected reading must have fitted the WMM's norm and dip before it resets an unknown heading, s
+_RESET_FIT_S = 0.5
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
 _FIT_DIP_RAD = math.radians(3.0)
 #: yaw rate, rad/s, whose mean square shrinks the compass's learnt delay towards 0 (no turns: nothing learnt)
@@ -1189,7 +1191,7 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     if s[k + _FIT_T] <= 0.0:
         s[k + _FIT_T] = clk
         return
-    if clk - s[k + _FIT_T] < 1.0:
+    if clk - s[k + _FIT_T] < _RESET_FIT_S:
         return
     s[k + _FIT_T] = 0.0
     psi = math.atan2(he, hn) - s[k + _DECL]
@@ -1207,7 +1209,10 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     # the heading noise, or what the model leaves unknown of the field across (×``heading_sigma_factor``)
     hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
     s[kp + 2 * N + 2] = params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv)
-    mag_refs_drop(s, km)  # the model's pair references were held in the former heading
+    # the model's held attitudes move with the frame (the take-off fit's reference: its anomaly's direction),
+    # the pair references were held in the former heading and are dropped
+    mag_ref_rotate(s, km, 0.0, 0.0, -psi, s[k + _DECL], s[k + _DECL])
+    mag_refs_drop(s, km)
 
 
 @kernel

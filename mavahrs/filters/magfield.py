@@ -181,7 +181,8 @@ MP_GROUND_RADIUS = 17  # m: … or this far (horizontally) from where the aided 
 MP_PAIR_SLOTS = 18  # references held at once, staggered by MP_PAIR_LAG / this (1 … PAIR_SLOTS_MAX)
 MP_TO_HEIGHT = 19  # the take-off fit's anomaly decay height H, m (1/8 at H); 0: no take-off fit
 MP_TO_INFL = 20  # the take-off fit's variance is multiplied by this (readings correlated by the held current)
-MP_LEN = 21
+MP_TO_DONE = 21  # µT/A: the fit is fused early (from TO_EARLY_M up) once every σ of its k is below this; 0: at 5 m
+MP_LEN = 22
 
 
 @dataclass(frozen=True)
@@ -295,6 +296,12 @@ class MagFieldSettings:
             mean square over the normal matrix) is multiplied by this: the
             readings are not independent (the current is reported at 1–2 Hz and
             held, the anomaly's shape is a model).
+        takeoff_done_sigma_ut_per_a: the take-off fit is fused as soon as the
+            vehicle is ``TO_EARLY_M`` up and every σ of its field per ampere is
+            below this, µT/A; until it leaves the ground's reach the fitted
+            anomaly, faded to the height, is then taken out of the corrected
+            reading too (so that it can reset an unknown heading there).
+            0 = fused only on leaving the ground's reach.
     """
 
     enabled: bool | None = None
@@ -320,7 +327,8 @@ class MagFieldSettings:
     ground_radius_m: float = 10.0
     pair_references: int = PAIR_SLOTS_MAX
     takeoff_anomaly_height_m: float = 2.0
-    takeoff_variance_factor: float = 40.0
+    takeoff_variance_factor: float = 10.0
+    takeoff_done_sigma_ut_per_a: float = 0.05
 
     def __post_init__(self) -> None:
         for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
@@ -331,7 +339,7 @@ class MagFieldSettings:
                 raise ValueError(f"MagFieldSettings.{name} must be a finite number > 0, got {v!r}")
         for name in ("offset_walk_ut_s", "earth_field_walk_ut_s", "hold_s", "motor_walk_ut_per_a_s", "step_sigma_ut",
                      "min_body_field_ut", "pair_lag_s", "pair_min_height_m", "ground_radius_m",
-                     "takeoff_anomaly_height_m"):
+                     "takeoff_anomaly_height_m", "takeoff_done_sigma_ut_per_a"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be ≥ 0, got {v!r}")
@@ -366,6 +374,7 @@ def magfield_params(s: MagFieldSettings) -> np.ndarray:
     p[MP_PAIR_SLOTS] = s.pair_references
     p[MP_TO_HEIGHT] = s.takeoff_anomaly_height_m
     p[MP_TO_INFL] = s.takeoff_variance_factor
+    p[MP_TO_DONE] = s.takeoff_done_sigma_ut_per_a
     return p
 
 
@@ -567,6 +576,17 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     out4[0] = mx - s[kx] - amps * s[kx + 3]
     out4[1] = my - s[kx + 1] - amps * s[kx + 4]
     out4[2] = mz - s[kx + 2] - amps * s[kx + 5]
+    if s[k + MF_TO_ON] == 4.0 and s[k + MF_LOW] > 0.0:
+        # fused early, still near the ground: the fitted anomaly faded to this height, R â s(h), R = Cᵀ C_g
+        hh = p[MP_TO_HEIGHT]
+        sc = (hh / (max(s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN], 0.0) + hh)) ** 3
+        kr = k + MF_TO_C
+        ka = k + MF_TO_K + 7
+        for a in range(3):
+            acc = 0.0
+            for b in range(3):
+                acc += (c[a] * s[kr + 3 * b] + c[3 + a] * s[kr + 3 * b + 1] + c[6 + a] * s[kr + 3 * b + 2]) * s[ka + b]
+            out4[a] -= sc * acc
     # heading noise from the offset left unknown across the horizontal field (east in the estimate's frame)
     _h_row(c, 1, amps, h)
     var_e = 0.0
@@ -761,6 +781,12 @@ TO_STEADY_A = 2.0
 #: 1–10 Hz, held) — firmware_sim ``mag_anomaly``: the motors' field in the readings 0.1 s before the current
 #: that drives it; a reference taken then was 20 µT off its current
 TO_REF_AGE_S = 1.0
+#: the take-off fit is not fused before the vehicle is this high, m (the anomaly's fade must have begun to tell it
+#: from the current's jump)
+TO_EARLY_M = 1.0
+#: a field per ampere known to this σ on every axis, µT/A, is not overridden by the take-off fit (a saved model:
+#: its k pulled 0.05 µT/A off by the fit, the heading 4.5° off at 13–14 s against 0.9° without the fit)
+TO_KNOWN_K = 0.06
 #: weak priors that keep the take-off fit's normal matrix invertible: σ of k, µT/A, and of the anomaly, µT
 TO_PRIOR_K = 10.0
 TO_PRIOR_A = 100.0
@@ -788,7 +814,9 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
     hgt = s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN]
     kc = k + MF_TO_CAND
     steady = hgt < TO_GROUND_M and abs(amps - s[kc + 12]) < TO_STEADY_A
-    if st == 0.0 or st == 3.0 or (st == 1.0 and steady):
+    if st == 4.0 and hgt >= TO_GROUND_M:
+        return  # fused early: the anomaly is taken out of the corrected reading until the vehicle leaves
+    if st == 0.0 or st >= 3.0 or (st == 1.0 and steady):
         # on the ground, the current steady: the reference is the candidate once that is TO_REF_AGE_S old
         # (and both were steady since), the candidate this reading
         if st == 1.0 and clk - s[kc + 13] >= TO_REF_AGE_S:
@@ -839,6 +867,11 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
                 s[kl + 6 * i + j] += s[kh + i] * s[kh + j]
         s[k + MF_TO_ZZ] += z * z
         s[k + MF_TO_N] += 1.0
+    if p[MP_TO_DONE] > 0.0 and hgt >= TO_EARLY_M and _takeoff_solve(s, k, p):
+        kk = k + MF_TO_K
+        if max(s[kk + 3], max(s[kk + 4], s[kk + 5])) <= p[MP_TO_DONE]:
+            _takeoff_fuse(s, k, p)
+            s[k + MF_TO_ON] = 4.0
 
 
 @kernel(inline=True)
@@ -864,44 +897,46 @@ def _inv3(s, src, stride, dst):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def _takeoff_fuse(s, k, p):  # type: ignore[no-untyped-def]
-    """Solve the take-off fit (:func:`_takeoff_fit`) for the field per ampere and fuse it into the model.
+def _takeoff_solve(s, k, p):  # type: ignore[no-untyped-def]
+    """Solve the take-off fit (:func:`_takeoff_fit`): k̂, its σ, the residuals' RMS and the anomaly â into
+    ``MF_TO_K`` (the scratch keeps D⁻¹ at 9 and (A − B D⁻¹ Bᵀ)⁻¹ at 18); False if it cannot be solved.
 
     With the normal matrix ``[[A, B], [Bᵀ, D]]`` of θ = (k, a) (weak priors added), k's estimate and
     covariance are the Schur complement's: ``Σ_k = σ̂² (A − B D⁻¹ Bᵀ)⁻¹`` and
     ``k̂ = Σ_k/σ̂² (η_k − B D⁻¹ η_a)``, σ̂² the residuals' mean square (at least the reading noise's),
-    times ``MP_TO_INFL``; fused as three scalar measurements of k (their cross-covariance left out)."""
+    times ``MP_TO_INFL`` (the readings are not independent); ``â = D⁻¹ (η_a − Bᵀ k̂)``."""
     n = s[k + MF_TO_N]
     if n < 30.0:
-        return
+        return False
     kl = k + MF_TO_L
     ke = k + MF_TO_ETA
     ks = k + MF_TO_SCR
     for i in range(3):
-        s[kl + 6 * i + i] += 1.0 / (TO_PRIOR_K * TO_PRIOR_K)
-        s[kl + 6 * (3 + i) + 3 + i] += 1.0 / (TO_PRIOR_A * TO_PRIOR_A)
-    if _inv3(s, kl + 21, 6, ks) == 0.0:  # D⁻¹ → scr[0:9]
-        return
-    # M = A − B D⁻¹ Bᵀ → scr[9:18]; g = η_k − B D⁻¹ η_a (into the result's slots first)
+        for j in range(3):
+            s[ks + 3 * i + j] = s[kl + 6 * (3 + i) + 3 + j] + (1.0 / (TO_PRIOR_A * TO_PRIOR_A) if i == j else 0.0)
+    if _inv3(s, ks, 3, ks + 9) == 0.0:  # D⁻¹ → scr[9:18]
+        return False
+    # M = A − B D⁻¹ Bᵀ → scr[0:9], its inverse → scr[18:27]
     for i in range(3):
         for j in range(3):
             acc = 0.0
             for u in range(3):
                 for v in range(3):
-                    acc += s[kl + 6 * i + 3 + u] * s[ks + 3 * u + v] * s[kl + 6 * j + 3 + v]
-            s[ks + 9 + 3 * i + j] = s[kl + 6 * i + j] - acc
-    if _inv3(s, ks + 9, 3, ks + 18) == 0.0:  # M⁻¹ → scr[18:27]
-        return
+                    acc += s[kl + 6 * i + 3 + u] * s[ks + 9 + 3 * u + v] * s[kl + 6 * j + 3 + v]
+            prior = 1.0 / (TO_PRIOR_K * TO_PRIOR_K) if i == j else 0.0
+            s[ks + 3 * i + j] = s[kl + 6 * i + j] + prior - acc
+    if _inv3(s, ks, 3, ks + 18) == 0.0:
+        return False
     kk = k + MF_TO_K
-    for i in range(3):
+    for i in range(3):  # g = η_k − B D⁻¹ η_a, for now in σ's slots
         acc = s[ke + i]
         for u in range(3):
             for v in range(3):
-                acc -= s[kl + 6 * i + 3 + u] * s[ks + 3 * u + v] * s[ke + 3 + v]
-        s[kk + 3 + i] = acc  # g, for now
+                acc -= s[kl + 6 * i + 3 + u] * s[ks + 9 + 3 * u + v] * s[ke + 3 + v]
+        s[kk + 3 + i] = acc
     for i in range(3):
         s[kk + i] = s[ks + 18 + 3 * i] * s[kk + 3] + s[ks + 18 + 3 * i + 1] * s[kk + 4] + s[ks + 18 + 3 * i + 2] * s[kk + 5]
-    # a = D⁻¹ (η_a − Bᵀ k̂); the residuals' sum of squares zᵀz − θ̂ᵀη
+    # â = D⁻¹ (η_a − Bᵀ k̂); the residuals' sum of squares zᵀz − θ̂ᵀη
     rss = s[k + MF_TO_ZZ]
     for i in range(3):
         rss -= s[kk + i] * s[ke + i]
@@ -911,22 +946,41 @@ def _takeoff_fuse(s, k, p):  # type: ignore[no-untyped-def]
             w = s[ke + 3 + v]
             for u in range(3):
                 w -= s[kl + 6 * u + 3 + v] * s[kk + u]
-            acc += s[ks + 3 * i + v] * w
+            acc += s[ks + 9 + 3 * i + v] * w
         s[kk + 7 + i] = acc
-        rss -= acc * s[ke + 3 + i]
-    var = max(rss / max(n - 6.0, 1.0), p[MP_SIGMA_M] * p[MP_SIGMA_M]) * p[MP_TO_INFL]
-    s[kk + 6] = math.sqrt(max(rss / max(n - 6.0, 1.0), 0.0))
+    for i in range(3):
+        rss -= s[kk + 7 + i] * s[ke + 3 + i]
+    ms = max(rss / max(n - 6.0, 1.0), 0.0)
+    s[kk + 6] = math.sqrt(ms)
+    var = max(ms, p[MP_SIGMA_M] * p[MP_SIGMA_M]) * p[MP_TO_INFL]
+    for i in range(3):
+        s[kk + 3 + i] = math.sqrt(max(var * s[ks + 18 + 4 * i], 0.0))
+    return True
+
+
+@kernel
+def _takeoff_fuse(s, k, p):  # type: ignore[no-untyped-def]
+    """Solve the take-off fit (:func:`_takeoff_solve`) and fuse its k into the model: three scalar
+    measurements of k with the fit's σ (their cross-covariance left out)."""
+    if not _takeoff_solve(s, k, p):
+        return
+    kk = k + MF_TO_K
+    ks = k + MF_TO_SCR
     kx = k + MF_X
     kp = k + MF_P
+    known = True
+    for i in range(3, 6):
+        known = known and s[kp + i * NX + i] <= TO_KNOWN_K * TO_KNOWN_K
+    if known:
+        return  # a model loaded from an earlier flight (or learnt before a landing): the fit does not override it
     for i in range(3):
-        r = var * s[ks + 18 + 4 * i]
-        s[kk + 3 + i] = math.sqrt(max(r, 0.0))
+        r = s[kk + 3 + i] * s[kk + 3 + i]
         sv = r + s[kp + (3 + i) * NX + 3 + i]
         if not (sv > 0.0):
             continue
         y = s[kk + i] - s[kx + 3 + i]
         inv = 1.0 / sv
-        for a in range(NX):  # P's column 3 + i (D⁻¹'s scratch is free now)
+        for a in range(NX):  # P's column 3 + i
             s[ks + a] = s[kp + a * NX + 3 + i]
         for a in range(NX):
             s[kx + a] += s[ks + a] * inv * y
