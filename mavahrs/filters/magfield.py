@@ -37,6 +37,9 @@ updates; Solà 2017 eq. (275)–(279) with a diagonal R):
 * the pair update (:func:`_pair_update`) learns the field per ampere on every axis from the
   current's changes and the offset from turns without the heading, from a reading and one
   ``pair_lag_s`` earlier; near the ground (GNSS-aided height) nothing is learnt (an anomaly);
+* the take-off fit (:func:`_takeoff_fit`) learns the field per ampere from the lift-off's current
+  jump near the ground, against a reading held there before, with the anomaly's fade with height
+  as a model term, and fuses it from 1 m up (docs/filters/magfield.md);
 * the earth field starts from the World Magnetic Model (``set_mag_reference``:
   the pipeline's WMM field at the vehicle's position) with σ
   ``earth_field_sigma_ut`` — a prior, not a constraint — or, before a
