@@ -1059,11 +1059,13 @@ def _residual(s, kx, c, mx, my, mz, amps, j):  # type: ignore[no-untyped-def]
 
 
 def mag_model_summary(block: np.ndarray) -> dict[str, object]:
-    """The model's state as plain values (status page, ``/status.json``, replay header)."""
+    """The model's state as plain values (status page, ``/status.json``, replay header); ``takeoff_fit``:
+    what the take-off fit gave (its field per ampere and σ, residual RMS, the ground anomaly in the
+    reference's body axes) once it was solved."""
     b = np.asarray(block, dtype=np.float64)
     p = b[MF_P : MF_P + NX * NX].reshape(NX, NX)
     trust = int(b[MF_TRUST]) if np.isfinite(b[MF_TRUST]) else MAG_LEARNING
-    return {
+    out: dict[str, object] = {
         "state": MAG_STATES[min(max(trust, 0), 2)],
         "offset_ut": [round(float(v), 2) for v in b[MF_X : MF_X + 3]],
         "offset_sigma_ut": [round(float(math.sqrt(max(p[i, i], 0.0))), 2) for i in range(3)],
@@ -1074,6 +1076,15 @@ def mag_model_summary(block: np.ndarray) -> dict[str, object]:
         "disturbances": int(b[MF_STEPS]),
         "pair_updates": int(b[MF_PAIRS]),
     }
+    if b[MF_TO_ON] >= 3.0 and b[MF_TO_K + 6] > 0.0:  # the take-off fit was solved
+        kt = MF_TO_K
+        out["takeoff_fit"] = {
+            "motor_ut_per_a": [round(float(v), 3) for v in b[kt : kt + 3]],
+            "motor_sigma_ut_per_a": [round(float(v), 3) for v in b[kt + 3 : kt + 6]],
+            "residual_ut": round(float(b[kt + 6]), 2),
+            "anomaly_ut": [round(float(v), 1) for v in b[kt + 7 : kt + 10]],
+        }
+    return out
 
 
 #: version of the saved model (:func:`export_model`)

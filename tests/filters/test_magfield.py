@@ -239,6 +239,9 @@ def test_take_off_fit_tells_the_heading_soon_after_lift_off(tmp_path) -> None:  
     # measured: 3.9° (k −0.40, 0.21, 0.51 µT/A from the fit, true −0.4, 0.2, 0.5)
     assert err < 8.0, err
     np.testing.assert_allclose(state["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.1)
+    fit = state["takeoff_fit"]  # what the fit gave, as /status.json shows it
+    assert isinstance(fit, dict)
+    np.testing.assert_allclose(fit["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.1)
 
 
 def test_model_kept_across_a_restart(flight) -> None:  # type: ignore[no-untyped-def]
