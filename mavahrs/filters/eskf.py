@@ -105,7 +105,6 @@ from mavahrs.filters.magfield import (
     MF_HEAD_SIGMA,
     MF_LEN,
     MF_P,
-    MF_REF_ON,
     MF_STEP_T,
     MF_STEPS,
     MF_T,
@@ -121,6 +120,7 @@ from mavahrs.filters.magfield import (
     mag_model_summary,
     mag_model_update,
     mag_ref_rotate,
+    mag_refs_drop,
     mag_status,
     magfield_params,
 )
@@ -167,6 +167,8 @@ _KNOWN_MOTOR_VAR = 0.06**2
 _RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 #: the model's motor field, µT², at or above which its corrected reading may reset an unknown heading
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
+#: how long the corrected reading must have fitted the WMM's norm and dip before it resets an unknown heading, s
+_RESET_FIT_S = 0.5
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
 _FIT_DIP_RAD = math.radians(3.0)
 #: yaw rate, rad/s, whose mean square shrinks the compass's learnt delay towards 0 (no turns: nothing learnt)
@@ -1377,7 +1379,7 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     if s[k + _FIT_T] <= 0.0:
         s[k + _FIT_T] = clk
         return
-    if clk - s[k + _FIT_T] < 1.0:
+    if clk - s[k + _FIT_T] < _RESET_FIT_S:
         return
     s[k + _FIT_T] = 0.0
     psi = math.atan2(he, hn) - s[k + _DECL]
@@ -1395,7 +1397,10 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     # the heading noise, or what the model leaves unknown of the field across (×``heading_sigma_factor``)
     hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
     s[kp + 2 * N + 2] = params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv)
-    s[km + MF_REF_ON] = 0.0  # the model's pair reference was held in the former heading
+    # the model's held attitudes move with the frame (the take-off fit's reference: its anomaly's direction),
+    # the pair references were held in the former heading and are dropped
+    mag_ref_rotate(s, km, 0.0, 0.0, -psi, s[k + _DECL], s[k + _DECL])
+    mag_refs_drop(s, km)
     s[k + _MNOISE + 2] = s[k + _MNOISE + 3] = math.nan  # … and so were the readings held for the learnt noise
 
 

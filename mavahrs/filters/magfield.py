@@ -37,6 +37,9 @@ updates; Solà 2017 eq. (275)–(279) with a diagonal R):
 * the pair update (:func:`_pair_update`) learns the field per ampere on every axis from the
   current's changes and the offset from turns without the heading, from a reading and one
   ``pair_lag_s`` earlier; near the ground (GNSS-aided height) nothing is learnt (an anomaly);
+* the take-off fit (:func:`_takeoff_fit`) learns the field per ampere from the lift-off's current
+  jump near the ground, against a reading held there before, with the anomaly's fade with height
+  as a model term, and fuses it from 1 m up (docs/filters/magfield.md);
 * the earth field starts from the World Magnetic Model (``set_mag_reference``:
   the pipeline's WMM field at the vehicle's position) with σ
   ``earth_field_sigma_ut`` — a prior, not a constraint — or, before a
@@ -88,6 +91,7 @@ __all__ = [
     "mag_model_reset",
     "mag_model_update",
     "mag_ref_rotate",
+    "mag_refs_drop",
     "magfield_params",
     "mag_model_summary",
     "mag_state_text",
@@ -137,7 +141,29 @@ MF_PAIRS = MF_REF_R + 1  # pair updates fused
 MF_LOW = MF_PAIRS + 1  # 1 while near the ground it started on (GNSS-aided: below the height, near the start)
 MF_NORTH = MF_LOW + 1  # horizontal position from where the aided track began, m (north, east)
 MF_EAST = MF_NORTH + 1
-MF_LEN = MF_EAST + 1
+#: one held reference of the pair update: on, clock, reading (3), C's columns (9), current, noise (the
+#: ``MF_REF_ON`` … ``MF_REF_R`` layout); slot 0 is at ``MF_REF_ON``, the others at ``MF_XREF``
+REF_LEN = 16
+#: most references held at once (``MagFieldSettings.pair_references``)
+PAIR_SLOTS_MAX = 8
+MF_XREF = MF_EAST + 1  # references 1 … PAIR_SLOTS_MAX − 1, REF_LEN each
+MF_REF_LAST = MF_XREF + (PAIR_SLOTS_MAX - 1) * REF_LEN  # clock at which the last reference was taken
+# the take-off fit (:func:`_takeoff_fit`): readings near the ground against one held there before the current rose
+MF_TO_ON = MF_REF_LAST + 1  # 0: no reference; 1: reference held (on the ground, current steady); 2: fitting; 3: done
+MF_TO_M = MF_TO_ON + 1  # the reference reading, µT, body (3)
+MF_TO_C = MF_TO_M + 3  # its C_body_to_ned transposed (9, as MF_REF_C)
+MF_TO_I = MF_TO_C + 9  # its battery current, A
+MF_TO_L = MF_TO_I + 1  # normal matrix HᵀH of θ = (k, a) (6×6): a = the anomaly at the ground, reference's body axes
+MF_TO_ETA = MF_TO_L + 36  # Hᵀz (6)
+MF_TO_ZZ = MF_TO_ETA + 6  # zᵀz
+MF_TO_N = MF_TO_ZZ + 1  # scalar residuals accumulated
+MF_TO_SCR = MF_TO_N + 1  # scratch (27)
+TO_ACC_LEN = MF_TO_SCR - MF_TO_L  # the sums above (44), at MF_TO_L (the current as is) and MF_TO_ACC2 (later)
+MF_TO_K = MF_TO_SCR + 27  # what the fit gave: k (3), its σ (3), µT/A; the residual's RMS, µT; the anomaly (3), µT
+MF_TO_CAND = MF_TO_K + 10  # the next reference (a reading held TO_REF_AGE_S on the ground): m (3), C (9), I, clock
+MF_TO_PEND = MF_TO_CAND + 14  # a reading waiting for the current reported after it: m (3), C (9, row-major), h, clock, held
+MF_TO_ACC2 = MF_TO_PEND + 15  # the same sums (TO_ACC_LEN) with the current reported later (MP_TO_LAG)
+MF_LEN = MF_TO_ACC2 + 44
 
 # parameter offsets
 MP_ON = 0
@@ -158,7 +184,12 @@ MP_Q_K = 14  # its random walk², (µT/A)²/s
 MP_PAIR_LAG = 15  # s between the two readings of a pair update; 0: no pair updates
 MP_PAIR_HEIGHT = 16  # m above the lowest point seen before pair updates are made
 MP_GROUND_RADIUS = 17  # m: … or this far (horizontally) from where the aided track began
-MP_LEN = 18
+MP_PAIR_SLOTS = 18  # references held at once, staggered by MP_PAIR_LAG / this (1 … PAIR_SLOTS_MAX)
+MP_TO_HEIGHT = 19  # the take-off fit's anomaly decay height H, m (1/8 at H); 0: no take-off fit
+MP_TO_INFL = 20  # the take-off fit's variance is multiplied by this (readings correlated by the held current)
+MP_TO_DONE = 21  # µT/A: the fit is fused early (from TO_EARLY_M up) once every σ of its k is below this; 0: at 5 m
+MP_TO_LAG = 22  # s: the fit also with the current reported this late (the next reading's), the better kept; 0: as is
+MP_LEN = 23
 
 
 @dataclass(frozen=True)
@@ -256,6 +287,36 @@ class MagFieldSettings:
         ground_radius_m: … unless the vehicle is this far horizontally from
             where its GNSS-aided track began (a rover or a boat never climbs:
             away from the start it learns as before).
+        pair_references: readings held at once as pair references, taken
+            ``pair_lag_s`` / this apart (1 … 8): each pairs with the reading
+            ``pair_lag_s`` after it, so pairs are fused this many times per
+            lag (1: one pair per lag, the third round's rate — 0.5 pairs/s, the
+            field per ampere learnt 7 s after take-off on ``mag_anomaly``).
+        takeoff_anomaly_height_m: the take-off fit (:func:`_takeoff_fit`): near
+            the ground, readings against one held there before the current rose,
+            with a ground anomaly that fades as ``(H / (h + H))³`` (a dipole
+            ``H`` below the ground, ArduPilot's ``SIM_MAG_ALY_HGT``; h the
+            GNSS-aided height) fitted beside the field per ampere; what it gives
+            of the field per ampere is fused as the vehicle leaves the ground's
+            reach (``pair_min_height_m``).  This ``H``, m; 0 = no take-off fit.
+        takeoff_variance_factor: the take-off fit's variance (its residuals'
+            mean square over the normal matrix) is multiplied by this: the
+            readings are not independent (the current is reported at 1–2 Hz and
+            held, the anomaly's shape is a model).
+        takeoff_done_sigma_ut_per_a: the take-off fit is fused as soon as the
+            vehicle is ``TO_EARLY_M`` up and every σ of its field per ampere is
+            below this, µT/A; until it leaves the ground's reach the fitted
+            anomaly, faded to the height, is then taken out of the corrected
+            reading too (so that it can reset an unknown heading there).
+            0 = fused only on leaving the ground's reach.
+        takeoff_current_lag_s: the battery current may be reported late against
+            the compass: the take-off fit is made twice, with each reading's own
+            current and with the current of the next reading at least half this
+            later, and the one with the smaller residuals is kept (0 = only the
+            first).  firmware_sim ``mag_anomaly`` seed 11: the residual's RMS is
+            least with the current 0.1 s later (1.0 µT against 2.2 µT at 0), the
+            field per ampere 10–30 % too large with its own; seed 19 the other
+            way round.
     """
 
     enabled: bool | None = None
@@ -279,6 +340,11 @@ class MagFieldSettings:
     pair_lag_s: float = 2.0
     pair_min_height_m: float = 5.0
     ground_radius_m: float = 10.0
+    pair_references: int = PAIR_SLOTS_MAX
+    takeoff_anomaly_height_m: float = 2.0
+    takeoff_variance_factor: float = 10.0
+    takeoff_done_sigma_ut_per_a: float = 0.05
+    takeoff_current_lag_s: float = 0.1
 
     def __post_init__(self) -> None:
         for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
@@ -288,10 +354,16 @@ class MagFieldSettings:
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be a finite number > 0, got {v!r}")
         for name in ("offset_walk_ut_s", "earth_field_walk_ut_s", "hold_s", "motor_walk_ut_per_a_s", "step_sigma_ut",
-                     "min_body_field_ut", "pair_lag_s", "pair_min_height_m", "ground_radius_m"):
+                     "min_body_field_ut", "pair_lag_s", "pair_min_height_m", "ground_radius_m",
+                     "takeoff_anomaly_height_m", "takeoff_done_sigma_ut_per_a", "takeoff_current_lag_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be ≥ 0, got {v!r}")
+        if not (math.isfinite(self.takeoff_variance_factor) and self.takeoff_variance_factor >= 1.0):
+            raise ValueError(f"MagFieldSettings.takeoff_variance_factor must be ≥ 1, got {self.takeoff_variance_factor!r}")
+        if not (isinstance(self.pair_references, int) and 1 <= self.pair_references <= PAIR_SLOTS_MAX):
+            raise ValueError(f"MagFieldSettings.pair_references must be an integer 1 … {PAIR_SLOTS_MAX}, "
+                             f"got {self.pair_references!r}")
 
 
 def magfield_params(s: MagFieldSettings) -> np.ndarray:
@@ -315,6 +387,11 @@ def magfield_params(s: MagFieldSettings) -> np.ndarray:
     p[MP_PAIR_LAG] = s.pair_lag_s
     p[MP_PAIR_HEIGHT] = s.pair_min_height_m
     p[MP_GROUND_RADIUS] = s.ground_radius_m
+    p[MP_PAIR_SLOTS] = s.pair_references
+    p[MP_TO_HEIGHT] = s.takeoff_anomaly_height_m
+    p[MP_TO_INFL] = s.takeoff_variance_factor
+    p[MP_TO_DONE] = s.takeoff_done_sigma_ut_per_a
+    p[MP_TO_LAG] = s.takeoff_current_lag_s
     return p
 
 
@@ -372,7 +449,8 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     ``vn``, ``ve``, ``vd``: the ESKF's NED velocity, m/s, NaN while not GNSS-aided (the height and the
     distance from the start: near the ground it started on nothing is learnt, no pair update).
     """
-    if not (amps == amps):
+    amps_known = amps == amps
+    if not amps_known:
         amps = 0.0
     kx = k + MF_X
     kp = k + MF_P
@@ -427,6 +505,8 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
         if _near_start(s, k, p):
             learn = False
             s[k + MF_LOW] = 1.0
+            if amps_known and p[MP_TO_HEIGHT] > 0.0:
+                _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk)
         elif s[k + MF_LOW] > 0.0:
             s[k + MF_LOW] = 0.0
             for i in range(3):
@@ -438,6 +518,9 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
             if s[k + MF_REF_NORM] > 0.0:
                 _seed_field(s, k, p, s[k + MF_REF_NORM] * math.cos(s[k + MF_REF_DIP]),
                             s[k + MF_REF_NORM] * math.sin(s[k + MF_REF_DIP]), p[MP_F0])  # fmt: skip
+            if s[k + MF_TO_ON] == 2.0:
+                _takeoff_fuse(s, k, p)
+            s[k + MF_TO_ON] = 3.0
     f_h = s[kx + _FH]
     pp = max(p_psi, 0.0)
     r_e = sig_m2 + f_h * f_h * pp
@@ -510,6 +593,17 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     out4[0] = mx - s[kx] - amps * s[kx + 3]
     out4[1] = my - s[kx + 1] - amps * s[kx + 4]
     out4[2] = mz - s[kx + 2] - amps * s[kx + 5]
+    if s[k + MF_TO_ON] == 4.0 and s[k + MF_LOW] > 0.0:
+        # fused early, still near the ground: the fitted anomaly faded to this height, R â s(h), R = Cᵀ C_g
+        hh = p[MP_TO_HEIGHT]
+        sc = (hh / (max(s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN], 0.0) + hh)) ** 3
+        kr = k + MF_TO_C
+        ka = k + MF_TO_K + 7
+        for a in range(3):
+            acc = 0.0
+            for b in range(3):
+                acc += (c[a] * s[kr + 3 * b] + c[3 + a] * s[kr + 3 * b + 1] + c[6 + a] * s[kr + 3 * b + 2]) * s[ka + b]
+            out4[a] -= sc * acc
     # heading noise from the offset left unknown across the horizontal field (east in the estimate's frame)
     _h_row(c, 1, amps, h)
     var_e = 0.0
@@ -539,25 +633,43 @@ def mag_ref_rotate(s, k, rx, ry, rz, d_old, d_new):  # type: ignore[no-untyped-d
     declination correction from ``d_old`` to ``d_new`` (the model's frame is C rotated by it), so that
     ``R = C_iᵀ C_j`` stays the rotation the vehicle made, not the corrections GNSS made in between
     (a heading corrected by 2° within the pair's 2 s moves a 23 µT field by 0.8 µT)."""
-    if s[k + MF_REF_ON] == 0.0:
-        return
-    kr = k + MF_REF_C
     ang = math.sqrt(rx * rx + ry * ry + rz * rz)
     ca, sa = math.cos(ang), math.sin(ang)
     ux, uy, uz = (rx / ang, ry / ang, rz / ang) if ang > 0.0 else (0.0, 0.0, 1.0)
     co, so = math.cos(d_old), math.sin(d_old)
     cn, sn = math.cos(d_new), math.sin(d_new)
-    for b in range(3):
-        v0, v1, v2 = s[kr + 3 * b], s[kr + 3 * b + 1], s[kr + 3 * b + 2]
-        # out of the model's frame (D_oldᵀ), rotated (Rodrigues), into the new one (D_new)
-        a0, a1, a2 = co * v0 - so * v1, so * v0 + co * v1, v2
-        dot = ux * a0 + uy * a1 + uz * a2
-        b0 = a0 * ca + (uy * a2 - uz * a1) * sa + ux * dot * (1.0 - ca)
-        b1 = a1 * ca + (uz * a0 - ux * a2) * sa + uy * dot * (1.0 - ca)
-        b2 = a2 * ca + (ux * a1 - uy * a0) * sa + uz * dot * (1.0 - ca)
-        s[kr + 3 * b] = cn * b0 + sn * b1
-        s[kr + 3 * b + 1] = -sn * b0 + cn * b1
-        s[kr + 3 * b + 2] = b2
+    for j in range(PAIR_SLOTS_MAX + 2):  # the pair references, then the take-off fit's reference and candidate
+        ks = _slot(k, j) if j < PAIR_SLOTS_MAX else k + MF_TO_ON
+        if s[ks] == 0.0 or (j >= PAIR_SLOTS_MAX and s[ks] == 3.0):
+            continue
+        if j < PAIR_SLOTS_MAX:
+            kr = ks + (MF_REF_C - MF_REF_ON)
+        else:
+            kr = k + MF_TO_C if j == PAIR_SLOTS_MAX else k + MF_TO_CAND + 3
+        for b in range(3):
+            v0, v1, v2 = s[kr + 3 * b], s[kr + 3 * b + 1], s[kr + 3 * b + 2]
+            # out of the model's frame (D_oldᵀ), rotated (Rodrigues), into the new one (D_new)
+            a0, a1, a2 = co * v0 - so * v1, so * v0 + co * v1, v2
+            dot = ux * a0 + uy * a1 + uz * a2
+            b0 = a0 * ca + (uy * a2 - uz * a1) * sa + ux * dot * (1.0 - ca)
+            b1 = a1 * ca + (uz * a0 - ux * a2) * sa + uy * dot * (1.0 - ca)
+            b2 = a2 * ca + (ux * a1 - uy * a0) * sa + uz * dot * (1.0 - ca)
+            s[kr + 3 * b] = cn * b0 + sn * b1
+            s[kr + 3 * b + 1] = -sn * b0 + cn * b1
+            s[kr + 3 * b + 2] = b2
+
+
+@kernel(inline=True)
+def _slot(k, j):  # type: ignore[no-untyped-def]
+    """Start of pair reference ``j`` (``REF_LEN`` values, laid out as ``MF_REF_ON`` … ``MF_REF_R``)."""
+    return k + MF_REF_ON if j == 0 else k + MF_XREF + (j - 1) * REF_LEN
+
+
+@kernel
+def mag_refs_drop(s, k):  # type: ignore[no-untyped-def]
+    """Drop every held pair reference (their attitudes were held in a heading since reset)."""
+    for j in range(PAIR_SLOTS_MAX):
+        s[_slot(k, j)] = 0.0
 
 
 @kernel(inline=True)
@@ -573,7 +685,10 @@ def _near_start(s, k, p):  # type: ignore[no-untyped-def]
 
 @kernel
 def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type: ignore[no-untyped-def]
-    """Fuse the reading with the reference held ``MP_PAIR_LAG`` s earlier, then hold this one.
+    """Fuse the reading with every reference held ``MP_PAIR_LAG`` s earlier, then hold this one as a
+    reference if the last was taken ``MP_PAIR_LAG`` / ``MP_PAIR_SLOTS`` ago or more (so that pairs come
+    ``MP_PAIR_SLOTS`` times per lag, each reading in at most two pairs: once as the later, once as
+    the reference).
 
     The earth field in the body at both times, ``e = m − b₀ − k·I``, is related by the rotation the
     vehicle made in between, ``e_i = R e_j`` with ``R = C_iᵀ C_j`` (the estimate's attitudes: a heading
@@ -586,76 +701,347 @@ def _pair_update(s, k, p, c, mx, my, mz, amps, sig_m2, clk, vd, h, ph):  # type:
     lag = p[MP_PAIR_LAG]
     if not (lag > 0.0):
         return
-    kx = k + MF_X
-    kp = k + MF_P
-    kr = k + MF_REF_C
     ok = vd == vd and not _near_start(s, k, p)
     if not ok:
-        s[k + MF_REF_ON] = 0.0
+        mag_refs_drop(s, k)
         return
-    if s[k + MF_REF_ON] > 0.0 and clk - s[k + MF_REF_T] > 3.0 * lag:
-        s[k + MF_REF_ON] = 0.0  # a gap: the reference is too old
-    if s[k + MF_REF_ON] > 0.0 and clk - s[k + MF_REF_T] >= lag:
-        ij = s[k + MF_REF_I]
-        sv0 = sig_m2 + s[k + MF_REF_R]
-        gate = p[MP_GATE]
-        fits = True
-        for rnd in range(2):  # 0: the gate on every component; 1: the updates
-            if rnd == 1 and not fits:
-                break
-            for a in range(3):
-                # row a of R = C_iᵀ C_j, and z_a = m_a − (R m_j)_a
-                r0 = c[a] * s[kr + 0] + c[3 + a] * s[kr + 1] + c[6 + a] * s[kr + 2]
-                r1 = c[a] * s[kr + 3] + c[3 + a] * s[kr + 4] + c[6 + a] * s[kr + 5]
-                r2 = c[a] * s[kr + 6] + c[3 + a] * s[kr + 7] + c[6 + a] * s[kr + 8]
-                ma = mx if a == 0 else (my if a == 1 else mz)
-                z = ma - (r0 * s[k + MF_REF_M] + r1 * s[k + MF_REF_M + 1] + r2 * s[k + MF_REF_M + 2])
-                h[0] = (1.0 if a == 0 else 0.0) - r0
-                h[1] = (1.0 if a == 1 else 0.0) - r1
-                h[2] = (1.0 if a == 2 else 0.0) - r2
-                h[3] = (amps if a == 0 else 0.0) - ij * r0
-                h[4] = (amps if a == 1 else 0.0) - ij * r1
-                h[5] = (amps if a == 2 else 0.0) - ij * r2
-                h[_FH] = 0.0
-                h[_FD] = 0.0
-                y = z
-                for b in range(6):
-                    y -= h[b] * s[kx + b]
-                sv = sv0
-                for b in range(6):
-                    acc = 0.0
-                    for e in range(6):
-                        acc += s[kp + b * NX + e] * h[e]
-                    sv += h[b] * acc
-                if rnd == 0:
-                    if y * y > gate * gate * sv:
-                        fits = False
-                    continue
-                for b in range(NX):
-                    acc = 0.0
-                    for e in range(6):
-                        acc += s[kp + b * NX + e] * h[e]
-                    ph[b] = acc
-                inv = 1.0 / sv
-                for b in range(NX):
-                    s[kx + b] += ph[b] * inv * y
-                for b in range(NX):
-                    for e in range(NX):
-                        s[kp + b * NX + e] -= ph[b] * inv * ph[e]
-        if fits:
-            s[k + MF_PAIRS] += 1.0
-        s[k + MF_REF_ON] = 0.0
-    if s[k + MF_REF_ON] == 0.0:
-        s[k + MF_REF_ON] = 1.0
-        s[k + MF_REF_T] = clk
-        s[k + MF_REF_M] = mx
-        s[k + MF_REF_M + 1] = my
-        s[k + MF_REF_M + 2] = mz
+    n = min(max(int(p[MP_PAIR_SLOTS]), 1), PAIR_SLOTS_MAX)
+    free = -1
+    for j in range(n):
+        ks = _slot(k, j)
+        if s[ks] > 0.0 and clk - s[ks + 1] > 3.0 * lag:
+            s[ks] = 0.0  # a gap: the reference is too old
+        if s[ks] > 0.0 and clk - s[ks + 1] >= lag:
+            if _pair_fuse(s, k, p, ks, c, mx, my, mz, amps, sig_m2, h, ph):
+                s[k + MF_PAIRS] += 1.0
+            s[ks] = 0.0
+        if s[ks] == 0.0 and free < 0:
+            free = j
+    if free >= 0 and (clk - s[k + MF_REF_LAST] >= lag / n or clk < s[k + MF_REF_LAST]):
+        ks = _slot(k, free)
+        s[ks] = 1.0
+        s[ks + 1] = clk
+        s[ks + 2] = mx
+        s[ks + 3] = my
+        s[ks + 4] = mz
+        kr = ks + (MF_REF_C - MF_REF_ON)
         for b in range(3):
-            for n in range(3):
-                s[kr + 3 * b + n] = c[3 * n + b]
-        s[k + MF_REF_I] = amps
-        s[k + MF_REF_R] = sig_m2
+            for q in range(3):
+                s[kr + 3 * b + q] = c[3 * q + b]
+        s[ks + (MF_REF_I - MF_REF_ON)] = amps
+        s[ks + (MF_REF_R - MF_REF_ON)] = sig_m2
+        s[k + MF_REF_LAST] = clk
+
+
+@kernel
+def _pair_fuse(s, k, p, ks, c, mx, my, mz, amps, sig_m2, h, ph):  # type: ignore[no-untyped-def]
+    """The pair update of the reading against the reference at ``ks`` (:func:`_pair_update`); False
+    (and nothing fused) when the pair is beyond the gate in any component."""
+    kx = k + MF_X
+    kp = k + MF_P
+    kr = ks + (MF_REF_C - MF_REF_ON)
+    km = ks + (MF_REF_M - MF_REF_ON)
+    ij = s[ks + (MF_REF_I - MF_REF_ON)]
+    sv0 = sig_m2 + s[ks + (MF_REF_R - MF_REF_ON)]
+    gate = p[MP_GATE]
+    fits = True
+    for rnd in range(2):  # 0: the gate on every component; 1: the updates
+        if rnd == 1 and not fits:
+            break
+        for a in range(3):
+            # row a of R = C_iᵀ C_j, and z_a = m_a − (R m_j)_a
+            r0 = c[a] * s[kr + 0] + c[3 + a] * s[kr + 1] + c[6 + a] * s[kr + 2]
+            r1 = c[a] * s[kr + 3] + c[3 + a] * s[kr + 4] + c[6 + a] * s[kr + 5]
+            r2 = c[a] * s[kr + 6] + c[3 + a] * s[kr + 7] + c[6 + a] * s[kr + 8]
+            ma = mx if a == 0 else (my if a == 1 else mz)
+            z = ma - (r0 * s[km] + r1 * s[km + 1] + r2 * s[km + 2])
+            h[0] = (1.0 if a == 0 else 0.0) - r0
+            h[1] = (1.0 if a == 1 else 0.0) - r1
+            h[2] = (1.0 if a == 2 else 0.0) - r2
+            h[3] = (amps if a == 0 else 0.0) - ij * r0
+            h[4] = (amps if a == 1 else 0.0) - ij * r1
+            h[5] = (amps if a == 2 else 0.0) - ij * r2
+            h[_FH] = 0.0
+            h[_FD] = 0.0
+            y = z
+            for b in range(6):
+                y -= h[b] * s[kx + b]
+            sv = sv0
+            for b in range(6):
+                acc = 0.0
+                for e in range(6):
+                    acc += s[kp + b * NX + e] * h[e]
+                sv += h[b] * acc
+            if rnd == 0:
+                if y * y > gate * gate * sv:
+                    fits = False
+                continue
+            for b in range(NX):
+                acc = 0.0
+                for e in range(6):
+                    acc += s[kp + b * NX + e] * h[e]
+                ph[b] = acc
+            inv = 1.0 / sv
+            for b in range(NX):
+                s[kx + b] += ph[b] * inv * y
+            for b in range(NX):
+                for e in range(NX):
+                    s[kp + b * NX + e] -= ph[b] * inv * ph[e]
+    return fits
+
+
+#: the take-off fit: within this height of the lowest point seen the vehicle is on the ground, m
+TO_GROUND_M = 0.3
+#: … and its current steady while within this of the reference's, A (the reference follows the readings)
+TO_STEADY_A = 2.0
+#: the reference is a reading at least this old, s: the current is reported late (SYS_STATUS / BATTERY_STATUS,
+#: 1–10 Hz, held) — firmware_sim ``mag_anomaly``: the motors' field in the readings 0.1 s before the current
+#: that drives it; a reference taken then was 20 µT off its current
+TO_REF_AGE_S = 1.0
+#: the take-off fit is not fused before the vehicle is this high, m (the anomaly's fade must have begun to tell it
+#: from the current's jump)
+TO_EARLY_M = 1.0
+#: a field per ampere known to this σ on every axis, µT/A, is not overridden by the take-off fit (a saved model:
+#: its k pulled 0.05 µT/A off by the fit, the heading 4.5° off at 13–14 s against 0.9° without the fit)
+TO_KNOWN_K = 0.06
+#: weak priors that keep the take-off fit's normal matrix invertible: σ of k, µT/A, and of the anomaly, µT
+TO_PRIOR_K = 10.0
+TO_PRIOR_A = 100.0
+
+
+@kernel
+def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-def]
+    """Near the ground (``_near_start``): accumulate the take-off fit's normal equations.
+
+    On the ground with a steady current the latest reading is held as the reference ``m_g`` (current
+    ``I_g``, attitude ``C_g``); once the current moves away from it or the vehicle rises, every reading
+    is compared with it, as in the pair update but with the ground anomaly's change as a model term:
+    the anomaly ``A`` (earth-fixed) fades with the height h as ``s(h) = (H / (h + H))³`` (a dipole H
+    below the ground: ArduPilot's ``SIM_MAG_ALY_HGT``), so with ``R = Cᵀ C_g`` and ``a = C_gᵀ A``::
+
+        z = m − R m_g − (1 − R) b₀ = (I·1 − I_g R) k + (s(h) − 1) R a + w
+
+    linear in θ = (k, a): HᵀH and Hᵀz are summed (least squares, unit weights) and solved once when the
+    vehicle leaves the ground's reach (:func:`_takeoff_fuse`).  The current's jump at lift-off comes
+    before the height (the anomaly barely changed), the climb then fades the anomaly: the two are told
+    apart, and k is known within 0.05 µT/A 2 s after lift-off on firmware_sim ``mag_anomaly`` for any
+    H of 1–5 m (true 3), where without the anomaly term it is 0.1–0.2 µT/A off (docs/filters/magfield.md).
+    """
+    st = s[k + MF_TO_ON]
+    hgt = s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN]
+    kc = k + MF_TO_CAND
+    steady = hgt < TO_GROUND_M and abs(amps - s[kc + 12]) < TO_STEADY_A
+    if st == 4.0 and hgt >= TO_GROUND_M:
+        return  # fused early: the anomaly is taken out of the corrected reading until the vehicle leaves
+    if st == 0.0 or st >= 3.0 or (st == 1.0 and steady):
+        # on the ground, the current steady: the reference is the candidate once that is TO_REF_AGE_S old
+        # (and both were steady since), the candidate this reading
+        if st == 1.0 and clk - s[kc + 13] >= TO_REF_AGE_S:
+            for i in range(13):
+                s[k + MF_TO_M + i] = s[kc + i]
+        if st != 1.0 or clk - s[kc + 13] >= TO_REF_AGE_S:
+            s[kc] = mx
+            s[kc + 1] = my
+            s[kc + 2] = mz
+            for b in range(3):
+                for q in range(3):
+                    s[kc + 3 + 3 * b + q] = c[3 * q + b]
+            s[kc + 12] = amps
+            s[kc + 13] = clk
+        if st != 1.0:
+            for i in range(13):
+                s[k + MF_TO_M + i] = s[kc + i]
+        s[k + MF_TO_ON] = 1.0
+        for i in range(TO_ACC_LEN):
+            s[k + MF_TO_L + i] = 0.0
+            s[k + MF_TO_ACC2 + i] = 0.0
+        s[k + MF_TO_PEND + 14] = 0.0
+        return
+    s[k + MF_TO_ON] = 2.0
+    kq = k + MF_TO_PEND
+    _takeoff_add(s, k, p, k + MF_TO_L, c, 0, mx, my, mz, hgt, amps)
+    if p[MP_TO_LAG] > 0.0:
+        # … and the current reported late: the reading held, and fitted with the next reading's current
+        if s[kq + 14] > 0.0 and clk - s[kq + 13] >= 0.5 * p[MP_TO_LAG]:
+            _takeoff_add(s, k, p, k + MF_TO_ACC2, s, kq + 3, s[kq], s[kq + 1], s[kq + 2], s[kq + 12], amps)
+            s[kq + 14] = 0.0
+        if s[kq + 14] == 0.0:
+            s[kq] = mx
+            s[kq + 1] = my
+            s[kq + 2] = mz
+            for i in range(9):
+                s[kq + 3 + i] = c[i]
+            s[kq + 12] = hgt
+            s[kq + 13] = clk
+            s[kq + 14] = 1.0
+    if p[MP_TO_DONE] > 0.0 and hgt >= TO_EARLY_M and _takeoff_solve_best(s, k, p):
+        kk = k + MF_TO_K
+        if max(s[kk + 3], max(s[kk + 4], s[kk + 5])) <= p[MP_TO_DONE]:
+            _takeoff_fuse(s, k, p)
+            s[k + MF_TO_ON] = 4.0
+
+
+@kernel
+def _takeoff_add(s, k, p, ka, ca, co, mx, my, mz, hgt, amps):  # type: ignore[no-untyped-def]
+    """One reading (µT, body; its C_body_to_ned row-major at ``ca[co:co + 9]``, its height h) with the
+    current ``amps`` into the take-off fit's normal equations at ``ka`` (:func:`_takeoff_fit`)."""
+    hh = p[MP_TO_HEIGHT]
+    sc = (hh / (max(hgt, 0.0) + hh)) ** 3 - 1.0
+    ig = s[k + MF_TO_I]
+    kr = k + MF_TO_C
+    kx = k + MF_X
+    kl = ka
+    ke = ka + (MF_TO_ETA - MF_TO_L)
+    kh = k + MF_TO_SCR  # H's row (6)
+    for a in range(3):
+        r0 = ca[co + a] * s[kr + 0] + ca[co + 3 + a] * s[kr + 1] + ca[co + 6 + a] * s[kr + 2]
+        r1 = ca[co + a] * s[kr + 3] + ca[co + 3 + a] * s[kr + 4] + ca[co + 6 + a] * s[kr + 5]
+        r2 = ca[co + a] * s[kr + 6] + ca[co + 3 + a] * s[kr + 7] + ca[co + 6 + a] * s[kr + 8]
+        ma = mx if a == 0 else (my if a == 1 else mz)
+        z = ma - (r0 * s[k + MF_TO_M] + r1 * s[k + MF_TO_M + 1] + r2 * s[k + MF_TO_M + 2])
+        # the offset's part (1 − R) b₀, with the model's b₀
+        z -= s[kx + a] - (r0 * s[kx] + r1 * s[kx + 1] + r2 * s[kx + 2])
+        s[kh + 0] = (amps if a == 0 else 0.0) - ig * r0
+        s[kh + 1] = (amps if a == 1 else 0.0) - ig * r1
+        s[kh + 2] = (amps if a == 2 else 0.0) - ig * r2
+        s[kh + 3] = sc * r0
+        s[kh + 4] = sc * r1
+        s[kh + 5] = sc * r2
+        for i in range(6):
+            s[ke + i] += s[kh + i] * z
+            for j in range(6):
+                s[kl + 6 * i + j] += s[kh + i] * s[kh + j]
+        s[ka + (MF_TO_ZZ - MF_TO_L)] += z * z
+        s[ka + (MF_TO_N - MF_TO_L)] += 1.0
+
+
+@kernel(inline=True)
+def _inv3(s, src, stride, dst):  # type: ignore[no-untyped-def]
+    """``s[dst:dst+9]`` = the inverse of the 3×3 matrix at ``s[src]`` (rows ``stride`` apart); its determinant."""
+    a, b, c = s[src], s[src + 1], s[src + 2]
+    d, e, f = s[src + stride], s[src + stride + 1], s[src + stride + 2]
+    g, h, i = s[src + 2 * stride], s[src + 2 * stride + 1], s[src + 2 * stride + 2]
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if not (abs(det) > 0.0):
+        return 0.0
+    inv = 1.0 / det
+    s[dst + 0] = (e * i - f * h) * inv
+    s[dst + 1] = (c * h - b * i) * inv
+    s[dst + 2] = (b * f - c * e) * inv
+    s[dst + 3] = (f * g - d * i) * inv
+    s[dst + 4] = (a * i - c * g) * inv
+    s[dst + 5] = (c * d - a * f) * inv
+    s[dst + 6] = (d * h - e * g) * inv
+    s[dst + 7] = (b * g - a * h) * inv
+    s[dst + 8] = (a * e - b * d) * inv
+    return det
+
+
+@kernel
+def _takeoff_solve(s, k, p, ka):  # type: ignore[no-untyped-def]
+    """Solve the take-off fit (:func:`_takeoff_fit`): k̂, its σ, the residuals' RMS and the anomaly â into
+    ``MF_TO_K`` (the scratch keeps D⁻¹ at 9 and (A − B D⁻¹ Bᵀ)⁻¹ at 18); False if it cannot be solved.
+
+    With the normal matrix ``[[A, B], [Bᵀ, D]]`` of θ = (k, a) (weak priors added), k's estimate and
+    covariance are the Schur complement's: ``Σ_k = σ̂² (A − B D⁻¹ Bᵀ)⁻¹`` and
+    ``k̂ = Σ_k/σ̂² (η_k − B D⁻¹ η_a)``, σ̂² the residuals' mean square (at least the reading noise's),
+    times ``MP_TO_INFL`` (the readings are not independent); ``â = D⁻¹ (η_a − Bᵀ k̂)``."""
+    n = s[ka + (MF_TO_N - MF_TO_L)]
+    if n < 30.0:
+        return False
+    kl = ka
+    ke = ka + (MF_TO_ETA - MF_TO_L)
+    ks = k + MF_TO_SCR
+    for i in range(3):
+        for j in range(3):
+            s[ks + 3 * i + j] = s[kl + 6 * (3 + i) + 3 + j] + (1.0 / (TO_PRIOR_A * TO_PRIOR_A) if i == j else 0.0)
+    if _inv3(s, ks, 3, ks + 9) == 0.0:  # D⁻¹ → scr[9:18]
+        return False
+    # M = A − B D⁻¹ Bᵀ → scr[0:9], its inverse → scr[18:27]
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for u in range(3):
+                for v in range(3):
+                    acc += s[kl + 6 * i + 3 + u] * s[ks + 9 + 3 * u + v] * s[kl + 6 * j + 3 + v]
+            prior = 1.0 / (TO_PRIOR_K * TO_PRIOR_K) if i == j else 0.0
+            s[ks + 3 * i + j] = s[kl + 6 * i + j] + prior - acc
+    if _inv3(s, ks, 3, ks + 18) == 0.0:
+        return False
+    kk = k + MF_TO_K
+    for i in range(3):  # g = η_k − B D⁻¹ η_a, for now in σ's slots
+        acc = s[ke + i]
+        for u in range(3):
+            for v in range(3):
+                acc -= s[kl + 6 * i + 3 + u] * s[ks + 9 + 3 * u + v] * s[ke + 3 + v]
+        s[kk + 3 + i] = acc
+    for i in range(3):
+        s[kk + i] = s[ks + 18 + 3 * i] * s[kk + 3] + s[ks + 18 + 3 * i + 1] * s[kk + 4] + s[ks + 18 + 3 * i + 2] * s[kk + 5]
+    # â = D⁻¹ (η_a − Bᵀ k̂); the residuals' sum of squares zᵀz − θ̂ᵀη
+    rss = s[ka + (MF_TO_ZZ - MF_TO_L)]
+    for i in range(3):
+        rss -= s[kk + i] * s[ke + i]
+    for i in range(3):
+        acc = 0.0
+        for v in range(3):
+            w = s[ke + 3 + v]
+            for u in range(3):
+                w -= s[kl + 6 * u + 3 + v] * s[kk + u]
+            acc += s[ks + 9 + 3 * i + v] * w
+        s[kk + 7 + i] = acc
+    for i in range(3):
+        rss -= s[kk + 7 + i] * s[ke + 3 + i]
+    ms = max(rss / max(n - 6.0, 1.0), 0.0)
+    s[kk + 6] = math.sqrt(ms)
+    var = max(ms, p[MP_SIGMA_M] * p[MP_SIGMA_M]) * p[MP_TO_INFL]
+    for i in range(3):
+        s[kk + 3 + i] = math.sqrt(max(var * s[ks + 18 + 4 * i], 0.0))
+    return True
+
+
+@kernel
+def _takeoff_solve_best(s, k, p):  # type: ignore[no-untyped-def]
+    """:func:`_takeoff_solve` with the current as reported and, where ``MP_TO_LAG`` > 0, with the current
+    reported after the reading: the one whose residuals are the smaller is left in ``MF_TO_K``."""
+    ok0 = _takeoff_solve(s, k, p, k + MF_TO_L)
+    if not (p[MP_TO_LAG] > 0.0):
+        return ok0
+    rms0 = s[k + MF_TO_K + 6]
+    if _takeoff_solve(s, k, p, k + MF_TO_ACC2):
+        if not ok0 or s[k + MF_TO_K + 6] <= rms0:
+            return True
+        return _takeoff_solve(s, k, p, k + MF_TO_L)
+    return ok0 and _takeoff_solve(s, k, p, k + MF_TO_L)
+
+
+@kernel
+def _takeoff_fuse(s, k, p):  # type: ignore[no-untyped-def]
+    """Solve the take-off fit (:func:`_takeoff_solve`) and fuse its k into the model: three scalar
+    measurements of k with the fit's σ (their cross-covariance left out)."""
+    if not _takeoff_solve_best(s, k, p):
+        return
+    kk = k + MF_TO_K
+    ks = k + MF_TO_SCR
+    kx = k + MF_X
+    kp = k + MF_P
+    known = True
+    for i in range(3, 6):
+        known = known and s[kp + i * NX + i] <= TO_KNOWN_K * TO_KNOWN_K
+    if known:
+        return  # a model loaded from an earlier flight (or learnt before a landing): the fit does not override it
+    for i in range(3):
+        r = s[kk + 3 + i] * s[kk + 3 + i]
+        sv = r + s[kp + (3 + i) * NX + 3 + i]
+        if not (sv > 0.0):
+            continue
+        y = s[kk + i] - s[kx + 3 + i]
+        inv = 1.0 / sv
+        for a in range(NX):  # P's column 3 + i
+            s[ks + a] = s[kp + a * NX + 3 + i]
+        for a in range(NX):
+            s[kx + a] += s[ks + a] * inv * y
+            for b in range(NX):
+                s[kp + a * NX + b] -= s[ks + a] * inv * s[ks + b]
 
 
 @kernel(inline=True)
@@ -673,11 +1059,13 @@ def _residual(s, kx, c, mx, my, mz, amps, j):  # type: ignore[no-untyped-def]
 
 
 def mag_model_summary(block: np.ndarray) -> dict[str, object]:
-    """The model's state as plain values (status page, ``/status.json``, replay header)."""
+    """The model's state as plain values (status page, ``/status.json``, replay header); ``takeoff_fit``:
+    what the take-off fit gave (its field per ampere and σ, residual RMS, the ground anomaly in the
+    reference's body axes) once it was solved."""
     b = np.asarray(block, dtype=np.float64)
     p = b[MF_P : MF_P + NX * NX].reshape(NX, NX)
     trust = int(b[MF_TRUST]) if np.isfinite(b[MF_TRUST]) else MAG_LEARNING
-    return {
+    out: dict[str, object] = {
         "state": MAG_STATES[min(max(trust, 0), 2)],
         "offset_ut": [round(float(v), 2) for v in b[MF_X : MF_X + 3]],
         "offset_sigma_ut": [round(float(math.sqrt(max(p[i, i], 0.0))), 2) for i in range(3)],
@@ -688,6 +1076,15 @@ def mag_model_summary(block: np.ndarray) -> dict[str, object]:
         "disturbances": int(b[MF_STEPS]),
         "pair_updates": int(b[MF_PAIRS]),
     }
+    if b[MF_TO_ON] >= 3.0 and b[MF_TO_K + 6] > 0.0:  # the take-off fit was solved
+        kt = MF_TO_K
+        out["takeoff_fit"] = {
+            "motor_ut_per_a": [round(float(v), 3) for v in b[kt : kt + 3]],
+            "motor_sigma_ut_per_a": [round(float(v), 3) for v in b[kt + 3 : kt + 6]],
+            "residual_ut": round(float(b[kt + 6]), 2),
+            "anomaly_ut": [round(float(v), 1) for v in b[kt + 7 : kt + 10]],
+        }
+    return out
 
 
 #: version of the saved model (:func:`export_model`)

@@ -155,7 +155,6 @@ def test_saved_model_resets_the_unknown_heading_after_take_off(flight, tmp_path)
     assert loaded.load_mag_model(saved) is None
     out_fresh = res.inputs.run_filter(fresh, 0, i14)
     out = res.inputs.run_filter(loaded, 0, i14)
-    assert fresh.mag_status()["heading_from"] == "unknown"
     st = loaded.mag_status()
     assert st["heading_from"] != "unknown" and st["filter_heading_sigma_deg"] < 15.0, st
     t_ref, q_ref = truth
@@ -170,8 +169,9 @@ def test_saved_model_resets_the_unknown_heading_after_take_off(flight, tmp_path)
 
     err, err_fresh = err_13_14(out), err_13_14(out_fresh)
     print(f"heading error 13-14 s: loaded model {err:.1f}° (σ {st['filter_heading_sigma_deg']}°), fresh {err_fresh:.1f}°")
-    # measured: loaded 0.9° (σ 6.8°), fresh 9.9° (the anomaly's start-up alignment, σ ≥ 30°)
-    assert err < 3.0 and err < 0.5 * err_fresh, (err, err_fresh)
+    # measured: loaded 0.9° (σ 6.8°), fresh 9.9° (the anomaly's start-up alignment, σ ≥ 30°) before the
+    # take-off fit; since, the fresh model's heading is reset at 12–13 s too (13–14 s: fresh 8.2°, loaded 1.8°)
+    assert err < 3.0, (err, err_fresh)
 
 
 def test_fresh_model_learns_in_the_air_and_resets_the_unknown_heading(tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -195,11 +195,11 @@ def test_fresh_model_learns_in_the_air_and_resets_the_unknown_heading(tmp_path) 
         if t[i1 - 1] > 10.0 and fresh.mag_status()["heading_from"] != "unknown":
             known_at = t[i1 - 1]
             break
-    assert known_at is not None and known_at < 22.0, known_at
+    # known at 18 s with the pair updates alone (one pair per 2 s), at 13–14 s with the take-off fit
+    assert known_at is not None and known_at < 16.0, known_at
     state = fresh.mag_model_state()
     assert state is not None
     np.testing.assert_allclose(state["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.1)
-    assert state["pair_updates"] >= 1
     # the earth field was not pulled by the anomaly at take-off (the WMM's: ≈ 23.6 µT across, −53.1 down)
     wmm = res.inputs.mag_reference_events[0]
     assert abs(state["earth_field_ut"]["down"] - wmm[1] * math.sin(wmm[2])) < 2.0, state
@@ -214,6 +214,34 @@ def test_fresh_model_learns_in_the_air_and_resets_the_unknown_heading(tmp_path) 
     print(f"heading known at {known_at:.1f} s, error in the next 1 s {err:.1f}°, model {state}")
     # measured: known at 17.5 s, 1.1° (the pair updates off: unknown until 27 s, 13–18° off until then)
     assert err < 5.0, (known_at, err)
+
+
+def test_take_off_fit_tells_the_heading_soon_after_lift_off(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A start in a ground anomaly, no saved model (seed 11: the compass's start-up alignment 28–31° off):
+    the take-off fit (readings near the ground against one held before the current rose, the anomaly's
+    fade with height fitted beside the field per ampere) gives the field per ampere from 1 m up (at 1.9 m,
+    11.6 s), and the corrected reading, the fitted anomaly taken out, resets the heading.  Before it the
+    heading stayed 28–31° off until 17 s (the first current change above 5 m), 29° RMS over 14–17 s."""
+    res = _anomaly_replay(tmp_path / "seed11.tlog", 11, 30.0)
+    truth = next(k for k in res.references if "truth" in k)
+    t_ref, q_ref = res.references[truth]
+    fresh = Best(ON)
+    out = res.inputs.run_filter(fresh)
+    q = _declinate(out[:, OUT_Q : OUT_Q + 4].copy(), res.inputs.declination_rad)
+    qi = interpolate_attitude(res.inputs.t_us, q, t_ref, max_gap_s=0.5)
+    tr = (t_ref - res.inputs.t_us[0]) * 1e-6
+    keep = (tr >= 14.0) & (tr <= 17.0) & np.all(np.isfinite(qi), axis=1)
+    assert keep.sum() > 10
+    err = summarize(qi[keep], q_ref[keep]).heading_rms_deg
+    state = fresh.mag_model_state()
+    assert state is not None
+    print(f"heading RMS 14-17 s: {err:.1f} deg; k {state['motor_ut_per_a']} (true {MOTOR_UT_PER_A})")
+    # measured: 3.9° (k −0.40, 0.21, 0.51 µT/A from the fit, true −0.4, 0.2, 0.5)
+    assert err < 8.0, err
+    np.testing.assert_allclose(state["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.1)
+    fit = state["takeoff_fit"]  # what the fit gave, as /status.json shows it
+    assert isinstance(fit, dict)
+    np.testing.assert_allclose(fit["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.1)
 
 
 def test_model_kept_across_a_restart(flight) -> None:  # type: ignore[no-untyped-def]
