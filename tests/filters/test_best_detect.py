@@ -16,6 +16,7 @@ to a diverged hypothesis), not a tuning.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mavahrs.evaluation.metrics import summarize
 from mavahrs.filters import create
@@ -147,3 +148,45 @@ def test_a_gentle_hover_gathers_enough_evidence_to_be_taken_for_a_multirotor(raw
     assert det["multirotor"] == 1.0 and det["switches"] == 1.0, det
     scored = slice(RATE_HZ * 20, None)
     assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 1.5
+
+
+
+@pytest.mark.xfail(strict=True, reason="issue 22, open: raw hover 11 stays generic (2.42 deg, VQF 2.08); the multirotor "
+                   "hypothesis takes a 1.3 deg/s slow turn at 5.9 s for rest (declared 4.63 deg). A rest check at 0.25 deg/s "
+                   "fixed it (1.70, a multirotor) but cost highg 21/42 0.96/0.93 -> 1.25/1.09 and 0.30 made it 2.94: "
+                   "not kept (docs/accuracy.md, fifth round)")
+def test_a_hover_s_slow_turn_is_not_taken_for_rest_and_the_hover_is_taken_for_a_multirotor(raw_flight) -> None:  # type: ignore[no-untyped-def]
+    """firmware_sim raw ``hover`` seed 11 (bias (2.2, −2.2, −1.3) °/s, x axis up, started in flight): at 5.9 s the
+    multirotor hypothesis's horizontal bias σ had reached 0.5 °/s and a still stretch of a ≈ 1.3 °/s slow turn passed
+    the 3σ check (1.6 °/s wide): the rest took the turn for the bias on all three axes, 0.6–0.9 °/s off with σ
+    0.02 °/s (declared 4.63°); the generic hypothesis's up-axis bias runs to the 6 °/s clamp in the first 6 s
+    (the plain output 2.42°, VQF 2.08°).  Through the plain API the hover should be taken for a multirotor and
+    hold the tilt better than VQF."""
+    rows, q_ref, _bias = raw_flight("hover", 11)
+    scored = slice(RATE_HZ * 20, None)
+    plain = create("best")
+    out = plain.run(rows)
+    assert plain.multirotor_detection()["multirotor"] == 1.0  # type: ignore[attr-defined]
+    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 2.0
+
+
+def test_a_vibrating_start_s_thrust_axis_is_checked_against_the_start_window(raw_flight) -> None:  # type: ignore[no-untyped-def]
+    """firmware_sim raw ``vibration`` seed 23 (x axis up, aliased rotor vibration, started in flight): the first
+    0.1 s mean specific force, the multirotor hypothesis's thrust-axis prior, is 74° off the IMU's x axis (its 2 s
+    mean 12°); beyond the prior's σ every drag innovation failed the gate and the axis stayed ≈ 95° off all flight,
+    so its drag prediction missed by ≈ g and the evidence said "generic" (−612 nats): plain 13.43°, declared 4.92°,
+    VQF 5.98°.  At the start window's end the axis is now checked against the window's body-frame mean (as the
+    attitude is) and restarted from it: a multirotor, 3.70° both."""
+    import math
+
+    rows, q_ref, _bias = raw_flight("vibration", 23)
+    scored = slice(RATE_HZ * 20, None)
+    plain = create("best")
+    out = plain.run(rows)
+    assert plain.multirotor_detection()["multirotor"] == 1.0  # type: ignore[attr-defined]
+    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 5.0
+    declared = create("best")
+    declared.set_multirotor()  # type: ignore[attr-defined]
+    declared.run(rows)
+    axis = declared.thrust_axis()  # type: ignore[attr-defined]
+    assert axis is not None and math.degrees(math.acos(min(1.0, float(axis[0])))) < 20.0  # the IMU's x axis is up
