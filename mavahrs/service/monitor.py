@@ -171,7 +171,19 @@ class MonitorSettings:
             ``gnss_heading_min_m_s``: a heading error shows only through the
             horizontal acceleration it turns, in the manoeuvres in which the
             GNSS velocity's own lag is largest (no verdict, rather than a
-            wrong one, below it).  The evidence is looked at again
+            wrong one, below it).
+        gnss_max_share_se: … and no verdict either way while the share's
+            standard error is above this: the integration's own error (the
+            accelerometer's bias and scale, the sensors' timing in fast
+            manoeuvres) estimated from our miss *across* the difference, as
+            large along it, over the difference, windows ``gnss_window_s`` apart
+            counted as independent.  At 0.3 the two answers (share 0: the
+            autopilot is off, 1: we are) lie 3.3 σ apart.  On firmware_sim
+            (our attitude 0.2–0.4° from the truth, the simulated autopilot
+            1–2.8° off) every ``us?`` was wrong and came with a standard error
+            of 0.37–0.69 (the shared aggressive flight at 55.8 s: 0.41); the
+            correct ``AP?`` verdicts 0.06–0.53 (six of the 30 above 0.3 are
+            now no verdict).  The evidence is looked at again
             every second while the warning is on and the STATUSTEXT said again
             (up to 3 times) when it names something new.
         learn_k, learn_s: ``uncertainty``: the thresholds are also at least
@@ -341,6 +353,7 @@ class MonitorSettings:
     gnss_window_s: float = 3.0
     gnss_ratio: float = 2.0
     gnss_min_m_s: float = 0.3
+    gnss_max_share_se: float = 0.3
     gnss_heading_min_m_s: float = 1.0
     change_test: bool = True
     change_k: float = 3.0
@@ -382,7 +395,7 @@ class MonitorSettings:
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
                      "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
-                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s", "change_k",
+                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "gnss_max_share_se", "imu_window_s", "change_k",
                      "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
                      "change_max_factor", "change_in_warning_s", "change_step_s", "change_step_spread_k"):  # fmt: skip
             v = getattr(self, name)
@@ -682,7 +695,10 @@ class Evidence:
         gnss_verdict: ``AP`` / ``us`` (who the GNSS velocity says is wrong: its
             miss along the difference is ``gnss_ratio`` × the other's and the
             difference at least ``gnss_min_m_s``, ``gnss_heading_min_m_s`` for a
-            disagreement in heading alone), "" = no verdict (unknown).
+            disagreement in heading alone, the share's standard error at most
+            ``gnss_max_share_se``), "" = no verdict (unknown).
+        gnss_share_se: the standard error of ``gnss_blames_us`` (our miss across
+            the difference taken as the integration's own error), NaN = not judged.
         tilt_sigma_deg: our own 1-σ tilt uncertainty then (the ESKF's while
             velocity-aided), deg; NaN = not aided (the ``unaided`` figure applies).
         heading_sigma_deg: … and heading (the ESKF's), deg; NaN = not given.
@@ -698,6 +714,7 @@ class Evidence:
     gnss_m_s: float = math.nan
     gnss_blames_us: float = math.nan
     gnss_verdict: str = ""
+    gnss_share_se: float = math.nan
     tilt_sigma_deg: float = math.nan
     heading_sigma_deg: float = math.nan
     imu: str = ""
@@ -1565,7 +1582,7 @@ class _Evidence:
         self._int = [0.0, 0.0, 0.0, 0.0]  # ∫ horizontal acceleration, ours (n, e), the autopilot's (n, e)
         self._hist: deque[tuple[float, float, float, float, float]] = deque()  # (t, ∫…) at comparisons
         self._fixes: deque[tuple[float, float, float, float, float, float, float]] = deque()  # t, vn, ve, ∫…
-        self._res: deque[tuple[float, float, float]] = deque()  # (t, r·D, |D|²)
+        self._res: deque[tuple[float, float, float, float]] = deque()  # (t, r·D, |D|², |r ⊥ D|²)
 
     def sensors(self, t: float, accel: Any, mag: Any, vel: Any, vel_t: float) -> None:
         if accel is not None:
@@ -1617,7 +1634,10 @@ class _Evidence:
             dvn, dve = vn - old[1], ve - old[2]
             rn, re = i[0] - old[3] - dvn, i[1] - old[4] - dve
             dn, de = i[2] - old[5] - (i[0] - old[3]), i[3] - old[6] - (i[1] - old[4])
-            self._res.append((t, rn * dn + re * de, dn * dn + de * de))
+            dd = dn * dn + de * de
+            rd = rn * dn + re * de
+            perp = rn * rn + re * re - (rd * rd / dd if dd > 0.0 else 0.0)  # our miss across the difference
+            self._res.append((t, rd, dd, max(0.0, perp)))
         while self._res and self._res[0][0] < t - 3.0 * w:
             self._res.popleft()
 
@@ -1677,8 +1697,17 @@ class _Evidence:
             if d_rms >= (s.gnss_heading_min_m_s if self.heading_only else s.gnss_min_m_s):
                 share = -rd / dd
                 kw["gnss_blames_us"] = share
+                # its standard error: the integration's own error (accelerometer bias, the sensors' timing; as
+                # large along the difference as across it) over the difference, windows gnss_window_s apart
+                # counted as independent
+                res = self._res
+                n_eff = max(1.0, 1e-3 * (res[-1][0] - res[0][0]) / s.gnss_window_s + 1.0)
+                se = math.sqrt(sum(x[3] for x in res) / len(res) / (dd / len(res)) / n_eff)
+                kw["gnss_share_se"] = se
                 r = s.gnss_ratio
-                if share <= 1.0 / (1.0 + r):  # the autopilot's miss along D ≥ r × ours
+                if se > s.gnss_max_share_se:  # the two sides not told apart: no verdict
+                    pass
+                elif share <= 1.0 / (1.0 + r):  # the autopilot's miss along D ≥ r × ours
                     kw["gnss_verdict"] = "AP"
                 elif share >= r / (1.0 + r):
                     kw["gnss_verdict"] = "us"
