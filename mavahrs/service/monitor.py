@@ -1188,8 +1188,10 @@ class AttitudeMonitor:
         if n < 8:
             return 0.0
         seg = max(3, n // 8)  # each segment at least an eighth of the history
-        first = 0  # … and the step after the warning was raised (the one it was raised for is not new)
-        while first < n and pts[first][0] <= self._warning_since_ms:
+        # … and the step at least as long after the warning was raised (the one it was raised for, which may
+        # have come with the warning's own comparison, is not new)
+        first = 0
+        while first < n and pts[first][0] <= self._warning_since_ms + 0.125 * h_ms:
             first += 1
         w = self._e_warned_mean
         k_s2 = self.settings.change_step_spread_k ** 2
