@@ -256,7 +256,8 @@ class MonitorSettings:
             this many seconds of divergence vectors, the split into a segment
             before and one after that best shows a change in the mean (the
             generalised likelihood ratio's estimate; the segment before may lie
-            before the warning, the split after it), judged as the in-warning
+            before the warning, the split at least an eighth of this after it),
+            judged as the in-warning
             test (thresholds, floors, CUSUM, away from agreement and from the
             disagreement warned of, its mean over these seconds before the
             warning) — without it a fault within 4 s after a correct warning
