@@ -171,7 +171,19 @@ class MonitorSettings:
             ``gnss_heading_min_m_s``: a heading error shows only through the
             horizontal acceleration it turns, in the manoeuvres in which the
             GNSS velocity's own lag is largest (no verdict, rather than a
-            wrong one, below it).  The evidence is looked at again
+            wrong one, below it).
+        gnss_max_share_se: … and no verdict either way while the share's
+            standard error is above this: the integration's own error (the
+            accelerometer's bias and scale, the sensors' timing in fast
+            manoeuvres) estimated from our miss *across* the difference, as
+            large along it, over the difference, windows ``gnss_window_s`` apart
+            counted as independent.  At 0.3 the two answers (share 0: the
+            autopilot is off, 1: we are) lie 3.3 σ apart.  On firmware_sim
+            (our attitude 0.2–0.4° from the truth, the simulated autopilot
+            1–2.8° off) every ``us?`` was wrong and came with a standard error
+            of 0.37–0.69 (the shared aggressive flight at 55.8 s: 0.41); the
+            correct ``AP?`` verdicts 0.06–0.53 (six of the 30 above 0.3 are
+            now no verdict).  The evidence is looked at again
             every second while the warning is on and the STATUSTEXT said again
             (up to 3 times) when it names something new.
         learn_k, learn_s: ``uncertainty``: the thresholds are also at least
@@ -239,6 +251,23 @@ class MonitorSettings:
             (firmware_sim aggressive 21: a correct WARNING at 95.4 s, the
             simulated autopilot 1.6° off, was still on when a 2° step came at
             100 s: no WARNING for it; now 0.2 s.)
+        change_step_s: a step in the first seconds of a warning, before the
+            in-warning baseline (``change_in_warning_s``) is fed: over the last
+            this many seconds of divergence vectors, the split into a segment
+            before and one after that best shows a change in the mean (the
+            generalised likelihood ratio's estimate; the segment before may lie
+            before the warning, the split at least an eighth of this after it),
+            judged as the in-warning
+            test (thresholds, floors, CUSUM, away from agreement and from the
+            disagreement warned of, its mean over these seconds before the
+            warning) — without it a fault within 4 s after a correct warning
+            was never warned (held-out firmware_sim aggressive 41 and 43: a
+            WARNING at 99.5 s, the fault at 100 s), s (0 = off).
+        change_step_spread_k: … counted only where the change is at least this
+            many times the two segments' pooled RMS spread about their means: a
+            step, not the autopilot's own error turning with the vehicle (on
+            firmware_sim aggressive 42 a 2–2.5° tilt divergence circling once
+            in 2–3 s; at 2 and 3 × it gave 2–7 more WARNINGs per flight there).
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -325,6 +354,7 @@ class MonitorSettings:
     gnss_window_s: float = 3.0
     gnss_ratio: float = 2.0
     gnss_min_m_s: float = 0.3
+    gnss_max_share_se: float = 0.3
     gnss_heading_min_m_s: float = 1.0
     change_test: bool = True
     change_k: float = 3.0
@@ -335,6 +365,8 @@ class MonitorSettings:
     change_cusum_reference: float = 0.8
     change_max_factor: float = 1.0
     change_in_warning_s: float = 2.0
+    change_step_s: float = 2.0
+    change_step_spread_k: float = 4.0
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -364,9 +396,9 @@ class MonitorSettings:
                      "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
                      "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
-                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "imu_window_s", "change_k",
+                     "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "gnss_max_share_se", "imu_window_s", "change_k",
                      "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
-                     "change_max_factor", "change_in_warning_s"):  # fmt: skip
+                     "change_max_factor", "change_in_warning_s", "change_step_s", "change_step_spread_k"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -664,7 +696,10 @@ class Evidence:
         gnss_verdict: ``AP`` / ``us`` (who the GNSS velocity says is wrong: its
             miss along the difference is ``gnss_ratio`` × the other's and the
             difference at least ``gnss_min_m_s``, ``gnss_heading_min_m_s`` for a
-            disagreement in heading alone), "" = no verdict (unknown).
+            disagreement in heading alone, the share's standard error at most
+            ``gnss_max_share_se``), "" = no verdict (unknown).
+        gnss_share_se: the standard error of ``gnss_blames_us`` (our miss across
+            the difference taken as the integration's own error), NaN = not judged.
         tilt_sigma_deg: our own 1-σ tilt uncertainty then (the ESKF's while
             velocity-aided), deg; NaN = not aided (the ``unaided`` figure applies).
         heading_sigma_deg: … and heading (the ESKF's), deg; NaN = not given.
@@ -680,6 +715,7 @@ class Evidence:
     gnss_m_s: float = math.nan
     gnss_blames_us: float = math.nan
     gnss_verdict: str = ""
+    gnss_share_se: float = math.nan
     tilt_sigma_deg: float = math.nan
     heading_sigma_deg: float = math.nan
     imu: str = ""
@@ -807,6 +843,8 @@ class AttitudeMonitor:
         self._cusum_w = 0.0  # … and its test of a new step while a warning is on (change_in_warning_s)
         self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
         self._e_warned = (0.0, 0.0, 0.0)  # … when the warning that is on was raised
+        self._e_warned_mean = (0.0, 0.0, 0.0)  # … its mean over change_step_s before that
+        self._recent: deque[tuple[float, float, float, float]] = deque()  # (t_ms, e) over change_step_s
         self._learnt = [0.0, 0.0, 0.0]  # seconds learnt, mean tilt², mean heading² (rad²)
         self._change = _ChangeTest(self.settings) if self._uncertainty and self.settings.change_test else None
         in_warning = self._change is not None and self.settings.change_in_warning_s > 0.0
@@ -1063,6 +1101,7 @@ class AttitudeMonitor:
         if not (math.isfinite(self._sigma) and self._sigma > 0.0):  # not GNSS-aided: our error drifts
             if self._change_aided:
                 ch.restart()
+                self._recent.clear()
             self._change_aided = False
             return 0.0, 0.0
         self._change_aided = True
@@ -1075,6 +1114,12 @@ class AttitudeMonitor:
              sgn * (-a[0] * b[2] + b[0] * a[2] - (a[3] * b[1] - a[1] * b[3])),
              sgn * (-a[0] * b[3] + b[0] * a[3] - (a[1] * b[2] - a[2] * b[1])))  # fmt: skip
         self._e = e
+        if self.settings.change_step_s > 0.0:
+            rec = self._recent
+            rec.append((t_ms, e[0], e[1], e[2]))
+            horizon = t_ms - 1000.0 * self.settings.change_step_s
+            while rec and rec[0][0] < horizon:
+                rec.popleft()
         hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
@@ -1101,8 +1146,8 @@ class AttitudeMonitor:
                 iw.restart()
             return 0.0
         e = self._e
-        if not iw.update(t_ms, e, frozen=False):
-            return 0.0
+        if not iw.update(t_ms, e, frozen=False):  # its baseline not fed yet: a step in the last seconds
+            return self._step_in_warning(t_ms, tilt, heading, hdg_on)
         m = iw._mean  # a change back toward agreement (e − ê against e) is not a new fault
         if (e[0] - m[0]) * e[0] + (e[1] - m[1]) * e[1] + (e[2] - m[2]) * e[2] <= 0.0:
             return 0.0
@@ -1116,6 +1161,71 @@ class AttitudeMonitor:
             c_h = min(c_h, abs(e[2] - r[3]))
         c_t /= t_thr
         c_h = c_h / h_thr if hdg_on else 0.0
+        if self._min_thr[0] > 0.0:
+            c_t = min(c_t, tilt / self._min_thr[0])
+        if self._min_thr[1] > 0.0:
+            c_h = min(c_h, abs(heading) / self._min_thr[1])
+        return max(c_t, c_h)
+
+    def _step_in_warning(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
+        """A step in the first seconds of a warning, before the in-warning baseline is fed
+        (``MonitorSettings.change_step_s``): over the last ``change_step_s`` of divergence vectors, the split into
+        a segment before and one after that best shows a step — the generalised likelihood ratio's estimate of
+        a change in the mean at an unknown time (Basseville & Nikiforov 1993, §2.4.3): each segment's mean, the
+        change between them, the largest such change over the splits — counted only where it stands out from
+        the divergence's own motion within the two segments (at least ``change_step_spread_k`` × their pooled
+        RMS spread: a step, not the autopilot's error turning with the vehicle), leads away from agreement and
+        from the disagreement warned of (as :meth:`_in_warning_test`); as the change test's ratio to its
+        thresholds, 0 where not judged.  The segment before may lie before the warning: the divergence warned
+        of is then the reference.  Tilt (north, east) and heading each find their own split."""
+        ch = self._change
+        assert ch is not None
+        h_ms = 1000.0 * self.settings.change_step_s
+        rec = self._recent
+        if h_ms <= 0.0 or not rec or rec[0][0] > t_ms - 0.75 * h_ms:
+            return 0.0
+        pts = [r for r in rec if r[0] > t_ms - h_ms]
+        n = len(pts)
+        if n < 8:
+            return 0.0
+        seg = max(3, n // 8)  # each segment at least an eighth of the history
+        # … and the step at least as long after the warning was raised (the one it was raised for, which may
+        # have come with the warning's own comparison, is not new)
+        first = 0
+        while first < n and pts[first][0] <= self._warning_since_ms + 0.125 * h_ms:
+            first += 1
+        w = self._e_warned_mean
+        k_s2 = self.settings.change_step_spread_k ** 2
+        best = [0.0, 0.0]
+        for axes, out in (((1, 2), 0), ((3,), 1)):
+            # prefix sums of each axis and of its square
+            p1 = [[0.0] * (n + 1) for _ in axes]
+            p2 = [[0.0] * (n + 1) for _ in axes]
+            for j, ax in enumerate(axes):
+                a1, a2 = p1[j], p2[j]
+                for i, r in enumerate(pts):
+                    v = r[ax]
+                    a1[i + 1] = a1[i] + v
+                    a2[i + 1] = a2[i] + v * v
+            for k in range(max(seg, first), n - seg + 1):
+                nb, na = k, n - k
+                c2 = spread = dot = 0.0
+                back = 0.0
+                for j, ax in enumerate(axes):
+                    mb = p1[j][k] / nb
+                    ma = (p1[j][n] - p1[j][k]) / na
+                    spread += max(0.0, p2[j][k] / nb - mb * mb) + max(0.0, (p2[j][n] - p2[j][k]) / na - ma * ma)
+                    d = ma - mb
+                    c2 += d * d
+                    dot += d * ma
+                    back += (ma - w[ax - 1]) ** 2
+                if dot <= 0.0 or c2 < k_s2 * spread:  # back toward agreement, or not a step
+                    continue
+                c = min(math.sqrt(c2), math.sqrt(back))  # … nor the disagreement warned of coming back
+                best[out] = max(best[out], c)
+        t_thr, h_thr = ch.thresholds
+        c_t = best[0] / t_thr
+        c_h = best[1] / h_thr if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
             c_t = min(c_t, tilt / self._min_thr[0])
         if self._min_thr[1] > 0.0:
@@ -1248,6 +1358,8 @@ class AttitudeMonitor:
                 self._in_warning.restart()
                 self._cusum_w = 0.0
             self._e_warned = self._e
+            rec = self._recent  # … and as it stood over the seconds before (the step test's reference)
+            self._e_warned_mean = tuple(sum(r[i] for r in rec) / len(rec) for i in (1, 2, 3)) if rec else self._e
             self._warning = True
             self._trigger = "step" if again or not level else "level"
             self._warning_since_ms = t_ms
@@ -1473,7 +1585,7 @@ class _Evidence:
         self._int = [0.0, 0.0, 0.0, 0.0]  # ∫ horizontal acceleration, ours (n, e), the autopilot's (n, e)
         self._hist: deque[tuple[float, float, float, float, float]] = deque()  # (t, ∫…) at comparisons
         self._fixes: deque[tuple[float, float, float, float, float, float, float]] = deque()  # t, vn, ve, ∫…
-        self._res: deque[tuple[float, float, float]] = deque()  # (t, r·D, |D|²)
+        self._res: deque[tuple[float, float, float, float]] = deque()  # (t, r·D, |D|², |r ⊥ D|²)
 
     def sensors(self, t: float, accel: Any, mag: Any, vel: Any, vel_t: float) -> None:
         if accel is not None:
@@ -1525,7 +1637,10 @@ class _Evidence:
             dvn, dve = vn - old[1], ve - old[2]
             rn, re = i[0] - old[3] - dvn, i[1] - old[4] - dve
             dn, de = i[2] - old[5] - (i[0] - old[3]), i[3] - old[6] - (i[1] - old[4])
-            self._res.append((t, rn * dn + re * de, dn * dn + de * de))
+            dd = dn * dn + de * de
+            rd = rn * dn + re * de
+            perp = rn * rn + re * re - (rd * rd / dd if dd > 0.0 else 0.0)  # our miss across the difference
+            self._res.append((t, rd, dd, max(0.0, perp)))
         while self._res and self._res[0][0] < t - 3.0 * w:
             self._res.popleft()
 
@@ -1585,8 +1700,17 @@ class _Evidence:
             if d_rms >= (s.gnss_heading_min_m_s if self.heading_only else s.gnss_min_m_s):
                 share = -rd / dd
                 kw["gnss_blames_us"] = share
+                # its standard error: the integration's own error (accelerometer bias, the sensors' timing; as
+                # large along the difference as across it) over the difference, windows gnss_window_s apart
+                # counted as independent
+                res = self._res
+                n_eff = max(1.0, 1e-3 * (res[-1][0] - res[0][0]) / s.gnss_window_s + 1.0)
+                se = math.sqrt(sum(x[3] for x in res) / len(res) / (dd / len(res)) / n_eff)
+                kw["gnss_share_se"] = se
                 r = s.gnss_ratio
-                if share <= 1.0 / (1.0 + r):  # the autopilot's miss along D ≥ r × ours
+                if se > s.gnss_max_share_se:  # the two sides not told apart: no verdict
+                    pass
+                elif share <= 1.0 / (1.0 + r):  # the autopilot's miss along D ≥ r × ours
                     kw["gnss_verdict"] = "AP"
                 elif share >= r / (1.0 + r):
                     kw["gnss_verdict"] = "us"

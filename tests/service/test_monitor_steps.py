@@ -134,3 +134,17 @@ def test_a_step_while_a_warning_is_already_on_is_warned_within_2_s(tmp_path: Pat
     assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
     assert 0.1 < latency <= 2.0, latency  # none before
     assert _false_warnings(path, clean) == []
+
+
+def test_a_step_half_a_second_after_a_correct_warning_is_warned_within_2_s(tmp_path: Path) -> None:
+    # firmware_sim aggressive 41: a correct WARNING at 99.6 s (the simulated autopilot 1.6° off in tilt), 0.4 s
+    # before the fault; the in-warning test needs 2 s of its own baseline, fed 2 s late, so without a step test
+    # over the warning's first seconds (change_step_s) no WARNING came for the fault at all
+    path = _sim_flight(tmp_path, "aggressive", 41, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    assert [t for t in clean if ONSET_S - 1.0 <= t < ONSET_S], clean  # the warning raised just before
+    assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
+    assert _false_warnings(path, clean) == []
+    assert 0.1 < latency <= 2.0, latency  # none before
+    latency, _ = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), heading_deg=6.0), tmp_path)
+    assert 0.1 < latency <= 3.0, latency
