@@ -85,6 +85,7 @@ def load_one(path: Path, **kwargs: Any) -> Recording:
             path,
             earth_frame=str(kwargs.get("earth_frame", "NED")),
             heading_referenced=bool(kwargs.get("heading_referenced", True)),
+            skip_s=float(kwargs.get("skip_s", 0.0)),
         )
     if suffix == ".tlog":
         from mavahrs.evaluation.tlogdata import load_tlog_recording
