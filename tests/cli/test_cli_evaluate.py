@@ -266,3 +266,17 @@ def test_skip_leaves_out_the_start_of_a_documented_csv(tmp_path: Path, capsys: p
     skipped = incl(plain, "--skip", str(skip_s))
     assert skipped == pytest.approx(incl(marked), abs=1e-9)
     assert skipped != pytest.approx(incl(plain), abs=1e-6)  # the start's convergence is no longer scored
+
+
+def test_a_ulog_without_truth_says_once_what_replay_compares_with(shared_data: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """PX4's bench ULog has no ``vehicle_attitude_groundtruth``: evaluate scores nothing (exit 1) and its note
+    names the reference ``mavahrs replay`` uses (EKF2) once; it said "`mavahrs replay` compares with it" and
+    then "(`mavahrs replay` compares with the log's EKF2 instead)" in the same note."""
+    ulg = shared_data / "px4_ulog" / "sample.ulg"
+    if not ulg.exists():
+        pytest.skip(f"{ulg} absent (../shared data)")
+    assert main(["evaluate", str(ulg), "--json"]) == 1
+    notes = json.loads(capsys.readouterr().out)["per_recording"]["sample"]["notes"]
+    truth = [n for n in notes if "no simulator truth" in n]
+    assert len(truth) == 1 and truth[0].count("mavahrs replay") == 1 and "EKF2" in truth[0], truth
