@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from typing import Any
 
@@ -127,7 +128,8 @@ def _run(args: argparse.Namespace) -> int:
                 if not scheduler:  # meanwhile the cluster starts: on a warm cache this costs no time
                     import threading
 
-                    loading = threading.Thread(target=_load_kernels_here, args=(fn, kernels_s), name="mavahrs-kernels")
+                    warm = functools.partial(fa.summarise_log, settings=dataclasses.replace(settings, plot_dir=""))  # no chart
+                    loading = threading.Thread(target=_load_kernels_here, args=(warm, kernels_s), name="mavahrs-kernels")
                     loading.start()
                 try:
                     eng = stack.enter_context(dask_engine.DaskEngine(scheduler, args.workers))

@@ -63,7 +63,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "(default: auto)",
     )  # fmt: skip
     p.add_argument("--skip", type=float, default=0.0, metavar="S",
-                   help="RepoIMU / flight logs: do not score the first S seconds (convergence), s (default 0)")
+                   help="CSV recordings / flight logs: do not score the first S seconds (convergence), s (default 0; "
+                   "BROAD trials are scored over their own movement phase)")
     p.add_argument("--per-recording", action="store_true", help="print every recording's table, not only the mean")
     p.add_argument("--study", choices=("beta", "rate", "bias", "compare"), help="run a study instead (see above)")
     p.add_argument("--decimation", default="average", choices=("average", "pick"),

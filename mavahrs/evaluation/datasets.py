@@ -222,6 +222,7 @@ def load_csv(
     *,
     earth_frame: str = "NED",
     heading_referenced: bool = True,
+    skip_s: float = 0.0,
 ) -> Recording:
     """Load a recording from a CSV with the documented columns (:data:`CSV_COLUMNS`).
 
@@ -229,6 +230,8 @@ def load_csv(
         earth_frame: the reference's earth frame (NED, ENU or NWU); converted to NED.
         heading_referenced: False if the reference's heading is arbitrary
             (then fit the heading offset before scoring heading).
+        skip_s: do not score the first ``skip_s`` seconds (the filter's convergence), s; combined
+            with the ``scored`` column where there is one.
 
     The temperature column, when present, is in ``extra["temperature_c"]``
     and the times in ``extra["time_s"]``.
@@ -299,6 +302,8 @@ def load_csv(
     scored = np.ones(n, dtype=bool)
     if "scored" in col:
         scored = np.nan_to_num(data[:, col["scored"]]) > 0.5
+    if skip_s > 0.0:
+        scored &= (t - t[0]) >= skip_s
     extra: dict[str, object] = {"time_s": t, "has_reference": bool(np.isfinite(q_ned).all(axis=1).any())}
     if "temperature_c" in col:
         extra["temperature_c"] = data[:, col["temperature_c"]].copy()

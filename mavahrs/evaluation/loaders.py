@@ -59,7 +59,7 @@ def load_onboard_recording(
     return recording_from_inputs(
         Path(path).stem, li.inputs, li.references if reference else None, skip_s=skip_s, groups=(li.format,),
         no_truth="no simulator truth (DataFlash SIM, ULog vehicle_attitude_groundtruth) in this log: nothing to "
-        "score against (an autopilot's own estimate is not ground truth: `mavahrs replay` compares with it)",
+        "score against (an autopilot's own estimate is not ground truth)",
     )  # fmt: skip
 
 
@@ -85,6 +85,7 @@ def load_one(path: Path, **kwargs: Any) -> Recording:
             path,
             earth_frame=str(kwargs.get("earth_frame", "NED")),
             heading_referenced=bool(kwargs.get("heading_referenced", True)),
+            skip_s=float(kwargs.get("skip_s", 0.0)),
         )
     if suffix == ".tlog":
         from mavahrs.evaluation.tlogdata import load_tlog_recording

@@ -314,9 +314,16 @@ class _AutopilotCache:
             if ap is not None:
                 t_ms, q = ap
                 r, p, y = _euler_deg(q)
-                self.value = (q, {"time_boot_ms": int(t_ms), "q": list(q), "roll_deg": r, "pitch_deg": p,
+                self.value = (q, {"time_boot_ms": int(t_ms), "q": _scalar_positive(q), "roll_deg": r, "pitch_deg": p,
                                   "yaw_deg": y})
         return self.value
+
+
+def _scalar_positive(q: Any) -> list[float]:
+    """``q`` as a list with its scalar part ≥ 0: q and −q are the same rotation, and a reader comparing two
+    attitudes element by element (ours against the autopilot's) should not see one of them negated."""
+    v = [float(c) for c in q]
+    return [-c for c in v] if v[0] < 0.0 else v
 
 
 def attitude_fields(live: LiveSample, autopilot: _AutopilotCache | None = None) -> dict[str, Any]:
@@ -328,7 +335,7 @@ def attitude_fields(live: LiveSample, autopilot: _AutopilotCache | None = None) 
         "t_s": live.t_s,
         "uptime_s": live.t_s - live.started_s,
         "time_boot_ms": live.time_boot_ms,
-        "q": list(q) if q is not None else None,
+        "q": _scalar_positive(q) if q is not None else None,
         "last_input_s": live.last_input_s,
         "last_attitude_s": live.last_attitude_s,
         "autopilot": None,

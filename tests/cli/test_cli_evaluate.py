@@ -241,3 +241,42 @@ def test_evaluate_feeds_the_motor_current_as_replay_does(shared_data: Path, caps
     rp = _replay_truth_row(capsys, log, "-f", "best", "--skip", "10")
     assert ev["heading_rms_deg"] == pytest.approx(rp[1], abs=0.05)
     assert ev["inclination_rms_deg"] == pytest.approx(rp[2], abs=0.03)
+
+
+def test_skip_leaves_out_the_start_of_a_documented_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--skip S`` on a documented-columns CSV scores as a ``scored`` column that is 0 for the first S seconds
+    (it was ignored for these CSVs: the figure included the filter's convergence whatever S was)."""
+    sim_mod = pytest.importorskip("firmware_sim.simulation")
+    rate_hz, seconds, skip_s = 100, 30.0, 10.0
+    sim = sim_mod.Simulation(sim_mod.SimSettings(scenario="aggressive", seed=7, gnss=False, mag_count=0,
+                                                 imu_count=1, loop_rate_hz=rate_hz, start_in_motion=True))
+    blk = sim.next_block(int(rate_hz * seconds))
+    t_s = (blk.t_us - blk.t_us[0]) / 1e6
+    header = "time_s,gyro_x_rad_s,gyro_y_rad_s,gyro_z_rad_s,accel_x_m_s2,accel_y_m_s2,accel_z_m_s2,q_w,q_x,q_y,q_z"
+    cols = np.column_stack([t_s, blk.gyro_rad_s[0], blk.accel_m_s2[0], blk.truth.q_body_to_ned])
+    plain, marked = tmp_path / "rig.csv", tmp_path / "rig_scored.csv"
+    np.savetxt(plain, cols, delimiter=",", header=header, comments="", fmt="%.9g")
+    np.savetxt(marked, np.column_stack([cols, (t_s >= skip_s).astype(float)]), delimiter=",",
+               header=header + ",scored", comments="", fmt="%.9g")
+
+    def incl(path: Path, *extra: str) -> float:
+        assert main(["evaluate", str(path), "-f", "mahony", "--json", *extra]) == 0
+        return float(json.loads(capsys.readouterr().out)["filters"]["mahony"]["inclination_rms_deg"])
+
+    skipped = incl(plain, "--skip", str(skip_s))
+    assert skipped == pytest.approx(incl(marked), abs=1e-9)
+    assert skipped != pytest.approx(incl(plain), abs=1e-6)  # the start's convergence is no longer scored
+
+
+def test_a_ulog_without_truth_says_once_what_replay_compares_with(shared_data: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """PX4's bench ULog has no ``vehicle_attitude_groundtruth``: evaluate scores nothing (exit 1) and its note
+    names the reference ``mavahrs replay`` uses (EKF2) once; it said "`mavahrs replay` compares with it" and
+    then "(`mavahrs replay` compares with the log's EKF2 instead)" in the same note."""
+    ulg = shared_data / "px4_ulog" / "sample.ulg"
+    if not ulg.exists():
+        pytest.skip(f"{ulg} absent (../shared data)")
+    assert main(["evaluate", str(ulg), "--json"]) == 1
+    notes = json.loads(capsys.readouterr().out)["per_recording"]["sample"]["notes"]
+    truth = [n for n in notes if "no simulator truth" in n]
+    assert len(truth) == 1 and truth[0].count("mavahrs replay") == 1 and "EKF2" in truth[0], truth

@@ -179,6 +179,16 @@ def test_the_printed_summary_puts_the_worst_flights_first(fleet, local_run) -> N
     assert (out / "fleet.png").stat().st_size > 30_000
 
 
+def test_plot_draws_one_chart_per_readable_log_and_nothing_else(fleet, local_run) -> None:  # type: ignore[no-untyped-def]
+    """``--plot fleet.png``: ``fleet_flights/`` holds a second-opinion chart for each log replayed; the audit's own
+    warm-up on a synthetic log (loading the kernels while the cluster starts) drew ``kernels_second_opinion.png``
+    there too, a chart of no flight of the user's."""
+    _, specs = fleet
+    _, out = local_run
+    charts = {p.name for p in (out / "fleet_flights").iterdir()}
+    assert charts == {f"{Path(name).stem}_second_opinion.png" for name, spec in specs.items() if spec is not None}
+
+
 def test_parquet_and_csv_hold_the_same_rows(local_run) -> None:  # type: ignore[no-untyped-def]
     _, out = local_run
     a, b = read_table(out / "fleet.parquet"), read_table(out / "fleet.csv")

@@ -96,6 +96,12 @@ def test_attitude_fields_from_a_sample() -> None:
     assert (a["roll_deg"], a["pitch_deg"], a["yaw_deg"]) == pytest.approx((18.0, -5.0, 352.0))
     assert f["difference"]["heading_deg"] == pytest.approx(-2.0, abs=0.2)
     assert 1.5 < f["difference"]["tilt_deg"] < 2.5
+    # q and −q are one rotation; published with the scalar part ≥ 0 whichever the filter holds (seen live: w < 0)
+    w_positive = [c if ours[0] >= 0.0 else -c for c in ours]
+    for q in (ours, tuple(-c for c in ours)):
+        g = attitude_fields(live._replace(q_body_to_ned=q))
+        assert g["q"] == pytest.approx(w_positive) and g["q"][0] > 0.0 and g["roll_deg"] == pytest.approx(20.0)
+    assert a["q"][0] > 0.0
     none = attitude_fields(live._replace(q_body_to_ned=None, autopilot_msg=None))
     assert none["q"] is None and none["autopilot"] is None and none["difference"] is None and "roll_deg" not in none
 
