@@ -296,6 +296,12 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
     )
 
 
+#: s of every drag measurement rejected before the multirotor hypothesis re-opens its velocity's variance
+#: (``EskfSettings.drag_reset_s``; 0 = never): ten drag periods, within a hover's drift, before a velocity that
+#: random-walked unobserved drags the tilt with it (issue 22, branch vib: docs/accuracy.md "Seventh round")
+MULTIROTOR_DRAG_RESET_S = 1.0
+
+
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
     """``eskf`` with a raw IMU's multirotor models (what :meth:`Best.set_multirotor` sets through the API).
 
@@ -303,7 +309,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
     error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
     the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°); a detected rest taken only once
-    the bias is known within ``MULTIROTOR_REST_CHECK_SIGMA_RAD_S`` on some axis (a hover is as still as rest).
+    the bias is known within ``MULTIROTOR_REST_CHECK_SIGMA_RAD_S`` on some axis (a hover is as still as rest); the
+    velocity's variance re-opened after ``MULTIROTOR_DRAG_RESET_S`` of every drag measurement rejected.
     """
     k = drag_coefficient_1_s
     if k is None:
@@ -315,6 +322,8 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
         eskf = replace(eskf, initial_realign_rad=MULTIROTOR_INITIAL_REALIGN_RAD)
     if eskf.rest_check_sigma_rad_s == 0.0:
         eskf = replace(eskf, rest_check_sigma_rad_s=MULTIROTOR_REST_CHECK_SIGMA_RAD_S)
+    if eskf.drag_reset_s == 0.0:
+        eskf = replace(eskf, drag_reset_s=MULTIROTOR_DRAG_RESET_S)
     return vehicle_eskf_settings(eskf)
 
 

@@ -232,7 +232,8 @@ _MAG_NOISE_MAX = _MAG_DELAY + 5  # rad²: … and at or below this
 _SCALE_P0 = _MAG_DELAY + 6  # prior variance of each gyro axis's scale-factor error (0: not estimated)
 _SCALE_Q = _MAG_DELAY + 7  # their random walk², 1/s
 _SCALE_LIM = _MAG_DELAY + 8  # bound of each estimated scale-factor error (a fraction)
-_N_PARAMS = _MAG_DELAY + 9
+_DRAG_RESET = _MAG_DELAY + 9  # s of rejected drag measurements before the velocity's variance is re-opened (0: never)
+_N_PARAMS = _MAG_DELAY + 10
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -295,7 +296,9 @@ _JLP = _JS + 6 * LP_LEN  # J and K low-passed as the gravity measurement is (6 B
 _JG = _JLP + 6 * BW_LEN  # J − LP[J], K − LP[K] (2 × 3 × 3, column per body axis): the low-passed tilt's
 #                          sensitivity to δs and δb
 _ASUM = _JG + 18  # the start window's ∫ f dt in the body frame (3) and its time (1): the thrust axis's prior
-_N_STATE = _ASUM + 4
+_DREJ = _ASUM + 4  # clock time since when every drag measurement has been rejected (−1: none)
+_DSTAT = _DREJ + 1  # drag periods attempted, rejected (both components failed the gate), velocity re-openings (3)
+_N_STATE = _DSTAT + 3
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -310,6 +313,8 @@ COVARIANCE_STATE = _P
 THRUST_AXIS_STATE = _TAX
 THRUST_AXIS_REF_STATE = _TREF
 MEASURED_NOISE_STATE = _VIB
+#: offset of the drag measurement's counts (periods tried, periods rejected, velocity re-openings) in the ESKF's state
+DRAG_STATS_STATE = _DSTAT
 #: the error-state size
 ERROR_STATE_LEN = N
 
@@ -497,6 +502,11 @@ class EskfSettings(FilterSettings):
         drag_noise_m_s2: 1-σ noise of one averaged drag measurement, m/s²
             (ArduPilot's EK3_DRAG_M_NSE default, 0.5; covers the model's error:
             wind, a k off by a factor of two at low speed).
+        drag_reset_s: every drag measurement rejected by the χ gate for this
+            long re-opens the velocity's variance to a start in flight's
+            (5 m/s) and clears its correlations (an autopilot's reset of a
+            rejected aiding source), s; 0 = never (the velocity and, through
+            its correlations, the tilt then go on unobserved).
         thrust_axis_tau_s: the thrust axis (across which drag acts) is the
             running mean of the specific force's body-frame direction over
             this time constant, s: any IMU mounting (unless
@@ -644,6 +654,7 @@ class EskfSettings(FilterSettings):
     adaptive_gravity_tau_s: float = 0.0
     drag_coefficient_1_s: float = 0.0
     drag_noise_m_s2: float = 0.5
+    drag_reset_s: float = 0.0
     thrust_axis_tau_s: float = 60.0
     thrust_axis_sigma_rad: float = 0.0
     thrust_axis_walk_rad_s: float = 1e-4
@@ -699,7 +710,7 @@ class EskfSettings(FilterSettings):
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
-                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s",
+                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -832,6 +843,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         s[k + _PREV_POS + i] = math.nan
     s[k + _LAST_MAG] = -1.0e9
     s[k + _GREJ] = -1.0
+    s[k + _DREJ] = -1.0
     s[k + _BIG] = -1.0
     for i in range(3):
         s[k + _PREV_VEL + i] = math.nan
@@ -874,6 +886,23 @@ def _restart_velocity(s, k, vn, ve, vd, r_h, r_v):  # type: ignore[no-untyped-de
     s[kp + 5 * N + 5] = r_v if math.isfinite(vd) else 100.0
     s[k + _HCOUNT] = 0.0
     s[k + _VREJ] = 0.0
+
+
+@kernel(inline=True)
+def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
+    """Every drag measurement rejected for ``drag_reset_s``: the velocity is no longer known.
+
+    As an autopilot resets a rejected aiding source (ArduPilot EKF3's velocity reset after a rejection
+    timeout), the velocity's variance is re-opened to a start in flight's (``_P0_VEL_FLYING``) and its
+    correlations with the rest cleared, so that the next drag measurement passes the gate and pulls the
+    velocity back instead of the attitude following a velocity that has random-walked unobserved.
+    """
+    kp = k + _P
+    for i in range(3, 6):
+        for j in range(N):
+            s[kp + i * N + j] = 0.0
+            s[kp + j * N + i] = 0.0
+        s[kp + i * N + i] = _P0_VEL_FLYING
 
 
 @kernel(inline=True)
@@ -1714,8 +1743,18 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(4):
                 state[k + _FSUM + i] = 0.0
         elif state[k + _FSUM + 3] >= params[p + _ZV_PERIOD]:  # the specific force averaged over that period
+            state[k + _DSTAT] += 1.0
             if _drag_update(state, k, params, k_drag):
                 updated = True
+                state[k + _DREJ] = -1.0
+            elif state[k + _TAX] != 0.0 or state[k + _TAX + 1] != 0.0 or state[k + _TAX + 2] != 0.0:
+                state[k + _DSTAT + 1] += 1.0
+                if state[k + _DREJ] < 0.0:
+                    state[k + _DREJ] = clk  # a streak of rejections starts
+                elif params[p + _DRAG_RESET] > 0.0 and clk - state[k + _DREJ] > params[p + _DRAG_RESET]:
+                    _drag_reopen_velocity(state, k)
+                    state[k + _DSTAT + 2] += 1.0
+                    state[k + _DREJ] = -1.0
     gn, ge, gd = fn, fe, fd  # the gravity measurement, NED
     tau_g = params[p + _GRAV_TAU]
     if tau_g > 0.0 and params[p + _SCALE_P0] > 0.0:
@@ -2173,6 +2212,7 @@ class Eskf(AttitudeFilter):
         p[_SCALE_P0] = settings.gyro_scale_state_sigma**2
         p[_SCALE_Q] = settings.gyro_scale_state_walk_1_s**2
         p[_SCALE_LIM] = 3.0 * settings.gyro_scale_state_sigma
+        p[_DRAG_RESET] = settings.drag_reset_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
