@@ -918,8 +918,10 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 
     t_us = result.inputs.t_us.astype(np.float64)
     t0 = t_us[0] if t_us.size else 0.0
-    truth = [k for k in result.references if k.endswith("truth")]
-    ap = [k for k in result.references if k.startswith("autopilot")]
+    truth = [k for k in result.references if k.endswith(" truth")]
+    # every other reference is an autopilot's estimate (LogInputs.references): "autopilot ATTITUDE" of a tlog,
+    # "autopilot EKF3" of a .BIN, "EKF2" of a .ulg
+    ap = [k for k in result.references if not k.endswith(" truth")]
     ref_name = truth[0] if truth else (ap[0] if ap else None)
     ref_q = None
     others: dict[str, tuple[Array, Array]] = {}

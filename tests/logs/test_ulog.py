@@ -420,3 +420,28 @@ def test_the_vehicle_is_known_to_the_filters_as_in_the_daemon(sitl, bench) -> No
     assert sitl.parameters["MAV_TYPE"] == 2 and sitl.inputs.vehicle_stream and sitl.inputs.multirotor
     assert bench.inputs.vehicle_stream
     assert bench.inputs.multirotor == (int(bench.parameters.get("MAV_TYPE", 0)) in (2, 3, 13, 14, 15, 29, 35, 43))
+
+
+def test_plot_of_a_ulog_draws_ekf2_beside_our_estimate(shared_data: Path, monkeypatch: pytest.MonkeyPatch,
+                                                       tmp_path: Path) -> None:
+    """``mavahrs plot LOG.ulg`` drew only our estimate: plot_replay took an autopilot's attitude only from a
+    reference named "autopilot …" (a tlog's, a .BIN's) while the ULog reader names PX4's "EKF2".  Now every
+    reference not ending in " truth" is the autopilot's: on the real board's log (no truth) EKF2 is the
+    reference drawn; on the SIH flight the truth is, with EKF2 beside it."""
+    from mavahrs import replay as rp
+    from mavahrs.evaluation import plots
+
+    drawn: list[dict] = []
+
+    def capture(path, t_s, est, **kw):  # type: ignore[no-untyped-def]
+        drawn.append(kw)
+        return Path(path)
+
+    monkeypatch.setattr(plots, "plot_attitude", capture)
+    board = rp.replay(_shared(shared_data, "px4_ulog/sample.ulg"), rp.ReplaySettings(filters=("best",)))
+    rp.plot_replay(board, tmp_path / "board.png")
+    assert drawn[-1]["reference_label"] == "EKF2" and drawn[-1]["reference_q"] is not None
+    sih = rp.replay(_shared(shared_data, "px4_sitl/px4_aggressive.ulg"),
+                    rp.ReplaySettings(filters=("best",), end_s=40.0))
+    rp.plot_replay(sih, tmp_path / "sih.png")
+    assert drawn[-1]["reference_label"] == "SIH truth" and "EKF2" in drawn[-1]["others"]
