@@ -949,7 +949,7 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
     from mavahrs.fleet.audit import phase_events, replay_monitor
 
-    ref = next((k for k in result.references if k.startswith("autopilot")), None)
+    ref = next((k for k in result.references if not k.endswith(" truth")), None)  # the autopilot's (a .ulg's "EKF2")
     if ref is None or not result.tracks:
         return None
     tlog = getattr(result, "tlog", None)

@@ -445,3 +445,14 @@ def test_plot_of_a_ulog_draws_ekf2_beside_our_estimate(shared_data: Path, monkey
                     rp.ReplaySettings(filters=("best",), end_s=40.0))
     rp.plot_replay(sih, tmp_path / "sih.png")
     assert drawn[-1]["reference_label"] == "SIH truth" and "EKF2" in drawn[-1]["others"]
+
+
+def test_replay_of_a_ulog_gives_the_second_opinion_against_ekf2(shared_data: Path) -> None:
+    """A .BIN's replay said what the monitor would have said against EKF3, a .ulg's nothing (the monitor took
+    only a reference named "autopilot …"): now against PX4's EKF2 as well, on the same chain."""
+    from mavahrs import replay as rp
+    from mavahrs.replay.engine import format_second_opinion
+
+    res = rp.replay(_shared(shared_data, "px4_sitl/px4_aggressive.ulg"), rp.ReplaySettings(filters=("best",)))
+    text = format_second_opinion(res)
+    assert text.startswith("second opinion vs EKF2"), text
