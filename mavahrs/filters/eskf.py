@@ -1418,7 +1418,7 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     kp = k + _P
     km = k + _MAGF
     ref_norm = params[P_SCHED + _g.GP_MAG_REF_NORM]
-    ok = s_pos(s[kp + 2 * N + 2]) >= _UNKNOWN_HEADING_VAR and ref_norm > 0.0 and amps == amps
+    ok = s_pos(s[kp + 2 * N + 2]) >= _UNKNOWN_HEADING_VAR and ref_norm > 0.0 and math.isfinite(amps)  # ±inf: not known, as NaN
     if ok:  # the model explains a field of note (the motors run): on the ground at rest the reading is the raw one
         kx = km + MF_X
         bx, by, bz = amps * s[kx + 3], amps * s[kx + 4], amps * s[kx + 5]

@@ -449,7 +449,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     ``vn``, ``ve``, ``vd``: the ESKF's NED velocity, m/s, NaN while not GNSS-aided (the height and the
     distance from the start: near the ground it started on nothing is learnt, no pair update).
     """
-    amps_known = amps == amps
+    amps_known = math.isfinite(amps)  # NaN or ±inf (a corrupt current reading): not known
     if not amps_known:
         amps = 0.0
     kx = k + MF_X
