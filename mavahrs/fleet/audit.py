@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from mavahrs.logs import autopilot_reference
+
 _log = logging.getLogger("mavahrs.fleet")
 
 __all__ = [
@@ -127,8 +129,9 @@ class FleetRow:
         gnss: the log has a position fix (GLOBAL_POSITION_INT or a 3D GPS_RAW_INT):
             the declination is known and headings are true north.
         engine: the replay engine used (``fast`` or ``pipeline``).
-        reference: the log's own attitude compared with (``autopilot ATTITUDE``,
-            else ``autopilot AHRS2``; "" = none).
+        reference: the log's own attitude compared with, the autopilot's
+            (:func:`mavahrs.logs.autopilot_reference`: ``autopilot ATTITUDE`` of a tlog,
+            else ``autopilot AHRS2``; ``autopilot EKF3`` of a .BIN; ``EKF2`` of a .ulg; "" = none).
         compared_s: autopilot time covered by the comparison after the monitor's
             start-up grace, s.
         inclination_rms_deg, inclination_max_deg: tilt divergence between
@@ -295,8 +298,7 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
         notes=" | ".join(result.notes),
     )  # fmt: skip
     row = _replace(row, truncated=_tlog_truncated(td), **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
-    ref = next((k for k in ("autopilot ATTITUDE", "autopilot AHRS2") if k in result.references), "")
-    return _second_opinion(result, row, s, ref, phase_events(td, prep, src))
+    return _second_opinion(result, row, s, autopilot_reference(result.references), phase_events(td, prep, src))
 
 
 #: MAV_AUTOPILOT of each onboard log format
@@ -318,9 +320,8 @@ def _summarise_onboard(result: Any, base: FleetRow, s: AuditSettings) -> FleetRo
         engine=result.engine, notes=" | ".join(result.notes), truncated=bool(li.truncated),
     )  # fmt: skip
     row = _replace(row, **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
-    refs = [k for k in result.references if not k.endswith("truth")]
-    ref = next((k for k in refs if k.startswith("autopilot")), refs[0] if refs else "")
-    return _second_opinion(result, row, s, ref, [])  # phase: from the attitude alone (no HEARTBEAT read yet)
+    # phase: from the attitude alone (no HEARTBEAT read yet)
+    return _second_opinion(result, row, s, autopilot_reference(result.references), [])
 
 
 def _tlog_truncated(td: Any) -> bool:

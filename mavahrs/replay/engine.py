@@ -64,6 +64,7 @@ from mavahrs.filters.layout import (
     OUT_Q,
     OUT_WIDTH,
 )
+from mavahrs.logs import autopilot_reference, is_truth
 
 __all__ = [
     "ReplaySettings",
@@ -918,10 +919,10 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 
     t_us = result.inputs.t_us.astype(np.float64)
     t0 = t_us[0] if t_us.size else 0.0
-    truth = [k for k in result.references if k.endswith(" truth")]
+    truth = [k for k in result.references if is_truth(k)]
     # every other reference is an autopilot's estimate (LogInputs.references): "autopilot ATTITUDE" of a tlog,
     # "autopilot EKF3" of a .BIN, "EKF2" of a .ulg
-    ap = [k for k in result.references if not k.endswith(" truth")]
+    ap = [k for k in result.references if not is_truth(k)]
     ref_name = truth[0] if truth else (ap[0] if ap else None)
     ref_q = None
     others: dict[str, tuple[Array, Array]] = {}
@@ -949,8 +950,8 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
     from mavahrs.fleet.audit import phase_events, replay_monitor
 
-    ref = next((k for k in result.references if not k.endswith(" truth")), None)  # the autopilot's (a .ulg's "EKF2")
-    if ref is None or not result.tracks:
+    ref = autopilot_reference(result.references)  # the autopilot's (a .ulg's "EKF2"), as the fleet audit's
+    if not ref or not result.tracks:
         return None
     tlog = getattr(result, "tlog", None)
     phase = phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
