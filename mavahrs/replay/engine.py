@@ -947,8 +947,10 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
                          others=others, title=title)  # fmt: skip
 
 
-def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
-    from mavahrs.fleet.audit import phase_events, replay_monitor
+def _monitor_of(result: ReplayResult) -> tuple[Any, str, str] | None:
+    """The monitor's series over the replay, the autopilot reference it judged and the filter it judged
+    (:func:`~mavahrs.fleet.audit.monitored_filter`); None without an autopilot attitude."""
+    from mavahrs.fleet.audit import monitored_filter, phase_events, replay_monitor
 
     ref = autopilot_reference(result.references)  # the autopilot's (a .ulg's "EKF2"), as the fleet audit's
     if not ref or not result.tracks:
@@ -956,7 +958,7 @@ def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
     tlog = getattr(result, "tlog", None)
     phase = phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
     series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
-    return series, ref
+    return series, ref, monitored_filter(result.tracks)
 
 
 def format_second_opinion(result: ReplayResult) -> str:
@@ -965,8 +967,8 @@ def format_second_opinion(result: ReplayResult) -> str:
     got = _monitor_of(result)
     if got is None:
         return ""
-    series, ref = got
-    lines = [f"second opinion vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
+    series, ref, name = got
+    lines = [f"second opinion ({name}) vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
     for e in series.events:
         lines.append(f"  {e.t_ms / 1000.0:9.3f} s  {e.phase or '':9s} {e.text}")
         if e.evidence is not None:
@@ -983,9 +985,10 @@ def plot_second_opinion(result: ReplayResult, path: str | Path) -> Path | None:
     got = _monitor_of(result)
     if got is None:
         return None
-    series, ref = got
+    series, ref, name = got
     p = Path(path)
-    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series, title=f"{Path(result.path).name} vs {ref}")
+    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series,
+                title=f"{Path(result.path).name}: {name} vs {ref}")
 
 
 # --------------------------------------------------------------------------- QGC streaming
