@@ -479,6 +479,14 @@ def _replay_log(
         result = _replay_fast(li.path, prep, s, filters, sink, progress)
         if sink is not None:
             sink.sync_behind()
+    except KeyboardInterrupt as exc:  # as a tlog's replay: say what the CSV holds, keep the part filtered
+        stop = exc if isinstance(exc, ReplayInterrupted) else ReplayInterrupted(None, 0.0, "preparing the samples")
+        if stop.result is not None:  # an onboard log's part: its --output is a tlog of the frames alone
+            stop.result.log = li
+        if sink is not None:
+            sink.close()
+            stop.csv_path, stop.csv_rows = sink.path, sink.rows
+        raise stop from None
     finally:
         if sink is not None:
             sink.close()

@@ -399,3 +399,71 @@ def test_ctrl_c_while_replay_starts_says_nothing_was_written(tmp_path: Path, mon
     assert err.strip().endswith(f"ERROR replay interrupted while starting (loading the filters), before the log "
                                 f"was read — kept no CSV ({csv} not written), no tlog ({out} not written)"), err  # fmt: skip
     assert not csv.exists() and not out.exists()
+
+
+def _frames_in(path: Path) -> list[int]:
+    """time_boot_ms of the ATTITUDE_QUATERNION frames our components (≥ 191) wrote into a tlog."""
+    from pymavlink import mavutil
+
+    mlog = mavutil.mavlink_connection(str(path), dialect="ardupilotmega")
+    times = []
+    while (m := mlog.recv_match(type="ATTITUDE_QUATERNION")) is not None:
+        if m.get_srcComponent() >= 191:
+            times.append(m.time_boot_ms)
+    mlog.close()
+    return times
+
+
+def test_ctrl_c_in_a_ulog_replay_keeps_the_csv_rows_and_the_frames_computed(
+    shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C while a .ulg was filtered (PX4's real board): replay said "internal error: IndexError" (exit 1),
+    wrote no tlog and called its CSV rows "not written".  Now, as for a tlog: exit 130, the rows filtered are in
+    the CSV and said, and --output holds the frames of the same samples."""
+    import mavahrs.replay.engine as engine
+
+    log = shared_data / "px4_ulog" / "sample.ulg"
+    if not log.is_file():
+        pytest.skip(f"reference data not found at {log} (expected ../shared/data beside the checkout)")
+    monkeypatch.setattr(engine, "_CHUNK", 1000)
+    calls = [0]
+    real = engine._out_rate
+
+    def interrupt_at_third_block(*args: object) -> None:
+        calls[0] += 1
+        if calls[0] == 3:
+            raise KeyboardInterrupt
+        real(*args)
+
+    monkeypatch.setattr(engine, "_out_rate", interrupt_at_third_block)
+    csv, out = tmp_path / "r.csv", tmp_path / "r.tlog"
+    code = main(["replay", str(log), "--csv", str(csv), "--output", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert "internal error" not in err
+    assert f"kept 2000 CSV rows in {csv}, 2000 frames in {out} (the log up to the last filtered sample)" in err, err
+    assert csv.read_text().count("\n") == 2001
+    times = _frames_in(out)
+    assert len(times) == 2000 and times == sorted(times)
+
+
+def test_ctrl_c_after_the_samples_were_filtered_still_writes_the_tlog(
+    sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C while the comparison or second opinion was worked out (seconds on a long log, after the CSV was
+    complete): the bare "ERROR interrupted" and no --output tlog. Now the tlog is written whole and the line says
+    what was kept and what was not made."""
+    import mavahrs.replay as rp
+
+    def interrupted(*args: object, **kw: object) -> str:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rp, "format_second_opinion", interrupted)
+    csv, out = tmp_path / "r.csv", tmp_path / "r.tlog"
+    code = main(["replay", str(sim_hover_tlog), "--csv", str(csv), "--output", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    rows = csv.read_text().count("\n") - 1
+    said = f"replay interrupted after every sample was filtered — kept {rows} CSV rows in {csv} (complete), "
+    assert said in err and "not made: the comparison (printed)" in err, err
+    assert len(_frames_in(out)) == rows > 1000
