@@ -467,3 +467,32 @@ def test_ctrl_c_after_the_samples_were_filtered_still_writes_the_tlog(
     said = f"replay interrupted after every sample was filtered — kept {rows} CSV rows in {csv} (complete), "
     assert said in err and "not made: the comparison (printed)" in err, err
     assert len(_frames_in(out)) == rows > 1000
+
+
+def test_plot_of_a_replay_csv_takes_start_and_end_and_says_what_has_no_effect(
+    sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``plot OUT.csv --start 5 --end 8`` drew the whole CSV, and ``--filter`` / ``--no-mag`` were silently
+    ignored there (``--no-mag`` on a flight log too). Now the window applies and the others are said."""
+    from mavahrs.evaluation import plots
+
+    csv = tmp_path / "r.csv"
+    assert main(["replay", str(sim_hover_tlog), "-f", "mahony", "--csv", str(csv), "--end", "12"]) == 0
+    drawn: list[tuple[float, float, list[str]]] = []
+
+    def capture(path, t_s, est, **kw):  # type: ignore[no-untyped-def]
+        drawn.append((float(t_s[0]), float(t_s[-1]), sorted(est)))
+        return Path(path)
+
+    monkeypatch.setattr(plots, "plot_attitude", capture)
+    capsys.readouterr()
+    assert main(["plot", str(csv), "--start", "5", "--end", "8", "-o", str(tmp_path / "w.png")]) == 0
+    first, last, names = drawn[-1]
+    assert 5.0 <= first < 5.1 and 7.9 < last <= 8.0 and names == ["mahony"]
+    assert "has no effect" not in capsys.readouterr().err
+    assert main(["plot", str(csv), "-f", "madgwick", "--no-mag", "-o", str(tmp_path / "f.png")]) == 0
+    err = capsys.readouterr().err
+    assert "plot: --filter has no effect here: a replay CSV is drawn as it is" in err, err
+    assert "plot: --no-mag has no effect here" in err and drawn[-1][2] == ["mahony"]
+    assert main(["plot", str(csv), "--start", "100", "-o", str(tmp_path / "n.png")]) == 1
+    assert "no rows between --start 100.0" in capsys.readouterr().err
