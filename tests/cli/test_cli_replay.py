@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -415,27 +416,15 @@ def _frames_in(path: Path) -> list[int]:
 
 
 def test_ctrl_c_in_a_ulog_replay_keeps_the_csv_rows_and_the_frames_computed(
-    shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    shared_data: Path, tmp_path: Path, interrupt_replay: Callable[[int], None], capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Ctrl-C while a .ulg was filtered (PX4's real board): replay said "internal error: IndexError" (exit 1),
     wrote no tlog and called its CSV rows "not written".  Now, as for a tlog: exit 130, the rows filtered are in
     the CSV and said, and --output holds the frames of the same samples."""
-    import mavahrs.replay.engine as engine
-
     log = shared_data / "px4_ulog" / "sample.ulg"
     if not log.is_file():
         pytest.skip(f"reference data not found at {log} (expected ../shared/data beside the checkout)")
-    monkeypatch.setattr(engine, "_CHUNK", 1000)
-    calls = [0]
-    real = engine._out_rate
-
-    def interrupt_at_third_block(*args: object) -> None:
-        calls[0] += 1
-        if calls[0] == 3:
-            raise KeyboardInterrupt
-        real(*args)
-
-    monkeypatch.setattr(engine, "_out_rate", interrupt_at_third_block)
+    interrupt_replay(3)
     csv, out = tmp_path / "r.csv", tmp_path / "r.tlog"
     code = main(["replay", str(log), "--csv", str(csv), "--output", str(out), "--no-progress"])
     err = capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -188,24 +189,12 @@ def test_stream_to_a_pymavlink_ground_station(sim_hover_tlog: Path) -> None:
 
 
 def test_an_interrupted_fast_replay_keeps_every_block_it_filtered(
-    sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    sim_hover_tlog: Path, tmp_path: Path, interrupt_replay: Callable[[int], None]
 ) -> None:
     """Ctrl-C in the middle of the bulk replay: the blocks handed to the CSV writer thread are all on disk, whole."""
-    import mavahrs.replay.engine as rp  # the module whose globals the engine reads
-
     full = tmp_path / "full.csv"
     replay(sim_hover_tlog, ReplaySettings(filters=("madgwick",), engine="fast"), csv_path=full)
-    monkeypatch.setattr(rp, "_CHUNK", 1000)
-    calls = [0]
-    real = rp._out_rate
-
-    def interrupt_at_third_block(*args: object) -> None:
-        calls[0] += 1
-        if calls[0] == 3:
-            raise KeyboardInterrupt
-        real(*args)
-
-    monkeypatch.setattr(rp, "_out_rate", interrupt_at_third_block)
+    interrupt_replay(3)
     part = tmp_path / "part.csv"
     with pytest.raises(KeyboardInterrupt):
         replay(sim_hover_tlog, ReplaySettings(filters=("madgwick",), engine="fast"), csv_path=part)
