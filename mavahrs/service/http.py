@@ -231,8 +231,6 @@ class StatusPublisher:
         if t_ms is None or q is None:
             h.clear()  # no attitude (yet, or the filter re-initialised): nothing to compare with
         elif not h or t_ms > h[-1][0]:
-            if h and t_ms < h[-1][0] - 1000.0 * _HISTORY_S:
-                h.clear()
             h.append((t_ms, q))
             while t_ms - h[0][0] > 1000.0 * _HISTORY_S:
                 h.popleft()
