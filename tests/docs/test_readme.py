@@ -116,3 +116,19 @@ def test_the_filter_pages_examples_run_on_the_readmes_arrays() -> None:
             assert np.allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-6), page.name
             ran += 1
     assert ran >= 4
+
+
+def test_every_link_between_the_docs_leads_to_a_file_and_heading() -> None:
+    """As the README's: docs/monitor.md linked navigation.md#the-second-opinion-monitor, a heading that is not
+    there (the section is "The attitude monitor: a second opinion on the autopilot")."""
+    for page in sorted((REPO / "docs").rglob("*.md")):
+        text = re.sub(r"```.*?```", "", page.read_text(encoding="utf-8"), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if target.startswith(("http://", "https://", "mailto:")):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            name = page.relative_to(REPO)
+            assert file.exists(), f"{name} links to {path}, which does not exist"
+            if anchor and file.suffix == ".md":
+                assert anchor in _anchors(file), f"{name} links to {target}: no such heading"
