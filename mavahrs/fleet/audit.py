@@ -890,8 +890,14 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "", startup: s
     if startup:
         lines.append(startup)
     if flagged:
+        from mavahrs.replay.engine import LOW_RATE_HZ
+
+        def coarse(r: FleetRow) -> str:  # an IMU below replay's 50 Hz: too slow for attitude filtering
+            return f" (IMU {r.imu_rate_hz:.0f} Hz: too slow to judge)" if 0 < r.imu_rate_hz < LOW_RATE_HZ else ""
+
         lines.append("flagged: the autopilot's attitude disagreed with mavahrs (second-opinion monitor WARNING) in "
-                     + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s" for r in flagged))  # fmt: skip
+                     + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s{coarse(r)}"
+                                 for r in flagged))  # fmt: skip
     if good:
         head = (f"{'log':<26}{'dur s':>7}{'IMU Hz':>8}{'incl rms':>9}{'max':>7}{'hdg rms':>9}{'max':>7}"
                 f"{'alarms':>7}{'first s':>9}{'vib m/s²':>9}{'clip %':>7}")  # fmt: skip
