@@ -512,3 +512,26 @@ def write_df() -> Callable[..., tuple[Path, dict[str, np.ndarray]]]:
 def df_writer() -> type[DataflashWriter]:
     """:class:`DataflashWriter`, for hand-built DataFlash bytes."""
     return DataflashWriter
+
+
+@pytest.fixture
+def interrupt_replay(monkeypatch: pytest.MonkeyPatch) -> Callable[[int], None]:
+    """``interrupt_replay(n)``: from then on the fast replay engine filters blocks of 1000 samples and raises
+    KeyboardInterrupt (as Ctrl-C does) in its ``n``-th per-filter block step, after ``n − 1`` blocks."""
+
+    def arm(n: int = 3) -> None:
+        import mavahrs.replay.engine as engine  # the module whose globals the engine reads
+
+        monkeypatch.setattr(engine, "_CHUNK", 1000)
+        calls = [0]
+        real = engine._out_rate
+
+        def interrupt_at_block(*args: object) -> None:
+            calls[0] += 1
+            if calls[0] == n:
+                raise KeyboardInterrupt
+            real(*args)
+
+        monkeypatch.setattr(engine, "_out_rate", interrupt_at_block)
+
+    return arm

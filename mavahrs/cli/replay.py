@@ -169,8 +169,6 @@ def _start(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def _replay_started(args: argparse.Namespace, rp: Any, settings: Any, computed: Any = None) -> int:
-    from pathlib import Path
-
     progress = not args.no_progress and sys.stderr.isatty()
     try:
         result = rp.replay(args.tlog, settings, csv_path=args.csv, progress=progress)
@@ -180,6 +178,18 @@ def _replay_started(args: argparse.Namespace, rp: Any, settings: Any, computed: 
         return _interrupted(args, None)
     if computed is not None:
         computed()
+    wrote: dict[str, int] = {}  # the outputs written so far (a Ctrl-C while reporting keeps the rest)
+    try:
+        _report(args, rp, result, wrote)
+    except KeyboardInterrupt:
+        return _interrupted_reporting(args, rp, result, wrote)
+    return _streamed(args, rp, result)
+
+
+def _report(args: argparse.Namespace, rp: Any, result: Any, wrote: dict[str, int]) -> None:
+    """The replay's header, comparison and second opinion (printed), then its outputs: the tlog and plot."""
+    from pathlib import Path
+
     inp = result.inputs
     dur = (inp.t_us[-1] - inp.t_us[0]) * 1e-6 if inp.n > 1 else 0.0
     print(f"{Path(args.tlog).name}: {inp.n} IMU samples of {inp.message} (instance {inp.instance}) "
@@ -198,17 +208,48 @@ def _replay_started(args: argparse.Namespace, rp: Any, settings: Any, computed: 
     so = rp.format_second_opinion(result)  # what the daemon's monitor would have said
     if so:
         print(so)
+    wrote["compared"] = 1
     if args.csv:
         print(f"wrote {args.csv} ({inp.n} rows)", file=sys.stderr)
     if args.output:
         k = rp.write_tlog(result, args.output)
+        wrote["output"] = k
         comps = ", ".join(f"{t.name} → component {t.component_id}" for t in result.tracks.values())
         print(f"wrote {args.output} ({k} frames inserted, system {result.system_id}: {comps})", file=sys.stderr)
     if args.plot:
         print(f"wrote {rp.plot_replay(result, args.plot)}", file=sys.stderr)
+        wrote["plot"] = 1
         so = rp.plot_second_opinion(result, args.plot)  # the monitor's chart beside it, where there is one
         if so is not None:
             print(f"wrote {so}", file=sys.stderr)
+
+
+def _interrupted_reporting(args: argparse.Namespace, rp: Any, result: Any, wrote: dict[str, int]) -> int:
+    """Ctrl-C after every sample was filtered, while comparing, writing or plotting: the CSV is complete, the
+    --output tlog is written if it was not yet (it said "interrupted" and lost it), exit 130."""
+    import logging
+
+    from mavahrs.cli.common import EXIT_INTERRUPTED
+
+    kept: list[str] = []
+    if args.csv:
+        kept.append(f"{result.inputs.n} CSV rows in {args.csv} (complete)")
+    if args.output:
+        if "output" not in wrote:
+            logging.getLogger("mavahrs").info("interrupted: writing %s with every filtered sample first", args.output)
+        k = wrote["output"] if "output" in wrote else rp.write_tlog(result, args.output)
+        kept.append(f"{k} frames in {args.output} (complete)")
+    left = ([] if "compared" in wrote else ["the comparison (printed)"]) + ([f"the plot ({args.plot})"] if args.plot and "plot" not in wrote else [])
+    logging.getLogger("mavahrs").error(
+        "replay interrupted after every sample was filtered — %s%s",
+        "kept " + ", ".join(kept) if kept else "nothing to keep",
+        "; not made: " + ", ".join(left) if left else "",
+    )
+    return EXIT_INTERRUPTED
+
+
+def _streamed(args: argparse.Namespace, rp: Any, result: Any) -> int:
+    """--stream: the first filter's attitude to a ground station, paced in real time."""
     if args.stream:
         name = next(iter(result.tracks))
         ss = rp.StreamSettings(url=args.stream, system_id=args.stream_sysid, speed=args.speed,

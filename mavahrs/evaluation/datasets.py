@@ -9,6 +9,7 @@ converted here (``../shared/data/README.md`` documents each dataset's frames).
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -241,7 +242,9 @@ def load_csv(
         with path.open("r", encoding="utf-8") as f:
             header = f.readline()
         names = [h.strip().lower() for h in header.strip().split(",")]
-        data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=np.float64, ndmin=2)
+        with warnings.catch_warnings():  # a header without rows: said below as one error line, not a warning
+            warnings.filterwarnings("ignore", message="genfromtxt: Empty input file", category=UserWarning)
+            data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=np.float64, ndmin=2)
     except (OSError, ValueError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: not a readable CSV ({exc})") from exc
     if data.size == 0:

@@ -26,12 +26,14 @@ import math
 import os
 import socket
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from mavahrs.logs import autopilot_reference
 
 _log = logging.getLogger("mavahrs.fleet")
 
@@ -56,6 +58,7 @@ __all__ = [
     "imu_gyros",
     "phase_events",
     "replay_monitor",
+    "monitored_filter",
 ]
 
 #: What a folder is searched for (recursively), beside any file whose content is a log (mavahrs.logs.sniff).
@@ -127,8 +130,9 @@ class FleetRow:
         gnss: the log has a position fix (GLOBAL_POSITION_INT or a 3D GPS_RAW_INT):
             the declination is known and headings are true north.
         engine: the replay engine used (``fast`` or ``pipeline``).
-        reference: the log's own attitude compared with (``autopilot ATTITUDE``,
-            else ``autopilot AHRS2``; "" = none).
+        reference: the log's own attitude compared with, the autopilot's
+            (:func:`mavahrs.logs.autopilot_reference`: ``autopilot ATTITUDE`` of a tlog,
+            else ``autopilot AHRS2``; ``autopilot EKF3`` of a .BIN; ``EKF2`` of a .ulg; "" = none).
         compared_s: autopilot time covered by the comparison after the monitor's
             start-up grace, s.
         inclination_rms_deg, inclination_max_deg: tilt divergence between
@@ -295,8 +299,7 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
         notes=" | ".join(result.notes),
     )  # fmt: skip
     row = _replace(row, truncated=_tlog_truncated(td), **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
-    ref = next((k for k in ("autopilot ATTITUDE", "autopilot AHRS2") if k in result.references), "")
-    return _second_opinion(result, row, s, ref, phase_events(td, prep, src))
+    return _second_opinion(result, row, s, autopilot_reference(result.references), phase_events(td, prep, src))
 
 
 #: MAV_AUTOPILOT of each onboard log format
@@ -318,9 +321,8 @@ def _summarise_onboard(result: Any, base: FleetRow, s: AuditSettings) -> FleetRo
         engine=result.engine, notes=" | ".join(result.notes), truncated=bool(li.truncated),
     )  # fmt: skip
     row = _replace(row, **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
-    refs = [k for k in result.references if not k.endswith("truth")]
-    ref = next((k for k in refs if k.startswith("autopilot")), refs[0] if refs else "")
-    return _second_opinion(result, row, s, ref, [])  # phase: from the attitude alone (no HEARTBEAT read yet)
+    # phase: from the attitude alone (no HEARTBEAT read yet)
+    return _second_opinion(result, row, s, autopilot_reference(result.references), [])
 
 
 def _tlog_truncated(td: Any) -> bool:
@@ -387,18 +389,25 @@ def _plot_flight(result: Any, series: Any, folder: Path, ref: str, row: FleetRow
     return row
 
 
+def monitored_filter(tracks: Mapping[str, Any]) -> str:
+    """Which of a replay's filters the second opinion judges: ``best`` where it was replayed (what the daemon
+    runs by default; ``replay --filter all`` lists madgwick first, whose unaided tilt warned three times on a
+    clean SITL flight), else the first."""
+    return "best" if "best" in tracks else next(iter(tracks))
+
+
 def replay_monitor(
     result: Any, mon: Any, ref: str, phase_events: list[tuple[float, str, float]]
 ) -> tuple[Any, np.ndarray]:
-    """The daemon's monitor over a replay (``result``, :func:`mavahrs.replay.replay`): our first filter's
-    published attitudes against the log's attitude ``ref``, with our confidence and the samples behind each
-    estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and our estimates'
-    times, ms."""
+    """The daemon's monitor over a replay (``result``, :func:`mavahrs.replay.replay`): the published attitudes
+    of the filter :func:`monitored_filter` names against the log's attitude ``ref``, with our confidence and the
+    samples behind each estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and
+    our estimates' times, ms."""
     from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_HEADING_SIGMA, OUT_Q
     from mavahrs.service.monitor import monitor_series
 
     prep = result.inputs
-    track = next(iter(result.tracks.values()))
+    track = result.tracks[monitored_filter(result.tracks)]
     sent = np.flatnonzero(track.sent)
     try:
         imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings())
@@ -881,8 +890,14 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "", startup: s
     if startup:
         lines.append(startup)
     if flagged:
+        from mavahrs.replay.engine import LOW_RATE_HZ
+
+        def coarse(r: FleetRow) -> str:  # an IMU below replay's 50 Hz: too slow for attitude filtering
+            return f" (IMU {r.imu_rate_hz:.0f} Hz: too slow to judge)" if 0 < r.imu_rate_hz < LOW_RATE_HZ else ""
+
         lines.append("flagged: the autopilot's attitude disagreed with mavahrs (second-opinion monitor WARNING) in "
-                     + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s" for r in flagged))  # fmt: skip
+                     + ", ".join(f"{Path(r.path).name} at {r.alarm_times_s.replace(';', ', ')} s{coarse(r)}"
+                                 for r in flagged))  # fmt: skip
     if good:
         head = (f"{'log':<26}{'dur s':>7}{'IMU Hz':>8}{'incl rms':>9}{'max':>7}{'hdg rms':>9}{'max':>7}"
                 f"{'alarms':>7}{'first s':>9}{'vib m/s²':>9}{'clip %':>7}")  # fmt: skip

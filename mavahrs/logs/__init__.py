@@ -10,6 +10,7 @@ The format is chosen by content (:func:`sniff`), not by the file's extension.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -19,7 +20,10 @@ import numpy as np
 if TYPE_CHECKING:
     from mavahrs.ingest.arrays import PreparedInputs
 
-__all__ = ["FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES"]
+__all__ = [
+    "FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES", "is_truth",
+    "autopilot_reference",
+]
 
 #: format name → what users call it (for messages naming the supported formats)
 FORMATS: dict[str, str] = {
@@ -91,6 +95,21 @@ class LogInputs:
     truncated: bool = False
     start_us: int = 0
     series: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+
+def is_truth(name: str) -> bool:
+    """A reference name of :attr:`LogInputs.references` that is a simulator's true attitude (ends in ``" truth"``)."""
+    return name.endswith(" truth")
+
+
+def autopilot_reference(references: Mapping[str, Any]) -> str:
+    """The autopilot's own attitude among a log's ``references``: the first whose name does not end in
+    ``" truth"`` ("" when there is none).
+
+    Every reader puts its autopilot's main estimate first: a tlog's ``"autopilot ATTITUDE"`` (then
+    ``"autopilot AHRS2"``), a DataFlash log's ``"autopilot EKF3"`` (core 0; then ATT, DCM), a ULog's
+    ``"EKF2"``. One rule for every consumer (replay's second opinion and plot, the fleet audit)."""
+    return next((k for k in references if not is_truth(k)), "")
 
 
 def unsupported_message(path: str | Path) -> str:

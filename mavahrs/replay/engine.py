@@ -64,6 +64,7 @@ from mavahrs.filters.layout import (
     OUT_Q,
     OUT_WIDTH,
 )
+from mavahrs.logs import autopilot_reference, is_truth
 
 __all__ = [
     "ReplaySettings",
@@ -478,6 +479,14 @@ def _replay_log(
         result = _replay_fast(li.path, prep, s, filters, sink, progress)
         if sink is not None:
             sink.sync_behind()
+    except KeyboardInterrupt as exc:  # as a tlog's replay: say what the CSV holds, keep the part filtered
+        stop = exc if isinstance(exc, ReplayInterrupted) else ReplayInterrupted(None, 0.0, "preparing the samples")
+        if stop.result is not None:  # an onboard log's part: its --output is a tlog of the frames alone
+            stop.result.log = li
+        if sink is not None:
+            sink.close()
+            stop.csv_path, stop.csv_rows = sink.path, sink.rows
+        raise stop from None
     finally:
         if sink is not None:
             sink.close()
@@ -918,10 +927,10 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 
     t_us = result.inputs.t_us.astype(np.float64)
     t0 = t_us[0] if t_us.size else 0.0
-    truth = [k for k in result.references if k.endswith(" truth")]
+    truth = [k for k in result.references if is_truth(k)]
     # every other reference is an autopilot's estimate (LogInputs.references): "autopilot ATTITUDE" of a tlog,
     # "autopilot EKF3" of a .BIN, "EKF2" of a .ulg
-    ap = [k for k in result.references if not k.endswith(" truth")]
+    ap = [k for k in result.references if not is_truth(k)]
     ref_name = truth[0] if truth else (ap[0] if ap else None)
     ref_q = None
     others: dict[str, tuple[Array, Array]] = {}
@@ -946,16 +955,18 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
                          others=others, title=title)  # fmt: skip
 
 
-def _monitor_of(result: ReplayResult) -> tuple[Any, str] | None:
-    from mavahrs.fleet.audit import phase_events, replay_monitor
+def _monitor_of(result: ReplayResult) -> tuple[Any, str, str] | None:
+    """The monitor's series over the replay, the autopilot reference it judged and the filter it judged
+    (:func:`~mavahrs.fleet.audit.monitored_filter`); None without an autopilot attitude."""
+    from mavahrs.fleet.audit import monitored_filter, phase_events, replay_monitor
 
-    ref = next((k for k in result.references if not k.endswith(" truth")), None)  # the autopilot's (a .ulg's "EKF2")
-    if ref is None or not result.tracks:
+    ref = autopilot_reference(result.references)  # the autopilot's (a .ulg's "EKF2"), as the fleet audit's
+    if not ref or not result.tracks:
         return None
     tlog = getattr(result, "tlog", None)
     phase = phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
     series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
-    return series, ref
+    return series, ref, monitored_filter(result.tracks)
 
 
 def format_second_opinion(result: ReplayResult) -> str:
@@ -964,8 +975,8 @@ def format_second_opinion(result: ReplayResult) -> str:
     got = _monitor_of(result)
     if got is None:
         return ""
-    series, ref = got
-    lines = [f"second opinion vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
+    series, ref, name = got
+    lines = [f"second opinion ({name}) vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
     for e in series.events:
         lines.append(f"  {e.t_ms / 1000.0:9.3f} s  {e.phase or '':9s} {e.text}")
         if e.evidence is not None:
@@ -982,9 +993,10 @@ def plot_second_opinion(result: ReplayResult, path: str | Path) -> Path | None:
     got = _monitor_of(result)
     if got is None:
         return None
-    series, ref = got
+    series, ref, name = got
     p = Path(path)
-    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series, title=f"{Path(result.path).name} vs {ref}")
+    return draw(p.with_name(f"{p.stem}_second_opinion.png"), series,
+                title=f"{Path(result.path).name}: {name} vs {ref}")
 
 
 # --------------------------------------------------------------------------- QGC streaming

@@ -41,6 +41,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -79,6 +80,12 @@ _STATUS_PERIOD_S = 1.0  # status snapshot (and its Server-Sent Event) period
 # counts as the daemon's (~75 ms/s at 400 Hz input there): at 20 Hz one open page cost ~5 %.
 _EVENT_PERIOD_S = 0.09
 _R2D = 180.0 / math.pi
+# How much of our published attitude the loop keeps for ``attitude.difference``: the autopilot's ATTITUDE is
+# compared with ours at its own time_boot_ms, and arrives up to this late (the monitor's history_s alike).
+_HISTORY_S = 2.0
+# Our history is sampled at the loop's timer ticks (20 Hz); ours is interpolated between two ticks up to
+# 2 × this apart, else the nearest within this (the rule of monitor.align_attitudes; a stalled loop: null).
+_ALIGN_TOLERANCE_MS = 60.0
 
 
 # --------------------------------------------------------------------------- addresses
@@ -151,6 +158,9 @@ class LiveSample(NamedTuple):
         q_body_to_ned: our latest estimate (None before the filter has one).
         autopilot_msg: the autopilot's last ATTITUDE / ATTITUDE_QUATERNION as received, or None.
         autopilot_rx_s: when it arrived, s.
+        history: our estimates over the last ``_HISTORY_S`` as published at earlier ticks,
+            ``((time_boot_ms, q_body_to_ned), …)`` oldest first, this tick's last: the autopilot's
+            attitude is compared with ours at its own time (``attitude.difference``).
     """
 
     t_s: float
@@ -161,6 +171,7 @@ class LiveSample(NamedTuple):
     q_body_to_ned: tuple[float, float, float, float] | None
     autopilot_msg: Any
     autopilot_rx_s: float
+    history: tuple[tuple[int, tuple[float, float, float, float]], ...] = ()
 
 
 def _euler_deg(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
@@ -201,6 +212,7 @@ class StatusPublisher:
         self._last_input_s: float | None = None
         self._last_attitude_s: float | None = None
         self._next_status_s = 0.0
+        self._history: deque[tuple[int, tuple[float, float, float, float]]] = deque()
 
     def tick(self, daemon: Any, now_s: float) -> None:
         """Publish a :class:`LiveSample`, and the status snapshot when due."""
@@ -215,8 +227,19 @@ class StatusPublisher:
                 self._last_attitude_s = now_s
         live = getattr(daemon.pipeline, "live_attitude", None)
         t_ms, q, ap_msg, ap_us = live() if live is not None else (None, None, None, 0)
+        h = self._history
+        if t_ms is None or q is None:
+            h.clear()  # no attitude (yet, or the filter re-initialised): nothing to compare with
+        elif not h or t_ms > h[-1][0]:
+            h.append((t_ms, q))
+            while t_ms - h[0][0] > 1000.0 * _HISTORY_S:
+                h.popleft()
+        elif t_ms < h[-1][0]:  # the autopilot rebooted (its clock went back): a new time axis
+            h.clear()
+            h.append((t_ms, q))
         self.board.live = LiveSample(
-            now_s, self.started_s, self._last_input_s, self._last_attitude_s, t_ms, q, ap_msg, ap_us * 1e-6
+            now_s, self.started_s, self._last_input_s, self._last_attitude_s, t_ms, q, ap_msg, ap_us * 1e-6,
+            tuple(h),
         )
         if now_s >= self._next_status_s:
             self._next_status_s = now_s + _STATUS_PERIOD_S
@@ -328,8 +351,6 @@ def _scalar_positive(q: Any) -> list[float]:
 
 def attitude_fields(live: LiveSample, autopilot: _AutopilotCache | None = None) -> dict[str, Any]:
     """The ``attitude`` object of ``/status.json`` and the page's events (docs/status-page.md)."""
-    from mavahrs.service.monitor import attitude_divergence_rad
-
     q = live.q_body_to_ned
     att: dict[str, Any] = {
         "t_s": live.t_s,
@@ -348,9 +369,34 @@ def attitude_fields(live: LiveSample, autopilot: _AutopilotCache | None = None) 
         ap_q, ap_fields = ap
         att["autopilot"] = {**ap_fields, "age_s": live.t_s - live.autopilot_rx_s}
         if q is not None:
-            tilt, heading = attitude_divergence_rad(q, ap_q)
-            att["difference"] = {"tilt_deg": tilt * _R2D, "heading_deg": heading * _R2D}
+            att["difference"] = _aligned_difference(live, ap_fields["time_boot_ms"], ap_q)
     return att
+
+
+def _aligned_difference(
+    live: LiveSample, ap_time_boot_ms: int, ap_q: tuple[float, float, float, float]
+) -> dict[str, Any] | None:
+    """Ours against the autopilot's attitude at the autopilot's own ``time_boot_ms`` (``attitude.difference``).
+
+    Ours is taken from the published history at that time (interpolated, :func:`monitor.align_attitudes`'s
+    rule), so neither the autopilot's message delay nor its 10 Hz rate shows as a difference (against our
+    latest, an ATTITUDE 0.54 s old read −20° in a turn). The error e = q_ours ⊗ q_ap* split into
+    tilt and signed heading (:func:`monitor.attitude_divergence_rad`). None when the history does not
+    reach that time (an ATTITUDE older than ``_HISTORY_S``, or the loop stalled)."""
+    import numpy as np
+
+    from mavahrs.service.monitor import align_attitudes, attitude_divergence_rad
+
+    hist = live.history or ((live.time_boot_ms, live.q_body_to_ned),)
+    if hist[0][0] is None or hist[0][1] is None:
+        return None
+    t = np.array([h[0] for h in hist], dtype=np.float64)
+    qs = np.array([h[1] for h in hist], dtype=np.float64)
+    q = align_attitudes(t, qs, [float(ap_time_boot_ms)], tolerance_ms=_ALIGN_TOLERANCE_MS)[0]
+    if not np.all(np.isfinite(q)):
+        return None
+    tilt, heading = attitude_divergence_rad(q.tolist(), ap_q)
+    return {"time_boot_ms": int(ap_time_boot_ms), "tilt_deg": tilt * _R2D, "heading_deg": heading * _R2D}
 
 
 def health(live: LiveSample | None, now_s: float, timeout_s: float) -> tuple[bool, str]:

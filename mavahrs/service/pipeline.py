@@ -117,6 +117,7 @@ from mavahrs.service.stats import Notices, RateMeter
 from mavahrs.service.stream_requests import (
     MAV_CMD_SET_MESSAGE_INTERVAL,
     MAV_DATA_STREAM_EXTENDED_STATUS,
+    MAV_DATA_STREAM_EXTRA1,
     MAV_DATA_STREAM_POSITION,
     MAV_DATA_STREAM_RAW_SENSORS,
     RequestDataStream,
@@ -224,6 +225,11 @@ class PipelineSettings:
             request them.
         gnss_rate_hz: rate to request the velocity source's message(s) at
             (``auto``: GLOBAL_POSITION_INT and GPS_RAW_INT), Hz.
+        autopilot_attitude_rate_hz: rate to request the autopilot's own
+            ATTITUDE at while the second-opinion monitor is on, Hz (it compares at
+            the rate that attitude arrives: ArduPilot sends it at its
+            ``SRn_EXTRA1`` rate, 0–4 Hz unless a ground station asks); 0 = take
+            what arrives.
         source_system: accept IMU data only from this system id; None = the
             first autopilot heartbeat's.
         source_component: … and this component id; None = the first
@@ -275,6 +281,7 @@ class PipelineSettings:
     request_streams: bool = True
     secondary_imu_rate_hz: float = 50.0
     gnss_rate_hz: float = 10.0
+    autopilot_attitude_rate_hz: float = 10.0
     source_system: int | None = None
     source_component: int | None = None
     velocity_source: str = "auto"
@@ -299,7 +306,8 @@ class PipelineSettings:
             raise ConfigError(f"out_identity must be one of {', '.join(OUT_IDENTITIES)}, got {self.out_identity!r}")
         if self.filter_name not in _filters.NAMES + _filters.ALIASES:
             raise ConfigError(f"unknown filter {self.filter_name!r}; choose one of {', '.join(_filters.NAMES + _filters.ALIASES)}")
-        for name in ("out_rate_hz", "heartbeat_hz", "secondary_imu_rate_hz", "gnss_rate_hz", "low_imu_rate_hz"):
+        for name in ("out_rate_hz", "heartbeat_hz", "secondary_imu_rate_hz", "gnss_rate_hz", "low_imu_rate_hz",
+                     "autopilot_attitude_rate_hz"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be ≥ 0 Hz, got {v!r}")
@@ -810,6 +818,11 @@ class Pipeline:
             # GPS2_RAW needs a second receiver
             rate = s.gnss_rate_hz if name in wanted else 0.0
             self._requester.want(name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, group, warn_low_rate=False)
+        # the autopilot's own attitude, for the second opinion: it compares at the rate this arrives (live
+        # against firmware_sim's ArduPilot defaults, 45 ATTITUDE in 52 s when nobody asked)
+        att_hz = s.autopilot_attitude_rate_hz if s.monitor.enabled else 0.0
+        self._requester.want("ATTITUDE", mavlink.MAVLINK_MSG_ID_ATTITUDE, att_hz, MAV_DATA_STREAM_EXTRA1,
+                             warn_low_rate=False)  # fmt: skip
 
     def _on_imu(self, msg: Any, now_us: int) -> list[Outgoing]:
         hdr = msg.get_header()

@@ -156,3 +156,18 @@ def test_a_flight_of_flips_is_refused_for_its_coverage_not_as_no_ellipsoid(
     err = capsys.readouterr().err
     assert "orientation coverage" in err and "fit condition" in err, err
     assert "do not fit an ellipsoid" not in err, err
+
+
+@pytest.mark.parametrize("rel", ["sitl/arducopter_onboard.BIN", "px4_ulog/sample.ulg"])
+def test_an_onboard_log_is_named_not_read_as_a_tlog(shared_data: Path, rel: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """A .BIN or .ulg (which replay, evaluate, plot and audit take) was read as a tlog: "no magnetometer samples in
+    RAW_IMU (samples per message: none)". Now the error names the format and what calibrate-mag reads."""
+    path = shared_data / rel
+    if not path.is_file():
+        pytest.skip(f"reference data not found at {path} (expected ../shared/data beside the checkout)")
+    capsys.readouterr()
+    assert main(["calibrate-mag", str(path)]) == 1
+    err = capsys.readouterr().err
+    kind = "ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "PX4 ULog (.ulg)"
+    assert f"is a {kind}: calibrate-mag reads a telemetry log (.tlog) or a CSV" in err, err
+    assert "RAW_IMU" not in err and "Traceback" not in err

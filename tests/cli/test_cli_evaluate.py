@@ -280,3 +280,22 @@ def test_a_ulog_without_truth_says_once_what_replay_compares_with(shared_data: P
     notes = json.loads(capsys.readouterr().out)["per_recording"]["sample"]["notes"]
     truth = [n for n in notes if "no simulator truth" in n]
     assert len(truth) == 1 and truth[0].count("mavahrs replay") == 1 and "EKF2" in truth[0], truth
+
+
+def test_a_csv_with_a_header_and_no_rows_is_one_error_line(tmp_path: Path) -> None:
+    """A CSV with only its header: numpy's "UserWarning: genfromtxt: Empty input file" and the source line
+    that raised it came before the error line.  Now only ``ERROR evaluate: …: no data rows`` (exit 1)."""
+    import os
+    import subprocess
+    import sys
+
+    csv = tmp_path / "rig.csv"
+    csv.write_text("time_s,gx,gy,gz,ax,ay,az\n")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[2]) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([sys.executable, "-m", "mavahrs", "evaluate", str(csv)], capture_output=True, text=True,
+                          env=env, timeout=300)  # fmt: skip
+    assert proc.returncode == 1
+    lines = [ln for ln in proc.stderr.splitlines() if " INFO " not in ln]
+    assert lines and lines[-1].endswith(f"ERROR evaluate: {csv}: no data rows"), proc.stderr
+    assert "UserWarning" not in proc.stderr and "genfromtxt" not in proc.stderr, proc.stderr

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -399,3 +400,88 @@ def test_ctrl_c_while_replay_starts_says_nothing_was_written(tmp_path: Path, mon
     assert err.strip().endswith(f"ERROR replay interrupted while starting (loading the filters), before the log "
                                 f"was read — kept no CSV ({csv} not written), no tlog ({out} not written)"), err  # fmt: skip
     assert not csv.exists() and not out.exists()
+
+
+def _frames_in(path: Path) -> list[int]:
+    """time_boot_ms of the ATTITUDE_QUATERNION frames our components (≥ 191) wrote into a tlog."""
+    from pymavlink import mavutil
+
+    mlog = mavutil.mavlink_connection(str(path), dialect="ardupilotmega")
+    times = []
+    while (m := mlog.recv_match(type="ATTITUDE_QUATERNION")) is not None:
+        if m.get_srcComponent() >= 191:
+            times.append(m.time_boot_ms)
+    mlog.close()
+    return times
+
+
+def test_ctrl_c_in_a_ulog_replay_keeps_the_csv_rows_and_the_frames_computed(
+    shared_data: Path, tmp_path: Path, interrupt_replay: Callable[[int], None], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C while a .ulg was filtered (PX4's real board): replay said "internal error: IndexError" (exit 1),
+    wrote no tlog and called its CSV rows "not written".  Now, as for a tlog: exit 130, the rows filtered are in
+    the CSV and said, and --output holds the frames of the same samples."""
+    log = shared_data / "px4_ulog" / "sample.ulg"
+    if not log.is_file():
+        pytest.skip(f"reference data not found at {log} (expected ../shared/data beside the checkout)")
+    interrupt_replay(3)
+    csv, out = tmp_path / "r.csv", tmp_path / "r.tlog"
+    code = main(["replay", str(log), "--csv", str(csv), "--output", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert "internal error" not in err
+    assert f"kept 2000 CSV rows in {csv}, 2000 frames in {out} (the log up to the last filtered sample)" in err, err
+    assert csv.read_text().count("\n") == 2001
+    times = _frames_in(out)
+    assert len(times) == 2000 and times == sorted(times)
+
+
+def test_ctrl_c_after_the_samples_were_filtered_still_writes_the_tlog(
+    sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C while the comparison or second opinion was worked out (seconds on a long log, after the CSV was
+    complete): the bare "ERROR interrupted" and no --output tlog. Now the tlog is written whole and the line says
+    what was kept and what was not made."""
+    import mavahrs.replay as rp
+
+    def interrupted(*args: object, **kw: object) -> str:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rp, "format_second_opinion", interrupted)
+    csv, out = tmp_path / "r.csv", tmp_path / "r.tlog"
+    code = main(["replay", str(sim_hover_tlog), "--csv", str(csv), "--output", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    rows = csv.read_text().count("\n") - 1
+    said = f"replay interrupted after every sample was filtered — kept {rows} CSV rows in {csv} (complete), "
+    assert said in err and "not made: the comparison (printed)" in err, err
+    assert len(_frames_in(out)) == rows > 1000
+
+
+def test_plot_of_a_replay_csv_takes_start_and_end_and_says_what_has_no_effect(
+    sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``plot OUT.csv --start 5 --end 8`` drew the whole CSV, and ``--filter`` / ``--no-mag`` were silently
+    ignored there (``--no-mag`` on a flight log too). Now the window applies and the others are said."""
+    from mavahrs.evaluation import plots
+
+    csv = tmp_path / "r.csv"
+    assert main(["replay", str(sim_hover_tlog), "-f", "mahony", "--csv", str(csv), "--end", "12"]) == 0
+    drawn: list[tuple[float, float, list[str]]] = []
+
+    def capture(path, t_s, est, **kw):  # type: ignore[no-untyped-def]
+        drawn.append((float(t_s[0]), float(t_s[-1]), sorted(est)))
+        return Path(path)
+
+    monkeypatch.setattr(plots, "plot_attitude", capture)
+    capsys.readouterr()
+    assert main(["plot", str(csv), "--start", "5", "--end", "8", "-o", str(tmp_path / "w.png")]) == 0
+    first, last, names = drawn[-1]
+    assert 5.0 <= first < 5.1 and 7.9 < last <= 8.0 and names == ["mahony"]
+    assert "has no effect" not in capsys.readouterr().err
+    assert main(["plot", str(csv), "-f", "madgwick", "--no-mag", "-o", str(tmp_path / "f.png")]) == 0
+    err = capsys.readouterr().err
+    assert "plot: --filter has no effect here: a replay CSV is drawn as it is" in err, err
+    assert "plot: --no-mag has no effect here" in err and drawn[-1][2] == ["mahony"]
+    assert main(["plot", str(csv), "--start", "100", "-o", str(tmp_path / "n.png")]) == 1
+    assert "no rows between --start 100.0" in capsys.readouterr().err

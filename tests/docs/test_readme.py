@@ -91,3 +91,44 @@ def test_every_figure_table_names_its_script() -> None:
 def test_the_places_left_for_later_sections() -> None:
     for mark in ("<!-- fleet -->", "<!-- status-page -->", "<!-- sitl-table -->", "<!-- accuracy-table -->"):
         assert README.count(mark) == 1, mark
+
+
+def test_the_filter_pages_examples_run_on_the_readmes_arrays() -> None:
+    """Each docs/filters/*.md example says it works on the README's ``gyro_rad_s, accel_m_s2, mag_ut``; run
+    literally after the README's arrays (and the names its comment gives: ``dt``, a velocity), each must run
+    and give unit quaternions (complementary's passed whole arrays to ``update()``: a ValueError)."""
+    import numpy as np
+
+    api = re.search(r"## Python API\n+```python\n(.*?)```", README, flags=re.S)
+    assert api is not None
+    setup = api.group(1).split("# a whole recording")[0]  # imports and the arrays
+    ran = 0
+    for page in sorted((REPO / "docs" / "filters").glob("*.md")):
+        for code in re.findall(r"```python\n(.*?)```", page.read_text(encoding="utf-8"), flags=re.S):
+            if "(as in the README's Python API)" not in code:
+                continue
+            env: dict[str, object] = {}
+            exec(setup, env)  # noqa: S102 - the README's own example
+            n = int(env["n"])  # type: ignore[call-overload]
+            env.update(dt=1 / 400, vel_ned=np.zeros((n, 3)), vel=np.zeros((n, 3)))
+            exec(code, env)  # noqa: S102 - the page's example, as a user copies it
+            q = np.asarray(env["q"], dtype=float)
+            assert np.allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-6), page.name
+            ran += 1
+    assert ran >= 4
+
+
+def test_every_link_between_the_docs_leads_to_a_file_and_heading() -> None:
+    """As the README's: docs/monitor.md linked navigation.md#the-second-opinion-monitor, a heading that is not
+    there (the section is "The attitude monitor: a second opinion on the autopilot")."""
+    for page in sorted((REPO / "docs").rglob("*.md")):
+        text = re.sub(r"```.*?```", "", page.read_text(encoding="utf-8"), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if target.startswith(("http://", "https://", "mailto:")):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            name = page.relative_to(REPO)
+            assert file.exists(), f"{name} links to {path}, which does not exist"
+            if anchor and file.suffix == ".md":
+                assert anchor in _anchors(file), f"{name} links to {target}: no such heading"

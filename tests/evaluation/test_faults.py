@@ -149,3 +149,23 @@ def test_the_cli_offers_every_imu_message_the_injector_knows() -> None:
     from mavahrs.evaluation.faults import IMU_FAULT_MESSAGES
 
     assert _IMU_MESSAGES == IMU_FAULT_MESSAGES
+
+
+@pytest.mark.parametrize("rel", ["sitl/arducopter_onboard.BIN", "px4_ulog/sample.ulg"])
+def test_an_onboard_log_is_named_for_what_it_is(shared_data: Path, rel: str, tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """inject-fault on a .BIN / .ulg (logs that replay and audit take) scanned it as a tlog: the real board's
+    ULog held 24 byte runs that looked like records, so it wrote a 4 MB "x.tlog" copy, warned that nothing was
+    rewritten and exited 0. Now it names the format and that it copies a tlog, and writes nothing."""
+    from mavahrs.cli import main
+
+    src = shared_data / rel
+    if not src.is_file():
+        pytest.skip(f"reference data not found at {src} (expected ../shared/data beside the checkout)")
+    capsys.readouterr()
+    out = tmp_path / "x.tlog"
+    assert main(["inject-fault", str(src), str(out), "--at", "100", "--tilt", "2"]) in (1, 2)
+    err = capsys.readouterr().err
+    kind = "ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "PX4 ULog (.ulg)"
+    assert f"{src}: a {kind}: inject-fault copies a telemetry log (.tlog)" in err, err
+    assert not out.exists()

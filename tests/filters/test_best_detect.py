@@ -24,19 +24,30 @@ from mavahrs.filters.base import make_inputs
 from mavahrs.filters.layout import OUT_Q
 
 RATE_HZ = 200
+SCORED = slice(RATE_HZ * 20, None)  # the first 20 s (convergence from a raw start in flight) left out
+
+
+def _run(rows, *, declared: bool = False):  # type: ignore[no-untyped-def]
+    """``best`` through the plain API over ``rows`` (``declared``: after ``set_multirotor()``): (filter, output)."""
+    f = create("best")
+    if declared:
+        f.set_multirotor()  # type: ignore[attr-defined]
+    return f, f.run(rows)
+
+
+def _inclination_deg(out, q_ref, scored=SCORED) -> float:  # type: ignore[no-untyped-def]
+    """Inclination RMS of the output ``out`` against the truth ``q_ref`` over ``scored``, degrees."""
+    return summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg
 
 
 def test_an_undeclared_multirotor_is_taken_for_one_and_holds_the_tilt(raw_flight) -> None:  # type: ignore[no-untyped-def]
     rows, q_ref, bias = raw_flight("aggressive", 1)
     assert np.abs(np.degrees(bias)).max() > 2.0  # a raw gyro's bias, nothing subtracted
-    f = create("best")  # the plain API: nothing says "multirotor"
-    out = f.run(rows)
+    f, out = _run(rows)  # the plain API: nothing says "multirotor"
     det = f.multirotor_detection()  # type: ignore[attr-defined]
     assert det["multirotor"] == 1.0
     assert det["switches"] == 1.0  # once, and never back
-    scored = slice(RATE_HZ * 20, None)
-    incl = summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg
-    assert incl < 2.0  # 7.2° with the generic hypothesis alone
+    assert _inclination_deg(out, q_ref) < 2.0  # 7.2° with the generic hypothesis alone
 
 
 def test_declaring_or_an_autopilots_stream_turns_the_detection_off() -> None:
@@ -66,14 +77,11 @@ def test_a_multirotor_started_in_a_manoeuvre_keeps_its_thrust_axis(raw_flight) -
     # re-aligned its tilt to that mean (30° apart), restarted its thrust axis from the next 0.1 s (19° off) and it
     # settled 42° off the true axis (IMU x): 6.0° RMS declared.  MULTIROTOR_INITIAL_REALIGN_RAD (45°): 1.7°.
     rows, q_ref, _bias = raw_flight("aggressive", 13)
-    f = create("best")
-    f.set_multirotor()  # type: ignore[attr-defined]
-    out = f.run(rows)
+    f, out = _run(rows, declared=True)
     axis = f.thrust_axis()  # type: ignore[attr-defined]
     assert axis is not None
     assert np.degrees(np.arccos(min(1.0, abs(float(axis[0]))))) < 10.0  # the IMU's x axis is up: the thrust axis
-    scored = slice(RATE_HZ * 20, None)
-    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 3.0
+    assert _inclination_deg(out, q_ref) < 3.0
 
 
 def test_invalid_samples_are_no_evidence(raw_flight) -> None:  # type: ignore[no-untyped-def]
@@ -94,9 +102,8 @@ def test_invalid_samples_are_no_evidence(raw_flight) -> None:  # type: ignore[no
     out = f.run(bad)
     det = f.multirotor_detection()  # type: ignore[attr-defined]
     assert np.isfinite(det["evidence_nats"]) and det["multirotor"] == 1.0, det
-    scored = np.arange(len(rows)) >= 2000
-    err = summarize(out[:, OUT_Q : OUT_Q + 4], q_ref, scored).inclination_rms_deg
-    err_ref = summarize(ref[:, OUT_Q : OUT_Q + 4], q_ref, scored).inclination_rms_deg
+    scored = slice(2000, None)
+    err, err_ref = _inclination_deg(out, q_ref, scored), _inclination_deg(ref, q_ref, scored)
     assert np.isfinite(out[:, OUT_Q : OUT_Q + 4]).all() and err < err_ref + 0.1, (err, err_ref)
 
 
@@ -107,15 +114,11 @@ def test_a_multirotor_hovering_in_slow_turns_is_not_taken_for_rest(raw_flight) -
     error left, declared 5.37°, and the plain path stayed generic (4.29°).  The multirotor hypothesis now takes a
     rest only once some axis's bias is known within 0.5 °/s (``MULTIROTOR_REST_CHECK_SIGMA_RAD_S``): 0.71° both."""
     rows, q_ref, _bias = raw_flight("hover", 5)
-    scored = slice(RATE_HZ * 20, None)
-    plain = create("best")
-    out = plain.run(rows)
+    plain, out = _run(rows)
     assert plain.multirotor_detection()["multirotor"] == 1.0  # type: ignore[attr-defined]
-    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 2.0
-    declared = create("best")
-    declared.set_multirotor()  # type: ignore[attr-defined]
-    out = declared.run(rows)
-    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 2.0
+    assert _inclination_deg(out, q_ref) < 2.0
+    _, out = _run(rows, declared=True)
+    assert _inclination_deg(out, q_ref) < 2.0
 
 
 def test_a_declared_multirotor_at_rest_still_learns_its_raw_bias_on_every_axis() -> None:
@@ -142,12 +145,10 @@ def test_a_gentle_hover_gathers_enough_evidence_to_be_taken_for_a_multirotor(raw
     it levelled off at 15–24 nats, below the 25 to switch (1.67°, generic throughout); over 120 s
     (``MultirotorDetectSettings.forget_s``) it is a multirotor from ≈ 44 s on (1.27°; declared 1.01°)."""
     rows, q_ref, _bias = raw_flight("hover", 4)
-    f = create("best")
-    out = f.run(rows)
+    f, out = _run(rows)
     det = f.multirotor_detection()  # type: ignore[attr-defined]
     assert det["multirotor"] == 1.0 and det["switches"] == 1.0, det
-    scored = slice(RATE_HZ * 20, None)
-    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 1.5
+    assert _inclination_deg(out, q_ref) < 1.5
 
 
 
@@ -163,11 +164,9 @@ def test_a_hover_s_slow_turn_is_not_taken_for_rest_and_the_hover_is_taken_for_a_
     (the plain output 2.42°, VQF 2.08°).  Through the plain API the hover should be taken for a multirotor and
     hold the tilt better than VQF."""
     rows, q_ref, _bias = raw_flight("hover", 11)
-    scored = slice(RATE_HZ * 20, None)
-    plain = create("best")
-    out = plain.run(rows)
+    plain, out = _run(rows)
     assert plain.multirotor_detection()["multirotor"] == 1.0  # type: ignore[attr-defined]
-    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 2.0
+    assert _inclination_deg(out, q_ref) < 2.0
 
 
 def test_a_vibrating_start_s_thrust_axis_is_checked_against_the_start_window(raw_flight) -> None:  # type: ignore[no-untyped-def]
@@ -180,14 +179,10 @@ def test_a_vibrating_start_s_thrust_axis_is_checked_against_the_start_window(raw
     import math
 
     rows, q_ref, _bias = raw_flight("vibration", 23)
-    scored = slice(RATE_HZ * 20, None)
-    plain = create("best")
-    out = plain.run(rows)
+    plain, out = _run(rows)
     assert plain.multirotor_detection()["multirotor"] == 1.0  # type: ignore[attr-defined]
-    assert summarize(out[scored, OUT_Q : OUT_Q + 4], q_ref[scored]).inclination_rms_deg < 5.0
-    declared = create("best")
-    declared.set_multirotor()  # type: ignore[attr-defined]
-    declared.run(rows)
+    assert _inclination_deg(out, q_ref) < 5.0
+    declared, _ = _run(rows, declared=True)
     axis = declared.thrust_axis()  # type: ignore[attr-defined]
     assert axis is not None and math.degrees(math.acos(min(1.0, float(axis[0])))) < 20.0  # the IMU's x axis is up
 
@@ -208,5 +203,5 @@ def test_a_velocity_the_drag_measurement_rejects_is_re_opened_not_followed_by_th
     f.run(rows[:start])
     kv = _SE + S_FILTER + VELOCITY_STATE
     f._state[kv] += 20.0  # type: ignore[attr-defined]  # the velocity 20 m/s wrong (north)
-    q = f.run(rows[start:end])[:, OUT_Q : OUT_Q + 4]
-    assert summarize(q, q_ref[start:end]).inclination_rms_deg < 1.5
+    out = f.run(rows[start:end])
+    assert _inclination_deg(out, q_ref[start:end], slice(None)) < 1.5

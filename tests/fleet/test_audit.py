@@ -332,3 +332,16 @@ def test_audit_help_and_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert f"audit: {tmp_path / 'nothing-*.tlog'}: no such log (file, folder or glob)" in capsys.readouterr().err
     assert main(["audit", str(tmp_path), "-o", str(tmp_path / "fleet.xlsx")]) == 2
     assert f"audit: {tmp_path / 'fleet.xlsx'}: the table must be .parquet or .csv" in capsys.readouterr().err
+
+
+def test_a_flag_on_a_log_whose_imu_is_too_slow_says_so(mavlink_logs_dir: Path) -> None:
+    """The real VTOL tlog's IMU arrives at 4 Hz (replay: "too slow for meaningful attitude filtering"); its one
+    WARNING headed the summary's "flagged:" line like a real disagreement. Now the line says the IMU rate."""
+    from mavahrs.fleet.audit import AuditRun, format_summary
+
+    row = summarise_log(mavlink_logs_dir / "UAVLogViewer" / "vtol.tlog")
+    assert row.error == "" and 0 < row.imu_rate_hz < 50 and row.flagged
+    text = format_summary(AuditRun([row], 1, 0, row.imu_samples, 1.0))
+    flagged = next(ln for ln in text.splitlines() if ln.startswith("flagged:"))
+    first = row.alarm_times_s.split(";")[0]
+    assert f"vtol.tlog at {first}" in flagged and flagged.endswith(f"(IMU {row.imu_rate_hz:.0f} Hz: too slow to judge)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -188,24 +189,12 @@ def test_stream_to_a_pymavlink_ground_station(sim_hover_tlog: Path) -> None:
 
 
 def test_an_interrupted_fast_replay_keeps_every_block_it_filtered(
-    sim_hover_tlog: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    sim_hover_tlog: Path, tmp_path: Path, interrupt_replay: Callable[[int], None]
 ) -> None:
     """Ctrl-C in the middle of the bulk replay: the blocks handed to the CSV writer thread are all on disk, whole."""
-    import mavahrs.replay.engine as rp  # the module whose globals the engine reads
-
     full = tmp_path / "full.csv"
     replay(sim_hover_tlog, ReplaySettings(filters=("madgwick",), engine="fast"), csv_path=full)
-    monkeypatch.setattr(rp, "_CHUNK", 1000)
-    calls = [0]
-    real = rp._out_rate
-
-    def interrupt_at_third_block(*args: object) -> None:
-        calls[0] += 1
-        if calls[0] == 3:
-            raise KeyboardInterrupt
-        real(*args)
-
-    monkeypatch.setattr(rp, "_out_rate", interrupt_at_third_block)
+    interrupt_replay(3)
     part = tmp_path / "part.csv"
     with pytest.raises(KeyboardInterrupt):
         replay(sim_hover_tlog, ReplaySettings(filters=("madgwick",), engine="fast"), csv_path=part)
@@ -330,3 +319,22 @@ def test_engines_identical_on_the_simulators_gps_raw_int(sim_gps_raw_tlog: Path,
     else:  # GLOBAL_POSITION_INT arrives all along: GPS_RAW_INT stays unused
         assert set(fast.inputs.velocity_fixes) == {"GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW"}
         assert fast.inputs.velocity_fixes["GPS_RAW_INT"] == 0 and np.isfinite(rows[fed, IN_VEL + 2]).all()
+
+
+def test_the_second_opinion_judges_best_whatever_order_the_filters_are_listed(shared_data: Path) -> None:
+    """``replay --filter all`` lists madgwick first, and the second opinion judged the first filter: on the clean
+    ArduCopter SITL aggressive flight madgwick's unaided tilt raised three in-flight WARNINGs ([us?], "ours not
+    GNSS-aided") where best, the daemon's default, raises none.  It judges best wherever best is replayed, and
+    says which filter it judged."""
+    from mavahrs.replay.engine import format_second_opinion
+
+    path = shared_data / "sitl" / "arducopter_aggressive.tlog"
+    if not path.is_file():
+        pytest.skip(f"reference data not found at {path} (expected ../shared/data beside the checkout)")
+    both = replay(path, ReplaySettings(filters=("madgwick", "best")))
+    alone = replay(path, ReplaySettings(filters=("best",)))
+    text = format_second_opinion(both)
+    assert text.startswith("second opinion (best) vs autopilot ATTITUDE: 0 in-flight"), text
+    assert text == format_second_opinion(alone)
+    madgwick = replay(path, ReplaySettings(filters=("madgwick",)))
+    assert format_second_opinion(madgwick).startswith("second opinion (madgwick) vs autopilot ATTITUDE")

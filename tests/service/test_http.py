@@ -106,6 +106,62 @@ def test_attitude_fields_from_a_sample() -> None:
     assert none["q"] is None and none["autopilot"] is None and none["difference"] is None and "roll_deg" not in none
 
 
+def test_difference_compares_at_the_autopilots_own_time(autopilot, trajectory) -> None:
+    """``attitude.difference`` is ours at the autopilot attitude's own ``time_boot_ms`` against it.
+
+    The synthetic autopilot's ATTITUDE is the exact truth, stamped with its own time but arriving 0.54 s
+    late (seen live: −20° in a turn against our latest); the difference must be our filter's error only.
+    """
+    from types import SimpleNamespace
+
+    from mavahrs.geometry import rotation
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.service.http import StatusPublisher
+    from mavahrs.service.monitor import attitude_divergence_rad
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    delay_us = 540_000
+    pipe = Pipeline(PipelineSettings(filter_name="mahony", out_rate_hz=0.0))
+    daemon = SimpleNamespace(
+        counters=SimpleNamespace(datagrams_in=1, attitudes_out=1, messages_in=1, input_dropped=0), pipeline=pipe, last_pipeline_status=None,
+        status_fields=lambda now_s, window: {}, settings=SimpleNamespace(master="synthetic"),
+    )
+    board = StatusBoard()
+    pub = StatusPublisher(board, 0.0)
+    rx = MavCodec(0, 0)
+    late: list[tuple[int, bytes]] = []  # (arrival µs, ATTITUDE frame)
+    aligned, against_latest = [], []
+    for k in range(len(trajectory.t_us)):
+        t_us = int(trajectory.t_us[k])
+        frames = [autopilot.heartbeat()] if k % 400 == 0 else []
+        frames.append(autopilot.raw_imu_k(trajectory, k))
+        if k % 40 == 0:  # ATTITUDE at 10 Hz: the truth at t_us
+            roll, pitch, yaw = rotation.to_euler_rad(trajectory.q_body_to_ned[k])
+            late.append((t_us + delay_us, autopilot.codec.encode(autopilot.codec.mav.attitude_encode(
+                t_us // 1000, float(roll), float(pitch), float(yaw), 0.0, 0.0, 0.0))))
+        while late and late[0][0] <= t_us:
+            frames.append(late.pop(0)[1])
+        for frame in frames:
+            for msg in rx.receive_datagram(frame):
+                pipe.handle(msg, t_us)
+        if k % 20 == 0:  # the daemon's timer: 20 Hz
+            pipe.tick(t_us)
+            pub.tick(daemon, t_us * 1e-6)
+            live = board.live
+            f = attitude_fields(live)
+            if f["difference"] is None or t_us < 6_000_000:
+                continue
+            ap_k = trajectory.index_of_ms(f["autopilot"]["time_boot_ms"])
+            assert f["difference"]["time_boot_ms"] == f["autopilot"]["time_boot_ms"]
+            assert live.time_boot_ms - f["autopilot"]["time_boot_ms"] >= 500  # 0.54 s behind ours
+            aligned.append(math.hypot(f["difference"]["tilt_deg"], f["difference"]["heading_deg"]))
+            tilt, hdg = attitude_divergence_rad(live.q_body_to_ned, trajectory.q_body_to_ned[ap_k])
+            against_latest.append(math.degrees(math.hypot(tilt, hdg)))
+    assert len(aligned) > 200
+    assert max(against_latest) > 10.0  # the turns make the late ATTITUDE look far off "now"
+    assert max(aligned) < 2.0  # at the same time: the filter's own error
+
+
 def test_register_service_has_the_fields_blueos_reads() -> None:
     """BlueOS's ServiceMetadata: seven strings, and optional flags it understands."""
     info = register_service_info("1.2.3")

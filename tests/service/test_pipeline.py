@@ -719,7 +719,7 @@ def test_another_nodes_stream_request_is_answered_with_ours(autopilot, trajector
     def rds(codec, target_system=1):
         return codec.encode(codec.mav.request_data_stream_encode(target_system, 1, 0, 4, 1))  # ALL streams, 4 Hz
 
-    pipe = Pipeline(settings(secondary_imu_rate_hz=0.0, use_gnss_velocity=False))  # RAW_IMU only
+    pipe = Pipeline(settings(secondary_imu_rate_hz=0.0, use_gnss_velocity=False, autopilot_attitude_rate_hz=0.0))  # RAW_IMU only
     outs, notes = _live(pipe, autopilot, trajectory, 6.0, rate_hz=lambda t: 400.0,
                         extra={2.0: [rds(ours), rds(gcs, target_system=2)], 4.0: [rds(gcs)]})  # fmt: skip
     t0 = int(trajectory.t_us[0])
@@ -813,3 +813,20 @@ def test_status_tells_the_magnetometer_state(autopilot, trajectory):
     st = off.status()
     assert st.magnetometer is not None and st.magnetometer["state"] == "trusted", st.magnetometer
     assert st.magnetometer["model"] == "off" and st.line().endswith("| mag trusted")
+
+
+@pytest.mark.slow
+def test_the_autopilots_attitude_is_requested_for_the_second_opinion():
+    """Nothing asked the autopilot for ATTITUDE: against firmware_sim's ArduPilot defaults (1 Hz, as a Copter's
+    telemetry port without a ground station sends at most) the monitor compared once a second (live: 45 ATTITUDE
+    in 52 s). Now it is requested at ``autopilot_attitude_rate_hz`` (10 Hz) while the monitor is on, and not
+    with the monitor off or the rate 0."""
+    from mavahrs.service.monitor import MonitorSettings
+
+    pipe, _ep, _att, _truth, now = _fly_sim(8.0)
+    st = pipe.status(now).monitor_state
+    assert st is not None and st.comparisons >= 55, st.comparisons  # ≥ 10 Hz once asked (≈ 1 s in)
+    for off in (settings(out_rate_hz=50.0, autopilot_attitude_rate_hz=0.0),
+                settings(out_rate_hz=50.0, monitor=MonitorSettings(enabled=False))):
+        pipe, _ep, _att, _truth, now = _fly_sim(4.0, pipe_settings=off)
+        assert not any(s.message == "ATTITUDE" for s in pipe.status(now).streams)

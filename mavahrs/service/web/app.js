@@ -93,6 +93,7 @@
     const d = a.difference;
     set("diff-tilt", d ? fmt(d.tilt_deg, 1) : "–");
     set("diff-heading", d ? signed(d.heading_deg, 1) : "–");
+    set("diff-time", d ? "boot " + (d.time_boot_ms / 1000).toFixed(1) + " s" : "–");
   }
 
   function formatDuration(s) {
