@@ -238,7 +238,8 @@ _DRAG_RESET = _MAG_DELAY + 9  # s of rejected drag measurements before the veloc
 _ABIAS_P0 = _MAG_DELAY + 10  # steady-state variance of each accelerometer-bias state, (m/s²)² (0: not estimated)
 _ABIAS_TAU = _MAG_DELAY + 11  # s: their Gauss–Markov correlation time (0: constant)
 _ABIAS_VIB = _MAG_DELAY + 12  # the accelerometer bias's variance per measured per-sample specific-force variance (c²)
-_N_PARAMS = _MAG_DELAY + 13
+_ABIAS_AIDED = _MAG_DELAY + 13  # 1: the accelerometer-bias states are estimated only while velocity-aided
+_N_PARAMS = _MAG_DELAY + 14
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -634,8 +635,9 @@ class EskfSettings(FilterSettings):
             used everywhere f̂ = reading − b̂_a, and δv̇ = −[C f]× δθ − C δb_a
             (Groves 2013, §14.2.6: accelerometer-bias states; ArduPilot EKF3
             and PX4 EKF2 carry the same three as delta-velocity biases).  The
-            gravity measurement reads C δb_a beside the tilt (rows C_N, C_E
-            of C_body_to_ned), the rotor-drag measurement e_cᵀ δb_a beside the
+            gravity measurement reads LP[C] δb_a beside the tilt (the rows
+            C_N, C_E of C_body_to_ned low-passed as the measurement is), the
+            rotor-drag measurement e_cᵀ δb_a beside the
             velocity across the thrust axis, the velocity fixes it through
             the velocity's propagation.  A body-fixed bias is told from a tilt
             error only as the body turns under it (yaw), or along the thrust
@@ -651,6 +653,13 @@ class EskfSettings(FilterSettings):
             measured (``measured_noise_tau_s``): the aliased rotor vibration of
             a raw IMU leaves slowly varying offsets that grow with it (0 =
             σ alone; needs ``accel_bias_tau_s`` > 0).
+        accel_bias_aided_only: the states are estimated only while
+            velocity-aided (GNSS): without aiding b̂_a is held as learnt (still
+            subtracted), its process noise stopped and its correlations with
+            the rest cleared, and neither the gravity nor the drag measurement
+            reads it (the bias across gravity is then told from a tilt only
+            by the body's turns, and a motion acceleration or a drag-model
+            error is learnt as bias: see docs/accuracy.md).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -725,6 +734,7 @@ class EskfSettings(FilterSettings):
     accel_bias_sigma_m_s2: float = 0.0
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
+    accel_bias_aided_only: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -1065,6 +1075,18 @@ def _accel_bias_variance(s, k, params):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
+def _accel_bias_decouple(s, k):  # type: ignore[no-untyped-def]
+    """The accelerometer-bias states' correlations with the rest cleared (their variances kept): held, not
+    estimated (``accel_bias_aided_only`` while not aided)."""
+    kp = k + _P
+    for i in range(_I_ABIAS, N):
+        for j in range(N):
+            if j != i:
+                s[kp + i * N + j] = 0.0
+                s[kp + j * N + i] = 0.0
+
+
+@kernel(inline=True)
 def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-def]
     """The gyro's scale-factor and cross-axis errors as process noise of the heading, proportional to the rate.
 
@@ -1356,7 +1378,8 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[k + _H + 5] = -k_drag * ud
         if states:
             s[k + _H + 9 + c] = thrust
-        if params[P_FILTER + _ABIAS_P0] > 0.0:  # the mean force (less b̂_a) still holds δb_a: ∂h_c/∂δb_a = e_cᵀ
+        if ((params[P_FILTER + _ABIAS_P0] > 0.0 or params[P_FILTER + _ABIAS_VIB] > 0.0)
+                and params[P_FILTER + _ABIAS_AIDED] == 0.0):  # the mean force (less b̂_a) holds δb_a: ∂h_c/∂δb_a = e_cᵀ
             s[k + _H + _I_ABIAS] = ex
             s[k + _H + _I_ABIAS + 1] = ey
             s[k + _H + _I_ABIAS + 2] = ez
@@ -1562,11 +1585,19 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
     abias_on = params[p + _ABIAS_P0] > 0.0 or params[p + _ABIAS_VIB] > 0.0
     phi_a = 1.0
+    # estimated now (``accel_bias_aided_only``: only while a velocity fix was fused within the aiding timeout;
+    # otherwise b̂_a is held, subtracted as learnt, and its states decoupled from the rest)
+    abias_live = abias_on and (
+        params[p + _ABIAS_AIDED] == 0.0
+        or (state[k + _LAST_FIX] >= 0.0 and state[k + _CLK] + dt - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT])
+    )
+    if abias_on and not abias_live:
+        _accel_bias_decouple(state, k)
     if abias_on:
         # the reading is f + b_a: every model below (velocity, gravity, drag, thrust axis) uses f = reading − b̂_a;
         # b̂_a a first-order Gauss–Markov process, its prediction decays as e^(−dt/τ_a)
         tau_a = params[p + _ABIAS_TAU]
-        if tau_a > 0.0:
+        if tau_a > 0.0 and abias_live:
             phi_a = max(1.0 - dt / tau_a, 0.0)
             for i in range(3):
                 state[k + _ABIAS + i] *= phi_a
@@ -1653,7 +1684,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
                           params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
-                          abias_on, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
+                          abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
                           if params[p + _ABIAS_TAU] > 0.0 else 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
@@ -1922,7 +1953,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for m in range(3):
                     state[k + _H + _I_SCALE + m] = G_M_S2 * state[k + _JG + 3 + m]
                     state[k + _H + 6 + m] = G_M_S2 * state[k + _JG + 9 + 3 + m]
-            if abias_on:  # f = f_true + δb_a: its north component reads LP[C]_N·δb_a
+            if abias_live:  # f = f_true + δb_a: its north component reads LP[C]_N·δb_a
                 state[k + _H + _I_ABIAS] = cl_n0
                 state[k + _H + _I_ABIAS + 1] = cl_n1
                 state[k + _H + _I_ABIAS + 2] = cl_n2
@@ -1936,7 +1967,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for m in range(3):
                     state[k + _H + _I_SCALE + m] = -G_M_S2 * state[k + _JG + m]
                     state[k + _H + 6 + m] = -G_M_S2 * state[k + _JG + 9 + m]
-            if abias_on:  # … its east component LP[C]_E·δb_a
+            if abias_live:  # … its east component LP[C]_E·δb_a
                 state[k + _H + _I_ABIAS] = cl_e0
                 state[k + _H + _I_ABIAS + 1] = cl_e1
                 state[k + _H + _I_ABIAS + 2] = cl_e2
@@ -2340,6 +2371,7 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_P0] = settings.accel_bias_sigma_m_s2**2
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
+        p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
