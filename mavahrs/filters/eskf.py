@@ -133,15 +133,17 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
-    "START_DONE_STATE", "gyro_scale_of",
+    "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE",
 ]  # fmt: skip
 
-N = 18  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
+N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
 #        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position),
-#        δs (15–17: the gyro's scale-factor errors, see gyro_scale_state_sigma)
+#        δs (15–17: the gyro's scale-factor errors, see gyro_scale_state_sigma), δb_a (18–20: the accelerometer's
+#        bias, body frame, see accel_bias_sigma_m_s2)
 _I_DECL = 11  # index of the declination error in the error state
 _I_POS = 12  # index of the position error (3) in the error state
 _I_SCALE = 15  # index of the gyro scale-factor errors (3) in the error state
+_I_ABIAS = 18  # index of the accelerometer-bias errors (3, body frame) in the error state
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
@@ -233,7 +235,11 @@ _SCALE_P0 = _MAG_DELAY + 6  # prior variance of each gyro axis's scale-factor er
 _SCALE_Q = _MAG_DELAY + 7  # their random walk², 1/s
 _SCALE_LIM = _MAG_DELAY + 8  # bound of each estimated scale-factor error (a fraction)
 _DRAG_RESET = _MAG_DELAY + 9  # s of rejected drag measurements before the velocity's variance is re-opened (0: never)
-_N_PARAMS = _MAG_DELAY + 10
+_ABIAS_P0 = _MAG_DELAY + 10  # steady-state variance of each accelerometer-bias state, (m/s²)² (0: not estimated)
+_ABIAS_TAU = _MAG_DELAY + 11  # s: their Gauss–Markov correlation time (0: constant)
+_ABIAS_VIB = _MAG_DELAY + 12  # the accelerometer bias's variance per measured per-sample specific-force variance (c²)
+_ABIAS_AIDED = _MAG_DELAY + 13  # 1: the accelerometer-bias states are estimated only while velocity-aided
+_N_PARAMS = _MAG_DELAY + 14
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -298,7 +304,9 @@ _JG = _JLP + 6 * BW_LEN  # J − LP[J], K − LP[K] (2 × 3 × 3, column per bod
 _ASUM = _JG + 18  # the start window's ∫ f dt in the body frame (3) and its time (1): the thrust axis's prior
 _DREJ = _ASUM + 4  # clock time since when every drag measurement has been rejected (−1: none)
 _DSTAT = _DREJ + 1  # drag periods attempted, rejected (both components failed the gate), velocity re-openings (3)
-_N_STATE = _DSTAT + 3
+_ABIAS = _DSTAT + 3  # the accelerometer's estimated bias, body frame (3), m/s²: f = reading − b_a
+_CLP = _ABIAS + 3  # C_body_to_ned's columns low-passed as the gravity measurement is (3 Butterworth blocks, 3 × BW_LEN)
+_N_STATE = _CLP + 3 * BW_LEN
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -315,6 +323,8 @@ THRUST_AXIS_REF_STATE = _TREF
 MEASURED_NOISE_STATE = _VIB
 #: offset of the drag measurement's counts (periods tried, periods rejected, velocity re-openings) in the ESKF's state
 DRAG_STATS_STATE = _DSTAT
+#: offset of the accelerometer's estimated bias (body, 3) in the ESKF's own state
+ACCEL_BIAS_STATE = _ABIAS
 #: the error-state size
 ERROR_STATE_LEN = N
 
@@ -619,6 +629,37 @@ class EskfSettings(FilterSettings):
             scale-factor states").
         gyro_scale_state_walk_1_s: random walk of those states, 1/√s
             (temperature; 0 = constant).
+        accel_bias_sigma_m_s2: 1-σ of each accelerometer axis's bias as an
+            error state (body frame, error states 18–20; 0 = not estimated,
+            the default), m/s²: the reading is f + b_a, the specific force
+            used everywhere f̂ = reading − b̂_a, and δv̇ = −[C f]× δθ − C δb_a
+            (Groves 2013, §14.2.6: accelerometer-bias states; ArduPilot EKF3
+            and PX4 EKF2 carry the same three as delta-velocity biases).  The
+            gravity measurement reads LP[C] δb_a beside the tilt (the rows
+            C_N, C_E of C_body_to_ned low-passed as the measurement is), the
+            rotor-drag measurement e_cᵀ δb_a beside the
+            velocity across the thrust axis, the velocity fixes it through
+            the velocity's propagation.  A body-fixed bias is told from a tilt
+            error only as the body turns under it (yaw), or along the thrust
+            axis through the vertical velocity.  First-order Gauss–Markov of
+            correlation time ``accel_bias_tau_s``: ḃ_a = −b_a/τ + w, the
+            prediction b̂_a ← (1 − dt/τ) b̂_a, Φ's rows 1 − dt/τ, Q = 2σ²/τ
+            (Gelb 1974, table 4.4-1; steady-state variance σ²).  The estimate
+            is bounded by 3σ per axis.
+        accel_bias_tau_s: their correlation time, s (0 = a random constant
+            of prior σ: no decay, no process noise).
+        accel_bias_vibration_ratio: c: the states' steady-state variance is
+            σ² + c² σ_f², σ_f² the specific force's per-sample variance as
+            measured (``measured_noise_tau_s``): the aliased rotor vibration of
+            a raw IMU leaves slowly varying offsets that grow with it (0 =
+            σ alone; needs ``accel_bias_tau_s`` > 0).
+        accel_bias_aided_only: the states are estimated only while
+            velocity-aided (GNSS): without aiding b̂_a is held as learnt (still
+            subtracted), its process noise stopped and its correlations with
+            the rest cleared, and neither the gravity nor the drag measurement
+            reads it (the bias across gravity is then told from a tilt only
+            by the body's turns, and a motion acceleration or a drag-model
+            error is learnt as bias: see docs/accuracy.md).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -690,6 +731,10 @@ class EskfSettings(FilterSettings):
     mag_noise_max_rad: float = math.radians(20.0)
     gyro_scale_state_sigma: float = 0.0
     gyro_scale_state_walk_1_s: float = 0.0
+    accel_bias_sigma_m_s2: float = 0.0
+    accel_bias_tau_s: float = 0.0
+    accel_bias_vibration_ratio: float = 0.0
+    accel_bias_aided_only: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -711,7 +756,8 @@ class EskfSettings(FilterSettings):
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
-                     "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s"):
+                     "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
+                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -832,6 +878,8 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[kp + _I_DECL * N + _I_DECL] = params[p + _DECL_P0]
     for i in range(_I_SCALE, _I_SCALE + 3):  # the gyro's scale-factor errors (0: not estimated; ŝ restarts at 0)
         s[kp + i * N + i] = params[p + _SCALE_P0]
+    for i in range(_I_ABIAS, _I_ABIAS + 3):  # the accelerometer's bias (0: not estimated; b̂_a restarts at 0)
+        s[kp + i * N + i] = params[p + _ABIAS_P0]
     if params[p + _DRAG_K] > 0.0:
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
@@ -868,6 +916,8 @@ def eskf_reopen_attitude(s, k, params, big_tilt, big_heading):  # type: ignore[n
     s[k + _GLP + 3] = 0.0
     for m in range(6):  # … and so are the scale and bias states' sensitivities (J and K, see step)
         s[k + _JLP + m * BW_LEN + 3] = 0.0
+    for m in range(3):  # … and the accelerometer bias's (LP[C], see step)
+        s[k + _CLP + m * BW_LEN + 3] = 0.0
 
 
 @kernel
@@ -906,21 +956,24 @@ def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
-def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz):  # type: ignore[no-untyped-def]
-    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ with M = −[f]×, δṗ = δv;
-    scratch C, M).
+def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz,
+                          abias_on, phi_a, q_abias):  # type: ignore[no-untyped-def]
+    """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ − C δb_a with M = −[f]×,
+    δṗ = δv, δḃ_a = −δb_a/τ_a; scratch C, M).
 
     The thrust-axis states (9, 10) are constant (Φ's identity rows), their random walk ``q_axis``; so is
     the declination error (11), without a walk (the WMM's error does not change over a flight).  The
     position's rows and columns (12–14) are left at 0 while no position is started (``pos_on`` False):
     they cost nothing then, and a start sets them from the fix.  The gyro's scale-factor errors (15–17),
-    with ω the rate used this sample, are constant but for ``q_scale``; left at 0 unless ``scale_on``.
+    with ω the rate used this sample, are constant but for ``q_scale``; left at 0 unless ``scale_on``.  The
+    accelerometer's bias (18–20, body frame) is a first-order Gauss–Markov process: its rows of Φ are
+    ``phi_a`` = 1 − dt/τ_a (1: constant), its noise ``q_abias`` = 2σ_a²/τ_a; left at 0 unless ``abias_on``.
     """
     kp = k + _P
     ka = k + _A
     kc = k + _C
     km = k + _M
-    n = N if scale_on else (_I_SCALE if pos_on else _I_POS)
+    n = N if abias_on else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
     # A = Φ P
     for j in range(n):
         for i in range(3):
@@ -935,6 +988,9 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
             acc = 0.0
             for m in range(3):
                 acc += s[km + 3 * i + m] * s[kp + m * N + j]
+            if abias_on:  # … − C δb_a
+                for m in range(3):
+                    acc -= s[kc + 3 * i + m] * s[kp + (_I_ABIAS + m) * N + j]
             s[ka + (3 + i) * N + j] = s[kp + (3 + i) * N + j] + dt * acc
             s[ka + (6 + i) * N + j] = s[kp + (6 + i) * N + j]
         for r in range(9, _I_POS):
@@ -942,12 +998,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for i in range(3):  # δṗ = δv
                 s[ka + (_I_POS + i) * N + j] = s[kp + (_I_POS + i) * N + j] + dt * s[kp + (3 + i) * N + j]
-        elif scale_on:
+        elif scale_on or abias_on:
             for r in range(_I_POS, _I_SCALE):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if scale_on:
-            for r in range(_I_SCALE, N):
+        if scale_on or abias_on:
+            for r in range(_I_SCALE, _I_ABIAS):
                 s[ka + r * N + j] = s[kp + r * N + j]
+        if abias_on:
+            for r in range(_I_ABIAS, N):
+                s[ka + r * N + j] = phi_a * s[kp + r * N + j]
     # P = A Φᵀ
     for i in range(n):
         for j in range(3):
@@ -962,6 +1021,9 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
             acc = 0.0
             for m in range(3):
                 acc += s[ka + i * N + m] * s[km + 3 * j + m]
+            if abias_on:
+                for m in range(3):
+                    acc -= s[ka + i * N + _I_ABIAS + m] * s[kc + 3 * j + m]
             s[kp + i * N + 3 + j] = s[ka + i * N + 3 + j] + dt * acc
             s[kp + i * N + 6 + j] = s[ka + i * N + 6 + j]
         for j in range(9, _I_POS):
@@ -969,12 +1031,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for j in range(3):
                 s[kp + i * N + _I_POS + j] = s[ka + i * N + _I_POS + j] + dt * s[ka + i * N + 3 + j]
-        elif scale_on:
+        elif scale_on or abias_on:
             for j in range(_I_POS, _I_SCALE):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if scale_on:
-            for j in range(_I_SCALE, N):
+        if scale_on or abias_on:
+            for j in range(_I_SCALE, _I_ABIAS):
                 s[kp + i * N + j] = s[ka + i * N + j]
+        if abias_on:
+            for j in range(_I_ABIAS, N):
+                s[kp + i * N + j] = phi_a * s[ka + i * N + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
@@ -987,14 +1052,38 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         for i in range(9, _I_DECL):
             s[kp + i * N + i] += q_axis * dt
     if scale_on and q_scale > 0.0:
-        for i in range(_I_SCALE, N):
+        for i in range(_I_SCALE, _I_ABIAS):
             s[kp + i * N + i] += q_scale * dt
+    if abias_on and q_abias > 0.0:
+        for i in range(_I_ABIAS, N):
+            s[kp + i * N + i] += q_abias * dt
     # keep P symmetric against round-off
     for i in range(n):
         for j in range(i + 1, n):
             a = 0.5 * (s[kp + i * N + j] + s[kp + j * N + i])
             s[kp + i * N + j] = a
             s[kp + j * N + i] = a
+
+
+@kernel(inline=True)
+def _accel_bias_variance(s, k, params):  # type: ignore[no-untyped-def]
+    """The accelerometer-bias states' steady-state variance, (m/s²)²: σ_a² (``accel_bias_sigma_m_s2``) plus
+    c² × the specific force's measured per-sample variance (``accel_bias_vibration_ratio``; ``_VIB``): a
+    vibrating raw IMU's aliased vibration leaves a slowly varying offset that grows with the vibration."""
+    p = P_FILTER
+    return params[p + _ABIAS_P0] + params[p + _ABIAS_VIB] * s[k + _VIB + 1]
+
+
+@kernel(inline=True)
+def _accel_bias_decouple(s, k):  # type: ignore[no-untyped-def]
+    """The accelerometer-bias states' correlations with the rest cleared (their variances kept): held, not
+    estimated (``accel_bias_aided_only`` while not aided)."""
+    kp = k + _P
+    for i in range(_I_ABIAS, N):
+        for j in range(N):
+            if j != i:
+                s[kp + i * N + j] = 0.0
+                s[kp + j * N + i] = 0.0
 
 
 @kernel(inline=True)
@@ -1023,9 +1112,12 @@ def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-de
 
 @kernel(inline=True)
 def _n_active(s, k):  # type: ignore[no-untyped-def]
-    """The error state's size in use: without the gyro scale-factor states their rows and columns of P (and
-    of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the daemon's per-sample cost)."""
-    return N if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
+    """The error state's size in use: without the gyro scale-factor states (or the accelerometer-bias states)
+    their rows and columns of P (and of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the
+    daemon's per-sample cost)."""
+    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0:
+        return N
+    return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
 
 @kernel(inline=True)
@@ -1286,6 +1378,11 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[k + _H + 5] = -k_drag * ud
         if states:
             s[k + _H + 9 + c] = thrust
+        if ((params[P_FILTER + _ABIAS_P0] > 0.0 or params[P_FILTER + _ABIAS_VIB] > 0.0)
+                and params[P_FILTER + _ABIAS_AIDED] == 0.0):  # the mean force (less b̂_a) holds δb_a: ∂h_c/∂δb_a = e_cᵀ
+            s[k + _H + _I_ABIAS] = ex
+            s[k + _H + _I_ABIAS + 1] = ey
+            s[k + _H + _I_ABIAS + 2] = ez
         if _scalar_update(s, k, y, r, params[P_FILTER + _VEL_GATE]):
             fused = True
     return fused
@@ -1486,6 +1583,27 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     gz = (row[IN_GYRO + 2] - state[S_BIAS + 2]) / (1.0 + state[k + _GSCALE + 2])
     q0, q1, q2, q3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
+    abias_on = params[p + _ABIAS_P0] > 0.0 or params[p + _ABIAS_VIB] > 0.0
+    phi_a = 1.0
+    # estimated now (``accel_bias_aided_only``: only while a velocity fix was fused within the aiding timeout;
+    # otherwise b̂_a is held, subtracted as learnt, and its states decoupled from the rest)
+    abias_live = abias_on and (
+        params[p + _ABIAS_AIDED] == 0.0
+        or (state[k + _LAST_FIX] >= 0.0 and state[k + _CLK] + dt - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT])
+    )
+    if abias_on and not abias_live:
+        _accel_bias_decouple(state, k)
+    if abias_on:
+        # the reading is f + b_a: every model below (velocity, gravity, drag, thrust axis) uses f = reading − b̂_a;
+        # b̂_a a first-order Gauss–Markov process, its prediction decays as e^(−dt/τ_a)
+        tau_a = params[p + _ABIAS_TAU]
+        if tau_a > 0.0 and abias_live:
+            phi_a = max(1.0 - dt / tau_a, 0.0)
+            for i in range(3):
+                state[k + _ABIAS + i] *= phi_a
+        ax -= state[k + _ABIAS]
+        ay -= state[k + _ABIAS + 1]
+        az -= state[k + _ABIAS + 2]
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
     boost, w_a, w_m = schedule_step(
         state[S_SCHED : S_SCHED + _g.GS_LEN],
@@ -1565,7 +1683,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     q_bias = params[p + _Q_BIAS_AIDED] if aided and params[p + _Q_BIAS_AIDED] > 0.0 else params[p + _Q_BIAS]
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
-                          params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz)
+                          params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
+                          abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
+                          if params[p + _ABIAS_TAU] > 0.0 else 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -1774,6 +1894,16 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[kg + 6] = state[kj + 2] - jd
     if tau_g > 0.0 and accel_ok:
         gn, ge, gd = ned_butterworth_step(state, k + _GLP, fn, fe, fd, dt, tau_g)
+    # the accelerometer bias in the gravity measurement: LP[C f̂] = LP[C f] + LP[C] δb_a, so h on δb_a is the
+    # low-passed C's north and east rows (= C for the raw sample; a slow bias, the body turning under it)
+    cl_n0, cl_n1, cl_n2 = state[kc + 0], state[kc + 1], state[kc + 2]
+    cl_e0, cl_e1, cl_e2 = state[kc + 3], state[kc + 4], state[kc + 5]
+    if abias_on and tau_g > 0.0 and accel_ok:
+        cl_n0, cl_e0, _d = ned_butterworth_step(state, k + _CLP, state[kc + 0], state[kc + 3], state[kc + 6], dt, tau_g)
+        cl_n1, cl_e1, _d = ned_butterworth_step(state, k + _CLP + BW_LEN, state[kc + 1], state[kc + 4], state[kc + 7],
+                                                dt, tau_g)
+        cl_n2, cl_e2, _d = ned_butterworth_step(state, k + _CLP + 2 * BW_LEN, state[kc + 2], state[kc + 5],
+                                                state[kc + 8], dt, tau_g)
     w_g = w_a
     na = math.sqrt(gn * gn + ge * ge + gd * gd)
     if tau_g > 0.0 and accel_ok:
@@ -1823,6 +1953,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for m in range(3):
                     state[k + _H + _I_SCALE + m] = G_M_S2 * state[k + _JG + 3 + m]
                     state[k + _H + 6 + m] = G_M_S2 * state[k + _JG + 9 + 3 + m]
+            if abias_live:  # f = f_true + δb_a: its north component reads LP[C]_N·δb_a
+                state[k + _H + _I_ABIAS] = cl_n0
+                state[k + _H + _I_ABIAS + 1] = cl_n1
+                state[k + _H + _I_ABIAS + 2] = cl_n2
             tried = True
             if not big and _scalar_update(state, k, gn * sc, r_g, gate):
                 updated = passed = True
@@ -1833,6 +1967,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for m in range(3):
                     state[k + _H + _I_SCALE + m] = -G_M_S2 * state[k + _JG + m]
                     state[k + _H + 6 + m] = -G_M_S2 * state[k + _JG + 9 + m]
+            if abias_live:  # … its east component LP[C]_E·δb_a
+                state[k + _H + _I_ABIAS] = cl_e0
+                state[k + _H + _I_ABIAS + 1] = cl_e1
+                state[k + _H + _I_ABIAS + 2] = cl_e2
             if not big and _scalar_update(state, k, ge * sc, r_g, gate):
                 updated = passed = True
 
@@ -2017,6 +2155,10 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if tau_g > 0.0:  # the stored NED vectors move with the estimate's frame
                 nav_lowpass_rotate(state, k + _GLP, rx, ry, rz)
                 nav_lowpass_rotate(state, k + _GLP + BW_LEN // 2, rx, ry, rz)
+                if abias_on:
+                    for m in range(3):
+                        nav_lowpass_rotate(state, k + _CLP + m * BW_LEN, rx, ry, rz)
+                        nav_lowpass_rotate(state, k + _CLP + m * BW_LEN + BW_LEN // 2, rx, ry, rz)
             if state[k + _STARTED] == 0.0:  # … and so does the start window's sum
                 nav_lowpass_rotate(state, k + _START, rx, ry, rz)
         if aided or r_zv > 0.0 or k_drag > 0.0 or at_rest:
@@ -2031,6 +2173,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         for i in range(3):
             b = state[S_BIAS + i] + state[kdx + 6 + i]
             state[S_BIAS + i] = min(max(b, -lim), lim)
+        if abias_on:  # the accelerometer's bias, bounded by 3σ (``accel_bias_sigma_m_s2``, the vibration's share)
+            lim_a = 3.0 * math.sqrt(_accel_bias_variance(state, k, params))
+            for i in range(3):
+                ba = state[k + _ABIAS + i] + state[kdx + _I_ABIAS + i]
+                state[k + _ABIAS + i] = min(max(ba, -lim_a), lim_a)
         lim_s = params[p + _SCALE_LIM]
         if lim_s > 0.0:
             for i in range(3):
@@ -2138,6 +2285,14 @@ def gyro_scale_of(state: np.ndarray, k: int) -> np.ndarray:
     return np.array(state[k + _GSCALE : k + _GSCALE + 3], dtype=float)
 
 
+def accel_bias_of(state: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The estimated accelerometer bias (body frame, m/s²) and its 1-σ per axis, of an ESKF state whose own block
+    starts at ``k`` (zeros while ``accel_bias_sigma_m_s2`` is 0)."""
+    kp = k + _P + _I_ABIAS * N + _I_ABIAS
+    sig = np.sqrt(np.maximum([state[kp], state[kp + N + 1], state[kp + 2 * N + 2]], 0.0))
+    return state[k + _ABIAS : k + _ABIAS + 3].copy(), sig
+
+
 @kernel
 def s_pos(x):  # type: ignore[no-untyped-def]
     """x if positive, else 0."""
@@ -2213,6 +2368,10 @@ class Eskf(AttitudeFilter):
         p[_SCALE_Q] = settings.gyro_scale_state_walk_1_s**2
         p[_SCALE_LIM] = 3.0 * settings.gyro_scale_state_sigma
         p[_DRAG_RESET] = settings.drag_reset_s
+        p[_ABIAS_P0] = settings.accel_bias_sigma_m_s2**2
+        p[_ABIAS_TAU] = settings.accel_bias_tau_s
+        p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
+        p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
