@@ -29,12 +29,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from mavahrs.filters import gains as _g
 from mavahrs.filters.gains import GainScheduleSettings, schedule_reset
-from mavahrs.filters.initial import initial_attitude
+from mavahrs.filters.initial import align_heading_to_field, initial_attitude
 from mavahrs.filters.jit import bound_loop, kernel, loop_kernel, prange, pure_python
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_DT_INVALID,
     FLAG_GYRO_INVALID,
+    FLAG_HEADING_ALIGNED,
     FLAG_MAG_INVALID,
     FLAG_NOT_INITIALISED,
     FLAG_REINITIALISED,
@@ -84,7 +85,8 @@ Array = NDArray[np.float64]
 # Common state prefix.
 S_Q = 0  # q_body_to_ned (4)
 S_BIAS = 4  # gyro bias estimate, rad/s (3)
-S_INIT = 7  # 1.0 once initialised
+S_INIT = 7  # 1.0 once initialised (_INIT_NO_HEADING: from an accelerometer sample without a magnetometer reading)
+_INIT_NO_HEADING = 2.0  # S_INIT after a start without a magnetometer reading, till the first one sets the heading
 S_SCHED = 8  # gain schedule state (gains.GS_LEN)
 S_FILTER = S_SCHED + _g.GS_LEN  # first filter-specific state value
 
@@ -219,7 +221,8 @@ def begin_step(state, params, row, out):  # type: ignore[no-untyped-def]
                 row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2],
                 row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], mag_ok, state, S_Q,
             )  # fmt: skip
-            state[S_INIT] = 1.0
+            # 2: started without a magnetometer reading, the heading an arbitrary 0 until one comes
+            state[S_INIT] = 1.0 if mag_ok else _INIT_NO_HEADING
             schedule_reset(state[S_SCHED : S_SCHED + _g.GS_LEN], params[P_SCHED : P_SCHED + _g.GP_LEN])
             flags |= FLAG_STARTUP
         else:
@@ -234,6 +237,14 @@ def begin_step(state, params, row, out):  # type: ignore[no-untyped-def]
         return -1.0
     if dt > params[P_MAX_GAP]:
         dt = params[P_MAX_GAP]  # a gap with no accelerometer to restart from: clamp
+    if state[S_INIT] == _INIT_NO_HEADING and mag_ok:
+        # the first reading after a start without one sets the heading, as it would have at the start
+        # (a filter's own corrections take tens of seconds from an arbitrary heading, or never: a
+        # magnetometer model seeded from the data takes the start's heading for the field's north);
+        # the filter sees FLAG_HEADING_ALIGNED and moves what it holds in NED with the attitude
+        if math.isfinite(align_heading_to_field(row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2], state, S_Q)):
+            state[S_INIT] = 1.0
+            out[OUT_FLAGS] = flags | FLAG_HEADING_ALIGNED
     return dt
 
 

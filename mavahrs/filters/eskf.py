@@ -84,6 +84,7 @@ from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import integrate_body_rate, quat_multiply
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
+    FLAG_HEADING_ALIGNED,
     FLAG_MAG_INVALID,
     FLAG_STARTUP,
     FLAG_VELOCITY_AIDED,
@@ -1548,18 +1549,28 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
     h = -0.5 * psi
     a0, a1, a2, a3 = s[S_Q], s[S_Q + 1], s[S_Q + 2], s[S_Q + 3]
     s[S_Q], s[S_Q + 1], s[S_Q + 2], s[S_Q + 3] = quat_multiply(math.cos(h), 0.0, 0.0, math.sin(h), a0, a1, a2, a3)
+    # the heading noise, or what the model leaves unknown of the field across (×``heading_sigma_factor``)
+    hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
+    _heading_moved(s, k, params, -psi, params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv))
+
+
+@kernel
+def _heading_moved(s, k, params, rot, var):  # type: ignore[no-untyped-def]
+    """What the filter holds in NED follows a heading set anew (the attitude rotated by ``rot`` rad about
+    down, q ← exp(rot/2 ê_D) ⊗ q, by the caller), and the heading's variance is ``var``, uncorrelated."""
+    p = P_FILTER
+    kp = k + _P
+    km = k + _MAGF
     if params[p + _GRAV_TAU] > 0.0:
-        nav_lowpass_rotate(s, k + _GLP, 0.0, 0.0, -psi)
-        nav_lowpass_rotate(s, k + _GLP + BW_LEN // 2, 0.0, 0.0, -psi)
+        nav_lowpass_rotate(s, k + _GLP, 0.0, 0.0, rot)
+        nav_lowpass_rotate(s, k + _GLP + BW_LEN // 2, 0.0, 0.0, rot)
     for j in range(N):
         s[kp + 2 * N + j] = 0.0
         s[kp + j * N + 2] = 0.0
-    # the heading noise, or what the model leaves unknown of the field across (×``heading_sigma_factor``)
-    hv = (params[p + _MAGF_P + MP_HFACTOR] * s[km + MF_HEAD_SIGMA]) ** 2
-    s[kp + 2 * N + 2] = params[p + _R_HEADING] if known else max(params[p + _R_HEADING], hv)
+    s[kp + 2 * N + 2] = var
     # the model's held attitudes move with the frame (the take-off fit's reference: its anomaly's direction),
     # the pair references were held in the former heading and are dropped
-    mag_ref_rotate(s, km, 0.0, 0.0, -psi, s[k + _DECL], s[k + _DECL])
+    mag_ref_rotate(s, km, 0.0, 0.0, rot, s[k + _DECL], s[k + _DECL])
     mag_refs_drop(s, km)
     s[k + _MNOISE + 2] = s[k + _MNOISE + 3] = math.nan  # … and so were the readings held for the learnt noise
 
@@ -1567,6 +1578,7 @@ def _heading_reset_from_model(s, k, params, scr, amps, clk):  # type: ignore[no-
 @kernel
 def step(state, params, row, out):  # type: ignore[no-untyped-def]
     """One ESKF update (see the module docstring for the equations)."""
+    b0, b1, b2, b3 = state[S_Q], state[S_Q + 1], state[S_Q + 2], state[S_Q + 3]
     dt = begin_step(state, params, row, out)
     flags = int(out[OUT_FLAGS])
     k = S_FILTER
@@ -1575,6 +1587,15 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             eskf_reset(state, k, params)
         return
     p = P_FILTER
+    if flags & FLAG_HEADING_ALIGNED:
+        # the first magnetometer reading after a start without one set the heading (begin_step): the
+        # rotation it made about down, from q_after ⊗ q_beforeᶜ = exp(rot/2 ê_D); the heading's variance
+        # that of a start with the reading (``initial_heading_rad``)
+        rot = 2.0 * math.atan2(
+            -state[S_Q] * b3 + state[S_Q + 3] * b0 - state[S_Q + 1] * b2 + state[S_Q + 2] * b1,
+            state[S_Q] * b0 + state[S_Q + 1] * b1 + state[S_Q + 2] * b2 + state[S_Q + 3] * b3,
+        )
+        _heading_moved(state, k, params, rot, params[p + _P0_HEADING])
     accel_ok = (flags & FLAG_ACCEL_INVALID) == 0
     mag_ok = (flags & FLAG_MAG_INVALID) == 0
     # the reading is (1 + s)·ω + b per axis (s = 0 unless gyro_scale_state_sigma)

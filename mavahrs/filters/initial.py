@@ -27,7 +27,7 @@ import math
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import ned_to_body, rotate_nav
 
-__all__ = ["quat_from_matrix_rows", "initial_attitude", "triad_attitude", "align_tilt_to_force"]
+__all__ = ["quat_from_matrix_rows", "initial_attitude", "align_heading_to_field", "triad_attitude", "align_tilt_to_force"]
 
 
 @kernel
@@ -88,6 +88,28 @@ def initial_attitude(ax, ay, az, mx, my, mz, use_mag, out, k):  # type: ignore[n
     out[k + 1] = sr * cp
     out[k + 2] = cr * sp
     out[k + 3] = -sr * sp
+
+
+@kernel
+def align_heading_to_field(mx, my, mz, out, k):  # type: ignore[no-untyped-def]
+    """Rotate ``q_body_to_ned`` at ``out[k:k+4]`` about NED down so that the field ``m`` (body) points north.
+
+    The tilt is kept; the heading becomes the one :func:`initial_attitude` gives with the field (its
+    horizontal projection, C m, along north: ψ = atan2(E, N) of C m, q ← exp(−ψ/2 · ê_D) ⊗ q).  Returns
+    the rotation applied about down, rad (−ψ), or NaN (``out`` untouched) when the field is (nearly)
+    vertical or zero: the heading is then not told by it.
+    """
+    q0, q1, q2, q3 = out[k], out[k + 1], out[k + 2], out[k + 3]
+    hn = (1.0 - 2.0 * (q2 * q2 + q3 * q3)) * mx + 2.0 * (q1 * q2 - q0 * q3) * my + 2.0 * (q1 * q3 + q0 * q2) * mz
+    he = 2.0 * (q1 * q2 + q0 * q3) * mx + (1.0 - 2.0 * (q1 * q1 + q3 * q3)) * my + 2.0 * (q2 * q3 - q0 * q1) * mz
+    m = math.sqrt(mx * mx + my * my + mz * mz)
+    if not (math.sqrt(hn * hn + he * he) > 1e-6 * m):
+        return math.nan
+    rot = -math.atan2(he, hn)
+    c, s = math.cos(0.5 * rot), math.sin(0.5 * rot)
+    # exp(rot/2 · ê_D) ⊗ q, ê_D = (0, 0, 1) in NED
+    out[k], out[k + 1], out[k + 2], out[k + 3] = c * q0 - s * q3, c * q1 - s * q2, c * q2 + s * q1, c * q3 + s * q0
+    return rot
 
 
 @kernel

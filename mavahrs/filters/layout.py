@@ -89,5 +89,9 @@ FLAG_SATURATED = 128
 #: the filter's 1-σ tilt uncertainty and OUT_HEADING_SIGMA its heading's, which the second-opinion monitor's
 #: thresholds use.
 FLAG_VELOCITY_AIDED = 256
+#: The heading was set from this sample's magnetometer reading: the filter had started (or restarted) from an
+#: accelerometer sample without one (a DataFlash log's IMU rows before its first MAG record, a stream whose
+#: compass speaks later), its heading till now an arbitrary 0, not a measurement.
+FLAG_HEADING_ALIGNED = 512
 
 __all__ = [name for name in dir() if name.isupper()]
