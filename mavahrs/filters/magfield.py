@@ -163,7 +163,9 @@ MF_TO_K = MF_TO_SCR + 27  # what the fit gave: k (3), its σ (3), µT/A; the res
 MF_TO_CAND = MF_TO_K + 10  # the next reference (a reading held TO_REF_AGE_S on the ground): m (3), C (9), I, clock
 MF_TO_PEND = MF_TO_CAND + 14  # a reading waiting for the current reported after it: m (3), C (9, row-major), h, clock, held
 MF_TO_ACC2 = MF_TO_PEND + 15  # the same sums (TO_ACC_LEN) with the current reported later (MP_TO_LAG)
-MF_LEN = MF_TO_ACC2 + 44
+MF_TO_HG = MF_TO_ACC2 + 44  # the height (MF_HEIGHT) the reference was held at, m: the take-off fit's ground
+MF_TO_CAND_H = MF_TO_HG + 1  # … and the candidate's
+MF_LEN = MF_TO_CAND_H + 1
 
 # parameter offsets
 MP_ON = 0
@@ -596,7 +598,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     if s[k + MF_TO_ON] == 4.0 and s[k + MF_LOW] > 0.0:
         # fused early, still near the ground: the fitted anomaly faded to this height, R â s(h), R = Cᵀ C_g
         hh = p[MP_TO_HEIGHT]
-        sc = (hh / (max(s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN], 0.0) + hh)) ** 3
+        sc = (hh / (max(s[k + MF_HEIGHT] - s[k + MF_TO_HG], 0.0) + hh)) ** 3
         kr = k + MF_TO_C
         ka = k + MF_TO_K + 7
         for a in range(3):
@@ -839,6 +841,7 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
         if st == 1.0 and clk - s[kc + 13] >= TO_REF_AGE_S:
             for i in range(13):
                 s[k + MF_TO_M + i] = s[kc + i]
+            s[k + MF_TO_HG] = s[k + MF_TO_CAND_H]
         if st != 1.0 or clk - s[kc + 13] >= TO_REF_AGE_S:
             s[kc] = mx
             s[kc + 1] = my
@@ -848,9 +851,11 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
                     s[kc + 3 + 3 * b + q] = c[3 * q + b]
             s[kc + 12] = amps
             s[kc + 13] = clk
+            s[k + MF_TO_CAND_H] = s[k + MF_HEIGHT]
         if st != 1.0:
             for i in range(13):
                 s[k + MF_TO_M + i] = s[kc + i]
+            s[k + MF_TO_HG] = s[k + MF_TO_CAND_H]
         s[k + MF_TO_ON] = 1.0
         for i in range(TO_ACC_LEN):
             s[k + MF_TO_L + i] = 0.0
@@ -859,6 +864,10 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
         return
     s[k + MF_TO_ON] = 2.0
     kq = k + MF_TO_PEND
+    # the anomaly's fade is a function of the height above the reference's (held on the ground), not above the
+    # lowest height seen: the integrated GNSS velocity's noise takes that minimum below the ground as the vehicle
+    # waits (firmware_sim mag_anomaly seed 41: 0.18 m by lift-off, s(h) 0.77 on the ground, k 20–30 % too large)
+    hgt = max(s[k + MF_HEIGHT] - s[k + MF_TO_HG], 0.0)
     _takeoff_add(s, k, p, k + MF_TO_L, c, 0, mx, my, mz, hgt, amps)
     if p[MP_TO_LAG] > 0.0:
         # … and the current reported late: the reading held, and fitted with the next reading's current
