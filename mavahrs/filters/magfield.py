@@ -163,7 +163,7 @@ MF_TO_K = MF_TO_SCR + 27  # what the fit gave: k (3), its σ (3), µT/A; the res
 MF_TO_CAND = MF_TO_K + 10  # the next reference (a reading held TO_REF_AGE_S on the ground): m (3), C (9), I, clock
 MF_TO_PEND = MF_TO_CAND + 14  # a reading waiting for the current reported after it: m (3), C (9, row-major), h, clock, held
 MF_TO_ACC2 = MF_TO_PEND + 15  # the same sums (TO_ACC_LEN) with the current reported later (MP_TO_LAG)
-MF_TO_HG = MF_TO_ACC2 + 44  # the height (MF_HEIGHT) the reference was held at, m: the take-off fit's ground
+MF_TO_HG = MF_TO_ACC2 + 44  # the take-off fit's ground: the lowest height (MF_HEIGHT) since the reference was held, m
 MF_TO_CAND_H = MF_TO_HG + 1  # … and the candidate's
 MF_LEN = MF_TO_CAND_H + 1
 
@@ -832,6 +832,8 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
     st = s[k + MF_TO_ON]
     hgt = s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN]
     kc = k + MF_TO_CAND
+    if st == 1.0 or st == 2.0 or st == 4.0:
+        s[k + MF_TO_HG] = min(s[k + MF_TO_HG], s[k + MF_HEIGHT])
     steady = hgt < TO_GROUND_M and abs(amps - s[kc + 12]) < TO_STEADY_A
     if st == 4.0 and hgt >= TO_GROUND_M:
         return  # fused early: the anomaly is taken out of the corrected reading until the vehicle leaves
@@ -864,9 +866,12 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
         return
     s[k + MF_TO_ON] = 2.0
     kq = k + MF_TO_PEND
-    # the anomaly's fade is a function of the height above the reference's (held on the ground), not above the
-    # lowest height seen: the integrated GNSS velocity's noise takes that minimum below the ground as the vehicle
-    # waits (firmware_sim mag_anomaly seed 41: 0.18 m by lift-off, s(h) 0.77 on the ground, k 20–30 % too large)
+    # the anomaly's fade is a function of the height above the ground the vehicle lifted off from: the lowest
+    # height since the reference was held there (on the ground until lift-off), not the lowest seen since the
+    # start: the integrated velocity wanders as the vehicle waits, and that minimum can lie well below the
+    # ground it lifts off from (firmware_sim mag_anomaly seed 41: 0.18 m by lift-off, s(h) 0.77 on the ground,
+    # k 20–30 % too large); since the reference, the velocity's drift adds only over 1–2 s, and a downward drift
+    # (with the receiver's velocity only, no vertical component: 0.6 m/s) ends where the climb begins
     hgt = max(s[k + MF_HEIGHT] - s[k + MF_TO_HG], 0.0)
     _takeoff_add(s, k, p, k + MF_TO_L, c, 0, mx, my, mz, hgt, amps)
     if p[MP_TO_LAG] > 0.0:
