@@ -436,6 +436,19 @@ def _h_row(c, j, amps, h):  # type: ignore[no-untyped-def]
     h[_FD] = 1.0 if j == 2 else 0.0
 
 
+@kernel(inline=True)
+def _scalar_apply(s, kx, kp, ph, po, y, sv):  # type: ignore[no-untyped-def]
+    """A scalar Kalman update of the model's state at ``kx`` and covariance at ``kp`` (NX, NX×NX), given
+    ``P hᵀ`` at ``ph[po:po + NX]``, the innovation y and its variance sv = h P hᵀ + r: x ← x + P hᵀ y / sv,
+    P ← P − P hᵀ (P hᵀ)ᵀ / sv (Solà 2017 eq. (275)–(279))."""
+    inv = 1.0 / sv
+    for a in range(NX):
+        s[kx + a] += ph[po + a] * inv * y
+    for a in range(NX):
+        for b in range(NX):
+            s[kp + a * NX + b] -= ph[po + a] * inv * ph[po + b]
+
+
 @kernel
 def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph, vn, ve, vd):  # type: ignore[no-untyped-def]
     """Fuse one new reading ``m`` (µT, body) into the model; return its trust (``MAG_*``).
@@ -581,12 +594,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
             y = lim
         elif y < -lim:
             y = -lim
-        inv = 1.0 / sv
-        for a in range(NX):
-            s[kx + a] += ph[a] * inv * y
-        for a in range(NX):
-            for b in range(NX):
-                s[kp + a * NX + b] -= ph[a] * inv * ph[b]
+        _scalar_apply(s, kx, kp, ph, 0, y, sv)
     for a in range(NX):  # symmetric
         for b in range(a + 1, NX):
             v = 0.5 * (s[kp + a * NX + b] + s[kp + b * NX + a])
@@ -783,12 +791,7 @@ def _pair_fuse(s, k, p, ks, c, mx, my, mz, amps, sig_m2, h, ph):  # type: ignore
                 for e in range(6):
                     acc += s[kp + b * NX + e] * h[e]
                 ph[b] = acc
-            inv = 1.0 / sv
-            for b in range(NX):
-                s[kx + b] += ph[b] * inv * y
-            for b in range(NX):
-                for e in range(NX):
-                    s[kp + b * NX + e] -= ph[b] * inv * ph[e]
+            _scalar_apply(s, kx, kp, ph, 0, y, sv)
     return fits
 
 
@@ -1049,13 +1052,9 @@ def _takeoff_fuse(s, k, p):  # type: ignore[no-untyped-def]
         if not (sv > 0.0):
             continue
         y = s[kk + i] - s[kx + 3 + i]
-        inv = 1.0 / sv
         for a in range(NX):  # P's column 3 + i
             s[ks + a] = s[kp + a * NX + 3 + i]
-        for a in range(NX):
-            s[kx + a] += s[ks + a] * inv * y
-            for b in range(NX):
-                s[kp + a * NX + b] -= s[ks + a] * inv * s[ks + b]
+        _scalar_apply(s, kx, kp, s, ks, y, sv)
 
 
 @kernel(inline=True)
