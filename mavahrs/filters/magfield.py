@@ -163,7 +163,9 @@ MF_TO_K = MF_TO_SCR + 27  # what the fit gave: k (3), its σ (3), µT/A; the res
 MF_TO_CAND = MF_TO_K + 10  # the next reference (a reading held TO_REF_AGE_S on the ground): m (3), C (9), I, clock
 MF_TO_PEND = MF_TO_CAND + 14  # a reading waiting for the current reported after it: m (3), C (9, row-major), h, clock, held
 MF_TO_ACC2 = MF_TO_PEND + 15  # the same sums (TO_ACC_LEN) with the current reported later (MP_TO_LAG)
-MF_LEN = MF_TO_ACC2 + 44
+MF_TO_HG = MF_TO_ACC2 + 44  # the take-off fit's ground: the lowest height (MF_HEIGHT) since the reference was held, m
+MF_TO_CAND_H = MF_TO_HG + 1  # … and the candidate's
+MF_LEN = MF_TO_CAND_H + 1
 
 # parameter offsets
 MP_ON = 0
@@ -434,6 +436,19 @@ def _h_row(c, j, amps, h):  # type: ignore[no-untyped-def]
     h[_FD] = 1.0 if j == 2 else 0.0
 
 
+@kernel(inline=True)
+def _scalar_apply(s, kx, kp, ph, po, y, sv):  # type: ignore[no-untyped-def]
+    """A scalar Kalman update of the model's state at ``kx`` and covariance at ``kp`` (NX, NX×NX), given
+    ``P hᵀ`` at ``ph[po:po + NX]``, the innovation y and its variance sv = h P hᵀ + r: x ← x + P hᵀ y / sv,
+    P ← P − P hᵀ (P hᵀ)ᵀ / sv (Solà 2017 eq. (275)–(279))."""
+    inv = 1.0 / sv
+    for a in range(NX):
+        s[kx + a] += ph[po + a] * inv * y
+    for a in range(NX):
+        for b in range(NX):
+            s[kp + a * NX + b] -= ph[po + a] * inv * ph[po + b]
+
+
 @kernel
 def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, ref_dip, clk, out4, h, ph, vn, ve, vd):  # type: ignore[no-untyped-def]
     """Fuse one new reading ``m`` (µT, body) into the model; return its trust (``MAG_*``).
@@ -579,12 +594,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
             y = lim
         elif y < -lim:
             y = -lim
-        inv = 1.0 / sv
-        for a in range(NX):
-            s[kx + a] += ph[a] * inv * y
-        for a in range(NX):
-            for b in range(NX):
-                s[kp + a * NX + b] -= ph[a] * inv * ph[b]
+        _scalar_apply(s, kx, kp, ph, 0, y, sv)
     for a in range(NX):  # symmetric
         for b in range(a + 1, NX):
             v = 0.5 * (s[kp + a * NX + b] + s[kp + b * NX + a])
@@ -596,7 +606,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
     if s[k + MF_TO_ON] == 4.0 and s[k + MF_LOW] > 0.0:
         # fused early, still near the ground: the fitted anomaly faded to this height, R â s(h), R = Cᵀ C_g
         hh = p[MP_TO_HEIGHT]
-        sc = (hh / (max(s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN], 0.0) + hh)) ** 3
+        sc = (hh / (max(s[k + MF_HEIGHT] - s[k + MF_TO_HG], 0.0) + hh)) ** 3
         kr = k + MF_TO_C
         ka = k + MF_TO_K + 7
         for a in range(3):
@@ -781,12 +791,7 @@ def _pair_fuse(s, k, p, ks, c, mx, my, mz, amps, sig_m2, h, ph):  # type: ignore
                 for e in range(6):
                     acc += s[kp + b * NX + e] * h[e]
                 ph[b] = acc
-            inv = 1.0 / sv
-            for b in range(NX):
-                s[kx + b] += ph[b] * inv * y
-            for b in range(NX):
-                for e in range(NX):
-                    s[kp + b * NX + e] -= ph[b] * inv * ph[e]
+            _scalar_apply(s, kx, kp, ph, 0, y, sv)
     return fits
 
 
@@ -830,6 +835,8 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
     st = s[k + MF_TO_ON]
     hgt = s[k + MF_HEIGHT] - s[k + MF_HEIGHT_MIN]
     kc = k + MF_TO_CAND
+    if st == 1.0 or st == 2.0 or st == 4.0:
+        s[k + MF_TO_HG] = min(s[k + MF_TO_HG], s[k + MF_HEIGHT])
     steady = hgt < TO_GROUND_M and abs(amps - s[kc + 12]) < TO_STEADY_A
     if st == 4.0 and hgt >= TO_GROUND_M:
         return  # fused early: the anomaly is taken out of the corrected reading until the vehicle leaves
@@ -839,6 +846,7 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
         if st == 1.0 and clk - s[kc + 13] >= TO_REF_AGE_S:
             for i in range(13):
                 s[k + MF_TO_M + i] = s[kc + i]
+            s[k + MF_TO_HG] = s[k + MF_TO_CAND_H]
         if st != 1.0 or clk - s[kc + 13] >= TO_REF_AGE_S:
             s[kc] = mx
             s[kc + 1] = my
@@ -848,9 +856,11 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
                     s[kc + 3 + 3 * b + q] = c[3 * q + b]
             s[kc + 12] = amps
             s[kc + 13] = clk
+            s[k + MF_TO_CAND_H] = s[k + MF_HEIGHT]
         if st != 1.0:
             for i in range(13):
                 s[k + MF_TO_M + i] = s[kc + i]
+            s[k + MF_TO_HG] = s[k + MF_TO_CAND_H]
         s[k + MF_TO_ON] = 1.0
         for i in range(TO_ACC_LEN):
             s[k + MF_TO_L + i] = 0.0
@@ -859,6 +869,13 @@ def _takeoff_fit(s, k, p, c, mx, my, mz, amps, clk):  # type: ignore[no-untyped-
         return
     s[k + MF_TO_ON] = 2.0
     kq = k + MF_TO_PEND
+    # the anomaly's fade is a function of the height above the ground the vehicle lifted off from: the lowest
+    # height since the reference was held there (on the ground until lift-off), not the lowest seen since the
+    # start: the integrated velocity wanders as the vehicle waits, and that minimum can lie well below the
+    # ground it lifts off from (firmware_sim mag_anomaly seed 41: 0.18 m by lift-off, s(h) 0.77 on the ground,
+    # k 20–30 % too large); since the reference, the velocity's drift adds only over 1–2 s, and a downward drift
+    # (with the receiver's velocity only, no vertical component: 0.6 m/s) ends where the climb begins
+    hgt = max(s[k + MF_HEIGHT] - s[k + MF_TO_HG], 0.0)
     _takeoff_add(s, k, p, k + MF_TO_L, c, 0, mx, my, mz, hgt, amps)
     if p[MP_TO_LAG] > 0.0:
         # … and the current reported late: the reading held, and fitted with the next reading's current
@@ -1035,13 +1052,9 @@ def _takeoff_fuse(s, k, p):  # type: ignore[no-untyped-def]
         if not (sv > 0.0):
             continue
         y = s[kk + i] - s[kx + 3 + i]
-        inv = 1.0 / sv
         for a in range(NX):  # P's column 3 + i
             s[ks + a] = s[kp + a * NX + 3 + i]
-        for a in range(NX):
-            s[kx + a] += s[ks + a] * inv * y
-            for b in range(NX):
-                s[kp + a * NX + b] -= s[ks + a] * inv * s[ks + b]
+        _scalar_apply(s, kx, kp, s, ks, y, sv)
 
 
 @kernel(inline=True)
