@@ -142,6 +142,21 @@ class MonitorSettings:
             whole rate in both, 0.5 s split).
         min_tilt_threshold_deg, min_heading_threshold_deg: floors of the
             ``uncertainty`` thresholds, deg.
+        heading_tolerance_floor: ``uncertainty``: the heading threshold is also
+            at least ``sigma_k`` × (σ_autopilot + σ_ours): the autopilot's
+            tolerance (3°) plus our own error at ``sigma_k`` σ, added rather
+            than in quadrature.  The quadrature sum treats the autopilot's
+            error as noise; its heading error is a compass error correlated
+            for minutes, which can stand at the tolerance's edge while ours
+            lies the other way (firmware_sim magnetic 3 at 147.6 s: the
+            simulated autopilot 2.90° off, ours 0.7° the other way, a
+            divergence of 3.67° against 3.61°, the level CUSUM built up over 3 s
+            at 0.8–0.97 × the threshold: a WARNING for an autopilot inside its
+            tolerance).  The least favourable autopilot the tolerance lets
+            pass, not a tuned figure: with our σ at its 1° floor 5.0°.  Not for
+            the tilt, which every GNSS fix observes (its error is short-lived:
+            the quadrature sum holds, and tol + 2σ, 2.0°, would hide the 2°
+            step this monitor is built for).
         cusum_reference: ``uncertainty``: the sequential test (a one-sided
             CUSUM, Page 1954) accumulates ``(z − cusum_reference)·Δt`` where
             ``z`` = divergence / threshold (the larger of tilt and heading,
@@ -360,6 +375,7 @@ class MonitorSettings:
     sync_s: float = 0.005
     min_tilt_threshold_deg: float = 1.0
     min_heading_threshold_deg: float = 3.0
+    heading_tolerance_floor: bool = True
     cusum_reference: float = 0.5
     cusum_leak_per_s: float = 0.2
     learn_k: float = 2.5
@@ -1114,6 +1130,10 @@ class AttitudeMonitor:
             lk, cap = self.settings.learn_k, self.settings.learn_max_factor
             tilt = max(tilt, min(lk * math.sqrt(m_t), cap * tilt))
             hdg = max(hdg, min(lk * math.sqrt(m_h), cap * hdg)) if hdg_on else 0.0
+        if hdg_on and self.settings.heading_tolerance_floor:
+            # the least favourable autopilot within its tolerance: its heading error standing at the tolerance
+            # (a compass error is correlated for minutes, not noise that averages out), ours at k σ the other way
+            hdg = max(hdg, k * (self._sig_ap[1] + s_h))
         return tilt, hdg
 
     def _change_test(
