@@ -1485,7 +1485,12 @@ class AttitudeMonitor:
             ev = self._evidence.evidence()
             new = [w for w in ev.cause.split() if w not in self.last_cause.split()]
             self.last_evidence = ev
-            if new and self._updates < _MAX_UPDATES:
+            # … while the disagreement is still there: once the divergence is back within its thresholds (the
+            # warning waits clear_s to be over) a verdict would be about the seconds before, not about it
+            # (firmware_sim aggressive 41 at 27.5 s: `us?` said with the two 0.3° apart, both within 0.2° of
+            # the truth)
+            still = above or z_c > 1.0 or z_w > 1.0 or z_d > 1.0
+            if new and still and self._updates < _MAX_UPDATES:
                 self._updates += 1
                 self.last_cause = ev.cause
                 self.last_update = True
