@@ -880,6 +880,7 @@ class AttitudeMonitor:
         self._cusum_d = 0.0  # … and of a disagreement that grows while a warning is on (change_drift_s)
         self._drift_acc = [0.0, 0.0, 0.0, 0.0]
         self._drift_seen: list[tuple[float, float, float]] = []
+        self._beyond_ms = -math.inf  # when the divergence was last beyond a threshold
         self._drift_armed = False  # the drift test judges the warning that is on (not one it raised itself)
         self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
         self._e_warned = (0.0, 0.0, 0.0)  # … when the warning that is on was raised
@@ -1479,18 +1480,19 @@ class AttitudeMonitor:
             self._ground_episodes += 1
             text = _fit(PHASE_TEXT, tilt, heading, PHASE_WORDS.get(phase, phase), cause)
             return [_statustext(mavlink.MAV_SEVERITY_NOTICE, text)]
+        if above or z_c > 1.0 or z_w > 1.0 or z_d > 1.0:
+            self._beyond_ms = t_ms  # the disagreement beyond a threshold (said again only while it is recent)
         if self._warning and t_ms >= self._next_evidence_ms:  # the evidence as it builds up: said again when new
             self._next_evidence_ms = t_ms + _EVIDENCE_PERIOD_MS
             self._evidence.sigma, self._evidence.sigma_hdg = self._sigma, self._sigma_hdg
             ev = self._evidence.evidence()
             new = [w for w in ev.cause.split() if w not in self.last_cause.split()]
             self.last_evidence = ev
-            # … while the disagreement is still there: once the divergence is back within its thresholds (the
-            # warning waits clear_s to be over) a verdict would be about the seconds before, not about it
-            # (firmware_sim aggressive 41 at 27.5 s: `us?` said with the two 0.3° apart, both within 0.2° of
-            # the truth)
-            still = above or z_c > 1.0 or z_w > 1.0 or z_d > 1.0
-            if new and still and self._updates < _MAX_UPDATES:
+            # … while the disagreement is still there, or was within the evidence's newest window (gnss_window_s):
+            # once the divergence has been back within its thresholds longer (the warning waits clear_s to be
+            # over) a new verdict would be about a disagreement gone (firmware_sim aggressive 41 at 27.5 s: `us?`
+            # said with the two 0.3° apart, both within 0.2° of the truth)
+            if new and t_ms - self._beyond_ms <= 1000.0 * s.gnss_window_s and self._updates < _MAX_UPDATES:
                 self._updates += 1
                 self.last_cause = ev.cause
                 self.last_update = True
