@@ -299,7 +299,7 @@ class MonitorSettings:
             Once per warning: a WARNING it raised is not raised again as the
             disagreement grows on.  (firmware_sim aggressive 41 / 43: a 0.2°/s
             tilt ramp 0.5 s after a correct WARNING, never warned / after 16.2 s
-            (3.2°) without it; 9.0 / 10.9 s with it.)
+            (3.2°) without it; 11.1 / 13.4 s, 2.2° / 2.7°, with it.)
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -1283,9 +1283,11 @@ class AttitudeMonitor:
         ``change_step_s`` of the warning (a step that raised it, or came in those seconds, is in that level: the
         step tests judge those), tilt ``|e − e_w|`` (north, east) and heading each as the change test's ratio to
         its thresholds — the noise of a change of the divergence, learnt before the warning (the change test
-        learns nothing while a warning is on) —, with the thresholds' floors; 0 where the growth leads back
-        toward agreement (``(e − e_w)·e ≤ 0``), where not judged now, or where the warning on was raised by this
-        test.  A ramp of rate r started at the warning is a change of about r·(t − change_step_s / 2) after t
+        learns nothing while a warning is on) —, with the thresholds' floors; at most the distance from the
+        nearest level the divergence took in the ``change_step_s`` before the warning and in its first
+        ``change_step_s`` (an intermittent fault coming back is the warning already on: 35 → 57 repeated
+        WARNINGs on 24 flights without it); 0 where the growth leads back toward agreement
+        (``(e − e_w)·e ≤ 0``), where not judged now, or where the warning on was raised by this test.  A ramp of rate r started at the warning is a change of about r·(t − change_step_s / 2) after t
         s; within any 2 s it moves too little for the step tests (Page's CUSUM on a change in the mean against
         a known pre-change level, Basseville & Nikiforov 1993 §2.2)."""
         ch = self._change
