@@ -394,14 +394,15 @@ def test_simulated_autopilot_at_every_attitude_rate(sim_flight: SimFlight, att_h
 
 @pytest.mark.parametrize(("heading_sigma_deg", "warns"), [(0.5, True), (3.0, False), (math.nan, True)])
 def test_our_heading_sigma_sets_the_heading_threshold(heading_sigma_deg: float, warns: bool) -> None:
-    """A steady 5° heading disagreement: judged against k·√(σ_ours² + σ_autopilot²) with our filter's own
-    heading σ where it gives one larger than ``heading_sigma_deg`` (3°, as after a fast yaw: threshold 6.7°,
-    not warned), and ``heading_sigma_deg`` (1°: 3.6°, warned) where it gives less (0.5°) or none (NaN).  (The learnt floor is off: inside the
+    """A steady 5.5° heading disagreement: judged against k·(σ_autopilot + σ_ours) (``heading_tolerance_floor``:
+    the autopilot at its 3° tolerance, ours at k σ) with our filter's own heading σ where it gives one larger
+    than ``heading_sigma_deg`` (3°, as after a fast yaw: threshold 9°, not warned), and ``heading_sigma_deg``
+    (1°: 5.0°, warned) where it gives less (0.5°) or none (NaN).  (The learnt floor is off: inside the
     threshold the disagreement would be learnt as this flight's normal and raise it further.)"""
     s = MonitorSettings(startup_grace_s=0.0, learn_k=0.0)
     mon = AttitudeMonitor(s)
     q_ours = (1.0, 0.0, 0.0, 0.0)
-    q_ap = tuple(from_euler_rad(0.0, 0.0, math.radians(5.0)))
+    q_ap = tuple(from_euler_rad(0.0, 0.0, math.radians(5.5)))
     out = []
     for k in range(2000):  # 20 s, ours at 100 Hz, the autopilot's at 10 Hz
         t = 1000.0 + 10.0 * k
@@ -409,11 +410,33 @@ def test_our_heading_sigma_sets_the_heading_threshold(heading_sigma_deg: float, 
         if k % 10 == 0:
             out += mon.add_autopilot(t, q_ap)
     sig_h = max(heading_sigma_deg, s.heading_sigma_deg) if math.isfinite(heading_sigma_deg) else s.heading_sigma_deg
-    expected = max(s.min_heading_threshold_deg, s.sigma_k * math.hypot(sig_h, s.autopilot_heading_sigma_deg))
+    expected = s.sigma_k * (sig_h + s.autopilot_heading_sigma_deg)
+    assert expected > max(s.min_heading_threshold_deg, s.sigma_k * math.hypot(sig_h, s.autopilot_heading_sigma_deg))
     assert mon.status.heading_threshold_deg == pytest.approx(expected, rel=1e-6)
-    assert abs(mon.status.heading_deg) == pytest.approx(5.0, abs=1e-6)
+    assert abs(mon.status.heading_deg) == pytest.approx(5.5, abs=1e-6)
     warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
     assert bool(warned) is warns, [m.text for m in out]
+
+
+@pytest.mark.parametrize("floor", [True, False])
+def test_an_autopilot_heading_at_its_tolerance_with_ours_the_other_way_is_not_warned(floor: bool) -> None:
+    """firmware_sim magnetic 3 at 147.6 s: the simulated autopilot's heading 2.9° off (inside its 3°
+    tolerance), ours 0.7° the other way at a σ of 1°: a divergence of 3.6–3.7° against the quadrature
+    threshold 2·√(1² + 1.5²) = 3.61°, which the level CUSUM built up to over seconds at 0.8–0.97 × it and
+    warned of.  With the least favourable autopilot within its tolerance (``heading_tolerance_floor``: 2·(1.5 +
+    1) = 5.0°) not warned; a 6° disagreement still is."""
+    s = MonitorSettings(startup_grace_s=0.0, learn_k=0.0, heading_tolerance_floor=floor)
+    for hdg_deg, warns in ((3.7, not floor), (6.0, True)):
+        mon = AttitudeMonitor(s)
+        q_ap = tuple(from_euler_rad(0.0, 0.0, math.radians(hdg_deg)))
+        out = []
+        for k in range(1500):  # 15 s, ours at 100 Hz, the autopilot's at 10 Hz
+            t = 1000.0 + 10.0 * k
+            out += mon.add_estimate(t, (1.0, 0.0, 0.0, 0.0), math.radians(0.3), math.radians(1.0))
+            if k % 10 == 0:
+                out += mon.add_autopilot(t, q_ap)
+        warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
+        assert bool(warned) is warns, (hdg_deg, [m.text for m in out])
 
 
 def _steady(mon: AttitudeMonitor, t0_ms: float, seconds: float, tilt_deg: Callable[[float], float],

@@ -232,7 +232,7 @@ def test_a_gyro_bias_step_on_one_of_two_imus_is_warned_and_that_imu_named(tmp_pa
 
 def test_a_slow_heading_drift_is_not_learnt_as_normal() -> None:
     """The learnt widening takes only what lies within the error model's thresholds: a heading drift of
-    0.2°/s is warned once past them (3.6°), not followed by a threshold learnt from it."""
+    0.2°/s is warned once past them (5.0°), not followed by a threshold learnt from it."""
     from mavahrs.geometry.quaternion import from_axis_angle as about
 
     t_ms, q_est, t_ap, q_ap, sigma, sensors = _flight("none")
@@ -242,8 +242,8 @@ def test_a_slow_heading_drift_is_not_learnt_as_normal() -> None:
     warns = [e for e in res.events if e.in_flight]
     assert warns, res.events
     at = (warns[0].t_ms / 1000.0 - 20.0) * 0.2
-    assert 3.6 < at < 5.1, at
-    assert np.nanmax(res.heading_threshold_deg) < 4.1
+    assert 5.0 < at < 6.5, at  # past the threshold, 5.0° (heading_tolerance_floor), not a learnt one
+    assert np.nanmax(res.heading_threshold_deg) < 5.1
 
 
 # ---------------------------------------------------------------------------- the magnetometer model's word
@@ -338,5 +338,25 @@ def test_the_gnss_evidence_gives_no_verdict_it_cannot_support(tmp_path: Path) ->
     times = [float(x) for x in row.alarm_times_s.split(";") if x]
     causes = row.alarm_causes.split(";")
     near = [c for t, c in zip(times, causes, strict=True) if 54.0 <= t <= 58.0]
+    assert near, (times, causes)  # the warning itself stays
+    assert all("us?" not in c for c in near), (times, causes)
+
+
+def test_no_verdict_is_said_once_the_disagreement_is_gone(tmp_path: Path) -> None:
+    # firmware_sim aggressive 41: a correct WARNING at 18.5 s (the simulated autopilot 1.2–1.3° off in tilt) stays
+    # on until 29.6 s (clear_s after agreeing again); at 27.5 s, the two 0.3° apart and both within 0.2° of the
+    # truth, the evidence said again `us?` (its GNSS windows still held the seconds of the disagreement): no
+    # verdict is said again once the divergence is back within its thresholds
+    pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
+    from mavahrs.fleet.audit import summarise_log
+
+    path = tmp_path / "aggressive_41.tlog"
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", "aggressive",
+                    "--duration", "32", "--seed", "41", "-q"], check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    row = summarise_log(path)
+    assert row.ok, row.error
+    times = [float(x) for x in row.alarm_times_s.split(";") if x]
+    causes = row.alarm_causes.split(";")
+    near = [c for t, c in zip(times, causes, strict=True) if 17.0 <= t <= 20.0]
     assert near, (times, causes)  # the warning itself stays
     assert all("us?" not in c for c in near), (times, causes)

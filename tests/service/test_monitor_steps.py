@@ -148,3 +148,25 @@ def test_a_step_half_a_second_after_a_correct_warning_is_warned_within_2_s(tmp_p
     assert 0.1 < latency <= 2.0, latency  # none before
     latency, _ = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), heading_deg=6.0), tmp_path)
     assert 0.1 < latency <= 3.0, latency
+
+
+def test_a_ramp_half_a_second_after_a_correct_warning_is_warned_before_2_5_deg(tmp_path: Path) -> None:
+    # firmware_sim aggressive 41: a correct WARNING at 99.6 s (the simulated autopilot 1.6° off in tilt); a
+    # 0.2°/s tilt ramp from 0.5 s later is a disagreement growing under the warning already on — within any 2 s
+    # it moves too little for the step tests, so before the drift test (change_drift_s) it was never warned
+    # (aggressive 43: 16.2 s, 3.2°)
+    path = _sim_flight(tmp_path, "aggressive", 41, 116.0)
+    from mavahrs.fleet.audit import summarise_log
+
+    clean = [float(x) for x in summarise_log(path).alarm_times_s.split(";") if x]
+    warned = [t for t in clean if 95.0 <= t < 100.5]
+    assert warned, clean  # the correct warning, on when the ramp starts
+    onset = warned[-1] + 0.5
+    assert not [t for t in clean if t >= onset], clean  # … and no other on the flight as recorded until 116 s
+    copy = tmp_path / "ramp.tlog"
+    inject_faults(path, copy, [AttitudeFault(FaultShape("ramp", onset, ramp_s=50.0), tilt_deg=10.0)])
+    row = summarise_log(copy)
+    copy.unlink()
+    after = [float(x) - onset for x in row.alarm_times_s.split(";") if x and float(x) >= onset]
+    assert after, row.alarm_times_s  # none before
+    assert 0.2 * after[0] < 2.5, after  # the ramp's size, deg, when warned
