@@ -684,7 +684,8 @@ class Pipeline:
                     f"for {self.settings.heartbeat_timeout_s:g} s",
                     now_us,
                 )
-            for req in self._requester.poll(now_us):
+            heard = max(self._last_hb_us or 0, self._last_imu_us or 0)  # anything from the autopilot
+            for req in self._requester.poll(now_us, heard):
                 out.append(Outgoing(self._request_frame(req), True, False))
             if self._monitor_on:
                 if now_us >= self._next_mag_offsets_us:
@@ -1073,6 +1074,9 @@ class Pipeline:
         if not self._from_source(msg):
             return []
         self._ap_attitude_msg, self._ap_attitude_us = msg, now_us  # converted only when asked for
+        meter = self._requester.meters.get(msg.get_type())  # its delivered rate, as the other requested streams'
+        if meter is not None:
+            meter.add(now_us)
         if not self._monitor_on:
             return []
         return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._monitor.handle(msg, now_us)]
