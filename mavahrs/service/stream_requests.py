@@ -82,7 +82,8 @@ class StreamRequestSettings:
             reset stream rates when they connect).
         ack_timeout_s: a SET_MESSAGE_INTERVAL without COMMAND_ACK after this
             long is sent again, s.
-        attempts: unanswered sends before falling back to REQUEST_DATA_STREAM.
+        attempts: unanswered sends before falling back to REQUEST_DATA_STREAM (a send
+            followed by silence from the autopilot, nothing at all arriving, does not count).
         ladder_hz: rates tried, fastest first, after a DENIED (only those
             below the wanted rate are used).
         low_rate_fraction: warn when the delivered rate is below this fraction
