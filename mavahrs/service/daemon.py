@@ -1200,11 +1200,11 @@ def build_daemon(
             # do before a GNSS fix gives them the time: without a date there is no declination)
             today = decimal_year_from_unix_s(time.time())
             pipeline = Pipeline(pipeline_settings or PipelineSettings(), filter_settings, decimal_year=today)
+        if server is not None:  # before the compile too: a taken port is said at once, not minutes later
+            server.start()
         warm_up = getattr(getattr(pipeline, "filter", None), "warm_up", None)
         if warm_up is not None:  # compile/load the filter kernel before serving, not on the first sample
             warm_up()
-        if server is not None:
-            server.start()
     except BaseException:
         for link in opened:
             link.close()

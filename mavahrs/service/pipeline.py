@@ -453,12 +453,18 @@ class PipelineStatus:
         """One status line for the log, e.g. ``in 400 Hz → filter 400 Hz → out 50 Hz | … | vel GPI 10 Hz | …``."""
         drops = self.samples_dropped
         resent = self.counters.get("exact_duplicates", 0)
+        early, foreign = self.drops.get("no_autopilot_yet", 0), self.drops.get("foreign_source", 0)
+        why = ", ".join(  # drops that are no fault of the autopilot's stream: said, so that nobody hunts for one
+            ([f"{early} before the autopilot's HEARTBEAT"] if early else [])
+            + ([f"{foreign} from other systems"] if foreign else [])
+        )
         imu = "none" if self.imu_in_use is None else str(self.imu_in_use)
         rej = ("A" if self.accel_rejected else "") + ("M" if self.mag_rejected else "")
         b = self.bias_deg_s
         return (
             f"in {self.input_rate_hz:.0f} Hz → filter {self.filter_rate_hz:.0f} Hz → out {self.output_rate_hz:.0f} Hz"
-            f" | drops {drops}{f' (+{resent} re-sent)' if resent else ''} | imu {imu} ({self.imu_reason})"
+            f" | drops {drops}{f' ({why})' if why else ''}{f' (+{resent} re-sent)' if resent else ''}"
+            f" | imu {imu} ({self.imu_reason})"
             f" | {self.velocity} | gain {self.gain:.3g}"
             f" acc {self.accel_weight:.2f} mag {self.mag_weight:.2f}{' rejecting ' + rej if rej else ''}"
             f" | bias {b[0]:+.2f} {b[1]:+.2f} {b[2]:+.2f} °/s | {self.heading_reference}"
@@ -684,7 +690,8 @@ class Pipeline:
                     f"for {self.settings.heartbeat_timeout_s:g} s",
                     now_us,
                 )
-            for req in self._requester.poll(now_us):
+            heard = max(self._last_hb_us or 0, self._last_imu_us or 0)  # anything from the autopilot
+            for req in self._requester.poll(now_us, heard):
                 out.append(Outgoing(self._request_frame(req), True, False))
             if self._monitor_on:
                 if now_us >= self._next_mag_offsets_us:
@@ -1073,6 +1080,9 @@ class Pipeline:
         if not self._from_source(msg):
             return []
         self._ap_attitude_msg, self._ap_attitude_us = msg, now_us  # converted only when asked for
+        meter = self._requester.meters.get(msg.get_type())  # its delivered rate, as the other requested streams'
+        if meter is not None:
+            meter.add(now_us)
         if not self._monitor_on:
             return []
         return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._monitor.handle(msg, now_us)]

@@ -82,7 +82,8 @@ class StreamRequestSettings:
             reset stream rates when they connect).
         ack_timeout_s: a SET_MESSAGE_INTERVAL without COMMAND_ACK after this
             long is sent again, s.
-        attempts: unanswered sends before falling back to REQUEST_DATA_STREAM.
+        attempts: unanswered sends before falling back to REQUEST_DATA_STREAM (a send
+            followed by silence from the autopilot, nothing at all arriving, does not count).
         ladder_hz: rates tried, fastest first, after a DENIED (only those
             below the wanted rate are used).
         low_rate_fraction: warn when the delivered rate is below this fraction
@@ -445,14 +446,24 @@ class StreamRequester:
         return bool(hit)
 
     # ------------------------------------------------------------------ outputs
-    def poll(self, now_us: int) -> list[SetMessageInterval | RequestDataStream]:
-        """Requests due now."""
+    def poll(self, now_us: int, heard_us: int | None = None) -> list[SetMessageInterval | RequestDataStream]:
+        """Requests due now.
+
+        ``heard_us``: when anything last arrived from the autopilot (µs, the
+        caller's clock; None = not known). A SET_MESSAGE_INTERVAL that times
+        out while the autopilot sent nothing at all since it went out (it
+        rebooted, the radio dropped out, the cable was pulled) is sent again
+        without counting as an unanswered try: silence is not the autopilot
+        refusing the command, so it does not lead to REQUEST_DATA_STREAM.
+        """
         if not self._started or not self.settings.enabled:
             return []
         out: list[SetMessageInterval | RequestDataStream] = []
         w = self._inflight
         if w is not None and now_us - self._inflight_us >= self._timeout_us:
             self._inflight = None
+            if heard_us is not None and heard_us < self._inflight_us and not w.probe:
+                w.attempts = max(0, w.attempts - 1)  # the link was silent: not an unanswered try
             if w.probe:
                 w.probe = False  # a single try while in data-stream mode
             elif w.attempts >= self.settings.attempts:

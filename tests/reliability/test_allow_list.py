@@ -82,6 +82,8 @@ def test_first_autopilot_heartbeat_fixes_the_source_and_fakes_are_counted(rt) ->
     _check(rt, r)
     assert st.drops.get("foreign_source") == r["fakes"]
     assert st.counters.get("other_autopilot_heartbeats") == 2
+    # the status line says the drops are the other systems' (a user seeing "drops" grow would hunt for a fault)
+    assert f"({r['fakes']} from other systems)" in st.line(), st.line()
 
 
 @pytest.mark.slow
@@ -93,3 +95,5 @@ def test_configured_source_holds_even_when_an_intruder_speaks_first(rt) -> None:
     # before the genuine heartbeat nothing is accepted; after it, the intruders' samples are foreign
     assert st.drops.get("no_autopilot_yet", 0) + st.drops.get("foreign_source", 0) == r["fakes"] + r["early"]
     assert st.drops.get("foreign_source") == r["fakes"]
+    early = st.drops.get("no_autopilot_yet", 0)
+    assert f"({early} before the autopilot's HEARTBEAT, {r['fakes']} from other systems)" in st.line(), st.line()

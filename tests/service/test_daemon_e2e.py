@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -299,6 +300,46 @@ def test_udp_400hz_accuracy_silence_and_restart(tmp_path: Path) -> None:
     assert c["fast_lane_mismatches"] == 0 and c["fast_lane_answers"] >= 0.5 * c["attitudes_out"], c
     print(f"\nUDP e2e: session 0 {s0}, after the silence {after}, session 1 {s1}, latency {stats['latency']}, "
           f"fast lane {c['fast_lane_answers']} of {c['attitudes_out']} attitudes")
+
+
+_FILTER_RATE = re.compile(r"→ filter (\d+) Hz")
+
+
+def test_a_radio_dropout_is_not_taken_for_an_autopilot_ignoring_the_requests(tmp_path: Path) -> None:
+    """13 s of silence (longer than the 10 s re-request interval) within the heartbeat timeout: the unanswered
+    requests are re-sent, not counted as refused (no fall-back to REQUEST_DATA_STREAM, which before this
+    fix came 3 s into the silence); the autopilot's ATTITUDE rate is measured like the IMU's."""
+    port = _free_udp_port()
+    daemon = Daemon(
+        ["--master", f"udpin:127.0.0.1:{port}", "--filter", _filter_name(), "--status-interval", "1",
+         "--heartbeat-timeout", "60", "--set", "pipeline.heartbeat_timeout_s=30", "--stats-json", "daemon.json"],
+        tmp_path,
+    )
+    sim = None
+    try:
+        daemon.wait_for("mavahrs running")
+        sim = _sim(["--out", f"udpout:127.0.0.1:{port}", "--scenario", "hover", "--duration", "0", "--seed", "1",
+                    "--blackout", "6:13"], tmp_path)
+        daemon.wait_for("no IMU messages from the autopilot", timeout_s=90)  # the silence has begun
+        n_silent = len(daemon.lines)
+        deadline = time.monotonic() + 60
+        flowing = 0  # status lines with the IMU stream back at its accepted rate, after the silence
+        while flowing < 3 and time.monotonic() < deadline:
+            time.sleep(0.2)
+            flowing = sum(m is not None and int(m.group(1)) >= 200
+                          for m in map(_FILTER_RATE.search, daemon.lines[n_silent:]))
+        assert flowing >= 3, daemon.log
+    finally:
+        rc = daemon.stop()
+        if sim is not None:
+            sim.terminate()
+            sim.wait(30)
+    print(daemon.log)
+    assert rc == 0 and "Traceback" not in daemon.log
+    assert "REQUEST_DATA_STREAM" not in daemon.log  # silence is not a refusal
+    streams = {st["message"]: st for st in json.loads((tmp_path / "daemon.json").read_text())["pipeline"]["streams"]}
+    assert streams["RAW_IMU"]["mode"] == "command", streams
+    assert streams["ATTITUDE"]["accepted_hz"] == 10.0 and streams["ATTITUDE"]["delivered_hz"] >= 5.0, streams
 
 
 def test_pty_serial_400hz_and_device_replug(tmp_path: Path) -> None:

@@ -187,3 +187,27 @@ def test_an_autopilot_that_went_silent_during_a_cold_start_is_not_called_no_mavl
     assert "no valid MAVLink frame" not in said, said
     assert re.search(rf"all of them queued during start-up \({STALE + 1} datagrams, dropped as older than the "
                      r"filter\), none since: has the autopilot stopped sending\?", said), said  # fmt: skip
+
+
+def test_a_taken_status_page_port_is_said_before_the_filter_compiles() -> None:
+    """``--http`` on a port another program holds: the error comes before the (minutes-long, on a fresh install
+    and a busy machine: 6 min measured) compile, as a busy autopilot port does."""
+    pytest.importorskip("aiohttp")
+    from mavahrs.errors import ConfigError
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    holder = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    holder.bind(("127.0.0.1", 0))
+    holder.listen(1)
+    pipeline = Pipeline(PipelineSettings())
+    compiled: list[bool] = []
+    pipeline.filter.warm_up = lambda: compiled.append(True)
+    try:
+        with pytest.raises(ConfigError, match="status page: cannot listen"):
+            build_daemon(
+                DaemonSettings(master="udpin:127.0.0.1:0", http=f"127.0.0.1:{holder.getsockname()[1]}"),
+                pipeline=pipeline, logger=logging.getLogger("mavahrs.test.daemon-startup"),
+            )
+    finally:
+        holder.close()
+    assert compiled == []

@@ -125,6 +125,23 @@ def test_unanswered_commands_are_retried_then_fall_back_to_request_data_stream()
     assert only(r.poll(13 * S), RequestDataStream).rate_hz == 400
 
 
+def test_a_silent_autopilot_is_not_taken_for_one_that_ignores_the_command():
+    """Timeouts while nothing at all arrives (reboot, radio drop-out) are re-sent, never counted as refusals."""
+    r = started(ack_timeout_s=1.0, attempts=3)
+    heard = -1  # the autopilot's last message came just before the first command, then silence
+    sent = [r.poll(t * S, heard) for t in range(8)]
+    assert all(only(s, SetMessageInterval).confirmation == 0 for s in sent)  # every try is the first
+    assert r.drain_notices() == []
+    assert r.states(8 * S)[0].mode == "command"
+    # the autopilot talks again but ignores the command: now the tries count and it falls back
+    sent = [r.poll(t * S, t * S - 1) for t in range(8, 12)]
+    assert [q for s in sent for q in s if isinstance(q, RequestDataStream)] == [
+        RequestDataStream(MAV_DATA_STREAM_RAW_SENSORS, 400)
+    ]
+    (level, text), = r.drain_notices()
+    assert level == logging.WARNING and "no COMMAND_ACK" in text
+
+
 def test_late_ack_in_fallback_returns_to_the_command():
     r = started(ack_timeout_s=1.0, attempts=1)
     r.poll(0)
