@@ -194,26 +194,6 @@ MULTIROTOR_REST_CHECK_SIGMA_RAD_S = math.radians(0.5)
 #: (docs/accuracy.md, "Accelerometer-bias states (branch accb)")
 VEHICLE_ACCEL_BIAS_SIGMA_M_S2 = 0.0
 
-#: a raw IMU (the plain path's two hypotheses, a declared multirotor): the accelerometer's bias as three ESKF states
-#: whose variance follows the measured vibration, c² σ_H²(T) (``EskfSettings.accel_bias_vibration_ratio`` c,
-#: ``accel_bias_vibration_period_s`` T, ``accel_bias_tau_s`` τ), estimated without aiding; 0 = off.  σ_H²(T) is the
-#: specific force's Hadamard variance over T: the slow offsets a low-passed IMU's aliased rotor lines leave
-#: (firmware_sim ``vibration``) read nearly in full, white noise and a tone above 1/T as σ²·dt/T — the per-sample
-#: figure accb used read the reverse (docs/accuracy.md, "Ninth round (branch vib3)")
-RAW_ACCEL_BIAS_VIBRATION_RATIO = 0.07
-RAW_ACCEL_BIAS_VIBRATION_PERIOD_S = 0.03
-RAW_ACCEL_BIAS_TAU_S = 5.0
-
-
-def raw_accel_bias_settings(eskf: EskfSettings) -> EskfSettings:
-    """``eskf`` with a raw IMU's vibration-scaled accelerometer-bias states (``RAW_ACCEL_BIAS_*``; estimated
-    without velocity aiding)."""
-    if RAW_ACCEL_BIAS_VIBRATION_RATIO <= 0.0:
-        return eskf
-    return replace(eskf, accel_bias_vibration_ratio=RAW_ACCEL_BIAS_VIBRATION_RATIO,
-                   accel_bias_vibration_period_s=RAW_ACCEL_BIAS_VIBRATION_PERIOD_S,
-                   accel_bias_tau_s=RAW_ACCEL_BIAS_TAU_S, accel_bias_aided_only=False)
-
 
 def best_settings() -> MadgwickSettings:
     """The Madgwick configuration ``best`` runs without velocity aiding (a new frozen dataclass).
@@ -328,9 +308,6 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         mag_learn_tau_s=VEHICLE_MAG_LEARN_TAU_S,
         accel_bias_sigma_m_s2=VEHICLE_ACCEL_BIAS_SIGMA_M_S2,
         accel_bias_aided_only=True,
-        accel_bias_vibration_ratio=0.0,
-        accel_bias_vibration_period_s=0.0,
-        accel_bias_tau_s=d.accel_bias_tau_s,
     )
 
 
@@ -362,7 +339,7 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
         eskf = replace(eskf, rest_check_sigma_rad_s=MULTIROTOR_REST_CHECK_SIGMA_RAD_S)
     if eskf.drag_reset_s == 0.0:
         eskf = replace(eskf, drag_reset_s=MULTIROTOR_DRAG_RESET_S)
-    return raw_accel_bias_settings(vehicle_eskf_settings(eskf))
+    return vehicle_eskf_settings(eskf)
 
 
 @dataclass(frozen=True)

@@ -240,8 +240,7 @@ _ABIAS_P0 = _MAG_DELAY + 10  # steady-state variance of each accelerometer-bias 
 _ABIAS_TAU = _MAG_DELAY + 11  # s: their Gauss–Markov correlation time (0: constant)
 _ABIAS_VIB = _MAG_DELAY + 12  # the accelerometer bias's variance per measured per-sample specific-force variance (c²)
 _ABIAS_AIDED = _MAG_DELAY + 13  # 1: the accelerometer-bias states are estimated only while velocity-aided
-_ABIAS_HAD_T = _MAG_DELAY + 14  # s: the vibration's share read as the specific force's Hadamard variance over this (0: per sample)
-_N_PARAMS = _MAG_DELAY + 15
+_N_PARAMS = _MAG_DELAY + 14
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -308,10 +307,7 @@ _DREJ = _ASUM + 4  # clock time since when every drag measurement has been rejec
 _DSTAT = _DREJ + 1  # drag periods attempted, rejected (both components failed the gate), velocity re-openings (3)
 _ABIAS = _DSTAT + 3  # the accelerometer's estimated bias, body frame (3), m/s²: f = reading − b_a
 _CLP = _ABIAS + 3  # C_body_to_ned's columns low-passed as the gravity measurement is (3 Butterworth blocks, 3 × BW_LEN)
-#: the specific force's Hadamard variance over ``accel_bias_vibration_period_s`` (:func:`_accel_hadamard_step`): the
-#: open block's sum (3) and time (1), the last two blocks' means (6), blocks completed (1), the running mean (1)
-_AHAD = _CLP + 3 * BW_LEN
-_N_STATE = _AHAD + 12
+_N_STATE = _CLP + 3 * BW_LEN
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -658,12 +654,6 @@ class EskfSettings(FilterSettings):
             measured (``measured_noise_tau_s``): the aliased rotor vibration of
             a raw IMU leaves slowly varying offsets that grow with it (0 =
             σ alone; needs ``accel_bias_tau_s`` > 0).
-        accel_bias_vibration_period_s: T, s: σ_f² in the above is the
-            specific force's Hadamard variance over T (three consecutive
-            T-means, a constant and a ramp cancel) instead of the per-sample
-            figure (0, the default): a low-passed IMU's aliased vibration is
-            slow and reads a few % per sample, white noise reads σ²·dt/T
-            (docs/accuracy.md, "Ninth round (branch vib3)").
         accel_bias_aided_only: the states are estimated only while
             velocity-aided (GNSS): without aiding b̂_a is held as learnt (still
             subtracted), its process noise stopped and its correlations with
@@ -746,7 +736,6 @@ class EskfSettings(FilterSettings):
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
-    accel_bias_vibration_period_s: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -769,8 +758,7 @@ class EskfSettings(FilterSettings):
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
-                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio",
-                     "accel_bias_vibration_period_s"):
+                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1084,40 +1072,7 @@ def _accel_bias_variance(s, k, params):  # type: ignore[no-untyped-def]
     c² × the specific force's measured per-sample variance (``accel_bias_vibration_ratio``; ``_VIB``): a
     vibrating raw IMU's aliased vibration leaves a slowly varying offset that grows with the vibration."""
     p = P_FILTER
-    if params[p + _ABIAS_HAD_T] > 0.0:
-        return params[p + _ABIAS_P0] + params[p + _ABIAS_VIB] * s[k + _AHAD + 11]
     return params[p + _ABIAS_P0] + params[p + _ABIAS_VIB] * s[k + _VIB + 1]
-
-
-@kernel(inline=True)
-def _accel_hadamard_step(s, k, params, dt, ax, ay, az):  # type: ignore[no-untyped-def]
-    """The specific force's Hadamard variance over T = ``accel_bias_vibration_period_s``, averaged over the axes
-    and over time as the measured noise is (``measured_noise_tau_s``): σ_H²(T) = ½·⅓⟨(ȳ₃ − 2ȳ₂ + ȳ₁)²⟩ of three
-    consecutive T-means ȳ (Allan & Barnes 1981; non-overlapping blocks).  A constant and a steady ramp cancel; white
-    noise of per-sample variance σ² reads σ²·dt/T, while a low-passed IMU's aliased vibration — slow offsets the
-    per-sample difference hardly sees (a 20 Hz filter at 200 Hz: 3 % of the density at one sample, 24 % over 15 ms;
-    docs/accuracy.md, eighth round) — reads nearly its full variance at a T of a few samples."""
-    kh = k + _AHAD
-    s[kh] += ax * dt
-    s[kh + 1] += ay * dt
-    s[kh + 2] += az * dt
-    s[kh + 3] += dt
-    t_blk = params[P_FILTER + _ABIAS_HAD_T]
-    if s[kh + 3] < t_blk - 0.5 * dt:
-        return
-    tb = s[kh + 3]
-    mx, my, mz = s[kh] / tb, s[kh + 1] / tb, s[kh + 2] / tb
-    s[kh] = s[kh + 1] = s[kh + 2] = s[kh + 3] = 0.0
-    if s[kh + 10] >= 2.0:
-        hx = mx - 2.0 * s[kh + 7] + s[kh + 4]
-        hy = my - 2.0 * s[kh + 8] + s[kh + 5]
-        hz = mz - 2.0 * s[kh + 9] + s[kh + 6]
-        tau_n = params[P_FILTER + _NOISE_TAU]
-        w = min(tb / tau_n, 1.0) if tau_n > 0.0 else 1.0
-        s[kh + 11] += ((hx * hx + hy * hy + hz * hz) / 18.0 - s[kh + 11]) * w
-    s[kh + 4], s[kh + 5], s[kh + 6] = s[kh + 7], s[kh + 8], s[kh + 9]
-    s[kh + 7], s[kh + 8], s[kh + 9] = mx, my, mz
-    s[kh + 10] = min(s[kh + 10] + 1.0, 2.0)
 
 
 @kernel(inline=True)
@@ -1667,8 +1622,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             phi_a = max(1.0 - dt / tau_a, 0.0)
             for i in range(3):
                 state[k + _ABIAS + i] *= phi_a
-        if params[p + _ABIAS_HAD_T] > 0.0 and accel_ok:
-            _accel_hadamard_step(state, k, params, dt, ax, ay, az)
         ax -= state[k + _ABIAS]
         ay -= state[k + _ABIAS + 1]
         az -= state[k + _ABIAS + 2]
@@ -2440,7 +2393,6 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
-        p[_ABIAS_HAD_T] = settings.accel_bias_vibration_period_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
