@@ -351,3 +351,4 @@ def test_an_infinite_current_reading_is_not_known_current(flight) -> None:  # ty
     state = corrupt.mag_model_state()
     assert state is not None
     np.testing.assert_allclose(state["motor_ut_per_a"], MOTOR_UT_PER_A, atol=0.12)
+
