@@ -172,7 +172,7 @@ _RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 #: the model's motor field, µT², at or above which its corrected reading may reset an unknown heading
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
 #: how long the corrected reading must have fitted the WMM's norm and dip before it resets an unknown heading, s
-_RESET_FIT_S = 0.5
+_RESET_FIT_S = 0.2
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
 _FIT_DIP_RAD = math.radians(3.0)
 #: yaw rate, rad/s, whose mean square shrinks the compass's learnt delay towards 0 (no turns: nothing learnt)
