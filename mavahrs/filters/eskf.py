@@ -109,6 +109,7 @@ from mavahrs.filters.magfield import (
     MF_STEP_T,
     MF_STEPS,
     MF_T,
+    MF_TO_HVAR,
     MF_TRUST,
     MF_X,
     MP_B0,
@@ -171,7 +172,7 @@ _RESET_MODEL_SIGMA_RAD = math.radians(10.0)
 #: the model's motor field, µT², at or above which its corrected reading may reset an unknown heading
 _MIN_MOTOR_FIELD_UT2 = 3.0**2
 #: how long the corrected reading must have fitted the WMM's norm and dip before it resets an unknown heading, s
-_RESET_FIT_S = 0.5
+_RESET_FIT_S = 0.2
 #: how far the corrected reading's dip may be off the WMM's for a heading reset, rad
 _FIT_DIP_RAD = math.radians(3.0)
 #: yaw rate, rad/s, whose mean square shrinks the compass's learnt delay towards 0 (no turns: nothing learnt)
@@ -2025,7 +2026,16 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state[k + _V + 2] if aided else math.nan,
         )  # fmt: skip
         bx, by, bz = mx - scr[0], my - scr[1], mz - scr[2]  # the body field the model removes
-        if w_m >= 0.5:
+        hv_fit = state[k + _MAGF + MF_TO_HVAR]
+        if hv_fit > 0.0 and s_pos(state[k + _P + 2 * N + 2]) < _UNKNOWN_HEADING_VAR:
+            # the take-off fit fused early, still near the ground, the heading known (set by
+            # :func:`_heading_reset_from_model` or held): the corrected reading, the fitted anomaly faded to the
+            # height taken out, weighed by the fit's own σ (magfield ``MF_TO_HVAR``); the model's gate, which
+            # leaves that anomaly in, calls it disturbed, and the raw reading carries the anomaly
+            mx, my, mz, r_model = scr[0], scr[1], scr[2], hv_fit
+            use_mag = True
+            w_m = 1.0
+        elif w_m >= 0.5:
             # the reading's norm and dip are the WMM's (the schedule): used as it is, gated by the ESKF
             # as without the model (a model that misfits here is more likely wrong than the compass: a
             # heading gone wrong looks like this, and persistent refusals re-open the attitude,

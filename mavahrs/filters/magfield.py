@@ -165,7 +165,12 @@ MF_TO_PEND = MF_TO_CAND + 14  # a reading waiting for the current reported after
 MF_TO_ACC2 = MF_TO_PEND + 15  # the same sums (TO_ACC_LEN) with the current reported later (MP_TO_LAG)
 MF_TO_HG = MF_TO_ACC2 + 44  # the take-off fit's ground: the lowest height (MF_HEIGHT) since the reference was held, m
 MF_TO_CAND_H = MF_TO_HG + 1  # … and the candidate's
-MF_LEN = MF_TO_CAND_H + 1
+#: the heading variance of the corrected reading while the fitted anomaly is taken out of it (fused early, near the
+#: ground: its k's σ, the anomaly's fade, the reading's noise across the field over F_H², × ``MP_HFACTOR``²), rad²;
+#: 0: not in that regime (:func:`mag_model_update`)
+MF_TO_HVAR = MF_TO_CAND_H + 1
+MF_TO_EXIT_T = MF_TO_HVAR + 1  # clock at which the vehicle left the ground's reach (``MF_LOW`` 1 → 0), s
+MF_LEN = MF_TO_EXIT_T + 1
 
 # parameter offsets
 MP_ON = 0
@@ -191,7 +196,9 @@ MP_TO_HEIGHT = 19  # the take-off fit's anomaly decay height H, m (1/8 at H); 0:
 MP_TO_INFL = 20  # the take-off fit's variance is multiplied by this (readings correlated by the held current)
 MP_TO_DONE = 21  # µT/A: the fit is fused early (from TO_EARLY_M up) once every σ of its k is below this; 0: at 5 m
 MP_TO_LAG = 22  # s: the fit also with the current reported this late (the next reading's), the better kept; 0: as is
-MP_LEN = 23
+MP_TO_FADE = 23  # the fitted anomaly's fade taken as uncertain by this fraction of itself (heading noise); 0: no heading
+MP_TO_AFTER = 24  # s after leaving the ground's reach that the fit's corrected reading keeps its heading weight; 0: none
+MP_LEN = 25
 
 
 @dataclass(frozen=True)
@@ -319,6 +326,19 @@ class MagFieldSettings:
             least with the current 0.1 s later (1.0 µT against 2.2 µT at 0), the
             field per ampere 10–30 % too large with its own; seed 19 the other
             way round.
+        takeoff_fade_sigma: while the take-off fit is fused early and the vehicle is
+            still near the ground, its corrected reading (the fitted anomaly faded to
+            the height taken out) gives the ESKF a heading once the heading is known
+            (after the reset from it), with a variance of the reading's noise, the
+            fit's σ of the field per ampere times the current, and this fraction of the
+            faded anomaly's part across the field (the fade's H is a guess), over F_H²,
+            × ``heading_sigma_factor``²; 0 = no heading from it.  Branch anom4, with the
+            reset after 0.2 s: firmware_sim ``mag_anomaly`` 18 seeds mean 1.85 → 1.76°,
+            seed 11 3.04 → 2.83° (docs/accuracy.md); 0.25 … 2 within 0.01 of each other.
+        takeoff_heading_after_s: … and for this long after the vehicle left the
+            ground's reach (the offset taken as 0, as the reset takes it; the anomaly
+            not taken out), s.  0 (default): measured worse — 10 s: seed 19 1.66 →
+            2.41° (the heading drifted −1°/s for 8 s); 2 s: 19 1.83, 29 1.97, 43 2.83.
     """
 
     enabled: bool | None = None
@@ -347,6 +367,8 @@ class MagFieldSettings:
     takeoff_variance_factor: float = 10.0
     takeoff_done_sigma_ut_per_a: float = 0.05
     takeoff_current_lag_s: float = 0.1
+    takeoff_fade_sigma: float = 0.5
+    takeoff_heading_after_s: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("noise_ut", "initial_offset_ut", "earth_field_sigma_ut", "data_field_sigma_ut",
@@ -357,7 +379,8 @@ class MagFieldSettings:
                 raise ValueError(f"MagFieldSettings.{name} must be a finite number > 0, got {v!r}")
         for name in ("offset_walk_ut_s", "earth_field_walk_ut_s", "hold_s", "motor_walk_ut_per_a_s", "step_sigma_ut",
                      "min_body_field_ut", "pair_lag_s", "pair_min_height_m", "ground_radius_m",
-                     "takeoff_anomaly_height_m", "takeoff_done_sigma_ut_per_a", "takeoff_current_lag_s"):
+                     "takeoff_anomaly_height_m", "takeoff_done_sigma_ut_per_a", "takeoff_current_lag_s",
+                     "takeoff_fade_sigma", "takeoff_heading_after_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"MagFieldSettings.{name} must be ≥ 0, got {v!r}")
@@ -394,6 +417,8 @@ def magfield_params(s: MagFieldSettings) -> np.ndarray:
     p[MP_TO_INFL] = s.takeoff_variance_factor
     p[MP_TO_DONE] = s.takeoff_done_sigma_ut_per_a
     p[MP_TO_LAG] = s.takeoff_current_lag_s
+    p[MP_TO_FADE] = s.takeoff_fade_sigma
+    p[MP_TO_AFTER] = s.takeoff_heading_after_s
     return p
 
 
@@ -536,6 +561,7 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
             if s[k + MF_TO_ON] == 2.0:
                 _takeoff_fuse(s, k, p)
             s[k + MF_TO_ON] = 3.0
+            s[k + MF_TO_EXIT_T] = clk
     f_h = s[kx + _FH]
     pp = max(p_psi, 0.0)
     r_e = sig_m2 + f_h * f_h * pp
@@ -614,6 +640,37 @@ def mag_model_update(s, k, p, c, mx, my, mz, amps, p_psi, stale_rad, ref_norm, r
             for b in range(3):
                 acc += (c[a] * s[kr + 3 * b] + c[3 + a] * s[kr + 3 * b + 1] + c[6 + a] * s[kr + 3 * b + 2]) * s[ka + b]
             out4[a] -= sc * acc
+        # … and what that corrected reading's heading is worth (rad²): across the field (east in the model's
+        # frame) the field per ampere's σ times the current, the reading's noise, and the fade's model error
+        # (``MP_TO_FADE`` of the faded anomaly's east part C_g â s(h): H is a fixed guess, the anomaly's own
+        # height is not known), over F_H² (as ``head_var`` below), × ``MP_HFACTOR``²
+        kk = k + MF_TO_K
+        var_e = sig_m2
+        a_e = 0.0
+        for i in range(3):
+            var_e += (c[3 + i] * amps * s[kk + 3 + i]) ** 2
+            a_e += s[kr + 3 * i + 1] * s[ka + i]
+        var_e += (p[MP_TO_FADE] * sc * a_e) ** 2
+        f_h = s[kx + _FH]
+        if p[MP_TO_FADE] > 0.0 and f_h > 1.0:
+            s[k + MF_TO_HVAR] = var_e / (f_h * f_h) * p[MP_HFACTOR] * p[MP_HFACTOR]
+        else:
+            s[k + MF_TO_HVAR] = 0.0
+    elif s[k + MF_TO_ON] == 3.0 and p[MP_TO_FADE] > 0.0 and clk - s[k + MF_TO_EXIT_T] < p[MP_TO_AFTER]:
+        # just above the ground's reach, the fit fused (k known to ``MP_TO_DONE``): the anomaly has faded, the
+        # offset b₀ starts again from its prior (its σ keeps the model's own heading σ at 7–8°, no heading for
+        # 5–8 s); the corrected reading keeps the weight it had below, b₀ taken as the calibrated compass's
+        # (0), as the heading reset from it does: the reading's noise and the field per ampere's σ
+        kk = k + MF_TO_K
+        var_e = sig_m2
+        known = True
+        for i in range(3):
+            known = known and 0.0 < s[kk + 3 + i] <= max(p[MP_TO_DONE], TO_KNOWN_K)
+            var_e += (c[3 + i] * amps * s[kk + 3 + i]) ** 2
+        f_h = s[kx + _FH]
+        s[k + MF_TO_HVAR] = var_e / (f_h * f_h) * p[MP_HFACTOR] * p[MP_HFACTOR] if known and f_h > 1.0 else 0.0
+    else:
+        s[k + MF_TO_HVAR] = 0.0
     # heading noise from the offset left unknown across the horizontal field (east in the estimate's frame)
     _h_row(c, 1, amps, h)
     var_e = 0.0
