@@ -283,6 +283,16 @@ class MonitorSettings:
             step, not the autopilot's own error turning with the vehicle (on
             firmware_sim aggressive 42 a 2–2.5° tilt divergence circling once
             in 2–3 s; at 2 and 3 × it gave 2–7 more WARNINGs per flight there).
+        change_step_outside: the step test of ``change_step_s`` also outside
+            a warning, beside the change test's baseline: over the last
+            ``change_step_s`` the split that best shows a change in the mean,
+            at least ``change_step_spread_k`` × the segments' pooled spread,
+            away from agreement, as the change test's ratio (thresholds,
+            floors, CUSUM).  The change test's 10 s baseline lags an autopilot
+            error that moves by a degree over tens of seconds, so a step
+            against it shows as a part of itself (firmware_sim aggressive 63:
+            the divergence +1.0° → −1.0° north, a change of 1.2° against the
+            baseline, 1.43° threshold: warned after 5.1 s; the split sees 2.0°).
         change_drift_s: a disagreement that *grows* while a warning is on (a
             ramp that starts under a correct warning: within any 2 s it moves
             too little for the step tests above): the divergence vector against
@@ -401,6 +411,7 @@ class MonitorSettings:
     change_step_s: float = 2.0
     change_step_spread_k: float = 4.0
     change_drift_s: float = 3.0
+    change_step_outside: bool = True
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -1223,23 +1234,31 @@ class AttitudeMonitor:
         from the disagreement warned of (as :meth:`_in_warning_test`); as the change test's ratio to its
         thresholds, 0 where not judged.  The segment before may lie before the warning: the divergence warned
         of is then the reference.  Tilt (north, east) and heading each find their own split."""
+        return max(self._step_ratio(t_ms, tilt, heading, hdg_on, in_warning=True))
+
+    def _step_ratio(
+        self, t_ms: float, tilt: float, heading: float, hdg_on: bool, *, in_warning: bool
+    ) -> tuple[float, float]:
+        """The step test of :meth:`_step_in_warning` (``in_warning``) or, outside a warning
+        (``MonitorSettings.change_step_outside``), without the conditions that refer to the warning (the split
+        after it, away from the disagreement warned of): the (tilt, heading) ratios, 0 where not judged."""
         ch = self._change
         assert ch is not None
         h_ms = 1000.0 * self.settings.change_step_s
         rec = self._recent
         if h_ms <= 0.0 or not rec or rec[0][0] > t_ms - 0.75 * h_ms:
-            return 0.0
+            return 0.0, 0.0
         pts = [r for r in rec if r[0] > t_ms - h_ms]
         n = len(pts)
         if n < 8:
-            return 0.0
+            return 0.0, 0.0
         seg = max(3, n // 8)  # each segment at least an eighth of the history
         # … and the step at least as long after the warning was raised (the one it was raised for, which may
         # have come with the warning's own comparison, is not new)
         first = 0
-        while first < n and pts[first][0] <= self._warning_since_ms + 0.125 * h_ms:
+        while in_warning and first < n and pts[first][0] <= self._warning_since_ms + 0.125 * h_ms:
             first += 1
-        w = self._e_warned_mean
+        w = self._e_warned_mean if in_warning else None
         k_s2 = self.settings.change_step_spread_k ** 2
         best = [0.0, 0.0]
         for axes, out in (((1, 2), 0), ((3,), 1)):
@@ -1263,10 +1282,13 @@ class AttitudeMonitor:
                     d = ma - mb
                     c2 += d * d
                     dot += d * ma
-                    back += (ma - w[ax - 1]) ** 2
+                    if w is not None:
+                        back += (ma - w[ax - 1]) ** 2
                 if dot <= 0.0 or c2 < k_s2 * spread:  # back toward agreement, or not a step
                     continue
-                c = min(math.sqrt(c2), math.sqrt(back))  # … nor the disagreement warned of coming back
+                c = math.sqrt(c2)
+                if w is not None:  # … nor the disagreement warned of coming back
+                    c = min(c, math.sqrt(back))
                 best[out] = max(best[out], c)
         t_thr, h_thr = ch.thresholds
         c_t = best[0] / t_thr
@@ -1275,7 +1297,7 @@ class AttitudeMonitor:
             c_t = min(c_t, tilt / self._min_thr[0])
         if self._min_thr[1] > 0.0:
             c_h = min(c_h, abs(heading) / self._min_thr[1])
-        return max(c_t, c_h)
+        return c_t, c_h
 
     def _drift_in_warning(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
         """A disagreement that grows while an in-flight warning is on (``MonitorSettings.change_drift_s``): the
@@ -1390,6 +1412,10 @@ class AttitudeMonitor:
         if self._change is not None:
             c_t, c_h = self._change_test(t_ms, q_est, q_ap, slow and prev is not None and not gap,
                                          0.0 if prev is None else 1e-3 * (t_ms - prev))
+            if s.change_step_outside and not self._warning and (c_t > 0.0 or c_h > 0.0):
+                # a step within the last change_step_s, which the 10 s baseline shows only as a part of itself
+                s_t, s_h = self._step_ratio(t_ms, tilt, heading, hdg_on, in_warning=False)
+                c_t, c_h = max(c_t, s_t), max(c_h, s_h)
             # a change that leaves the divergence within the thresholds' floors is not one to warn of (an
             # autopilot within 1° of tilt and 3° of heading is not, whatever its error did)
             c_t = min(c_t, tilt / self._min_thr[0]) if self._min_thr[0] > 0.0 else c_t
