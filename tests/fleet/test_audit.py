@@ -337,9 +337,9 @@ def test_audit_help_and_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixtu
 def test_a_flag_on_a_log_whose_imu_is_too_slow_says_so(mavlink_logs_dir: Path) -> None:
     """The real VTOL tlog's IMU arrives at 4 Hz (replay: "too slow for meaningful attitude filtering"); its one
     WARNING headed the summary's "flagged:" line like a real disagreement. Now the line says the IMU rate."""
-    from mavahrs.fleet.audit import AuditRun, format_summary
-
     import dataclasses
+
+    from mavahrs.fleet.audit import AuditRun, format_summary
 
     row = summarise_log(mavlink_logs_dir / "UAVLogViewer" / "vtol.tlog")
     assert row.error == "" and 0 < row.imu_rate_hz < 50
