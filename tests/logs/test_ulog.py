@@ -447,32 +447,25 @@ def test_plot_of_a_ulog_draws_ekf2_beside_our_estimate(shared_data: Path, monkey
     assert drawn[-1]["reference_label"] == "SIH truth" and "EKF2" in drawn[-1]["others"]
 
 
-def test_replay_of_a_ulog_gives_the_second_opinion_against_ekf2(shared_data: Path) -> None:
-    """A .BIN's replay said what the monitor would have said against EKF3, a .ulg's nothing (the monitor took
-    only a reference named "autopilot …"): now against PX4's EKF2 as well, on the same chain."""
-    from mavahrs import replay as rp
-    from mavahrs.replay.engine import format_second_opinion
-
-    res = rp.replay(_shared(shared_data, "px4_sitl/px4_aggressive.ulg"), rp.ReplaySettings(filters=("best",)))
-    text = format_second_opinion(res)
-    assert text.startswith("second opinion (best) vs EKF2"), text
-
-
 @pytest.mark.parametrize("rel", ["px4_ulog/sample.ulg", "px4_sitl/px4_aggressive.ulg"])
 def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_data: Path, rel: str) -> None:
     """One rule for the autopilot's reference (mavahrs.logs.autopilot_reference: the first not ending in
     " truth"): the audit's row names EKF2 and warns at the times replay's second opinion does, on the real
-    board's log (no truth) and on the SIH flight (truth beside EKF2; EKF2's heading off at 36.6 s)."""
+    board's log (no truth) and on the SIH flight (truth beside EKF2; EKF2's heading off at 36.6 s). A .BIN's
+    replay said what the monitor would have said against EKF3, a .ulg's nothing (the monitor took only a
+    reference named "autopilot …"): replay's second opinion is now against PX4's EKF2 as well."""
     from mavahrs import replay as rp
     from mavahrs.fleet.audit import summarise_log
     from mavahrs.logs import autopilot_reference
-    from mavahrs.replay.engine import _monitor_of
+    from mavahrs.replay.engine import _monitor_of, format_second_opinion
 
     path = _shared(shared_data, rel)
     row = summarise_log(path)
     assert row.error == "" and row.reference == "EKF2" and row.compared_s > 50.0
     res = rp.replay(path, rp.ReplaySettings(filters=("best",)))
     assert autopilot_reference(res.references) == "EKF2"
+    text = format_second_opinion(res)
+    assert text.startswith("second opinion (best) vs EKF2"), text
     series, ref, judged = _monitor_of(res)
     assert ref == "EKF2" and judged == "best"
     warned = [f"{e.t_ms / 1000.0:.3f}" for e in series.events if e.in_flight]
