@@ -18,7 +18,12 @@ cache lives in ``NUMBA_CACHE_DIR`` when set (the systemd unit's
 ``/var/cache/mavahrs``), else in the user's cache folder
 (``~/.cache/mavahrs/kernels``, :func:`user_cache_dir`) — outside the
 installation, which ``pip install ".[extra]"`` replaces with everything in
-it — else (no writable home) in ``mavahrs/filters/__pycache__``.  ``mavahrs warm-up``
+it — else (no writable home) in ``mavahrs/filters/__pycache__``.  In the user's
+cache folder a kernel's place is named by its sources' contents, not by where
+they are installed (:func:`cache_subpath`): a second virtual environment with
+the same version loads what the first compiled, and installs into temporary
+folders leave nothing behind there; the folders of versions unused for a day
+beyond the four most recently used are removed (:data:`CACHE_KEEP_VERSIONS`).  ``mavahrs warm-up``
 (:mod:`mavahrs.warmup`) fills it ahead of time; :func:`on_first_compile` tells
 the command line when a process is about to compile (a cold cache).
 
@@ -51,6 +56,7 @@ __all__ = [
     "on_first_compile",
     "cache_location",
     "user_cache_dir",
+    "cache_subpath",
     "HAVE_NUMBA",
 ]
 
@@ -146,6 +152,84 @@ def _jit_module_stamp() -> str:
     return _JIT_STAMP[0]
 
 
+#: versions kept per kernel file in the user's cache folder: the most recently used ones; older ones are removed
+#: when a new version is compiled there, once unused for :data:`CACHE_PRUNE_AFTER_S` (a process still running
+#: an old version may compile a new signature into its folder)
+CACHE_KEEP_VERSIONS = 4
+CACHE_PRUNE_AFTER_S = 86400.0
+
+_CONTENT_HASHES: dict[tuple[str, int, int], str] = {}
+_USED_PATHS: set[str] = set()
+
+
+def cache_subpath(py_file: str) -> str:
+    """The folder, inside the user's cache folder, of the kernels of ``py_file`` (a module of this package).
+
+    ``GROUP_VERSION``: GROUP names the module (``filters`` for every module of ``mavahrs/filters``, whose
+    kernels share one stamp; else its dotted path in the package, e.g. ``protocol.tlog``) and VERSION is a
+    hash of the sources the kernels are compiled from (all of ``mavahrs/filters``; else the module's own
+    file and this one, which decides the compile options).  numba's own choice, a hash of the folder the
+    file is installed in, gave every virtual environment and every temporary install a cold compile of
+    its own (2–5 minutes on two cores) and a folder that nothing removed.
+    """
+    import hashlib
+
+    path = os.path.abspath(py_file)
+    if os.path.dirname(path) == _FILTERS_DIR:
+        return "filters_" + _filters_source_stamp()[:40]
+    rel = os.path.relpath(path, _PACKAGE_DIR)
+    group = os.path.splitext(rel)[0].replace(os.sep, ".")
+    st = os.stat(path)
+    key = (path, st.st_mtime_ns, st.st_size)
+    digest = _CONTENT_HASHES.get(key)
+    if digest is None:
+        h = hashlib.sha256(_jit_module_stamp().encode() + b"\0")
+        with open(path, "rb") as f:
+            h.update(f.read())
+        digest = _CONTENT_HASHES[key] = h.hexdigest()[:40]
+    return f"{group}_{digest}"
+
+
+def _use_cache_path(path: str) -> None:
+    """Create ``path`` (a version's folder in the user's cache), mark it used now (its folder time), and when
+    it is new remove the same group's versions beyond :data:`CACHE_KEEP_VERSIONS` unused for a day."""
+    if path in _USED_PATHS:
+        return
+    new = not os.path.isdir(path)
+    os.makedirs(path, exist_ok=True)
+    try:
+        os.utime(path)
+    except OSError:
+        pass  # another user's folder: numba's own check decides whether it is usable
+    _USED_PATHS.add(path)
+    if new:
+        _prune_versions(os.path.dirname(path), os.path.basename(path).rsplit("_", 1)[0])
+
+
+def _prune_versions(parent: str, group: str, now: float | None = None) -> list[str]:
+    """Remove ``group``'s version folders in ``parent`` beyond the :data:`CACHE_KEEP_VERSIONS` most recently
+    used, if unused for :data:`CACHE_PRUNE_AFTER_S`; returns the removed folders."""
+    import shutil
+    import time
+
+    now = time.time() if now is None else now
+    found = []
+    try:
+        with os.scandir(parent) as it:
+            for e in it:
+                if e.is_dir(follow_symlinks=False) and e.name.rsplit("_", 1)[0] == group:
+                    found.append((e.stat(follow_symlinks=False).st_mtime, e.path))
+    except OSError:
+        return []
+    found.sort(reverse=True)
+    removed = []
+    for used_s, folder in found[CACHE_KEEP_VERSIONS:]:
+        if now - used_s >= CACHE_PRUNE_AFTER_S:
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    return removed
+
+
 def user_cache_dir() -> str:
     """The kernels' cache outside the installation: ``$XDG_CACHE_HOME/mavahrs/kernels`` (``~/.cache/…``;
     the platform's user cache folder elsewhere), so that reinstalling the package keeps it."""
@@ -178,11 +262,16 @@ if HAVE_NUMBA:
 
     class _FiltersMavahrsCacheLocator(_FiltersStamp, _caching.UserWideCacheLocator):  # type: ignore[misc]
         """Otherwise the user's cache folder (:func:`user_cache_dir`), outside the installation: ``pip install``
-        replaces ``mavahrs/filters`` (and its ``__pycache__``) whenever an extra is added, …"""
+        replaces ``mavahrs/filters`` (and its ``__pycache__``) whenever an extra is added, …  One folder per
+        version of the sources (:func:`cache_subpath`), wherever they are installed."""
 
         def __init__(self, py_func: Any, py_file: str) -> None:
             super().__init__(py_func, py_file)
-            self._cache_path = os.path.join(user_cache_dir(), self.get_suitable_cache_subpath(py_file))
+            self._cache_path = os.path.join(user_cache_dir(), cache_subpath(py_file))
+
+        def ensure_cache_path(self) -> None:
+            _use_cache_path(self._cache_path)
+            super().ensure_cache_path()
 
     class _FiltersCacheLocator(_FiltersStamp, _caching.InTreeCacheLocator):  # type: ignore[misc]
         """… else (no writable home) ``mavahrs/filters/__pycache__``, numba's own default place."""
@@ -196,7 +285,11 @@ if HAVE_NUMBA:
 
         def __init__(self, py_func: Any, py_file: str) -> None:
             super().__init__(py_func, py_file)
-            self._cache_path = os.path.join(user_cache_dir(), self.get_suitable_cache_subpath(py_file))
+            self._cache_path = os.path.join(user_cache_dir(), cache_subpath(py_file))
+
+        def ensure_cache_path(self) -> None:
+            _use_cache_path(self._cache_path)
+            super().ensure_cache_path()
 
         def get_source_stamp(self) -> Any:
             return (super().get_source_stamp(), _jit_module_stamp())
