@@ -183,8 +183,9 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
     assert str(venv) in where.stdout and str(REPO) not in where.stdout, where.stdout + where.stderr
 
     outdir = tmp_path / "out"
-    # a safety bound, not a wait: the fresh install compiles its kernels first (≈ 2 min on an idle 2-core
-    # machine; over 4 min with the rest of the suite and other work beside it, where 240 s ran out)
+    # a safety bound, not a wait: the fresh install loads the kernels the suite's warm-up compiled for the same
+    # sources (the user's cache folder is named by their contents; 16 s in all), but compiles them first where
+    # that cache is absent (≈ 2 min on an idle 2-core machine; over 4 min with other work beside it)
     r = _run([str(venv / "bin" / "mavahrs"), "demo", "--duration", "5", "--outdir", str(outdir)],
              timeout=900, env=env, cwd=tmp_path)  # fmt: skip
     text = r.stdout + r.stderr
