@@ -202,17 +202,16 @@ def _use_cache_path(path: str) -> None:
     except OSError:
         pass  # another user's folder: numba's own check decides whether it is usable
     _USED_PATHS.add(path)
-    if new:
-        _prune_versions(os.path.dirname(path), os.path.basename(path).rsplit("_", 1)[0])
+    if new:  # "now" as the file system tells it: the new folder's time
+        _prune_versions(os.path.dirname(path), os.path.basename(path).rsplit("_", 1)[0], os.stat(path).st_mtime)
 
 
-def _prune_versions(parent: str, group: str, now: float | None = None) -> list[str]:
+def _prune_versions(parent: str, group: str, now: float) -> list[str]:
     """Remove ``group``'s version folders in ``parent`` beyond the :data:`CACHE_KEEP_VERSIONS` most recently
-    used, if unused for :data:`CACHE_PRUNE_AFTER_S`; returns the removed folders."""
+    used, if unused for :data:`CACHE_PRUNE_AFTER_S` before ``now`` (s, the folder times' clock); returns the
+    removed folders."""
     import shutil
-    import time
 
-    now = time.time() if now is None else now
     found = []
     try:
         with os.scandir(parent) as it:
