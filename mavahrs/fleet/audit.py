@@ -44,6 +44,10 @@ __all__ = [
     "LOG_SUFFIXES",
     "summarise_log",
     "expand_logs",
+    "select_logs",
+    "LogSelection",
+    "is_log_file",
+    "skipped_text",
     "read_table",
     "write_table",
     "serial_map",
@@ -589,21 +593,40 @@ def _vibration(prep: Any, window_s: float) -> dict[str, float]:
 # --------------------------------------------------------------------------- which logs
 
 
-def expand_logs(items: Sequence[str]) -> list[Path]:
-    """Files as given; folders searched recursively for logs (``*.tlog``, ``*.BIN``, ``*.ulg`` and any file
-    whose content is one of them); globs (``**`` recursive) expanded.
+@dataclass(frozen=True)
+class LogSelection:
+    """What :func:`select_logs` found: the flight logs to audit, and the files it left out (not logs)."""
 
-    Sorted, duplicates removed.  Raises DataError for an item that
-    matches nothing.
-    """
-    from mavahrs.errors import DataError
+    logs: list[Path]
+    skipped: list[Path]
+
+
+def is_log_file(path: Path) -> bool:
+    """A flight log by its name (``.tlog``, ``.BIN``, ``.ulg``, any case) or by its first bytes
+    (:func:`mavahrs.logs.sniff`: a renamed log still counts; a ``.tlog`` that is damaged too, so it gets
+    its row with the error)."""
     from mavahrs.logs import sniff
 
+    return path.suffix.lower() in LOG_SUFFIXES or sniff(path) is not None
+
+
+def select_logs(items: Sequence[str]) -> LogSelection:
+    """Files as given; folders searched recursively; globs (``**`` recursive) expanded — keeping the flight
+    logs (:func:`is_log_file`) and listing the other files as skipped.
+
+    ``mavahrs audit fleet/*`` (the shell expands the glob) or a folder also holding the audit's own
+    table, plots and notes: those are not failures of the fleet, only files that are not logs.
+    Sorted, duplicates removed.  Raises DataError for an item that matches nothing, and when every
+    file given is skipped (none is a flight log).
+    """
+    from mavahrs.errors import DataError
+
     out: dict[str, Path] = {}
+    skipped: dict[str, Path] = {}
     for item in items:
         p = Path(item)
         if p.is_dir():
-            found = [q for q in p.rglob("*") if q.is_file() and (q.suffix.lower() in LOG_SUFFIXES or sniff(q))]
+            found = [q for q in p.rglob("*") if q.is_file()]
         elif p.exists():
             found = [p]
         elif glob.has_magic(item):
@@ -613,8 +636,26 @@ def expand_logs(items: Sequence[str]) -> list[Path]:
         if not found and not p.is_dir():
             raise DataError(f"{item}: no such log (file, folder or glob)")
         for q in found:
-            out.setdefault(str(q.absolute()), q.absolute())
-    return [out[k] for k in sorted(out)]
+            key = str(q.absolute())
+            if key in out or key in skipped:
+                continue
+            (out if is_log_file(q) else skipped)[key] = q.absolute()
+    if not out and skipped:
+        names = skipped_text([skipped[k] for k in sorted(skipped)])
+        raise DataError(f"no flight log among the {len(skipped)} files given ({names})")
+    return LogSelection([out[k] for k in sorted(out)], [skipped[k] for k in sorted(skipped)])
+
+
+def skipped_text(skipped: Sequence[Path], shown: int = 3) -> str:
+    """``a.csv, notes.txt, plot.png and 2 more``: the first names of the files left out."""
+    names = [q.name for q in skipped[:shown]]
+    more = len(skipped) - len(names)
+    return ", ".join(names) + (f" and {more} more" if more > 0 else "")
+
+
+def expand_logs(items: Sequence[str]) -> list[Path]:
+    """The flight logs of :func:`select_logs` (files that are not logs left out)."""
+    return select_logs(items).logs
 
 
 # --------------------------------------------------------------------------- tables
