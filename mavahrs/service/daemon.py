@@ -728,7 +728,7 @@ class Daemon:
             self.log.info(
                 "%s (system %d, component %d) asked this component for its parameters: mavahrs has no MAVLink "
                 "parameters (its settings are --config/--set), and, as the parameter protocol says, does not "
-                "answer; the sender gives up after its retries",
+                "answer (a ground station may keep asking: MAVProxy does every second or two; harmless)",
                 msg.get_type(), msg.get_srcSystem(), msg.get_srcComponent(),
             )
         return frames
