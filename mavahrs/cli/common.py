@@ -184,7 +184,7 @@ def start_kernels() -> None:
 
 #: printed once, just before the first compilation of the filter kernels in a process (a cold cache)
 COMPILE_NOTICE = (  # CPU time and busy figure: a cold `mavahrs run`, docs/daemon.md (first start)
-    "compiling the filter kernels this command needs, once for this installation and version: up to 1½ min "
+    "compiling the filter kernels this command needs, once for this version of mavahrs: up to 1½ min "
     "of CPU time (`mavahrs run`), 6–7 min measured on a busy 2-core machine; a line every 30 s says it is still "
     "at it, later runs load them in a second, and `mavahrs warm-up` does it ahead of time …"
 )
@@ -289,7 +289,7 @@ class CompileProgress:
             if busy and self._first_s is not None:
                 self.lines += 1
                 self._log.info(
-                    "still compiling the filter kernels: %.0f s so far, %d compiled (once for this installation) …",
+                    "still compiling the filter kernels: %.0f s so far, %d compiled (once for this version) …",
                     now - self._first_s, self.ended,
                 )  # fmt: skip
 

@@ -889,7 +889,7 @@ def format_startup(
     local: bool = True,
 ) -> str:  # fmt: skip
     """What the run cost before its first log (the summary's second line): the cluster's start and the filter
-    kernels, compiled (a cold cache: the first run of an installation and version) or loaded from the cache.
+    kernels, compiled (a cold cache: the first run of a version) or loaded from the cache.
 
     ``startup_s``: start of the run to the first task (None: no cluster, the logs replayed here); ``cluster_s``:
     the cluster's start (or connection) within it; ``kernels_s``: loading or compiling the kernels in this
@@ -901,14 +901,14 @@ def format_startup(
     if startup_s is None:  # serial: the first log's replay compiled them (inside the replay time above)
         if not cold:
             return ""
-        return (f"of which {compiled_s:.0f} s compiling the filter kernels: the first run of this installation and version "
+        return (f"of which {compiled_s:.0f} s compiling the filter kernels: the first run of this version "
                 "(kept in the user's cache folder: later runs load them in seconds; `mavahrs warm-up` compiles them "
                 "ahead of time)")  # fmt: skip
     parts = [f"{what} {cluster_s:.1f} s" if cluster_s is not None else what]
     if kernels_s is not None:
         if cold:
             parts.append(f"meanwhile the filter kernels compiled once in this process in {compiled_s:.0f} s, "
-                         "for every worker to load: the first run of this installation and version (kept in the user's "
+                         "for every worker to load: the first run of this version (kept in the user's "
                          "cache folder: later runs start in seconds; `mavahrs warm-up` compiles them ahead of time)")  # fmt: skip
         else:
             parts.append(f"meanwhile the filter kernels loaded from the cache in {kernels_s:.1f} s")
