@@ -26,6 +26,8 @@ LOGS are files, folders and globs (quote them; ** is recursive) of telemetry
 logs (.tlog), ArduPilot DataFlash logs (.BIN) and PX4 ULogs (.ulg), mixed
 freely; the format is chosen by content, and a folder is searched recursively
 for *.tlog, *.BIN, *.ulg and any other file that is a log by its content.
+Other files (tables, plots, notes: `fleet/*` expanded by the shell) are
+skipped, said in one line.
 
 Exit codes: 0 every log summarised; 1 one or more logs could not be read
 (their rows carry the error, the table and summary are written all the
@@ -104,7 +106,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError("audit compares one filter with the autopilot: give --filter once")
     for t in args.output:
         fa.read_table(t)  # a bad suffix or a missing pyarrow fails now, not after the replays
-    logs = fa.expand_logs(args.logs)
+    selection = fa.select_logs(args.logs)
+    logs = selection.logs
+    if selection.skipped:  # a glob over a folder with tables, plots, notes: not failures of the fleet
+        n = len(selection.skipped)
+        print(f"audit: skipped {n} file{'s' if n != 1 else ''} that {'are' if n != 1 else 'is'} not flight "
+              f"log{'s' if n != 1 else ''} (.tlog, .BIN, .ulg by name or content): "
+              f"{fa.skipped_text(selection.skipped)}", file=sys.stderr)  # fmt: skip
     from pathlib import Path
 
     plots = str(Path(args.plot).with_suffix("")) + "_flights" if args.plot else ""  # one chart per flight

@@ -48,6 +48,9 @@ __all__ = [
     "start_kernels",
     "COMPILE_NOTICE",
     "announce_compiles",
+    "CompileProgress",
+    "compile_progress_s",
+    "COMPILE_PROGRESS_S",
     "stop_announcing",
     "add_source_option",
     "parse_source",
@@ -180,11 +183,15 @@ def start_kernels() -> None:
 
 
 #: printed once, just before the first compilation of the filter kernels in a process (a cold cache)
-COMPILE_NOTICE = (
-    "preparing the filters: compiling what this command needs, once for this machine and version "
-    "(measured 15–45 s on an idle 2-core PC, minutes on a busy or slow one; kept in the user's cache "
-    "folder, also across reinstalls; `mavahrs warm-up` compiles everything ahead of time) …"
+COMPILE_NOTICE = (  # CPU time and busy figure: a cold `mavahrs run`, docs/daemon.md (first start)
+    "compiling the filter kernels this command needs, once for this version of mavahrs: up to 1½ min "
+    "of CPU time (`mavahrs run`), 6–7 min measured on a busy 2-core machine; a line every 30 s says it is still "
+    "at it, later runs load them in a second, and `mavahrs warm-up` does it ahead of time …"
 )
+
+#: seconds between two "still compiling" lines while a first compilation goes on (:class:`CompileProgress`;
+#: ``MAVAHRS_COMPILE_PROGRESS_S`` overrides it)
+COMPILE_PROGRESS_S = 30.0
 
 
 def announce_compiles() -> None:
@@ -206,6 +213,108 @@ def announce_compiles() -> None:
     import time
 
     _ANNOUNCER.append(on_first_compile(announce, clock=time.monotonic))
+    _ANNOUNCER.append(CompileProgress(compile_progress_s()).close)
+
+
+def compile_progress_s() -> float:
+    """Seconds between "still compiling" lines: ``MAVAHRS_COMPILE_PROGRESS_S`` when set to a positive number
+    (the tests' short interval), else :data:`COMPILE_PROGRESS_S`."""
+    import os
+
+    try:
+        value = float(os.environ.get("MAVAHRS_COMPILE_PROGRESS_S", ""))
+    except ValueError:
+        return COMPILE_PROGRESS_S
+    return value if value > 0 else COMPILE_PROGRESS_S
+
+
+class CompileProgress:
+    """While mavahrs kernels compile, log every ``interval_s`` that it is still at it, with the time and count so far.
+
+    A cold compile takes from a minute to several (a busy 2-core machine: 6 min for ``mavahrs run``),
+    and the process is silent meanwhile: it looked hung.  Listens to numba's own compile events
+    (kernels of the ``mavahrs`` package only; a warm cache compiles nothing, so nothing is said);
+    a daemon thread, started at the first compilation, says *"still compiling the filter kernels:
+    90 s so far, 57 compiled …"* at each interval during which a compilation ran, and nothing
+    while the process does other work.  :meth:`close` stops it.
+    """
+
+    def __init__(self, interval_s: float = COMPILE_PROGRESS_S, logger: logging.Logger | None = None) -> None:
+        import threading
+        import time
+
+        self.interval_s = float(interval_s)
+        self.started = 0
+        self.ended = 0
+        self.lines = 0
+        self._clock = time.monotonic
+        self._first_s: float | None = None
+        self._log = logger or logging.getLogger(KERNELS_LOGGER)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._listener: Any = None
+        try:
+            from numba.core import event
+        except ImportError:  # no numba: nothing compiles
+            return
+        owner = self
+
+        class _Listener(event.Listener):  # type: ignore[misc, name-defined]
+            def on_start(self, ev: Any) -> None:
+                if _ours(ev):
+                    owner._on_start()
+
+            def on_end(self, ev: Any) -> None:
+                if _ours(ev):
+                    owner.ended += 1
+
+        self._listener = _Listener()
+        event.register("numba:compile", self._listener)
+
+    def _on_start(self) -> None:
+        import threading
+
+        self.started += 1
+        if self._first_s is None:
+            self._first_s = self._clock()
+            self._thread = threading.Thread(target=self._run, name="mavahrs-compile-progress", daemon=True)
+            self._thread.start()
+
+    def _run(self) -> None:
+        seen = 0  # compilations started by the previous tick
+        while not self._stop.wait(self.interval_s):
+            now = self._clock()
+            busy = self.started > self.ended or self.started != seen  # compiling now, or some started since
+            seen = self.started
+            if busy and self._first_s is not None:
+                self.lines += 1
+                self._log.info(
+                    "still compiling the filter kernels: %.0f s so far, %d compiled (once for this version) …",
+                    now - self._first_s, self.ended,
+                )  # fmt: skip
+
+    def close(self) -> None:
+        """Stop listening and end the thread (idempotent)."""
+        self._stop.set()
+        if self._listener is not None:
+            from numba.core import event
+
+            event.unregister("numba:compile", self._listener)
+            self._listener = None
+        if self._thread is not None:
+            self._thread.join(1.0)
+
+
+def _ours(ev: Any) -> bool:
+    """A numba compile event of a cached kernel of the mavahrs package (not a driver loop compiled uncached in
+    every process, ≈ 0.5 s, as :func:`mavahrs.filters.jit.on_first_compile` counts)."""
+    data = ev.data if isinstance(getattr(ev, "data", None), dict) else {}
+    dispatcher = data.get("dispatcher")
+    py = getattr(dispatcher, "py_func", None)
+    if not str(getattr(py, "__module__", "")).startswith("mavahrs"):
+        return False
+    cache = getattr(dispatcher, "_cache", None)
+    return cache is not None and type(cache).__name__ != "NullCache"
 
 
 def compiled_s() -> float | None:

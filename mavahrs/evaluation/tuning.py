@@ -224,11 +224,16 @@ class TuneResult:
             return None
         ten_deg = math.radians(10.0)
         zeta_text = "; ζ = 0 tracks no gyro-bias change at all" if zeta == 0 else ""
+        if self.temperature_model:
+            advice = "for flight use --gains flight (the default), which keeps this recording's gyro temperature model"
+        else:  # --gains flight writes only a temperature model, and this recording gives none (unusable())
+            advice = ("for flight run without these gains (the filters' own flight gains); this recording gives "
+                      "no gyro temperature model (its IMU temperature did not spread), so --gains flight would "
+                      "write nothing from it: record a warm-up at rest for one")  # fmt: skip
         return (
             f"β = {beta:.3g} rad/s ({which}) measures the gyro's noise at rest: the filter would take "
             f"{_duration(ten_deg / beta)} to correct a 10° attitude error (flight gain {f_beta:.3g} rad/s: "
-            f"{_duration(ten_deg / f_beta)}){zeta_text}. Fine on a bench, not fit to fly with: for flight use "
-            "--gains flight (the default), which keeps this recording's gyro temperature model"
+            f"{_duration(ten_deg / f_beta)}){zeta_text}. Fine on a bench, not fit to fly with: {advice}"
         )
 
     def to_toml(self, *, gains: str = "flight") -> str:

@@ -44,6 +44,10 @@ __all__ = [
     "LOG_SUFFIXES",
     "summarise_log",
     "expand_logs",
+    "select_logs",
+    "LogSelection",
+    "is_log_file",
+    "skipped_text",
     "read_table",
     "write_table",
     "serial_map",
@@ -589,21 +593,40 @@ def _vibration(prep: Any, window_s: float) -> dict[str, float]:
 # --------------------------------------------------------------------------- which logs
 
 
-def expand_logs(items: Sequence[str]) -> list[Path]:
-    """Files as given; folders searched recursively for logs (``*.tlog``, ``*.BIN``, ``*.ulg`` and any file
-    whose content is one of them); globs (``**`` recursive) expanded.
+@dataclass(frozen=True)
+class LogSelection:
+    """What :func:`select_logs` found: the flight logs to audit, and the files it left out (not logs)."""
 
-    Sorted, duplicates removed.  Raises DataError for an item that
-    matches nothing.
-    """
-    from mavahrs.errors import DataError
+    logs: list[Path]
+    skipped: list[Path]
+
+
+def is_log_file(path: Path) -> bool:
+    """A flight log by its name (``.tlog``, ``.BIN``, ``.ulg``, any case) or by its first bytes
+    (:func:`mavahrs.logs.sniff`: a renamed log still counts; a ``.tlog`` that is damaged too, so it gets
+    its row with the error)."""
     from mavahrs.logs import sniff
 
+    return path.suffix.lower() in LOG_SUFFIXES or sniff(path) is not None
+
+
+def select_logs(items: Sequence[str]) -> LogSelection:
+    """Files as given; folders searched recursively; globs (``**`` recursive) expanded — keeping the flight
+    logs (:func:`is_log_file`) and listing the other files as skipped.
+
+    ``mavahrs audit fleet/*`` (the shell expands the glob) or a folder also holding the audit's own
+    table, plots and notes: those are not failures of the fleet, only files that are not logs.
+    Sorted, duplicates removed.  Raises DataError for an item that matches nothing, and when every
+    file given is skipped (none is a flight log).
+    """
+    from mavahrs.errors import DataError
+
     out: dict[str, Path] = {}
+    skipped: dict[str, Path] = {}
     for item in items:
         p = Path(item)
         if p.is_dir():
-            found = [q for q in p.rglob("*") if q.is_file() and (q.suffix.lower() in LOG_SUFFIXES or sniff(q))]
+            found = [q for q in p.rglob("*") if q.is_file()]
         elif p.exists():
             found = [p]
         elif glob.has_magic(item):
@@ -613,8 +636,26 @@ def expand_logs(items: Sequence[str]) -> list[Path]:
         if not found and not p.is_dir():
             raise DataError(f"{item}: no such log (file, folder or glob)")
         for q in found:
-            out.setdefault(str(q.absolute()), q.absolute())
-    return [out[k] for k in sorted(out)]
+            key = str(q.absolute())
+            if key in out or key in skipped:
+                continue
+            (out if is_log_file(q) else skipped)[key] = q.absolute()
+    if not out and skipped:
+        names = skipped_text([skipped[k] for k in sorted(skipped)])
+        raise DataError(f"no flight log among the {len(skipped)} files given ({names})")
+    return LogSelection([out[k] for k in sorted(out)], [skipped[k] for k in sorted(skipped)])
+
+
+def skipped_text(skipped: Sequence[Path], shown: int = 3) -> str:
+    """``a.csv, notes.txt, plot.png and 2 more``: the first names of the files left out."""
+    names = [q.name for q in skipped[:shown]]
+    more = len(skipped) - len(names)
+    return ", ".join(names) + (f" and {more} more" if more > 0 else "")
+
+
+def expand_logs(items: Sequence[str]) -> list[Path]:
+    """The flight logs of :func:`select_logs` (files that are not logs left out)."""
+    return select_logs(items).logs
 
 
 # --------------------------------------------------------------------------- tables
@@ -848,7 +889,7 @@ def format_startup(
     local: bool = True,
 ) -> str:  # fmt: skip
     """What the run cost before its first log (the summary's second line): the cluster's start and the filter
-    kernels, compiled (a cold cache: the first run on a machine and version) or loaded from the cache.
+    kernels, compiled (a cold cache: the first run of a version) or loaded from the cache.
 
     ``startup_s``: start of the run to the first task (None: no cluster, the logs replayed here); ``cluster_s``:
     the cluster's start (or connection) within it; ``kernels_s``: loading or compiling the kernels in this
@@ -860,14 +901,14 @@ def format_startup(
     if startup_s is None:  # serial: the first log's replay compiled them (inside the replay time above)
         if not cold:
             return ""
-        return (f"of which {compiled_s:.0f} s compiling the filter kernels: the first run on this machine and version "
+        return (f"of which {compiled_s:.0f} s compiling the filter kernels: the first run of this version "
                 "(kept in the user's cache folder: later runs load them in seconds; `mavahrs warm-up` compiles them "
                 "ahead of time)")  # fmt: skip
     parts = [f"{what} {cluster_s:.1f} s" if cluster_s is not None else what]
     if kernels_s is not None:
         if cold:
             parts.append(f"meanwhile the filter kernels compiled once in this process in {compiled_s:.0f} s, "
-                         "for every worker to load: the first run on this machine and version (kept in the user's "
+                         "for every worker to load: the first run of this version (kept in the user's "
                          "cache folder: later runs start in seconds; `mavahrs warm-up` compiles them ahead of time)")  # fmt: skip
         else:
             parts.append(f"meanwhile the filter kernels loaded from the cache in {kernels_s:.1f} s")

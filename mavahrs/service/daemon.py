@@ -12,8 +12,11 @@ socket; no busy polling:
   streams as streams) → record in the tlog → ``Pipeline.handle`` → send what
   it returns: attitude to every ``--out`` (and to the master when the pipeline
   marks it), replies such as stream requests to the master;
-* **an output readable** → drained and ignored (a GCS's heartbeats teach a
-  ``udpin:`` output where to send; nothing from outputs reaches the filter);
+* **an output readable** → drained (a GCS's heartbeats teach a ``udpin:``
+  output where to send; nothing from outputs reaches the filter); a request
+  addressed to our component — a command, an FTP request — is answered on
+  that output as :mod:`mavahrs.service.component` says (the same for such
+  requests arriving on the master link, answered there);
 * **timer** (``tick_hz``, default 20 Hz) → ``Pipeline.tick`` (heartbeats,
   stream requests), link maintenance (reconnection, queued writes), log
   flushing, the no-heartbeat watchdog, the status line every
@@ -234,7 +237,10 @@ class DaemonCounters:
         attitudes_out: ATTITUDE_QUATERNION frames sent (to the outputs and/or the master).
         frames_to_master: frames sent back to the autopilot.
         frames_to_outputs: frames sent to the outputs (all kinds).
-        output_reads_ignored: reads from output links (ignored).
+        output_reads_ignored: reads from output links (nothing in them reaches the filter; requests
+            addressed to our component are answered, counted in ``requests_answered``).
+        requests_answered: answers to requests addressed to our component (COMMAND_ACK UNSUPPORTED, FTP
+            NAK: :mod:`mavahrs.service.component`), on the master link or an output.
         pipeline_errors: messages the pipeline failed on (counted, logged rarely).
         fast_lane_answers: attitudes sent by the fast lane ahead of the Python path.
         fast_lane_mismatches: datagrams whose fast-lane answer the Python path did
@@ -254,6 +260,7 @@ class DaemonCounters:
     frames_to_master: int = 0
     frames_to_outputs: int = 0
     output_reads_ignored: int = 0
+    requests_answered: int = 0
     pipeline_errors: int = 0
     fast_lane_answers: int = 0
     fast_lane_mismatches: int = 0
@@ -452,6 +459,16 @@ class Daemon:
                 lane = FastLane(pipeline, receive_codec=codec)
                 self._lane = lane if lane.usable else None
         self._lane_to_master = bool(getattr(getattr(pipeline, "settings", None), "send_to_master", True))
+        # requests addressed to our component (commands, FTP): answered as a component without them
+        encoder = getattr(pipeline, "codec", None)
+        from mavahrs.service.component import REQUEST_TYPES, ComponentResponder
+
+        self.responder: ComponentResponder | None = ComponentResponder(encoder) if encoder is not None else None
+        self._request_classes = frozenset(
+            cls for name in REQUEST_TYPES if (cls := getattr(mavlink, f"MAVLink_{name.lower()}_message", None))
+        )
+        self._output_codecs: dict[int, Any] = {}  # decoding codec of each output link (requests to us)
+        self._param_request_said = False
         self._closed = False
         self._signing: tuple[int, bool] | None = None  # (link id, require) once enabled
         self._signing_reported = 0  # frames dropped by signing at the last warning
@@ -635,6 +652,10 @@ class Daemon:
                 observe(msg)
                 if type(msg) is hb_type and msg.autopilot != _MAV_AUTOPILOT_INVALID and not self._own(msg):
                     self._on_heartbeat(now_s)
+                if type(msg) in self._request_classes:
+                    for frame in self._answers(msg):
+                        self._send(_Early(frame, True, False), wall_us, now_s)
+                        c.requests_answered += 1
                 try:
                     outgoing = handle(msg, now_us)
                 except Exception as exc:  # noqa: BLE001 - one bad message must not stop the service
@@ -694,11 +715,55 @@ class Daemon:
             why,
         )
 
+    def _answers(self, msg: Any) -> list[bytes]:
+        """The responder's answers to a request (see :mod:`mavahrs.service.component`); says once, the first
+        time a ground station asks us for parameters, that there are none."""
+        responder = self.responder
+        if responder is None:
+            return []
+        ignored = responder.counters.param_requests_ignored
+        frames = responder.answer(msg)
+        if responder.counters.param_requests_ignored > ignored and not self._param_request_said:
+            self._param_request_said = True
+            self.log.info(
+                "%s (system %d, component %d) asked this component for its parameters: mavahrs has no MAVLink "
+                "parameters (its settings are --config/--set), and, as the parameter protocol says, does not "
+                "answer (a ground station may keep asking: MAVProxy does every second or two; harmless)",
+                msg.get_type(), msg.get_srcSystem(), msg.get_srcComponent(),
+            )
+        return frames
+
     def _drain_output(self, link: Any) -> None:
+        """An output link is readable: read what came (nothing of it reaches the filter) and answer requests
+        addressed to our component on that link (not when signing is required: an output's frames are
+        not verified)."""
+        answer = self.responder is not None and not (self._signing is not None and self._signing[1])
         for _ in range(self.settings.max_drain):
-            if not link.read(0.0):
+            data = link.read(0.0)
+            if not data:
                 break
             self.counters.output_reads_ignored += 1
+            if answer:
+                self._answer_output(link, data)
+
+    def _answer_output(self, link: Any, data: bytes) -> None:
+        codec = self._output_codecs.get(id(link))
+        if codec is None:
+            from mavahrs.protocol.codec import MavCodec
+
+            codec = self._output_codecs[id(link)] = MavCodec()
+        try:
+            msgs = codec.receive_datagram(data) if link.datagram else codec.receive_stream(data)
+        except Exception:  # noqa: BLE001 - whatever a ground station sends, never the daemon's end
+            return
+        for msg in msgs:
+            if type(msg) not in self._request_classes:
+                continue
+            for frame in self._answers(msg):
+                link.write(frame)
+                self.counters.requests_answered += 1
+                if self.sink is not None:
+                    self.sink.write(time.time_ns() // 1000, frame, time.monotonic())
 
     def _on_heartbeat(self, now_s: float) -> None:
         self._heartbeats += 1

@@ -654,10 +654,11 @@ def _low_rate_hints(
         drop = _rate_drop(obs, primary, expect)
         if drop is not None:
             out.append(
-                f"{primary} ran at {expect:g} Hz, then fell to about {drop[1]:.0f} Hz {drop[0]:.1f} s into the check: "
-                "something else on the link reset the stream rates (MAVProxy --streamrate, Mission Planner or "
-                "QGroundControl connecting). Start MAVProxy with --streamrate=-1 and set the ground station not to "
-                "request streams, or let mavahrs run re-request them (it does every 10 s)"
+                f"{primary} ran at {expect:g} Hz, then fell to about {drop[1]:.0f} Hz {drop[0]:.1f} s into the check. "
+                "Either something else on the link reset the stream rates (MAVProxy --streamrate, Mission Planner or "
+                "QGroundControl connecting: start MAVProxy with --streamrate=-1 and set the ground station not to "
+                "request streams, or let mavahrs run re-request them, as it does at once), or the sender slowed "
+                "down (autopilot or simulator busy or stalled), or the link loses data"
             )
         elif is_px4:
             out.append(

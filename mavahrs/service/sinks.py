@@ -11,7 +11,11 @@ long-running service needs:
 * **a full disk or any other write error stops the recording, not the
   service**: the error is logged once (ERROR, with the reason and how many
   frames were written), later writes are counted as ``frames_lost`` and the
-  status line shows ``log stopped``.
+  status line shows ``log stopped``;
+* **no empty file left behind**: a file this sink created that is still empty
+  when it closes (stopped before anything arrived — Ctrl-C while the daemon
+  waits for the autopilot) is removed, and the removal is logged; a file that
+  existed before (appended to) is always kept.
 """
 
 from __future__ import annotations
@@ -53,6 +57,9 @@ class TlogSink:
         self.path = os.fspath(path)
         self.flush_interval_s = float(flush_interval_s)
         self._log = logger or logging.getLogger("mavahrs.service")
+        #: created by this sink (not appended to): removed at close if nothing was written (see the module text)
+        self._created = writer is None and not os.path.exists(self.path)
+        self.removed_empty = False
         if writer is None:
             from mavahrs.protocol.tlog import TlogWriter
 
@@ -69,9 +76,12 @@ class TlogSink:
 
     @property
     def state(self) -> str:
-        """``"ok"``, ``"closed"`` (closed and synced as it should be) or ``"stopped: <reason>"`` (an error)."""
+        """``"ok"``, ``"closed"`` (closed and synced as it should be), ``"nothing recorded: empty file removed"``
+        or ``"stopped: <reason>"`` (an error)."""
         if not self.stopped:
             return "ok"
+        if self.removed_empty:
+            return "nothing recorded: empty file removed"
         return "closed" if self.reason == "closed" else f"stopped: {self.reason}"
 
     def _fail(self, exc: OSError, what: str) -> None:
@@ -132,3 +142,16 @@ class TlogSink:
             return
         self.stopped = True
         self.reason = "closed"
+        if self._created and self.frames == 0:
+            self._remove_if_empty()
+
+    def _remove_if_empty(self) -> None:
+        try:
+            if os.path.getsize(self.path) != 0:
+                return
+            os.remove(self.path)
+        except OSError:  # gone already, or not ours to remove: leave it
+            return
+        self.removed_empty = True
+        self._log.info("nothing was recorded (stopped before any message arrived): removed the empty log file %s",
+                       self.path)  # fmt: skip

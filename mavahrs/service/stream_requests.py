@@ -610,24 +610,36 @@ class StreamRequester:
                 self.notices.warning(
                     f"lowrate:{w.name}",
                     f"{w.name} arrives at {got:.0f} Hz, {expected:g} Hz accepted, and asking again did not help: "
-                    "the link (baud rate, radio) may be too slow, or another program keeps resetting stream rates; "
+                    "the link (baud rate, radio) may be too slow or lose data, the sender cannot keep up (busy or "
+                    "stalled), or another program keeps resetting stream rates; "
                     f"asking again less and less often (down to once every {self.settings.interval_s:g} s)",
                     now_us,
                 )
         if now_us < w.next_quick_us:
             return
         if w.failures == 0:
-            self.notices.info(
-                f"drop:{w.name}",
-                f"{w.name} fell to {got:.0f} Hz ({expected:g} Hz accepted; another program may have reset the "
-                "stream rates): requesting it again",
-                now_us,
-            )
+            self.notices.info(f"drop:{w.name}", self._drop_text(w.name, got, expected, window_us), now_us)
         w.quick_pending = True
         w.next_quick_us = now_us + w.backoff_us
         w.due_us = now_us
         w.judge_us = None  # judged again after the re-request is acknowledged
         self.rerequests += 1
+
+    @staticmethod
+    def _drop_text(name: str, got_hz: float, expected_hz: float, window_us: int) -> str:
+        """What the quick check measured, and the causes it cannot tell apart, neutrally.
+
+        A collapse with messages still arriving is what a stream-rate reset by another program gives
+        (MAVProxy's ``--streamrate``), but also a sender that slows down — a simulator or autopilot
+        stalled or busy — and a link losing data: the rate alone does not tell them apart.  (A stream
+        request from another node that this link carries is said on its own, by
+        :meth:`on_foreign_request`, which asks again at once.)
+        """
+        return (
+            f"{name} fell to {got_hz:.0f} Hz over the last {window_us / 1e6:g} s ({expected_hz:g} Hz accepted; "
+            "messages still arrive): the sender slowed down (autopilot or simulator busy or stalled), the link "
+            "loses data, or another program reset the stream rates; requesting it again"
+        )
 
     def _check_slow(self, w: _Want, expected: float | None, now_us: int) -> None:
         """The slow check (data-stream mode, or quick re-requests off): warn once a minute."""

@@ -226,7 +226,10 @@ def test_signals_stop_cleanly_with_exit_code_0(tmp_path: Path, sig: signal.Signa
         proc.stderr.close()
     assert rc == EXIT_OK, rest
     assert f"mavahrs stopped ({sig.name})" in rest and "Traceback" not in rest
-    assert log.exists()
+    # stopped before the autopilot was found: nothing was recorded, and no empty tlog is left behind
+    assert not log.exists()
+    assert f"removed the empty log file {log}" in rest
+    assert "log 0 frames (nothing recorded: empty file removed)" in rest
 
 
 def _may_use_sched_fifo() -> bool:

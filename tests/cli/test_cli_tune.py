@@ -80,15 +80,29 @@ def test_tune_on_a_rest_log_warns_that_bench_gains_are_not_fit_to_fly(
     beta = cfg.filter.beta_rad_s
     assert 0 < beta < 0.005 and cfg.pipeline.filter_name == "madgwick"
     minutes = round(math.radians(10.0) / beta / 60)
+    # the simulator's rest flight holds the IMU at one temperature: no temperature model, and the warning
+    # must not send the user to --gains flight for one (it mentioned "this recording's gyro temperature model",
+    # and --gains flight on this log writes nothing and fails)
+    assert cfg.pipeline.calibration.gyro_temperature is None
+    assert "wrote " + str(toml) + ": no temperature model (no spread);" in err
     warning = (
         f"β = {beta:.3g} rad/s (spec) measures the gyro's noise at rest: the filter would take {minutes} min to "
         "correct a 10° attitude error (flight gain 0.041 rad/s: 4 s). Fine on a bench, not fit to fly with: for "
-        "flight use --gains flight (the default), which keeps this recording's gyro temperature model"
+        "flight run without these gains (the filters' own flight gains); this recording gives no gyro temperature "
+        "model (its IMU temperature did not spread), so --gains flight would write nothing from it: record a "
+        "warm-up at rest for one"
     )
     assert f" WARNING {warning}\n" in err
+    assert "this recording's gyro temperature model" not in err
     assert f"# NOT FIT TO FLY WITH: {warning}." in toml.read_text().splitlines()
     assert "(spec, NOT fit to fly with); use: mavahrs run --config" in err
     assert "site-packages" not in err and "RuntimeWarning" not in err
+    # … and where the recording has a temperature model (a warm-up at rest), the advice is --gains flight
+    assert main(["tune", str(_csv(tmp_path, np.random.default_rng(3))), "-o", str(tmp_path / "warm.toml"),
+                 "--gains", "spec"]) == 0  # fmt: skip
+    assert "for flight use --gains flight (the default), which keeps this recording's gyro temperature model" in (
+        capsys.readouterr().err
+    )
 
 
 def _keys(table: dict) -> set[str]:  # type: ignore[type-arg]

@@ -323,6 +323,35 @@ def test_a_log_shorter_than_the_start_up_grace_says_why_nothing_is_compared(flee
     assert tail.startswith("  short.tlog: nothing compared: the log's "), res.stdout
 
 
+def test_files_that_are_not_logs_are_skipped_with_one_line(fleet, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """``mavahrs audit flights/*`` (the shell expands the glob): the folder's table, plot and notes are skipped,
+    said in one line, and are no failure rows; a renamed log (by content) and a damaged .tlog (by name) stay."""
+    import glob as globmod
+
+    folder, _ = fleet
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    log = next(folder.rglob("flight_000_*.tlog"))
+    (flights / "a.tlog").write_bytes(log.read_bytes()[:200_000])
+    (flights / "renamed.dat").write_bytes(log.read_bytes()[:200_000])  # a tlog by its first bytes
+    (flights / "damaged.tlog").write_bytes(b"not a tlog at all")
+    (flights / "fleet.csv").write_text("path,error\n")
+    (flights / "notes.txt").write_text("flown on Tuesday")
+    (flights / "fleet.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100))
+    (flights / "README").write_text("no suffix, no log")
+    res = _audit(*sorted(globmod.glob(str(flights / "*"))), "--serial", "--no-progress")
+    assert res.returncode == 1, res.stderr  # the damaged .tlog only
+    assert ("audit: skipped 4 files that are not flight logs (.tlog, .BIN, .ulg by name or content): "
+            "README, fleet.csv, fleet.png and 1 more") in res.stderr  # fmt: skip
+    assert "audit: 1 of 3 logs could not be read" in res.stderr
+    assert "audited 3 logs (3 replayed" in res.stdout
+    for name in ("fleet.csv", "notes.txt", "fleet.png"):
+        assert name not in res.stdout
+    # nothing but files that are not logs: a usage-level error, not an empty table
+    res = _audit(str(flights / "notes.txt"), str(flights / "fleet.csv"), "--serial")
+    assert res.returncode != 0 and "no flight log among the 2 files given (fleet.csv, notes.txt)" in res.stderr
+
+
 def test_audit_help_and_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["audit", "--help"]) == 0
     help_text = capsys.readouterr().out

@@ -16,7 +16,7 @@ def test_startup_line_says_compiled_or_loaded_and_what_it_cost() -> None:
     cold = format_startup(95.4, 3.1, 95.0, 93.2, local=True)
     assert cold.startswith("start-up before the first log 95.4 s, not in the figures above: ")
     assert "starting the local cluster 3.1 s" in cold and "compiled once in this process in 93 s" in cold
-    assert "first run on this machine and version" in cold and "mavahrs warm-up" in cold
+    assert "first run of this version" in cold and "mavahrs warm-up" in cold
     warm = format_startup(2.9, 2.9, 0.7, None, local=True)
     assert warm.endswith("starting the local cluster 2.9 s; meanwhile the filter kernels loaded from the cache in 0.7 s")
     remote = format_startup(0.4, 0.4, None, None, local=False)

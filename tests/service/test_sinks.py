@@ -141,3 +141,27 @@ def test_a_full_disk_stops_the_log_once_and_nothing_else(caplog: pytest.LogCaptu
 def test_an_unopenable_log_path_is_a_config_error(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="cannot open log file"):
         TlogSink(tmp_path / "no" / "such" / "dir.tlog")
+
+
+def test_an_empty_file_it_created_is_removed_at_close_and_said(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Ctrl-C before the autopilot is found: no frame came; the file the sink created goes, with one INFO line.
+    A file that existed before (appended to, even if empty) and a file with frames are kept."""
+    empty = tmp_path / "empty.tlog"
+    with caplog.at_level(logging.INFO, logger="mavahrs.service"):
+        sink = TlogSink(empty)
+        assert empty.exists()
+        sink.close()
+    assert not empty.exists() and sink.removed_empty and sink.state == "nothing recorded: empty file removed"
+    assert [r.getMessage() for r in caplog.records] == [
+        f"nothing was recorded (stopped before any message arrived): removed the empty log file {empty}"
+    ]
+    earlier = tmp_path / "earlier.tlog"
+    earlier.write_bytes(b"")
+    sink = TlogSink(earlier)
+    sink.close()
+    assert earlier.exists() and sink.state == "closed"
+    used = tmp_path / "used.tlog"
+    sink = TlogSink(used)
+    sink.write(1_700_000_000_000_000, _frames(1)[0], now_s=1.0)
+    sink.close()
+    assert used.stat().st_size > 0 and sink.state == "closed"

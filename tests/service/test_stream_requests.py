@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 
 import numpy as np
 import pytest
@@ -324,8 +325,27 @@ def test_a_reset_after_a_silence_is_still_undone():
     assert after and after[0][1].interval_us == 4000 and after[0][0] - 10 * S <= 850_000
     assert ap.rate_hz == 250.0 and r.rerequests == 1
     assert [t for _, t in r.drain_notices() if "fell to" in t] == [
-        "RAW_IMU fell to 4 Hz (250 Hz accepted; another program may have reset the stream rates): requesting it again"
+        "RAW_IMU fell to 4 Hz over the last 0.5 s (250 Hz accepted; messages still arrive): the sender slowed down "
+        "(autopilot or simulator busy or stalled), the link loses data, or another program reset the stream rates; "
+        "requesting it again"
     ]
+
+
+def test_a_stalling_sender_is_reported_as_measured_with_the_causes_side_by_side():
+    """A simulator that stalls (busy machine) delivers 30 Hz for 2 s with nobody resetting a rate: the notice says
+    what was measured and names the causes neutrally (it blamed another program before)."""
+    r = started(interval_s=30.0)
+    ap = FakeAutopilot(r)
+    ap.run(0, 5 * S)
+    r.drain_notices()
+    ap.rate_hz = 30.0  # the sender slows down; the accepted rate is unchanged
+    ap.run(5 * S, 7 * S)
+    ap.rate_hz = 250.0
+    ap.run(7 * S, 9 * S)
+    (text,) = [t for _, t in r.drain_notices() if "fell to" in t]
+    assert re.match(r"RAW_IMU fell to \d+ Hz over the last 0\.5 s \(250 Hz accepted; messages still arrive\): ", text)
+    assert "the sender slowed down" in text and "another program reset the stream rates;" in text
+    assert "may have reset" not in text
 
 
 def test_repeated_resets_are_each_undone_but_no_faster_than_rerequest_min_s():
@@ -444,6 +464,7 @@ def test_random_loss_on_a_slow_stream_is_no_rate_reset_but_a_reset_still_is():
     again = [t for t, q in sent if isinstance(q, SetMessageInterval) and t > 602 * S]
     assert again and again[0] - 602 * S <= 2.6 * S
     assert [t for _, t in r.drain_notices() if "fell to" in t] == [
-        "GLOBAL_POSITION_INT fell to 4 Hz (10 Hz accepted; another program may have reset the stream rates): "
-        "requesting it again"
+        "GLOBAL_POSITION_INT fell to 4 Hz over the last 2 s (10 Hz accepted; messages still arrive): the sender "
+        "slowed down (autopilot or simulator busy or stalled), the link loses data, or another program reset the "
+        "stream rates; requesting it again"
     ]
