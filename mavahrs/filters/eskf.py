@@ -1831,13 +1831,14 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise);
             # with rest_check_sigma_rad_s only the axes whose bias is known well enough for that check to
             # tell a slow turn, and at least one of them (before that a still stretch is not taken for rest)
+            # (an axis whose bias is not yet known that well is still checked against its own σ, since it
+            # is fused too: a hover's steady yaw beyond 3 σ of its prior is a turn, not rest)
             kp = k + _P
             v_max = params[p + _REST_CHECK_VAR]
             for c in range(3):
                 pb = s_pos(state[kp + (6 + c) * N + 6 + c])
-                if v_max > 0.0 and pb > v_max:
-                    continue
-                n_known += 1
+                if not (v_max > 0.0 and pb > v_max):
+                    n_known += 1
                 d = state[k + _REST + c] - state[S_BIAS + c]
                 if d * d > 9.0 * (pb + params[p + _R_REST_RATE]):
                     at_rest = False
