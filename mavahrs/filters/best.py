@@ -316,15 +316,27 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
 #: (``EskfSettings.drag_reset_s``; 0 = never): ten drag periods, within a hover's drift, before a velocity that
 #: random-walked unobserved drags the tilt with it (issue 22, branch vib: docs/accuracy.md "Seventh round")
 MULTIROTOR_DRAG_RESET_S = 1.0
-_RAW_DRAG_1_S = 0.4
-_RAW_DRAG_QUADRATIC_1_M = 0.01
+#: a raw IMU's multirotor (``set_multirotor()`` with no k, the plain path's multirotor hypothesis): the rotors'
+#: momentum drag k, 1/s, beside the body's quadratic drag (``MULTIROTOR_BODY_DRAG_1_M``): k + c‖v‖ is the linear
+#: model's 0.5 /s (``MULTIROTOR_DRAG_1_S``) at 10 m/s.  Momentum theory bounds it (``EskfSettings.drag_coefficient_1_s``:
+#: g/(2 v_i) ≈ 1.3 /s for a fully turned inflow, open rotors a fraction); the autopilots document 0.1–0.15 /s for
+#: open rotors (ArduPilot EK3_DRAG_MCOEF's example, 1.5 m/s² at 15 m/s = 0.1; PX4 EKF2_MCOEF's default 0.15),
+#: "higher for ducted rotors" (both).  0.4 is above those typical values (nearer them than the linear 0.5);
+#: measured in docs/accuracy.md "Eleventh round (branch drag2)" (issue 22)
+MULTIROTOR_RAW_DRAG_1_S = 0.4
+#: the body's bluff drag ½ρ C_d A / m = ρ / (2 B), 1/m, with B the ballistic coefficient m / (C_d A) of ArduPilot's
+#: EK3_DRAG_BCOEF_X/Y (range 0–1000 kg/m², "a starting value is the mass divided by the frontal area") and PX4's
+#: EKF2_BCOEF_X/Y (default 100 kg/m² → 0.006 /m at sea level, range 0–200); 0.01 /m is B ≈ 61 kg/m²
+#: (ρ 1.225 kg/m³): a 1.5 kg quadrotor with C_d A = 0.025 m², inside both ranges (issue 22)
+MULTIROTOR_BODY_DRAG_1_M = 0.01
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
     """``eskf`` with a raw IMU's multirotor models (what :meth:`Best.set_multirotor` sets through the API).
 
     A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
-    (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
+    (k = ``drag_coefficient_1_s``, else one already set, else ``MULTIROTOR_RAW_DRAG_1_S`` 0.4 /s with the body's
+    quadratic drag ``MULTIROTOR_BODY_DRAG_1_M`` 0.01 /m beside it: D = (k + c‖v‖) v), the thrust axis as two
     error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
     the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°); a detected rest taken only once
     the bias is known within ``MULTIROTOR_REST_CHECK_SIGMA_RAD_S`` on some axis (a hover is as still as rest); the
@@ -332,10 +344,10 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     """
     k = drag_coefficient_1_s
     if k is None:
-        k = eskf.drag_coefficient_1_s or _RAW_DRAG_1_S
+        k = eskf.drag_coefficient_1_s or MULTIROTOR_RAW_DRAG_1_S
     eskf = replace(eskf, drag_coefficient_1_s=float(k))
     if eskf.drag_quadratic_1_m == 0.0 and drag_coefficient_1_s is None:
-        eskf = replace(eskf, drag_quadratic_1_m=_RAW_DRAG_QUADRATIC_1_M)
+        eskf = replace(eskf, drag_quadratic_1_m=MULTIROTOR_BODY_DRAG_1_M)
     if eskf.thrust_axis_sigma_rad == 0.0:
         eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
     if eskf.initial_realign_rad < MULTIROTOR_INITIAL_REALIGN_RAD:

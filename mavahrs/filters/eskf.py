@@ -669,6 +669,13 @@ class EskfSettings(FilterSettings):
             reads it (the bias across gravity is then told from a tilt only
             by the body's turns, and a motion acceleration or a drag-model
             error is learnt as bias: see docs/accuracy.md).
+        drag_quadratic_1_m: c, the body's bluff drag beside the rotors'
+            momentum drag in the drag measurement, 1/m: D = (k + c‖v‖) v
+            (ArduPilot EKF3's EK3_DRAG_BCOEF_X/Y and PX4 EKF2's
+            EKF2_BCOEF_X/Y beside their *_MCOEF: c = ρ/(2B), B the
+            ballistic coefficient in kg/m²); 0 = the linear term alone
+            (default; ``best``'s raw multirotor sets
+            ``best.MULTIROTOR_BODY_DRAG_1_M``).
     """
 
     gyro_noise_rad_s: float = 0.003
