@@ -241,14 +241,11 @@ _ABIAS_P0 = _MAG_DELAY + 10  # steady-state variance of each accelerometer-bias 
 _ABIAS_TAU = _MAG_DELAY + 11  # s: their Gauss–Markov correlation time (0: constant)
 _ABIAS_VIB = _MAG_DELAY + 12  # the accelerometer bias's variance per measured per-sample specific-force variance (c²)
 _ABIAS_AIDED = _MAG_DELAY + 13  # 1: the accelerometer-bias states are estimated only while velocity-aided
-_DRAG_C = _MAG_DELAY + 14  # the body's quadratic drag coefficient, 1/m (0: the rotor drag's linear term alone)
-_N_PARAMS = _MAG_DELAY + 15
+_N_PARAMS = _MAG_DELAY + 14
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
 DRAG_PARAM = _DRAG_K
-#: offset of ``drag_quadratic_1_m`` in the filter's own parameter block
-DRAG_QUADRATIC_PARAM = _DRAG_C
 
 # filter state, offsets from S_FILTER
 _V = 0  # INS velocity, NED (3)
@@ -669,13 +666,6 @@ class EskfSettings(FilterSettings):
             reads it (the bias across gravity is then told from a tilt only
             by the body's turns, and a motion acceleration or a drag-model
             error is learnt as bias: see docs/accuracy.md).
-        drag_quadratic_1_m: c, the body's bluff drag beside the rotors'
-            momentum drag in the drag measurement, 1/m: D = (k + c‖v‖) v
-            (ArduPilot EKF3's EK3_DRAG_BCOEF_X/Y and PX4 EKF2's
-            EKF2_BCOEF_X/Y beside their *_MCOEF: c = ρ/(2B), B the
-            ballistic coefficient in kg/m²); 0 = the linear term alone
-            (default; ``best``'s raw multirotor sets
-            ``best.MULTIROTOR_BODY_DRAG_1_M``).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -751,7 +741,6 @@ class EskfSettings(FilterSettings):
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
-    drag_quadratic_1_m: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -774,7 +763,7 @@ class EskfSettings(FilterSettings):
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
-                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "drag_quadratic_1_m"):
+                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1369,18 +1358,12 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
     kc = k + _C
     vn, ve, vd = s[k + _V], s[k + _V + 1], s[k + _V + 2]
     r = params[P_FILTER + _R_DRAG]
-    # the body's quadratic drag beside the rotors' linear one: D = (k + c‖v‖) v (EKF3's ballistic coefficient
-    # beside its momentum drag); its Jacobian on v is M = (k + c‖v‖) I + c v vᵀ/‖v‖ (symmetric)
-    c_q = params[P_FILTER + _DRAG_C]
-    v_norm = math.sqrt(vn * vn + ve * ve + vd * vd)
-    k_eff = k_drag + c_q * v_norm
-    c_v = c_q / v_norm if v_norm > 1e-6 else 0.0
     thrust = 0.0
-    if states:  # tᵀ(f + D_b), D_b = Cᵀ D
+    if states:  # tᵀ(f + k v_b), v_b = Cᵀv
         utn = s[kc + 0] * tx + s[kc + 1] * ty + s[kc + 2] * tz
         ute = s[kc + 3] * tx + s[kc + 4] * ty + s[kc + 5] * tz
         utd = s[kc + 6] * tx + s[kc + 7] * ty + s[kc + 8] * tz
-        thrust = fx * tx + fy * ty + fz * tz + k_eff * (utn * vn + ute * ve + utd * vd)
+        thrust = fx * tx + fy * ty + fz * tz + k_drag * (utn * vn + ute * ve + utd * vd)
     fused = False
     for c in range(2):
         if c == 0:
@@ -1390,20 +1373,15 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         un = s[kc + 0] * ex + s[kc + 1] * ey + s[kc + 2] * ez
         ue = s[kc + 3] * ex + s[kc + 4] * ey + s[kc + 5] * ez
         ud = s[kc + 6] * ex + s[kc + 7] * ey + s[kc + 8] * ez
-        uv = un * vn + ue * ve + ud * vd
-        y = (fx * ex + fy * ey + fz * ez) + k_eff * uv
-        # w = M u: h = −uᵀD, ∂h/∂δv = −wᵀ, ∂h/∂δθ = −(w × v)ᵀ (w = k u without the quadratic term)
-        wn = k_eff * un + c_v * uv * vn
-        we = k_eff * ue + c_v * uv * ve
-        wd = k_eff * ud + c_v * uv * vd
+        y = (fx * ex + fy * ey + fz * ez) + k_drag * (un * vn + ue * ve + ud * vd)
         for i in range(N):
             s[k + _H + i] = 0.0
-        s[k + _H + 0] = -(we * vd - wd * ve)
-        s[k + _H + 1] = -(wd * vn - wn * vd)
-        s[k + _H + 2] = -(wn * ve - we * vn)
-        s[k + _H + 3] = -wn
-        s[k + _H + 4] = -we
-        s[k + _H + 5] = -wd
+        s[k + _H + 0] = -k_drag * (ue * vd - ud * ve)
+        s[k + _H + 1] = -k_drag * (ud * vn - un * vd)
+        s[k + _H + 2] = -k_drag * (un * ve - ue * vn)
+        s[k + _H + 3] = -k_drag * un
+        s[k + _H + 4] = -k_drag * ue
+        s[k + _H + 5] = -k_drag * ud
         if states:
             s[k + _H + 9 + c] = thrust
         if ((params[P_FILTER + _ABIAS_P0] > 0.0 or params[P_FILTER + _ABIAS_VIB] > 0.0)
@@ -2430,7 +2408,6 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
-        p[_DRAG_C] = settings.drag_quadratic_1_m
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
