@@ -267,6 +267,7 @@ def best_eskf_settings() -> EskfSettings:
         gate_sigma=4.0,
         initial_average_s=BEST_INITIAL_AVERAGE_S,
         gyro_scale_sigma=0.0,
+        gyro_scale_tilt_sigma=0.0,
         gyro_scale_state_sigma=BEST_GYRO_SCALE_SIGMA,
     )
 
@@ -303,6 +304,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,
         gyro_scale_sigma=d.gyro_scale_sigma,
+        gyro_scale_tilt_sigma=d.gyro_scale_tilt_sigma,
         gyro_scale_state_sigma=d.gyro_scale_state_sigma,
         bias_walk_aided_rad_s2=VEHICLE_BIAS_WALK_RAD_S2,
         mag_learn_tau_s=VEHICLE_MAG_LEARN_TAU_S,
