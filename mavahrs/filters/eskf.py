@@ -370,11 +370,18 @@ class EskfSettings(FilterSettings):
         gyro_scale_tilt_sigma: 1-σ of each gyro axis's scale-factor error as
             the *tilt's* process noise, coherent over a manoeuvre
             (:func:`_scale_noise_tilt`: the variance of s·angle, the angle
-            turned about each body axis kept with memory ``gyro_scale_tau_s``);
+            turned about each body axis kept with memory ``gyro_scale_tilt_memory_s``);
             0 = the tilt gets none.  0.3 %, as ``gyro_scale_sigma``: firmware_sim's
             post-flip tilt errors (1–1.5° after a 360° flip) come from its drawn
             scale factors (σ 0.2 %), and our tilt σ rose only 0.53 → 0.75° there
             (docs/monitor.md, round eight).
+        gyro_scale_tilt_memory_s: how long an angle turned keeps adding to that
+            term, s: the time the GNSS fixes take to correct the tilt error it
+            left (firmware_sim flips 61 after its 360° flip: 1.38° → 0.49° in
+            0.65 s, an e-fold of 0.6 s).  0.5 s; with ``gyro_scale_tau_s``'s 1.5 s
+            (and 0.7 s) the steady rotation of firmware_sim aggressive 1 raised
+            our tilt σ 0.47 → 0.78° (0.67°) and delayed its 2° tilt step 0.5 →
+            3.4 s (3.2 s); 0.5 s: σ 0.63°, 0.6 s (docs/monitor.md, round eight).
         accel_noise_m_s2: accelerometer white-noise density, m/s²/√Hz (the
             INS velocity's random walk).
         bias_walk_rad_s2: gyro-bias random walk, rad/s per √s (how fast the
@@ -750,6 +757,7 @@ class EskfSettings(FilterSettings):
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
     gyro_scale_tilt_sigma: float = 0.003
+    gyro_scale_tilt_memory_s: float = 0.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -772,7 +780,8 @@ class EskfSettings(FilterSettings):
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
-                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma"):
+                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
+                     "gyro_scale_tilt_memory_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1133,7 +1142,7 @@ def _scale_noise_tilt(s, k, dt, wx, wy, wz, var_sf, tau):  # type: ignore[no-unt
     s_i·a_i: after a 360° flip at σ_sf 0.3 %, 1.1° — coherent, not the √T growth of a white noise (a flip of
     0.4 s at 930 °/s would get (σ_sf ω)²·2τT, 3.0° of σ, from :func:`_rate_noise`'s density, which is why that
     term leaves the tilt out).  Here each axis's angle turned is kept with a memory of τ (a_i ← a_i e^(−Δt/τ) +
-    |ω_i| Δt: what the GNSS fixes have not yet corrected) and the variance grows as that of s_i·a_i does,
+    |ω_i| Δt, τ ``gyro_scale_tilt_memory_s``: what the GNSS fixes have not yet corrected) and the variance grows as that of s_i·a_i does,
     d(σ_sf² a_i²) = 2 σ_sf² a_i |ω_i| Δt: (σ_sf·angle)² after a manoeuvre short against τ, and 2 σ_sf² τ ω_i²
     per second in a long steady one (the Gauss–Markov density of :func:`_rate_noise`; Gelb 1974, table
     4.4-1).  Mapped to NED, δθ̇ = C (E ω), and added to the tilt block only (N, E: P_ab += Σ_i C_ai C_bi q_i;
@@ -2455,7 +2464,7 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
-        p[_SCALE_TILT_TAU] = settings.gyro_scale_tau_s
+        p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
