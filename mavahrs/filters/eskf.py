@@ -241,7 +241,9 @@ _ABIAS_P0 = _MAG_DELAY + 10  # steady-state variance of each accelerometer-bias 
 _ABIAS_TAU = _MAG_DELAY + 11  # s: their Gauss–Markov correlation time (0: constant)
 _ABIAS_VIB = _MAG_DELAY + 12  # the accelerometer bias's variance per measured per-sample specific-force variance (c²)
 _ABIAS_AIDED = _MAG_DELAY + 13  # 1: the accelerometer-bias states are estimated only while velocity-aided
-_N_PARAMS = _MAG_DELAY + 14
+_Q_SCALE_TILT = _MAG_DELAY + 14  # σ_sf² of the gyro's scale-factor error as the tilt's coherent process noise (0: off)
+_SCALE_TILT_TAU = _MAG_DELAY + 15  # s: the memory of the angle turned that term accumulates over
+_N_PARAMS = _MAG_DELAY + 16
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -308,7 +310,9 @@ _DREJ = _ASUM + 4  # clock time since when every drag measurement has been rejec
 _DSTAT = _DREJ + 1  # drag periods attempted, rejected (both components failed the gate), velocity re-openings (3)
 _ABIAS = _DSTAT + 3  # the accelerometer's estimated bias, body frame (3), m/s²: f = reading − b_a
 _CLP = _ABIAS + 3  # C_body_to_ned's columns low-passed as the gravity measurement is (3 Butterworth blocks, 3 × BW_LEN)
-_N_STATE = _CLP + 3 * BW_LEN
+_RANG = _CLP + 3 * BW_LEN  # angle turned about each body axis, |ω_i| integrated with memory τ (3), rad: the tilt's
+#                            scale-factor noise (:func:`_scale_noise_tilt`)
+_N_STATE = _RANG + 3
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -363,6 +367,21 @@ class EskfSettings(FilterSettings):
             variance after a manoeuvre of T s is ≈ (σ ω)² · 2τT, (σ·angle)² for
             a T of 2τ (the errors are constants; a manoeuvre's length is what τ
             stands for).
+        gyro_scale_tilt_sigma: 1-σ of each gyro axis's scale-factor error as
+            the *tilt's* process noise, coherent over a manoeuvre
+            (:func:`_scale_noise_tilt`: the variance of s·angle, the angle
+            turned about each body axis kept with memory ``gyro_scale_tilt_memory_s``);
+            0 = the tilt gets none.  0.3 %, as ``gyro_scale_sigma``: firmware_sim's
+            post-flip tilt errors (1–1.5° after a 360° flip) come from its drawn
+            scale factors (σ 0.2 %), and our tilt σ rose only 0.53 → 0.75° there
+            (docs/monitor.md, round eight).
+        gyro_scale_tilt_memory_s: how long an angle turned keeps adding to that
+            term, s: the time the GNSS fixes take to correct the tilt error it
+            left (firmware_sim flips 61 after its 360° flip: 1.38° → 0.49° in
+            0.65 s, an e-fold of 0.6 s).  0.5 s; with ``gyro_scale_tau_s``'s 1.5 s
+            (and 0.7 s) the steady rotation of firmware_sim aggressive 1 raised
+            our tilt σ 0.47 → 0.78° (0.67°) and delayed its 2° tilt step 0.5 →
+            3.4 s (3.2 s); 0.5 s: σ 0.63°, 0.6 s (docs/monitor.md, round eight).
         accel_noise_m_s2: accelerometer white-noise density, m/s²/√Hz (the
             INS velocity's random walk).
         bias_walk_rad_s2: gyro-bias random walk, rad/s per √s (how fast the
@@ -741,6 +760,8 @@ class EskfSettings(FilterSettings):
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
+    gyro_scale_tilt_sigma: float = 0.003
+    gyro_scale_tilt_memory_s: float = 0.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -763,7 +784,8 @@ class EskfSettings(FilterSettings):
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
-                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio"):
+                     "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
+                     "gyro_scale_tilt_memory_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1102,8 +1124,8 @@ def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-de
     4.4-1; the integrated error's variance 2 σ² τ T for T ≫ τ), and in the NED error state δθ̇ = C (E ω).
     Only its down component is added, to the heading's variance: P_DD += Σ_i C_Di² q_i dt (scratch C =
     C_body_to_ned; ``q_sf`` = 2 σ_sf² τ, ``q_ma`` = 2 σ_ma² τ, s).  The tilt's share is left out: every
-    GNSS velocity fix observes the tilt, so a rate error there is corrected within a second, and the tilt
-    σ is already conservative (firmware_sim: error 0.3° RMS at σ 0.5°); added, it raised the tilt σ in
+    GNSS velocity fix observes the tilt, so a rate error there is corrected within a second (the tilt's
+    share, coherent over a manoeuvre, is :func:`_scale_noise_tilt`'s), and the tilt σ is already conservative (firmware_sim: error 0.3° RMS at σ 0.5°); added, it raised the tilt σ in
     every manoeuvre and delayed the monitor's 2° tilt step (PX4 SITL aggressive 1.2 → 4.8 s).  The heading
     is observed only by the magnetometer and by horizontal acceleration: a fast yaw's scale error stays.
     """
@@ -1114,6 +1136,42 @@ def _rate_noise(s, k, dt, wx, wy, wz, q_sf, q_ma):  # type: ignore[no-untyped-de
     d2 = (q_sf - q_ma) * wz * wz + q_ma * w2
     c0, c1, c2 = s[kc + 6], s[kc + 7], s[kc + 8]
     s[k + _P + 2 * N + 2] += (c0 * c0 * d0 + c1 * c1 * d1 + c2 * c2 * d2) * dt
+
+
+@kernel(inline=True)
+def _scale_noise_tilt(s, k, dt, wx, wy, wz, var_sf, tau):  # type: ignore[no-untyped-def]
+    """The gyro's scale-factor error as process noise of the tilt, coherent over a manoeuvre.
+
+    A constant scale error s_i on body axis i turns an angle a_i turned about it into an attitude error
+    s_i·a_i: after a 360° flip at σ_sf 0.3 %, 1.1° — coherent, not the √T growth of a white noise (a flip of
+    0.4 s at 930 °/s would get (σ_sf ω)²·2τT, 3.0° of σ, from :func:`_rate_noise`'s density, which is why that
+    term leaves the tilt out).  Here each axis's angle turned is kept with a memory of τ (a_i ← a_i e^(−Δt/τ) +
+    |ω_i| Δt, τ ``gyro_scale_tilt_memory_s``: what the GNSS fixes have not yet corrected) and the variance grows as that of s_i·a_i does,
+    d(σ_sf² a_i²) = 2 σ_sf² a_i |ω_i| Δt: (σ_sf·angle)² after a manoeuvre short against τ, and 2 σ_sf² τ ω_i²
+    per second in a long steady one (the Gauss–Markov density of :func:`_rate_noise`; Gelb 1974, table
+    4.4-1).  Mapped to NED, δθ̇ = C (E ω), and added to the tilt block only (N, E: P_ab += Σ_i C_ai C_bi q_i;
+    the heading has :func:`_rate_noise`); ``var_sf`` = σ_sf², ``tau`` s.  firmware_sim flips 61 (σ 0.2 % drawn):
+    our tilt 1.4° off after the flip at 32.5 s, 0.15° with the scale errors drawn at 0, unchanged without
+    cross-axis, vibration or saturation (docs/monitor.md, round eight).
+    """
+    ka = k + _RANG
+    f = math.exp(-dt / tau) if tau > 0.0 else 0.0
+    ux, uy, uz = abs(wx) * dt, abs(wy) * dt, abs(wz) * dt
+    s[ka] = s[ka] * f + ux
+    s[ka + 1] = s[ka + 1] * f + uy
+    s[ka + 2] = s[ka + 2] * f + uz
+    q0 = 2.0 * var_sf * s[ka] * ux
+    q1 = 2.0 * var_sf * s[ka + 1] * uy
+    q2 = 2.0 * var_sf * s[ka + 2] * uz
+    kc = k + _C
+    kp = k + _P
+    pnn = s[kc] * s[kc] * q0 + s[kc + 1] * s[kc + 1] * q1 + s[kc + 2] * s[kc + 2] * q2
+    pee = s[kc + 3] * s[kc + 3] * q0 + s[kc + 4] * s[kc + 4] * q1 + s[kc + 5] * s[kc + 5] * q2
+    pne = s[kc] * s[kc + 3] * q0 + s[kc + 1] * s[kc + 4] * q1 + s[kc + 2] * s[kc + 5] * q2
+    s[kp] += pnn
+    s[kp + N + 1] += pee
+    s[kp + 1] += pne
+    s[kp + N] += pne
 
 
 @kernel(inline=True)
@@ -1716,6 +1774,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
         _rate_noise(state, k, dt, gx, gy, gz, q_sf, q_ma)
+    if params[p + _Q_SCALE_TILT] > 0.0:
+        _scale_noise_tilt(state, k, dt, gx, gy, gz, params[p + _Q_SCALE_TILT], params[p + _SCALE_TILT_TAU])
     if params[p + _MAG_NOISE_TAU] > 0.0:
         # the white part of the heading innovation's change since the last compass reading: the gyro's noise
         # (on the heading and, through the field's dip, the tilt) and its rate noise (:func:`_mag_noise_step`)
@@ -2408,6 +2468,8 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
+        p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
+        p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:

@@ -326,18 +326,21 @@ def test_the_daemons_pipeline_names_the_imu_with_a_gyro_bias_step() -> None:
 def test_the_gnss_evidence_gives_no_verdict_it_cannot_support(tmp_path: Path) -> None:
     # firmware_sim's shared aggressive flight (seed 11): a correct WARNING at 55.8 s (the simulated autopilot
     # 1.5° off, ours 0.2°) was said with `us?`: the GNSS share 0.70 a second later, but its standard error, from
-    # our miss across the difference (the raw specific force's own error in the manoeuvres), 0.41 — no verdict
+    # our miss across the difference (the raw specific force's own error in the manoeuvres), 0.41 — no verdict.
+    # That warning is no longer raised since our tilt σ holds the gyro's scale-factor error in manoeuvres
+    # (EskfSettings.gyro_scale_tilt_sigma, docs/monitor.md round eight); the rule is kept on aggressive 2's
+    # correct WARNING at 146.6 s (the simulated autopilot 1.5° off in tilt), said with no verdict
     pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
     from mavahrs.fleet.audit import summarise_log
 
-    path = tmp_path / "aggressive_11.tlog"
+    path = tmp_path / "aggressive_2.tlog"
     subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", "aggressive",
-                    "--duration", "62", "--seed", "11", "-q"], check=True, cwd=Path(__file__).parents[2])  # fmt: skip
+                    "--duration", "150", "--seed", "2", "-q"], check=True, cwd=Path(__file__).parents[2])  # fmt: skip
     row = summarise_log(path)
     assert row.ok, row.error
     times = [float(x) for x in row.alarm_times_s.split(";") if x]
-    causes = row.alarm_causes.split(";")
-    near = [c for t, c in zip(times, causes, strict=True) if 54.0 <= t <= 58.0]
+    causes = row.alarm_causes.split(";") if times else []
+    near = [c for t, c in zip(times, causes, strict=True) if 145.0 <= t <= 148.0]
     assert near, (times, causes)  # the warning itself stays
     assert all("us?" not in c for c in near), (times, causes)
 
