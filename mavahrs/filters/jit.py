@@ -208,21 +208,27 @@ def _use_cache_path(path: str) -> None:
 
 def _prune_versions(parent: str, group: str, now: float) -> list[str]:
     """Remove ``group``'s version folders in ``parent`` beyond the :data:`CACHE_KEEP_VERSIONS` most recently
-    used, if unused for :data:`CACHE_PRUNE_AFTER_S` before ``now`` (s, the folder times' clock); returns the
-    removed folders."""
+    used, and the folders of numba's own naming (``protocol_<hash of the install folder>``, the package's
+    cache until 2026-12-06), if unused for :data:`CACHE_PRUNE_AFTER_S` before ``now`` (s, the folder times'
+    clock); returns the removed folders."""
     import shutil
 
-    found = []
+    found, legacy = [], []
     try:
         with os.scandir(parent) as it:
             for e in it:
-                if e.is_dir(follow_symlinks=False) and e.name.rsplit("_", 1)[0] == group:
+                if not e.is_dir(follow_symlinks=False):
+                    continue
+                name = e.name.rsplit("_", 1)[0]
+                if name == group:
                     found.append((e.stat(follow_symlinks=False).st_mtime, e.path))
+                elif name != "filters" and "." not in name:  # numba's own naming, before 2026-12-06: a
+                    legacy.append((e.stat(follow_symlinks=False).st_mtime, e.path))  # folder per install place
     except OSError:
         return []
     found.sort(reverse=True)
     removed = []
-    for used_s, folder in found[CACHE_KEEP_VERSIONS:]:
+    for used_s, folder in found[CACHE_KEEP_VERSIONS:] + legacy:
         if now - used_s >= CACHE_PRUNE_AFTER_S:
             shutil.rmtree(folder, ignore_errors=True)
             removed.append(folder)

@@ -30,8 +30,12 @@ def test_versions_beyond_the_most_recent_are_removed_once_unused_for_a_day(tmp_p
     other = _version(tmp_path, "protocol.tlog_" + "a" * 40, now - 30 * DAY_S)  # another group: not counted
     underscored = [_version(tmp_path, f"service.fast_lane_{k:040x}", now - 30 * DAY_S - k) for k in range(keep + 1)]
 
+    legacy_old = _version(tmp_path, "protocol_" + "b" * 40, now - 2 * DAY_S)  # numba's naming: by install folder
+    legacy_recent = _version(tmp_path, "replay_" + "c" * 40, now - 60.0)
+
     removed = jit._prune_versions(str(tmp_path), "filters", now=now)
-    assert sorted(removed) == sorted(str(p) for p in old)
+    assert sorted(removed) == sorted(str(p) for p in [*old, legacy_old])
+    assert legacy_recent.is_dir()
     assert all(p.is_dir() for p in recent) and other.is_dir()  # used within the day: kept even beyond the four
     assert not any(p.exists() for p in old)
     assert all(p.is_dir() for p in underscored)
