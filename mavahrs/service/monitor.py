@@ -348,6 +348,16 @@ class MonitorSettings:
             disagreement grows on.  (firmware_sim aggressive 41 / 43: a 0.2°/s
             tilt ramp 0.5 s after a correct WARNING, never warned / after 16.2 s
             (3.2°) without it; 11.1 / 13.4 s, 2.2° / 2.7°, with it.)
+        change_drift_slope_s: the growth the warning already stood on is
+            not a new fault: the divergence's least-squares line over this
+            many seconds, ending ``change_step_s`` into the warning (the
+            window the warning's level is taken from and the seconds before
+            it), extrapolated, is one more reference the drift test measures
+            from (the nearest counts), where the line fits — its residual
+            RMS within the change test's noise (threshold / ``change_k``) on
+            that axis: a ramp already under way when warned grows along it
+            and is the warning already on; a ramp that starts under the
+            warning, a change of slope or a step leaves it, s (0 = off).
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -449,6 +459,7 @@ class MonitorSettings:
     change_step_s: float = 2.0
     change_step_spread_k: float = 4.0
     change_drift_s: float = 3.0
+    change_drift_slope_s: float = 8.0
     change_step_outside: bool = True
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
@@ -482,7 +493,7 @@ class MonitorSettings:
                      "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "gnss_max_share_se", "imu_window_s", "change_k",
                      "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
                      "change_max_factor", "change_in_warning_s", "change_step_s", "change_step_spread_k",
-                     "change_drift_s"):  # fmt: skip
+                     "change_drift_s", "change_drift_slope_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -929,6 +940,8 @@ class AttitudeMonitor:
         self._cusum_d = 0.0  # … and of a disagreement that grows while a warning is on (change_drift_s)
         self._drift_acc = [0.0, 0.0, 0.0, 0.0]
         self._drift_seen: list[tuple[float, float, float]] = []
+        self._drift_hist: deque[tuple[float, float, float, float]] = deque()  # (t_ms, e) over change_drift_slope_s
+        self._drift_line: tuple[float, tuple[float, ...], tuple[float, ...], bool, bool] | None = None
         self._beyond_ms = -math.inf  # when the divergence was last beyond a threshold
         self._drift_armed = False  # the drift test judges the warning that is on (not one it raised itself)
         self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
@@ -1196,6 +1209,7 @@ class AttitudeMonitor:
             if self._change_aided:
                 ch.restart()
                 self._recent.clear()
+                self._drift_hist.clear()
             self._change_aided = False
             return 0.0, 0.0
         self._change_aided = True
@@ -1214,6 +1228,12 @@ class AttitudeMonitor:
             horizon = t_ms - 1000.0 * self.settings.change_step_s
             while rec and rec[0][0] < horizon:
                 rec.popleft()
+        if self.settings.change_drift_slope_s > 0.0:  # the drift test's line (_drift_line)
+            hist = self._drift_hist
+            hist.append((t_ms, e[0], e[1], e[2]))
+            horizon = t_ms - 1000.0 * self.settings.change_drift_slope_s
+            while hist and hist[0][0] < horizon:
+                hist.popleft()
         hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
@@ -1366,6 +1386,8 @@ class AttitudeMonitor:
             return 0.0
         if acc[0] < 1.0:
             return 0.0
+        if self._drift_line is None:  # once, as the warning's level is complete: the growth it stood on
+            self._drift_line = self._fit_drift_line(ch.thresholds)
         w = (acc[1] / acc[0], acc[2] / acc[0], acc[3] / acc[0])
         d = (e[0] - w[0], e[1] - w[1], e[2] - w[2])
         if d[0] * e[0] + d[1] * e[1] + (d[2] * e[2] if hdg_on else 0.0) <= 0.0:
@@ -1375,6 +1397,14 @@ class AttitudeMonitor:
         for x in self._drift_seen:  # … nor a disagreement already warned of coming back (an intermittent fault)
             g_t = min(g_t, math.hypot(e[0] - x[0], e[1] - x[1]))
             g_h = min(g_h, abs(e[2] - x[2]))
+        t_c, mean, slope, fit_t, fit_h = self._drift_line
+        if fit_t or fit_h:  # … nor the growth the warning already stood on, going on at its rate
+            dt = 1e-3 * (t_ms - t_c)
+            x = [mean[i] + slope[i] * dt for i in range(3)]
+            if fit_t:
+                g_t = min(g_t, math.hypot(e[0] - x[0], e[1] - x[1]))
+            if fit_h:
+                g_h = min(g_h, abs(e[2] - x[2]))
         c_t = g_t / t_thr
         c_h = g_h / h_thr if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
@@ -1382,6 +1412,38 @@ class AttitudeMonitor:
         if self._min_thr[1] > 0.0:
             c_h = min(c_h, abs(heading) / self._min_thr[1])
         return max(c_t, c_h)
+
+    def _fit_drift_line(
+        self, thresholds: tuple[float, float]
+    ) -> tuple[float, tuple[float, ...], tuple[float, ...], bool, bool]:
+        """The divergence's least-squares line over the last ``change_drift_slope_s`` (the warning's level
+        window and the seconds before it): (its mean time, ms; its mean e; its slope, rad/s; whether it fits
+        the tilt; the heading).  It fits an axis where the residual RMS about it is within the change test's
+        noise, threshold / ``change_k`` (a step in the window, or a ramp that starts in it, leaves a residual
+        of the order of its size; a steady growth at one rate leaves only the divergence's own noise).
+        Ordinary least squares, slope = Σ(t − t̄)(e − ē) / Σ(t − t̄)²."""
+        s = self.settings
+        none = (0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), False, False)
+        hist = self._drift_hist
+        if s.change_drift_slope_s <= 0.0 or len(hist) < 8:
+            return none
+        rows = np.array(hist)
+        t = 1e-3 * rows[:, 0]
+        if t[-1] - t[0] < 0.75 * s.change_drift_slope_s:  # too short a history: no line
+            return none
+        tm = float(t.mean())
+        dt = t - tm
+        sxx = float(dt @ dt)
+        if sxx <= 0.0:
+            return none
+        em = rows[:, 1:].mean(axis=0)
+        slope = (dt @ (rows[:, 1:] - em)) / sxx
+        res = rows[:, 1:] - em - np.outer(dt, slope)
+        rms = np.sqrt((res * res).mean(axis=0))
+        t_thr, h_thr = thresholds
+        fit_t = math.hypot(rms[0], rms[1]) <= t_thr / s.change_k
+        fit_h = float(rms[2]) <= h_thr / s.change_k
+        return 1000.0 * tm, tuple(float(x) for x in em), tuple(float(x) for x in slope), fit_t, fit_h
 
     def _imu_warning(self, t_ms: float) -> list[Any]:
         """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
@@ -1525,6 +1587,7 @@ class AttitudeMonitor:
             self._cusum_d = 0.0
             self._drift_acc = [0.0, 0.0, 0.0, 0.0]  # (n, Σe): the level it stands at (_drift_in_warning)
             self._drift_seen = [r[1:] for r in rec]  # the levels already warned of (_drift_in_warning)
+            self._drift_line = None  # … and the growth it stands on, fitted once its level is complete
             self._drift_armed = not drift  # a drift warned of is the warning now on: not raised again as it grows
             self._warning = True
             self._trigger = "step" if again or not level else "level"
