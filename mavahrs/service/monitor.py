@@ -92,6 +92,7 @@ _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
 
+
 class _RecentRows:
     """The last seconds of ``(t_ms, e_north, e_east, e_down)`` rows, oldest first: a deque's ``append`` /
     ``popleft`` / ``clear`` over one growing array, which the step test reads whole on every comparison
@@ -355,9 +356,13 @@ class MonitorSettings:
             it), extrapolated, is one more reference the drift test measures
             from (the nearest counts), where the line fits — its residual
             RMS within the change test's noise (threshold / ``change_k``) on
-            that axis: a ramp already under way when warned grows along it
-            and is the warning already on; a ramp that starts under the
-            warning, a change of slope or a step leaves it, s (0 = off).
+            that axis; counted only away from agreement and beyond the line's
+            slope error by then (``change_k`` standard errors × the time
+            since): a ramp already under way when warned grows along it and
+            is the warning already on; a ramp that starts under the warning,
+            a steeper slope or a step leaves it, s (0 = off).  (ArduCopter
+            SITL gentle, a 0.2°/s tilt ramp: WARNINGs at 106.2 and 113.7 s
+            without it, 106.2 s alone with it.)
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -941,7 +946,7 @@ class AttitudeMonitor:
         self._drift_acc = [0.0, 0.0, 0.0, 0.0]
         self._drift_seen: list[tuple[float, float, float]] = []
         self._drift_hist: deque[tuple[float, float, float, float]] = deque()  # (t_ms, e) over change_drift_slope_s
-        self._drift_line: tuple[float, tuple[float, ...], tuple[float, ...], bool, bool] | None = None
+        self._drift_line: tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, float], bool, bool] | None = None
         self._beyond_ms = -math.inf  # when the divergence was last beyond a threshold
         self._drift_armed = False  # the drift test judges the warning that is on (not one it raised itself)
         self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
@@ -1397,14 +1402,20 @@ class AttitudeMonitor:
         for x in self._drift_seen:  # … nor a disagreement already warned of coming back (an intermittent fault)
             g_t = min(g_t, math.hypot(e[0] - x[0], e[1] - x[1]))
             g_h = min(g_h, abs(e[2] - x[2]))
-        t_c, mean, slope, fit_t, fit_h = self._drift_line
+        t_c, mean, slope, sd_slope, fit_t, fit_h = self._drift_line
         if fit_t or fit_h:  # … nor the growth the warning already stood on, going on at its rate
             dt = 1e-3 * (t_ms - t_c)
             x = [mean[i] + slope[i] * dt for i in range(3)]
+            # only a departure from the line away from agreement (a growth that slows or stops is not a new
+            # fault), beyond what the line's own slope error allows by now (change_k standard errors × dt)
+            k_dt = self.settings.change_k * abs(dt)
+            allow_t, allow_h = k_dt * sd_slope[0], k_dt * sd_slope[1]
             if fit_t:
-                g_t = min(g_t, math.hypot(e[0] - x[0], e[1] - x[1]))
+                away = (e[0] - x[0]) * e[0] + (e[1] - x[1]) * e[1] > 0.0
+                g_t = min(g_t, max(0.0, math.hypot(e[0] - x[0], e[1] - x[1]) - allow_t) if away else 0.0)
             if fit_h:
-                g_h = min(g_h, abs(e[2] - x[2]))
+                away = (e[2] - x[2]) * e[2] > 0.0
+                g_h = min(g_h, max(0.0, abs(e[2] - x[2]) - allow_h) if away else 0.0)
         c_t = g_t / t_thr
         c_h = g_h / h_thr if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
@@ -1415,15 +1426,16 @@ class AttitudeMonitor:
 
     def _fit_drift_line(
         self, thresholds: tuple[float, float]
-    ) -> tuple[float, tuple[float, ...], tuple[float, ...], bool, bool]:
+    ) -> tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, float], bool, bool]:
         """The divergence's least-squares line over the last ``change_drift_slope_s`` (the warning's level
         window and the seconds before it): (its mean time, ms; its mean e; its slope, rad/s; whether it fits
         the tilt; the heading).  It fits an axis where the residual RMS about it is within the change test's
         noise, threshold / ``change_k`` (a step in the window, or a ramp that starts in it, leaves a residual
         of the order of its size; a steady growth at one rate leaves only the divergence's own noise).
-        Ordinary least squares, slope = Σ(t − t̄)(e − ē) / Σ(t − t̄)²."""
+        Ordinary least squares, slope = Σ(t − t̄)(e − ē) / Σ(t − t̄)², its standard error RMS / √Σ(t − t̄)²
+        (residuals taken as independent: an underestimate where the autopilot's error wanders)."""
         s = self.settings
-        none = (0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), False, False)
+        none = (0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0), False, False)
         hist = self._drift_hist
         if s.change_drift_slope_s <= 0.0 or len(hist) < 8:
             return none
@@ -1443,7 +1455,8 @@ class AttitudeMonitor:
         t_thr, h_thr = thresholds
         fit_t = math.hypot(rms[0], rms[1]) <= t_thr / s.change_k
         fit_h = float(rms[2]) <= h_thr / s.change_k
-        return 1000.0 * tm, tuple(float(x) for x in em), tuple(float(x) for x in slope), fit_t, fit_h
+        sd = (math.hypot(rms[0], rms[1]) / math.sqrt(sxx), float(rms[2]) / math.sqrt(sxx))  # the slope's std. error
+        return 1000.0 * tm, tuple(float(x) for x in em), tuple(float(x) for x in slope), sd, fit_t, fit_h
 
     def _imu_warning(self, t_ms: float) -> list[Any]:
         """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
