@@ -92,6 +92,7 @@ _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
 
+
 class _RecentRows:
     """The last seconds of ``(t_ms, e_north, e_east, e_down)`` rows, oldest first: a deque's ``append`` /
     ``popleft`` / ``clear`` over one growing array, which the step test reads whole on every comparison
@@ -348,6 +349,20 @@ class MonitorSettings:
             disagreement grows on.  (firmware_sim aggressive 41 / 43: a 0.2°/s
             tilt ramp 0.5 s after a correct WARNING, never warned / after 16.2 s
             (3.2°) without it; 11.1 / 13.4 s, 2.2° / 2.7°, with it.)
+        change_drift_slope_s: the growth the warning already stood on is
+            not a new fault: the divergence's least-squares line over this
+            many seconds, ending ``change_step_s`` into the warning (the
+            window the warning's level is taken from and the seconds before
+            it), extrapolated, is one more reference the drift test measures
+            from (the nearest counts), where the line fits — its residual
+            RMS within the change test's noise (threshold / ``change_k``) on
+            that axis; counted only away from agreement and beyond the line's
+            slope error by then (``change_k`` standard errors × the time
+            since): a ramp already under way when warned grows along it and
+            is the warning already on; a ramp that starts under the warning,
+            a steeper slope or a step leaves it, s (0 = off).  (ArduCopter
+            SITL gentle, a 0.2°/s tilt ramp: WARNINGs at 106.2 and 113.7 s
+            without it, 106.2 s alone with it.)
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -449,6 +464,7 @@ class MonitorSettings:
     change_step_s: float = 2.0
     change_step_spread_k: float = 4.0
     change_drift_s: float = 3.0
+    change_drift_slope_s: float = 8.0
     change_step_outside: bool = True
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
@@ -482,7 +498,7 @@ class MonitorSettings:
                      "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "gnss_max_share_se", "imu_window_s", "change_k",
                      "change_baseline_s", "change_delay_s", "change_min_tilt_deg", "change_min_heading_deg",
                      "change_max_factor", "change_in_warning_s", "change_step_s", "change_step_spread_k",
-                     "change_drift_s"):  # fmt: skip
+                     "change_drift_s", "change_drift_slope_s"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -929,6 +945,8 @@ class AttitudeMonitor:
         self._cusum_d = 0.0  # … and of a disagreement that grows while a warning is on (change_drift_s)
         self._drift_acc = [0.0, 0.0, 0.0, 0.0]
         self._drift_seen: list[tuple[float, float, float]] = []
+        self._drift_hist: deque[tuple[float, float, float, float]] = deque()  # (t_ms, e) over change_drift_slope_s
+        self._drift_line: tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, float], bool, bool] | None = None
         self._beyond_ms = -math.inf  # when the divergence was last beyond a threshold
         self._drift_armed = False  # the drift test judges the warning that is on (not one it raised itself)
         self._e = (0.0, 0.0, 0.0)  # the latest divergence vector, earth frame, rad (the change test's)
@@ -1196,6 +1214,7 @@ class AttitudeMonitor:
             if self._change_aided:
                 ch.restart()
                 self._recent.clear()
+                self._drift_hist.clear()
             self._change_aided = False
             return 0.0, 0.0
         self._change_aided = True
@@ -1214,6 +1233,12 @@ class AttitudeMonitor:
             horizon = t_ms - 1000.0 * self.settings.change_step_s
             while rec and rec[0][0] < horizon:
                 rec.popleft()
+        if self.settings.change_drift_slope_s > 0.0:  # the drift test's line (_drift_line)
+            hist = self._drift_hist
+            hist.append((t_ms, e[0], e[1], e[2]))
+            horizon = t_ms - 1000.0 * self.settings.change_drift_slope_s
+            while hist and hist[0][0] < horizon:
+                hist.popleft()
         hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
@@ -1366,6 +1391,8 @@ class AttitudeMonitor:
             return 0.0
         if acc[0] < 1.0:
             return 0.0
+        if self._drift_line is None:  # once, as the warning's level is complete: the growth it stood on
+            self._drift_line = self._fit_drift_line(ch.thresholds)
         w = (acc[1] / acc[0], acc[2] / acc[0], acc[3] / acc[0])
         d = (e[0] - w[0], e[1] - w[1], e[2] - w[2])
         if d[0] * e[0] + d[1] * e[1] + (d[2] * e[2] if hdg_on else 0.0) <= 0.0:
@@ -1375,6 +1402,20 @@ class AttitudeMonitor:
         for x in self._drift_seen:  # … nor a disagreement already warned of coming back (an intermittent fault)
             g_t = min(g_t, math.hypot(e[0] - x[0], e[1] - x[1]))
             g_h = min(g_h, abs(e[2] - x[2]))
+        t_c, mean, slope, sd_slope, fit_t, fit_h = self._drift_line
+        if fit_t or fit_h:  # … nor the growth the warning already stood on, going on at its rate
+            dt = 1e-3 * (t_ms - t_c)
+            x = [mean[i] + slope[i] * dt for i in range(3)]
+            # only a departure from the line away from agreement (a growth that slows or stops is not a new
+            # fault), beyond what the line's own slope error allows by now (change_k standard errors × dt)
+            k_dt = self.settings.change_k * abs(dt)
+            allow_t, allow_h = k_dt * sd_slope[0], k_dt * sd_slope[1]
+            if fit_t:
+                away = (e[0] - x[0]) * e[0] + (e[1] - x[1]) * e[1] > 0.0
+                g_t = min(g_t, max(0.0, math.hypot(e[0] - x[0], e[1] - x[1]) - allow_t) if away else 0.0)
+            if fit_h:
+                away = (e[2] - x[2]) * e[2] > 0.0
+                g_h = min(g_h, max(0.0, abs(e[2] - x[2]) - allow_h) if away else 0.0)
         c_t = g_t / t_thr
         c_h = g_h / h_thr if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
@@ -1382,6 +1423,40 @@ class AttitudeMonitor:
         if self._min_thr[1] > 0.0:
             c_h = min(c_h, abs(heading) / self._min_thr[1])
         return max(c_t, c_h)
+
+    def _fit_drift_line(
+        self, thresholds: tuple[float, float]
+    ) -> tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, float], bool, bool]:
+        """The divergence's least-squares line over the last ``change_drift_slope_s`` (the warning's level
+        window and the seconds before it): (its mean time, ms; its mean e; its slope, rad/s; whether it fits
+        the tilt; the heading).  It fits an axis where the residual RMS about it is within the change test's
+        noise, threshold / ``change_k`` (a step in the window, or a ramp that starts in it, leaves a residual
+        of the order of its size; a steady growth at one rate leaves only the divergence's own noise).
+        Ordinary least squares, slope = Σ(t − t̄)(e − ē) / Σ(t − t̄)², its standard error RMS / √Σ(t − t̄)²
+        (residuals taken as independent: an underestimate where the autopilot's error wanders)."""
+        s = self.settings
+        none = (0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0), False, False)
+        hist = self._drift_hist
+        if s.change_drift_slope_s <= 0.0 or len(hist) < 8:
+            return none
+        rows = np.array(hist)
+        t = 1e-3 * rows[:, 0]
+        if t[-1] - t[0] < 0.75 * s.change_drift_slope_s:  # too short a history: no line
+            return none
+        tm = float(t.mean())
+        dt = t - tm
+        sxx = float(dt @ dt)
+        if sxx <= 0.0:
+            return none
+        em = rows[:, 1:].mean(axis=0)
+        slope = (dt @ (rows[:, 1:] - em)) / sxx
+        res = rows[:, 1:] - em - np.outer(dt, slope)
+        rms = np.sqrt((res * res).mean(axis=0))
+        t_thr, h_thr = thresholds
+        fit_t = math.hypot(rms[0], rms[1]) <= t_thr / s.change_k
+        fit_h = float(rms[2]) <= h_thr / s.change_k
+        sd = (math.hypot(rms[0], rms[1]) / math.sqrt(sxx), float(rms[2]) / math.sqrt(sxx))  # the slope's std. error
+        return 1000.0 * tm, tuple(float(x) for x in em), tuple(float(x) for x in slope), sd, fit_t, fit_h
 
     def _imu_warning(self, t_ms: float) -> list[Any]:
         """A WARNING the first time an IMU is named (once per IMU until it agrees again)."""
@@ -1525,6 +1600,7 @@ class AttitudeMonitor:
             self._cusum_d = 0.0
             self._drift_acc = [0.0, 0.0, 0.0, 0.0]  # (n, Σe): the level it stands at (_drift_in_warning)
             self._drift_seen = [r[1:] for r in rec]  # the levels already warned of (_drift_in_warning)
+            self._drift_line = None  # … and the growth it stands on, fitted once its level is complete
             self._drift_armed = not drift  # a drift warned of is the warning now on: not raised again as it grows
             self._warning = True
             self._trigger = "step" if again or not level else "level"

@@ -67,6 +67,14 @@ def test_a_slow_tilt_drift_is_warned_before_it_reaches_3_deg(audited: dict) -> N
     assert times and ONSET_S + 3.0 < times[0] < ONSET_S + 15.0, times  # 0.6°: too early to be the drift; 3°
 
 
+def test_a_ramp_warned_of_is_one_warning_as_it_grows(audited: dict) -> None:
+    # the ramp warned of grows on along the line the warning stood on: the warning already on, not a new fault
+    # (MonitorSettings.change_drift_slope_s; without it the drift test said it again once it had grown by the
+    # change threshold: 106.2 s and 113.7 s on this flight)
+    times = _alarms(audited["ramp"])
+    assert len(times) == 1, times
+
+
 # ---------------------------------------------------------------------------- phase
 
 
