@@ -241,7 +241,8 @@ class DaemonCounters:
             addressed to our component are answered, counted in ``requests_answered``).
         requests_answered: answers to requests addressed to our component (COMMAND_ACK UNSUPPORTED, FTP
             NAK: :mod:`mavahrs.service.component`), on the master link or an output.
-        pipeline_errors: messages the pipeline failed on (counted, logged rarely).
+        pipeline_errors: messages the pipeline failed on, and requests to our component that could not be
+            answered (counted, logged rarely).
         fast_lane_answers: attitudes sent by the fast lane ahead of the Python path.
         fast_lane_mismatches: datagrams whose fast-lane answer the Python path did
             not confirm byte for byte (then the lane is switched off).
@@ -722,7 +723,13 @@ class Daemon:
         if responder is None:
             return []
         ignored = responder.counters.param_requests_ignored
-        frames = responder.answer(msg)
+        try:
+            frames = responder.answer(msg)
+        except Exception as exc:  # noqa: BLE001 - a request we cannot answer must not stop the service
+            self.counters.pipeline_errors += 1
+            self._notices.warning(f"request:{type(exc).__name__}", f"could not answer {msg.get_type()}: {exc}",
+                                  int(time.monotonic() * 1e6))  # fmt: skip
+            return []
         if responder.counters.param_requests_ignored > ignored and not self._param_request_said:
             self._param_request_said = True
             self.log.info(

@@ -187,3 +187,40 @@ def test_ftp_replies_and_short_payloads_are_not_answered() -> None:
     assert responder.ftp_nak(b"\x01\x00") is None
     nak = responder.ftp_nak(bytes(_ftp(0xFFFF, FTP_TERMINATE_SESSION, session=5)))
     assert nak is not None and struct.unpack_from("<HBBBB", nak) == (0, 5, FTP_OP_NAK, 1, FTP_TERMINATE_SESSION)
+
+
+class _FailingCodec(MavCodec):
+    """Our codec, failing to encode the answer to one command (as a broken signing key or a full buffer
+    might): the daemon must count it and go on."""
+
+    BAD_CMD = 31001
+
+    def encode(self, msg: Any) -> bytes:
+        if getattr(msg, "command", None) == self.BAD_CMD:
+            raise ValueError("cannot encode")
+        return super().encode(msg)
+
+
+def test_a_request_that_cannot_be_answered_is_counted_and_the_daemon_goes_on(caplog: pytest.LogCaptureFixture) -> None:
+    pipeline = QuietPipeline()
+    pipeline.codec = _FailingCodec(1, 191)
+    settings = DaemonSettings(master="udpin:127.0.0.1:0", status_interval_s=0.0)
+    d = Daemon(settings, pipeline, open_transport(settings.master), [])
+    ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ap.settimeout(0.1)
+    thread = _run(d)
+    try:
+        with caplog.at_level(logging.WARNING, logger="mavahrs.daemon"):
+            gcs = MavCodec(*GCS)
+            for cmd in (_FailingCodec.BAD_CMD, FENCE_CMD):
+                ap.sendto(gcs.encode(gcs.mav.command_long_encode(1, 191, cmd, 0, 0, 0, 0, 0, 0, 0, 0)),
+                          d.master.local_address)  # fmt: skip
+            answers = _answers_until_fence(ap)
+    finally:
+        d.stop()
+        thread.join(10)
+        ap.close()
+    assert not thread.is_alive()
+    assert [m.command for m in answers if m.get_type() == "COMMAND_ACK"] == [FENCE_CMD]
+    assert d.counters.pipeline_errors == 1 and d.counters.requests_answered == 1
+    assert any("could not answer COMMAND_LONG: cannot encode" in r.getMessage() for r in caplog.records), caplog.text
