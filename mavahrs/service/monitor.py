@@ -1577,8 +1577,13 @@ class AttitudeMonitor:
             level = above and self._cusum >= self._h
             confirmed = level or (z_c > 1.0 and self._cusum_c >= self._h_c)
             # a new step while a warning is on (change_in_warning_s) that leaves the divergence beyond its
-            # threshold: a new episode (a step back toward agreement is not one to say again)
-            again = z_w > 1.0 and self._cusum_w >= self._h_c and z > 1.0
+            # threshold: a new episode (a step back toward agreement is not one to say again). Judged as a step
+            # outside a warning is: beyond the level threshold *or* the change test's (z_c, which carries the
+            # floors: the divergence beyond 1° / 3°). The level threshold alone let our heading σ in a fast yaw
+            # (1.6–2.6°, the level threshold 5.9–8.3°) and the autopilot's own error standing the other way hold
+            # a +6° heading step back for 5.7 s under a correct warning (firmware_sim aggressive 81; outside a
+            # warning the same divergence was warned in 0.7 s: docs/monitor.md, rounds nine and eleven)
+            again = z_w > 1.0 and self._cusum_w >= self._h_c and max(z, z_c) > 1.0
             # … or the disagreement grown on since the warning by more than the change test allows, lasting
             # (change_drift_s): a ramp that starts under a warning already on
             drift = self._drift_armed and z_d > 1.0 and self._cusum_d >= self._h_d and z > 1.0
