@@ -939,6 +939,7 @@ class AttitudeMonitor:
         self._tilt_thr_now = math.nan
         self._hdg_thr_now = math.nan
         self._model_thr = (math.inf, math.inf)
+        self._change_cap = (math.inf, math.inf)
         self._cusum = 0.0
         self._cusum_c = 0.0  # the change test's (MonitorSettings.change_test)
         self._cusum_w = 0.0  # … and its test of a new step while a warning is on (change_in_warning_s)
@@ -1173,6 +1174,7 @@ class AttitudeMonitor:
         hdg_on = self.heading_valid and self._hdg_thr > 0.0
         if not self._uncertainty:
             self._model_thr = (self._tilt_thr, self._hdg_thr if hdg_on else 0.0)
+            self._change_cap = self._model_thr
             return self._model_thr
         sig = self._sigma
         aided = math.isfinite(sig) and sig > 0.0
@@ -1193,6 +1195,11 @@ class AttitudeMonitor:
         s_f = self._sig_hdg if aided else s_h
         hdg_learn = max(self._min_thr[1], k * math.sqrt(s_f * s_f + self._sig_ap[1] ** 2 + sync2)) if hdg_on else 0.0
         self._model_thr = (tilt, min(hdg, hdg_learn))
+        # … but the change test's cap is the error model with our σ as it is: a change of the divergence as large
+        # as what our own heading σ allows is not evidence against the autopilot (firmware_sim magnetic 101: a
+        # 35 µT disturbance took our heading 2.5° off at σ 1.7°, the autopilot's 0.9° the other way; the change
+        # test, capped at the floor σ's 3.6°, warned falsely at 25.2 s; docs/monitor.md, round eleven)
+        self._change_cap = (tilt, hdg)
         n, m_t, m_h = self._learnt
         if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
             lk, cap = self.settings.learn_k, self.settings.learn_max_factor
@@ -1244,7 +1251,7 @@ class AttitudeMonitor:
             return 0.0, 0.0
         f = self.settings.change_max_factor
         t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s,
-                                (f * self._model_thr[0], f * self._model_thr[1]))
+                                (f * self._change_cap[0], f * self._change_cap[1]))
         return ch.tilt / t_thr, abs(ch.heading) / h_thr
 
     def _in_warning_test(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:

@@ -33,7 +33,7 @@ pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with kno
 
 #: (scenario, seed, simulated seconds)
 FLIGHTS = [("aggressive", 11, 40.0), ("magnetic", 13, 45.0), ("aggressive", 3, 80.0), ("flips", 61, 40.0),
-           ("flips", 72, 40.0)]
+           ("flips", 72, 40.0), ("magnetic", 101, 40.0)]
 TOLERANCE_TILT_DEG, TOLERANCE_HEADING_DEG = 1.0, 3.0  # issue 24: an autopilot this close is not warned about
 
 
