@@ -1070,7 +1070,7 @@ class AttitudeMonitor:
         """A gyro sample of one of the vehicle's IMUs (``IMU1``, ``IMU2`` …; the one our filter uses too),
         for naming the IMU that is off (see ``MonitorSettings.imu_rate_tolerance_dps``)."""
         if self.settings.enabled:
-            self._imus.gyro(name, gyro_rad_s)
+            self._imus.gyro(name, float(t_boot_ms), gyro_rad_s)
 
     def set_mag_reference(self, strength_ut: float, inclination_rad: float) -> None:
         """The field the magnetometer should measure (the geomagnetic model at the vehicle)."""
@@ -1980,41 +1980,108 @@ class _Evidence:
         return self.evidence().cause
 
 
+class _ImuTrack:
+    """One IMU's gyro samples not yet judged (:class:`_ImuCheck`)."""
+
+    __slots__ = ("pending", "closed_ms", "newest_ms")
+
+    def __init__(self) -> None:
+        self.pending: list[tuple[float, float, float, float]] = []  # (t_ms, x, y, z), arrival order
+        self.closed_ms = -math.inf  # every interval ending at or before this time is judged
+        self.newest_ms = -math.inf  # the newest sample's time
+
+
 class _ImuCheck:
-    """Which IMU is off (pure): each IMU's gyro, averaged between two comparisons, against the body rate the
-    autopilot's attitude turned at over the same interval (``ω ≈ 2·vec(q_prev* ⊗ q)/Δt``); the difference's
-    exponential mean over ``imu_window_s`` is each IMU's rate error.  With two or more IMUs, one is named
-    when its error exceeds ``imu_rate_tolerance_dps`` and every other's is below half of it (a common-mode
-    difference — the autopilot's own lag in a fast turn — names none)."""
+    """Which IMU is off (pure): each IMU's gyro, averaged over each interval between two of the autopilot's
+    attitudes *by the samples' own times*, against the body rate that attitude turned at over the interval
+    (``ω ≈ 2·vec(q_prev* ⊗ q)/Δt``); the difference's exponential mean over ``imu_window_s`` is each IMU's rate
+    error.  With two or more IMUs, one is named when its error exceeds ``imu_rate_tolerance_dps`` and every
+    other's is below half of it (a common-mode difference — the autopilot's own lag in a fast turn — names
+    none).
+
+    The streams arrive interleaved as the link delivers them, not in time order: an ATTITUDE may come before
+    IMU samples older than it (a bursty link, another stream's queue).  So the samples are bucketed by their
+    time, and an interval is judged for an IMU once that IMU has a sample beyond its end (each IMU's samples
+    come in their own order); samples of an interval already judged are dropped (counted in ``late``)."""
+
+    _HISTORY_MS = 2000.0  # attitudes (and an IMU's samples) kept waiting at most this long
+    _MAX_GAP_MS = 250.0  # an interval longer than this (a gap, a reboot) is not judged
 
     def __init__(self, s: MonitorSettings) -> None:
         self.tol = math.radians(s.imu_rate_tolerance_dps)
         self.tau = s.imu_window_s
-        self._sum: dict[str, list[float]] = {}
+        self._att: deque[tuple[float, Sequence[float]]] = deque()  # the autopilot's attitudes (t_ms, q), in time order
+        self._tracks: dict[str, _ImuTrack] = {}
         self._err: dict[str, list[float]] = {}  # name → [ex, ey, ez, seconds]
-        self._prev: tuple[float, Sequence[float]] | None = None
+        self.late = 0  # samples that came after their interval was judged
 
-    def gyro(self, name: str, g: Sequence[float]) -> None:
+    def gyro(self, name: str, t_ms: float, g: Sequence[float]) -> None:
         x, y, z = g
-        if x - x != 0.0 or y - y != 0.0 or z - z != 0.0:  # NaN or ±inf (cheaper than isfinite ×3: per sample)
+        if x - x != 0.0 or y - y != 0.0 or z - z != 0.0 or t_ms - t_ms != 0.0:  # NaN or ±inf (cheaper than isfinite)
             return
-        acc = self._sum.get(name)
-        if acc is None:
-            acc = self._sum[name] = [0.0, 0.0, 0.0, 0.0]
-        acc[0] += x
-        acc[1] += y
-        acc[2] += z
-        acc[3] += 1.0
+        tr = self._tracks.get(name)
+        if tr is None:
+            tr = self._tracks[name] = _ImuTrack()
+        if t_ms <= tr.closed_ms:
+            self.late += 1
+            return
+        tr.pending.append((t_ms, x, y, z))
+        if t_ms > tr.newest_ms:
+            tr.newest_ms = t_ms
+            if tr.pending[0][0] < t_ms - 2.0 * self._HISTORY_MS:  # no attitude for a while: forget what cannot
+                tr.pending = [p for p in tr.pending if p[0] >= t_ms - self._HISTORY_MS]  # be judged (in chunks)
+            self._judge(name, tr)
 
     def compare(self, t: float, q: Sequence[float]) -> None:
-        prev, self._prev = self._prev, (t, q)
-        sums = self._sum
-        if prev is None or not 0.0 < t - prev[0] <= 250.0 or self.tau <= 0.0:
-            for acc in sums.values():
-                acc[:] = [0.0, 0.0, 0.0, 0.0]
+        att = self._att
+        if att and not 0.0 < t - att[-1][0] <= self._MAX_GAP_MS:
+            if att[-1][0] - _REBOOT_MS <= t <= att[-1][0]:
+                return  # a repeated or reordered attitude: no interval of its own
+            att.clear()  # a gap or a reboot: judge again from here
+            for tr in self._tracks.values():
+                tr.pending = [p for p in tr.pending if t < p[0] <= t + self._HISTORY_MS]
+                tr.closed_ms, tr.newest_ms = t, max((p[0] for p in tr.pending), default=-math.inf)
+        att.append((t, q))
+        if self.tau <= 0.0:
             return
-        dt = 1e-3 * (t - prev[0])
-        a, b = prev[1], q
+        for name, tr in self._tracks.items():
+            self._judge(name, tr)
+        while len(att) > 2 and att[1][0] < t - self._HISTORY_MS:  # an IMU that stopped does not hold them
+            att.popleft()
+            start = att[0][0]
+            for tr in self._tracks.values():
+                if tr.closed_ms < start:
+                    tr.closed_ms = start
+                    tr.pending = [p for p in tr.pending if p[0] > start]
+
+    def _judge(self, name: str, tr: _ImuTrack) -> None:
+        """Judge every interval of ``tr`` whose end is known and that its samples have passed."""
+        att = self._att
+        if len(att) < 2 or self.tau <= 0.0:
+            return
+        i = len(att) - 1  # the interval after the last judged one (usually the newest but one)
+        while i > 0 and att[i][0] > tr.closed_ms:
+            i -= 1
+        while i + 1 < len(att) and tr.newest_ms > att[i + 1][0]:
+            (t0, a), (t1, b) = att[i], att[i + 1]
+            i += 1
+            n = sx = sy = sz = 0.0
+            keep: list[tuple[float, float, float, float]] = []
+            for p in tr.pending:
+                if p[0] <= t1:
+                    if p[0] > t0:
+                        n += 1.0
+                        sx += p[1]
+                        sy += p[2]
+                        sz += p[3]
+                else:
+                    keep.append(p)
+            tr.pending = keep
+            tr.closed_ms = t1
+            if n:
+                self._update(name, 1e-3 * (t1 - t0), a, b, (sx / n, sy / n, sz / n))
+
+    def _update(self, name: str, dt: float, a: Sequence[float], b: Sequence[float], mean: Sequence[float]) -> None:
         # q_rel = a* ⊗ b (the body's turn over dt, body axes)
         w = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
         x = a[0] * b[1] - a[1] * b[0] - a[2] * b[3] + a[3] * b[2]
@@ -2022,17 +2089,13 @@ class _ImuCheck:
         z = a[0] * b[3] - a[1] * b[2] + a[2] * b[1] - a[3] * b[0]
         k = (2.0 if w >= 0.0 else -2.0) / dt
         rate = (k * x, k * y, k * z)
-        for name, acc in sums.items():
-            n = acc[3]
-            if n:
-                e = self._err.get(name)
-                if e is None:
-                    e = self._err[name] = [0.0, 0.0, 0.0, 0.0]
-                e[3] += dt
-                f = dt / min(e[3], self.tau)
-                for i in range(3):
-                    e[i] += f * (acc[i] / n - rate[i] - e[i])
-            acc[:] = [0.0, 0.0, 0.0, 0.0]
+        e = self._err.get(name)
+        if e is None:
+            e = self._err[name] = [0.0, 0.0, 0.0, 0.0]
+        e[3] += dt
+        f = dt / min(e[3], self.tau)
+        for i in range(3):
+            e[i] += f * (mean[i] - rate[i] - e[i])
 
     def errors_dps(self) -> dict[str, float]:
         """Each IMU's rate error learnt so far, deg/s (those seen for half a window)."""

@@ -323,6 +323,56 @@ def test_the_daemons_pipeline_names_the_imu_with_a_gyro_bias_step() -> None:
     assert not any("IMU1" in x for _, _, x in texts), texts
 
 
+def _imu_texts_with_late_imu2(imu2_late_ms: float, imu2_bias_dps: float = 0.0) -> list[str]:
+    """The monitor fed as a link delivers: the autopilot's ATTITUDE (50 Hz) and our estimate (the truth, no
+    divergence) at once, two perfect 400 Hz gyros, IMU2's (plus a bias, deg/s) ``imu2_late_ms`` late (its
+    stream's queue).  The vehicle yaws in spin-ups: 0 → 300 °/s in 2 s, held 3 s, down in 2 s, every 12 s.
+    Returns the monitor's IMU STATUSTEXTs."""
+    def yaw_rate(t: np.ndarray) -> np.ndarray:
+        c = np.mod(t, 12.0)
+        return np.radians(300.0) * np.clip(np.minimum(c / 2.0, (7.0 - c) / 2.0), 0.0, 1.0)
+
+    dt, t_end = 0.0025, 60.0
+    t = np.arange(0.0, t_end, dt)
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (yaw_rate(t[1:]) + yaw_rate(t[:-1])) * dt)])
+    q = from_euler_rad(np.full_like(t, 0.05), np.full_like(t, -0.03), yaw)  # the body's yaw axis tilted a little
+    w_body = rotate(conjugate(q), np.stack([np.zeros_like(t), np.zeros_like(t), yaw_rate(t)], axis=1))
+    events: list[tuple[float, int, str, object]] = []  # (arrival ms, order, kind, payload)
+    for k in range(len(t)):
+        ms = 1000.0 * t[k]
+        events.append((ms, 1, "IMU1", w_body[k]))
+        events.append((ms + imu2_late_ms, 1, "IMU2", w_body[k] + math.radians(imu2_bias_dps)))
+        if k % 8 == 0:
+            events.append((ms, 0, "ATT", q[k]))
+    events.sort(key=lambda e: (e[0], e[1]))
+    mon = AttitudeMonitor(MonitorSettings())
+    texts: list[str] = []
+    for arrive_ms, _, kind, x in events:
+        k_t = round(arrive_ms / 1000.0 / dt)
+        if kind == "ATT":
+            qq = tuple(float(v) for v in x)
+            out = mon.add_autopilot(arrive_ms, qq) + mon.add_estimate(arrive_ms, qq, math.radians(0.3))
+        else:
+            t_ms = 1000.0 * t[min(k_t, len(t) - 1)] - (imu2_late_ms if kind == "IMU2" else 0.0)
+            mon.add_imu_gyro(kind, t_ms, tuple(float(v) for v in x))
+            out = mon.tick(int(1000 * arrive_ms)) if kind == "IMU1" and k_t % 40 == 0 else []
+        texts += [str(m.text) for m in out if m.get_type() == "STATUSTEXT"]
+    assert mon.status.comparisons > 0.8 * 50.0 * t_end, mon.status  # the monitor did compare the flight
+    return [x for x in texts if "gyro off" in x]
+
+
+def test_an_imu_whose_messages_arrive_late_is_not_named_in_yaw_spin_ups() -> None:
+    """Two perfect gyros, the second's messages 100 ms behind the autopilot's ATTITUDE on the link, in yaw
+    spin-ups of 150 °/s²: no IMU named (before: each interval was judged with the samples that *arrived* in
+    it, so IMU2's gyro was compared with the turn rate 100 ms later — 15 °/s off through each spin-up — and
+    it was named six times, "off by 1.5 dps"); the same IMU2 with a 3 °/s bias per axis is still named, late
+    as it is."""
+    assert _imu_texts_with_late_imu2(0.0) == []
+    assert _imu_texts_with_late_imu2(100.0) == []
+    named = _imu_texts_with_late_imu2(100.0, imu2_bias_dps=3.0)
+    assert named and all("IMU2" in x for x in named), named
+
+
 def test_the_gnss_evidence_gives_no_verdict_it_cannot_support(tmp_path: Path) -> None:
     # firmware_sim's shared aggressive flight (seed 11): a correct WARNING at 55.8 s (the simulated autopilot
     # 1.5° off, ours 0.2°) was said with `us?`: the GNSS share 0.70 a second later, but its standard error, from
