@@ -915,7 +915,7 @@ class Best(AttitudeFilter):
 
     def heading_walk_rad_s(self) -> tuple[float, float]:
         """The velocity-aided filter's heading extra random walk learnt from the compass, rad/√s, and the compass
-        innovations' mean ψ²/S (on a vehicle's stream, ``VEHICLE_HEADING_WALK_TAU_S``; :func:`mavahrs.filters.eskf.heading_walk_of`)."""
+        innovations' windows' mean ψ̄²/S̄ (on a vehicle's stream, ``VEHICLE_HEADING_WALK_TAU_S``; :func:`mavahrs.filters.eskf.heading_walk_of`)."""
         return heading_walk_of(self._state, _SE + S_FILTER)
 
     def export_mag_model(self) -> dict[str, object] | None:

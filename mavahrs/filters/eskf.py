@@ -2472,7 +2472,7 @@ def mag_delay_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
 
 def heading_walk_of(state: np.ndarray, k: int) -> tuple[float, float]:
     """The heading's extra random walk learnt from the compass's innovations, rad/√s, and the running mean of
-    their normalised square ψ²/S (1: the heading's σ consistent), of an ESKF state whose own block starts at
+    their windows' normalised square ψ̄²/S̄ (1: the heading's σ consistent), of an ESKF state whose own block starts at
     ``k`` (``EskfSettings.heading_walk_tau_s``; 0 and 0 while off or nothing learnt; :func:`_heading_walk_step`)."""
     return math.sqrt(max(float(state[k + _HWALK]), 0.0)), float(state[k + _HWALK + 1])
 
@@ -2635,7 +2635,7 @@ class Eskf(AttitudeFilter):
         return mag_noise_of(self._state, S_FILTER, self._params)
 
     def heading_walk_rad_s(self) -> tuple[float, float]:
-        """The heading's learnt extra random walk, rad/√s, and the compass innovations' mean ψ²/S (:func:`heading_walk_of`)."""
+        """The heading's learnt extra random walk, rad/√s, and the compass innovations' mean ψ̄²/S̄ (:func:`heading_walk_of`)."""
         return heading_walk_of(self._state, S_FILTER)
 
     def declination_correction_rad(self) -> float:
