@@ -89,6 +89,7 @@ from mavahrs.filters.eskf import (
     axis_basis,
     declination_of,
     eskf_aided,
+    heading_walk_of,
     mag_delay_of,
     mag_noise_of,
     thrust_axis_of,
@@ -139,6 +140,12 @@ VEHICLE_MAG_LEARN_TAU_S = 20.0
 #: the magnetic one with the receiver's velocity 0.30 → 0.46°: ArduPilot's compass errors beyond 10 Hz are not
 #: independent in a way the learnt lag-2 correlation did not show; docs/accuracy.md ("PX4 calm-segment heading")
 VEHICLE_MAG_NOISE_TAU_S = 30.0
+#: a vehicle's heading process noise is raised to what its compass's heading innovations show (``EskfSettings.
+#: heading_walk_tau_s``, covariance matching over 2 s windows; τ, s): PX4 SIH's HIGHRES_IMU (EKF2's moving bias
+#: subtracted) tlog heading 1.10 → 1.07° (hover 220–250 s 1.31 → 1.07°), its ULog 1.29 → 1.26° (hover 1.43 → 1.19°);
+#: ArduCopter SITL, the magnetic flights and firmware_sim within 0.004°.  τ 30 / 10 / 5 s: hover 1.28 / 1.19 /
+#: 1.12° (windows of 3 / 1 / 2 s); docs/accuracy.md ("PX4 calm heading, round four")
+VEHICLE_HEADING_WALK_TAU_S = 3.0
 #: the drag measurement's noise, m/s², with the thrust axis as states (a raw IMU declared a multirotor): the
 #: default 0.5 (EK3_DRAG_M_NSE) also covered a learnt axis's error, which is now a state (raw SITL set
 #: declared a multirotor 1.11 → 1.00°, vibrating 1.47 → 1.24°; 0.8: 1.28 / 1.66°; docs/accuracy.md)
@@ -302,6 +309,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         heading_noise_rad=d.heading_noise_rad,
         mag_rate_hz=d.mag_rate_hz,
         mag_noise_tau_s=VEHICLE_MAG_NOISE_TAU_S,
+        heading_walk_tau_s=VEHICLE_HEADING_WALK_TAU_S,
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,
         gyro_scale_sigma=d.gyro_scale_sigma,
@@ -904,6 +912,11 @@ class Best(AttitudeFilter):
         """The compass heading's noise per reading the velocity-aided filter uses, rad, and its learnt lag-1
         correlation (learnt on a vehicle's stream, ``VEHICLE_MAG_NOISE_TAU_S``; :func:`mavahrs.filters.eskf.mag_noise_of`)."""
         return mag_noise_of(self._state, _SE + S_FILTER, self._params[_PE:])
+
+    def heading_walk_rad_s(self) -> tuple[float, float]:
+        """The velocity-aided filter's heading extra random walk learnt from the compass, rad/√s, and the compass
+        innovations' windows' mean ψ̄²/S̄ (on a vehicle's stream, ``VEHICLE_HEADING_WALK_TAU_S``; :func:`mavahrs.filters.eskf.heading_walk_of`)."""
+        return heading_walk_of(self._state, _SE + S_FILTER)
 
     def export_mag_model(self) -> dict[str, object] | None:
         """The velocity-aided filter's model to keep across a restart (:func:`magfield.export_model`)."""

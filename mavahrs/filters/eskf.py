@@ -135,6 +135,7 @@ from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset,
 __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
+    "heading_walk_of",
     "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE",
 ]  # fmt: skip
 
@@ -243,7 +244,10 @@ _ABIAS_VIB = _MAG_DELAY + 12  # the accelerometer bias's variance per measured p
 _ABIAS_AIDED = _MAG_DELAY + 13  # 1: the accelerometer-bias states are estimated only while velocity-aided
 _Q_SCALE_TILT = _MAG_DELAY + 14  # σ_sf² of the gyro's scale-factor error as the tilt's coherent process noise (0: off)
 _SCALE_TILT_TAU = _MAG_DELAY + 15  # s: the memory of the angle turned that term accumulates over
-_N_PARAMS = _MAG_DELAY + 16
+_HWALK_TAU = _MAG_DELAY + 16  # s: averaging time of the heading's learnt extra random walk (0: off, :func:`_heading_walk_step`)
+_HWALK_MAX = _MAG_DELAY + 17  # rad²/s: the largest extra heading random-walk density it may reach
+_HWALK_WIN = _MAG_DELAY + 18  # s: the window the compass's heading innovations are averaged over for it
+_N_PARAMS = _MAG_DELAY + 19
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -312,7 +316,11 @@ _ABIAS = _DSTAT + 3  # the accelerometer's estimated bias, body frame (3), m/s²
 _CLP = _ABIAS + 3  # C_body_to_ned's columns low-passed as the gravity measurement is (3 Butterworth blocks, 3 × BW_LEN)
 _RANG = _CLP + 3 * BW_LEN  # angle turned about each body axis, |ω_i| integrated with memory τ (3), rad: the tilt's
 #                            scale-factor noise (:func:`_scale_noise_tilt`)
-_N_STATE = _RANG + 3
+#: the heading's extra random-walk density learnt from the compass's innovations, rad²/s (:func:`_heading_walk_step`),
+#: the running mean of those innovations' window means' normalised square ψ̄²/S̄ (a diagnostic: 1 when consistent),
+#: the window's sums of ψ, (P hᵀ)_ψ, h P hᵀ and r (4), its readings (1), its start and last reading's clock time (2)
+_HWALK = _RANG + 3
+_N_STATE = _HWALK + 9
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -685,6 +693,39 @@ class EskfSettings(FilterSettings):
             reads it (the bias across gravity is then told from a tilt only
             by the body's turns, and a motion acceleration or a drag-model
             error is learnt as bias: see docs/accuracy.md).
+        heading_walk_tau_s: the heading's process noise is raised to what the
+            compass's own heading innovations show (covariance matching, Sage &
+            Husa 1969 / Myers & Tapley 1976; :func:`_heading_walk_step`): per
+            window of readings (``heading_walk_window_s``) an extra heading
+            random-walk density q_x moves by K̄²(ψ̄² − S̄)/τ, ψ̄ the window's mean
+            innovation, S̄ = ⟨hPhᵀ⟩ + ⟨r⟩/M its predicted variance, K̄ the
+            heading's gain for it, τ this time, s; so where the
+            heading error wanders more than the gyro noise lets P say (PX4's
+            HIGHRES_IMU, EKF2's moving bias subtracted) the heading σ opens and
+            the compass corrects faster, and where the innovations are within
+            S (ArduCopter SITL) q_x stays 0.  Learnt from the readings the
+            compass's noise is learnt from (as they are, no disturbance flagged,
+            turning < 10°/s), each ψ̄² at most gate² × S̄.  τ is how soon the
+            excess a window shows is taken into P (with a window of T the
+            variance grows by ≈ (T/τ)·K̄²(ψ̄² − S̄) over the next window).
+            0 = off (the default; ``best`` on a vehicle's stream: 3 s,
+            ``best.VEHICLE_HEADING_WALK_TAU_S``).
+        heading_walk_max_rad_s: the largest extra heading random walk it may
+            reach, rad/√s: 0.01 (0.57°/√s), twice the largest yaw random walk
+            measured on an autopilot's stream here (gyro against the truth, bias
+            removed: ArduCopter SITL 400 Hz 0.30°/√s, PX4 SIH 0.24–0.26°/√s;
+            docs/accuracy.md), the density 2σ_b²τ_b of a bias wandering
+            σ_b 0.13°/s with a 10 s correlation.
+        heading_walk_window_s: the compass's heading innovations are averaged
+            over windows of this long, s, for it: the mean of M readings has
+            the compass's noise r/M (a single reading's r, (3°)² on PX4 SIH,
+            hides a slow 2° error), so the window is long enough for r/M to
+            come down to the innovation's own predicted variance hPhᵀ (PX4
+            SIH: ≈ 14 readings fused in 2 s, (3.5°)²/14 ≈ (0.9°)² against
+            hPhᵀ ≈ (0.8–0.9°)²) and short against the heading error's own
+            time (the compass's correction takes ≈ 4 s at 10 Hz and σ 3°),
+            and a window is not broken off by a turn as often as a longer one
+            (PX4 SIH, windows of 1 / 2 / 3 / 5 s with τ 3–10 s: docs/accuracy.md).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -762,6 +803,9 @@ class EskfSettings(FilterSettings):
     accel_bias_aided_only: bool = False
     gyro_scale_tilt_sigma: float = 0.003
     gyro_scale_tilt_memory_s: float = 0.5
+    heading_walk_tau_s: float = 0.0
+    heading_walk_max_rad_s: float = 0.01
+    heading_walk_window_s: float = 2.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -785,7 +829,8 @@ class EskfSettings(FilterSettings):
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
-                     "gyro_scale_tilt_memory_s"):
+                     "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
+                     "heading_walk_window_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -881,6 +926,69 @@ def _mag_noise_carry(s, k, dx0, dx1, dx2, dx_decl):  # type: ignore[no-untyped-d
     c = s[kn + 5] * dx0 + s[kn + 6] * dx1 - dx2 + dx_decl
     s[kn + 2] -= c
     s[kn + 3] -= c
+
+
+@kernel(inline=True)
+def _heading_walk_step(s, k, params, y, sv, r, learn, clk):  # type: ignore[no-untyped-def]
+    """The heading's extra random-walk density, learnt from the compass's heading innovations (covariance matching).
+
+    One reading's innovation ψ (predicted variance S = hP⁻hᵀ + r) is dominated by the compass's own noise r
+    (PX4 SIH: 3° per reading against a heading σ of 0.5°), so a slow heading error of 2° changes ψ² by less
+    than r's uncertainty.  The mean of the M readings of a window of ``heading_walk_window_s`` is the heading
+    error's mean plus noise of variance r̄/M (r the learnt variance per reading, σ²(1 + ρ)/(1 − ρ), is what
+    makes r/M the variance of the mean of M correlated readings: :func:`_mag_noise_step`): ψ̄ = Σψ/M of predicted
+    variance S̄ = ⟨hP⁻hᵀ⟩ + ⟨r⟩/M (⟨hP⁻hᵀ⟩ bounds the variance of the error's mean from above, and the filter's
+    own corrections within the window only lower it: the estimate is conservative).  As one measurement of the
+    heading error, its gain on the heading is K̄ = ⟨(P⁻hᵀ)_ψ⟩ / S̄.  With the heading's process noise Q·T over
+    a window, Myers & Tapley (1976, eq. 23; Sage & Husa 1969) estimate it as the mean of what the corrections
+    show less what the covariance predicted: Q̂·T = ⟨Δx Δxᵀ + P⁺ − Φ P⁺₋ Φᵀ⟩ = Q·T + ⟨K̄² (ψ̄² − S̄)⟩.  So the
+    heading's extra density q_x (added to P_DD every sample, above the gyro's noise and the rate noise) moves
+    per window by
+
+        q_x ← q_x + (T/τ) · K̄² (ψ̄² − S̄) / T = q_x + K̄² (ψ̄² − S̄) / τ
+
+    (the Sage–Husa recursion with weight T/τ, τ ``heading_walk_tau_s``): it stays where the window means are as
+    large as S̄ predicts, grows while the heading error wanders more than the covariance says, and shrinks
+    back when it is smaller (its own feedback: more q_x, more P, larger S̄).  Each ψ̄² is at most gate² × S̄;
+    q_x is held within 0 (today's process noise: a clean gyro keeps it) and ``heading_walk_max_rad_s``².  The
+    running mean of ψ̄²/S̄ (weight T/τ) is kept beside it: 1 when the heading's σ is consistent.  A window
+    ends at a reading not to learn from (``learn`` False: a model-corrected reading, a disturbance, a turn)
+    or more than 1 s after the last one, and is then not used.  ``y``, ``sv``: the innovation and its
+    variance as :func:`_innovation` returns them (P hᵀ in scratch), ``r`` the reading's noise in it.
+    """
+    p = P_FILTER
+    kw = k + _HWALK
+    if not learn or clk - s[kw + 8] > 1.0:
+        s[kw + 6] = 0.0  # the window is not used: a new one starts at the next reading to learn from
+        s[kw + 7] = clk
+        s[kw + 8] = clk
+        if not learn:
+            return
+    if s[kw + 6] == 0.0:
+        s[kw + 2] = s[kw + 3] = s[kw + 4] = s[kw + 5] = 0.0
+        s[kw + 7] = clk
+    s[kw + 8] = clk
+    s[kw + 2] += y
+    s[kw + 3] += s[k + _PH + 2]
+    s[kw + 4] += sv - r
+    s[kw + 5] += r
+    s[kw + 6] += 1.0
+    tw = clk - s[kw + 7]
+    if tw < params[P_FILTER + _HWALK_WIN]:
+        return
+    m = s[kw + 6]
+    ybar = s[kw + 2] / m
+    sbar = s[kw + 4] / m + s[kw + 5] / (m * m)
+    s[kw + 6] = 0.0
+    if not (sbar > 0.0):
+        return
+    tau = params[p + _HWALK_TAU]
+    gate2 = params[p + _GATE] * params[p + _GATE]
+    kbar = s[kw + 3] / m / sbar
+    e2 = min(ybar * ybar, gate2 * sbar)
+    q = s[kw] + kbar * kbar * (e2 - sbar) / tau
+    s[kw] = min(max(q, 0.0), params[p + _HWALK_MAX])
+    s[kw + 1] += min(tw / tau, 1.0) * (ybar * ybar / sbar - s[kw + 1])
 
 
 @kernel
@@ -1776,6 +1884,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         _rate_noise(state, k, dt, gx, gy, gz, q_sf, q_ma)
     if params[p + _Q_SCALE_TILT] > 0.0:
         _scale_noise_tilt(state, k, dt, gx, gy, gz, params[p + _Q_SCALE_TILT], params[p + _SCALE_TILT_TAU])
+    if params[p + _HWALK_TAU] > 0.0:  # the heading's extra random walk learnt from the compass (:func:`_heading_walk_step`)
+        state[k + _P + 2 * N + 2] += state[k + _HWALK] * dt
     if params[p + _MAG_NOISE_TAU] > 0.0:
         # the white part of the heading innovation's change since the last compass reading: the gyro's noise
         # (on the heading and, through the field's dip, the tilt) and its rate noise (:func:`_mag_noise_step`)
@@ -2203,18 +2313,23 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 state[k + _H + 0] = cdip * hn / bh
                 state[k + _H + 1] = cdip * he / bh
             r_head = params[p + _R_HEADING]
+            # the compass's own noise and the heading's process noise are learnt only from readings used as
+            # they are, no disturbance flagged, not in a turn
+            learn = (
+                r_model == 0.0 and rate_d * rate_d < _LAG_RATE0_RAD_S**2
+                and (not model_on or state[k + _MAGF + MF_TRUST] != MAG_DISTURBED)
+            )  # fmt: skip
             if params[p + _MAG_NOISE_TAU] > 0.0:
-                # the compass's own noise per reading, learnt from its innovations (:func:`_mag_noise_step`):
-                # only from readings used as they are, no disturbance flagged, not in a turn
-                learn = (
-                    r_model == 0.0 and rate_d * rate_d < _LAG_RATE0_RAD_S**2
-                    and (not model_on or state[k + _MAGF + MF_TRUST] != MAG_DISTURBED)
-                )  # fmt: skip
+                # the compass's own noise per reading, learnt from its innovations (:func:`_mag_noise_step`)
                 r_head = _mag_noise_step(state, k, params, psi, cdip * hn / bh, cdip * he / bh, learn, clk)
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age
             stale = params[p + _MAG_STALE] * rate_d
             r_m = (r_head + stale * stale) / (w_m * w_m) + r_model
+            if params[p + _HWALK_TAU] > 0.0:
+                # the heading's process noise from the innovations against their predicted variance
+                y_h, s_h = _innovation(state, k, psi, r_m)
+                _heading_walk_step(state, k, params, y_h, s_h, r_m, learn and s_h > 0.0, clk)
             tried = True
             if consider:
                 ok = _heading_update(state, k, psi, r_m, gate)
@@ -2355,6 +2470,13 @@ def mag_delay_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
     return max(float(params[p + _MAG_DELAY] - params[p + _DELAY]), 0.0)
 
 
+def heading_walk_of(state: np.ndarray, k: int) -> tuple[float, float]:
+    """The heading's extra random walk learnt from the compass's innovations, rad/√s, and the running mean of
+    their windows' normalised square ψ̄²/S̄ (1: the heading's σ consistent), of an ESKF state whose own block starts at
+    ``k`` (``EskfSettings.heading_walk_tau_s``; 0 and 0 while off or nothing learnt; :func:`_heading_walk_step`)."""
+    return math.sqrt(max(float(state[k + _HWALK]), 0.0)), float(state[k + _HWALK + 1])
+
+
 def mag_noise_of(state: np.ndarray, k: int, params: np.ndarray) -> tuple[float, float]:
     """The compass heading's noise per reading the update uses, rad, and the learnt lag-1 correlation of the
     readings, of an ESKF state whose own block starts at ``k`` (learnt: ``EskfSettings.mag_noise_tau_s``, as
@@ -2470,6 +2592,9 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
+        p[_HWALK_TAU] = settings.heading_walk_tau_s
+        p[_HWALK_MAX] = settings.heading_walk_max_rad_s**2
+        p[_HWALK_WIN] = settings.heading_walk_window_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
@@ -2508,6 +2633,10 @@ class Eskf(AttitudeFilter):
     def mag_noise_rad(self) -> tuple[float, float]:
         """The compass heading's noise per reading and its lag-1 correlation (:func:`mag_noise_of`)."""
         return mag_noise_of(self._state, S_FILTER, self._params)
+
+    def heading_walk_rad_s(self) -> tuple[float, float]:
+        """The heading's learnt extra random walk, rad/√s, and the compass innovations' mean ψ̄²/S̄ (:func:`heading_walk_of`)."""
+        return heading_walk_of(self._state, S_FILTER)
 
     def declination_correction_rad(self) -> float:
         """The learnt declination correction: the local field's azimuth east of the WMM's magnetic north, rad."""

@@ -54,7 +54,8 @@ def test_complementary_follows_the_truth_in_the_hover(px4_recording) -> None:
     assert _hover_heading_rms_deg(px4_recording, "complementary") < 0.8
 
 
-@pytest.mark.xfail(strict=True, reason="issue 23: best 1.31 deg (1.61 before the learnt compass noise, 1.77 before the learnt delay) vs "
+@pytest.mark.xfail(strict=True, reason="issue 23: best 1.07 deg (1.31 before the heading noise learnt from the compass, round four; "
+                   "1.61 before the learnt compass noise, 1.77 before the learnt delay) vs "
                    "complementary 0.38 deg heading RMS in the PX4 SITL hover (220-250 s): the z gyro bias learnt in the manoeuvres "
                    "(-0.08 deg/s, truth +0.05) carries the heading +1.5 deg off into the hover; round three (px4hdg3): "
                    "the GNSS velocity is on time, the +2 deg is the gyro's own drift against SIH's truth in the "
