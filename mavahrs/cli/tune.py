@@ -132,7 +132,9 @@ def _run(args: argparse.Namespace) -> int:
         out = Path(args.output)
         out.write_text(result.to_toml(gains=args.gains), encoding="utf-8")
         temp = (
-            "the gyro temperature model" if result.temperature_model else "no temperature model (no spread)"
+            "the gyro temperature model" if result.temperature_model
+            else "no temperature model (per recording: tune each alone)" if result.recordings > 1
+            else "no temperature model (no spread)"
         )
         if args.gains == "flight":
             what = f"{temp}; no gains: the filter keeps its flight gains"
