@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from mavahrs.ingest.arrays import PreparedInputs
 
 __all__ = [
-    "FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES", "is_truth",
+    "FORMATS", "a_format", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES", "is_truth",
     "autopilot_reference",
 ]
 
@@ -31,6 +31,12 @@ FORMATS: dict[str, str] = {
     "dataflash": "ArduPilot DataFlash log (.BIN)",
     "ulog": "PX4 ULog (.ulg)",
 }
+
+def a_format(kind: str) -> str:
+    """``FORMATS[kind]`` with its article, for sentences: "an ArduPilot DataFlash log (.BIN)"."""
+    name = FORMATS[kind]
+    return f"{'an' if name[0] in 'AEIOU' else 'a'} {name}"
+
 
 #: file name endings of logs (a folder is searched for these; other files are taken when their content is a log)
 LOG_SUFFIXES = (".tlog", ".bin", ".ulg")

@@ -460,7 +460,7 @@ def _replay_log(
     """Replay an onboard log (DataFlash, ULog): its reader's :class:`~mavahrs.logs.LogInputs`, then the same
     batch filters, CSV and comparison as a tlog's fast engine (the per-message pipeline engine reads MAVLink
     only)."""
-    from mavahrs.logs import FORMATS, read_log
+    from mavahrs.logs import a_format, read_log
 
     ps = s.pipeline_settings()
     li = read_log(path, ps, start_s=s.start_s, end_s=s.end_s, format=fmt)
@@ -468,7 +468,7 @@ def _replay_log(
     filters = [(n, s.filter_settings.get(n)) for n in s.filters]
     notes: list[str] = []
     if s.engine == "pipeline":
-        notes.append(f"engine: fast (the pipeline engine reads MAVLink; this is a {FORMATS[fmt]})")
+        notes.append(f"engine: fast (the pipeline engine reads MAVLink; this is {a_format(fmt)})")
     sink = None
     try:
         if csv_path is not None:

@@ -166,6 +166,6 @@ def test_an_onboard_log_is_named_for_what_it_is(shared_data: Path, rel: str, tmp
     out = tmp_path / "x.tlog"
     assert main(["inject-fault", str(src), str(out), "--at", "100", "--tilt", "2"]) in (1, 2)
     err = capsys.readouterr().err
-    kind = "ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "PX4 ULog (.ulg)"
-    assert f"{src}: a {kind}: inject-fault copies a telemetry log (.tlog)" in err, err
+    kind = "an ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "a PX4 ULog (.ulg)"  # "a ArduPilot" before user6
+    assert f"{src}: {kind}: inject-fault copies a telemetry log (.tlog); use the same flight's tlog" in err, err
     assert not out.exists()
