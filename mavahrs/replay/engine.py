@@ -958,13 +958,16 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
 def _monitor_of(result: ReplayResult) -> tuple[Any, str, str] | None:
     """The monitor's series over the replay, the autopilot reference it judged and the filter it judged
     (:func:`~mavahrs.fleet.audit.monitored_filter`); None without an autopilot attitude."""
-    from mavahrs.fleet.audit import monitored_filter, phase_events, replay_monitor
+    from mavahrs.fleet.audit import monitored_filter, onboard_phase_events, phase_events, replay_monitor
 
     ref = autopilot_reference(result.references)  # the autopilot's (a .ulg's "EKF2"), as the fleet audit's
     if not ref or not result.tracks:
         return None
     tlog = getattr(result, "tlog", None)
-    phase = phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
+    if hasattr(tlog, "arrays"):
+        phase = phase_events(tlog, result.inputs, result.inputs.source)
+    else:  # a .BIN's ARM/EV, a .ulg's vehicle_status / vehicle_land_detected
+        phase = onboard_phase_events(getattr(result, "log", None))
     series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
     return series, ref, monitored_filter(result.tracks)
 
