@@ -188,6 +188,7 @@ def plot_attitude(
     others: Mapping[str, tuple[Array, Array]] | None = None,
     title: str = "",
     max_points: int = 20000,
+    time_label: str = "time (s)",
 ) -> Path:
     """Truth / estimate / error per angle, gain and rejection state underneath.
 
@@ -201,6 +202,7 @@ def plot_attitude(
         others: extra attitudes at their own times, name → (t_s, (M, 4) q),
             e.g. the autopilot's ATTITUDE; drawn dashed, no error row.
         max_points: long series are thinned to about this many points.
+        time_label: the time axis' label (what ``t_s`` counts from).
     """
     plt = _pyplot()
     t = np.asarray(t_s, dtype=float)
@@ -273,7 +275,7 @@ def plot_attitude(
         axw.plot([], [], color="grey", lw=0.9, label="accelerometer")
         axw.plot([], [], color="grey", lw=0.9, ls=":", label="magnetometer")
         _fitted_legend(fig, axw, loc="lower right", fontsize=7)
-    axes[-1].set_xlabel("time (s)")
+    axes[-1].set_xlabel(time_label)
     if title:
         fig.suptitle(title, fontsize=11)
         fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
