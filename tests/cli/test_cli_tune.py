@@ -231,3 +231,26 @@ def test_tune_over_several_warm_ups_says_why_it_writes_no_temperature_model(
     assert not flight.exists()
     assert "one set of gains over 2 recordings, and the gyro bias differs per power-up" in err
     assert "tune each recording alone for its model" in err and "did not spread" not in err
+
+
+def test_tune_over_several_logs_says_each_logs_magnetic_model_only_when_asked(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One INFO line per recording ("magnetic field from WMM-2025 at …") is noise over several, as in `audit`:
+    kept for one recording and with -v."""
+    import subprocess
+    import sys
+
+    logs = []
+    for seed in (1, 2):
+        log = tmp_path / f"warm{seed}.tlog"
+        subprocess.run([sys.executable, "-m", "firmware_sim", "--tlog", str(log), "--fast", "-q", "--scenario",
+                        "temperature", "--duration", "20", "--seed", str(seed)], check=True, timeout=120)  # fmt: skip
+        logs.append(str(log))
+    assert main(["tune", logs[0]]) == 0
+    assert capsys.readouterr().err.count("magnetic field from WMM") == 1
+    assert main(["tune", *logs, "--gains", "ls"]) == 0
+    err = capsys.readouterr().err
+    assert "magnetic field from WMM" not in err and " WARNING β = " in err  # the warning stays
+    assert main(["-v", "tune", *logs, "--gains", "ls"]) == 0
+    assert capsys.readouterr().err.count("magnetic field from WMM") == 2
