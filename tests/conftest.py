@@ -298,6 +298,12 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def sitl_gentle_tlog() -> Path:
+    """``../shared/data/sitl/arducopter_gentle.tlog`` (the shortest ArduCopter SITL flight, 59 s); skips when absent."""
+    return _require(DATA / "sitl" / "arducopter_gentle.tlog")
+
+
+@pytest.fixture(scope="session")
 def broad_dir() -> Path:
     return _require(DATA / "broad")
 

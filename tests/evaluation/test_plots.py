@@ -235,13 +235,11 @@ def test_fleet_plot_draws_the_thresholds_the_monitor_judged_with(
     assert "monitor thresholds (4° tilt, 12° heading)" in ax_fixed.get_legend_handles_labels()[1]
 
 
-def test_audit_plot_draws_the_thresholds_of_its_config(shared_data: Path, tmp_path: Path,
+def test_audit_plot_draws_the_thresholds_of_its_config(sitl_gentle_tlog: Path, tmp_path: Path,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """``mavahrs audit --config C --plot``: the overview's dashed lines are C's ``[pipeline.monitor]``."""
     pytest.importorskip("matplotlib")
-    log = shared_data / "sitl" / "arducopter_gentle.tlog"
-    if not log.is_file():
-        pytest.skip(f"{log} not found (../shared/data)")
+    log = sitl_gentle_tlog
     from mavahrs.cli import main
 
     config = tmp_path / "fixed.toml"

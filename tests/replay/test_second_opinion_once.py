@@ -10,12 +10,10 @@ from typing import Any
 import pytest
 
 
-def test_the_second_opinion_is_judged_once_per_replay(shared_data: Path, tmp_path: Path,
+def test_the_second_opinion_is_judged_once_per_replay(sitl_gentle_tlog: Path, tmp_path: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     pytest.importorskip("matplotlib")
-    log = shared_data / "sitl" / "arducopter_gentle.tlog"
-    if not log.is_file():
-        pytest.skip(f"{log} not found (../shared/data)")
+    log = sitl_gentle_tlog
     from mavahrs import replay as rp
     from mavahrs.fleet import audit
 
@@ -35,11 +33,9 @@ def test_the_second_opinion_is_judged_once_per_replay(shared_data: Path, tmp_pat
     assert calls == [str(log)]
 
 
-def test_a_long_judgement_says_it_has_started(shared_data: Path, caplog: pytest.LogCaptureFixture,
+def test_a_long_judgement_says_it_has_started(sitl_gentle_tlog: Path, caplog: pytest.LogCaptureFixture,
                                               monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
-    log = shared_data / "sitl" / "arducopter_gentle.tlog"
-    if not log.is_file():
-        pytest.skip(f"{log} not found (../shared/data)")
+    log = sitl_gentle_tlog
     from mavahrs import replay as rp
     from mavahrs.replay import engine
 
