@@ -298,6 +298,12 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def sitl_gentle_tlog() -> Path:
+    """``../shared/data/sitl/arducopter_gentle.tlog`` (the shortest ArduCopter SITL flight, 59 s); skips when absent."""
+    return _require(DATA / "sitl" / "arducopter_gentle.tlog")
+
+
+@pytest.fixture(scope="session")
 def broad_dir() -> Path:
     return _require(DATA / "broad")
 
@@ -329,6 +335,49 @@ def _isolated_mavahrs_logger() -> object:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+# --------------------------------------------------------------------------- a stand-in pipeline for the daemon
+
+
+class HeartbeatOnlyPipeline:
+    """The daemon's pipeline interface, handling nothing: our HEARTBEAT (1/191, onboard controller) every tick.
+
+    For tests of what the daemon itself does around the pipeline (requests addressed to component 191,
+    answered by ``mavahrs.service.component``): its codec is the real one with our ids.
+    ``heartbeat_to_master``: the HEARTBEAT also goes on the master link (so a ``udpin`` peer there learns
+    where we are), not only to the ``--out`` outputs.
+    """
+
+    def __init__(self, heartbeat_to_master: bool = True) -> None:
+        from mavahrs.protocol.codec import MavCodec
+
+        self.codec = MavCodec(1, 191)
+        self.heartbeat_to_master = heartbeat_to_master
+
+    def handle(self, msg: object, now_us: int) -> list[object]:
+        return []
+
+    def tick(self, now_us: int) -> list[object]:
+        from mavahrs.service.pipeline import Outgoing
+
+        frame = self.codec.encode(self.codec.mav.heartbeat_encode(18, 8, 0, 0, 4))  # MAV_TYPE_ONBOARD_CONTROLLER
+        return [Outgoing(frame, self.heartbeat_to_master, True)]
+
+    def status(self, now_us: int | None = None) -> dict[str, object]:
+        return {"input_rate_hz": 0.0, "drops": {}}
+
+    def drain_notices(self) -> list[tuple[int, str]]:
+        return []
+
+    def reset_link(self, now_us: int) -> None:
+        pass
+
+
+@pytest.fixture
+def heartbeat_only_pipeline() -> type[HeartbeatOnlyPipeline]:
+    """:class:`HeartbeatOnlyPipeline`, for test modules (``--import-mode=importlib``: no ``from conftest import``)."""
+    return HeartbeatOnlyPipeline
 
 
 # --------------------------------------------------------------------------- simulator recordings

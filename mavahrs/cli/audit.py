@@ -169,7 +169,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.plot:
         from mavahrs.evaluation.plots import plot_fleet
 
-        print(f"wrote {plot_fleet(args.plot, [r.as_dict() for r in result.rows])} (each flight replayed: "
+        rows = [r.as_dict() for r in result.rows]
+        monitor = settings.replay.pipeline_settings().monitor
+        print(f"wrote {plot_fleet(args.plot, rows, monitor=monitor)} (each flight replayed: "
               f"{plots}/LOG_second_opinion.png)", file=sys.stderr)  # fmt: skip
     bad = sum(1 for r in result.rows if not r.ok)
     if bad:

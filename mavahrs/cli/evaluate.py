@@ -128,7 +128,7 @@ def _plot_first(args: argparse.Namespace, rec: Any, filters: list[str]) -> None:
     t = np.cumsum(np.nan_to_num(rec.dt_s)) - np.nan_to_num(rec.dt_s[0])
     outs = {n: run_filter(rec, n, use_mag=not args.no_mag) for n in filters}
     path = plot_attitude(args.plot, t, outs, reference_q=rec.q_ref_body_to_ned, title=rec.name)
-    print(f"plot: {path}", file=sys.stderr)
+    print(f"wrote {path}", file=sys.stderr)
 
 
 def _study(args: argparse.Namespace, recordings: list[Any]) -> int:
@@ -159,5 +159,5 @@ def _study(args: argparse.Namespace, recordings: list[Any]) -> int:
     if args.plot:
         from mavahrs.evaluation.plots import plot_study
 
-        print(f"plot: {plot_study(result, Path(args.plot))}", file=sys.stderr)
+        print(f"wrote {plot_study(result, Path(args.plot))}", file=sys.stderr)
     return 0

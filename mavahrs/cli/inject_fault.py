@@ -27,7 +27,7 @@ examples:
   mavahrs inject-fault flight.tlog tilt2.tlog --at 100 --tilt 2 --tilt-azimuth 90
   mavahrs inject-fault flight.tlog drift.tlog --at 100 --roll 10 --shape ramp --ramp-s 50   # 0.2 deg/s
   mavahrs inject-fault flight.tlog yaw6.tlog --at 100 --yaw 6 --shape intermittent --on-s 2 --period-s 5
-  mavahrs inject-fault flight.tlog gyro.tlog --at 100 --imu SCALED_IMU2 --gyro-bias 0,0,0.5
+  mavahrs inject-fault flight.tlog gyro.tlog --at 100 --imu SCALED_IMU2 --gyro-bias 0,0,3
   mavahrs audit roll2.tlog drift.tlog"""
 
 

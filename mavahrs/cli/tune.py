@@ -101,6 +101,15 @@ def _run(args: argparse.Namespace) -> int:
             raise DataError(f"{path} is a directory: tune takes log files (for a folder: {path}/*.tlog, {path}/*.BIN …)")
         if not path.is_file():
             raise DataError(f"{path}: no such file")
+    if len(paths) > 1 and not getattr(args, "verbose", 0):  # per-log INFO lines (magnetic model …) are noise
+        import logging  # over several recordings, as in `audit`: its own progress and a compile's notice stay
+
+        from mavahrs.cli.common import KERNELS_LOGGER
+
+        logging.getLogger("mavahrs").setLevel(logging.WARNING)
+        if not getattr(args, "quiet", 0):
+            logging.getLogger("mavahrs.fleet").setLevel(logging.INFO)
+            logging.getLogger(KERNELS_LOGGER).setLevel(logging.INFO)
     fn = functools.partial(_tune_one, imu=args.imu, start_s=args.start, end_s=args.end, source=args.source)
     if len(paths) > 1 and (args.dask or args.scheduler):
         from mavahrs.fleet.dask_engine import DaskEngine, available
@@ -132,7 +141,9 @@ def _run(args: argparse.Namespace) -> int:
         out = Path(args.output)
         out.write_text(result.to_toml(gains=args.gains), encoding="utf-8")
         temp = (
-            "the gyro temperature model" if result.temperature_model else "no temperature model (no spread)"
+            "the gyro temperature model" if result.temperature_model
+            else "no temperature model (per recording: tune each alone)" if result.recordings > 1
+            else "no temperature model (no spread)"
         )
         if args.gains == "flight":
             what = f"{temp}; no gains: the filter keeps its flight gains"

@@ -323,11 +323,12 @@ def inject_faults(
     src_p, dst_p = Path(src), Path(dst)
     if dst_p.exists() and os.path.samefile(src_p, dst_p):
         raise ValueError(f"{dst_p}: the faulty copy must not replace the original")
-    from mavahrs.logs import FORMATS, sniff
+    from mavahrs.logs import a_format, sniff
 
     kind = sniff(src_p)
     if kind in ("dataflash", "ulog"):  # scanned as a tlog, a .ulg's bytes held 24 "records": copied, exit 0
-        raise DataError(f"{src_p}: a {FORMATS[kind]}: inject-fault copies a telemetry log (.tlog)")
+        raise DataError(f"{src_p}: {a_format(kind)}: inject-fault copies a telemetry log (.tlog); use the same "
+                        "flight's tlog (the ground station's, or one `mavahrs run --log` recorded)")
     att = [f for f in faults if isinstance(f, AttitudeFault)]
     imu = [f for f in faults if isinstance(f, ImuFault)]
     types = {"ATTITUDE", "ATTITUDE_QUATERNION"} if att else set()

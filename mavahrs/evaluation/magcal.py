@@ -541,11 +541,11 @@ def load_mag_recording(path: str, *, message: str | None = None, profile: str = 
         raise DataError(f"{path} is a directory: calibrate-mag takes one .tlog or .csv file")
     if path.lower().endswith(".csv"):
         return _read_csv(path)
-    from mavahrs.logs import FORMATS, sniff
+    from mavahrs.logs import a_format, sniff
 
     kind = sniff(path)
     if kind in ("dataflash", "ulog"):  # read as a tlog it said "no magnetometer samples in RAW_IMU"
-        raise DataError(f"{path} is a {FORMATS[kind]}: calibrate-mag reads a telemetry log (.tlog) or a CSV with "
+        raise DataError(f"{path} is {a_format(kind)}: calibrate-mag reads a telemetry log (.tlog) or a CSV with "
                         "columns mx, my, mz in µT; record a tlog of the vehicle turning through many attitudes "
                         "(e.g. with MAVProxy or mavahrs run --log)")
 

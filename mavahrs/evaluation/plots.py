@@ -188,6 +188,7 @@ def plot_attitude(
     others: Mapping[str, tuple[Array, Array]] | None = None,
     title: str = "",
     max_points: int = 20000,
+    time_label: str = "time (s)",
 ) -> Path:
     """Truth / estimate / error per angle, gain and rejection state underneath.
 
@@ -201,6 +202,7 @@ def plot_attitude(
         others: extra attitudes at their own times, name → (t_s, (M, 4) q),
             e.g. the autopilot's ATTITUDE; drawn dashed, no error row.
         max_points: long series are thinned to about this many points.
+        time_label: the time axis' label (what ``t_s`` counts from).
     """
     plt = _pyplot()
     t = np.asarray(t_s, dtype=float)
@@ -273,7 +275,7 @@ def plot_attitude(
         axw.plot([], [], color="grey", lw=0.9, label="accelerometer")
         axw.plot([], [], color="grey", lw=0.9, ls=":", label="magnetometer")
         _fitted_legend(fig, axw, loc="lower right", fontsize=7)
-    axes[-1].set_xlabel("time (s)")
+    axes[-1].set_xlabel(time_label)
     if title:
         fig.suptitle(title, fontsize=11)
         fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
@@ -400,20 +402,40 @@ def _plot_comparison(result: StudyResult, path: str | Path) -> Path:
     return _save(fig, path)
 
 
+def fleet_threshold_lines(monitor: Any = None) -> tuple[float, float, str]:
+    """(tilt deg, heading deg, legend text): where the fleet overview draws the monitor's thresholds.
+
+    ``fixed`` mode: its fixed angles.  ``uncertainty`` mode (the default): the thresholds follow both
+    estimators' σ flight by flight, so the floors they never go below (``min_tilt_threshold_deg``,
+    ``min_heading_threshold_deg``: 1°, 3°) are drawn.  (Until user6 the overview drew the ``fixed``
+    mode's 10° / 25° whatever the mode: a flight flagged at 2° of tilt sat far inside them.)
+    """
+    if monitor is None:
+        from mavahrs.service.monitor import MonitorSettings
+
+        monitor = MonitorSettings()
+    if monitor.mode == "fixed":
+        tilt, hdg = float(monitor.tilt_threshold_deg), float(monitor.heading_threshold_deg)
+        return tilt, hdg, f"monitor thresholds ({tilt:g}° tilt, {hdg:g}° heading)"
+    tilt, hdg = float(monitor.min_tilt_threshold_deg), float(monitor.min_heading_threshold_deg)
+    return tilt, hdg, f"monitor thresholds' floors ({tilt:g}° tilt, {hdg:g}° heading; higher with σ)"
+
+
 def plot_fleet(
     path: str | Path,
     rows: list[Mapping[str, Any]],
     *,
-    tilt_threshold_deg: float = 10.0,
-    heading_threshold_deg: float = 25.0,
+    monitor: Any = None,
 ) -> Path:
     """The fleet overview of ``mavahrs audit``: one point per flight.
 
     Left, each flight's largest inclination vs heading divergence from the
-    autopilot's own attitude (log scales, the monitor's thresholds dashed),
-    flights the monitor flagged in red and named; middle, the distribution of
-    the inclination RMS; right, vibration vs clipping.  ``rows`` are
-    :class:`mavahrs.fleet.audit.FleetRow` fields as mappings.
+    autopilot's own attitude (log scales, the monitor's thresholds dashed:
+    :func:`fleet_threshold_lines`), flights the monitor flagged in red and
+    named; middle, the distribution of the inclination RMS; right, vibration
+    vs clipping.  ``rows`` are :class:`mavahrs.fleet.audit.FleetRow` fields as
+    mappings; ``monitor`` the :class:`~mavahrs.service.monitor.MonitorSettings`
+    the audit judged with (None: the defaults).
     """
     plt = _pyplot()
     from matplotlib.ticker import MaxNLocator
@@ -443,8 +465,10 @@ def plot_fleet(
                     fontsize=7, xytext=(4, 4), textcoords="offset points", color="tab:red")  # fmt: skip
     if len(flagged) > _FLEET_NAMED:
         named.append(f"… and {len(flagged) - _FLEET_NAMED} more (see the table)")
-    ax.axvline(tilt_threshold_deg, color="grey", ls="--", lw=0.8)
-    ax.axhline(heading_threshold_deg, color="grey", ls="--", lw=0.8)
+    tilt_line_deg, heading_line_deg, line_label = fleet_threshold_lines(monitor)
+    ax.axvline(tilt_line_deg, color="grey", ls="--", lw=0.8, label=line_label)
+    if heading_line_deg > 0:  # 0: heading not judged
+        ax.axhline(heading_line_deg, color="grey", ls="--", lw=0.8)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("largest inclination divergence, deg")

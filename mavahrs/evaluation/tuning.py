@@ -133,6 +133,15 @@ class TuneResult:
     #: (tr(VᵀW), tr(VᵀV)) of the β and ζ least-squares fits: they add up over recordings (:func:`combine`)
     beta_ls_terms: tuple[float, float] = (math.nan, math.nan)
     zeta_ls_terms: tuple[float, float] = (math.nan, math.nan)
+    #: how many recordings the result is over (:func:`combine`: more than one, and no temperature model)
+    recordings: int = 1
+
+    def no_temperature_model_reason(self) -> str:
+        """Why the result holds no gyro temperature model, in words (for messages and the TOML file)."""
+        if self.recordings > 1:
+            return (f"one set of gains over {self.recordings} recordings, and the gyro bias differs per power-up "
+                    "(`mavahrs tune LOG` fits each recording's own model)")  # fmt: skip
+        return "the recording's IMU temperature did not spread enough for one"
 
     def format(self) -> str:
         d3 = np.degrees
@@ -148,6 +157,8 @@ class TuneResult:
         lines.append("  bias at T0      " + _three(d3(self.b0_rad_s), "°/s", 4))
         if self.temperature_model:
             lines.append("  temp. slope     " + _three(d3(self.k_rad_s_per_c), "°/s per °C", 5))
+        elif not all(math.isfinite(v) for v in self.drift_rad_s2):  # combined over recordings each with a model
+            lines.append("  temp. slope     per recording (each its own temperature model: `mavahrs tune LOG`)")
         else:
             lines.append("  drift in time   " + _three(d3(self.drift_rad_s2), "°/s per s", 6))
         lines.append("  noise SD        " + _three(d3(self.noise_sd_rad_s), "°/s", 4))
@@ -203,9 +214,10 @@ class TuneResult:
             return "the gyro temperature model is not finite"
         if which == "flight":
             if not self.temperature_model:
-                return ("nothing to write: no temperature model (the recording's IMU temperature did not spread "
-                        "enough) and --gains flight writes no gains; record a warm-up at rest, or ask for bench "
-                        "gains with --gains spec or ls")  # fmt: skip
+                record = ("tune each recording alone for its model" if self.recordings > 1
+                          else "record a warm-up at rest")  # fmt: skip
+                return (f"nothing to write: no temperature model ({self.no_temperature_model_reason()}) and "
+                        f"--gains flight writes no gains; {record}, or ask for bench gains with --gains spec or ls")
             return None
         beta, zeta = self.gains(which)
         bad = [f"{n} = {v:.3g}" for n, v in (("β", beta), ("ζ", zeta)) if not (math.isfinite(v) and v >= 0)]
@@ -226,6 +238,10 @@ class TuneResult:
         zeta_text = "; ζ = 0 tracks no gyro-bias change at all" if zeta == 0 else ""
         if self.temperature_model:
             advice = "for flight use --gains flight (the default), which keeps this recording's gyro temperature model"
+        elif self.recordings > 1:  # combine() writes no temperature model (unusable())
+            advice = ("for flight run without these gains (the filters' own flight gains), with a gyro temperature "
+                      "model from one recording (`mavahrs tune LOG`): one set over several recordings has none, "
+                      "as the gyro bias differs per power-up")  # fmt: skip
         else:  # --gains flight writes only a temperature model, and this recording gives none (unusable())
             advice = ("for flight run without these gains (the filters' own flight gains); this recording gives "
                       "no gyro temperature model (its IMU temperature did not spread), so --gains flight would "
@@ -278,7 +294,7 @@ class TuneResult:
             ]
         else:
             lines += [
-                "# No temperature model: the recording had no usable temperature spread.",
+                f"# No temperature model: {self.no_temperature_model_reason()}.",
                 f"# Mean gyro bias was {_toml_vec(self.b0_rad_s)} rad/s (not written: it changes per power-up).",
                 "",
             ]
@@ -681,6 +697,12 @@ def combine(results: list[TuneResult], name: str = "") -> TuneResult:
     dur = sum(r.duration_s for r in results)
     samples = sum(r.samples for r in results)
     variances = np.average([np.square(r.noise_sd_rad_s) for r in results], axis=0, weights=w)
+    # the bias's drift in time is fitted only where a recording has no temperature model (its slope in time)
+    unmodelled = [k for k, r in enumerate(results) if not r.temperature_model]
+    drift: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    if unmodelled:
+        drift = tuple(float(v) for v in np.average([results[k].drift_rad_s2 for k in unmodelled], axis=0,
+                                                     weights=w[unmodelled]))  # type: ignore[assignment]
     notes = [
         f"one set of gains over {len(results)} recordings ({', '.join(r.name for r in results)}): least-squares "
         "terms summed, noise figures averaged by samples; no temperature model (the bias differs per power-up)"
@@ -699,7 +721,7 @@ def combine(results: list[TuneResult], name: str = "") -> TuneResult:
         ),
         b0_rad_s=mean3("b0_rad_s"),
         k_rad_s_per_c=(0.0, 0.0, 0.0),
-        drift_rad_s2=mean3("drift_rad_s2"),
+        drift_rad_s2=drift,
         noise_sd_rad_s=tuple(float(v) for v in np.sqrt(variances)),  # type: ignore[arg-type]
         noise_mean_abs_rad_s=mean3("noise_mean_abs_rad_s"),
         omega_beta_rad_s=omega_beta,
@@ -713,4 +735,5 @@ def combine(results: list[TuneResult], name: str = "") -> TuneResult:
         notes=notes,
         beta_ls_terms=beta_terms,
         zeta_ls_terms=zeta_terms,
+        recordings=sum(r.recordings for r in results),
     )

@@ -61,6 +61,7 @@ __all__ = [
     "SERIAL_HINT",
     "imu_gyros",
     "phase_events",
+    "onboard_phase_events",
     "replay_monitor",
     "monitored_filter",
 ]
@@ -325,8 +326,7 @@ def _summarise_onboard(result: Any, base: FleetRow, s: AuditSettings) -> FleetRo
         engine=result.engine, notes=" | ".join(result.notes), truncated=bool(li.truncated),
     )  # fmt: skip
     row = _replace(row, **_clipping(prep, ps), **_vibration(prep, s.vibration_window_s))
-    # phase: from the attitude alone (no HEARTBEAT read yet)
-    return _second_opinion(result, row, s, autopilot_reference(result.references), [])
+    return _second_opinion(result, row, s, autopilot_reference(result.references), onboard_phase_events(li))
 
 
 def _tlog_truncated(td: Any) -> bool:
@@ -532,6 +532,19 @@ def phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, 
         pos_args = (gpi["time_boot_ms"].astype(float), gpi["relative_alt"].astype(float) * 1e-3, v)
     ev = phase_events_of_arrays(hb_args, ess_args, pos_args)
     return [e for e in ev if math.isfinite(e[0])]
+
+
+def onboard_phase_events(li: Any) -> list[tuple[float, str, float]]:
+    """The flight's phase from an onboard log's ``armed`` and ``landed`` series (:class:`mavahrs.logs.LogInputs`;
+    DataFlash ARM/EV, ULog vehicle_status / vehicle_land_detected), boot ms; [] when it logged neither (every
+    disagreement is then judged as in flight, its phase ``unknown``)."""
+    from mavahrs.service.monitor import phase_events_of_arrays
+
+    series = getattr(li, "series", None) or {}
+    arm, land = series.get("armed"), series.get("landed")
+    hb = (arm["t_us"] / 1000.0, arm["base_mode"]) if arm is not None else None
+    ess = (land["t_us"] / 1000.0, land["landed_state"]) if land is not None else None
+    return phase_events_of_arrays(hb, ess) if hb is not None or ess is not None else []
 
 
 def _rms(x: np.ndarray) -> float:

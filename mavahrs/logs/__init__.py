@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from mavahrs.ingest.arrays import PreparedInputs
 
 __all__ = [
-    "FORMATS", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES", "is_truth",
+    "FORMATS", "a_format", "LogInputs", "sniff", "read_log", "unsupported_message", "LOG_SUFFIXES", "is_truth",
     "autopilot_reference",
 ]
 
@@ -31,6 +31,13 @@ FORMATS: dict[str, str] = {
     "dataflash": "ArduPilot DataFlash log (.BIN)",
     "ulog": "PX4 ULog (.ulg)",
 }
+
+
+def a_format(kind: str) -> str:
+    """``FORMATS[kind]`` with its article, for sentences: "an ArduPilot DataFlash log (.BIN)"."""
+    name = FORMATS[kind]
+    return f"{'an' if name[0] in 'AEIOU' else 'a'} {name}"
+
 
 #: file name endings of logs (a folder is searched for these; other files are taken when their content is a log)
 LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
@@ -83,7 +90,10 @@ class LogInputs:
         start_us: the log's first time stamp on ``inputs.t_us``'s clock (what ``start_s``/``end_s`` count from).
         series: other time series the log holds, name → columns (each with ``t_us`` on the same clock), e.g.
             DataFlash ``battery`` (``current_a``, ``voltage_v``), ``vibration`` (``imu``, ``x_m_s2`` …,
-            ``clips``), ``batch_sampler`` (ISBH headers: ``sensor``, ``instance``, ``rate_hz``, ``samples``).
+            ``clips``), ``batch_sampler`` (ISBH headers: ``sensor``, ``instance``, ``rate_hz``, ``samples``);
+            the flight's phase as logged (DataFlash ARM/EV, ULog vehicle_status / vehicle_land_detected):
+            ``armed`` (``base_mode``: 128 armed, 0 not) and ``landed`` (``landed_state``: 1 on the ground, 2 in
+            the air), as HEARTBEAT and EXTENDED_SYS_STATE carry them.
     """
 
     path: str

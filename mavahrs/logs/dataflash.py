@@ -472,6 +472,53 @@ def _series(sc: DataflashScan, found: list[str]) -> dict[str, dict[str, np.ndarr
         found.append(f"batch sampler (ISBH/ISBD): {isbh['TimeUS'].shape[0]} bursts, {sc.count('ISBD')} data records ("
                      + ", ".join(f"{k} {i} at {r:.0f} Hz" for k, i, r in kinds)
                      + "): raw bursts, not fed to the filters")  # fmt: skip
+    arm = decode(sc, "ARM")
+    state = _flight_state(arm, decode(sc, "EV"))
+    out.update(state)
+    said = [f"armed from {'ARM' if arm is not None else 'EV'}"] if "armed" in state else []
+    said += ["landed from EV"] if "landed" in state else []
+    if said:
+        found.append(f"flight phase: {', '.join(said)}")
+    return out
+
+
+#: ArduPilot's LogEvent ids (AP_Logger/LogStructure.h): armed, disarmed, landed, no longer landed
+_EV_ARMED, _EV_DISARMED, _EV_LAND_COMPLETE, _EV_NOT_LANDED = 10, 11, 18, 28
+_MAV_MODE_FLAG_SAFETY_ARMED = 128
+_LANDED_STATE_ON_GROUND, _LANDED_STATE_IN_AIR = 1, 2  # MAV_LANDED_STATE
+
+
+def _flight_state(arm: dict[str, np.ndarray] | None, ev: dict[str, np.ndarray] | None) -> dict[str, dict[str, np.ndarray]]:
+    """The flight's phase as the autopilot logged it, as the MAVLink fields the second-opinion monitor reads.
+
+    ``armed``: ``t_us``, ``base_mode`` (HEARTBEAT's ``MAV_MODE_FLAG_SAFETY_ARMED``: 128 armed, 0 not), from the
+    ARM records (``ArmState``), else the EV events ARMED / DISARMED.  ``landed``: ``t_us``, ``landed_state``
+    (EXTENDED_SYS_STATE's: 1 on the ground, 2 in the air) from the EV events LAND_COMPLETE / NOT_LANDED.
+    Each starts at time 0 with the state before its first change (a first "armed" means it was disarmed
+    before; a first "landed", that it was flying): the log says nothing until then.
+    """
+    out: dict[str, dict[str, np.ndarray]] = {}
+
+    def with_start(t: np.ndarray, v: np.ndarray, before: int) -> dict[str, np.ndarray]:
+        return {"t_us": np.concatenate([[0], t]).astype(np.int64), "v": np.concatenate([[before], v]).astype(np.int64)}
+
+    ids = ev["Id"].astype(np.int64) if ev is not None and "Id" in ev else np.zeros(0, np.int64)
+    t_ev = ev["TimeUS"].astype(np.int64) if ev is not None else np.zeros(0, np.int64)
+    if arm is not None and "ArmState" in arm and arm["TimeUS"].shape[0]:
+        t, armed = arm["TimeUS"].astype(np.int64), arm["ArmState"].astype(np.int64) != 0
+    else:
+        sel = (ids == _EV_ARMED) | (ids == _EV_DISARMED)
+        t, armed = t_ev[sel], ids[sel] == _EV_ARMED
+    if t.shape[0]:
+        mode = np.where(armed, _MAV_MODE_FLAG_SAFETY_ARMED, 0)
+        d = with_start(t, mode, 0 if armed[0] else _MAV_MODE_FLAG_SAFETY_ARMED)
+        out["armed"] = {"t_us": d["t_us"], "base_mode": d["v"]}
+    sel = (ids == _EV_LAND_COMPLETE) | (ids == _EV_NOT_LANDED)
+    if np.any(sel):
+        landed = ids[sel] == _EV_LAND_COMPLETE
+        st = np.where(landed, _LANDED_STATE_ON_GROUND, _LANDED_STATE_IN_AIR)
+        d = with_start(t_ev[sel], st, _LANDED_STATE_IN_AIR if landed[0] else _LANDED_STATE_ON_GROUND)
+        out["landed"] = {"t_us": d["t_us"], "landed_state": d["v"]}
     return out
 
 

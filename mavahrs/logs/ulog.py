@@ -108,6 +108,7 @@ TOPICS = (
     "vehicle_attitude_groundtruth",
     "vehicle_local_position",
     "vehicle_status",
+    "vehicle_land_detected",
 )
 #: vehicle_imu is used when logged at ≥ this share of sensor_combined's rate (else sensor_combined)
 VEHICLE_IMU_MIN_SHARE = 0.8
@@ -481,8 +482,38 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
         mag_reference_events=mag_events, sensor_delay_s=delay, vehicle_stream=True,
         multirotor=int(params.get("MAV_TYPE", 0)) in MULTIROTOR_MAV_TYPES,
     )  # fmt: skip
+    series = _flight_state(topics)
+    if series:
+        found.append("flight phase: " + ", ".join(
+            f"{k} from {topic}" for k, topic in (("armed", "vehicle_status"), ("landed", "vehicle_land_detected"))
+            if k in series))  # fmt: skip
     return LogInputs(path=str(p), format="ulog", inputs=prep, references=references, found=found,
-                     parameters=params)  # fmt: skip
+                     parameters=params, series=series)  # fmt: skip
+
+
+_ARMING_STATE_ARMED = 2  # vehicle_status.arming_state (PX4's VehicleStatus.msg)
+
+
+def _flight_state(topics: dict[str, Any]) -> dict[str, dict[str, np.ndarray]]:
+    """The flight's phase as PX4 logged it, as the MAVLink fields the second-opinion monitor reads (the
+    DataFlash reader's ``_flight_state``): ``armed`` (``t_us``, ``base_mode``: 128 while ``vehicle_status``'
+    ``arming_state`` is ARMED, else 0) and ``landed`` (``t_us``, ``landed_state``: 1 while
+    ``vehicle_land_detected``'s ``landed``, else 2), each at its own changes."""
+    out: dict[str, dict[str, np.ndarray]] = {}
+
+    def changes(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        keep = np.concatenate([[True], v[1:] != v[:-1]]) if v.size else np.zeros(0, bool)
+        return np.asarray(t, np.int64)[keep], v[keep]
+
+    vs = topics.get("vehicle_status", {}).get(0)
+    if vs is not None and "arming_state" in vs and len(vs["arming_state"]):
+        t, mode = changes(vs["timestamp"], np.where(np.asarray(vs["arming_state"]) == _ARMING_STATE_ARMED, 128, 0))
+        out["armed"] = {"t_us": t, "base_mode": mode.astype(np.int64)}
+    ld = topics.get("vehicle_land_detected", {}).get(0)
+    if ld is not None and "landed" in ld and len(ld["landed"]):
+        t, st = changes(ld["timestamp"], np.where(np.asarray(ld["landed"]) != 0, 1, 2))
+        out["landed"] = {"t_us": t, "landed_state": st.astype(np.int64)}
+    return out
 
 
 #: the ``velocity_source`` setting → the ULog topics it means, in order (the MAVLink messages'

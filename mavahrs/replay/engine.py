@@ -204,6 +204,9 @@ class ReplayResult:
     tlog: TlogData | None = field(default=None, repr=False)
     #: an onboard log's reading (:class:`~mavahrs.logs.LogInputs`: what was found, parameters); None for a tlog
     log: Any = field(default=None, repr=False)
+    #: the second-opinion monitor over this replay once judged (:func:`_monitor_of`), for the printed second
+    #: opinion and its chart alike: [] until then, else [(series, reference, filter) or None]
+    second_opinion: list[Any] = field(default_factory=list, repr=False, compare=False)
 
     @property
     def format(self) -> str:
@@ -460,7 +463,7 @@ def _replay_log(
     """Replay an onboard log (DataFlash, ULog): its reader's :class:`~mavahrs.logs.LogInputs`, then the same
     batch filters, CSV and comparison as a tlog's fast engine (the per-message pipeline engine reads MAVLink
     only)."""
-    from mavahrs.logs import FORMATS, read_log
+    from mavahrs.logs import a_format, read_log
 
     ps = s.pipeline_settings()
     li = read_log(path, ps, start_s=s.start_s, end_s=s.end_s, format=fmt)
@@ -468,7 +471,7 @@ def _replay_log(
     filters = [(n, s.filter_settings.get(n)) for n in s.filters]
     notes: list[str] = []
     if s.engine == "pipeline":
-        notes.append(f"engine: fast (the pipeline engine reads MAVLink; this is a {FORMATS[fmt]})")
+        notes.append(f"engine: fast (the pipeline engine reads MAVLink; this is {a_format(fmt)})")
     sink = None
     try:
         if csv_path is not None:
@@ -922,11 +925,14 @@ def _replay_types() -> tuple[str, ...]:
 
 
 def plot_replay(result: ReplayResult, path: str | Path) -> Path:
-    """Truth (or the autopilot's attitude), the filters, errors, gain and rejection state."""
+    """Truth (or the autopilot's attitude), the filters, errors, gain and rejection state, against the autopilot's
+    boot time: the clock of the second-opinion chart, of the STATUSTEXT times replay and audit print and of
+    ``inject-fault --at``.  (Until user6 this plot counted from the first sample: on the gentle SITL flight,
+    first sample at boot 72.6 s, a WARNING at 82.9 s was drawn at 10.3 s.)"""
     from mavahrs.evaluation.plots import plot_attitude
 
     t_us = result.inputs.t_us.astype(np.float64)
-    t0 = t_us[0] if t_us.size else 0.0
+    t0 = 0.0  # inputs.t_us is the autopilot's boot clock (tlog time_boot_ms / time_usec, DataFlash TimeUS, ULog)
     truth = [k for k in result.references if is_truth(k)]
     # every other reference is an autopilot's estimate (LogInputs.references): "autopilot ATTITUDE" of a tlog,
     # "autopilot EKF3" of a .BIN, "EKF2" of a .ulg
@@ -952,19 +958,39 @@ def plot_replay(result: ReplayResult, path: str | Path) -> Path:
     title = (f"{Path(result.path).name}: {result.inputs.message} (IMU {result.inputs.instance}) at {rate:.1f} Hz"
              + (f" — reference: {ref_name}" if ref_name else ""))  # fmt: skip
     return plot_attitude(path, (t_us - t0) * 1e-6, est, reference_q=ref_q, reference_label=ref_name or "",
-                         others=others, title=title)  # fmt: skip
+                         others=others, title=title, time_label="autopilot boot time, s")  # fmt: skip
+
+
+#: above this many autopilot attitudes the second opinion's judgement says it has started: the PX4 SIH .ulg's
+#: 64 678 (EKF2 at 250 Hz) took 16.5 s after the progress bar had ended (2-core VM, load 4.5); a SITL tlog's
+#: ATTITUDE at 10 Hz, or a .BIN's EKF3 at 25 Hz, a few thousand, well under a second
+_SAY_JUDGING_ABOVE = 50_000
 
 
 def _monitor_of(result: ReplayResult) -> tuple[Any, str, str] | None:
     """The monitor's series over the replay, the autopilot reference it judged and the filter it judged
-    (:func:`~mavahrs.fleet.audit.monitored_filter`); None without an autopilot attitude."""
-    from mavahrs.fleet.audit import monitored_filter, phase_events, replay_monitor
+    (:func:`~mavahrs.fleet.audit.monitored_filter`); None without an autopilot attitude.  Judged once per
+    replay (kept in ``result.second_opinion``): ``replay --plot`` judged it twice, once for the printed second
+    opinion and once for its chart (16 s each on the PX4 SIH .ulg's 250 Hz EKF2 attitude)."""
+    if not result.second_opinion:
+        result.second_opinion.append(_judge_second_opinion(result))
+    return result.second_opinion[0]
+
+
+def _judge_second_opinion(result: ReplayResult) -> tuple[Any, str, str] | None:
+    from mavahrs.fleet.audit import monitored_filter, onboard_phase_events, phase_events, replay_monitor
 
     ref = autopilot_reference(result.references)  # the autopilot's (a .ulg's "EKF2"), as the fleet audit's
     if not ref or not result.tracks:
         return None
+    n_ref = int(result.references[ref][0].shape[0])
+    if n_ref > _SAY_JUDGING_ABOVE:  # seconds of silence after the progress bar otherwise
+        log.info("second opinion: judging %d attitudes of %s against ours …", n_ref, ref)
     tlog = getattr(result, "tlog", None)
-    phase = phase_events(tlog, result.inputs, result.inputs.source) if hasattr(tlog, "arrays") else []
+    if hasattr(tlog, "arrays"):
+        phase = phase_events(tlog, result.inputs, result.inputs.source)
+    else:  # a .BIN's ARM/EV, a .ulg's vehicle_status / vehicle_land_detected
+        phase = onboard_phase_events(getattr(result, "log", None))
     series, _ = replay_monitor(result, result.settings.pipeline_settings().monitor, ref, phase)
     return series, ref, monitored_filter(result.tracks)
 

@@ -838,6 +838,9 @@ class Daemon:
             self.sink.tick(now_s)
         for level, message in self.pipeline.drain_notices():
             self.log.log(level, "%s", message)
+        said = getattr(self.pipeline, "drain_second_opinion", None)  # a stand-in pipeline may have none
+        for level, message in said() if said is not None else ():
+            self.log.log(level, "%s", message)
         for level, message in self._notices.drain():
             self.log.log(level, "%s", message)
         self._watchdog(now_s)

@@ -46,6 +46,7 @@ pymavlink's encoding, a fifth of the cost; pymavlink signs when signing is on).
 
 from __future__ import annotations
 
+import logging
 import math
 import struct
 from collections import deque
@@ -518,6 +519,7 @@ class Pipeline:
         self._vel_meter = RateMeter()
         self._vel_meter_source: str | None = None
         self._notices = Notices()
+        self._said: deque[tuple[int, str]] = deque(maxlen=100)  # the monitor's STATUSTEXTs, for the daemon's log
         if not s.use_gnss_velocity:
             self._notices.warning(
                 "deprecated", "pipeline.use_gnss_velocity = false is deprecated: set velocity_source = \"none\"", 0
@@ -705,6 +707,24 @@ class Pipeline:
     def drain_notices(self) -> list[tuple[int, str]]:
         """(logging level, one-line message) pairs for the daemon to log, oldest first."""
         return self._notices.drain() + self._requester.drain_notices()
+
+    def drain_second_opinion(self) -> list[tuple[int, str]]:
+        """The second-opinion monitor's STATUSTEXTs since the last call, as (logging level, text) for the daemon's
+        log: WARNING for a WARNING, INFO for a NOTICE or "agrees again" (the STATUSTEXT goes to the ground
+        station as well).  Not rate-limited here: the monitor says each once per episode.  (Until user6 the
+        daemon's log showed only the status line's `WARN`: without a ground station the words never appeared.)"""
+        out = list(self._said)
+        self._said.clear()
+        return out
+
+    def _saying(self, msgs: list[Any]) -> list[Any]:
+        """``msgs`` (the monitor's), with each STATUSTEXT's text kept for :meth:`drain_second_opinion`."""
+        for m in msgs:
+            if m.get_type() == "STATUSTEXT":
+                text = m.text.decode("utf-8", "replace") if isinstance(m.text, bytes) else str(m.text)
+                level = logging.WARNING if int(m.severity) <= mavlink.MAV_SEVERITY_WARNING else logging.INFO
+                self._said.append((level, f"second opinion: {text.rstrip(chr(0))}"))
+        return msgs
 
     # ------------------------------------------------------------------ handlers
     def _on_heartbeat(self, msg: Any, now_us: int) -> list[Outgoing]:
@@ -1008,7 +1028,8 @@ class Pipeline:
             fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
             self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist(),
                                       fix, fix[2] if fix is not None else math.nan)  # fmt: skip
-            for m in self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma, sigma_hdg):
+            said = self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma, sigma_hdg)
+            for m in self._saying(said) if said else ():
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:
             roll = math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
@@ -1085,7 +1106,8 @@ class Pipeline:
             meter.add(now_us)
         if not self._monitor_on:
             return []
-        return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._monitor.handle(msg, now_us)]
+        said = self._monitor.handle(msg, now_us)
+        return [Outgoing(self._codec.encode(m), self._to_master, self._to_outputs) for m in self._saying(said)] if said else []
 
     def _on_flight_phase(self, msg: Any, now_us: int) -> list[Outgoing]:
         """EXTENDED_SYS_STATE: the autopilot's landed state, for the monitor's flight phase."""

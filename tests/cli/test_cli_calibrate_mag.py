@@ -168,6 +168,6 @@ def test_an_onboard_log_is_named_not_read_as_a_tlog(shared_data: Path, rel: str,
     capsys.readouterr()
     assert main(["calibrate-mag", str(path)]) == 1
     err = capsys.readouterr().err
-    kind = "ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "PX4 ULog (.ulg)"
-    assert f"is a {kind}: calibrate-mag reads a telemetry log (.tlog) or a CSV" in err, err
+    kind = "an ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "a PX4 ULog (.ulg)"  # "a ArduPilot" before user6
+    assert f"is {kind}: calibrate-mag reads a telemetry log (.tlog) or a CSV" in err, err
     assert "RAW_IMU" not in err and "Traceback" not in err

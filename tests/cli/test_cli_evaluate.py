@@ -45,8 +45,12 @@ def test_study_rate_with_plot(broad_dir: Path, tmp_path: Path, capsys: pytest.Ca
     png = tmp_path / "rate.png"
     trial = str(broad_dir / "02_undisturbed_slow_rotation_B.mat")
     assert main(["evaluate", trial, "--study", "rate", "-f", "mahony", "--plot", str(png)]) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert "Fig. 11" in out and "285.714" in out and png.stat().st_size > 10_000
+    assert f"wrote {png}" in err  # as every command says it (it said "plot: …" until user6)
+    single = tmp_path / "trial.png"
+    assert main(["evaluate", trial, "-f", "mahony", "--plot", str(single)]) == 0
+    assert f"wrote {single}" in capsys.readouterr().err and single.stat().st_size > 10_000
 
 
 def test_errors_are_one_line_with_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

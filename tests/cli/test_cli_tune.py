@@ -196,3 +196,61 @@ def test_tune_writes_no_file_without_settings(tmp_path: Path, rng: np.random.Gen
     assert not toml.exists() and "nothing to write" in err
     assert main(["tune", str(p), "--gains", "ls", "-o", str(toml)]) == 0  # bench gains are settings
     assert "beta_rad_s" in toml.read_text()
+
+
+def test_tune_over_several_warm_ups_says_why_it_writes_no_temperature_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Each warm-up at rest has its own temperature model; one set of gains over several writes none, and says
+    why. (Until user6 the file and the warning said the recordings' temperature "did not spread", and the
+    printed "drift in time" was +0.000000 on every axis: the mean of a slope no recording had fitted.)"""
+    import json
+
+    logs = []
+    for seed in (1, 2):
+        folder = tmp_path / f"warm{seed}"
+        folder.mkdir()
+        logs.append(str(_csv(folder, np.random.default_rng(seed))))
+    assert main(["tune", logs[0], "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["temperature_model"] is True  # alone, each has one
+    toml = tmp_path / "bench.toml"
+    assert main(["tune", *logs, "--gains", "ls", "-o", str(toml)]) == 0
+    out, err = capsys.readouterr()
+    text = toml.read_text()
+    for said in (out, err, text):
+        assert "did not spread" not in said and "no usable temperature spread" not in said, said
+    assert "drift in time" not in out and "temp. slope     per recording" in out
+    assert ("# No temperature model: one set of gains over 2 recordings, and the gyro bias differs per power-up "
+            "(`mavahrs tune LOG` fits each recording's own model).") in text.splitlines()  # fmt: skip
+    assert "with a gyro temperature model from one recording (`mavahrs tune LOG`)" in err
+    assert "no temperature model (per recording: tune each alone)" in err
+    # the default, --gains flight, writes only a temperature model: nothing over several recordings, and why
+    flight = tmp_path / "flight.toml"
+    assert main(["tune", *logs, "-o", str(flight)]) == 1
+    err = capsys.readouterr().err
+    assert not flight.exists()
+    assert "one set of gains over 2 recordings, and the gyro bias differs per power-up" in err
+    assert "tune each recording alone for its model" in err and "did not spread" not in err
+
+
+def test_tune_over_several_logs_says_each_logs_magnetic_model_only_when_asked(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One INFO line per recording ("magnetic field from WMM-2025 at …") is noise over several, as in `audit`:
+    kept for one recording and with -v."""
+    import subprocess
+    import sys
+
+    logs = []
+    for seed in (1, 2):
+        log = tmp_path / f"warm{seed}.tlog"
+        subprocess.run([sys.executable, "-m", "firmware_sim", "--tlog", str(log), "--fast", "-q", "--scenario",
+                        "temperature", "--duration", "20", "--seed", str(seed)], check=True, timeout=120)  # fmt: skip
+        logs.append(str(log))
+    assert main(["tune", logs[0]]) == 0
+    assert capsys.readouterr().err.count("magnetic field from WMM") == 1
+    assert main(["tune", *logs, "--gains", "ls"]) == 0
+    err = capsys.readouterr().err
+    assert "magnetic field from WMM" not in err and " WARNING β = " in err  # the warning stays
+    assert main(["-v", "tune", *logs, "--gains", "ls"]) == 0
+    assert capsys.readouterr().err.count("magnetic field from WMM") == 2

@@ -49,3 +49,18 @@ def test_every_settings_field_is_documented(module: str, name: str) -> None:
     text = _docs_text()
     missing = [f.name for f in dataclasses.fields(cls) if f"`{f.name}`" not in text and f"| {f.name} " not in text]
     assert not missing, f"{name}: fields not documented in README.md or docs/: {missing}"
+
+
+def test_every_audit_column_has_a_row_in_the_fleet_tables_description() -> None:
+    """docs/fleet.md's column table names each FleetRow field (`truncated` was only in the prose until user6)."""
+    import re
+
+    from mavahrs.fleet.audit import FleetRow
+
+    doc = (REPO / "docs" / "fleet.md").read_text(encoding="utf-8")
+    table = doc[doc.index("| column | unit | meaning |"):]
+    table = table[: table.index("\n\n")]
+    named = {n for line in table.splitlines()[2:] for n in re.findall(r"`([a-z0-9_]+)`", line.split("|")[1])}
+    fields = [f.name for f in dataclasses.fields(FleetRow)]
+    assert [f for f in fields if f not in named] == [] and named <= set(fields)
+    assert f"40 rows, {len(fields)} columns" in doc  # the pyarrow example's printed count

@@ -6,7 +6,7 @@ test with the answers switched off), it sent 8 FTP OpenFileRO requests over 7 s 
 within 40 s (nor 120 s in a second run; docs/daemon.md). The daemon now NAKs the FTP request at once (mavahrs.service.component): MAVProxy's
 first OpenFileRO is its only one, and its PARAM_REQUEST_LIST follows within its 1 s parameter period.
 PARAM_REQUEST_LIST itself stays unanswered (a component without parameters ignores it, per the parameter
-protocol). The daemon runs in-process with a stand-in pipeline (our real codec and ids); the test waits
+protocol). The daemon runs in-process with a stand-in pipeline (tests/conftest.py's ``heartbeat_only_pipeline``: our real codec and ids); the test waits
 for MAVProxy's requests, not for fixed times.
 """
 
@@ -16,11 +16,10 @@ import struct
 import sys
 import threading
 import time
-from typing import Any, NamedTuple
+from typing import Any
 
 import pytest
 
-from mavahrs.protocol.codec import MavCodec
 from mavahrs.service.daemon import Daemon, DaemonSettings
 from mavahrs.transports import open_transport
 
@@ -29,38 +28,12 @@ pytestmark = [pytest.mark.slow, pytest.mark.skipif(sys.platform == "win32", reas
 FTP_OPEN_FILE_RO = 4
 
 
-class Out(NamedTuple):
-    frame: bytes
-    to_master: bool
-    to_outputs: bool
-
-
-class HeartbeatOnly:
-    """Our HEARTBEAT (1/191, onboard controller) to the outputs every tick; nothing else."""
-
-    def __init__(self) -> None:
-        self.codec = MavCodec(1, 191)
-
-    def handle(self, msg: Any, now_us: int) -> list[Out]:
-        return []
-
-    def tick(self, now_us: int) -> list[Out]:
-        return [Out(self.codec.encode(self.codec.mav.heartbeat_encode(18, 8, 0, 0, 4)), False, True)]
-
-    def status(self, now_us: int | None = None) -> dict[str, Any]:
-        return {"input_rate_hz": 0.0, "drops": {}}
-
-    def drain_notices(self) -> list[tuple[int, str]]:
-        return []
-
-    def reset_link(self, now_us: int) -> None:
-        pass
-
-
 @pytest.mark.reaches_off_loopback  # MAVProxy itself tries off-loopback connects (as in test_mavproxy.py; blocked by the namespace)
-def test_mavproxy_falls_back_from_ftp_at_once_when_component_191_naks(processes: Any, mavproxy: str) -> None:
+def test_mavproxy_falls_back_from_ftp_at_once_when_component_191_naks(processes: Any, mavproxy: str,
+                                                                     heartbeat_only_pipeline: Any) -> None:
     settings = DaemonSettings(master="udpin:127.0.0.1:0", outputs=("udpin:127.0.0.1:0",), status_interval_s=0.0)
-    d = Daemon(settings, HeartbeatOnly(), open_transport(settings.master), [open_transport(settings.outputs[0])])
+    d = Daemon(settings, heartbeat_only_pipeline(heartbeat_to_master=False), open_transport(settings.master),
+               [open_transport(settings.outputs[0])])
     assert d.responder is not None
     seen: list[tuple[float, str, int | None]] = []  # (time s, type, FTP opcode) of requests addressed to 1/191
     answer = d.responder.answer

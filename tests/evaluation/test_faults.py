@@ -166,6 +166,23 @@ def test_an_onboard_log_is_named_for_what_it_is(shared_data: Path, rel: str, tmp
     out = tmp_path / "x.tlog"
     assert main(["inject-fault", str(src), str(out), "--at", "100", "--tilt", "2"]) in (1, 2)
     err = capsys.readouterr().err
-    kind = "ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "PX4 ULog (.ulg)"
-    assert f"{src}: a {kind}: inject-fault copies a telemetry log (.tlog)" in err, err
+    kind = "an ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "a PX4 ULog (.ulg)"  # "a ArduPilot" before user6
+    assert f"{src}: {kind}: inject-fault copies a telemetry log (.tlog); use the same flight's tlog" in err, err
     assert not out.exists()
+
+
+def test_the_gyro_bias_examples_are_large_enough_to_be_named(capsys: pytest.CaptureFixture[str]) -> None:
+    """docs/monitor.md's and ``inject-fault --help``'s gyro-bias examples are above the monitor's IMU tolerance:
+    0.05 and 0.5 °/s (until user6) gave no warning at all on the SITL flight (3 °/s: IMU2? at 106.3 s)."""
+    import re
+
+    from mavahrs.cli import main
+    from mavahrs.service.monitor import MonitorSettings
+
+    assert main(["inject-fault", "--help"]) == 0
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "monitor.md").read_text(encoding="utf-8")
+    examples = re.findall(r"--gyro-bias ([-0-9.]+),([-0-9.]+),([-0-9.]+)", capsys.readouterr().out + doc)
+    assert len(examples) >= 2
+    tol = MonitorSettings().imu_rate_tolerance_dps
+    for xyz in examples:
+        assert sum(float(v) ** 2 for v in xyz) ** 0.5 > tol, xyz

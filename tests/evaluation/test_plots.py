@@ -196,3 +196,56 @@ def test_a_turning_heading_is_drawn_within_the_smallest_angles() -> None:
     roll = 180.0 + 3.0 * np.sin(np.linspace(0.0, 20.0, 500))
     drawn_roll = _angle((roll + 180.0) % 360.0 - 180.0, 0)
     assert np.allclose(drawn_roll, roll) or np.allclose(drawn_roll, roll - 360.0)  # one turn, no jumps
+
+
+def _threshold_lines(ax) -> tuple[list[float], list[float]]:  # type: ignore[no-untyped-def]
+    """x of the vertical and y of the horizontal dashed lines on the fleet overview's scatter."""
+    vertical = [float(ln.get_xdata()[0]) for ln in ax.lines if ln.get_linestyle() == "--" and
+                ln.get_xdata()[0] == ln.get_xdata()[1]]  # fmt: skip
+    horizontal = [float(ln.get_ydata()[0]) for ln in ax.lines if ln.get_linestyle() == "--" and
+                  ln.get_ydata()[0] == ln.get_ydata()[1]]  # fmt: skip
+    return vertical, horizontal
+
+
+def test_fleet_plot_draws_the_thresholds_the_monitor_judged_with(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The dashed lines are the monitor's: in its default mode (thresholds that follow both estimators' σ) the
+    floors they never go below, 1° tilt / 3° heading; in ``fixed`` mode its angles. Until user6 the overview drew
+    ``fixed``'s 10° / 25° whatever the mode, so a flight flagged for a 2° tilt fault (``mavahrs inject-fault
+    --tilt 2``: 2.2° at most) sat far inside the "thresholds"."""
+    pytest.importorskip("matplotlib")
+    from mavahrs.evaluation.plots import plot_fleet
+    from mavahrs.service.monitor import MonitorSettings
+
+    saved = _saved_figures(monkeypatch)
+    rows = [{"path": "/logs/tilt2.tlog", "inclination_max_deg": 2.2, "heading_max_deg": 1.2, "duration_s": 200.7,
+             "alarms": 1, "first_alarm_s": 100.2, "inclination_rms_deg": 1.5, "vibration_x_m_s2": 0.07},
+            {"path": "/logs/clean.tlog", "inclination_max_deg": 0.4, "heading_max_deg": 1.0, "duration_s": 58.9,
+             "alarms": 0, "first_alarm_s": None, "inclination_rms_deg": 0.16, "vibration_x_m_s2": 0.1}]  # fmt: skip
+    default = MonitorSettings()
+    plot_fleet(tmp_path / "default.png", rows)
+    plot_fleet(tmp_path / "fixed.png", rows, monitor=MonitorSettings(mode="fixed", tilt_threshold_deg=4.0,
+                                                                     heading_threshold_deg=12.0))  # fmt: skip
+    (ax_default, ax_fixed) = (fig.axes[0] for fig in saved)
+    assert _threshold_lines(ax_default) == ([default.min_tilt_threshold_deg], [default.min_heading_threshold_deg])
+    assert _threshold_lines(ax_default)[0][0] < rows[0]["inclination_max_deg"]  # the flagged flight lies beyond
+    assert any("floors (1° tilt, 3° heading" in t for t in ax_default.get_legend_handles_labels()[1])
+    assert _threshold_lines(ax_fixed) == ([4.0], [12.0])
+    assert "monitor thresholds (4° tilt, 12° heading)" in ax_fixed.get_legend_handles_labels()[1]
+
+
+def test_audit_plot_draws_the_thresholds_of_its_config(sitl_gentle_tlog: Path, tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """``mavahrs audit --config C --plot``: the overview's dashed lines are C's ``[pipeline.monitor]``."""
+    pytest.importorskip("matplotlib")
+    log = sitl_gentle_tlog
+    from mavahrs.cli import main
+
+    config = tmp_path / "fixed.toml"
+    config.write_text('[pipeline.monitor]\nmode = "fixed"\ntilt_threshold_deg = 4.0\nheading_threshold_deg = 12.0\n')
+    saved = _saved_figures(monkeypatch)
+    assert main(["audit", str(log), "--serial", "--no-progress", "--plot", str(tmp_path / "fleet.png"),
+                 "--config", str(config)]) == 0  # fmt: skip
+    (overview,) = [fig for fig in saved if fig.axes and fig.axes[0].get_title().startswith("mavahrs vs")]
+    assert _threshold_lines(overview.axes[0]) == ([4.0], [12.0])

@@ -4,9 +4,9 @@ A ground station on an ``--out`` output (or behind the autopilot, on the master 
 component 191 for a command or an FTP file gets COMMAND_ACK(MAV_RESULT_UNSUPPORTED) or an FTP NAK at
 once; parameter requests stay unanswered, as the parameter protocol says of a component without
 parameters; broadcasts and requests to other components are left to them. The daemon runs with a
-small stand-in pipeline (its codec is the real one: our ids 1/191). Each test waits for the answers
-themselves; what must stay unanswered is checked against a last targeted command sent after it (UDP
-on loopback keeps the order, and the daemon answers in order).
+small stand-in pipeline (tests/conftest.py's ``heartbeat_only_pipeline``; its codec is the real one: our
+ids 1/191). Each test waits for the answers themselves; what must stay unanswered is checked against a
+last targeted command sent after it (UDP on loopback keeps the order, and the daemon answers in order).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import socket
 import struct
 import threading
 import time
-from typing import Any, NamedTuple
+from typing import Any
 
 import pytest
 
@@ -30,34 +30,6 @@ MAV_CMD_REQUEST_MESSAGE, MAV_CMD_GET_HOME_POSITION, MAV_CMD_DO_SET_MODE = 512, 4
 MAV_RESULT_UNSUPPORTED = 3
 FTP_OPEN_FILE_RO, FTP_TERMINATE_SESSION = 4, 1
 FENCE_CMD = 31000  # MAV_CMD_USER_1: the last request of each test, its answer ends the wait
-
-
-class Out(NamedTuple):
-    frame: bytes
-    to_master: bool
-    to_outputs: bool
-
-
-class QuietPipeline:
-    """Handles nothing; a HEARTBEAT from 1/191 on every tick (so a ``udpin`` peer learns where we are)."""
-
-    def __init__(self) -> None:
-        self.codec = MavCodec(1, 191)
-
-    def handle(self, msg: Any, now_us: int) -> list[Out]:
-        return []
-
-    def tick(self, now_us: int) -> list[Out]:
-        return [Out(self.codec.encode(self.codec.mav.heartbeat_encode(18, 8, 0, 0, 4)), True, True)]
-
-    def status(self, now_us: int | None = None) -> dict[str, Any]:
-        return {"input_rate_hz": 0.0, "drops": {}}
-
-    def drain_notices(self) -> list[tuple[int, str]]:
-        return []
-
-    def reset_link(self, now_us: int) -> None:
-        pass
 
 
 def _ftp(seq: int, opcode: int, data: bytes = b"", session: int = 0) -> list[int]:
@@ -116,10 +88,11 @@ def _check(answers: list[Any]) -> None:
     assert len(answers) == 4  # nothing for parameters, broadcasts or the autopilot's requests
 
 
-def test_a_ground_station_on_an_output_gets_its_answers_there(caplog: pytest.LogCaptureFixture) -> None:
+def test_a_ground_station_on_an_output_gets_its_answers_there(caplog: pytest.LogCaptureFixture,
+                                                             heartbeat_only_pipeline: Any) -> None:
     """MAVProxy/QGroundControl on ``--out udpin:…`` (they send first; the daemon answers to the last sender)."""
     settings = DaemonSettings(master="udpin:127.0.0.1:0", outputs=("udpin:127.0.0.1:0",), status_interval_s=0.0)
-    d = Daemon(settings, QuietPipeline(), open_transport(settings.master), [open_transport(settings.outputs[0])])
+    d = Daemon(settings, heartbeat_only_pipeline(), open_transport(settings.master), [open_transport(settings.outputs[0])])
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     gcs.settimeout(0.1)
     thread = _run(d)
@@ -149,13 +122,13 @@ def test_a_ground_station_on_an_output_gets_its_answers_there(caplog: pytest.Log
     assert d.counters.requests_answered == 5
 
 
-def test_requests_routed_by_the_autopilot_are_answered_on_the_master_link(tmp_path: Any) -> None:
+def test_requests_routed_by_the_autopilot_are_answered_on_the_master_link(tmp_path: Any, heartbeat_only_pipeline: Any) -> None:
     """A ground station behind the autopilot (it routes messages for component 191 to the link it heard us on)."""
     from mavahrs.service.sinks import TlogSink
 
     settings = DaemonSettings(master="udpin:127.0.0.1:0", status_interval_s=0.0)
     sink = TlogSink(str(tmp_path / "run.tlog"), 0.1)
-    d = Daemon(settings, QuietPipeline(), open_transport(settings.master), [], sink=sink)
+    d = Daemon(settings, heartbeat_only_pipeline(), open_transport(settings.master), [], sink=sink)
     ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ap.settimeout(0.1)
     thread = _run(d)
@@ -201,8 +174,9 @@ class _FailingCodec(MavCodec):
         return super().encode(msg)
 
 
-def test_a_request_that_cannot_be_answered_is_counted_and_the_daemon_goes_on(caplog: pytest.LogCaptureFixture) -> None:
-    pipeline = QuietPipeline()
+def test_a_request_that_cannot_be_answered_is_counted_and_the_daemon_goes_on(caplog: pytest.LogCaptureFixture,
+                                                                            heartbeat_only_pipeline: Any) -> None:
+    pipeline = heartbeat_only_pipeline()
     pipeline.codec = _FailingCodec(1, 191)
     settings = DaemonSettings(master="udpin:127.0.0.1:0", status_interval_s=0.0)
     d = Daemon(settings, pipeline, open_transport(settings.master), [])

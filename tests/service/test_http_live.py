@@ -465,3 +465,7 @@ def test_page_strip_chart_shows_the_divergence_threshold_and_warning(tmp_path: P
     assert 2 in strip["raised"] and so["warning"] and so["evidence"] is not None
     assert strip["tilt_deg"][-1] == pytest.approx(6.0, abs=1.0) and strip["warning"][-1]
     assert _pixels(shot, (85, 35, 31)) > 0.001, "no warning band drawn"  # the red band (35 %) over the chart
+    # … and the daemon's own log says it in words, as the ground station's STATUSTEXT does (until user6 only the
+    # status line's "WARN" showed: without a ground station the words never appeared)
+    said = re.findall(r" WARNING second opinion: (mavahrs: AP off: tilt [0-9.]+ hdg [-+0-9.]+.*)", daemon.log)
+    assert said and all(float(t.split("tilt ")[1].split()[0]) >= 2.0 for t in said), daemon.log  # the 6° fault
