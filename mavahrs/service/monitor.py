@@ -1994,8 +1994,8 @@ class _ImuTrack:
 class _ImuCheck:
     """Which IMU is off (pure): each IMU's gyro, averaged over each interval between two of the autopilot's
     attitudes *by the samples' own times*, against the body rate that attitude turned at over the interval
-    (``ω ≈ 2·vec(q_prev* ⊗ q)/Δt``); the difference's exponential mean over ``imu_window_s`` is each IMU's rate
-    error.  With two or more IMUs, one is named when its error exceeds ``imu_rate_tolerance_dps`` and every
+    (the rotation vector of ``q_prev* ⊗ q`` over Δt); the difference's exponential mean over ``imu_window_s``
+    is each IMU's rate error.  With two or more IMUs, one is named when its error exceeds ``imu_rate_tolerance_dps`` and every
     other's is below half of it (a common-mode difference — the autopilot's own lag in a fast turn — names
     none).
 
@@ -2087,7 +2087,9 @@ class _ImuCheck:
         x = a[0] * b[1] - a[1] * b[0] - a[2] * b[3] + a[3] * b[2]
         y = a[0] * b[2] + a[1] * b[3] - a[2] * b[0] - a[3] * b[1]
         z = a[0] * b[3] - a[1] * b[2] + a[2] * b[1] - a[3] * b[0]
-        k = (2.0 if w >= 0.0 else -2.0) / dt
+        # the rotation vector, not its small-angle 2·vec: a 10 Hz ATTITUDE in a 400 °/s spin turns 40° per interval
+        n = math.sqrt(x * x + y * y + z * z)
+        k = (2.0 * math.atan2(n, abs(w)) / n if n > 1e-12 else 2.0) * (1.0 if w >= 0.0 else -1.0) / dt
         rate = (k * x, k * y, k * z)
         e = self._err.get(name)
         if e is None:

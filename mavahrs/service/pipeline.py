@@ -137,6 +137,11 @@ _MAV_AUTOPILOT_INVALID = 8
 _MAV_AUTOPILOT_GENERIC = 0
 _MAV_TYPE_QUADROTOR = 2
 _MAV_TYPE_ONBOARD_CONTROLLER = 18
+#: The monitor's IMU check gets one gyro sample per instance at most this often, ms: an interval between two of
+#: the autopilot's attitudes (20–100 ms) then holds several of every IMU's samples, whatever its stream rate (one
+#: sample in 8 of a 50 Hz SCALED_IMU2 against a 10 Hz ATTITUDE named a healthy IMU in yaw spins)
+_IMU_CHECK_STEP_MS = 10.0
+
 #: MAV_TYPE of multirotors (coaxial, quad-, hexa-, octo-, tri-, dodeca-, decarotor, generic): rotor drag applies
 _MAV_STATE_ACTIVE = 4
 _NAN = math.nan
@@ -640,7 +645,7 @@ class Pipeline:
         self._next_out_t: int | None = None
         #: the velocity fix waiting for the next fed sample: (vn, ve, vd magnetic NED, fix time µs or None)
         self._vel: tuple[float, float, float, int | None] | None = None
-        self._imu_fed: dict[int, int] = {}  # IMU samples seen per instance (the monitor gets one in 8)
+        self._imu_fed: dict[int, float] = {}  # per instance, the time of the last sample the monitor got, ms
         self._monitor_fix: tuple[float, float, float] | None = None  # GNSS velocity (true N, E) and fix time, ms
         self._current_a = _NAN  # battery current (the compass's motor interference model), A
         self._current_us: int | None = None
@@ -881,11 +886,12 @@ class Pipeline:
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
-        if self._monitor_on and not inv:  # every IMU's gyro, one sample in 8 (its mean is what counts), for
-            k = self._imu_fed.get(v[0], 0) + 1  # the monitor to name an IMU that is off
-            self._imu_fed[v[0]] = k
-            if not k & 7:
-                self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", v[1] / 1000.0, v[2:5])
+        if self._monitor_on and not inv:  # every IMU's gyro for the monitor to name an IMU that is off, at most
+            t_ms = v[1] / 1000.0  # one sample per _IMU_CHECK_STEP_MS per instance (its mean over 10 s is what
+            last = self._imu_fed.get(v[0])  # counts; every sample costs the page's events on a loaded machine)
+            if last is None or not 0.0 <= t_ms - last < _IMU_CHECK_STEP_MS:
+                self._imu_fed[v[0]] = t_ms
+                self._monitor.add_imu_gyro(_IMU_NAMES[v[0]] if v[0] < 4 else f"IMU{v[0] + 1}", t_ms, v[2:5])
         return self._filter_sample(name, v, now_us, True)
 
     def _filter_sample(self, name: str, v: tuple, now_us: int, may_reset: bool) -> list[Outgoing]:

@@ -373,6 +373,42 @@ def test_an_imu_whose_messages_arrive_late_is_not_named_in_yaw_spin_ups() -> Non
     assert named and all("IMU2" in x for x in named), named
 
 
+@pytest.mark.parametrize("imu2_bias_dps", [0.0, 2.0])
+def test_the_daemons_imu_check_with_slow_streams(imu2_bias_dps: float) -> None:
+    """The daemon's path with the streams `mavahrs-sim` gave a live run: RAW_IMU at the loop rate, SCALED_IMU2
+    at 50 Hz, ATTITUDE at 10 Hz (40° of a 400 °/s yaw spin between two), firmware_sim's aggressive flight
+    (seed 3).  Both IMUs healthy: none named (before: one SCALED_IMU2 sample in 8, 6 Hz, against the 10 Hz
+    attitude's small-angle rate named IMU2 "off by 2.0 dps" at 17 s, as the live run did); IMU2 with a 2 °/s
+    bias per axis from 5 s: named."""
+    fs = pytest.importorskip("firmware_sim")
+    from mavahrs.protocol.codec import MavCodec
+    from mavahrs.service.pipeline import Pipeline, PipelineSettings
+
+    sim_s = 40.0
+    fault = fs.ImuFault(instance=1, step_at_s=5.0, gyro_bias_step_rad_s=(math.radians(imu2_bias_dps),) * 3)
+    ss = fs.SimSettings(scenario="aggressive", seed=3, imu_fault=fault if imu2_bias_dps else None)
+    ep = fs.Endpoint(fs.Simulation(ss), fs.EndpointSettings(preset="none", block_ticks=400, streams_hz=(
+        ("RAW_IMU", 250.0), ("SCALED_IMU2", 50.0), ("ATTITUDE", 10.0), ("GLOBAL_POSITION_INT", 10.0),
+        ("SYSTEM_TIME", 1.0))))  # fmt: skip
+    pipe = Pipeline(PipelineSettings(out_rate_hz=50.0))
+    rx, ours = MavCodec(255, 190), MavCodec(255, 190)
+    texts: list[str] = []
+    for k in range(int(sim_s * ss.loop_rate_hz)):
+        for t_us, frame in ep.step():
+            for msg in rx.receive_datagram(frame):
+                for o in pipe.handle(msg, t_us):
+                    texts += [str(m.text) for m in ours.receive_datagram(o.frame) if m.get_type() == "STATUSTEXT"]
+        if k % 20 == 0:
+            pipe.tick(ep.now_us)
+    mon = pipe.status(ep.now_us).monitor_state
+    assert mon is not None and mon.comparisons > 0.8 * 10.0 * sim_s, mon  # the monitor did judge the flight
+    named = [x for x in texts if "gyro off" in x]
+    if imu2_bias_dps:
+        assert named and all("IMU2" in x for x in named), texts
+    else:
+        assert named == [], texts
+
+
 def test_the_gnss_evidence_gives_no_verdict_it_cannot_support(tmp_path: Path) -> None:
     # firmware_sim's shared aggressive flight (seed 11): a correct WARNING at 55.8 s (the simulated autopilot
     # 1.5° off, ours 0.2°) was said with `us?`: the GNSS share 0.70 a second later, but its standard error, from
