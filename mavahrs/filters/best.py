@@ -332,8 +332,8 @@ MULTIROTOR_RAW_DRAG_1_S = 0.4
 #: EKF2_BCOEF_X/Y (default 100 kg/m² → 0.006 /m at sea level, range 0–200); 0.01 /m is B ≈ 61 kg/m²
 #: (ρ 1.225 kg/m³): a 1.5 kg quadrotor with C_d A = 0.025 m², inside both ranges (issue 22)
 MULTIROTOR_BODY_DRAG_1_M = 0.01
-#: s over which the raw multirotor's drag measurement matches its noise to its innovations
-#: (``EskfSettings.drag_noise_match_s``): under a raw IMU's aliased vibration the velocity's covariance was
+#: s over which a declared raw multirotor's drag measurement (:meth:`Best.set_multirotor` through the API) matches its
+#: noise to its innovations (``EskfSettings.drag_noise_match_s``; not the plain path's hypothesis): under a raw IMU's aliased vibration the velocity's covariance was
 #: 10–70× overconfident in σ (firmware_sim raw ``vibration``) and the drag, trusting it, pulled the tilt to
 #: 58–69°; 5 s is 100 innovations, the mean square's relative error ≈ 14 % (2 s measured the same on
 #: firmware_sim, ArduCopter SITL's ``sitl-raw`` gentle 1.34 → 1.63°; docs/accuracy.md "Twelfth round (branch raw6)")
@@ -345,8 +345,7 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
 
     A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
     (k = ``drag_coefficient_1_s``, else one already set, else ``MULTIROTOR_RAW_DRAG_1_S`` 0.4 /s with the body's
-    quadratic drag ``MULTIROTOR_BODY_DRAG_1_M`` 0.01 /m beside it: D = (k + c‖v‖) v; its noise matched to its
-    innovations over ``MULTIROTOR_DRAG_NOISE_MATCH_S``), the thrust axis as two
+    quadratic drag ``MULTIROTOR_BODY_DRAG_1_M`` 0.01 /m beside it: D = (k + c‖v‖) v), the thrust axis as two
     error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
     the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°); a detected rest taken only once
     the bias is known within ``MULTIROTOR_REST_CHECK_SIGMA_RAD_S`` on some axis (a hover is as still as rest); the
@@ -358,8 +357,6 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     eskf = replace(eskf, drag_coefficient_1_s=float(k))
     if eskf.drag_quadratic_1_m == 0.0 and drag_coefficient_1_s is None:
         eskf = replace(eskf, drag_quadratic_1_m=MULTIROTOR_BODY_DRAG_1_M)
-    if eskf.drag_noise_match_s == 0.0:
-        eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
     if eskf.thrust_axis_sigma_rad == 0.0:
         eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
     if eskf.initial_realign_rad < MULTIROTOR_INITIAL_REALIGN_RAD:
@@ -1009,6 +1006,11 @@ class Best(AttitudeFilter):
         # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
         if not getattr(self, "_vehicle_stream", False):
             eskf = multirotor_eskf_settings(s.eskf, drag_coefficient_1_s)
+            # declared, the multirotor model is the estimator, its drag noise matched to its innovations
+            # (``MULTIROTOR_DRAG_NOISE_MATCH_S``); the plain path's hypothesis keeps R as set: a model whose noise
+            # grows with its misfit fits anything (BROAD raw hand-held trials taken for multirotors, 136 nats)
+            if eskf.drag_noise_match_s == 0.0:
+                eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
         else:
             k = drag_coefficient_1_s
             if k is None:

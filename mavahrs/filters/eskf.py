@@ -701,9 +701,11 @@ class EskfSettings(FilterSettings):
             innovations (covariance matching: Mehra 1972; Mohamed & Schwarz
             1999): the mean of y² − h P hᵀ over this time, s (the mean since
             the start while shorter), is the measurement's variance when
-            larger than ``drag_noise_m_s2``².  A vibrating raw IMU's 0.1 s mean
-            force and its velocity, which h P hᵀ trusts, are then weighed as
-            they fit, not as the covariance claims (0 = R as set, default;
+            larger than ``drag_noise_m_s2``², for the innovations within the
+            χ gate of the nominal R (one beyond it is still rejected: a state
+            error, not noise).  A vibrating raw IMU's 0.1 s mean force and
+            its velocity, which h P hᵀ trusts, are then weighed as they fit,
+            not as the covariance claims (0 = R as set, default;
             ``best``'s raw multirotor sets ``best.MULTIROTOR_DRAG_NOISE_MATCH_S``).
     """
 
@@ -1488,11 +1490,17 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
             # IMU's aliased vibration P_vv claimed σ 0.3–0.8 m/s against 5–15 m/s errors (docs/accuracy.md,
             # "Twelfth round"): h P hᵀ, which carries the velocity's uncertainty through ∂h/∂v = −(M u)ᵀ, cannot
             # tell that; the innovations do
+            # Every innovation counts in the mean (under vibration the large ones are the noise), but one beyond
+            # the χ gate of the nominal R is still rejected: a state error (a velocity 20 m/s off) is not taken
+            # for noise and fused, its rejections re-open the velocity (``drag_reset_s``) as before
             yy, sv0 = _innovation(s, k, y, 0.0)
+            gate = params[P_FILTER + _VEL_GATE]
             # the mean since the start while fewer than τ/T innovations were seen, then exponential over τ
             s[k + _DNIS + 1] += 1.0
             w_n = min(max(params[P_FILTER + _ZV_PERIOD] / tau_nis, 1.0 / s[k + _DNIS + 1]), 1.0)
             s[k + _DNIS] += (yy * yy - sv0 - s[k + _DNIS]) * w_n
+            if not (sv0 + r > 0.0) or yy * yy > gate * gate * (sv0 + r):
+                continue
             r_c = max(r, s[k + _DNIS])
         if _scalar_update(s, k, y, r_c, params[P_FILTER + _VEL_GATE]):
             fused = True

@@ -95,7 +95,7 @@ def test_the_body_s_quadratic_drag_beside_the_rotors_holds_a_fast_flight_s_tilt(
     """``aggressive`` flies at up to ≈ 10 m/s, where firmware_sim's body drag (quadratic) adds a fifth to the
     rotors' linear drag: the drag measurement with both terms (``set_multirotor()``) holds the tilt better than
     the linear model sized for those speeds (k 0.5 /s), against the simulator's truth (measured 1.50 vs 1.61°,
-    1.02 vs 1.06°; docs/accuracy.md "Eleventh round (branch drag2)")."""
+    1.02 vs 1.06° without the declared path's drag-noise matching; docs/accuracy.md "Eleventh round (branch drag2)")."""
     rows, q_ref = _raw_flight("aggressive", seed)
     scored = slice(RATE_HZ * 20, None)
 
