@@ -334,7 +334,7 @@ MULTIROTOR_RAW_DRAG_1_S = 0.4
 MULTIROTOR_BODY_DRAG_1_M = 0.01
 #: s over which a declared raw multirotor's drag measurement (:meth:`Best.set_multirotor` through the API) matches its
 #: noise to its innovations (``EskfSettings.drag_noise_match_s``; not the plain path's hypothesis): under a raw IMU's aliased vibration the velocity's covariance was
-#: 10–70× overconfident in σ (firmware_sim raw ``vibration``) and the drag, trusting it, pulled the tilt to
+#: 10–30× overconfident in σ (firmware_sim raw ``vibration``) and the drag, trusting it, pulled the tilt to
 #: 58–69°; 5 s is 100 innovations, the mean square's relative error ≈ 14 % (2 s measured the same on
 #: firmware_sim, ArduCopter SITL's ``sitl-raw`` gentle 1.34 → 1.63°; docs/accuracy.md "Twelfth round (branch raw6)")
 MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
