@@ -74,6 +74,7 @@ from mavahrs.filters.base import (
 from mavahrs.filters.eskf import (
     COVARIANCE_STATE,
     DRAG_PARAM,
+    DRAG_QUADRATIC_PARAM,
     ERROR_STATE_LEN,
     GRAVITY_LOWPASS_STATE,
     MAG_MODEL_STATE,
@@ -326,13 +327,33 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
 #: (``EskfSettings.drag_reset_s``; 0 = never): ten drag periods, within a hover's drift, before a velocity that
 #: random-walked unobserved drags the tilt with it (issue 22, branch vib: docs/accuracy.md "Seventh round")
 MULTIROTOR_DRAG_RESET_S = 1.0
+#: a raw IMU's multirotor (``set_multirotor()`` with no k, the plain path's multirotor hypothesis): the rotors'
+#: momentum drag k, 1/s, beside the body's quadratic drag (``MULTIROTOR_BODY_DRAG_1_M``): k + c‖v‖ is the linear
+#: model's 0.5 /s (``MULTIROTOR_DRAG_1_S``) at 10 m/s.  Momentum theory bounds it (``EskfSettings.drag_coefficient_1_s``:
+#: g/(2 v_i) ≈ 1.3 /s for a fully turned inflow, open rotors a fraction); the autopilots document 0.1–0.15 /s for
+#: open rotors (ArduPilot EK3_DRAG_MCOEF's example, 1.5 m/s² at 15 m/s = 0.1; PX4 EKF2_MCOEF's default 0.15),
+#: "higher for ducted rotors" (both).  0.4 is above those typical values (nearer them than the linear 0.5);
+#: measured in docs/accuracy.md "Eleventh round (branch drag2)" (issue 22)
+MULTIROTOR_RAW_DRAG_1_S = 0.4
+#: the body's bluff drag ½ρ C_d A / m = ρ / (2 B), 1/m, with B the ballistic coefficient m / (C_d A) of ArduPilot's
+#: EK3_DRAG_BCOEF_X/Y (range 0–1000 kg/m², "a starting value is the mass divided by the frontal area") and PX4's
+#: EKF2_BCOEF_X/Y (default 100 kg/m² → 0.006 /m at sea level, range 0–200); 0.01 /m is B ≈ 61 kg/m²
+#: (ρ 1.225 kg/m³): a 1.5 kg quadrotor with C_d A = 0.025 m², inside both ranges (issue 22)
+MULTIROTOR_BODY_DRAG_1_M = 0.01
+#: s over which a declared raw multirotor's drag measurement (:meth:`Best.set_multirotor` through the API) matches its
+#: noise to its innovations (``EskfSettings.drag_noise_match_s``; not the plain path's hypothesis): under a raw IMU's aliased vibration the velocity's covariance was
+#: 10–30× overconfident in σ (firmware_sim raw ``vibration``) and the drag, trusting it, pulled the tilt to
+#: 58–69°; 5 s is 100 innovations, the mean square's relative error ≈ 14 % (2 s measured the same on
+#: firmware_sim, ArduCopter SITL's ``sitl-raw`` gentle 1.34 → 1.63°; docs/accuracy.md "Twelfth round (branch raw6)")
+MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
     """``eskf`` with a raw IMU's multirotor models (what :meth:`Best.set_multirotor` sets through the API).
 
     A vehicle's measurement models (:func:`vehicle_eskf_settings`), the rotor-drag measurement
-    (k = ``drag_coefficient_1_s``, else one already set, else 0.5 /s), the thrust axis as two
+    (k = ``drag_coefficient_1_s``, else one already set, else ``MULTIROTOR_RAW_DRAG_1_S`` 0.4 /s with the body's
+    quadratic drag ``MULTIROTOR_BODY_DRAG_1_M`` 0.01 /m beside it: D = (k + c‖v‖) v), the thrust axis as two
     error states (σ 15°, any mounting) and the drag noise 0.35 m/s² (``AXIS_STATES_DRAG_NOISE_M_S2``);
     the start re-aligned only beyond ``MULTIROTOR_INITIAL_REALIGN_RAD`` (45°); a detected rest taken only once
     the bias is known within ``MULTIROTOR_REST_CHECK_SIGMA_RAD_S`` on some axis (a hover is as still as rest); the
@@ -340,8 +361,10 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     """
     k = drag_coefficient_1_s
     if k is None:
-        k = eskf.drag_coefficient_1_s or MULTIROTOR_DRAG_1_S
+        k = eskf.drag_coefficient_1_s or MULTIROTOR_RAW_DRAG_1_S
     eskf = replace(eskf, drag_coefficient_1_s=float(k))
+    if eskf.drag_quadratic_1_m == 0.0 and drag_coefficient_1_s is None:
+        eskf = replace(eskf, drag_quadratic_1_m=MULTIROTOR_BODY_DRAG_1_M)
     if eskf.thrust_axis_sigma_rad == 0.0:
         eskf = replace(eskf, thrust_axis_sigma_rad=MULTIROTOR_AXIS_SIGMA_RAD, drag_noise_m_s2=AXIS_STATES_DRAG_NOISE_M_S2)
     if eskf.initial_realign_rad < MULTIROTOR_INITIAL_REALIGN_RAD:
@@ -554,7 +577,8 @@ def _detect_accumulate(state, se, se2, pe2, row):  # type: ignore[no-untyped-def
     state[_DF + 3] -= G_M_S2 * dx  # generic: f = −Cᵀ g e_d
     state[_DF + 4] -= G_M_S2 * dy
     state[_DF + 5] -= G_M_S2 * dz
-    state[_DF + 6] -= k * vbx  # multirotor: across the thrust axis, f = −k v_b
+    k = k + pe2[P_FILTER + DRAG_QUADRATIC_PARAM] * math.sqrt(vn * vn + ve * ve + vd * vd)
+    state[_DF + 6] -= k * vbx  # multirotor: across the thrust axis, f = −(k + c‖v‖) v_b
     state[_DF + 7] -= k * vby
     state[_DF + 8] -= k * vbz
     state[_DF + 9] += 1.0
@@ -611,6 +635,10 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
         _, _, _, e1x, e1y, e1z, e2x, e2y, e2z = axis_basis(tx, ty, tz, int(se2[S_FILTER + THRUST_AXIS_REF_STATE]))
         tx, ty, tz = tx / tn, ty / tn, tz / tn
         vn, ve, vd = se2[_KV], se2[_KV + 1], se2[_KV + 2]
+        c_q = pe2[P_FILTER + DRAG_QUADRATIC_PARAM]
+        v_norm = math.sqrt(vn * vn + ve * ve + vd * vd)
+        c_v = c_q / v_norm if v_norm > 1e-6 else 0.0
+        k = k + c_q * v_norm
         utn, ute, utd = _to_ned(se2, tx, ty, tz)
         thrust = fx * tx + fy * ty + fz * tz + k * (utn * vn + ute * ve + utd * vd)
         # the generic hypothesis's motion acceleration as a first-order Markov process (Singer 1970): the
@@ -636,12 +664,14 @@ def _detect_period(state, params, se, se2, pe2, h):  # type: ignore[no-untyped-d
             # multirotor: the drag measurement's prediction and h (eskf._drag_update)
             ym = z - (state[_DF + 6] * ex + state[_DF + 7] * ey + state[_DF + 8] * ez) / n
             un, ue, ud = _to_ned(se2, ex, ey, ez)
-            h[0] = -k * (ue * vd - ud * ve)
-            h[1] = -k * (ud * vn - un * vd)
-            h[2] = -k * (un * ve - ue * vn)
-            h[3] = -k * un
-            h[4] = -k * ue
-            h[5] = -k * ud
+            uv = un * vn + ue * ve + ud * vd
+            wn, we, wd = k * un + c_v * uv * vn, k * ue + c_v * uv * ve, k * ud + c_v * uv * vd
+            h[0] = -(we * vd - wd * ve)
+            h[1] = -(wd * vn - wn * vd)
+            h[2] = -(wn * ve - we * vn)
+            h[3] = -wn
+            h[4] = -we
+            h[5] = -wd
             h[9 + c] = thrust
             sm = sig * sig + r_c + _quad_form(se2, h)
             inc += 0.5 * (yg * yg / sg + math.log(sg) - ym * ym / sm - math.log(sm))
@@ -989,6 +1019,11 @@ class Best(AttitudeFilter):
         # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
         if not getattr(self, "_vehicle_stream", False):
             eskf = multirotor_eskf_settings(s.eskf, drag_coefficient_1_s)
+            # declared, the multirotor model is the estimator, its drag noise matched to its innovations
+            # (``MULTIROTOR_DRAG_NOISE_MATCH_S``); the plain path's hypothesis keeps R as set: a model whose noise
+            # grows with its misfit fits anything (BROAD raw hand-held trials taken for multirotors, 136 nats)
+            if eskf.drag_noise_match_s == 0.0:
+                eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
         else:
             k = drag_coefficient_1_s
             if k is None:

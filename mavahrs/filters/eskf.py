@@ -247,11 +247,15 @@ _SCALE_TILT_TAU = _MAG_DELAY + 15  # s: the memory of the angle turned that term
 _HWALK_TAU = _MAG_DELAY + 16  # s: averaging time of the heading's learnt extra random walk (0: off, :func:`_heading_walk_step`)
 _HWALK_MAX = _MAG_DELAY + 17  # rad²/s: the largest extra heading random-walk density it may reach
 _HWALK_WIN = _MAG_DELAY + 18  # s: the window the compass's heading innovations are averaged over for it
-_N_PARAMS = _MAG_DELAY + 19
+_DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the rotor drag's linear term alone)
+_DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
+_N_PARAMS = _MAG_DELAY + 21
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
 DRAG_PARAM = _DRAG_K
+#: offset of ``drag_quadratic_1_m`` in the filter's own parameter block
+DRAG_QUADRATIC_PARAM = _DRAG_C
 
 # filter state, offsets from S_FILTER
 _V = 0  # INS velocity, NED (3)
@@ -320,7 +324,8 @@ _RANG = _CLP + 3 * BW_LEN  # angle turned about each body axis, |ω_i| integrate
 #: the running mean of those innovations' window means' normalised square ψ̄²/S̄ (a diagnostic: 1 when consistent),
 #: the window's sums of ψ, (P hᵀ)_ψ, h P hᵀ and r (4), its readings (1), its start and last reading's clock time (2)
 _HWALK = _RANG + 3
-_N_STATE = _HWALK + 9
+_DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m/s²)², and their count (2; ``_DRAG_NIS_TAU``)
+_N_STATE = _DNIS + 2
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -726,6 +731,23 @@ class EskfSettings(FilterSettings):
             time (the compass's correction takes ≈ 4 s at 10 Hz and σ 3°),
             and a window is not broken off by a turn as often as a longer one
             (PX4 SIH, windows of 1 / 2 / 3 / 5 s with τ 3–10 s: docs/accuracy.md).
+        drag_quadratic_1_m: c, the body's bluff drag beside the rotors'
+            momentum drag in the drag measurement, 1/m: D = (k + c‖v‖) v
+            (ArduPilot EKF3's EK3_DRAG_BCOEF_X/Y and PX4 EKF2's
+            EKF2_BCOEF_X/Y beside their *_MCOEF: c = ρ/(2B), B the
+            ballistic coefficient in kg/m²); 0 = the linear term alone
+            (default; ``best``'s raw multirotor sets
+            ``best.MULTIROTOR_BODY_DRAG_1_M``).
+        drag_noise_match_s: the drag measurement's noise matched to its
+            innovations (covariance matching: Mehra 1972; Mohamed & Schwarz
+            1999): the mean of y² − h P hᵀ over this time, s (the mean since
+            the start while shorter), is the measurement's variance when
+            larger than ``drag_noise_m_s2``², for the innovations within the
+            χ gate of the nominal R (one beyond it is still rejected: a state
+            error, not noise).  A vibrating raw IMU's 0.1 s mean force and
+            its velocity, which h P hᵀ trusts, are then weighed as they fit,
+            not as the covariance claims (0 = R as set, default;
+            ``best``'s raw multirotor sets ``best.MULTIROTOR_DRAG_NOISE_MATCH_S``).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -806,6 +828,8 @@ class EskfSettings(FilterSettings):
     heading_walk_tau_s: float = 0.0
     heading_walk_max_rad_s: float = 0.01
     heading_walk_window_s: float = 2.0
+    drag_quadratic_1_m: float = 0.0
+    drag_noise_match_s: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -830,7 +854,7 @@ class EskfSettings(FilterSettings):
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
-                     "heading_walk_window_s"):
+                     "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1524,12 +1548,18 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
     kc = k + _C
     vn, ve, vd = s[k + _V], s[k + _V + 1], s[k + _V + 2]
     r = params[P_FILTER + _R_DRAG]
+    # the body's quadratic drag beside the rotors' linear one: D = (k + c‖v‖) v (EKF3's ballistic coefficient
+    # beside its momentum drag); its Jacobian on v is M = (k + c‖v‖) I + c v vᵀ/‖v‖ (symmetric)
+    c_q = params[P_FILTER + _DRAG_C]
+    v_norm = math.sqrt(vn * vn + ve * ve + vd * vd)
+    k_eff = k_drag + c_q * v_norm
+    c_v = c_q / v_norm if v_norm > 1e-6 else 0.0
     thrust = 0.0
-    if states:  # tᵀ(f + k v_b), v_b = Cᵀv
+    if states:  # tᵀ(f + D_b), D_b = Cᵀ D
         utn = s[kc + 0] * tx + s[kc + 1] * ty + s[kc + 2] * tz
         ute = s[kc + 3] * tx + s[kc + 4] * ty + s[kc + 5] * tz
         utd = s[kc + 6] * tx + s[kc + 7] * ty + s[kc + 8] * tz
-        thrust = fx * tx + fy * ty + fz * tz + k_drag * (utn * vn + ute * ve + utd * vd)
+        thrust = fx * tx + fy * ty + fz * tz + k_eff * (utn * vn + ute * ve + utd * vd)
     fused = False
     for c in range(2):
         if c == 0:
@@ -1539,15 +1569,20 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         un = s[kc + 0] * ex + s[kc + 1] * ey + s[kc + 2] * ez
         ue = s[kc + 3] * ex + s[kc + 4] * ey + s[kc + 5] * ez
         ud = s[kc + 6] * ex + s[kc + 7] * ey + s[kc + 8] * ez
-        y = (fx * ex + fy * ey + fz * ez) + k_drag * (un * vn + ue * ve + ud * vd)
+        uv = un * vn + ue * ve + ud * vd
+        y = (fx * ex + fy * ey + fz * ez) + k_eff * uv
+        # w = M u: h = −uᵀD, ∂h/∂δv = −wᵀ, ∂h/∂δθ = −(w × v)ᵀ (w = k u without the quadratic term)
+        wn = k_eff * un + c_v * uv * vn
+        we = k_eff * ue + c_v * uv * ve
+        wd = k_eff * ud + c_v * uv * vd
         for i in range(N):
             s[k + _H + i] = 0.0
-        s[k + _H + 0] = -k_drag * (ue * vd - ud * ve)
-        s[k + _H + 1] = -k_drag * (ud * vn - un * vd)
-        s[k + _H + 2] = -k_drag * (un * ve - ue * vn)
-        s[k + _H + 3] = -k_drag * un
-        s[k + _H + 4] = -k_drag * ue
-        s[k + _H + 5] = -k_drag * ud
+        s[k + _H + 0] = -(we * vd - wd * ve)
+        s[k + _H + 1] = -(wd * vn - wn * vd)
+        s[k + _H + 2] = -(wn * ve - we * vn)
+        s[k + _H + 3] = -wn
+        s[k + _H + 4] = -we
+        s[k + _H + 5] = -wd
         if states:
             s[k + _H + 9 + c] = thrust
         if ((params[P_FILTER + _ABIAS_P0] > 0.0 or params[P_FILTER + _ABIAS_VIB] > 0.0)
@@ -1555,7 +1590,27 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
             s[k + _H + _I_ABIAS] = ex
             s[k + _H + _I_ABIAS + 1] = ey
             s[k + _H + _I_ABIAS + 2] = ez
-        if _scalar_update(s, k, y, r, params[P_FILTER + _VEL_GATE]):
+        r_c = r
+        tau_nis = params[P_FILTER + _DRAG_NIS_TAU]
+        if tau_nis > 0.0:
+            # covariance matching (Mehra 1972; Mohamed & Schwarz 1999): E[y²] = h P hᵀ + R, so the innovations'
+            # mean square beyond h P hᵀ is the measurement's variance as it is; R is at least that.  Under a raw
+            # IMU's aliased vibration P_vv claimed σ 0.3–0.8 m/s against 5–15 m/s errors (docs/accuracy.md,
+            # "Twelfth round"): h P hᵀ, which carries the velocity's uncertainty through ∂h/∂v = −(M u)ᵀ, cannot
+            # tell that; the innovations do
+            # Every innovation counts in the mean (under vibration the large ones are the noise), but one beyond
+            # the χ gate of the nominal R is still rejected: a state error (a velocity 20 m/s off) is not taken
+            # for noise and fused, its rejections re-open the velocity (``drag_reset_s``) as before
+            yy, sv0 = _innovation(s, k, y, 0.0)
+            gate = params[P_FILTER + _VEL_GATE]
+            # the mean since the start while fewer than τ/T innovations were seen, then exponential over τ
+            s[k + _DNIS + 1] += 1.0
+            w_n = min(max(params[P_FILTER + _ZV_PERIOD] / tau_nis, 1.0 / s[k + _DNIS + 1]), 1.0)
+            s[k + _DNIS] += (yy * yy - sv0 - s[k + _DNIS]) * w_n
+            if not (sv0 + r > 0.0) or yy * yy > gate * gate * (sv0 + r):
+                continue
+            r_c = max(r, s[k + _DNIS])
+        if _scalar_update(s, k, y, r_c, params[P_FILTER + _VEL_GATE]):
             fused = True
     return fused
 
@@ -2595,6 +2650,8 @@ class Eskf(AttitudeFilter):
         p[_HWALK_TAU] = settings.heading_walk_tau_s
         p[_HWALK_MAX] = settings.heading_walk_max_rad_s**2
         p[_HWALK_WIN] = settings.heading_walk_window_s
+        p[_DRAG_C] = settings.drag_quadratic_1_m
+        p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
