@@ -200,12 +200,11 @@ MULTIROTOR_REST_CHECK_SIGMA_RAD_S = math.radians(0.5)
 #: longer raised (tests/service/test_monitor_evidence.py); the monitor's benchmark has not been run with them
 #: (docs/accuracy.md, "Accelerometer-bias states (branch accb)")
 VEHICLE_ACCEL_BIAS_SIGMA_M_S2 = 0.0
-#: a vehicle's gyro scale-factor error about body z as an error state, prior 1-σ (``EskfSettings.gyro_scale_state_sigma``
-#: with ``gyro_scale_state_xy`` False; firmware_sim draws σ 0.2 %, ICM-42688-P ±0.5 %): a spin's scale error is
-#: coherent over the whole spin, so the heading variance grows with (σ·angle)² and the magnetometer learns the scale
-#: after it (Groves 2013, §14.2.7), in place of most of the fixed rate-proportional heading noise
-#: (``VEHICLE_GYRO_SCALE_RATE_SIGMA``).  Body x and y too cost the SITL flights' inclination up to 0.03° (without
-#: GNSS 0.64 → 0.65° mean) and one correct monitor warning; docs/monitor.md, round twelve
+#: a vehicle's gyro scale-factor errors as error states, prior 1-σ per axis (``EskfSettings.gyro_scale_state_sigma``;
+#: firmware_sim draws σ 0.2 %, ICM-42688-P ±0.5 %): a spin's scale error is coherent over the whole spin, so the
+#: heading variance grows with (σ·angle)² and the magnetometer learns the scale after it (Groves 2013, §14.2.7),
+#: in place of most of the fixed rate-proportional heading noise (``VEHICLE_GYRO_SCALE_RATE_SIGMA``).
+#: docs/monitor.md, round twelve
 VEHICLE_GYRO_SCALE_STATE_SIGMA = 0.003
 #: the rate-proportional heading noise left beside those states (``EskfSettings.gyro_scale_sigma``, with its
 #: ``gyro_scale_tau_s`` 1.5 s; the default 0.3 % without the states): what a learnt scale leaves — the heading
@@ -327,7 +326,6 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         gyro_scale_sigma=VEHICLE_GYRO_SCALE_RATE_SIGMA,
         gyro_scale_tilt_sigma=d.gyro_scale_tilt_sigma,
         gyro_scale_state_sigma=VEHICLE_GYRO_SCALE_STATE_SIGMA,
-        gyro_scale_state_xy=False,
         bias_walk_aided_rad_s2=VEHICLE_BIAS_WALK_RAD_S2,
         mag_learn_tau_s=VEHICLE_MAG_LEARN_TAU_S,
         accel_bias_sigma_m_s2=VEHICLE_ACCEL_BIAS_SIGMA_M_S2,

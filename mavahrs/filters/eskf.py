@@ -247,8 +247,7 @@ _SCALE_TILT_TAU = _MAG_DELAY + 15  # s: the memory of the angle turned that term
 _HWALK_TAU = _MAG_DELAY + 16  # s: averaging time of the heading's learnt extra random walk (0: off, :func:`_heading_walk_step`)
 _HWALK_MAX = _MAG_DELAY + 17  # rad²/s: the largest extra heading random-walk density it may reach
 _HWALK_WIN = _MAG_DELAY + 18  # s: the window the compass's heading innovations are averaged over for it
-_SCALE_XY = _MAG_DELAY + 19  # 1: the scale-factor states of body x and y too; 0: body z's alone (the heading's share)
-_N_PARAMS = _MAG_DELAY + 20
+_N_PARAMS = _MAG_DELAY + 19
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -663,12 +662,6 @@ class EskfSettings(FilterSettings):
             scale-factor states").
         gyro_scale_state_walk_1_s: random walk of those states, 1/√s
             (temperature; 0 = constant).
-        gyro_scale_state_xy: estimate body x's and y's scale-factor errors
-            too (True, the default); False: body z's alone (x and y keep a
-            prior of 0), the share a multirotor's yaw turns into heading
-            error, which only the magnetometer observes; the tilt's share has
-            ``gyro_scale_tilt_sigma`` and every GNSS fix (docs/monitor.md,
-            round twelve).
         accel_bias_sigma_m_s2: 1-σ of each accelerometer axis's bias as an
             error state (body frame, error states 18–20; 0 = not estimated,
             the default), m/s²: the reading is f + b_a, the specific force
@@ -804,7 +797,6 @@ class EskfSettings(FilterSettings):
     mag_noise_max_rad: float = math.radians(20.0)
     gyro_scale_state_sigma: float = 0.0
     gyro_scale_state_walk_1_s: float = 0.0
-    gyro_scale_state_xy: bool = True
     accel_bias_sigma_m_s2: float = 0.0
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
@@ -1021,7 +1013,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     # a re-initialisation aligns the heading with the compass again and so starts it afresh too
     s[kp + _I_DECL * N + _I_DECL] = params[p + _DECL_P0]
     for i in range(_I_SCALE, _I_SCALE + 3):  # the gyro's scale-factor errors (0: not estimated; ŝ restarts at 0)
-        s[kp + i * N + i] = params[p + _SCALE_P0] if (i == _I_SCALE + 2 or params[p + _SCALE_XY] > 0.0) else 0.0
+        s[kp + i * N + i] = params[p + _SCALE_P0]
     for i in range(_I_ABIAS, _I_ABIAS + 3):  # the accelerometer's bias (0: not estimated; b̂_a restarts at 0)
         s[kp + i * N + i] = params[p + _ABIAS_P0]
     if params[p + _DRAG_K] > 0.0:
@@ -1197,8 +1189,7 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
             s[kp + i * N + i] += q_axis * dt
     if scale_on and q_scale > 0.0:
         for i in range(_I_SCALE, _I_ABIAS):
-            if s[kp + i * N + i] > 0.0:  # an axis given no prior (``gyro_scale_state_xy``) is not estimated
-                s[kp + i * N + i] += q_scale * dt
+            s[kp + i * N + i] += q_scale * dt
     if abias_on and q_abias > 0.0:
         for i in range(_I_ABIAS, N):
             s[kp + i * N + i] += q_abias * dt
@@ -1298,7 +1289,7 @@ def _n_active(s, k):  # type: ignore[no-untyped-def]
     daemon's per-sample cost)."""
     if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0:
         return N
-    return _I_ABIAS if s[k + _P + (_I_SCALE + 2) * N + _I_SCALE + 2] > 0.0 else _I_SCALE
+    return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
 
 @kernel(inline=True)
@@ -2594,7 +2585,6 @@ class Eskf(AttitudeFilter):
         p[_SCALE_P0] = settings.gyro_scale_state_sigma**2
         p[_SCALE_Q] = settings.gyro_scale_state_walk_1_s**2
         p[_SCALE_LIM] = 3.0 * settings.gyro_scale_state_sigma
-        p[_SCALE_XY] = 1.0 if settings.gyro_scale_state_xy else 0.0
         p[_DRAG_RESET] = settings.drag_reset_s
         p[_ABIAS_P0] = settings.accel_bias_sigma_m_s2**2
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
