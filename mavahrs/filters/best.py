@@ -200,17 +200,6 @@ MULTIROTOR_REST_CHECK_SIGMA_RAD_S = math.radians(0.5)
 #: longer raised (tests/service/test_monitor_evidence.py); the monitor's benchmark has not been run with them
 #: (docs/accuracy.md, "Accelerometer-bias states (branch accb)")
 VEHICLE_ACCEL_BIAS_SIGMA_M_S2 = 0.0
-#: a vehicle's gyro scale-factor errors as error states, prior 1-σ per axis (``EskfSettings.gyro_scale_state_sigma``;
-#: firmware_sim draws σ 0.2 %, ICM-42688-P ±0.5 %): a spin's scale error is coherent over the whole spin, so the
-#: heading variance grows with (σ·angle)² and the magnetometer learns the scale after it (Groves 2013, §14.2.7),
-#: in place of most of the fixed rate-proportional heading noise (``VEHICLE_GYRO_SCALE_RATE_SIGMA``).
-#: docs/monitor.md, round twelve
-VEHICLE_GYRO_SCALE_STATE_SIGMA = 0.003
-#: the rate-proportional heading noise left beside those states (``EskfSettings.gyro_scale_sigma``, with its
-#: ``gyro_scale_tau_s`` 1.5 s; the default 0.3 % without the states): what a learnt scale leaves — the heading
-#: error in a spin that follows the rate itself (firmware_sim: 3–5 ms of timing, ω·δt) rather than the angle turned.
-#: docs/monitor.md, round twelve
-VEHICLE_GYRO_SCALE_RATE_SIGMA = 0.0015
 
 
 def best_settings() -> MadgwickSettings:
@@ -323,9 +312,9 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         heading_walk_tau_s=VEHICLE_HEADING_WALK_TAU_S,
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,
-        gyro_scale_sigma=VEHICLE_GYRO_SCALE_RATE_SIGMA,
+        gyro_scale_sigma=d.gyro_scale_sigma,
         gyro_scale_tilt_sigma=d.gyro_scale_tilt_sigma,
-        gyro_scale_state_sigma=VEHICLE_GYRO_SCALE_STATE_SIGMA,
+        gyro_scale_state_sigma=d.gyro_scale_state_sigma,
         bias_walk_aided_rad_s2=VEHICLE_BIAS_WALK_RAD_S2,
         mag_learn_tau_s=VEHICLE_MAG_LEARN_TAU_S,
         accel_bias_sigma_m_s2=VEHICLE_ACCEL_BIAS_SIGMA_M_S2,
@@ -364,10 +353,7 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     # the tilt's scale-factor noise as ``eskf`` has it (best's raw settings: none): on firmware_sim's raw
     # IMU declared a multirotor it cost aggressive 1–4 1.11 → 1.16° (flips 1–4 2.53 → 2.43°; docs/monitor.md
     # round eight); an autopilot's stream, where the monitor reads the tilt σ, has it from vehicle_eskf_settings
-    # and the heading's as an autopilot's stream had it before round twelve: the scale-factor states stay as ``eskf``
-    # has them (best's raw settings: off) and the rate noise at the ESKF's default (not measured on raw IMUs)
-    return replace(vehicle_eskf_settings(eskf), gyro_scale_tilt_sigma=eskf.gyro_scale_tilt_sigma,
-                   gyro_scale_state_sigma=eskf.gyro_scale_state_sigma, gyro_scale_sigma=EskfSettings().gyro_scale_sigma)
+    return replace(vehicle_eskf_settings(eskf), gyro_scale_tilt_sigma=eskf.gyro_scale_tilt_sigma)
 
 
 @dataclass(frozen=True)
