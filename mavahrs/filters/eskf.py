@@ -136,7 +136,7 @@ __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
     "heading_walk_of",
-    "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE",
+    "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE", "slow_force_density_of",
 ]  # fmt: skip
 
 N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -2604,6 +2604,17 @@ def gyro_scale_of(state: np.ndarray, k: int) -> np.ndarray:
     """The gyro's estimated scale-factor errors (per axis, a fraction: reading = (1 + s)·ω + b) held in an
     ESKF state whose own block starts at ``k`` (0 where not estimated)."""
     return np.array(state[k + _GSCALE : k + _GSCALE + 3], dtype=float)
+
+
+def slow_force_density_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
+    """The specific force's slow-error density added to the velocity's process noise, (m/s²)²·s per axis
+    (``EskfSettings.slow_force_block_s``; 0 while off or fewer than three blocks are in).  ``k``: the ESKF's
+    ``S_FILTER`` offset; ``params`` the whole parameter vector."""
+    t_blk = float(params[P_FILTER + _SLOW_BLOCK])
+    ks = k + _SLOW
+    if not (t_blk > 0.0 and state[ks + 8] > 2.0):
+        return 0.0
+    return max(float(state[ks + 9] - state[ks + 10]), 0.0) * t_blk
 
 
 def accel_bias_of(state: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
