@@ -346,6 +346,9 @@ MULTIROTOR_BODY_DRAG_1_M = 0.01
 #: 58–69°; 5 s is 100 innovations, the mean square's relative error ≈ 14 % (2 s measured the same on
 #: firmware_sim, ArduCopter SITL's ``sitl-raw`` gentle 1.34 → 1.63°; docs/accuracy.md "Twelfth round (branch raw6)")
 MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
+#: block length of the declared multirotor's specific-force slow-error estimate (``EskfSettings.slow_force_block_s``:
+#: the velocity's process noise carries the Allan variance of 0.1 s block means beyond the white noise's share)
+MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1024,6 +1027,8 @@ class Best(AttitudeFilter):
             # grows with its misfit fits anything (BROAD raw hand-held trials taken for multirotors, 136 nats)
             if eskf.drag_noise_match_s == 0.0:
                 eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
+            if eskf.slow_force_block_s == 0.0:
+                eskf = replace(eskf, slow_force_block_s=MULTIROTOR_SLOW_FORCE_BLOCK_S)
         else:
             k = drag_coefficient_1_s
             if k is None:

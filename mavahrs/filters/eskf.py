@@ -136,7 +136,7 @@ __all__ = [
     "EskfSettings", "Eskf", "step", "eskf_aided", "eskf_reopen_attitude", "HISTORY_LEN", "DELAY_PARAM", "DRAG_PARAM",
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
     "heading_walk_of",
-    "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE",
+    "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE", "slow_force_density_of",
 ]  # fmt: skip
 
 N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -249,7 +249,9 @@ _HWALK_MAX = _MAG_DELAY + 17  # rad²/s: the largest extra heading random-walk d
 _HWALK_WIN = _MAG_DELAY + 18  # s: the window the compass's heading innovations are averaged over for it
 _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the rotor drag's linear term alone)
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
-_N_PARAMS = _MAG_DELAY + 21
+_SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
+_SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Allan variance
+_N_PARAMS = _MAG_DELAY + 23
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -325,7 +327,11 @@ _RANG = _CLP + 3 * BW_LEN  # angle turned about each body axis, |ω_i| integrate
 #: the window's sums of ψ, (P hᵀ)_ψ, h P hᵀ and r (4), its readings (1), its start and last reading's clock time (2)
 _HWALK = _RANG + 3
 _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m/s²)², and their count (2; ``_DRAG_NIS_TAU``)
-_N_STATE = _DNIS + 2
+#: the specific force's slow error (``slow_force_block_s``): this block's ∫ f_NED dt (3) and time (1) and samples (1),
+#: the previous block's mean (3), blocks completed (1), the running mean of ‖f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂‖²/18 (the Hadamard
+#: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
+_SLOW = _DNIS + 2
+_N_STATE = _SLOW + 14
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -748,6 +754,18 @@ class EskfSettings(FilterSettings):
             its velocity, which h P hᵀ trusts, are then weighed as they fit,
             not as the covariance claims (0 = R as set, default;
             ``best``'s raw multirotor sets ``best.MULTIROTOR_DRAG_NOISE_MATCH_S``).
+        slow_force_block_s: the velocity's process noise also carries the
+            specific force's slow error (aliased vibration, rectification):
+            the Hadamard variance of the NED specific force's means over
+            blocks of this length T, σ²_H(T) = ⅙⟨(f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂)²⟩ per
+            axis, less what the measured white noise gives there (σ²_w / n
+            for n samples a block; white noise of density q has σ²_H(T) =
+            σ²_A(T) = q / T, IEEE Std 952-1997 annex C), is a density
+            q_slow = T · excess added to the accelerometer's (0 = off,
+            default).  Second differences leave out an acceleration that
+            changes steadily over the three blocks; quicker real changes
+            count as error.
+        slow_force_tau_s: the averaging time of that variance, s.
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -830,6 +848,8 @@ class EskfSettings(FilterSettings):
     heading_walk_window_s: float = 2.0
     drag_quadratic_1_m: float = 0.0
     drag_noise_match_s: float = 0.0
+    slow_force_block_s: float = 0.0
+    slow_force_tau_s: float = 5.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -854,7 +874,8 @@ class EskfSettings(FilterSettings):
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
-                     "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s"):
+                     "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
+                     "slow_force_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
@@ -1925,6 +1946,33 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         state[kq + 3], state[kq + 4], state[kq + 5] = (ax, ay, az) if accel_ok else (math.nan, math.nan, math.nan)
         q_gyro = max(q_gyro, state[k + _VIB] * dt)
         q_accel = max(q_accel, state[k + _VIB + 1] * dt)
+    t_blk = params[p + _SLOW_BLOCK]
+    if t_blk > 0.0 and accel_ok:
+        # the specific force's slow error: the Hadamard variance of its block means beyond the white noise's share
+        # (second differences: a manoeuvre's acceleration changing steadily over a block pair is not counted)
+        ks = k + _SLOW
+        state[ks] += fn * dt
+        state[ks + 1] += fe * dt
+        state[ks + 2] += (fd + G_M_S2) * dt
+        state[ks + 3] += dt
+        state[ks + 4] += 1.0
+        if state[ks + 3] >= t_blk:
+            m0, m1, m2 = state[ks] / state[ks + 3], state[ks + 1] / state[ks + 3], state[ks + 2] / state[ks + 3]
+            if state[ks + 8] > 1.0:
+                d0 = m0 - 2.0 * state[ks + 5] + state[ks + 11]
+                d1 = m1 - 2.0 * state[ks + 6] + state[ks + 12]
+                d2 = m2 - 2.0 * state[ks + 7] + state[ks + 13]
+                w = min(state[ks + 3] / params[p + _SLOW_TAU], 1.0)
+                if (state[ks + 8] - 1.0) * w < 1.0:  # the mean since the start while shorter than τ
+                    w = 1.0 / (state[ks + 8] - 1.0)
+                state[ks + 9] += ((d0 * d0 + d1 * d1 + d2 * d2) / 18.0 - state[ks + 9]) * w
+                state[ks + 10] += (state[k + _VIB + 1] / state[ks + 4] - state[ks + 10]) * w
+            state[ks + 11], state[ks + 12], state[ks + 13] = state[ks + 5], state[ks + 6], state[ks + 7]
+            state[ks + 5], state[ks + 6], state[ks + 7] = m0, m1, m2
+            state[ks + 8] += 1.0
+            state[ks], state[ks + 1], state[ks + 2], state[ks + 3], state[ks + 4] = 0.0, 0.0, 0.0, 0.0, 0.0
+        if state[ks + 8] > 2.0:
+            q_accel += max(state[ks + 9] - state[ks + 10], 0.0) * t_blk
     # the thrust-axis states' random walk once they exist (their variance is 0 until the axis is first set)
     q_axis = params[p + _AXIS_Q] if state[k + _P + 9 * N + 9] > 0.0 else 0.0
     q_bias = params[p + _Q_BIAS_AIDED] if aided and params[p + _Q_BIAS_AIDED] > 0.0 else params[p + _Q_BIAS]
@@ -2558,6 +2606,17 @@ def gyro_scale_of(state: np.ndarray, k: int) -> np.ndarray:
     return np.array(state[k + _GSCALE : k + _GSCALE + 3], dtype=float)
 
 
+def slow_force_density_of(state: np.ndarray, k: int, params: np.ndarray) -> float:
+    """The specific force's slow-error density added to the velocity's process noise, (m/s²)²·s per axis
+    (``EskfSettings.slow_force_block_s``; 0 while off or fewer than three blocks are in).  ``k``: the ESKF's
+    ``S_FILTER`` offset; ``params`` the whole parameter vector."""
+    t_blk = float(params[P_FILTER + _SLOW_BLOCK])
+    ks = k + _SLOW
+    if not (t_blk > 0.0 and state[ks + 8] > 2.0):
+        return 0.0
+    return max(float(state[ks + 9] - state[ks + 10]), 0.0) * t_blk
+
+
 def accel_bias_of(state: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The estimated accelerometer bias (body frame, m/s²) and its 1-σ per axis, of an ESKF state whose own block
     starts at ``k`` (zeros while ``accel_bias_sigma_m_s2`` is 0)."""
@@ -2652,6 +2711,8 @@ class Eskf(AttitudeFilter):
         p[_HWALK_WIN] = settings.heading_walk_window_s
         p[_DRAG_C] = settings.drag_quadratic_1_m
         p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
+        p[_SLOW_BLOCK] = settings.slow_force_block_s
+        p[_SLOW_TAU] = settings.slow_force_tau_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
