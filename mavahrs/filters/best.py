@@ -992,15 +992,24 @@ class Best(AttitudeFilter):
         """
         s = self._settings
         assert isinstance(s, BestSettings)
+        was_vehicle = getattr(self, "_vehicle_stream", False)
         self._vehicle_stream = True
         # an autopilot's IMU is in the body frame: the thrust axis stays the running mean (as measured)
         eskf = s.eskf
         if eskf.thrust_axis_sigma_rad > 0.0:  # set by set_multirotor() before: its drag noise undone too
             eskf = replace(eskf, thrust_axis_sigma_rad=0.0, drag_noise_m_s2=EskfSettings().drag_noise_m_s2)
+        declared = getattr(self, "_declared_multirotor", None)
+        if declared is not None and not was_vehicle:
+            # set_multirotor() came first and gave a raw IMU's drag models (k, the body's quadratic drag, the
+            # noise matched to the innovations): undone, a vehicle's are set below, whatever the calls' order
+            # (:func:`multirotor_eskf_settings`; what set_sensor_delay / set_mag_reference set since is kept)
+            eskf = replace(declared[1], sensor_delay_s=s.eskf.sensor_delay_s, schedule=s.eskf.schedule)
         # an autopilot's IMU is calibrated and low-passed: its first sample is the start, no start window
         # (``initial_average_s``, built for a raw IMU's vibration through the API)
         eskf = replace(eskf, initial_average_s=0.0)
         self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf", detect=replace(s.detect, enabled=False))
+        if declared is not None and not was_vehicle:
+            self.set_multirotor(declared[0])
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
         """The vehicle is a multirotor: the ESKF with a vehicle's models and the rotor-drag measurement.
@@ -1018,6 +1027,8 @@ class Best(AttitudeFilter):
         """
         s = self._settings
         assert isinstance(s, BestSettings)
+        if getattr(self, "_declared_multirotor", None) is None:  # the settings before it (set_vehicle_stream)
+            self._declared_multirotor = (drag_coefficient_1_s, s.eskf)
         # a raw IMU through the API, any mounting: the thrust axis as two states of the error state
         # (EskfSettings.thrust_axis_sigma_rad); an autopilot's stream keeps the running mean
         if not getattr(self, "_vehicle_stream", False):
