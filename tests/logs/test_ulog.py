@@ -455,11 +455,9 @@ def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_data: P
     replay said what the monitor would have said against EKF3, a .ulg's nothing (the monitor took only a
     reference named "autopilot …"): replay's second opinion is now against PX4's EKF2 as well."""
     from mavahrs import replay as rp
-    from mavahrs.fleet.audit import summarise_log
+    from mavahrs.fleet.audit import AuditSettings, summarise_log
     from mavahrs.logs import autopilot_reference
     from mavahrs.replay.engine import _monitor_of, format_second_opinion
-
-    from mavahrs.fleet.audit import AuditSettings
 
     path = _shared(shared_data, rel)
     row = summarise_log(path)
