@@ -347,7 +347,7 @@ MULTIROTOR_BODY_DRAG_1_M = 0.01
 #: firmware_sim, ArduCopter SITL's ``sitl-raw`` gentle 1.34 → 1.63°; docs/accuracy.md "Twelfth round (branch raw6)")
 MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 #: block length of the declared multirotor's specific-force slow-error estimate (``EskfSettings.slow_force_block_s``:
-#: the velocity's process noise carries the Allan variance of 0.1 s block means beyond the white noise's share)
+#: the velocity's process noise carries the Hadamard variance of 0.1 s block means beyond the white noise's share)
 MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
 
 

@@ -250,7 +250,7 @@ _HWALK_WIN = _MAG_DELAY + 18  # s: the window the compass's heading innovations 
 _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the rotor drag's linear term alone)
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
-_SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Allan variance
+_SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
 _N_PARAMS = _MAG_DELAY + 23
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
