@@ -40,12 +40,15 @@ the rotation into the board frame.
 
 GNSS velocity, as the ``velocity_source`` setting means it on the MAVLink path (PX4 fills
 GLOBAL_POSITION_INT's velocity from ``vehicle_local_position`` and GPS_RAW_INT from
-``vehicle_gps_position``): ``auto`` and ``global_position_int`` = EKF2's ``vehicle_local_position``
-``vx/vy/vz`` (valid and GNSS-referenced: ``v_xy_valid``, ``xy_global``), taken at ``gnss_rate_hz``
-(the rate the daemon asks for; the log has it at the estimator's 100+ Hz), else the receiver;
-``auto`` with the monitor's ``receiver_velocity_only``, ``gps_raw_int`` and ``gps2_raw`` = the
-receiver, ``vehicle_gps_position`` (else ``sensor_gps``): ``vel_n/e/d_m_s`` of fixes with
-``fix_type`` ≥ 3 and ``vel_ned_valid``; ``none`` = no velocity.  Each fix goes into the first IMU
+``vehicle_gps_position``): ``auto`` follows the ``px4`` profile's ``velocity_order``, as the daemon's
+selector does on a PX4 link: the receiver first, EKF2's velocity only in a log without one (EKF2's
+velocity carries EKF2's own errors: on the shared SIH flight ``best`` measured 1.26° heading / 0.99°
+inclination with it, 0.69 / 0.75 with the receiver's; docs/accuracy.md, "round five");
+``global_position_int`` = EKF2's ``vehicle_local_position`` ``vx/vy/vz`` (valid and GNSS-referenced:
+``v_xy_valid``, ``xy_global``), taken at ``gnss_rate_hz`` (the rate the daemon asks for; the log has
+it at the estimator's 100+ Hz), else the receiver; ``gps_raw_int`` and ``gps2_raw`` = the receiver,
+``vehicle_gps_position`` (else ``sensor_gps``): ``vel_n/e/d_m_s`` of fixes with ``fix_type`` ≥ 3 and
+``vel_ned_valid``; ``none`` = no velocity.  Each fix goes into the first IMU
 row at or after the message's ``timestamp`` (when the pipeline would have it), rotated from true
 into magnetic NED, aged from its ``timestamp_sample``.
 
@@ -90,7 +93,7 @@ from mavahrs.errors import DataError
 from mavahrs.filters.layout import IN_DT, IN_MAG, IN_POS, IN_VEL, IN_VEL_AGE
 from mavahrs.ingest.arrays import select_over_arrays
 from mavahrs.logs import LogInputs
-from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES
+from mavahrs.sensors.profiles import MULTIROTOR_MAV_TYPES, get_profile
 
 __all__ = ["read_ulog", "TOPICS", "VEHICLE_IMU_MIN_SHARE", "GAUSS_TO_UT"]
 
@@ -521,6 +524,9 @@ def _flight_state(topics: dict[str, Any]) -> dict[str, dict[str, np.ndarray]]:
 #: vx/vy/vz; GPS_RAW_INT the receiver's = vehicle_gps_position / sensor_gps)
 _EKF_VELOCITY = ("vehicle_local_position",)
 _RECEIVER_VELOCITY = ("vehicle_gps_position", "sensor_gps")
+#: the MAVLink velocity messages → the ULog topics they are sent from (``auto`` follows the ``px4`` profile's
+#: ``velocity_order``, as the daemon does on a PX4 link: the receiver's GPS_RAW_INT before EKF2's velocity)
+_MESSAGE_TOPICS = {"GPS_RAW_INT": _RECEIVER_VELOCITY, "GLOBAL_POSITION_INT": _EKF_VELOCITY}
 
 
 def _decimate(t_us: NDArray[np.int64], idx: NDArray[np.int64], rate_hz: float) -> NDArray[np.int64]:
@@ -545,7 +551,10 @@ def _velocity_source(topics: dict[str, Any], s: Any) -> tuple[str, Any, Any, Arr
     if src == "none":
         return None
     if src == "auto":
-        order = _RECEIVER_VELOCITY if s.monitor.receiver_velocity_only else _EKF_VELOCITY + _RECEIVER_VELOCITY
+        if s.monitor.receiver_velocity_only:
+            order = _RECEIVER_VELOCITY
+        else:  # the px4 profile's order, as the daemon's velocity selector takes it on a PX4 link
+            order = tuple(t for msg in get_profile("px4").velocity_order for t in _MESSAGE_TOPICS.get(msg, ()))
     elif src == "global_position_int":
         order = _EKF_VELOCITY
     else:  # gps_raw_int, gps2_raw: the receiver
