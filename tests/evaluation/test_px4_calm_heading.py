@@ -67,3 +67,18 @@ def test_best_heading_in_the_hover_within_0_1_deg_of_complementary(px4_recording
     best = _hover_heading_rms_deg(px4_recording, "best")
     complementary = _hover_heading_rms_deg(px4_recording, "complementary")
     assert best <= complementary + 0.1, (best, complementary)
+
+
+def test_on_the_sensors_own_rates_best_holds_the_hover_heading_at_or_below_complementary(shared_data: Path) -> None:
+    """The same flight's ULog: ``sensor_combined`` (no EKF2 bias subtracted), ``vehicle_magnetometer`` and, as the
+    daemon takes it on PX4, the receiver's velocity.  There the issue's target holds: ``best`` within 0.1° of the
+    complementary filter in the hover (0.91 vs 1.60°, round five; 1.19 with EKF2's velocity fed before)."""
+    path = shared_data / "px4_sitl" / "px4_aggressive.ulg"
+    if not path.exists():
+        pytest.skip(f"reference data not found at {path} (expected ../shared/data/px4_sitl beside the checkout)")
+    rec = load_any(path)[0]
+    best = _hover_heading_rms_deg(rec, "best")
+    complementary = _hover_heading_rms_deg(rec, "complementary")
+    assert best <= complementary + 0.1, (best, complementary)
+    assert best < 1.1, best  # the receiver's velocity keeps the learnt declination on the field (EKF2's: 1.19°)
+
