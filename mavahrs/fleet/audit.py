@@ -408,11 +408,13 @@ def replay_monitor(
     samples behind each estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and
     our estimates' times, ms."""
     from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_HEADING_SIGMA, OUT_Q
+    from mavahrs.replay.engine import judged_samples
     from mavahrs.service.monitor import monitor_series
 
     prep = result.inputs
-    track = result.tracks[monitored_filter(result.tracks)]
-    sent = np.flatnonzero(track.sent)
+    name = monitored_filter(result.tracks)
+    track = result.tracks[name]
+    sent = judged_samples(result, name)  # what the daemon publishes and judges (ReplaySettings.monitor_rate_hz)
     try:
         imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings())
     except Exception as exc:  # noqa: BLE001 - the IMU check is evidence, never the reason a flight fails

@@ -73,6 +73,7 @@ __all__ = [
     "ComparisonRow",
     "replay",
     "format_second_opinion",
+    "judged_samples",
     "plot_second_opinion",
     "compare",
     "attitude_at_reference",
@@ -136,6 +137,14 @@ class ReplaySettings:
             from the log's first record.
         engine: ``auto`` (fast when it can mirror the log, else pipeline),
             ``fast`` or ``pipeline``.
+        monitor_rate_hz: the rate, Hz of sample time, of our attitudes the second opinion judges. The
+            daemon's monitor judges each ATTITUDE_QUATERNION it publishes, at ``PipelineSettings.out_rate_hz``;
+            the replay's own output rate (``pipeline``'s, every sample by default) is for its tlog and CSV.
+            None (default) = the daemon's: ``pipeline.out_rate_hz`` where ``pipeline`` is given, else
+            ``PipelineSettings().out_rate_hz`` (50 Hz); 0 = every sample.  ``mavahrs replay`` passes the
+            daemon's rate of its ``--config`` (or the default), whatever ``--out-rate`` says.  (Until user7 the
+            replay judged every sample by default: on the PX4 SIH .ulg its WARNING came 4 ms before the
+            daemon's and ``mavahrs audit``'s.)
     """
 
     filters: tuple[str, ...] = ("best",)
@@ -144,6 +153,7 @@ class ReplaySettings:
     start_s: float | None = None
     end_s: float | None = None
     engine: str = "auto"
+    monitor_rate_hz: float | None = None
 
     def __post_init__(self) -> None:
         from mavahrs.filters import ALIASES, NAMES
@@ -159,11 +169,22 @@ class ReplaySettings:
             raise ValueError(f"engine must be auto, fast or pipeline, got {self.engine!r}")
         if self.start_s is not None and self.end_s is not None and self.end_s <= self.start_s:
             raise ValueError(f"--end ({self.end_s}) must be after --start ({self.start_s})")
+        if self.monitor_rate_hz is not None and not (math.isfinite(self.monitor_rate_hz) and self.monitor_rate_hz >= 0):
+            raise ValueError(f"monitor_rate_hz must be >= 0 Hz (0: every sample), got {self.monitor_rate_hz!r}")
 
     def pipeline_settings(self) -> Any:
         from mavahrs.service.pipeline import PipelineSettings
 
         return self.pipeline if self.pipeline is not None else PipelineSettings(out_rate_hz=0.0)
+
+    def judged_rate_hz(self) -> float:
+        """The rate of the attitudes the second opinion judges, Hz of sample time (``monitor_rate_hz``
+        resolved: the daemon's output rate unless set; 0 = every sample)."""
+        from mavahrs.service.pipeline import PipelineSettings
+
+        if self.monitor_rate_hz is not None:
+            return float(self.monitor_rate_hz)
+        return float((self.pipeline if self.pipeline is not None else PipelineSettings()).out_rate_hz)
 
 
 @dataclass
@@ -247,6 +268,22 @@ def _out_rate(t_us, flags, period_us, tol_us, state, sent):  # type: ignore[no-u
                 nxt = t + period_us
         sent[i] = True
     state[0] = nxt
+
+
+def judged_samples(result: ReplayResult, name: str) -> NDArray[np.int64]:
+    """The rows of filter ``name``'s track that the daemon's monitor would judge: the attitudes it publishes at
+    :meth:`ReplaySettings.judged_rate_hz` (Pipeline._filter_sample's output-rate rule over the track), which
+    are the track's ``sent`` rows where the replay's output rate is that rate."""
+    track = result.tracks[name]
+    rate = result.settings.judged_rate_hz()
+    if rate == float(result.settings.pipeline_settings().out_rate_hz):
+        return np.flatnonzero(track.sent)
+    period = int(round(1e6 / rate)) if rate > 0 else 0
+    n = track.out.shape[0]
+    judged = np.zeros(n, bool)
+    _out_rate(result.inputs.t_us[:n], track.out[:, OUT_FLAGS], period, min(period // 4, 1000),
+              np.full(1, -1, np.int64), judged)  # fmt: skip
+    return np.flatnonzero(judged)
 
 
 def _declinate(q: Array, decl: Array) -> Array:
