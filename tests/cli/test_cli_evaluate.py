@@ -303,3 +303,28 @@ def test_a_csv_with_a_header_and_no_rows_is_one_error_line(tmp_path: Path) -> No
     lines = [ln for ln in proc.stderr.splitlines() if " INFO " not in ln]
     assert lines and lines[-1].endswith(f"ERROR evaluate: {csv}: no data rows"), proc.stderr
     assert "UserWarning" not in proc.stderr and "genfromtxt" not in proc.stderr, proc.stderr
+
+
+def test_a_folders_plot_and_study_name_the_one_recording_they_use(shared_data: Path, tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str],
+                                                                  caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    """Given a folder, ``--plot`` draws one recording and ``--study compare`` studies one: they took the folder's
+    first silently (RepoIMU's first, TStick_Test01_Static, has no reference to draw).  Now the first with a
+    reference, named on stderr."""
+    pytest.importorskip("matplotlib")
+    folder = shared_data / "repoimu_tstick"
+    if not (folder / "TStick_Test01_Static.csv").exists() or not (folder / "TStick_Test02_Trial1.csv").exists():
+        pytest.skip("RepoIMU data absent")
+    n_ref = len(list(folder.glob("TStick_Test*_Trial*.csv")))
+    png = tmp_path / "first.png"
+    with caplog.at_level("INFO", logger="mavahrs.cli"):
+        assert main(["evaluate", str(folder), "-f", "mahony", "--plot", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    said = caplog.text + capsys.readouterr().err
+    assert f"--plot draws one recording: TStick_Test02_Trial1, the first of {n_ref} with a reference" in said
+    caplog.clear()
+    with caplog.at_level("INFO", logger="mavahrs.cli"):
+        assert main(["evaluate", str(folder), "--study", "compare"]) == 0
+    out, err = capsys.readouterr()
+    assert "on TStick_Test02_Trial1" in out
+    assert f"--study compare runs on one recording: TStick_Test02_Trial1, the first of {n_ref}" in caplog.text + err
