@@ -196,7 +196,7 @@ def _report(args: argparse.Namespace, rp: Any, result: Any, wrote: dict[str, int
     from pathlib import Path
 
     inp = result.inputs
-    dur = (inp.t_us[-1] - inp.t_us[0]) * 1e-6 if inp.n > 1 else 0.0
+    dur = inp.duration_s()
     print(f"{Path(args.tlog).name}: {inp.n} IMU samples of {inp.message} (instance {inp.instance}) "
           f"from system {inp.source[0]}/{inp.source[1]} ({inp.profile} scaling), {dur:.1f} s at "
           f"{inp.rate_hz():.1f} Hz; engine {result.engine}")  # fmt: skip

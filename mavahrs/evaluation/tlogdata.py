@@ -86,6 +86,9 @@ __all__ = [
     "read_tlog_data",
     "prepare_inputs",
     "references",
+    "references_with_boots",
+    "sample_boots",
+    "boots_of_tlog_times",
     "tlog_to_autopilot_us",
     "scale_imu_messages",
     "load_tlog_recording",
@@ -803,8 +806,29 @@ def _delay_of(profile: Any, message: str) -> float:
     return float(ms.delay_s) if ms is not None else 0.0
 
 
+def sample_boots(t_us: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Per fed IMU sample, the autopilot's boot it belongs to (0, 1, …): a new one wherever the fed samples' boot
+    clock goes back (the pipeline feeds no reordered sample; its clock going back is a reboot)."""
+    back = np.zeros(t_us.shape[0], np.int64)
+    if t_us.shape[0] > 1:
+        back[1:] = t_us[1:] < t_us[:-1]
+    return np.cumsum(back)
+
+
+def boots_of_tlog_times(prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The boot (:func:`sample_boots`) of each tlog record time: the last boot whose first IMU sample was recorded
+    at or before it (0 before the first)."""
+    b = sample_boots(prep.t_us)
+    starts = np.flatnonzero(np.diff(b, prepend=0) > 0) if b.size else np.zeros(0, np.int64)
+    if starts.size == 0:
+        return np.zeros(tlog_us.shape[0], np.int64)
+    return np.searchsorted(prep.tlog_us[starts], tlog_us, side="right").astype(np.int64)
+
+
 def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Array]]:
     """Attitudes the log already holds, name → (autopilot time µs, (K, 4) q_body_to_ned, true north).
+    Where the autopilot rebooted during the log (:func:`sample_boots`) each is in boot order, then time order
+    within a boot: :func:`references_with_boots` also says which boot each sample is of.
 
     ``autopilot ATTITUDE`` (its ``time_boot_ms``), ``autopilot AHRS2`` and the
     simulator truth ``SIMSTATE`` (Euler), ``SIM_STATE`` (quaternion) or
@@ -813,9 +837,20 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     through the IMU messages' (tlog time, sample time) pairs; HIL_STATE_QUATERNION's
     ``time_usec`` is used when every message has one (else the same mapping).
     """
+    return references_with_boots(td, prep)[0]
+
+
+def references_with_boots(
+    td: TlogData, prep: PreparedInputs
+) -> tuple[dict[str, tuple[Array, Array]], dict[str, NDArray[np.int64]]]:
+    """:func:`references` and, per reference, the boot of each of its samples (by its tlog record time,
+    :func:`boots_of_tlog_times`).  Until user7 a log with a reboot had its references sorted by time over all
+    boots at once, so the comparison matched the first boot's attitudes with the second's (50° RMS on a
+    firmware_sim session with a reboot recorded by the daemon)."""
     from mavahrs.geometry.rotation import from_euler_rad
 
     out: dict[str, tuple[Array, Array]] = {}
+    rec: dict[str, NDArray[np.int64]] = {}  # the tlog record time of each reference sample
     src = prep.source
 
     def of_source(a: np.ndarray) -> np.ndarray:
@@ -825,10 +860,12 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     if att.shape[0]:
         q = from_euler_rad(att["roll"].astype(float), att["pitch"].astype(float), att["yaw"].astype(float))
         out["autopilot ATTITUDE"] = (att["time_boot_ms"].astype(np.float64) * 1000.0, q)
+        rec["autopilot ATTITUDE"] = att["t_us"]
     ahrs2 = of_source(td.arrays["AHRS2"])
     if ahrs2.shape[0]:
         q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
         out["autopilot AHRS2"] = (tlog_to_autopilot_us(td, prep, ahrs2["t_us"]), q)
+        rec["autopilot AHRS2"] = ahrs2["t_us"]
     # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler), SIM_STATE (quaternion) or
     # HIL_STATE_QUATERNION (PX4's simulators), whichever comes most often (slerping a 10 Hz truth
     # through fast manoeuvres would add its own error)
@@ -845,28 +882,34 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
             out["HIL_STATE_QUATERNION truth"] = (t_hil, q)
         else:
             out["HIL_STATE_QUATERNION truth"] = (tlog_to_autopilot_us(td, prep, hil["t_us"]), q)
+        rec["HIL_STATE_QUATERNION truth"] = hil["t_us"]
     elif sim.shape[0] and sim.shape[0] == most:
         q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
         out["SIM_STATE truth"] = (tlog_to_autopilot_us(td, prep, sim["t_us"]), q)
+        rec["SIM_STATE truth"] = sim["t_us"]
     elif ss.shape[0]:
         q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
         out["SIMSTATE truth"] = (tlog_to_autopilot_us(td, prep, ss["t_us"]), q)
+        rec["SIMSTATE truth"] = ss["t_us"]
+    boots: dict[str, NDArray[np.int64]] = {}
     for k, (t, q) in list(out.items()):
         good = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
         if not good.any():
             del out[k]
             continue
         t, q = t[good], q[good]
-        order = np.argsort(t, kind="stable")
-        t, q = t[order], q[order]
+        boot = boots_of_tlog_times(prep, np.asarray(rec[k])[good])
+        order = np.lexsort((t, boot))  # by boot, then by time within it (stable)
+        t, q, boot = t[order], q[order], boot[order]
         # a message the autopilot sent twice in one pass (same time, same values: ArduPilot's telemetry catching
         # up at SCHED_LOOP_RATE 800) is one reference sample, not two
         again = np.zeros(t.shape[0], bool)
-        again[1:] = (t[1:] == t[:-1]) & np.all(q[1:] == q[:-1], axis=1)
+        again[1:] = (t[1:] == t[:-1]) & np.all(q[1:] == q[:-1], axis=1) & (boot[1:] == boot[:-1])
         if again.any():
-            t, q = t[~again], q[~again]
+            t, q, boot = t[~again], q[~again], boot[~again]
         out[k] = (t, q / np.linalg.norm(q, axis=1, keepdims=True))
-    return out
+        boots[k] = boot
+    return out, boots
 
 
 def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
