@@ -361,18 +361,27 @@ def _second_opinion(
     ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE and not e.update]
     causes = episode_causes(series.events)
     judged = np.isfinite(series.tilt_deg)
-    if t_est_ms.size:
-        judged &= series.t_ms >= t_est_ms[0] + mon.startup_grace_s * 1000.0
+    # per boot of the autopilot (replay_monitor's NaN rows between boots): the start-up grace from its first estimate
+    boot, est_boot = np.cumsum(np.isnan(series.t_ms)), np.cumsum(np.isnan(t_est_ms))
+    for k in np.unique(boot).tolist():
+        first = t_est_ms[(est_boot == k) & np.isfinite(t_est_ms)]
+        if first.size:
+            judged[boot == k] &= series.t_ms[boot == k] >= first[0] + mon.startup_grace_s * 1000.0
     tilt, hdg = series.tilt_deg[judged], np.abs(series.heading_deg[judged])
     tj = series.t_ms[judged]
     times = [e.t_ms / 1000.0 for e in warns]
+
+    def span(t: np.ndarray, b: np.ndarray) -> float:  # s, summed over the boots
+        return sum(float(np.ptp(t[b == k])) for k in np.unique(b).tolist() if (b == k).sum() > 1) / 1000.0
+
     if tj.size < 2:  # say why the row's divergence columns are empty
-        span_s = float(series.t_ms[-1] - series.t_ms[0]) / 1000.0 if series.t_ms.size > 1 else 0.0
+        ok = np.isfinite(series.t_ms)
+        span_s = span(series.t_ms[ok], boot[ok])
         short = (f"nothing compared: the log's {span_s:.1f} s of {ref} lie within the monitor's start-up "
                  f"grace of {mon.startup_grace_s:g} s")
         row = _replace(row, notes=" | ".join(x for x in (row.notes, short) if x))
     return _replace(
-        row, reference=ref, compared_s=float(tj[-1] - tj[0]) / 1000.0 if tj.size > 1 else 0.0,
+        row, reference=ref, compared_s=span(tj, boot[judged]) if tj.size > 1 else 0.0,
         inclination_rms_deg=_rms(tilt), inclination_max_deg=_max(tilt),
         heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
         alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
@@ -410,7 +419,8 @@ def replay_monitor(
 
     Where the autopilot rebooted during a tlog (:func:`~mavahrs.evaluation.tlogdata.sample_boots`), each boot is
     judged by a monitor of its own against that boot's attitudes, phase and IMUs, as the daemon resets its
-    monitor at a reboot; the series are concatenated in boot order.  (Until user7 the boots were judged at once:
+    monitor at a reboot; the series (and the estimates' times) are concatenated in boot order with a NaN row between
+    boots.  (Until user7 the boots were judged at once:
     a firmware_sim session with a reboot, recorded by the daemon, got a false ``IMU2 gyro off by 26.8 dps``.)"""
     from mavahrs.evaluation.tlogdata import sample_boots
     from mavahrs.replay.engine import judged_samples
@@ -428,13 +438,13 @@ def replay_monitor(
                               name, sent[boot[sent] == k], k)
              for k in range(int(boot[-1]) + 1)]  # fmt: skip
 
-    def cat(field_name: str) -> np.ndarray:
-        return np.concatenate([getattr(p[0], field_name) for p in parts])
+    def cat(arrays: list[np.ndarray]) -> np.ndarray:  # one NaN between boots: charts break their lines there
+        return np.concatenate([x for a in arrays for x in (np.full(1, np.nan), np.asarray(a, np.float64))][1:])
 
-    series = MonitorSeries(cat("t_ms"), cat("tilt_deg"), cat("heading_deg"),
+    series = MonitorSeries(*(cat([getattr(p[0], f) for p in parts]) for f in ("t_ms", "tilt_deg", "heading_deg")),
                            tuple(e for p in parts for e in p[0].events),
-                           cat("tilt_threshold_deg"), cat("heading_threshold_deg"))  # fmt: skip
-    return series, np.concatenate([p[1] for p in parts])
+                           *(cat([getattr(p[0], f) for p in parts]) for f in ("tilt_threshold_deg", "heading_threshold_deg")))  # fmt: skip
+    return series, cat([p[1] for p in parts])
 
 
 def _monitor_of_boot(

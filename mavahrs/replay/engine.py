@@ -274,6 +274,24 @@ def _out_rate(t_us, flags, period_us, tol_us, state, sent):  # type: ignore[no-u
     state[0] = nxt
 
 
+def _out_rate_by_boot(t_us: NDArray[np.int64], flags: Array, period_us: int, tol_us: int, state: NDArray[np.int64],
+                      sent: NDArray[np.bool_]) -> None:  # fmt: skip
+    """:func:`_out_rate` over samples that may span reboots of the autopilot: the rule starts again wherever the
+    boot clock goes back, also from one call to the next (``state`` = [next output time, last sample time]), as
+    the pipeline's output clock does at a reboot (``Pipeline._on_reboot``).  (Until user7 the replay carried the
+    first boot's next output time on: after a reboot no sample counted as sent.)"""
+    n = t_us.shape[0]
+    if n == 0:
+        return
+    cut = [0, *(np.flatnonzero(t_us[1:] < t_us[:-1]) + 1).tolist(), n]
+    for j, (a, b) in enumerate(zip(cut[:-1], cut[1:], strict=True)):
+        if j > 0 or (state[1] >= 0 and t_us[0] < state[1]):
+            state[0] = -1
+        if b > a:
+            _out_rate(t_us[a:b], flags[a:b], period_us, tol_us, state[:1], sent[a:b])
+    state[1] = t_us[-1]
+
+
 def judged_samples(result: ReplayResult, name: str) -> NDArray[np.int64]:
     """The rows of filter ``name``'s track that the daemon's monitor would judge: the attitudes it publishes at
     :meth:`ReplaySettings.judged_rate_hz` (Pipeline._filter_sample's output-rate rule over the track), which
@@ -285,11 +303,8 @@ def judged_samples(result: ReplayResult, name: str) -> NDArray[np.int64]:
     period = int(round(1e6 / rate)) if rate > 0 else 0
     n = track.out.shape[0]
     judged = np.zeros(n, bool)
-    t = result.inputs.t_us[:n]
-    boot = sample_boots(t)
-    for a, b in zip(*_boot_spans(boot), strict=True):  # the pipeline's output clock starts again at a reboot
-        _out_rate(t[a:b], track.out[a:b, OUT_FLAGS], period, min(period // 4, 1000), np.full(1, -1, np.int64),
-                  judged[a:b])  # fmt: skip
+    _out_rate_by_boot(result.inputs.t_us[:n], track.out[:, OUT_FLAGS], period, min(period // 4, 1000),
+                      np.full(2, -1, np.int64), judged)  # fmt: skip
     return np.flatnonzero(judged)
 
 
@@ -751,7 +766,7 @@ def _replay_pipeline(
             bar.update(j - last[0])
             last[0] = j
 
-    csv_states = [np.full(1, -1, np.int64) for _ in filters]
+    csv_states = [np.full(2, -1, np.int64) for _ in filters]
 
     def write_block(a: int, b: int, t_list: list[int], decl: list[float], outs: list[list[Array]]) -> None:
         """Write samples a:b to the CSV while the replay goes on (an interruption keeps them)."""
@@ -762,7 +777,7 @@ def _replay_pipeline(
             o = np.vstack(outs[k][a:b])
             o[:, OUT_Q : OUT_Q + 4] = _declinate(o[:, OUT_Q : OUT_Q + 4], d)
             sent = np.zeros(b - a, bool)
-            _out_rate(t, o[:, OUT_FLAGS], period, tol, csv_states[k], sent)
+            _out_rate_by_boot(t, o[:, OUT_FLAGS], period, tol, csv_states[k], sent)
             blocks.append(o)
             sents.append(sent)
         sink.write(_csv_block(t, blocks, sents))
@@ -783,7 +798,7 @@ def _replay_pipeline(
         out[:, OUT_Q : OUT_Q + 4] = _declinate(out[:, OUT_Q : OUT_Q + 4], prep.declination_rad)
         # which samples produced a frame: the pipeline's own rule, replayed on its outputs
         sent = np.zeros(prep.n, bool)
-        _out_rate(prep.t_us, out[:, OUT_FLAGS], period, tol, np.full(1, -1, np.int64), sent)
+        _out_rate_by_boot(prep.t_us, out[:, OUT_FLAGS], period, tol, np.full(2, -1, np.int64), sent)
         tracks[n] = FilterTrack(n, ps.component_id + i, out, sent, frames[i])
     return ReplayResult(td.path, prep, tracks, sysid, s)
 
