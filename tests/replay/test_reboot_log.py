@@ -117,3 +117,30 @@ def test_the_audit_and_the_output_tlog_of_a_log_with_a_reboot_cover_both_boots(
     res = rp.replay(str(two_boots[2]), AuditSettings().replay)
     track = res.tracks["best"]
     assert track.frames is not None and int(track.sent.sum()) == len(track.frames) > 2000
+
+
+def test_the_replay_csv_of_a_log_with_a_reboot_is_drawn_on_each_boots_clock(
+    two_boots: tuple[Path, Path, Path], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """``mavahrs plot OUT.csv``: the CSV's time_s (boot time) with one break where the autopilot rebooted (it drew
+    seconds from the first row, boot B at negative times, and a line from A's last row to B's first)."""
+    import numpy as np
+
+    from mavahrs.cli import main
+    from mavahrs.evaluation import plots
+
+    csv = tmp_path / "ab.csv"
+    assert main(["replay", str(two_boots[2]), "--csv", str(csv)]) == 0
+    drawn: list[tuple[np.ndarray, str]] = []
+
+    def capture(path, t_s, est, **kw):  # type: ignore[no-untyped-def]
+        drawn.append((np.asarray(t_s), kw.get("time_label", "")))
+        return Path(path)
+
+    monkeypatch.setattr(plots, "plot_attitude", capture)
+    assert main(["plot", str(csv), "-o", str(tmp_path / "ab.png")]) == 0
+    t, label = drawn[-1]
+    time_s = np.loadtxt(csv, delimiter=",", skiprows=1, usecols=0)
+    gap = np.flatnonzero(np.isnan(t))
+    assert gap.size == 1 and np.array_equal(np.delete(t, gap), time_s) and time_s[gap[0]] < time_s[gap[0] - 1]
+    assert label == "autopilot boot time (each boot's own clock), s"
