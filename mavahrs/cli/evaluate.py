@@ -96,8 +96,17 @@ def _run(args: argparse.Namespace) -> int:
     prefer_small_pages()
     start_kernels()
 
-    recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto",
-                          source=args.source)
+    import logging
+
+    geomag = logging.getLogger("mavahrs.sensors.geomag")
+    level = geomag.level
+    if Path(args.input).is_dir() and not getattr(args, "verbose", 0):
+        geomag.setLevel(logging.WARNING)  # one "magnetic field from WMM at …" line per flight log, none saying which
+    try:
+        recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto",
+                              source=args.source)
+    finally:
+        geomag.setLevel(level)
     if args.multirotor:
         for rec in recordings:
             rec.extra["multirotor"] = True

@@ -328,3 +328,22 @@ def test_a_folders_plot_and_study_name_the_one_recording_they_use(shared_data: P
     out, err = capsys.readouterr()
     assert "on TStick_Test02_Trial1" in out
     assert f"--study compare runs on one recording: TStick_Test02_Trial1, the first of {n_ref}" in caplog.text + err
+
+
+def test_a_folder_of_flight_logs_prints_no_magnetic_field_line_per_log(sim_hover_tlog: Path, tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``evaluate FOLDER``: one "magnetic field from WMM-2025 at …" INFO line per flight log, none naming its log
+    (six on the shared SITL folder), before the table; now only with -v (one log still says it)."""
+    import shutil
+
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for name in ("one.tlog", "two.tlog"):
+        shutil.copy(sim_hover_tlog, folder / name)
+    said = "magnetic field from"
+    assert main(["evaluate", str(folder), "-f", "mahony"]) == 0
+    assert said not in capsys.readouterr().err
+    assert main(["evaluate", str(folder / "one.tlog"), "-f", "mahony"]) == 0
+    assert capsys.readouterr().err.count(said) == 1
+    assert main(["-v", "evaluate", str(folder), "-f", "mahony"]) == 0
+    assert capsys.readouterr().err.count(said) == 2
