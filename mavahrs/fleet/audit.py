@@ -127,7 +127,8 @@ class FleetRow:
         autopilot: MAV_AUTOPILOT of its first HEARTBEAT (``ARDUPILOTMEGA``, ``PX4`` …).
         vehicle_type: MAV_TYPE of that HEARTBEAT (``QUADROTOR``, ``FIXED_WING`` …).
         start_utc: the first record's time, ISO 8601 UTC ("" if the tlog's clock is implausible).
-        duration_s: from the first to the last IMU sample fed to the filter, s.
+        duration_s: from the first to the last IMU sample fed to the filter, s (summed over the autopilot's boots
+            where it rebooted during the log).
         imu_message: the IMU message fed (``RAW_IMU``, ``SCALED_IMU2``, ``HIGHRES_IMU`` …).
         imu_instance: its IMU instance.
         imu_samples: samples fed to the filter.
