@@ -531,7 +531,8 @@ def plot_second_opinion(path: str | Path, series: Any, *, title: str = "", t0_s:
         ax.plot(t, y, lw=0.9, color="tab:blue", label="mavahrs − autopilot")
         if th is not None and np.isfinite(th).any():
             ok = np.isfinite(th) & (th > 0)
-            ax.plot(t[ok], th[ok], lw=1.2, ls="--", color="tab:orange", label="threshold")
+            keep = ok | np.isnan(t)  # a NaN time is a new boot of the autopilot (replay_monitor): the line breaks
+            ax.plot(t[keep], np.where(ok, th, np.nan)[keep], lw=1.2, ls="--", color="tab:orange", label="threshold")
             fin = y[np.isfinite(y)]
             if fin.size and ok.any():  # the start-up's wide thresholds and converging estimates off the scale
                 top = max(float(np.percentile(fin, 99.5)), 2.0 * float(np.median(th[ok])))

@@ -63,6 +63,15 @@ def test_a_log_with_a_reboot_is_compared_and_judged_boot_by_boot(two_boots: tupl
     said, alone = _in_flight(ab), _in_flight(b)
     assert _in_flight(a) == [] and alone and 15_000.0 <= alone[0][0] <= 17_000.0
     assert len(said) == 1 and "AP off" in said[0][1] and abs(said[0][0] - alone[0][0]) <= 100.0, said
+    # its series: boot A's, one NaN row (charts break their lines there), boot B's
+    import numpy as np
+
+    from mavahrs.replay.engine import _monitor_of
+
+    series = _monitor_of(ab)[0]  # type: ignore[index]
+    gap = np.flatnonzero(np.isnan(series.t_ms))
+    assert gap.size == 1 and np.isnan(series.tilt_threshold_deg[gap[0]])
+    assert series.t_ms[gap[0] - 1] > series.t_ms[gap[0] + 1]
 
 
 def test_the_plot_of_a_log_with_a_reboot_draws_each_boot_against_its_own_reference(
