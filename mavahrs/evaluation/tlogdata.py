@@ -751,6 +751,10 @@ def run_pipelines(
         velocity_source=_velocity_setting(settings),
         velocity_fixes={k: p0.velocity_selector.used(k) for k in p0.velocity_selector.messages},
         notes=truncation_notes(td),
+        # what the pipeline told its filters, for a filter run over these rows (`evaluate`): until user7 a log
+        # that needs the pipeline (a fail-over, a reboot) was evaluated without them
+        sensor_delay_s=_delay_of(p0.profile, max(names_fed, key=names_fed.__getitem__)) if p0.profile else 0.0,
+        vehicle_stream=True, multirotor=_is_multirotor(td, (int(src[0]), int(src[1]))),
     )  # fmt: skip
     for kind, text in p0.drain_notices():
         if kind >= logging.WARNING:
@@ -926,12 +930,17 @@ def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
         ok = np.isfinite(t)
         if ok.sum() < 2:
             continue
-        order = np.argsort(t[ok], kind="stable")
-        tt = t[ok][order]
-        out = np.empty((prep.n, 3))
-        for i, f in enumerate(("xgyro", "ygyro", "zgyro")):
-            out[:, i] = np.interp(prep.t_us.astype(np.float64), tt, a[f][ok][order].astype(np.float64),
-                                  left=_NAN, right=_NAN)  # fmt: skip
+        out = np.full((prep.n, 3), _NAN)
+        rec_boot, boot = boots_of_tlog_times(prep, a["t_us"]), sample_boots(prep.t_us)
+        for k in range(int(boot[-1]) + 1 if boot.size else 0):  # each boot's samples from that boot's truth
+            sel = ok & (rec_boot == k)
+            if not sel.any():
+                continue
+            order = np.argsort(t[sel], kind="stable")
+            tt = t[sel][order]
+            for i, f in enumerate(("xgyro", "ygyro", "zgyro")):
+                out[boot == k, i] = np.interp(prep.t_us[boot == k].astype(np.float64), tt,
+                                              a[f][sel][order].astype(np.float64), left=_NAN, right=_NAN)  # fmt: skip
         return out
     return None
 
@@ -1004,8 +1013,9 @@ def load_tlog_recording(
                                     velocity_source=velocity_source)
     td = read_tlog_data(path)
     prep = _inputs_for(td, imu, settings, velocity_source)
-    refs = references(td, prep) if reference else None
+    refs, boots = references_with_boots(td, prep) if reference else (None, None)
     return recording_from_inputs(Path(path).stem, prep, refs, skip_s=skip_s, true_rate_rad_s=true_rates(td, prep),
+                                 ref_boots=boots,
                                  no_truth="no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this "
                                  "log: nothing to score against")  # fmt: skip
 
@@ -1019,6 +1029,7 @@ def recording_from_inputs(
     true_rate_rad_s: Array | None = None,
     groups: tuple[str, ...] = ("tlog",),
     no_truth: str = "no simulator truth in this log: nothing to score against",
+    ref_boots: dict[str, NDArray[np.int64]] | None = None,
 ) -> Recording:
     """A log's filter inputs as an evaluation :class:`Recording`, whatever the log's format.
 
@@ -1026,17 +1037,31 @@ def recording_from_inputs(
     do not look for one); the first whose name ends in ``truth`` is slerped onto the sample times and
     rotated by the declination the pipeline would apply (true → magnetic north), so the recording
     scores filters exactly as their output would be scored.  Samples from ``skip_s`` s on are scored.
+    Where the autopilot rebooted during the log (:func:`sample_boots`; ``ref_boots``: each reference sample's
+    boot, :func:`references_with_boots`) each boot's samples get that boot's truth, and ``skip_s`` counts from
+    each boot's first sample.
     """
     from mavahrs.geometry.quaternion import multiply
 
     n = prep.n
     q_ref = np.full((n, 4), _NAN)
     notes = list(prep.notes)
+    boot = sample_boots(prep.t_us)
+    first = np.flatnonzero(np.diff(boot, prepend=-1) > 0)  # each boot's first sample
+    t_us = prep.t_us.astype(np.float64)
     if refs is not None:
         truth = [k for k in refs if k.endswith("truth")]
         if truth:
             t_ref, q = refs[truth[0]]
-            q_true = interpolate_attitude(np.asarray(t_ref, np.float64), q, prep.t_us.astype(np.float64))
+            rb = (ref_boots or {}).get(truth[0])
+            if first.size <= 1 or rb is None:
+                q_true = interpolate_attitude(np.asarray(t_ref, np.float64), q, t_us)
+            else:  # a reboot: each boot's samples against that boot's truth (until user7: the boots mixed)
+                q_true = np.full((n, 4), _NAN)
+                for k in range(first.size):
+                    mine, theirs = boot == k, rb == k
+                    if theirs.any():
+                        q_true[mine] = interpolate_attitude(np.asarray(t_ref, np.float64)[theirs], q[theirs], t_us[mine])
             half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
             q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
             q_ref = multiply(q_dec, q_true)
@@ -1052,7 +1077,10 @@ def recording_from_inputs(
     rate = prep.rate_hz()
     if 0 < rate < 50:
         notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
-    t_s = (prep.t_us - prep.t_us[0]) * 1e-6 if n else np.zeros(0)
+    # seconds since the first sample, the time between boots left out; the boot's own for --skip
+    since_boot = (t_us - t_us[first[boot]]) * 1e-6 if n else np.zeros(0)
+    span = np.array([since_boot[b - 1] for b in [*first[1:].tolist(), n]]) if n else np.zeros(0)
+    t_s = since_boot + np.concatenate(([0.0], np.cumsum(span)[:-1]))[boot] if n else np.zeros(0)
     rows = prep.rows
     dt = rows[:, IN_DT].copy()
     if n > 1:
@@ -1066,11 +1094,12 @@ def recording_from_inputs(
         accel_m_s2=np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3]),
         mag_ut=np.ascontiguousarray(mag) if np.isfinite(mag).any() else None,
         q_ref_body_to_ned=q_ref,
-        scored=t_s >= skip_s,
+        scored=since_boot >= skip_s,
         groups=groups,
         heading_referenced=True,
         extra={
             "time_s": t_s,
+            "boot_starts": first[1:].tolist(),  # the samples where the autopilot's clock started again (a reboot)
             "temperature_c": prep.temperature_c,
             "velocity_ned_m_s": np.ascontiguousarray(vel) if np.isfinite(vel).any() else None,
             "velocity_age_s": rows[:, IN_VEL_AGE].copy() if np.isfinite(vel).any() else None,
