@@ -403,6 +403,12 @@ def write_sim_tlog(path: Path, *args: str, imu_changes: dict[str, object] | None
 
 
 @pytest.fixture(scope="session")
+def sim_tlog_writer() -> Callable[..., Path]:
+    """:func:`write_sim_tlog`, for test modules (``--import-mode=importlib``: no ``from conftest import``)."""
+    return write_sim_tlog
+
+
+@pytest.fixture(scope="session")
 def sim_hover_tlog(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """20 s of hover from the simulator: RAW_IMU + a live SCALED_IMU2 at 250 Hz, SIMSTATE truth."""
     return write_sim_tlog(

@@ -70,7 +70,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--decimation", default="average", choices=("average", "pick"),
                    help="rate study: gyro averaged over each block, or every signal picked (default average)")
     p.add_argument("--duration", type=float, metavar="S", help="bias study: use only the first S seconds")
-    p.add_argument("--plot", metavar="PNG", help="write a plot (evaluation: the first recording; study: its figure)")
+    p.add_argument("--plot", metavar="PNG", help="write a plot (evaluation: the first recording with a reference, named on stderr; study: its figure)")
     add_source_option(p)
     p.set_defaults(func=run)
     return p
@@ -96,8 +96,17 @@ def _run(args: argparse.Namespace) -> int:
     prefer_small_pages()
     start_kernels()
 
-    recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto",
-                          source=args.source)
+    import logging
+
+    geomag = logging.getLogger("mavahrs.sensors.geomag")
+    level = geomag.level
+    if Path(args.input).is_dir() and not getattr(args, "verbose", 0):
+        geomag.setLevel(logging.WARNING)  # one "magnetic field from WMM at …" line per flight log, none saying which
+    try:
+        recordings = load_any(args.input, skip_s=args.skip, velocity_source=args.velocity_source or "auto",
+                              source=args.source)
+    finally:
+        geomag.setLevel(level)
     if args.multirotor:
         for rec in recordings:
             rec.extra["multirotor"] = True
@@ -113,10 +122,22 @@ def _run(args: argparse.Namespace) -> int:
     else:
         print(format_report(report, per_recording=True if args.per_recording else None))
     if args.plot:
-        _plot_first(args, recordings[0], filters)
+        with_ref = [r for r in recordings if r.extra.get("has_reference", True)] or recordings
+        _plot_first(args, _one_of(with_ref, "--plot draws"), filters)
     if not any(r.scores for r in report.recordings):
         return _error("nothing was scored (no reference attitude in the input; see the notes above)", 1)
     return 0
+
+
+def _one_of(recordings: list[Any], what: str) -> Any:
+    """The first of ``recordings``; says so when there are more (a folder): the command draws or studies one."""
+    if len(recordings) > 1:
+        import logging
+
+        logging.getLogger("mavahrs.cli").info(
+            "%s one recording: %s, the first of %d with a reference; give its file to choose another",
+            what, recordings[0].name, len(recordings))  # fmt: skip
+    return recordings[0]
 
 
 def _plot_first(args: argparse.Namespace, rec: Any, filters: list[str]) -> None:
@@ -149,12 +170,13 @@ def _study(args: argparse.Namespace, recordings: list[Any]) -> int:
         )
     elif args.study == "bias":
         result = studies.bias_study(
-            with_ref[0], filter_name=filters[0] if filters else "madgwick", duration_s=args.duration,
+            _one_of(with_ref, "--study bias runs on"), filter_name=filters[0] if filters else "madgwick", duration_s=args.duration,
             use_mag=not args.no_mag,
         )  # fmt: skip
     else:
         names = filters or ["mahony", "madgwick", "complementary"]
-        result = studies.compare_study(with_ref[0], filters=names, use_mag=not args.no_mag)
+        result = studies.compare_study(_one_of(with_ref, "--study compare runs on"), filters=names,
+                                       use_mag=not args.no_mag)  # fmt: skip
     print(json.dumps(result.to_dict(), indent=2) if args.json else result.format())
     if args.plot:
         from mavahrs.evaluation.plots import plot_study

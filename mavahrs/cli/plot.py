@@ -104,7 +104,10 @@ def _ignored(flag: str, why: str) -> None:
 
 
 def _plot_replay_csv(path: Any, output: str, start_s: float | None = None, end_s: float | None = None) -> Any:
-    """A ``replay --csv`` file drawn as it is; ``start_s``/``end_s``: seconds after its first row."""
+    """A ``replay --csv`` file drawn as it is, against its ``time_s`` (the autopilot's boot time, as ``replay
+    --plot`` draws and the second opinion's times read; until user7 it counted from the first row); where the
+    autopilot rebooted (``time_s`` goes back) each boot on its own clock, lines broken between them.
+    ``start_s``/``end_s``: seconds after its first row (the time between boots not counted)."""
     import numpy as np
 
     from mavahrs.errors import DataError
@@ -126,12 +129,19 @@ def _plot_replay_csv(path: Any, output: str, start_s: float | None = None, end_s
         out[:, OUT_MAG_WEIGHT] = data[:, col[f"{n}_mag_weight"]]
         est[n] = out
     t = data[:, col["time_s"]]
-    t_s = t - t[0]
+    step = np.diff(t)
+    t_s = np.concatenate(([0.0], np.cumsum(np.maximum(step, 0.0))))  # seconds after the first row
     keep = (t_s >= (start_s if start_s is not None else -np.inf)) & (t_s <= (end_s if end_s is not None else np.inf))
     if not keep.any():
         raise DataError(f"{path}: no rows between --start {start_s} and --end {end_s} s "
                         f"(the CSV covers 0–{t_s[-1]:.1f} s)")  # fmt: skip
-    return plot_attitude(output, t_s[keep], {n: o[keep] for n, o in est.items()}, title=f"{path.name} (replay CSV)")
+    x, est = t[keep], {n: o[keep] for n, o in est.items()}
+    back = np.flatnonzero(np.diff(x) < 0) + 1  # a reboot: a NaN row there breaks every line
+    if back.size:
+        x = np.insert(x, back, np.nan)
+        est = {n: np.insert(o, back, np.nan, axis=0) for n, o in est.items()}
+    label = "autopilot boot time" + (" (each boot's own clock)" if back.size else "") + ", s"
+    return plot_attitude(output, x, est, title=f"{path.name} (replay CSV)", time_label=label)
 
 
 def _plot_recording(path: Any, args: argparse.Namespace) -> Any:

@@ -30,6 +30,9 @@ EKF3's XKQ, ATT, AHR2 and in SITL the SIM truth) or a PX4 ULog (.ulg).
   --plot     truth/estimate/error per angle, gain and rejection underneath;
              beside it OUT_second_opinion.png, the second-opinion monitor's
              chart against the log's autopilot attitude (when it has one).
+             The second opinion judges our attitude at the daemon's output
+             rate (50 Hz, or the --config file's out_rate_hz), as `mavahrs
+             run` and `mavahrs audit` do, whatever --out-rate says.
   --stream   after replaying, present the first filter's attitude to a ground
              station as a vehicle of its own (its own system id, component 1,
              HEARTBEAT as a quadrotor), paced in real time (x --speed), so
@@ -113,6 +116,8 @@ def settings_from_args(args: argparse.Namespace) -> Any:
             filters = [ps.filter_name]
     else:
         ps = PipelineSettings()
+    # the second opinion judges what the daemon with these settings publishes, whatever the output tlog's rate
+    monitor_rate_hz = float(ps.out_rate_hz)
     changes: dict[str, Any] = {}
     if getattr(args, "out_rate", None) is not None:
         changes["out_rate_hz"] = args.out_rate
@@ -128,7 +133,7 @@ def settings_from_args(args: argparse.Namespace) -> Any:
     return ReplaySettings(
         filters=tuple(filters), pipeline=ps, filter_settings=filter_settings,
         start_s=getattr(args, "start", None), end_s=getattr(args, "end", None),
-        engine=getattr(args, "engine", "auto"),
+        engine=getattr(args, "engine", "auto"), monitor_rate_hz=monitor_rate_hz,
     )  # fmt: skip
 
 
@@ -191,7 +196,7 @@ def _report(args: argparse.Namespace, rp: Any, result: Any, wrote: dict[str, int
     from pathlib import Path
 
     inp = result.inputs
-    dur = (inp.t_us[-1] - inp.t_us[0]) * 1e-6 if inp.n > 1 else 0.0
+    dur = inp.duration_s()
     print(f"{Path(args.tlog).name}: {inp.n} IMU samples of {inp.message} (instance {inp.instance}) "
           f"from system {inp.source[0]}/{inp.source[1]} ({inp.profile} scaling), {dur:.1f} s at "
           f"{inp.rate_hz():.1f} Hz; engine {result.engine}")  # fmt: skip

@@ -194,7 +194,7 @@ def plot_attitude(
 
     Args:
         path: PNG file to write.
-        t_s: (N,) sample times, s.
+        t_s: (N,) sample times, s (a NaN row breaks every line there: a new boot of the autopilot).
         estimates: filter name → (N, OUT_WIDTH) filter output rows (gain and
             weights are then drawn) or (N, 4) quaternions.
         reference_q: (N, 4) reference ``q_body_to_ned`` (NaN rows allowed), or None.
@@ -207,7 +207,7 @@ def plot_attitude(
     plt = _pyplot()
     t = np.asarray(t_s, dtype=float)
     step = max(1, t.size // max_points)
-    idx = np.arange(0, t.size, step)
+    idx = np.union1d(np.arange(0, t.size, step), np.flatnonzero(np.isnan(t)))  # NaN rows break lines: keep them
     has_diag = any(np.asarray(v).shape[1] == OUT_WIDTH for v in estimates.values())
     has_err = reference_q is not None and np.isfinite(reference_q).all(axis=1).any()
     rows: list[tuple[str, float]] = []
@@ -531,7 +531,8 @@ def plot_second_opinion(path: str | Path, series: Any, *, title: str = "", t0_s:
         ax.plot(t, y, lw=0.9, color="tab:blue", label="mavahrs − autopilot")
         if th is not None and np.isfinite(th).any():
             ok = np.isfinite(th) & (th > 0)
-            ax.plot(t[ok], th[ok], lw=1.2, ls="--", color="tab:orange", label="threshold")
+            keep = ok | np.isnan(t)  # a NaN time is a new boot of the autopilot (replay_monitor): the line breaks
+            ax.plot(t[keep], np.where(ok, th, np.nan)[keep], lw=1.2, ls="--", color="tab:orange", label="threshold")
             fin = y[np.isfinite(y)]
             if fin.size and ok.any():  # the start-up's wide thresholds and converging estimates off the scale
                 top = max(float(np.percentile(fin, 99.5)), 2.0 * float(np.median(th[ok])))

@@ -125,12 +125,18 @@ def run_filter(
     elif rec.extra.get("multirotor") and hasattr(f, "set_multirotor"):  # a raw recording declared a multirotor
         f.set_multirotor()
     events = rec.extra.get("mag_reference_events") or ()
-    if not events:
+    # a flight log in which the autopilot rebooted: the filter starts again at each boot, as the daemon's
+    # pipeline restarts it (until user7 it ran on through the reboot: 132° on the second boot of two
+    # firmware_sim flights written one after the other)
+    boots = [int(i) for i in (rec.extra.get("boot_starts") or ())]
+    if not events and not boots:
         return f.run(inputs)
     # a tlog: seed the magnetometer rejection where the daemon's pipeline would (WMM field known)
     out = np.empty((inputs.shape[0], OUT_WIDTH))
-    cuts = sorted({0, inputs.shape[0], *(min(max(int(i), 0), inputs.shape[0]) for i, _, _ in events)})
+    cuts = sorted({0, inputs.shape[0], *boots, *(min(max(int(i), 0), inputs.shape[0]) for i, _, _ in events)})
     for lo, hi in itertools.pairwise(cuts):
+        if lo in boots:
+            f.reset()
         for i, norm, dip in events:
             if max(int(i), 0) == lo:
                 f.set_mag_reference(norm, dip)

@@ -86,6 +86,9 @@ __all__ = [
     "read_tlog_data",
     "prepare_inputs",
     "references",
+    "references_with_boots",
+    "sample_boots",
+    "boots_of_tlog_times",
     "tlog_to_autopilot_us",
     "scale_imu_messages",
     "load_tlog_recording",
@@ -748,6 +751,10 @@ def run_pipelines(
         velocity_source=_velocity_setting(settings),
         velocity_fixes={k: p0.velocity_selector.used(k) for k in p0.velocity_selector.messages},
         notes=truncation_notes(td),
+        # what the pipeline told its filters, for a filter run over these rows (`evaluate`): until user7 a log
+        # that needs the pipeline (a fail-over, a reboot) was evaluated without them
+        sensor_delay_s=_delay_of(p0.profile, max(names_fed, key=names_fed.__getitem__)) if p0.profile else 0.0,
+        vehicle_stream=True, multirotor=_is_multirotor(td, (int(src[0]), int(src[1]))),
     )  # fmt: skip
     for kind, text in p0.drain_notices():
         if kind >= logging.WARNING:
@@ -803,8 +810,29 @@ def _delay_of(profile: Any, message: str) -> float:
     return float(ms.delay_s) if ms is not None else 0.0
 
 
+def sample_boots(t_us: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Per fed IMU sample, the autopilot's boot it belongs to (0, 1, …): a new one wherever the fed samples' boot
+    clock goes back (the pipeline feeds no reordered sample; its clock going back is a reboot)."""
+    back = np.zeros(t_us.shape[0], np.int64)
+    if t_us.shape[0] > 1:
+        back[1:] = t_us[1:] < t_us[:-1]
+    return np.cumsum(back)
+
+
+def boots_of_tlog_times(prep: PreparedInputs, tlog_us: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The boot (:func:`sample_boots`) of each tlog record time: the last boot whose first IMU sample was recorded
+    at or before it (0 before the first)."""
+    b = sample_boots(prep.t_us)
+    starts = np.flatnonzero(np.diff(b, prepend=0) > 0) if b.size else np.zeros(0, np.int64)
+    if starts.size == 0:
+        return np.zeros(tlog_us.shape[0], np.int64)
+    return np.searchsorted(prep.tlog_us[starts], tlog_us, side="right").astype(np.int64)
+
+
 def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Array]]:
     """Attitudes the log already holds, name → (autopilot time µs, (K, 4) q_body_to_ned, true north).
+    Where the autopilot rebooted during the log (:func:`sample_boots`) each is in boot order, then time order
+    within a boot: :func:`references_with_boots` also says which boot each sample is of.
 
     ``autopilot ATTITUDE`` (its ``time_boot_ms``), ``autopilot AHRS2`` and the
     simulator truth ``SIMSTATE`` (Euler), ``SIM_STATE`` (quaternion) or
@@ -813,9 +841,20 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     through the IMU messages' (tlog time, sample time) pairs; HIL_STATE_QUATERNION's
     ``time_usec`` is used when every message has one (else the same mapping).
     """
+    return references_with_boots(td, prep)[0]
+
+
+def references_with_boots(
+    td: TlogData, prep: PreparedInputs
+) -> tuple[dict[str, tuple[Array, Array]], dict[str, NDArray[np.int64]]]:
+    """:func:`references` and, per reference, the boot of each of its samples (by its tlog record time,
+    :func:`boots_of_tlog_times`).  Until user7 a log with a reboot had its references sorted by time over all
+    boots at once, so the comparison matched the first boot's attitudes with the second's (50° RMS on a
+    firmware_sim session with a reboot recorded by the daemon)."""
     from mavahrs.geometry.rotation import from_euler_rad
 
     out: dict[str, tuple[Array, Array]] = {}
+    rec: dict[str, NDArray[np.int64]] = {}  # the tlog record time of each reference sample
     src = prep.source
 
     def of_source(a: np.ndarray) -> np.ndarray:
@@ -825,10 +864,12 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
     if att.shape[0]:
         q = from_euler_rad(att["roll"].astype(float), att["pitch"].astype(float), att["yaw"].astype(float))
         out["autopilot ATTITUDE"] = (att["time_boot_ms"].astype(np.float64) * 1000.0, q)
+        rec["autopilot ATTITUDE"] = att["t_us"]
     ahrs2 = of_source(td.arrays["AHRS2"])
     if ahrs2.shape[0]:
         q = from_euler_rad(ahrs2["roll"].astype(float), ahrs2["pitch"].astype(float), ahrs2["yaw"].astype(float))
         out["autopilot AHRS2"] = (tlog_to_autopilot_us(td, prep, ahrs2["t_us"]), q)
+        rec["autopilot AHRS2"] = ahrs2["t_us"]
     # the simulator's truth: SIMSTATE (ArduPilot SITL, Euler), SIM_STATE (quaternion) or
     # HIL_STATE_QUATERNION (PX4's simulators), whichever comes most often (slerping a 10 Hz truth
     # through fast manoeuvres would add its own error)
@@ -845,28 +886,34 @@ def references(td: TlogData, prep: PreparedInputs) -> dict[str, tuple[Array, Arr
             out["HIL_STATE_QUATERNION truth"] = (t_hil, q)
         else:
             out["HIL_STATE_QUATERNION truth"] = (tlog_to_autopilot_us(td, prep, hil["t_us"]), q)
+        rec["HIL_STATE_QUATERNION truth"] = hil["t_us"]
     elif sim.shape[0] and sim.shape[0] == most:
         q = np.stack([sim[f"q{i}"].astype(float) for i in range(1, 5)], axis=1)
         out["SIM_STATE truth"] = (tlog_to_autopilot_us(td, prep, sim["t_us"]), q)
+        rec["SIM_STATE truth"] = sim["t_us"]
     elif ss.shape[0]:
         q = from_euler_rad(ss["roll"].astype(float), ss["pitch"].astype(float), ss["yaw"].astype(float))
         out["SIMSTATE truth"] = (tlog_to_autopilot_us(td, prep, ss["t_us"]), q)
+        rec["SIMSTATE truth"] = ss["t_us"]
+    boots: dict[str, NDArray[np.int64]] = {}
     for k, (t, q) in list(out.items()):
         good = np.isfinite(t) & np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0.5)
         if not good.any():
             del out[k]
             continue
         t, q = t[good], q[good]
-        order = np.argsort(t, kind="stable")
-        t, q = t[order], q[order]
+        boot = boots_of_tlog_times(prep, np.asarray(rec[k])[good])
+        order = np.lexsort((t, boot))  # by boot, then by time within it (stable)
+        t, q, boot = t[order], q[order], boot[order]
         # a message the autopilot sent twice in one pass (same time, same values: ArduPilot's telemetry catching
         # up at SCHED_LOOP_RATE 800) is one reference sample, not two
         again = np.zeros(t.shape[0], bool)
-        again[1:] = (t[1:] == t[:-1]) & np.all(q[1:] == q[:-1], axis=1)
+        again[1:] = (t[1:] == t[:-1]) & np.all(q[1:] == q[:-1], axis=1) & (boot[1:] == boot[:-1])
         if again.any():
-            t, q = t[~again], q[~again]
+            t, q, boot = t[~again], q[~again], boot[~again]
         out[k] = (t, q / np.linalg.norm(q, axis=1, keepdims=True))
-    return out
+        boots[k] = boot
+    return out, boots
 
 
 def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
@@ -883,12 +930,17 @@ def true_rates(td: TlogData, prep: PreparedInputs) -> Array | None:
         ok = np.isfinite(t)
         if ok.sum() < 2:
             continue
-        order = np.argsort(t[ok], kind="stable")
-        tt = t[ok][order]
-        out = np.empty((prep.n, 3))
-        for i, f in enumerate(("xgyro", "ygyro", "zgyro")):
-            out[:, i] = np.interp(prep.t_us.astype(np.float64), tt, a[f][ok][order].astype(np.float64),
-                                  left=_NAN, right=_NAN)  # fmt: skip
+        out = np.full((prep.n, 3), _NAN)
+        rec_boot, boot = boots_of_tlog_times(prep, a["t_us"]), sample_boots(prep.t_us)
+        for k in range(int(boot[-1]) + 1 if boot.size else 0):  # each boot's samples from that boot's truth
+            sel = ok & (rec_boot == k)
+            if not sel.any():
+                continue
+            order = np.argsort(t[sel], kind="stable")
+            tt = t[sel][order]
+            for i, f in enumerate(("xgyro", "ygyro", "zgyro")):
+                out[boot == k, i] = np.interp(prep.t_us[boot == k].astype(np.float64), tt,
+                                              a[f][sel][order].astype(np.float64), left=_NAN, right=_NAN)  # fmt: skip
         return out
     return None
 
@@ -961,8 +1013,9 @@ def load_tlog_recording(
                                     velocity_source=velocity_source)
     td = read_tlog_data(path)
     prep = _inputs_for(td, imu, settings, velocity_source)
-    refs = references(td, prep) if reference else None
+    refs, boots = references_with_boots(td, prep) if reference else (None, None)
     return recording_from_inputs(Path(path).stem, prep, refs, skip_s=skip_s, true_rate_rad_s=true_rates(td, prep),
+                                 ref_boots=boots,
                                  no_truth="no simulator truth (SIM_STATE/SIMSTATE/HIL_STATE_QUATERNION) in this "
                                  "log: nothing to score against")  # fmt: skip
 
@@ -976,6 +1029,7 @@ def recording_from_inputs(
     true_rate_rad_s: Array | None = None,
     groups: tuple[str, ...] = ("tlog",),
     no_truth: str = "no simulator truth in this log: nothing to score against",
+    ref_boots: dict[str, NDArray[np.int64]] | None = None,
 ) -> Recording:
     """A log's filter inputs as an evaluation :class:`Recording`, whatever the log's format.
 
@@ -983,17 +1037,31 @@ def recording_from_inputs(
     do not look for one); the first whose name ends in ``truth`` is slerped onto the sample times and
     rotated by the declination the pipeline would apply (true → magnetic north), so the recording
     scores filters exactly as their output would be scored.  Samples from ``skip_s`` s on are scored.
+    Where the autopilot rebooted during the log (:func:`sample_boots`; ``ref_boots``: each reference sample's
+    boot, :func:`references_with_boots`) each boot's samples get that boot's truth, and ``skip_s`` counts from
+    each boot's first sample.
     """
     from mavahrs.geometry.quaternion import multiply
 
     n = prep.n
     q_ref = np.full((n, 4), _NAN)
     notes = list(prep.notes)
+    boot = sample_boots(prep.t_us)
+    first = np.flatnonzero(np.diff(boot, prepend=-1) > 0)  # each boot's first sample
+    t_us = prep.t_us.astype(np.float64)
     if refs is not None:
         truth = [k for k in refs if k.endswith("truth")]
         if truth:
             t_ref, q = refs[truth[0]]
-            q_true = interpolate_attitude(np.asarray(t_ref, np.float64), q, prep.t_us.astype(np.float64))
+            rb = (ref_boots or {}).get(truth[0])
+            if first.size <= 1 or rb is None:
+                q_true = interpolate_attitude(np.asarray(t_ref, np.float64), q, t_us)
+            else:  # a reboot: each boot's samples against that boot's truth (until user7: the boots mixed)
+                q_true = np.full((n, 4), _NAN)
+                for k in range(first.size):
+                    mine, theirs = boot == k, rb == k
+                    if theirs.any():
+                        q_true[mine] = interpolate_attitude(np.asarray(t_ref, np.float64)[theirs], q[theirs], t_us[mine])
             half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
             q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
             q_ref = multiply(q_dec, q_true)
@@ -1009,7 +1077,10 @@ def recording_from_inputs(
     rate = prep.rate_hz()
     if 0 < rate < 50:
         notes.append(f"IMU samples at {rate:.1f} Hz: too slow for meaningful attitude filtering (≥ 50 Hz needed)")
-    t_s = (prep.t_us - prep.t_us[0]) * 1e-6 if n else np.zeros(0)
+    # seconds since the first sample, the time between boots left out; the boot's own for --skip
+    since_boot = (t_us - t_us[first[boot]]) * 1e-6 if n else np.zeros(0)
+    span = np.array([since_boot[b - 1] for b in [*first[1:].tolist(), n]]) if n else np.zeros(0)
+    t_s = since_boot + np.concatenate(([0.0], np.cumsum(span)[:-1]))[boot] if n else np.zeros(0)
     rows = prep.rows
     dt = rows[:, IN_DT].copy()
     if n > 1:
@@ -1023,11 +1094,12 @@ def recording_from_inputs(
         accel_m_s2=np.ascontiguousarray(rows[:, IN_ACCEL : IN_ACCEL + 3]),
         mag_ut=np.ascontiguousarray(mag) if np.isfinite(mag).any() else None,
         q_ref_body_to_ned=q_ref,
-        scored=t_s >= skip_s,
+        scored=since_boot >= skip_s,
         groups=groups,
         heading_referenced=True,
         extra={
             "time_s": t_s,
+            "boot_starts": first[1:].tolist(),  # the samples where the autopilot's clock started again (a reboot)
             "temperature_c": prep.temperature_c,
             "velocity_ned_m_s": np.ascontiguousarray(vel) if np.isfinite(vel).any() else None,
             "velocity_age_s": rows[:, IN_VEL_AGE].copy() if np.isfinite(vel).any() else None,

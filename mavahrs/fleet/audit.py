@@ -127,7 +127,8 @@ class FleetRow:
         autopilot: MAV_AUTOPILOT of its first HEARTBEAT (``ARDUPILOTMEGA``, ``PX4`` …).
         vehicle_type: MAV_TYPE of that HEARTBEAT (``QUADROTOR``, ``FIXED_WING`` …).
         start_utc: the first record's time, ISO 8601 UTC ("" if the tlog's clock is implausible).
-        duration_s: from the first to the last IMU sample fed to the filter, s.
+        duration_s: from the first to the last IMU sample fed to the filter, s (summed over the autopilot's boots
+            where it rebooted during the log).
         imu_message: the IMU message fed (``RAW_IMU``, ``SCALED_IMU2``, ``HIGHRES_IMU`` …).
         imu_instance: its IMU instance.
         imu_samples: samples fed to the filter.
@@ -296,7 +297,7 @@ def _summarise(p: Path, base: FleetRow, s: AuditSettings) -> FleetRow:
 
             start = datetime.datetime.fromtimestamp(unix_s, datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
     n = prep.n
-    dur = float(prep.t_us[-1] - prep.t_us[0]) * 1e-6 if n > 1 else 0.0
+    dur = prep.duration_s()
     row = _replace(
         base, system_id=int(src[0]), component_id=int(src[1]), autopilot=autopilot, vehicle_type=vtype,
         start_utc=start, duration_s=dur, imu_message=prep.message, imu_instance=int(prep.instance), imu_samples=n,
@@ -317,7 +318,7 @@ def _summarise_onboard(result: Any, base: FleetRow, s: AuditSettings) -> FleetRo
     li = result.log
     ps = s.replay.pipeline_settings()
     n = prep.n
-    dur = float(prep.t_us[-1] - prep.t_us[0]) * 1e-6 if n > 1 else 0.0
+    dur = prep.duration_s()
     gnss = bool(sum(prep.velocity_fixes.values())) or bool(np.any(prep.declination_rad != 0.0))
     row = _replace(
         base, system_id=int(prep.source[0]), component_id=int(prep.source[1]),
@@ -361,18 +362,27 @@ def _second_opinion(
     ground = [e for e in series.events if e.severity == _MAV_SEVERITY_NOTICE and not e.update]
     causes = episode_causes(series.events)
     judged = np.isfinite(series.tilt_deg)
-    if t_est_ms.size:
-        judged &= series.t_ms >= t_est_ms[0] + mon.startup_grace_s * 1000.0
+    # per boot of the autopilot (replay_monitor's NaN rows between boots): the start-up grace from its first estimate
+    boot, est_boot = np.cumsum(np.isnan(series.t_ms)), np.cumsum(np.isnan(t_est_ms))
+    for k in np.unique(boot).tolist():
+        first = t_est_ms[(est_boot == k) & np.isfinite(t_est_ms)]
+        if first.size:
+            judged[boot == k] &= series.t_ms[boot == k] >= first[0] + mon.startup_grace_s * 1000.0
     tilt, hdg = series.tilt_deg[judged], np.abs(series.heading_deg[judged])
     tj = series.t_ms[judged]
     times = [e.t_ms / 1000.0 for e in warns]
+
+    def span(t: np.ndarray, b: np.ndarray) -> float:  # s, summed over the boots
+        return sum(float(np.ptp(t[b == k])) for k in np.unique(b).tolist() if (b == k).sum() > 1) / 1000.0
+
     if tj.size < 2:  # say why the row's divergence columns are empty
-        span_s = float(series.t_ms[-1] - series.t_ms[0]) / 1000.0 if series.t_ms.size > 1 else 0.0
+        ok = np.isfinite(series.t_ms)
+        span_s = span(series.t_ms[ok], boot[ok])
         short = (f"nothing compared: the log's {span_s:.1f} s of {ref} lie within the monitor's start-up "
                  f"grace of {mon.startup_grace_s:g} s")
         row = _replace(row, notes=" | ".join(x for x in (row.notes, short) if x))
     return _replace(
-        row, reference=ref, compared_s=float(tj[-1] - tj[0]) / 1000.0 if tj.size > 1 else 0.0,
+        row, reference=ref, compared_s=span(tj, boot[judged]) if tj.size > 1 else 0.0,
         inclination_rms_deg=_rms(tilt), inclination_max_deg=_max(tilt),
         heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
         alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
@@ -406,21 +416,59 @@ def replay_monitor(
     """The daemon's monitor over a replay (``result``, :func:`mavahrs.replay.replay`): the published attitudes
     of the filter :func:`monitored_filter` names against the log's attitude ``ref``, with our confidence and the
     samples behind each estimate as evidence.  Returns the :class:`~mavahrs.service.monitor.MonitorSeries` and
-    our estimates' times, ms."""
+    our estimates' times, ms.
+
+    Where the autopilot rebooted during a tlog (:func:`~mavahrs.evaluation.tlogdata.sample_boots`), each boot is
+    judged by a monitor of its own against that boot's attitudes, phase and IMUs, as the daemon resets its
+    monitor at a reboot; the series (and the estimates' times) are concatenated in boot order with a NaN row between
+    boots.  (Until user7 the boots were judged at once:
+    a firmware_sim session with a reboot, recorded by the daemon, got a false ``IMU2 gyro off by 26.8 dps``.)"""
+    from mavahrs.evaluation.tlogdata import sample_boots
+    from mavahrs.replay.engine import judged_samples
+    from mavahrs.service.monitor import MonitorSeries
+
+    name = monitored_filter(result.tracks)
+    sent = judged_samples(result, name)  # what the daemon publishes and judges (ReplaySettings.monitor_rate_hz)
+    boot = sample_boots(result.inputs.t_us)
+    td = getattr(result, "tlog", None)
+    if not boot.size or boot[-1] == 0 or not hasattr(td, "arrays"):
+        return _monitor_of_boot(result, mon, ref, phase_events, name, sent, None)
+    from mavahrs.fleet import audit as this
+
+    parts = [_monitor_of_boot(result, mon, ref, this.phase_events(td, result.inputs, result.inputs.source, boot=k),
+                              name, sent[boot[sent] == k], k)
+             for k in range(int(boot[-1]) + 1)]  # fmt: skip
+
+    def cat(arrays: list[np.ndarray]) -> np.ndarray:  # one NaN between boots: charts break their lines there
+        return np.concatenate([x for a in arrays for x in (np.full(1, np.nan), np.asarray(a, np.float64))][1:])
+
+    series = MonitorSeries(*(cat([getattr(p[0], f) for p in parts]) for f in ("t_ms", "tilt_deg", "heading_deg")),
+                           tuple(e for p in parts for e in p[0].events),
+                           *(cat([getattr(p[0], f) for p in parts]) for f in ("tilt_threshold_deg", "heading_threshold_deg")))  # fmt: skip
+    return series, cat([p[1] for p in parts])
+
+
+def _monitor_of_boot(
+    result: Any, mon: Any, ref: str, phase_events: list[tuple[float, str, float]], name: str, sent: np.ndarray,
+    boot: int | None,
+) -> tuple[Any, np.ndarray]:  # fmt: skip
+    """:func:`replay_monitor` over the estimates ``sent`` (rows) and, with ``boot``, that boot's references."""
     from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_HEADING_SIGMA, OUT_Q
     from mavahrs.service.monitor import monitor_series
 
     prep = result.inputs
-    track = result.tracks[monitored_filter(result.tracks)]
-    sent = np.flatnonzero(track.sent)
+    track = result.tracks[name]
     try:
-        imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings())
+        imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings(), boot=boot)
     except Exception as exc:  # noqa: BLE001 - the IMU check is evidence, never the reason a flight fails
         _log.warning("%s: the IMUs' gyros could not be compared: %s", result.path, exc)
         imus = []
     t_est_ms = (prep.t_us[sent] // 1000).astype(np.float64)  # time_boot_ms of the frames (Pipeline)
     q_est = track.out[sent, OUT_Q : OUT_Q + 4]
     t_ref_us, q_ref = result.references[ref]
+    ref_boot = getattr(result, "reference_boots", {}).get(ref)
+    if boot is not None and ref_boot is not None:
+        t_ref_us, q_ref = t_ref_us[ref_boot == boot], q_ref[ref_boot == boot]
     heading_valid = bool(np.any(prep.declination_rad != 0.0))  # the pipeline: declination known
     aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
     sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
@@ -472,10 +520,11 @@ def monitor_sensors(prep: Any, sent: np.ndarray, imus: Any = ()) -> Any:
                           imus)
 
 
-def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def imu_gyros(td: Any, prep: Any, settings: Any, boot: int | None = None) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """Every IMU instance's gyro in a tlog (``IMU1`` = instance 0 …; boot-clock ms, rad/s), scaled as the
-    replay scales its own, for the monitor to name an IMU that is off; [] where the log has one IMU."""
-    from mavahrs.evaluation.tlogdata import IMU_TYPES, scale_imu_messages
+    replay scales its own, for the monitor to name an IMU that is off; [] where the log has one IMU.  ``boot``:
+    only the messages recorded during that boot of the autopilot (:func:`~mavahrs.evaluation.tlogdata.sample_boots`)."""
+    from mavahrs.evaluation.tlogdata import IMU_TYPES, boots_of_tlog_times, scale_imu_messages
     from mavahrs.sensors.profiles import get_profile
 
     arrays = getattr(td, "arrays", None)
@@ -490,6 +539,8 @@ def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, 
         if a is None or not a.shape[0] or ms is None:
             continue
         a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+        if boot is not None and a.shape[0]:
+            a = a[boots_of_tlog_times(prep, a["t_us"]) == boot]
         if not a.shape[0]:
             continue
         sc = scale_imu_messages(name, a, ms, settings.scaling)
@@ -510,16 +561,18 @@ def imu_gyros(td: Any, prep: Any, settings: Any) -> list[tuple[str, np.ndarray, 
     return out
 
 
-def phase_events(td: Any, prep: Any, src: tuple[int, int]) -> list[tuple[float, str, float]]:
-    """The flight's phase from the log's HEARTBEAT, EXTENDED_SYS_STATE and GLOBAL_POSITION_INT (boot ms)."""
-    from mavahrs.evaluation.tlogdata import tlog_to_autopilot_us
+def phase_events(td: Any, prep: Any, src: tuple[int, int], boot: int | None = None) -> list[tuple[float, str, float]]:
+    """The flight's phase from the log's HEARTBEAT, EXTENDED_SYS_STATE and GLOBAL_POSITION_INT (boot ms); ``boot``:
+    only from the messages recorded during that boot (:func:`~mavahrs.evaluation.tlogdata.sample_boots`)."""
+    from mavahrs.evaluation.tlogdata import boots_of_tlog_times, tlog_to_autopilot_us
     from mavahrs.service.monitor import phase_events_of_arrays
 
     def of_src(name: str) -> np.ndarray:
         a = td.arrays.get(name) if hasattr(td.arrays, "get") else td.arrays[name]
         if a is None or not a.shape[0]:
             return np.zeros(0)
-        return a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+        a = a[(a["sysid"] == src[0]) & (a["compid"] == src[1])]
+        return a[boots_of_tlog_times(prep, a["t_us"]) == boot] if boot is not None and a.shape[0] else a
 
     hb, ess, gpi = of_src("HEARTBEAT"), of_src("EXTENDED_SYS_STATE"), of_src("GLOBAL_POSITION_INT")
     hb_args = ess_args = pos_args = None

@@ -138,12 +138,26 @@ class PreparedInputs:
     def n(self) -> int:
         return int(self.t_us.shape[0])
 
+    def duration_s(self) -> float:
+        """From the first to the last sample, s, summed over the autopilot's boots where it rebooted during the
+        log (the boot clock goes back; until user7 a reboot's log said e.g. 5.9 s for 17 s of samples)."""
+        return self._span_us()[0] * 1e-6
+
+    def _span_us(self) -> tuple[float, int]:
+        """(the samples' span summed over the boots, µs; the number of boots)."""
+        if self.n < 2:
+            return 0.0, 1
+        t = self.t_us.astype(np.int64)
+        starts = np.concatenate(([0], np.flatnonzero(t[1:] < t[:-1]) + 1))
+        ends = np.concatenate((starts[1:] - 1, [t.size - 1]))
+        return float(np.sum(t[ends] - t[starts])), int(starts.size)
+
     def rate_hz(self) -> float:
-        """Mean sample rate reaching the filter over the log (0 if fewer than two samples)."""
+        """Mean sample rate reaching the filter over the log, within each boot (0 if fewer than two samples)."""
         if self.n < 2:
             return 0.0
-        span = float(self.t_us[-1] - self.t_us[0])
-        return (self.n - 1) / span * 1e6 if span > 0 else 0.0
+        span, boots = self._span_us()
+        return (self.n - boots) / span * 1e6 if span > 0 else 0.0
 
 
 def configure_filter(f: Any, sensor_delay_s: float, vehicle_stream: bool, multirotor: bool) -> None:

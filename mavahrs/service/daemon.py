@@ -1091,7 +1091,7 @@ class Daemon:
             self.close()
         run_s = stats["run_s"]
         self.log.info(
-            "mavahrs stopped (%s) after %.1f s: %d messages in, %d attitudes out, %d dropped, log %s",
+            "mavahrs stopped (%s) after %.1f s: %d messages in, %d attitudes out, %d dropped by the input queue, log %s",
             self._signal_name or {"stopped": "on request"}.get(result_reason, result_reason),
             run_s,
             self.counters.messages_in,

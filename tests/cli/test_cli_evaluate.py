@@ -303,3 +303,47 @@ def test_a_csv_with_a_header_and_no_rows_is_one_error_line(tmp_path: Path) -> No
     lines = [ln for ln in proc.stderr.splitlines() if " INFO " not in ln]
     assert lines and lines[-1].endswith(f"ERROR evaluate: {csv}: no data rows"), proc.stderr
     assert "UserWarning" not in proc.stderr and "genfromtxt" not in proc.stderr, proc.stderr
+
+
+def test_a_folders_plot_and_study_name_the_one_recording_they_use(shared_data: Path, tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str],
+                                                                  caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    """Given a folder, ``--plot`` draws one recording and ``--study compare`` studies one: they took the folder's
+    first silently (RepoIMU's first, TStick_Test01_Static, has no reference to draw).  Now the first with a
+    reference, named on stderr."""
+    pytest.importorskip("matplotlib")
+    folder = shared_data / "repoimu_tstick"
+    if not (folder / "TStick_Test01_Static.csv").exists() or not (folder / "TStick_Test02_Trial1.csv").exists():
+        pytest.skip("RepoIMU data absent")
+    n_ref = len(list(folder.glob("TStick_Test*_Trial*.csv")))
+    png = tmp_path / "first.png"
+    with caplog.at_level("INFO", logger="mavahrs.cli"):
+        assert main(["evaluate", str(folder), "-f", "mahony", "--plot", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    said = caplog.text + capsys.readouterr().err
+    assert f"--plot draws one recording: TStick_Test02_Trial1, the first of {n_ref} with a reference" in said
+    caplog.clear()
+    with caplog.at_level("INFO", logger="mavahrs.cli"):
+        assert main(["evaluate", str(folder), "--study", "compare"]) == 0
+    out, err = capsys.readouterr()
+    assert "on TStick_Test02_Trial1" in out
+    assert f"--study compare runs on one recording: TStick_Test02_Trial1, the first of {n_ref}" in caplog.text + err
+
+
+def test_a_folder_of_flight_logs_prints_no_magnetic_field_line_per_log(sim_hover_tlog: Path, tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``evaluate FOLDER``: one "magnetic field from WMM-2025 at …" INFO line per flight log, none naming its log
+    (six on the shared SITL folder), before the table; now only with -v (one log still says it)."""
+    import shutil
+
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for name in ("one.tlog", "two.tlog"):
+        shutil.copy(sim_hover_tlog, folder / name)
+    said = "magnetic field from"
+    assert main(["evaluate", str(folder), "-f", "mahony"]) == 0
+    assert said not in capsys.readouterr().err
+    assert main(["evaluate", str(folder / "one.tlog"), "-f", "mahony"]) == 0
+    assert capsys.readouterr().err.count(said) == 1
+    assert main(["-v", "evaluate", str(folder), "-f", "mahony"]) == 0
+    assert capsys.readouterr().err.count(said) == 2

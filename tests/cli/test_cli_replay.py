@@ -468,16 +468,21 @@ def test_plot_of_a_replay_csv_takes_start_and_end_and_says_what_has_no_effect(
     csv = tmp_path / "r.csv"
     assert main(["replay", str(sim_hover_tlog), "-f", "mahony", "--csv", str(csv), "--end", "12"]) == 0
     drawn: list[tuple[float, float, list[str]]] = []
+    labels: list[str] = []
 
     def capture(path, t_s, est, **kw):  # type: ignore[no-untyped-def]
         drawn.append((float(t_s[0]), float(t_s[-1]), sorted(est)))
+        labels.append(kw.get("time_label", ""))
         return Path(path)
 
     monkeypatch.setattr(plots, "plot_attitude", capture)
     capsys.readouterr()
     assert main(["plot", str(csv), "--start", "5", "--end", "8", "-o", str(tmp_path / "w.png")]) == 0
     first, last, names = drawn[-1]
-    assert 5.0 <= first < 5.1 and 7.9 < last <= 8.0 and names == ["mahony"]
+    # drawn on the CSV's own time_s (the autopilot's boot time, as replay --plot), the window from its first row
+    t0 = float(csv.read_text().splitlines()[1].split(",")[0])
+    assert 5.0 <= first - t0 < 5.1 and 7.9 < last - t0 <= 8.0 and names == ["mahony"]
+    assert labels[-1] == "autopilot boot time, s"
     assert "has no effect" not in capsys.readouterr().err
     assert main(["plot", str(csv), "-f", "madgwick", "--no-mag", "-o", str(tmp_path / "f.png")]) == 0
     err = capsys.readouterr().err

@@ -64,3 +64,24 @@ def test_every_audit_column_has_a_row_in_the_fleet_tables_description() -> None:
     fields = [f.name for f in dataclasses.fields(FleetRow)]
     assert [f for f in fields if f not in named] == [] and named <= set(fields)
     assert f"40 rows, {len(fields)} columns" in doc  # the pyarrow example's printed count
+
+
+def test_every_run_option_has_a_row_in_the_daemon_pages_options_table() -> None:
+    """docs/daemon.md's Options table is what README.md points to for "every option of `mavahrs run`": until user7
+    it had no row for --velocity-source, --source, the three signing options, --realtime-priority and
+    --no-fast-lane."""
+    from mavahrs.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    run = sub.choices["run"]  # type: ignore[attr-defined]
+    options = [a.option_strings for a in run._actions if a.option_strings and "--help" not in a.option_strings]
+    text = (REPO / "docs" / "daemon.md").read_text()
+    table = text.split("## Options", 1)[1].split("### `[daemon]` settings", 1)[0]
+    rows = [line for line in table.splitlines() if line.startswith("| `")]
+
+    def has_row(flag: str) -> bool:
+        return any(line.startswith(f"| `{flag}") or f"/ `{flag}`" in line for line in rows)
+
+    missing = sorted(o[-1] for o in options if not any(has_row(f) for f in o))
+    assert not missing, f"docs/daemon.md's Options table has no row for {missing}"

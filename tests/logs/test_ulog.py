@@ -457,16 +457,21 @@ def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_data: P
     replay said what the monitor would have said against EKF3, a .ulg's nothing (the monitor took only a
     reference named "autopilot …"): replay's second opinion is now against PX4's EKF2 as well."""
     from mavahrs import replay as rp
-    from mavahrs.fleet.audit import AuditSettings, summarise_log
+    from mavahrs.cli import build_parser
+    from mavahrs.cli.replay import settings_from_args
+    from mavahrs.fleet.audit import summarise_log
     from mavahrs.logs import autopilot_reference
     from mavahrs.replay.engine import _monitor_of, format_second_opinion
 
     path = _shared(shared_data, rel)
     row = summarise_log(path)
     assert row.error == "" and row.reference == "EKF2" and row.compared_s > 50.0
-    # the audit judges what the daemon publishes (PipelineSettings' 50 Hz), replay's API default every sample:
-    # the same replay settings here (the two rates warned 4 ms apart on the SIH flight, one EKF2 sample)
-    res = rp.replay(path, AuditSettings().replay)
+    # `mavahrs replay LOG`'s own settings (every sample in its outputs): its second opinion judges what the
+    # daemon publishes (50 Hz), as the audit does. Until user7 it judged every sample: 4 ms earlier on the SIH
+    # flight (37.712 against 37.716 s, one EKF2 sample)
+    s = settings_from_args(build_parser().parse_args(["replay", str(path)]))
+    assert s.pipeline_settings().out_rate_hz == 0.0
+    res = rp.replay(path, s)
     assert autopilot_reference(res.references) == "EKF2"
     text = format_second_opinion(res)
     assert text.startswith("second opinion (best) vs EKF2"), text

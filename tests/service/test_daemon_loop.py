@@ -520,6 +520,6 @@ def test_start_and_stop_lines_read_well(tmp_path) -> None:  # type: ignore[no-un
     assert lines[0].startswith(f"mavahrs running: master udpin:127.0.0.1:{port}; outputs none; log {tmp_path / 'd.tlog'}")
     assert lines[-1].startswith("mavahrs stopped (on request) after ")
     # nothing arrived: the empty file the run created is removed (the sink logs that on its own logger)
-    assert lines[-1].endswith(" s: 0 messages in, 0 attitudes out, 0 dropped, log 0 frames (nothing recorded: "
+    assert lines[-1].endswith(" s: 0 messages in, 0 attitudes out, 0 dropped by the input queue, log 0 frames (nothing recorded: "
                               "empty file removed)")  # fmt: skip
     assert not (tmp_path / "d.tlog").exists()
