@@ -349,10 +349,6 @@ MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 #: block length of the declared multirotor's specific-force slow-error estimate (``EskfSettings.slow_force_block_s``:
 #: the velocity's process noise carries the Hadamard variance of 0.1 s block means beyond the white noise's share)
 MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
-#: the declared multirotor's drag-model misfit across the thrust axis as two Gauss–Markov error states
-#: (``EskfSettings.drag_misfit_sigma_m_s2``, ``drag_misfit_tau_s``; 0 = the misfit is white, fused every period)
-MULTIROTOR_DRAG_MISFIT_SIGMA_M_S2 = 0.3
-MULTIROTOR_DRAG_MISFIT_TAU_S = 5.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1044,9 +1040,6 @@ class Best(AttitudeFilter):
                 eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
             if eskf.slow_force_block_s == 0.0:
                 eskf = replace(eskf, slow_force_block_s=MULTIROTOR_SLOW_FORCE_BLOCK_S)
-            if eskf.drag_misfit_sigma_m_s2 == 0.0:
-                eskf = replace(eskf, drag_misfit_sigma_m_s2=MULTIROTOR_DRAG_MISFIT_SIGMA_M_S2,
-                               drag_misfit_tau_s=MULTIROTOR_DRAG_MISFIT_TAU_S)
         else:
             k = drag_coefficient_1_s
             if k is None:

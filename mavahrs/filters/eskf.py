@@ -139,16 +139,14 @@ __all__ = [
     "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE", "slow_force_density_of",
 ]  # fmt: skip
 
-N = 23  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
+N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
 #        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position),
 #        δs (15–17: the gyro's scale-factor errors, see gyro_scale_state_sigma), δb_a (18–20: the accelerometer's
-#        bias, body frame, see accel_bias_sigma_m_s2), δm (21–22: the drag model's misfit across the thrust axis,
-#        see drag_misfit_sigma_m_s2)
+#        bias, body frame, see accel_bias_sigma_m_s2)
 _I_DECL = 11  # index of the declination error in the error state
 _I_POS = 12  # index of the position error (3) in the error state
 _I_SCALE = 15  # index of the gyro scale-factor errors (3) in the error state
 _I_ABIAS = 18  # index of the accelerometer-bias errors (3, body frame) in the error state
-_I_DMIS = 21  # index of the drag model's misfit (2: along the thrust axis's error basis e₁, e₂) in the error state
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
@@ -253,9 +251,7 @@ _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the 
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
-_DMIS_P0 = _MAG_DELAY + 23  # steady-state variance of each drag-misfit state, (m/s²)² (0: the misfit is white)
-_DMIS_TAU = _MAG_DELAY + 24  # s: their Gauss–Markov correlation time
-_N_PARAMS = _MAG_DELAY + 25
+_N_PARAMS = _MAG_DELAY + 23
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -335,8 +331,7 @@ _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m
 #: the previous block's mean (3), blocks completed (1), the running mean of ‖f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂‖²/18 (the Hadamard
 #: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
 _SLOW = _DNIS + 2
-_DMIS = _SLOW + 14  # the drag model's estimated misfit across the thrust axis (e₁, e₂), m/s² (2; ``drag_misfit_sigma_m_s2``)
-_N_STATE = _DMIS + 2
+_N_STATE = _SLOW + 14
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -771,20 +766,6 @@ class EskfSettings(FilterSettings):
             changes steadily over the three blocks; quicker real changes
             count as error.
         slow_force_tau_s: the averaging time of that variance, s.
-        drag_misfit_sigma_m_s2: the drag model's slow misfit as two error
-            states (the mean specific force across the thrust axis less the
-            model's −(k + c‖v‖) v there, along the thrust axis's error basis
-            e₁, e₂), each a first-order Gauss–Markov process of this
-            steady-state 1-σ, m/s², and correlation time
-            ``drag_misfit_tau_s``: a correlated measurement error handled by
-            state augmentation (Bryson & Johansen 1965; Gelb 1974, §4.6 /
-            table 4.4-1: ṁ = −m/τ + w, q = 2σ²/τ), instead of fused as white
-            every period (a wrong k, thrust axis or quadratic term is the
-            same error period after period).  h on δm_c is 1; the velocity
-            across the axis then keeps σ ≳ σ_m / k.  0 = off (default; only
-            with the thrust axis as states, ``thrust_axis_sigma_rad`` > 0,
-            whose basis is fixed).
-        drag_misfit_tau_s: that misfit's correlation time, s.
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -869,8 +850,6 @@ class EskfSettings(FilterSettings):
     drag_noise_match_s: float = 0.0
     slow_force_block_s: float = 0.0
     slow_force_tau_s: float = 5.0
-    drag_misfit_sigma_m_s2: float = 0.0
-    drag_misfit_tau_s: float = 5.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -896,11 +875,11 @@ class EskfSettings(FilterSettings):
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
                      "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
-                     "slow_force_tau_s", "drag_misfit_sigma_m_s2"):
+                     "slow_force_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
-        for name in ("drag_noise_m_s2", "thrust_axis_tau_s", "position_gate_sigma", "drag_misfit_tau_s"):
+        for name in ("drag_noise_m_s2", "thrust_axis_tau_s", "position_gate_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
@@ -1086,8 +1065,6 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
             s[kp + i * N + i] = _P0_VEL_FLYING
-        for i in range(_I_DMIS, N):  # the drag model's misfit (0: white; m̂ restarts at 0)
-            s[kp + i * N + i] = params[p + _DMIS_P0]
     rest_reset(s, k + _REST)
     s[k + _LAST_FIX] = -1.0
     s[k + _PREJ_T] = -1.0
@@ -1161,7 +1138,7 @@ def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
 
 @kernel(inline=True)
 def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz,
-                          abias_on, phi_a, q_abias, misfit_on, phi_m, q_misfit):  # type: ignore[no-untyped-def]
+                          abias_on, phi_a, q_abias):  # type: ignore[no-untyped-def]
     """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ − C δb_a with M = −[f]×,
     δṗ = δv, δḃ_a = −δb_a/τ_a; scratch C, M).
 
@@ -1172,14 +1149,12 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
     with ω the rate used this sample, are constant but for ``q_scale``; left at 0 unless ``scale_on``.  The
     accelerometer's bias (18–20, body frame) is a first-order Gauss–Markov process: its rows of Φ are
     ``phi_a`` = 1 − dt/τ_a (1: constant), its noise ``q_abias`` = 2σ_a²/τ_a; left at 0 unless ``abias_on``.
-    The drag model's misfit (21–22) is Gauss–Markov too (``phi_m``, ``q_misfit``), measured by the drag
-    measurement only (no row of F couples it); left at 0 unless ``misfit_on``.
     """
     kp = k + _P
     ka = k + _A
     kc = k + _C
     km = k + _M
-    n = N if (abias_on or misfit_on) else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
+    n = N if abias_on else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
     # A = Φ P
     for j in range(n):
         for i in range(3):
@@ -1204,18 +1179,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for i in range(3):  # δṗ = δv
                 s[ka + (_I_POS + i) * N + j] = s[kp + (_I_POS + i) * N + j] + dt * s[kp + (3 + i) * N + j]
-        elif scale_on or abias_on or misfit_on:
+        elif scale_on or abias_on:
             for r in range(_I_POS, _I_SCALE):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if scale_on or abias_on or misfit_on:
+        if scale_on or abias_on:
             for r in range(_I_SCALE, _I_ABIAS):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if abias_on or misfit_on:
-            for r in range(_I_ABIAS, _I_DMIS):
+        if abias_on:
+            for r in range(_I_ABIAS, N):
                 s[ka + r * N + j] = phi_a * s[kp + r * N + j]
-        if abias_on or misfit_on:
-            for r in range(_I_DMIS, N):
-                s[ka + r * N + j] = phi_m * s[kp + r * N + j]
     # P = A Φᵀ
     for i in range(n):
         for j in range(3):
@@ -1240,18 +1212,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for j in range(3):
                 s[kp + i * N + _I_POS + j] = s[ka + i * N + _I_POS + j] + dt * s[ka + i * N + 3 + j]
-        elif scale_on or abias_on or misfit_on:
+        elif scale_on or abias_on:
             for j in range(_I_POS, _I_SCALE):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if scale_on or abias_on or misfit_on:
+        if scale_on or abias_on:
             for j in range(_I_SCALE, _I_ABIAS):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if abias_on or misfit_on:
-            for j in range(_I_ABIAS, _I_DMIS):
+        if abias_on:
+            for j in range(_I_ABIAS, N):
                 s[kp + i * N + j] = phi_a * s[ka + i * N + j]
-        if abias_on or misfit_on:
-            for j in range(_I_DMIS, N):
-                s[kp + i * N + j] = phi_m * s[ka + i * N + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
@@ -1267,11 +1236,8 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         for i in range(_I_SCALE, _I_ABIAS):
             s[kp + i * N + i] += q_scale * dt
     if abias_on and q_abias > 0.0:
-        for i in range(_I_ABIAS, _I_DMIS):
+        for i in range(_I_ABIAS, N):
             s[kp + i * N + i] += q_abias * dt
-    if misfit_on and q_misfit > 0.0:
-        for i in range(_I_DMIS, N):
-            s[kp + i * N + i] += q_misfit * dt
     # keep P symmetric against round-off
     for i in range(n):
         for j in range(i + 1, n):
@@ -1294,7 +1260,7 @@ def _accel_bias_decouple(s, k):  # type: ignore[no-untyped-def]
     """The accelerometer-bias states' correlations with the rest cleared (their variances kept): held, not
     estimated (``accel_bias_aided_only`` while not aided)."""
     kp = k + _P
-    for i in range(_I_ABIAS, _I_DMIS):
+    for i in range(_I_ABIAS, N):
         for j in range(N):
             if j != i:
                 s[kp + i * N + j] = 0.0
@@ -1366,7 +1332,7 @@ def _n_active(s, k):  # type: ignore[no-untyped-def]
     """The error state's size in use: without the gyro scale-factor states (or the accelerometer-bias states)
     their rows and columns of P (and of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the
     daemon's per-sample cost)."""
-    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0 or s[k + _P + _I_DMIS * N + _I_DMIS] > 0.0:
+    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0:
         return N
     return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
@@ -1625,7 +1591,7 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         ue = s[kc + 3] * ex + s[kc + 4] * ey + s[kc + 5] * ez
         ud = s[kc + 6] * ex + s[kc + 7] * ey + s[kc + 8] * ez
         uv = un * vn + ue * ve + ud * vd
-        y = (fx * ex + fy * ey + fz * ez) + k_eff * uv - s[k + _DMIS + c]
+        y = (fx * ex + fy * ey + fz * ez) + k_eff * uv
         # w = M u: h = −uᵀD, ∂h/∂δv = −wᵀ, ∂h/∂δθ = −(w × v)ᵀ (w = k u without the quadratic term)
         wn = k_eff * un + c_v * uv * vn
         we = k_eff * ue + c_v * uv * ve
@@ -1640,8 +1606,6 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[k + _H + 5] = -wd
         if states:
             s[k + _H + 9 + c] = thrust
-        if params[P_FILTER + _DMIS_P0] > 0.0:  # f̄_c = −(D_b)_c + m_c: ∂h_c/∂δm_c = 1
-            s[k + _H + _I_DMIS + c] = 1.0
         if ((params[P_FILTER + _ABIAS_P0] > 0.0 or params[P_FILTER + _ABIAS_VIB] > 0.0)
                 and params[P_FILTER + _ABIAS_AIDED] == 0.0):  # the mean force (less b̂_a) holds δb_a: ∂h_c/∂δb_a = e_cᵀ
             s[k + _H + _I_ABIAS] = ex
@@ -2012,20 +1976,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     # the thrust-axis states' random walk once they exist (their variance is 0 until the axis is first set)
     q_axis = params[p + _AXIS_Q] if state[k + _P + 9 * N + 9] > 0.0 else 0.0
     q_bias = params[p + _Q_BIAS_AIDED] if aided and params[p + _Q_BIAS_AIDED] > 0.0 else params[p + _Q_BIAS]
-    # the drag model's misfit (``drag_misfit_sigma_m_s2``): first-order Gauss–Markov, its prediction decays too
-    misfit_on = params[p + _DMIS_P0] > 0.0 and state[k + _P + _I_DMIS * N + _I_DMIS] > 0.0
-    phi_m = 1.0
-    q_misfit = 0.0
-    if misfit_on:
-        phi_m = math.exp(-dt / params[p + _DMIS_TAU])
-        q_misfit = 2.0 * params[p + _DMIS_P0] / params[p + _DMIS_TAU]
-        state[k + _DMIS] *= phi_m
-        state[k + _DMIS + 1] *= phi_m
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
                           params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
                           abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
-                          if params[p + _ABIAS_TAU] > 0.0 else 0.0, misfit_on, phi_m, q_misfit)
+                          if params[p + _ABIAS_TAU] > 0.0 else 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -2537,11 +2492,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(3):
                 ba = state[k + _ABIAS + i] + state[kdx + _I_ABIAS + i]
                 state[k + _ABIAS + i] = min(max(ba, -lim_a), lim_a)
-        if params[p + _DMIS_P0] > 0.0:  # the drag model's misfit, bounded by 3σ of its steady state
-            lim_m = 3.0 * math.sqrt(params[p + _DMIS_P0])
-            for i in range(2):
-                mi = state[k + _DMIS + i] + state[kdx + _I_DMIS + i]
-                state[k + _DMIS + i] = min(max(mi, -lim_m), lim_m)
         lim_s = params[p + _SCALE_LIM]
         if lim_s > 0.0:
             for i in range(3):
@@ -2763,8 +2713,6 @@ class Eskf(AttitudeFilter):
         p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
         p[_SLOW_BLOCK] = settings.slow_force_block_s
         p[_SLOW_TAU] = settings.slow_force_tau_s
-        p[_DMIS_P0] = settings.drag_misfit_sigma_m_s2**2 if settings.thrust_axis_sigma_rad > 0.0 else 0.0
-        p[_DMIS_TAU] = settings.drag_misfit_tau_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
