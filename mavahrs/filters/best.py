@@ -351,7 +351,7 @@ MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
 #: the declared multirotor's unaided velocity prior (``EskfSettings.unaided_velocity_prior_sigma_m_s``, vertical, τ):
 #: the zero velocity as a Gauss–Markov process instead of white noise (0 = the white update)
-MULTIROTOR_VELOCITY_PRIOR_SIGMA_M_S = 2.0
+MULTIROTOR_VELOCITY_PRIOR_SIGMA_M_S = 1.0
 MULTIROTOR_VELOCITY_PRIOR_VERTICAL_SIGMA_M_S = 0.0
 MULTIROTOR_VELOCITY_PRIOR_TAU_S = 5.0
 MULTIROTOR_VELOCITY_PRIOR_LEARN_S = 0.0
