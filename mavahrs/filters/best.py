@@ -349,12 +349,6 @@ MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 #: block length of the declared multirotor's specific-force slow-error estimate (``EskfSettings.slow_force_block_s``:
 #: the velocity's process noise carries the Hadamard variance of 0.1 s block means beyond the white noise's share)
 MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
-#: the declared multirotor's unaided velocity prior (``EskfSettings.unaided_velocity_prior_sigma_m_s``, vertical, τ):
-#: the zero velocity as a Gauss–Markov process instead of white noise (0 = the white update)
-MULTIROTOR_VELOCITY_PRIOR_SIGMA_M_S = 1.0
-MULTIROTOR_VELOCITY_PRIOR_VERTICAL_SIGMA_M_S = 0.0
-MULTIROTOR_VELOCITY_PRIOR_TAU_S = 5.0
-MULTIROTOR_VELOCITY_PRIOR_LEARN_S = 0.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1046,11 +1040,6 @@ class Best(AttitudeFilter):
                 eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
             if eskf.slow_force_block_s == 0.0:
                 eskf = replace(eskf, slow_force_block_s=MULTIROTOR_SLOW_FORCE_BLOCK_S)
-            if eskf.unaided_velocity_prior_sigma_m_s == 0.0:
-                eskf = replace(eskf, unaided_velocity_prior_sigma_m_s=MULTIROTOR_VELOCITY_PRIOR_SIGMA_M_S,
-                               unaided_velocity_prior_vertical_sigma_m_s=MULTIROTOR_VELOCITY_PRIOR_VERTICAL_SIGMA_M_S,
-                               unaided_velocity_prior_tau_s=MULTIROTOR_VELOCITY_PRIOR_TAU_S,
-                               unaided_velocity_prior_learn_s=MULTIROTOR_VELOCITY_PRIOR_LEARN_S)
         else:
             k = drag_coefficient_1_s
             if k is None:

@@ -139,16 +139,14 @@ __all__ = [
     "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE", "slow_force_density_of",
 ]  # fmt: skip
 
-N = 24  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
+N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
 #        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position),
 #        δs (15–17: the gyro's scale-factor errors, see gyro_scale_state_sigma), δb_a (18–20: the accelerometer's
-#        bias, body frame, see accel_bias_sigma_m_s2), δv_m (21–23: the vehicle's own velocity as a Gauss–Markov
-#        process, NED, the unaided velocity prior, see unaided_velocity_prior_sigma_m_s)
+#        bias, body frame, see accel_bias_sigma_m_s2)
 _I_DECL = 11  # index of the declination error in the error state
 _I_POS = 12  # index of the position error (3) in the error state
 _I_SCALE = 15  # index of the gyro scale-factor errors (3) in the error state
 _I_ABIAS = 18  # index of the accelerometer-bias errors (3, body frame) in the error state
-_I_VPRI = 21  # index of the Gauss–Markov velocity prior's errors (3, NED) in the error state
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
@@ -159,8 +157,6 @@ HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 
 #: variances the attitude covariance is re-opened to after persistent rejection, rad²
 _REOPEN_TILT = (math.pi / 4.0) ** 2
 _REOPEN_HEADING = (math.pi / 2.0) ** 2
-#: the velocity prior's constraint v = v_m: its noise, (m/s)² (near-perfect, kept off 0 for the update's conditioning)
-_R_VPRI = 0.01**2
 #: initial velocity variance of a multirotor (it may start in flight), (m/s)²
 _P0_VEL_FLYING = 5.0**2
 #: … and when velocity aiding (re)starts
@@ -255,11 +251,7 @@ _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the 
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
-_VPRI_P0 = _MAG_DELAY + 23  # the velocity prior's steady-state variance, horizontal, (m/s)² (0: the white zero velocity)
-_VPRI_P0V = _MAG_DELAY + 24  # … vertical, (m/s)²
-_VPRI_TAU = _MAG_DELAY + 25  # s: its correlation time
-_VPRI_LEARN = _MAG_DELAY + 26  # s: averaging time of the velocity's mean square the prior's variance is at least (0: fixed)
-_N_PARAMS = _MAG_DELAY + 27
+_N_PARAMS = _MAG_DELAY + 23
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -339,9 +331,7 @@ _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m
 #: the previous block's mean (3), blocks completed (1), the running mean of ‖f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂‖²/18 (the Hadamard
 #: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
 _SLOW = _DNIS + 2
-_VPRI = _SLOW + 14  # the velocity prior's estimate of the vehicle's own velocity, NED, m/s (3; ``unaided_velocity_prior_sigma_m_s``)
-_VPRI_MS = _VPRI + 3  # the estimated horizontal velocity's running mean square per axis, (m/s)², and its time (2)
-_N_STATE = _VPRI + 5
+_N_STATE = _SLOW + 14
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -776,28 +766,6 @@ class EskfSettings(FilterSettings):
             changes steadily over the three blocks; quicker real changes
             count as error.
         slow_force_tau_s: the averaging time of that variance, s.
-        unaided_velocity_prior_sigma_m_s: without velocity aiding, the
-            zero-velocity pseudo-measurement as a Gauss–Markov prior instead
-            of white noise: the vehicle's own velocity v_m is a first-order
-            Gauss–Markov process per NED axis (v̇_m = −v_m/τ + w, steady-state
-            1-σ this horizontally, m/s, ``…_vertical_…`` down; correlation
-            time ``unaided_velocity_prior_tau_s``), three error states, and
-            every ``unaided_velocity_period_s`` the INS velocity is that
-            velocity (v̂ + δv = v̂_m + δv_m, a near-perfect constraint).  The
-            zero-velocity "noise" is the vehicle's motion, which is the same
-            from one 0.1 s period to the next: fused as white it is counted
-            ten times a second as new (a correlated measurement error handled
-            by state augmentation: Bryson & Johansen 1965; Gelb 1974 §4.6,
-            table 4.4-1, q = 2σ²/τ).  0 = the white update
-            (``unaided_velocity_noise_m_s``, default).
-        unaided_velocity_prior_vertical_sigma_m_s: that prior's vertical 1-σ,
-            m/s (0: the horizontal one).
-        unaided_velocity_prior_tau_s: that prior's correlation time, s.
-        unaided_velocity_prior_learn_s: the prior's variance (both) is at
-            least the estimated horizontal velocity's mean square per axis over
-            this time, s (the mean since the start while shorter): a vehicle
-            flying fast has a wider prior (covariance matching of the
-            process, as Sage–Husa's for Q).  0 = fixed (default).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -882,10 +850,6 @@ class EskfSettings(FilterSettings):
     drag_noise_match_s: float = 0.0
     slow_force_block_s: float = 0.0
     slow_force_tau_s: float = 5.0
-    unaided_velocity_prior_sigma_m_s: float = 0.0
-    unaided_velocity_prior_vertical_sigma_m_s: float = 0.0
-    unaided_velocity_prior_tau_s: float = 5.0
-    unaided_velocity_prior_learn_s: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -911,12 +875,11 @@ class EskfSettings(FilterSettings):
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
                      "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
-                     "slow_force_tau_s", "unaided_velocity_prior_sigma_m_s",
-                     "unaided_velocity_prior_vertical_sigma_m_s", "unaided_velocity_prior_learn_s"):
+                     "slow_force_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number ≥ 0, got {value!r}")
-        for name in ("drag_noise_m_s2", "thrust_axis_tau_s", "position_gate_sigma", "unaided_velocity_prior_tau_s"):
+        for name in ("drag_noise_m_s2", "thrust_axis_tau_s", "position_gate_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
@@ -1102,10 +1065,6 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
             s[kp + i * N + i] = _P0_VEL_FLYING
-    if params[p + _VPRI_P0] > 0.0:  # the velocity prior (v̂_m restarts at 0 with its steady-state variance)
-        s[kp + _I_VPRI * N + _I_VPRI] = params[p + _VPRI_P0]
-        s[kp + (_I_VPRI + 1) * N + _I_VPRI + 1] = params[p + _VPRI_P0]
-        s[kp + (_I_VPRI + 2) * N + _I_VPRI + 2] = params[p + _VPRI_P0V]
     rest_reset(s, k + _REST)
     s[k + _LAST_FIX] = -1.0
     s[k + _PREJ_T] = -1.0
@@ -1179,7 +1138,7 @@ def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
 
 @kernel(inline=True)
 def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz,
-                          abias_on, phi_a, q_abias, prior_on, phi_v, q_prior_h, q_prior_v):  # type: ignore[no-untyped-def]
+                          abias_on, phi_a, q_abias):  # type: ignore[no-untyped-def]
     """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ − C δb_a with M = −[f]×,
     δṗ = δv, δḃ_a = −δb_a/τ_a; scratch C, M).
 
@@ -1190,14 +1149,12 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
     with ω the rate used this sample, are constant but for ``q_scale``; left at 0 unless ``scale_on``.  The
     accelerometer's bias (18–20, body frame) is a first-order Gauss–Markov process: its rows of Φ are
     ``phi_a`` = 1 − dt/τ_a (1: constant), its noise ``q_abias`` = 2σ_a²/τ_a; left at 0 unless ``abias_on``.
-    The velocity prior's states (21–23: the vehicle's own velocity, NED) are Gauss–Markov too (``phi_v``,
-    ``q_prior_h`` / ``q_prior_v`` = 2σ²/τ); no row of F couples them; left at 0 unless ``prior_on``.
     """
     kp = k + _P
     ka = k + _A
     kc = k + _C
     km = k + _M
-    n = N if (abias_on or prior_on) else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
+    n = N if abias_on else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
     # A = Φ P
     for j in range(n):
         for i in range(3):
@@ -1222,17 +1179,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for i in range(3):  # δṗ = δv
                 s[ka + (_I_POS + i) * N + j] = s[kp + (_I_POS + i) * N + j] + dt * s[kp + (3 + i) * N + j]
-        elif scale_on or abias_on or prior_on:
+        elif scale_on or abias_on:
             for r in range(_I_POS, _I_SCALE):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if scale_on or abias_on or prior_on:
+        if scale_on or abias_on:
             for r in range(_I_SCALE, _I_ABIAS):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if abias_on or prior_on:
-            for r in range(_I_ABIAS, _I_VPRI):
+        if abias_on:
+            for r in range(_I_ABIAS, N):
                 s[ka + r * N + j] = phi_a * s[kp + r * N + j]
-            for r in range(_I_VPRI, N):
-                s[ka + r * N + j] = phi_v * s[kp + r * N + j]
     # P = A Φᵀ
     for i in range(n):
         for j in range(3):
@@ -1257,17 +1212,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for j in range(3):
                 s[kp + i * N + _I_POS + j] = s[ka + i * N + _I_POS + j] + dt * s[ka + i * N + 3 + j]
-        elif scale_on or abias_on or prior_on:
+        elif scale_on or abias_on:
             for j in range(_I_POS, _I_SCALE):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if scale_on or abias_on or prior_on:
+        if scale_on or abias_on:
             for j in range(_I_SCALE, _I_ABIAS):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if abias_on or prior_on:
-            for j in range(_I_ABIAS, _I_VPRI):
+        if abias_on:
+            for j in range(_I_ABIAS, N):
                 s[kp + i * N + j] = phi_a * s[ka + i * N + j]
-            for j in range(_I_VPRI, N):
-                s[kp + i * N + j] = phi_v * s[ka + i * N + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
@@ -1283,12 +1236,8 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         for i in range(_I_SCALE, _I_ABIAS):
             s[kp + i * N + i] += q_scale * dt
     if abias_on and q_abias > 0.0:
-        for i in range(_I_ABIAS, _I_VPRI):
+        for i in range(_I_ABIAS, N):
             s[kp + i * N + i] += q_abias * dt
-    if prior_on:
-        s[kp + _I_VPRI * N + _I_VPRI] += q_prior_h * dt
-        s[kp + (_I_VPRI + 1) * N + _I_VPRI + 1] += q_prior_h * dt
-        s[kp + (_I_VPRI + 2) * N + _I_VPRI + 2] += q_prior_v * dt
     # keep P symmetric against round-off
     for i in range(n):
         for j in range(i + 1, n):
@@ -1311,7 +1260,7 @@ def _accel_bias_decouple(s, k):  # type: ignore[no-untyped-def]
     """The accelerometer-bias states' correlations with the rest cleared (their variances kept): held, not
     estimated (``accel_bias_aided_only`` while not aided)."""
     kp = k + _P
-    for i in range(_I_ABIAS, _I_VPRI):
+    for i in range(_I_ABIAS, N):
         for j in range(N):
             if j != i:
                 s[kp + i * N + j] = 0.0
@@ -1383,7 +1332,7 @@ def _n_active(s, k):  # type: ignore[no-untyped-def]
     """The error state's size in use: without the gyro scale-factor states (or the accelerometer-bias states)
     their rows and columns of P (and of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the
     daemon's per-sample cost)."""
-    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0 or s[k + _P + _I_VPRI * N + _I_VPRI] > 0.0:
+    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0:
         return N
     return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
@@ -2027,30 +1976,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     # the thrust-axis states' random walk once they exist (their variance is 0 until the axis is first set)
     q_axis = params[p + _AXIS_Q] if state[k + _P + 9 * N + 9] > 0.0 else 0.0
     q_bias = params[p + _Q_BIAS_AIDED] if aided and params[p + _Q_BIAS_AIDED] > 0.0 else params[p + _Q_BIAS]
-    # the velocity prior (``unaided_velocity_prior_sigma_m_s``): first-order Gauss–Markov, its prediction decays too
-    prior_on = params[p + _VPRI_P0] > 0.0 and state[k + _P + _I_VPRI * N + _I_VPRI] > 0.0
-    phi_v = 1.0
-    var_h, var_v = params[p + _VPRI_P0], params[p + _VPRI_P0V]
-    if prior_on:
-        phi_v = math.exp(-dt / params[p + _VPRI_TAU])
-        for i in range(3):
-            state[k + _VPRI + i] *= phi_v
-        tau_l = params[p + _VPRI_LEARN]
-        if tau_l > 0.0 and not aided:
-            km = k + _VPRI_MS
-            km1 = km + 1
-            state[km1] += dt
-            w_l = max(dt / tau_l, dt / state[km1])
-            vh2 = 0.5 * (state[k + _V] * state[k + _V] + state[k + _V + 1] * state[k + _V + 1])
-            state[km] += (vh2 - state[km]) * w_l
-            var_h = max(var_h, state[km])
-            var_v = max(var_v, state[km])
     _propagate_covariance(state, k, dt, q_gyro, q_accel, q_bias, q_axis, params[p + _Q_POS],
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
                           params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
                           abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
-                          if params[p + _ABIAS_TAU] > 0.0 else 0.0,
-                          prior_on, phi_v, 2.0 * var_h / params[p + _VPRI_TAU], 2.0 * var_v / params[p + _VPRI_TAU])
+                          if params[p + _ABIAS_TAU] > 0.0 else 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -2217,17 +2147,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         # fuses zero velocity or a constant position the same way): the INS velocity's drift is the tilt
         # and bias error, through their covariance with the velocity
         state[k + _LAST_ZV] = clk
-        prior = params[p + _VPRI_P0] > 0.0 and state[k + _P + _I_VPRI * N + _I_VPRI] > 0.0
         for c in range(3):
             for i in range(N):
                 state[k + _H + i] = 0.0
             state[k + _H + 3 + c] = 1.0
-            if prior:
-                # the Gauss–Markov prior: v̂ + δv = v̂_m + δv_m (``unaided_velocity_prior_sigma_m_s``), near-perfect
-                state[k + _H + _I_VPRI + c] = -1.0
-                if _scalar_update(state, k, state[k + _VPRI + c] - state[k + _V + c], _R_VPRI, 1.0e6):
-                    updated = True
-            elif _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6):
+            if _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6):
                 updated = True
     k_drag = params[p + _DRAG_K]
     if k_drag > 0.0 and accel_ok:
@@ -2554,9 +2478,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if aided or r_zv > 0.0 or k_drag > 0.0 or at_rest:
             for i in range(3):
                 state[k + _V + i] += state[kdx + 3 + i]
-        if params[p + _VPRI_P0] > 0.0:
-            for i in range(3):
-                state[k + _VPRI + i] += state[kdx + _I_VPRI + i]
         if state[k + _POS_ON] > 0.0:
             state[k + _POS] += state[kdx + _I_POS]
             state[k + _POS + 1] += state[kdx + _I_POS + 1]
@@ -2792,12 +2713,6 @@ class Eskf(AttitudeFilter):
         p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
         p[_SLOW_BLOCK] = settings.slow_force_block_s
         p[_SLOW_TAU] = settings.slow_force_tau_s
-        sv_h = settings.unaided_velocity_prior_sigma_m_s
-        sv_v = settings.unaided_velocity_prior_vertical_sigma_m_s or sv_h
-        p[_VPRI_P0] = sv_h**2 if settings.unaided_velocity_noise_m_s > 0.0 else 0.0
-        p[_VPRI_P0V] = sv_v**2 if p[_VPRI_P0] > 0.0 else 0.0
-        p[_VPRI_TAU] = settings.unaided_velocity_prior_tau_s
-        p[_VPRI_LEARN] = settings.unaided_velocity_prior_learn_s
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
