@@ -349,10 +349,6 @@ MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 #: block length of the declared multirotor's specific-force slow-error estimate (``EskfSettings.slow_force_block_s``:
 #: the velocity's process noise carries the Hadamard variance of 0.1 s block means beyond the white noise's share)
 MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
-#: the declared multirotor's accelerometer bias along the thrust axis only (``EskfSettings.accel_bias_thrust_axis_only``):
-#: 1-σ, m/s², and Gauss–Markov τ, s (0: none)
-MULTIROTOR_THRUST_ACCEL_BIAS_SIGMA_M_S2 = 0.3
-MULTIROTOR_THRUST_ACCEL_BIAS_TAU_S = 5.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1044,10 +1040,6 @@ class Best(AttitudeFilter):
                 eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
             if eskf.slow_force_block_s == 0.0:
                 eskf = replace(eskf, slow_force_block_s=MULTIROTOR_SLOW_FORCE_BLOCK_S)
-            if MULTIROTOR_THRUST_ACCEL_BIAS_SIGMA_M_S2 > 0.0 and not eskf.accel_bias_thrust_axis_only:
-                eskf = replace(eskf, accel_bias_sigma_m_s2=MULTIROTOR_THRUST_ACCEL_BIAS_SIGMA_M_S2,
-                               accel_bias_tau_s=MULTIROTOR_THRUST_ACCEL_BIAS_TAU_S, accel_bias_aided_only=False,
-                               accel_bias_thrust_axis_only=True)
         else:
             k = drag_coefficient_1_s
             if k is None:

@@ -251,8 +251,7 @@ _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the 
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
-_ABIAS_THRUST = _MAG_DELAY + 23  # 1: the accelerometer-bias states span the thrust axis only (P_ba = σ² t tᵀ)
-_N_PARAMS = _MAG_DELAY + 24
+_N_PARAMS = _MAG_DELAY + 23
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -767,16 +766,6 @@ class EskfSettings(FilterSettings):
             changes steadily over the three blocks; quicker real changes
             count as error.
         slow_force_tau_s: the averaging time of that variance, s.
-        accel_bias_thrust_axis_only: the accelerometer-bias states
-            (``accel_bias_sigma_m_s2``) span the thrust axis t only: their
-            covariance starts as σ² t tᵀ when the thrust-axis states start
-            and their noise is q t tᵀ, so δb_a = β t (F's rows for δb_a are
-            isotropic, so every update keeps it in that span).  Across the
-            axis a bias is a tilt to the gravity and the drag alike (branch
-            accb); along it, it is the drift of the velocity along the
-            thrust, which the zero velocity observes.  Only with the thrust
-            axis as states (``thrust_axis_sigma_rad``).  False = all three
-            (default).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -852,7 +841,6 @@ class EskfSettings(FilterSettings):
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
-    accel_bias_thrust_axis_only: bool = False
     gyro_scale_tilt_sigma: float = 0.003
     gyro_scale_tilt_memory_s: float = 0.5
     heading_walk_tau_s: float = 0.0
@@ -1072,8 +1060,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     for i in range(_I_SCALE, _I_SCALE + 3):  # the gyro's scale-factor errors (0: not estimated; ŝ restarts at 0)
         s[kp + i * N + i] = params[p + _SCALE_P0]
     for i in range(_I_ABIAS, _I_ABIAS + 3):  # the accelerometer's bias (0: not estimated; b̂_a restarts at 0)
-        # (along the thrust axis only: from the axis's start, ``_axis_start_bias``)
-        s[kp + i * N + i] = params[p + _ABIAS_P0] if params[p + _ABIAS_THRUST] == 0.0 else 0.0
+        s[kp + i * N + i] = params[p + _ABIAS_P0]
     if params[p + _DRAG_K] > 0.0:
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
@@ -1151,7 +1138,7 @@ def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
 
 @kernel(inline=True)
 def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz,
-                          abias_on, phi_a, q_abias, abias_axis):  # type: ignore[no-untyped-def]
+                          abias_on, phi_a, q_abias):  # type: ignore[no-untyped-def]
     """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ − C δb_a with M = −[f]×,
     δṗ = δv, δḃ_a = −δb_a/τ_a; scratch C, M).
 
@@ -1249,14 +1236,8 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         for i in range(_I_SCALE, _I_ABIAS):
             s[kp + i * N + i] += q_scale * dt
     if abias_on and q_abias > 0.0:
-        if abias_axis:  # along the thrust axis t only: q t tᵀ
-            kt = k + _TAX
-            for i in range(3):
-                for j in range(3):
-                    s[kp + (_I_ABIAS + i) * N + _I_ABIAS + j] += q_abias * s[kt + i] * s[kt + j] * dt
-        else:
-            for i in range(_I_ABIAS, N):
-                s[kp + i * N + i] += q_abias * dt
+        for i in range(_I_ABIAS, N):
+            s[kp + i * N + i] += q_abias * dt
     # keep P symmetric against round-off
     for i in range(n):
         for j in range(i + 1, n):
@@ -1272,24 +1253,6 @@ def _accel_bias_variance(s, k, params):  # type: ignore[no-untyped-def]
     vibrating raw IMU's aliased vibration leaves a slowly varying offset that grows with the vibration."""
     p = P_FILTER
     return params[p + _ABIAS_P0] + params[p + _ABIAS_VIB] * s[k + _VIB + 1]
-
-
-@kernel(inline=True)
-def _axis_start_bias(s, k, params):  # type: ignore[no-untyped-def]
-    """The accelerometer-bias states along the thrust axis only (``accel_bias_thrust_axis_only``): when the
-    axis (re)starts, P_ba = σ² t tᵀ, uncorrelated with the rest (b̂_a kept)."""
-    if params[P_FILTER + _ABIAS_THRUST] == 0.0:
-        return
-    kt = k + _TAX
-    kp = k + _P
-    var = _accel_bias_variance(s, k, params)
-    for i in range(3):
-        for j in range(N):
-            s[kp + (_I_ABIAS + i) * N + j] = 0.0
-            s[kp + j * N + _I_ABIAS + i] = 0.0
-    for i in range(3):
-        for j in range(3):
-            s[kp + (_I_ABIAS + i) * N + _I_ABIAS + j] = var * s[kt + i] * s[kt + j]
 
 
 @kernel(inline=True)
@@ -1369,8 +1332,7 @@ def _n_active(s, k):  # type: ignore[no-untyped-def]
     """The error state's size in use: without the gyro scale-factor states (or the accelerometer-bias states)
     their rows and columns of P (and of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the
     daemon's per-sample cost)."""
-    kb = k + _P + _I_ABIAS * N + _I_ABIAS
-    if s[kb] > 0.0 or s[kb + N + 1] > 0.0 or s[kb + 2 * N + 2] > 0.0:
+    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0:
         return N
     return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
@@ -1567,7 +1529,6 @@ def _axis_start_check(s, k, params):  # type: ignore[no-untyped-def]
         return
     if (mx * tx + my * ty + mz * tz) < params[P_FILTER + _INIT_COS] * m * tn:
         _axis_start(s, k, mx / m, my / m, mz / m, p0)
-        _axis_start_bias(s, k, params)
 
 
 @kernel(inline=True)
@@ -1600,7 +1561,6 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
             return False
         tx, ty, tz = fx / fn_, fy / fn_, fz / fn_
         _axis_start(s, k, tx, ty, tz, p0)
-        _axis_start_bias(s, k, params)
         tn = 1.0
     if not tn > 0.5:  # no steady thrust direction (tumbling, or not yet learnt)
         return False
@@ -2020,8 +1980,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
                           params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
                           abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
-                          if params[p + _ABIAS_TAU] > 0.0 else 0.0,
-                          params[p + _ABIAS_THRUST] > 0.0)
+                          if params[p + _ABIAS_TAU] > 0.0 else 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -2754,7 +2713,6 @@ class Eskf(AttitudeFilter):
         p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
         p[_SLOW_BLOCK] = settings.slow_force_block_s
         p[_SLOW_TAU] = settings.slow_force_tau_s
-        p[_ABIAS_THRUST] = 1.0 if settings.accel_bias_thrust_axis_only and settings.thrust_axis_sigma_rad > 0.0 else 0.0
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
