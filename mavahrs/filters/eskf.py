@@ -2125,13 +2125,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # the low-passed gyro is the bias (Madgwick's and VQF's rest phase, here as a measurement of
             # the bias state: its covariance with the tilt corrects that too); optionally the velocity is zero
             state[k + _LAST_REST] = clk
-            v_known = params[p + _REST_CHECK_VAR]
             for c in range(3):
-                # with ``rest_check_sigma_rad_s`` only the axes whose bias is known within it: on an axis known
-                # worse the 3 σ check passes a slow steady turn (a hover's yaw), which one update would take for
-                # the bias with a σ of hundredths of a °/s (docs/accuracy.md, fourteenth round: hover 135)
-                if v_known > 0.0 and s_pos(state[k + _P + (6 + c) * N + 6 + c]) > v_known:
-                    continue
                 for i in range(N):
                     state[k + _H + i] = 0.0
                 state[k + _H + 6 + c] = 1.0
