@@ -1384,8 +1384,12 @@ class AttitudeMonitor:
                 if not step.any():
                     continue
                 c = np.sqrt(c2[step])
-                if w is not None:  # … nor the disagreement warned of coming back
+                if w is not None:  # … nor the disagreement warned of coming back: as it stood before the warning …
                     back = ((ma[step] - np.array([w[ax - 1] for ax in axes])) ** 2).sum(axis=1)
+                    c = np.minimum(c, np.sqrt(back))
+                    # … and as it was when raised (an intermittent fault, 1 s in every 4 s, on again; as
+                    # :meth:`_in_warning_test`'s baseline test)
+                    back = ((ma[step] - np.array([self._e_warned[ax - 1] for ax in axes])) ** 2).sum(axis=1)
                     c = np.minimum(c, np.sqrt(back))
                 best[out] = max(best[out], float((c / thr[step]).max()))
         c_t = best[0]
