@@ -53,7 +53,10 @@ and the error state returns to zero.  The output is the attitude advanced by
 ``sensor_delay_s`` with the current rate, q ⊗ exp(ω·τ/2): an autopilot's
 IMU messages carry low-passed rates (ArduPilot: INS_GYRO_FILTER, a 20 Hz
 second-order filter, ≈ 11 ms of delay), so the integrated attitude trails the
-vehicle by that much; the state itself is not advanced.  Details and the
+vehicle by that much; the state itself is not advanced.  On an autopilot's
+stream (``output_half_step``) the advance is ``sensor_delay_s`` − dt/2: the
+step above applies each sample's rate over the interval before it, which
+leads a point-sampled rate by ½ E[dt²] / E[dt].  Details and the
 measured choices: ``docs/filters/eskf.md``.
 """
 
