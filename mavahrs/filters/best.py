@@ -297,7 +297,11 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
     velocity-aided if ``VEHICLE_ACCEL_BIAS_SIGMA_M_S2`` > 0 (off), and
     the gyro's scale-factor error as the tilt's process noise (``gyro_scale_tilt_sigma``, what the monitor's
     tilt σ needs after a flip), its learnt model (:mod:`mavahrs.filters.magfield`) on unless set either way: ArduCopter's
-    motor-interference flight 1.76 → 0.54° heading, the other shared flights within 0.02°.
+    motor-interference flight 1.76 → 0.54° heading, the other shared flights within 0.02°.  The output moved back by
+    half the step (``output_half_step``: an autopilot's samples are point samples of a low-passed rate, the
+    right-rectangle step leads by ½ E[dt²]/E[dt]): SITL 0.16 / 0.34 → 0.15 / 0.31° inclination / heading, firmware_sim
+    flips 0.54 → 0.43° (docs/monitor.md round fourteen); a raw IMU through the API keeps it off
+    (:func:`multirotor_eskf_settings`).
     """
     d = EskfSettings()
     # the magnetometer model: on unless set either way (an autopilot's compass, motor current in the stream)
@@ -320,6 +324,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         mag_learn_tau_s=VEHICLE_MAG_LEARN_TAU_S,
         accel_bias_sigma_m_s2=VEHICLE_ACCEL_BIAS_SIGMA_M_S2,
         accel_bias_aided_only=True,
+        output_half_step=True,
     )
 
 
@@ -379,7 +384,10 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     # the tilt's scale-factor noise as ``eskf`` has it (best's raw settings: none): on firmware_sim's raw
     # IMU declared a multirotor it cost aggressive 1–4 1.11 → 1.16° (flips 1–4 2.53 → 2.43°; docs/monitor.md
     # round eight); an autopilot's stream, where the monitor reads the tilt σ, has it from vehicle_eskf_settings
-    return replace(vehicle_eskf_settings(eskf), gyro_scale_tilt_sigma=eskf.gyro_scale_tilt_sigma)
+    # the output's timing as ``eskf`` has it too (off): a raw IMU's sample may be its interval's mean, with no
+    # right-rectangle lead to remove (BROAD 0.66 → 0.86° with the half step; docs/monitor.md round fourteen)
+    return replace(vehicle_eskf_settings(eskf), gyro_scale_tilt_sigma=eskf.gyro_scale_tilt_sigma,
+                   output_half_step=eskf.output_half_step)
 
 
 @dataclass(frozen=True)

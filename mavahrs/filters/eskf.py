@@ -53,7 +53,10 @@ and the error state returns to zero.  The output is the attitude advanced by
 ``sensor_delay_s`` with the current rate, q ⊗ exp(ω·τ/2): an autopilot's
 IMU messages carry low-passed rates (ArduPilot: INS_GYRO_FILTER, a 20 Hz
 second-order filter, ≈ 11 ms of delay), so the integrated attitude trails the
-vehicle by that much; the state itself is not advanced.  Details and the
+vehicle by that much; the state itself is not advanced.  On an autopilot's
+stream (``output_half_step``) the advance is ``sensor_delay_s`` − dt/2: the
+step above applies each sample's rate over the interval before it, which
+leads a point-sampled rate by ½ E[dt²] / E[dt].  Details and the
 measured choices: ``docs/filters/eskf.md``.
 """
 
@@ -137,6 +140,7 @@ __all__ = [
     "MULTIROTOR_DRAG_1_S", "MULTIROTOR_AXIS_SIGMA_RAD", "thrust_axis_of", "declination_of", "mag_delay_of", "mag_noise_of",
     "heading_walk_of",
     "START_DONE_STATE", "gyro_scale_of", "accel_bias_of", "ACCEL_BIAS_STATE", "slow_force_density_of",
+    "OUTPUT_HALF_STEP_MAX_S",
 ]  # fmt: skip
 
 N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
@@ -152,6 +156,9 @@ MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
 #: a start in forward flight puts the first mean specific force ≈ atan(k·v/g) ≈ 10° off the axis at 4 m/s
 MULTIROTOR_AXIS_SIGMA_RAD = math.radians(15.0)
+#: s: the longest step whose half the output is moved back by (``EskfSettings.output_half_step``): a longer gap is
+#: not a sampling interval the rate stood for (the filters re-initialise only beyond ``max_gap_s``)
+OUTPUT_HALF_STEP_MAX_S = 0.05
 HISTORY_LEN = 192  # INS velocity history (entries of t, vn, ve, vd): 0.48 s at 400 Hz
 
 #: variances the attitude covariance is re-opened to after persistent rejection, rad²
@@ -251,7 +258,8 @@ _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the 
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
-_N_PARAMS = _MAG_DELAY + 23
+_HALF_STEP = _MAG_DELAY + 23  # 1: the output's advance is ``_DELAY`` less half the step (``output_half_step``)
+_N_PARAMS = _MAG_DELAY + 24
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -766,6 +774,19 @@ class EskfSettings(FilterSettings):
             changes steadily over the three blocks; quicker real changes
             count as error.
         slow_force_tau_s: the averaging time of that variance, s.
+        output_half_step: the published attitude is advanced by
+            ``sensor_delay_s`` − dt/2 rather than ``sensor_delay_s`` (dt the
+            step, at most 0.05 s; a negative advance moves it back).  Each step applies the sample's rate over the interval
+            before it, q ← q ⊗ exp(ω_k dt_k / 2) (right rectangle), so for a
+            rate *sampled* at the stamp the integrated attitude leads the
+            truth by ½ E[dt²] / E[dt] (the sum exceeds the integral by
+            ½ Σ ω̇ dt²): 2.2 ms on a 250 Hz RAW_IMU, 10 ms at 50 Hz
+            (docs/monitor.md rounds thirteen and fourteen).  The state is
+            not moved.  For an autopilot's stream (point samples of a
+            low-passed rate: :func:`mavahrs.filters.best.vehicle_eskf_settings`
+            sets it); off by default: a raw IMU's sample that is already
+            the interval's mean (BROAD) has no lead (BROAD 0.66 → 0.86°
+            inclination with it).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -850,6 +871,7 @@ class EskfSettings(FilterSettings):
     drag_noise_match_s: float = 0.0
     slow_force_block_s: float = 0.0
     slow_force_tau_s: float = 5.0
+    output_half_step: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -2538,9 +2560,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     out[OUT_HEADING_SIGMA] = math.sqrt(s_pos(state[kp + 2 * N + 2]))
     if aided:
         add_flag(out, FLAG_VELOCITY_AIDED)
-    # output: advanced by the IMU data's delay (the state is not)
+    # output: advanced by the IMU data's delay (the state is not), less half the right-rectangle step's lead
+    # (``output_half_step``: the step's sum leads the integral by ½ dt per sample for a sampled rate)
     tau = params[p + _DELAY]
-    if tau > 0.0:
+    if params[p + _HALF_STEP] > 0.0:
+        tau -= 0.5 * min(dt, OUTPUT_HALF_STEP_MAX_S)
+    if tau != 0.0:
         hx, hy, hz = 0.5 * gx * tau, 0.5 * gy * tau, 0.5 * gz * tau
         o0, o1, o2, o3 = quat_multiply(out[OUT_Q], out[OUT_Q + 1], out[OUT_Q + 2], out[OUT_Q + 3],
                                        1.0, hx, hy, hz)  # fmt: skip
@@ -2710,6 +2735,7 @@ class Eskf(AttitudeFilter):
         p[_HWALK_MAX] = settings.heading_walk_max_rad_s**2
         p[_HWALK_WIN] = settings.heading_walk_window_s
         p[_DRAG_C] = settings.drag_quadratic_1_m
+        p[_HALF_STEP] = 1.0 if settings.output_half_step else 0.0
         p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
         p[_SLOW_BLOCK] = settings.slow_force_block_s
         p[_SLOW_TAU] = settings.slow_force_tau_s

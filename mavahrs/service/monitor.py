@@ -94,18 +94,19 @@ _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
 class _RecentRows:
-    """The last seconds of ``(t_ms, e_north, e_east, e_down)`` rows, oldest first: a deque's ``append`` /
+    """The last seconds of ``(t_ms, e_north, e_east, e_down, ω_north, ω_east, ω_down)`` rows (the divergence vector
+    and our earth-frame turn rate, rad/s, beside it), oldest first: a deque's ``append`` /
     ``popleft`` / ``clear`` over one growing array, which the step test reads whole on every comparison
     (copying a deque of tuples into an array each time was most of a .ulg's monitor at EKF2's 250 Hz)."""
 
-    def __init__(self, capacity: int = 64) -> None:
-        self._rows = np.empty((capacity, 4))
+    def __init__(self, capacity: int = 64, width: int = 7) -> None:
+        self._rows = np.empty((capacity, width))
         self._first = self._end = 0
 
     def append(self, row: Sequence[float]) -> None:
         if self._end == len(self._rows):  # full: move the live rows to the front, twice the room if half full
             live = self._end - self._first
-            rows = np.empty((2 * len(self._rows), 4)) if 2 * live > len(self._rows) else self._rows
+            rows = np.empty((2 * len(self._rows), self._rows.shape[1])) if 2 * live > len(self._rows) else self._rows
             rows[:live] = self._rows[self._first : self._end]
             self._rows, self._first, self._end = rows, 0, live
         self._rows[self._end] = row
@@ -972,6 +973,9 @@ class AttitudeMonitor:
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._rate_h = 0.0  # … its earth-frame horizontal part (what turns the tilt), rad/s
         self._rate_v = 0.0  # … and vertical part (what turns the heading), rad/s
+        self._w_earth = (0.0, 0.0, 0.0)  # … as a vector, north, east, down, rad/s (signed: the step test's timing term)
+        self._z_step = 0.0  # the in-warning test's step part now (:meth:`_step_in_warning`)
+        self._thr_sigmas = (0.0, 0.0)  # our (tilt, heading) σ the thresholds were built from, rad
         self._fresh = False  # a comparison since the last publication
 
     # ------------------------------------------------------------------ inputs
@@ -1017,6 +1021,7 @@ class AttitudeMonitor:
             ez = -q[0] * p[3] + p[0] * q[3] - (q[1] * p[2] - q[2] * p[1])
             self._rate_h = abs(k) * math.sqrt(ex * ex + ey * ey)
             self._rate_v = abs(k * ez)
+            self._w_earth = (k * ex, k * ey, k * ez)
         est.append((t, q))
         if self._first_est_ms is None:
             self._first_est_ms = t
@@ -1181,6 +1186,7 @@ class AttitudeMonitor:
         s_t = sig if aided else self._sig_unaided[0]
         sh = self._sigma_hdg
         s_h = (max(sh, self._sig_hdg) if math.isfinite(sh) else self._sig_hdg) if aided else self._sig_unaided[1]
+        self._thr_sigmas = (s_t, s_h)
         # the timing term: the earth-frame turn over sync_s, its horizontal part for the tilt, its vertical
         # part for the heading (a yaw spin does not tilt the divergence, a flip does not turn its heading)
         sync_t2 = (self._rate_h * self.settings.sync_s) ** 2
@@ -1236,7 +1242,8 @@ class AttitudeMonitor:
         self._e = e
         if self.settings.change_step_s > 0.0:
             rec = self._recent
-            rec.append((t_ms, e[0], e[1], e[2]))
+            w = self._w_earth
+            rec.append((t_ms, e[0], e[1], e[2], w[0], w[1], w[2]))
             horizon = t_ms - 1000.0 * self.settings.change_step_s
             while rec and rec[0][0] < horizon:
                 rec.popleft()
@@ -1265,6 +1272,7 @@ class AttitudeMonitor:
         ``change_delay_s``: a disagreement growing on (a ramp, 0.2°/s: a new WARNING every 7–10 s without it)
         is the warning already on."""
         iw, ch = self._in_warning, self._change
+        self._z_step = 0.0
         if iw is None or ch is None:
             return 0.0
         if not (self._warning and self._warned_in_flight and self._change_aided):
@@ -1272,11 +1280,14 @@ class AttitudeMonitor:
                 iw.restart()
             return 0.0
         e = self._e
-        if not iw.update(t_ms, e, frozen=False):  # its baseline not fed yet: a step in the last seconds
-            return self._step_in_warning(t_ms, tilt, heading, hdg_on)
+        # a step in the last change_step_s against the level just before it (the generalised likelihood ratio's
+        # split, as outside a warning: ``change_step_outside``), whether or not the baseline is fed yet
+        step = self._z_step = self._step_in_warning(t_ms, tilt, heading, hdg_on)
+        if not iw.update(t_ms, e, frozen=False):  # its baseline not fed yet: the step test alone
+            return step
         m = iw._mean  # a change back toward agreement (e − ê against e) is not a new fault
         if (e[0] - m[0]) * e[0] + (e[1] - m[1]) * e[1] + (e[2] - m[2]) * e[2] <= 0.0:
-            return 0.0
+            return step
         t_thr, h_thr = ch.thresholds
         w = self._e_warned  # … nor the disagreement warned of coming back (an intermittent fault)
         c_t = min(iw.tilt, math.hypot(e[0] - w[0], e[1] - w[1]))
@@ -1291,7 +1302,7 @@ class AttitudeMonitor:
             c_t = min(c_t, tilt / self._min_thr[0])
         if self._min_thr[1] > 0.0:
             c_h = min(c_h, abs(heading) / self._min_thr[1])
-        return max(c_t, c_h)
+        return max(c_t, c_h, step)
 
     def _step_in_warning(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
         """A step in the first seconds of a warning, before the in-warning baseline is fed
@@ -1311,7 +1322,16 @@ class AttitudeMonitor:
     ) -> tuple[float, float]:
         """The step test of :meth:`_step_in_warning` (``in_warning``) or, outside a warning
         (``MonitorSettings.change_step_outside``), without the conditions that refer to the warning (the split
-        after it, away from the disagreement warned of): the (tilt, heading) ratios, 0 where not judged."""
+        after it, away from the disagreement warned of): the (tilt, heading) ratios, 0 where not judged.
+
+        Within a warning each split's change is judged against the change test's thresholds with the timing term
+        of the turn rate's change between the two segments (:meth:`_split_thresholds`): a timing offset δ between
+        the two estimates makes the divergence δ·ω (``sync_s``), so the difference of two segments' means
+        carries δ·(ω̄_after − ω̄_before), not δ·ω now — in a steady yaw spin the timing part is the same on both
+        sides of a step (firmware_sim aggressive 81: a +6° heading step under a warning in a 314°/s spin,
+        thresholds of 5.0–6.3° with the spin's whole rate).  Outside a warning the thresholds are the change
+        test's, with the rate now: the segments' rates there measured a 2° tilt step on firmware_sim
+        aggressive 1 0.7 → 2.7 s (docs/monitor.md round fourteen)."""
         ch = self._change
         assert ch is not None
         h_ms = 1000.0 * self.settings.change_step_s
@@ -1341,6 +1361,14 @@ class AttitudeMonitor:
             nb = splits[:, None].astype(np.float64)
             na = (n - splits)[:, None].astype(np.float64)
             for axes, out in (((1, 2), 0), ((3,), 1)):
+                if in_warning:  # the timing term of the segments' mean rates' difference
+                    rc = [a + 3 for a in axes]  # the turn rate's columns beside them (north, east / down)
+                    r = np.zeros((n + 1, len(axes)))
+                    np.cumsum(rows[:, rc], axis=0, out=r[1:])
+                    dw = (r[n] - r[splits]) / na - r[splits] / nb
+                    thr = self._split_thresholds(np.sqrt((dw * dw).sum(axis=1)), out)
+                else:  # … outside a warning that of the rate now (the change test's thresholds)
+                    thr = np.full(len(splits), ch.thresholds[out])
                 x = rows[:, axes]
                 p1 = np.zeros((n + 1, len(axes)))
                 p2 = np.zeros((n + 1, len(axes)))
@@ -1356,18 +1384,39 @@ class AttitudeMonitor:
                 if not step.any():
                     continue
                 c = np.sqrt(c2[step])
-                if w is not None:  # … nor the disagreement warned of coming back
+                if w is not None:  # … nor the disagreement warned of coming back: as it stood before the warning …
                     back = ((ma[step] - np.array([w[ax - 1] for ax in axes])) ** 2).sum(axis=1)
                     c = np.minimum(c, np.sqrt(back))
-                best[out] = max(best[out], float(c.max()))
-        t_thr, h_thr = ch.thresholds
-        c_t = best[0] / t_thr
-        c_h = best[1] / h_thr if hdg_on else 0.0
+                    # … and as it was when raised (an intermittent fault, 1 s in every 4 s, on again; as
+                    # :meth:`_in_warning_test`'s baseline test)
+                    back = ((ma[step] - np.array([self._e_warned[ax - 1] for ax in axes])) ** 2).sum(axis=1)
+                    c = np.minimum(c, np.sqrt(back))
+                best[out] = max(best[out], float((c / thr[step]).max()))
+        c_t = best[0]
+        c_h = best[1] if hdg_on else 0.0
         if self._min_thr[0] > 0.0:
             c_t = min(c_t, tilt / self._min_thr[0])
         if self._min_thr[1] > 0.0:
             c_h = min(c_h, abs(heading) / self._min_thr[1])
         return c_t, c_h
+
+    def _split_thresholds(self, rate: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+        """The change test's threshold (``axis`` 0: tilt, 1: heading), rad, with the timing term of the turn rate
+        ``rate`` (rad/s, per element) in place of the rate now: :meth:`_ChangeTest.judge`'s
+        ``change_k·√(max(learnt, floor²) + (ω·sync_s)²)``, at most ``change_max_factor`` × the error model's
+        ``sigma_k·√(σ_ours² + σ_autopilot² + (ω·sync_s)²)`` (at least its floor) as :meth:`_thresholds` builds
+        it.  With ``rate`` the rate now it is the change test's threshold now."""
+        ch = self._change
+        assert ch is not None
+        now = ch.thresholds[axis]
+        if not math.isfinite(now):  # not ready (or the heading not judged)
+            return np.full(rate.shape, now)
+        s = self.settings
+        sync2 = (rate * s.sync_s) ** 2
+        sig = self._thr_sigmas[axis]
+        cap = np.maximum(self._min_thr[axis], self._k * np.sqrt(sig * sig + self._sig_ap[axis] ** 2 + sync2))
+        learnt = ch._learnt[1 + axis]
+        return np.minimum(s.change_k * np.sqrt(max(learnt, ch._floor2[axis]) + sync2), s.change_max_factor * cap)
 
     def _drift_in_warning(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
         """A disagreement that grows while an in-flight warning is on (``MonitorSettings.change_drift_s``): the
@@ -1590,7 +1639,8 @@ class AttitudeMonitor:
             # (1.6–2.6°, the level threshold 5.9–8.3°) and the autopilot's own error standing the other way hold
             # a +6° heading step back for 5.7 s under a correct warning (firmware_sim aggressive 81; outside a
             # warning the same divergence was warned in 0.7 s: docs/monitor.md, rounds nine and eleven)
-            again = z_w > 1.0 and self._cusum_w >= self._h_c and max(z, z_c) > 1.0
+            # (outside a warning z_c carries the step test too, ``change_step_outside``: so does the gate here)
+            again = z_w > 1.0 and self._cusum_w >= self._h_c and max(z, z_c, self._z_step) > 1.0
             # … or the disagreement grown on since the warning by more than the change test allows, lasting
             # (change_drift_s): a ramp that starts under a warning already on
             drift = self._drift_armed and z_d > 1.0 and self._cusum_d >= self._h_d and z > 1.0
@@ -1611,7 +1661,7 @@ class AttitudeMonitor:
             self._e_warned_mean = tuple(sum(r[i] for r in rec) / len(rec) for i in (1, 2, 3)) if rec else self._e
             self._cusum_d = 0.0
             self._drift_acc = [0.0, 0.0, 0.0, 0.0]  # (n, Σe): the level it stands at (_drift_in_warning)
-            self._drift_seen = [r[1:] for r in rec]  # the levels already warned of (_drift_in_warning)
+            self._drift_seen = [r[1:4] for r in rec]  # the levels already warned of (_drift_in_warning)
             self._drift_line = None  # … and the growth it stands on, fitted once its level is complete
             self._drift_armed = not drift  # a drift warned of is the warning now on: not raised again as it grows
             self._warning = True
