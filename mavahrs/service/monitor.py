@@ -585,12 +585,15 @@ class MonitorStatus:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
         if self.comparisons == 0:
             return "AP cmp: none"
+        if not math.isfinite(self.tilt_deg):  # compared before, none since a reset (an autopilot reboot)
+            return "AP cmp: none since reset"
         flag = " WARN" if self.warning else ""
         vel = f" (vel {self.velocity_source})" if self.velocity_source else ""
         thr = f" (thr {self.tilt_threshold_deg:.1f}°/{self.heading_threshold_deg:.1f}°)" if math.isfinite(
             self.tilt_threshold_deg) else ""  # fmt: skip
         why = f" [{self.cause}]" if self.warning and self.cause else ""
-        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {self.heading_deg:+.1f}°{thr}{flag}{why}{vel}"
+        hdg = f"{self.heading_deg:+.1f}°" if math.isfinite(self.heading_deg) else "–"
+        return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {hdg}{thr}{flag}{why}{vel}"
 
 
 # --------------------------------------------------------------------------- scalar maths

@@ -266,6 +266,10 @@ def test_quaternion_messages_components_and_reboot(rng: np.random.Generator) -> 
     assert len(out) == 1 and out[0].severity == mavlink.MAV_SEVERITY_WARNING
     assert mon.status.warning and mon.status.episodes == 1
     assert "WARN" in mon.status.text()
+    # After a reset (our filter restarted, the autopilot rebooted) and before the next comparison the status line
+    # says so instead of "tilt nan°" (seen live after a reboot).
+    mon.reset()
+    assert mon.status.comparisons > 0 and mon.status.text() == "AP cmp: none since reset"
 
 
 def test_startup_grace_and_unmatched() -> None:
