@@ -181,6 +181,13 @@ class AutopilotProfile:
             truth on the PX4 SITL flight 0.19–0.26 m/s RMS per axis in the
             manoeuvres, the receiver's 0.06–0.08 m/s at no measurable lag
             (``docs/accuracy.md``, "PX4: which velocity").
+        bias_free_message: a message carrying the same IMU samples as
+            ``primary_message`` *without* the autopilot's EKF gyro-bias estimate
+            subtracted, from which that estimate is recovered and added back
+            (:mod:`mavahrs.ingest.autopilot_bias`); None = the primary message has
+            no bias subtracted (or no twin).  PX4: SCALED_IMU (``vehicle_imu``
+            instance 0, calibrated only) beside HIGHRES_IMU (the same minus
+            ``estimator_sensor_bias``).
     """
 
     name: str
@@ -189,6 +196,7 @@ class AutopilotProfile:
     primary_message: str = "RAW_IMU"
     secondary_messages: tuple[str, ...] = ("SCALED_IMU2", "SCALED_IMU3")
     velocity_order: tuple[str, ...] = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW")
+    bias_free_message: str | None = None
 
     def scale_for(self, message: str) -> MessageScale | None:
         return self.messages.get(message)
@@ -272,12 +280,14 @@ _PX4 = AutopilotProfile(
                 message="HIGHRES_IMU", accel_to_m_s2=1.0, gyro_to_rad_s=1.0, mag_to_ut=_GAUSS,
                 time_field="time_usec", time_to_us=1, temperature_to_c=None, integer_fields=False,
                 mag_calibrated=True, sample_time=True, source="PX4 src/modules/mavlink/streams/HIGHRES_IMU.hpp",
-                note="EKF bias estimates already subtracted; temperature is the baro's",
+                note="EKF bias estimates already subtracted (the gyro's is added back from SCALED_IMU when the "
+                "stream carries it: mavahrs.ingest.autopilot_bias); temperature is the baro's",
             ),  # fmt: skip
         }
     ),
     primary_message="HIGHRES_IMU",
     velocity_order=("GPS_RAW_INT", "GLOBAL_POSITION_INT", "GPS2_RAW"),
+    bias_free_message="SCALED_IMU",
 )
 
 _GENERIC_SRC = "MAVLink common.xml field units"
