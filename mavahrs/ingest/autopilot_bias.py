@@ -130,7 +130,8 @@ _R = 5
 _CONSEC = 6
 _T_PRIMARY = 7  # the newest primary stamp seen (−inf: none)
 _T_PARTNER = 8  # the newest partner stamp seen
-_C = 9  # counters, in COUNTER_NAMES order
+_T_FIRST = 9  # the first partner stamp since the start (the primary's grace period runs from it)
+_C = 10  # counters, in COUNTER_NAMES order
 COUNTER_NAMES = ("pairs", "unpaired", "bad_values", "outliers", "restarts", "clock_back", "applied", "not_applied")
 _C_PAIRS, _C_UNPAIRED, _C_BAD, _C_OUTLIERS, _C_RESTARTS, _C_BACK, _C_APPLIED, _C_NOT_APPLIED = range(8)
 _RING = _C + len(COUNTER_NAMES)
@@ -141,6 +142,9 @@ _PEND_N = 8  # SCALED_IMU samples waiting
 _PEND_COUNT = _PEND + 4 * _PEND_N
 _LEN = _PEND_COUNT + 1
 _TRUNC_US = 1000.0  # SCALED_IMU's time_boot_ms: the publication time truncated to the millisecond
+#: before any primary message, the partner waits this long (from its first sample) for one before it is
+#: an ordinary IMU message: at a start it may come first, and would otherwise carry the instance
+_GRACE_US = 1.0e6
 
 
 def constants(settings: AutopilotBiasSettings) -> NDArray[np.float64]:
@@ -173,6 +177,7 @@ def _clear(st):  # type: ignore[no-untyped-def]
     st[_CONSEC] = 0.0
     st[_T_PRIMARY] = -math.inf
     st[_T_PARTNER] = -math.inf
+    st[_T_FIRST] = -math.inf
     for i in range(_RING_N):
         st[_RING + 4 * i] = -math.inf
     st[_HEAD] = 0.0
@@ -262,17 +267,21 @@ def bias_pair_step(st, p, t_us, g0, g1, g2):  # type: ignore[no-untyped-def]
 
     It waits for its primary sample (:func:`bias_restore_step`) and then updates the mean.  Returns 1
     when the primary message is arriving (a HIGHRES_IMU within ``hold_s`` of this stamp): then this
-    message serves only this step; 0: it is an ordinary IMU message (no primary stream).
+    message serves only this step; 0: it is an ordinary IMU message (no primary stream).  Before
+    the first primary message the partner serves only this step for its first second (at a start it
+    may arrive first; a stream without the primary message starts 1 s later).
     """
     if not (g0 == g0 and g1 == g1 and g2 == g2 and abs(g0) < math.inf and abs(g1) < math.inf
             and abs(g2) < math.inf):  # fmt: skip
         st[_C + _C_BAD] += 1.0
-        return 1 if t_us - st[_T_PRIMARY] <= p[_P_HOLD_US] else 0
+        return _serves_only(st, p, t_us)
     if t_us < st[_T_PARTNER] - p[_P_HOLD_US]:  # the autopilot's clock went back: a reboot
         st[_C + _C_BACK] += 1.0
         _clear(st)
     if t_us > st[_T_PARTNER]:
         st[_T_PARTNER] = t_us
+    if st[_T_FIRST] == -math.inf:
+        st[_T_FIRST] = t_us
     m = int(st[_PEND_COUNT])
     if m == _PEND_N:  # waiting too long for their primary: decide the oldest with what there is
         _resolve(st, p, True)
@@ -281,6 +290,14 @@ def bias_pair_step(st, p, t_us, g0, g1, g2):  # type: ignore[no-untyped-def]
     st[o], st[o + 1], st[o + 2], st[o + 3] = t_us, g0, g1, g2
     st[_PEND_COUNT] = m + 1
     _resolve(st, p, False)
+    return _serves_only(st, p, t_us)
+
+
+@kernel
+def _serves_only(st, p, t_us):  # type: ignore[no-untyped-def]
+    """1 while the primary stream is arriving (or, none seen yet, in the partner's first second), else 0."""
+    if st[_T_PRIMARY] == -math.inf:
+        return 1 if st[_T_FIRST] != -math.inf and t_us - st[_T_FIRST] <= _GRACE_US else 0
     return 1 if t_us - st[_T_PRIMARY] <= p[_P_HOLD_US] else 0
 
 
