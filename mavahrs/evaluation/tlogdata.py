@@ -398,7 +398,13 @@ def _autopilot_bias(mg: dict[str, Any], names: list[str], profile: Any, settings
     partner, primary = profile.bias_free_message, profile.primary_message
     if not settings.enabled or partner is None or partner not in names or primary not in names:
         return
-    from mavahrs.ingest.autopilot_bias import ROLE_PARTNER, ROLE_PRIMARY, bias_restore_rows, constants, new_state
+    from mavahrs.ingest.autopilot_bias import (
+        ROLE_PARTNER,
+        ROLE_PRIMARY,
+        bias_restore_rows,
+        constants,
+        new_state,
+    )
     from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
 
     kind = mg["kind"]

@@ -19,13 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavahrs.ingest.autopilot_bias import AutopilotBiasSettings
-from mavahrs.service.pipeline import PipelineSettings
-
 from mavahrs.evaluation.loaders import load_any
 from mavahrs.evaluation.metrics import attitude_errors_rad
 from mavahrs.evaluation.report import run_filter
 from mavahrs.evaluation.tlogdata import load_tlog_recording
+from mavahrs.ingest.autopilot_bias import AutopilotBiasSettings
+from mavahrs.service.pipeline import PipelineSettings
 
 HOVER_S = (220.0, 250.0)
 
