@@ -415,7 +415,9 @@ def _autopilot_bias(mg: dict[str, Any], names: list[str], profile: Any, settings
     use = np.array(mg["use"], np.bool_)
     bad = np.ascontiguousarray((mg["sat"] | mg["inv"]) & GYRO, np.int64)
     applied = np.zeros(kind.shape[0], np.int64)
-    bias_restore_rows(new_state(), constants(settings), role, np.ascontiguousarray(mg["t_us"], np.int64), gyro, bad,
+    twin = profile.scale_for(partner)
+    step = twin.gyro_to_rad_s if twin.integer_fields else 0.0
+    bias_restore_rows(new_state(), constants(settings, step, twin.truncated), role, np.ascontiguousarray(mg["t_us"], np.int64), gyro, bad,
                       use, applied)  # fmt: skip
     mg["gyro"], mg["use"] = gyro, use
 

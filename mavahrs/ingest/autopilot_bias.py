@@ -7,7 +7,10 @@ follows EKF2's bias, and is no independent second opinion of it.  When the strea
 SCALED_IMU of the same IMU, each SCALED_IMU less the HIGHRES_IMU of the same ``vehicle_imu`` sample
 is EKF2's bias (within SCALED_IMU's 1 mrad/s steps; measured within 0.01 °/s of EKF2's logged
 ``estimator_sensor_bias`` over the PX4 SIH flight, docs/accuracy.md "PX4 calm heading, round five"),
-and adding its running mean back to every HIGHRES_IMU gives the gyro as the sensor measured it:
+and adding its running mean back to every HIGHRES_IMU gives the gyro as the sensor measured it
+(PX4 truncates SCALED_IMU toward zero, a reading n mrad/s meaning [n, n + 1) for n > 0: measured on
+the SIH tlog, −0.43 / +0.40 mrad/s mean residual for n > 0 / n < 0; the middle of that interval is
+taken, else a steady rate of one sign leaves up to 0.5 mrad/s in the mean):
 
     b_k = b_{k-1} + α_k (d_k − b_{k-1}),   d_k = ω_SCALED(t_s) − ω_HIGHRES(t_h),   α_k = min(1, Δt_k / τ)
     ω_out = ω_HIGHRES + b
@@ -119,8 +122,8 @@ class AutopilotBiasSettings:
 ROLE_NONE, ROLE_PRIMARY, ROLE_PARTNER = 0, 1, 2
 
 # constants (:func:`constants`)
-_P_TAU_US, _P_MIN_PAIRS, _P_LAG_US, _P_HOLD_US, _P_MAX_BIAS, _P_OUTLIER, _P_MAX_FRAC = range(7)
-_P_LEN = 7
+_P_TAU_US, _P_MIN_PAIRS, _P_LAG_US, _P_HOLD_US, _P_MAX_BIAS, _P_OUTLIER, _P_MAX_FRAC, _P_HALF_STEP = range(8)
+_P_LEN = 8
 # state: the mean, its pair count, the last pair's time, the outlier rate, outliers in a row, counters,
 # then a ring of the last HIGHRES_IMU samples (t, gyro) and the SCALED_IMU samples waiting for their pair
 _B = 0
@@ -147,9 +150,15 @@ _TRUNC_US = 1000.0  # SCALED_IMU's time_boot_ms: the publication time truncated 
 _GRACE_US = 1.0e6
 
 
-def constants(settings: AutopilotBiasSettings) -> NDArray[np.float64]:
-    """The step's constants from ``settings`` (times in µs)."""
+def constants(settings: AutopilotBiasSettings, step_rad_s: float = 0.0, truncated: bool = False) -> NDArray[np.float64]:
+    """The step's constants from ``settings`` (times in µs).
+
+    ``step_rad_s``: the partner's gyro resolution (SCALED_IMU: 1 mrad/s); ``truncated``: its values are
+    truncated toward zero (a C float → int16 cast, as PX4's ``streams/SCALED_IMU.hpp`` does), so each
+    reading n stands for [n, n + 1) steps (n > 0) or (n − 1, n] (n < 0): its middle is used.
+    """
     p = np.empty(_P_LEN)
+    p[_P_HALF_STEP] = 0.5 * step_rad_s if truncated else 0.0
     p[_P_TAU_US] = settings.time_constant_s * 1e6
     p[_P_MIN_PAIRS] = settings.min_pairs
     p[_P_LAG_US] = settings.max_pair_lag_s * 1e6
@@ -280,6 +289,10 @@ def bias_pair_step(st, p, t_us, g0, g1, g2):  # type: ignore[no-untyped-def]
         _clear(st)
     if t_us > st[_T_PARTNER]:
         st[_T_PARTNER] = t_us
+    h = p[_P_HALF_STEP]  # truncated toward zero: the middle of the reading's interval (0 stays 0: (−1, 1))
+    g0 += h if g0 > 0.0 else (-h if g0 < 0.0 else 0.0)
+    g1 += h if g1 > 0.0 else (-h if g1 < 0.0 else 0.0)
+    g2 += h if g2 > 0.0 else (-h if g2 < 0.0 else 0.0)
     if st[_T_FIRST] == -math.inf:
         st[_T_FIRST] = t_us
     m = int(st[_PEND_COUNT])
@@ -369,10 +382,11 @@ class AutopilotBias:
 
     __slots__ = ("settings", "_st", "_p")
 
-    def __init__(self, settings: AutopilotBiasSettings | None = None) -> None:
+    def __init__(self, settings: AutopilotBiasSettings | None = None, step_rad_s: float = 0.0,
+                 truncated: bool = False) -> None:  # fmt: skip
         self.settings = settings or AutopilotBiasSettings()
         self._st = new_state()
-        self._p = constants(self.settings)
+        self._p = constants(self.settings, step_rad_s, truncated)
 
     def reset(self) -> None:
         """Forget the mean and the samples (an autopilot reboot); the counts are kept."""

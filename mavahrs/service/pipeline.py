@@ -826,7 +826,9 @@ class Pipeline:
         self._velocity.set_auto_order(profile.velocity_order)  # PX4: the receiver before EKF2's velocity
         ab = self.settings.autopilot_bias
         if ab.enabled and profile.bias_free_message is not None:
-            self._ab = AutopilotBias(ab)
+            twin = profile.scale_for(profile.bias_free_message)
+            assert twin is not None
+            self._ab = AutopilotBias(ab, twin.gyro_to_rad_s if twin.integer_fields else 0.0, twin.truncated)
             self._ab_partner, self._ab_primary = profile.bias_free_message, profile.primary_message
             self._ab_instance = INSTANCE_OF_MESSAGE[profile.bias_free_message]  # the twin's IMU: HIGHRES_IMU id 0
         else:
