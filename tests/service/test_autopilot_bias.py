@@ -166,3 +166,29 @@ def test_replay_over_arrays_adds_back_the_same_bias_as_the_pipeline(shared_data:
     late = (arrays.t_us - arrays.t_us[0]) > 5e6
     # EKF2's gyro bias on that flight: a few 0.1 mrad/s to 1.5 mrad/s (docs/accuracy.md round five), never 0
     assert 0.0 < np.abs(added[late]).max() < 5e-3 and math.isfinite(float(np.abs(added).sum()))
+
+
+@pytest.mark.slow
+def test_the_daemons_path_against_firmware_sims_px4_pairs_scaled_imu_and_changes_nothing_there() -> None:
+    """firmware_sim's PX4 sends HIGHRES_IMU without any EKF bias subtracted: the pipeline asks for SCALED_IMU,
+    pairs it with HIGHRES_IMU (the same samples, SCALED_IMU sent later and truncated to mrad/s), recovers a bias
+    of ≈ 0, feeds HIGHRES_IMU alone, and the attitude is the one without the step."""
+    fs = pytest.importorskip("firmware_sim")
+    from tests.service.test_pipeline import _fly_sim, _tilt_errors_deg
+
+    sim = fs.SimSettings(scenario="hover", seed=4)
+    ep = fs.EndpointSettings(autopilot="px4", streams_hz=(("SIMSTATE", 50.0),))
+    runs = {}
+    for on in (True, False):
+        fed: list = []
+        ps = PipelineSettings(filter_name="best", out_rate_hz=50.0, autopilot_bias=AutopilotBiasSettings(enabled=on))
+        pipe, _, att, truth, now = _fly_sim(20.0, sim, ep, ps, fed=fed)
+        runs[on] = (pipe, fed, np.sqrt(np.mean(_tilt_errors_deg(att, truth, after_ms=5000) ** 2)))
+    pipe, fed, tilt_on = runs[True]
+    c = pipe.status().counters
+    assert c["autopilot_bias_pairs"] > 40 * 12  # SCALED_IMU at 50 Hz for most of the 20 s
+    assert c["autopilot_bias_unpaired"] + c["autopilot_bias_outliers"] <= 0.01 * c["autopilot_bias_pairs"]
+    assert {name for name, _ in fed} == {"HIGHRES_IMU"}
+    b = pipe._ab.bias_rad_s
+    assert b is not None and max(abs(x) for x in b) < 0.3e-3  # no EKF bias in the simulator's HIGHRES_IMU
+    assert abs(tilt_on - runs[False][2]) < 0.05, (tilt_on, runs[False][2])
