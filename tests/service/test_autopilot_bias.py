@@ -192,3 +192,17 @@ def test_the_daemons_path_against_firmware_sims_px4_pairs_scaled_imu_and_changes
     b = pipe._ab.bias_rad_s
     assert b is not None and max(abs(x) for x in b) < 0.3e-3  # no EKF bias in the simulator's HIGHRES_IMU
     assert abs(tilt_on - runs[False][2]) < 0.05, (tilt_on, runs[False][2])
+
+
+def test_scaled_imu_at_a_low_rate_is_used_once_it_has_made_enough_pairs(trajectory, make_autopilot) -> None:
+    """SCALED_IMU at 2 Hz: HIGHRES_IMU passes as sent until 25 pairs (12.5 s), then gets the sensor's gyro back."""
+    ap = make_autopilot(1, 1, autopilot=12)
+    frames, sensor = _frames(ap, trajectory, every=200)
+    pipe, t, gyro = _run(frames)
+    rel_s = (t - t[0]) / 1e6
+    truth = _sensor_at(trajectory, sensor, t)
+    before = rel_s < 11.9
+    assert np.abs(gyro[before] - (truth[before] - EKF_BIAS)).max() < 1e-6
+    after = rel_s >= 12.5
+    assert np.abs(gyro[after] - truth[after]).max() < 0.6e-3
+    assert len(t) == len(trajectory.t_us)  # SCALED_IMU never fed: it served the step from its first sample
