@@ -54,7 +54,8 @@ def synthetic_frames(seconds: float = _SECONDS, autopilot: str = "ardupilot") ->
     the magnetometer pointing north-down), GLOBAL_POSITION_INT and ATTITUDE
     at 10 Hz: every message the daemon and replay read.  ``autopilot``
     ``"ardupilot"``: RAW_IMU; ``"ardupilot2"``: RAW_IMU and SCALED_IMU2 (two
-    IMU instances, the selection's path); ``"px4"``: HIGHRES_IMU (SI floats).
+    IMU instances, the selection's path); ``"px4"``: HIGHRES_IMU (SI floats) and SCALED_IMU at 50 Hz
+    (the same IMU without EKF2's gyro bias: the autopilot-bias step).
     """
     from mavahrs.protocol.codec import MavCodec, mavlink
 
@@ -74,6 +75,9 @@ def synthetic_frames(seconds: float = _SECONDS, autopilot: str = "ardupilot") ->
         else:
             imu = ap.mav.raw_imu_encode(t, 0, 0, -1000, 1, -1, 0, 200, 30, 450, 0, 3500)
         out.append((t, ap.encode(imu)))
+        if px4 and k % 4 == 0:  # mG, mrad/s, mgauss; 1 mrad/s of "EKF2 bias" on x
+            twin = ap.mav.scaled_imu_encode(t // 1000, 0, 0, -1000, 2, -1, 0, 200, 30, 450, 3500)
+            out.append((t + 100, ap.encode(twin)))
         if autopilot == "ardupilot2":
             imu2 = ap.mav.scaled_imu2_encode(t // 1000, 0, 0, -1000, 1, -1, 0, 200, 30, 450, 3500)
             out.append((t, ap.encode(imu2)))
@@ -102,6 +106,12 @@ def _daemon_path() -> None:
             for msg in rx.receive_datagram(frame):
                 pipeline.handle(msg, t_us)
             lane.refresh()
+    # PX4: HIGHRES_IMU with SCALED_IMU, the autopilot-bias step's per-message kernels
+    pipeline = Pipeline(PipelineSettings(filter_name="best"))
+    rx = MavCodec()
+    for t_us, frame in synthetic_frames(autopilot="px4"):
+        for msg in rx.receive_datagram(frame):
+            pipeline.handle(msg, t_us)
 
 
 def _replay_path(tmp: Path) -> None:

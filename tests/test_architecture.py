@@ -165,14 +165,15 @@ SAMPLE_STEPS = {
     "resend_row": ("ingest/resend.py", "resend_rows"),
     "timeline_step": ("ingest/timeline.py", "timeline_loop"),
     "select_step": ("sensors/imu_select.py", "select_loop"),
+    "bias_restore_step": ("ingest/autopilot_bias.py", "bias_restore_rows"),
 }
 #: who runs the steps: the live pipeline (through Scaler / Calibrator / write_row), the daemon's fast
 #: lane, and the readers (the loops)
 STEP_USERS = {
     "service/fastlane.py": {"scale_int_row", "timeline_step"},
     "evaluation/tlogdata.py": {"scale_int_rows", "scale_float_rows", "blank_unusable_rows", "resend_rows",
-                               "select_over_arrays"},
-    "service/pipeline.py": {"ResendFilter", "Timeline", "ImuSelector"},
+                               "select_over_arrays", "bias_restore_rows"},
+    "service/pipeline.py": {"ResendFilter", "Timeline", "ImuSelector", "AutopilotBias"},
     "ingest/arrays.py": {"scale_float_rows", "blank_unusable_rows", "timeline_loop", "select_loop"},
     "logs/dataflash.py": {"si_rows", "select_over_arrays"},
     "logs/ulog.py": {"si_rows", "select_over_arrays"},

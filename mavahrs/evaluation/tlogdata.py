@@ -394,6 +394,37 @@ def _resends(mg: dict[str, Any], names: list[str]) -> tuple[NDArray[np.bool_], i
     return out == RESENT, int(np.count_nonzero(out == RESTAMPED))
 
 
+def _autopilot_bias(mg: dict[str, Any], names: list[str], profile: Any, settings: Any) -> None:
+    """The autopilot-bias step (:func:`mavahrs.ingest.autopilot_bias.bias_restore_rows`, the pipeline's per-message
+    steps in a loop) over the merged messages: PX4's EKF2 gyro bias, recovered from SCALED_IMU, added back to
+    HIGHRES_IMU in place; a SCALED_IMU that served only that step is no sample (``use`` False)."""
+    partner, primary = profile.bias_free_message, profile.primary_message
+    if not settings.enabled or partner is None or partner not in names or primary not in names:
+        return
+    from mavahrs.ingest.autopilot_bias import (
+        ROLE_PARTNER,
+        ROLE_PRIMARY,
+        bias_restore_rows,
+        constants,
+        new_state,
+    )
+    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
+
+    kind = mg["kind"]
+    role = np.zeros(kind.shape[0], np.int64)
+    role[(kind == names.index(primary)) & (mg["imu"] == INSTANCE_OF_MESSAGE[partner])] = ROLE_PRIMARY
+    role[kind == names.index(partner)] = ROLE_PARTNER
+    gyro = np.ascontiguousarray(mg["gyro"], np.float64)
+    use = np.array(mg["use"], np.bool_)
+    bad = np.ascontiguousarray((mg["sat"] | mg["inv"]) & GYRO, np.int64)
+    applied = np.zeros(kind.shape[0], np.int64)
+    twin = profile.scale_for(partner)
+    step = twin.gyro_to_rad_s if twin.integer_fields else 0.0
+    bias_restore_rows(new_state(), constants(settings, step, twin.truncated), role, np.ascontiguousarray(mg["t_us"], np.int64), gyro, bad,
+                      use, applied)  # fmt: skip
+    mg["gyro"], mg["use"] = gyro, use
+
+
 def prepare_inputs(
     td: TlogData,
     settings: Any = None,
@@ -459,6 +490,7 @@ def prepare_inputs(
     resent, restamped = _resends(mg, names)
     if resent.any():
         mg["use"] = mg["use"] & ~resent
+    _autopilot_bias(mg, names, profile, s.autopilot_bias)
     mg["zero"] = mg["zero"] & mg["use"]
     # --- which samples the selector feeds
     carriers: dict[int, set[int]] = {}

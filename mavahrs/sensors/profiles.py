@@ -119,6 +119,12 @@ class MessageScale:
             ``mag_plausible_max_ut``, rescale the raw values by this instead
             (ArduPilot HIGHRES_IMU before PR #32286); None = no fallback.
         mag_plausible_max_ut: largest believable field norm, µT.
+        truncated: the integer fields are the float values truncated toward
+            zero (a C cast; PX4 ``SCALED_IMU.hpp``: ``msg.xgyro = gyro(0) * 1e3f``),
+            not rounded: a reading n stands for [n, n+1) (n > 0), (n−1, n] (n < 0).
+            Measured on the PX4 SIH tlog (SCALED_IMU less HIGHRES_IMU, mean
+            residual −0.43 / +0.40 mrad/s for n > 0 / n < 0).  Used where a
+            reading is compared with a float one (:mod:`mavahrs.ingest.autopilot_bias`).
         delay_s: how far the values trail their time stamp, s: the group
             delay of the autopilot's low-pass (ArduPilot's INS_GYRO_FILTER,
             a 20 Hz second-order filter by default: √2/(2π·20 Hz) ≈ 11 ms;
@@ -145,6 +151,7 @@ class MessageScale:
     sample_time: bool = False
     mag_legacy_to_ut: float | None = None
     mag_plausible_max_ut: float = 2000.0
+    truncated: bool = False
     delay_s: float = 0.0
     source: str = ""
     note: str = ""
@@ -181,6 +188,13 @@ class AutopilotProfile:
             truth on the PX4 SITL flight 0.19–0.26 m/s RMS per axis in the
             manoeuvres, the receiver's 0.06–0.08 m/s at no measurable lag
             (``docs/accuracy.md``, "PX4: which velocity").
+        bias_free_message: a message carrying the same IMU samples as
+            ``primary_message`` *without* the autopilot's EKF gyro-bias estimate
+            subtracted, from which that estimate is recovered and added back
+            (:mod:`mavahrs.ingest.autopilot_bias`); None = the primary message has
+            no bias subtracted (or no twin).  PX4: SCALED_IMU (``vehicle_imu``
+            instance 0, calibrated only) beside HIGHRES_IMU (the same minus
+            ``estimator_sensor_bias``).
     """
 
     name: str
@@ -189,6 +203,7 @@ class AutopilotProfile:
     primary_message: str = "RAW_IMU"
     secondary_messages: tuple[str, ...] = ("SCALED_IMU2", "SCALED_IMU3")
     velocity_order: tuple[str, ...] = ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "GPS2_RAW")
+    bias_free_message: str | None = None
 
     def scale_for(self, message: str) -> MessageScale | None:
         return self.messages.get(message)
@@ -260,7 +275,9 @@ _PX4 = AutopilotProfile(
             ),  # fmt: skip
             "SCALED_IMU": _int_msg(
                 "SCALED_IMU", "time_boot_ms", mag_calibrated=False, sample_time=False, source=_PX4_SRC,
-                note="mag is the raw sensor_mag (not calibrated); time is the publication time",
+                truncated=True,
+                note="mag is the raw sensor_mag (not calibrated); time is the publication time; no EKF bias "
+                "subtracted (HIGHRES_IMU's is recovered from it)",
             ),
             "SCALED_IMU2": _int_msg(
                 "SCALED_IMU2", "time_boot_ms", mag_calibrated=False, source=_PX4_SRC, note="instance 1",
@@ -272,12 +289,14 @@ _PX4 = AutopilotProfile(
                 message="HIGHRES_IMU", accel_to_m_s2=1.0, gyro_to_rad_s=1.0, mag_to_ut=_GAUSS,
                 time_field="time_usec", time_to_us=1, temperature_to_c=None, integer_fields=False,
                 mag_calibrated=True, sample_time=True, source="PX4 src/modules/mavlink/streams/HIGHRES_IMU.hpp",
-                note="EKF bias estimates already subtracted; temperature is the baro's",
+                note="EKF bias estimates already subtracted (the gyro's is added back from SCALED_IMU when the "
+                "stream carries it: mavahrs.ingest.autopilot_bias); temperature is the baro's",
             ),  # fmt: skip
         }
     ),
     primary_message="HIGHRES_IMU",
     velocity_order=("GPS_RAW_INT", "GLOBAL_POSITION_INT", "GPS2_RAW"),
+    bias_free_message="SCALED_IMU",
 )
 
 _GENERIC_SRC = "MAVLink common.xml field units"

@@ -81,6 +81,7 @@ from mavahrs.filters.layout import (
     OUT_Q,
 )
 from mavahrs.filters.magfield import mag_state_text
+from mavahrs.ingest.autopilot_bias import AutopilotBias, AutopilotBiasSettings
 from mavahrs.ingest.resend import RESENT, ResendFilter, stream_code
 from mavahrs.ingest.timeline import (
     DROP_KINDS,
@@ -104,6 +105,7 @@ from mavahrs.sensors.geomag import (
 from mavahrs.sensors.imu_select import ImuSelector, ImuSelectSettings, InstanceStatus
 from mavahrs.sensors.profiles import (
     IMU_MESSAGES,
+    INSTANCE_OF_MESSAGE,
     MULTIROTOR_MAV_TYPES,
     PROFILE_NAMES,
     AutopilotProfile,
@@ -270,6 +272,10 @@ class PipelineSettings:
         timeline: timestamp rules per IMU stream
             (:class:`mavahrs.ingest.timeline.TimelineSettings`: gap, reboot,
             forward-jump thresholds, wrap-around).
+        autopilot_bias: the autopilot's gyro-bias estimate taken back out of
+            its primary IMU message where the profile names a bias-free twin
+            (PX4: EKF2's, from SCALED_IMU beside HIGHRES_IMU; on by default;
+            :class:`mavahrs.ingest.autopilot_bias.AutopilotBiasSettings`).
     """
 
     filter_name: str = "best"
@@ -302,6 +308,7 @@ class PipelineSettings:
     magnetic: MagneticFieldSettings = field(default_factory=MagneticFieldSettings)
     monitor: MonitorSettings = field(default_factory=MonitorSettings)
     timeline: TimelineSettings = field(default_factory=TimelineSettings)
+    autopilot_bias: AutopilotBiasSettings = field(default_factory=AutopilotBiasSettings)
 
     def __post_init__(self) -> None:
         if self.autopilot_profile != "auto" and self.autopilot_profile not in PROFILE_NAMES:
@@ -568,6 +575,11 @@ class Pipeline:
             self._source = (s.source_system, s.source_component)  # known without waiting for a heartbeat
         self._profile: AutopilotProfile | None = None
         self._scaler: Scaler | None = None
+        #: the autopilot's gyro bias added back (PX4 HIGHRES_IMU from SCALED_IMU); None: not for this profile
+        self._ab: AutopilotBias | None = None
+        self._ab_partner = ""
+        self._ab_primary = ""
+        self._ab_instance = 0
         self._calibrators: dict[str, Calibrator] = {}
         self._sysid_known = s.system_id is not None or separate
         self._last_hb_us: int | None = None
@@ -812,6 +824,16 @@ class Pipeline:
         if vehicle is not None:  # an autopilot's stream: ``best`` is the ESKF in every condition
             vehicle()
         self._velocity.set_auto_order(profile.velocity_order)  # PX4: the receiver before EKF2's velocity
+        ab = self.settings.autopilot_bias
+        if ab.enabled and profile.bias_free_message is not None:
+            twin = profile.scale_for(profile.bias_free_message)
+            assert twin is not None
+            self._ab = AutopilotBias(ab, twin.gyro_to_rad_s if twin.integer_fields else 0.0, twin.truncated)
+            self._ab_partner, self._ab_primary = profile.bias_free_message, profile.primary_message
+            self._ab_instance = INSTANCE_OF_MESSAGE[profile.bias_free_message]  # the twin's IMU: HIGHRES_IMU id 0
+        else:
+            self._ab = None
+            self._ab_partner = self._ab_primary = ""
         self._calibrators = {
             name: Calibrator(self.settings.calibration, mag_already_calibrated=ms.mag_calibrated)
             for name, ms in profile.messages.items()
@@ -841,6 +863,10 @@ class Pipeline:
                 name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], rate, MAV_DATA_STREAM_RAW_SENSORS,
                 warn_low_rate=imu_id == current,  # a board may have no second or third IMU
             )  # fmt: skip
+        if self._ab is not None:  # the bias-free twin of the primary message (PX4: SCALED_IMU), at its own rate
+            name = self._ab_partner
+            self._requester.want(name, mavlink.__dict__[f"MAVLINK_MSG_ID_{name}"], s.autopilot_bias.request_rate_hz,
+                                 MAV_DATA_STREAM_RAW_SENSORS, warn_low_rate=False)  # fmt: skip
         wanted = self._velocity.messages  # in the profile's order
         if s.effective_velocity_source == "auto":
             # GLOBAL_POSITION_INT and GPS_RAW_INT (PX4: GPS_RAW_INT first; receiver-only: GPS_RAW_INT and GPS2_RAW)
@@ -886,6 +912,17 @@ class Pipeline:
         sat, inv = v[12], v[13]
         if sat or inv:
             self._count_flags(sat, inv, name, v[0], now_us)
+        ab = self._ab
+        if ab is not None:
+            if name == self._ab_partner:  # PX4 SCALED_IMU: EKF2's bias against HIGHRES_IMU (ingest.autopilot_bias)
+                bad = (sat | inv) & GYRO
+                if ab.pair(v[1], _NAN if bad else v[2], v[3], v[4]):
+                    self._count(self._counters, "bias_twin_samples")  # served the bias step only
+                    return []
+            elif name == self._ab_primary and v[0] == self._ab_instance:
+                row = self._scaler.row
+                if ab.restore(v[1], row, IN_GYRO):
+                    v = (v[0], v[1], float(row[IN_GYRO]), float(row[IN_GYRO + 1]), float(row[IN_GYRO + 2]), *v[5:])
         if self._monitor_on and not inv:  # every IMU's gyro for the monitor to name an IMU that is off, at most
             t_ms = v[1] / 1000.0  # one sample per _IMU_CHECK_STEP_MS per instance (its mean over 10 s is what
             last = self._imu_fed.get(v[0])  # counts; every sample costs the page's events on a loaded machine)
@@ -1172,6 +1209,8 @@ class Pipeline:
         self._filter.reset()
         self._selector.reset()
         self._resends.reset()
+        if self._ab is not None:
+            self._ab.reset()
         self._monitor.reset()
         self._reset_stream_state()
         self._requester.start()
@@ -1392,7 +1431,8 @@ class Pipeline:
             outputs_sent=self.outputs_sent,
             drops=dict(self._drops),
             samples_dropped=sum(self._drops.values()),
-            counters={**self._counters, "duplicate_source": self._selector.duplicate_source, **self._timeline_counts()},
+            counters={**self._counters, "duplicate_source": self._selector.duplicate_source, **self._timeline_counts(),
+                      **({f"autopilot_bias_{k}": n for k, n in self._ab.counts.items()} if self._ab is not None else {})},
             initialised=init,
             gain=diag.gain,
             accel_weight=diag.accel_weight,

@@ -32,6 +32,7 @@ SETTINGS = [
     ("mavahrs.sensors.scaling", "ScalingSettings"),
     ("mavahrs.sensors.imu_select", "ImuSelectSettings"),
     ("mavahrs.ingest.timeline", "TimelineSettings"),
+    ("mavahrs.ingest.autopilot_bias", "AutopilotBiasSettings"),
     ("mavahrs.fleet.audit", "AuditSettings"),
     ("mavahrs.fleet.audit", "FleetRow"),  # the audit table's columns
 ]
