@@ -86,6 +86,9 @@ from mavahrs.geometry.quaternion import multiply  # noqa: E402
 from mavahrs.replay import ReplaySettings, replay  # noqa: E402
 from mavahrs.sensors.profiles import get_profile  # noqa: E402
 
+sys.path.insert(0, str(REPO / "scripts"))
+from _cache import code_stamp, file_stamp  # noqa: E402
+
 _spec = importlib.util.spec_from_file_location("bench_sitl", REPO / "scripts" / "bench_sitl.py")
 assert _spec is not None and _spec.loader is not None
 _sitl = importlib.util.module_from_spec(_spec)
@@ -167,7 +170,9 @@ def make_vibrating(rows: np.ndarray, t_us: np.ndarray, name: str) -> tuple[np.nd
 
 def load_log(path: Path, variant: str, cache: Path | None) -> dict[str, object]:
     """The input rows the daemon builds from a log (variant: as-is / no-gnss), its truth and autopilot estimates."""
-    key = cache / f"{path.stem}.{variant}.pkl" if cache else None
+    # named by the log and the code that decodes it (mavahrs outside the filters, which only run on the rows)
+    key = (cache / f"{path.stem}.{variant}.{file_stamp(path)}.{code_stamp('mavahrs', exclude=('mavahrs/filters',))}.pkl"
+           if cache else None)  # fmt: skip
     if key is not None and key.exists():
         return pickle.loads(key.read_bytes())
     with tempfile.TemporaryDirectory(prefix="mavahrs-est-") as tmp:

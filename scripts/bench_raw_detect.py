@@ -35,12 +35,16 @@ from mavahrs.evaluation.metrics import summarize  # noqa: E402
 from mavahrs.filters import create  # noqa: E402
 from mavahrs.filters.layout import OUT_Q  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _cache import code_stamp  # noqa: E402
+
 RATE_HZ = 200
 SCORE_AFTER_S = 20.0
 
 
 def flight(scenario: str, seed: int, cache: Path | None) -> tuple[np.ndarray, np.ndarray]:
-    path = cache / f"raw-{scenario}-{seed}.pkl" if cache is not None else None
+    stamp = code_stamp("firmware_sim", "tests/filters/conftest.py")  # the code that simulates the flight
+    path = cache / f"raw-{scenario}-{seed}.{stamp}.pkl" if cache is not None else None
     if path is not None and path.exists():
         with path.open("rb") as fh:
             return pickle.load(fh)  # type: ignore[no-any-return]
