@@ -558,6 +558,10 @@ class MonitorStatus:
             chart), ``step`` (a change of the divergence against its own
             recent baseline, which can warn below the line: an autopilot that
             was off one way and jumped 2° the other); "" = no warning.
+        imu_late: the IMU check's gyro samples dropped because they came after
+            the interval they belong to was judged (:class:`_ImuCheck`: a
+            sample older than its IMU's judged intervals, e.g. a reordered or
+            resent message); counted over the monitor's life, resets included.
         strip: the last ``strip_s`` of comparisons for the status page's strip
             chart, a point every 0.5 s and at each STATUSTEXT: ``(boot time s,
             tilt°, heading° signed, tilt threshold°, heading threshold° (0 = not
@@ -579,6 +583,7 @@ class MonitorStatus:
     evidence: Evidence | None = None
     trigger: str = ""
     strip: tuple[tuple[float, float, float, float, float, bool, int], ...] = ()
+    imu_late: int = 0
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -962,7 +967,9 @@ class AttitudeMonitor:
         self._warning_since_ms = -math.inf
         old = getattr(self, "_evidence", None)
         self._evidence = _Evidence(self.settings)
+        late = self._imus.late if hasattr(self, "_imus") else 0
         self._imus = _ImuCheck(self.settings)
+        self._imus.late = late  # a counter: it outlives a reset, as the comparisons do
         self._imu_named = ""
         if old is not None:  # what the vehicle's field should be outlives a reset
             self._evidence.mag_ref, self._evidence.mag_offset_ut = old.mag_ref, old.mag_offset_ut
@@ -1683,6 +1690,7 @@ class AttitudeMonitor:
             evidence=self.last_evidence if self._warning else None,
             trigger=self._trigger if self._warning else "",
             strip=tuple(self._strip),
+            imu_late=self._imus.late,
         )
 
     @property
