@@ -37,13 +37,19 @@ FLIGHTS = [("aggressive", 11, 40.0), ("magnetic", 13, 45.0), ("aggressive", 3, 8
 TOLERANCE_TILT_DEG, TOLERANCE_HEADING_DEG = 1.0, 3.0  # issue 24: an autopilot this close is not warned about
 
 
-@pytest.fixture(scope="module", params=FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
-def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict:
+#: flights judged for false WARNINGs only: firmware_sim magnetic 102 draws an accelerometer bias of 0.17 m/s²
+#: horizontal (0.98° of tilt, 3.4 σ of the simulator's 0.05 m/s² per axis) that our filter, without bias states
+#: on a vehicle's stream, cannot tell from tilt in its hover: our tilt error stands at 0.8–1.1° for the whole
+#: flight at σ 0.5° (beyond 2σ 23 % of the time: our σ is short there, so the σ tests above are not run on it),
+#: and at 123.0 s the autopilot's, 0.95°, stood the other way (issue 24, docs/monitor.md round fifteen)
+WARNING_FLIGHTS = [("magnetic", 102, 125.0)]
+
+
+def _fly(scenario: str, seed: int, duration: float, tmp_path_factory: pytest.TempPathFactory) -> dict:
     from mavahrs.fleet.audit import phase_events, replay_monitor
     from mavahrs.replay import ReplaySettings, replay
     from mavahrs.service.monitor import FlightPhase, MonitorSettings
 
-    scenario, seed, duration = request.param
     path = tmp_path_factory.mktemp("consistency") / f"{scenario}_{seed}.tlog"
     subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", scenario,
                     "--duration", str(duration), "--seed", str(seed), "-q"],
@@ -60,6 +66,11 @@ def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFact
         ph.on_event(t, kind, v)
         air.append((t / 1000.0, ph.phase(t) not in ("disarmed", "ground", "unknown")))
     return {"res": res, "truth": truth, "series": series, "air": air, "settings": mon}
+
+
+@pytest.fixture(scope="module", params=FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
+def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return _fly(*request.param, tmp_path_factory)
 
 
 def _runs(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
@@ -135,6 +146,18 @@ def test_our_heading_sigma_holds_our_heading_error_once_airborne(flight: dict) -
 def test_no_in_flight_warning_while_the_autopilot_is_within_tolerance(flight: dict) -> None:
     """Every in-flight WARNING must come with the (simulated) autopilot beyond 1° of tilt or 3° of heading
     of the truth at some moment of the 2 s before it; the monitor's own events, judged against the truth."""
+    _assert_no_false_warning(flight)
+
+
+@pytest.mark.parametrize("spec", WARNING_FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
+def test_no_in_flight_warning_over_our_standing_tilt_error(spec: tuple, tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Our tilt error standing at about 2σ for the whole flight (an accelerometer bias the filter cannot see in
+    a hover) and the autopilot's at its 1° tolerance the other way: the divergence, up to 1.9°, is within what
+    the two allow (``MonitorSettings.learn_tilt_to_tolerance``), not a fault of the autopilot's."""
+    _assert_no_false_warning(_fly(*spec, tmp_path_factory))
+
+
+def _assert_no_false_warning(flight: dict) -> None:
     from mavahrs.protocol.codec import mavlink
     from mavahrs.service.monitor import FLIGHT_PHASES, align_attitudes, divergence_series
 
