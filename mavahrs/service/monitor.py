@@ -195,24 +195,7 @@ class MonitorSettings:
             pass, not a tuned figure: with our σ at its 1° floor 5.0°.  Not for
             the tilt, which every GNSS fix observes (its error is short-lived:
             the quadrature sum holds, and tol + 2σ, 2.0°, would hide the 2°
-            step this monitor is built for; where the flight's own divergence
-            shows otherwise, ``learn_tilt_to_tolerance``).
-        learn_tilt_to_tolerance: ``uncertainty``: what is learnt may widen
-            the tilt threshold up to ``sigma_k`` × (σ_autopilot + σ_ours)
-            where that is more than ``learn_max_factor`` × the model's: the
-            least favourable pair the tolerance lets pass, the autopilot's
-            error standing at its 1° tolerance and ours at ``sigma_k`` σ the
-            other way (2.0° with our σ at 0.5°, against 1.25 × 1.41°).  Only
-            a flight whose divergence has run large (its learnt RMS × ``learn_k``
-            beyond 1.77°) reaches it: where the vehicle hovers, the GNSS
-            velocity cannot tell a tilt error from the accelerometer's
-            horizontal bias, and our error stands for the whole flight
-            (firmware_sim magnetic 102: a drawn bias of 0.17 m/s², 0.98° of
-            tilt, our error 0.8–1.1° at σ 0.5°, a learnt 2.3–2.6°; at the
-            1.77° cap a WARNING at 1.83° with the simulated autopilot 0.95°
-            off; docs/monitor.md, round fifteen).  Not as a floor on every
-            flight: 2.0° everywhere lost correct WARNINGs of an autopilot
-            1.1–1.3° off where ours was small.
+            step this monitor is built for).
         cusum_reference: ``uncertainty``: the sequential test (a one-sided
             CUSUM, Page 1954) accumulates ``(z − cusum_reference)·Δt`` where
             ``z`` = divergence / threshold (the larger of tilt and heading,
@@ -468,7 +451,6 @@ class MonitorSettings:
     min_tilt_threshold_deg: float = 1.0
     min_heading_threshold_deg: float = 3.0
     heading_tolerance_floor: bool = True
-    learn_tilt_to_tolerance: bool = True
     cusum_reference: float = 0.5
     cusum_leak_per_s: float = 0.2
     learn_k: float = 2.5
@@ -1254,15 +1236,7 @@ class AttitudeMonitor:
         n, m_t, m_h = self._learnt
         if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
             lk, cap = self.settings.learn_k, self.settings.learn_max_factor
-            t_cap = cap * tilt
-            if self.settings.learn_tilt_to_tolerance:
-                # … or as far as the least favourable pair within the tolerance, the autopilot's tilt error at
-                # its tolerance and ours at k σ the other way: a flight whose divergence has run that large (our
-                # error standing on an accelerometer bias the GNSS cannot tell from tilt in a hover, firmware_sim
-                # magnetic 102) is not warned of for an autopilot within its tolerance (docs/monitor.md, round
-                # fifteen)
-                t_cap = max(t_cap, k * (self._sig_ap[0] + s_t))
-            tilt = max(tilt, min(lk * math.sqrt(m_t), t_cap))
+            tilt = max(tilt, min(lk * math.sqrt(m_t), cap * tilt))
             hdg = max(hdg, min(lk * math.sqrt(m_h), cap * hdg)) if hdg_on else 0.0
         if hdg_on and self.settings.heading_tolerance_floor:
             # the least favourable autopilot within its tolerance: its heading error standing at the tolerance

@@ -463,10 +463,8 @@ def test_the_learnt_threshold_is_capped_by_the_models() -> None:
     s = MonitorSettings()
     model = s.sigma_k * math.hypot(0.5, s.autopilot_tilt_sigma_deg)
     for cap, warns in ((s.learn_max_factor, True), (1e9, False)):
-        # the absolute test alone (the change test would see the 0.9° change: below), the cap alone (a
-        # divergence this large learnt may widen the tilt's up to the tolerance's 2·(0.5 + 0.5) = 2.0°:
-        # learn_tilt_to_tolerance, below)
-        mon = AttitudeMonitor(MonitorSettings(learn_max_factor=cap, change_test=False, learn_tilt_to_tolerance=False))
+        # the absolute test alone (the change test would see the 0.9° change: below)
+        mon = AttitudeMonitor(MonitorSettings(learn_max_factor=cap, change_test=False))
         quiet = _steady(mon, 1000.0, 90.0, lambda t: 1.1)
         assert quiet == [], [m.text for m in quiet]
         assert mon.status.tilt_threshold_deg == pytest.approx(min(cap, 2.5 * 1.1 / model) * model, rel=0.02)

