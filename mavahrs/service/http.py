@@ -302,6 +302,7 @@ def _second_opinion_extra(mon: Any) -> dict[str, Any]:
         "evidence": ev.as_dict() if ev is not None else None,
         "evidence_text": ev.text() if ev is not None else "",
         "strip": _strip(getattr(mon, "strip", ())),
+        "imu_late": int(getattr(mon, "imu_late", 0)),
     }
 
 

@@ -364,6 +364,18 @@ class MonitorSettings:
             a steeper slope or a step leaves it, s (0 = off).  (ArduCopter
             SITL gentle, a 0.2°/s tilt ramp: WARNINGs at 106.2 and 113.7 s
             without it, 106.2 s alone with it.)
+        change_heading_sigma_growth: ``uncertainty``: the change test's heading
+            cap takes our heading σ as far as it has *grown* within the
+            baseline's span (``change_delay_s`` + ``change_baseline_s``): √(σ_floor²
+            + σ_now² − σ_least²), σ_least our least σ over that span (at least
+            the floor ``heading_sigma_deg``), instead of σ_now.  A change of the
+            divergence is a change of the two errors: ours moves as far as its
+            uncertainty has grown (a disturbed magnetometer, a spin: the
+            error variance added since), not as far as a σ that stands high
+            (firmware_sim hover 12: our σ 1.16° for a minute, our error −0.85°,
+            the simulated autopilot's heading 3.6° off, a change of 3.9–4.1°
+            against a 3.80° cap with σ_now: the correct WARNING at 148.0 s
+            lost; docs/monitor.md, round fifteen).
         change_cusum_reference: the change test's own CUSUM, as
             ``cusum_reference`` (a WARNING when it reaches
             ``(1 − change_cusum_reference)·trigger_s`` with the change beyond
@@ -467,6 +479,7 @@ class MonitorSettings:
     change_drift_s: float = 3.0
     change_drift_slope_s: float = 8.0
     change_step_outside: bool = True
+    change_heading_sigma_growth: bool = True
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -559,6 +572,10 @@ class MonitorStatus:
             chart), ``step`` (a change of the divergence against its own
             recent baseline, which can warn below the line: an autopilot that
             was off one way and jumped 2° the other); "" = no warning.
+        imu_late: the IMU check's gyro samples dropped because they came after
+            the interval they belong to was judged (:class:`_ImuCheck`: a
+            sample older than its IMU's judged intervals, e.g. a reordered or
+            resent message); counted over the monitor's life, resets included.
         strip: the last ``strip_s`` of comparisons for the status page's strip
             chart, a point every 0.5 s and at each STATUSTEXT: ``(boot time s,
             tilt°, heading° signed, tilt threshold°, heading threshold° (0 = not
@@ -580,6 +597,7 @@ class MonitorStatus:
     evidence: Evidence | None = None
     trigger: str = ""
     strip: tuple[tuple[float, float, float, float, float, bool, int], ...] = ()
+    imu_late: int = 0
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -966,13 +984,16 @@ class AttitudeMonitor:
         self._warning_since_ms = -math.inf
         old = getattr(self, "_evidence", None)
         self._evidence = _Evidence(self.settings)
+        late = self._imus.late if hasattr(self, "_imus") else 0
         self._imus = _ImuCheck(self.settings)
+        self._imus.late = late  # a counter: it outlives a reset, as the comparisons do
         self._imu_named = ""
         if old is not None:  # what the vehicle's field should be outlives a reset
             self._evidence.mag_ref, self._evidence.mag_offset_ut = old.mag_ref, old.mag_offset_ut
             self._evidence.mag_model_disturbed = old.mag_model_disturbed
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._sigma_hdg = math.nan  # our latest 1-σ heading, rad (NaN: not given: heading_sigma_deg)
+        self._sig_hdg_least: deque[tuple[float, float]] = deque()  # (t_ms, σ) rising: the window's least σ first
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._rate_h = 0.0  # … its earth-frame horizontal part (what turns the tilt), rad/s
         self._rate_v = 0.0  # … and vertical part (what turns the heading), rad/s
@@ -1209,6 +1230,18 @@ class AttitudeMonitor:
         # 35 µT disturbance took our heading 2.5° off at σ 1.7°, the autopilot's 0.9° the other way; the change
         # test, capped at the floor σ's 3.6°, warned falsely at 25.2 s; docs/monitor.md, round eleven)
         self._change_cap = (tilt, hdg)
+        if hdg_on and aided and self.settings.change_heading_sigma_growth and self._last_cmp_ms is not None:
+            # … as far as our σ has grown within the baseline's span (the error variance added since), on the floor
+            t_now = self._last_cmp_ms
+            least = self._sig_hdg_least
+            while least and least[-1][1] >= s_h:  # a sliding-window minimum (a rising deque)
+                least.pop()
+            least.append((t_now, s_h))
+            span_ms = 1000.0 * (self.settings.change_delay_s + self.settings.change_baseline_s)
+            while least[0][0] < t_now - span_ms:
+                least.popleft()
+            s_g2 = self._sig_hdg ** 2 + max(0.0, s_h * s_h - least[0][1] ** 2)
+            self._change_cap = (tilt, max(self._min_thr[1], k * math.sqrt(s_g2 + self._sig_ap[1] ** 2 + sync2)))
         n, m_t, m_h = self._learnt
         if n >= 0.1 * self.settings.learn_s:  # learnt enough to judge
             lk, cap = self.settings.learn_k, self.settings.learn_max_factor
@@ -1736,6 +1769,7 @@ class AttitudeMonitor:
             evidence=self.last_evidence if self._warning else None,
             trigger=self._trigger if self._warning else "",
             strip=tuple(self._strip),
+            imu_late=self._imus.late,
         )
 
     @property

@@ -37,13 +37,19 @@ FLIGHTS = [("aggressive", 11, 40.0), ("magnetic", 13, 45.0), ("aggressive", 3, 8
 TOLERANCE_TILT_DEG, TOLERANCE_HEADING_DEG = 1.0, 3.0  # issue 24: an autopilot this close is not warned about
 
 
-@pytest.fixture(scope="module", params=FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
-def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict:
+#: flights judged for false WARNINGs only: firmware_sim magnetic 102 draws an accelerometer bias of 0.17 m/s²
+#: horizontal (0.98° of tilt, 3.4 σ of the simulator's 0.05 m/s² per axis) that our filter, without bias states
+#: on a vehicle's stream, cannot tell from tilt in its hover: our tilt error stands at 0.8–1.1° for the whole
+#: flight at σ 0.5° (beyond 2σ 23 % of the time: our σ is short there, so the σ tests above are not run on it),
+#: and at 123.0 s the autopilot's, 0.95°, stood the other way (issue 24, docs/monitor.md round fifteen)
+WARNING_FLIGHTS = [("magnetic", 102, 125.0)]
+
+
+def _fly(scenario: str, seed: int, duration: float, tmp_path_factory: pytest.TempPathFactory) -> dict:
     from mavahrs.fleet.audit import phase_events, replay_monitor
     from mavahrs.replay import ReplaySettings, replay
     from mavahrs.service.monitor import FlightPhase, MonitorSettings
 
-    scenario, seed, duration = request.param
     path = tmp_path_factory.mktemp("consistency") / f"{scenario}_{seed}.tlog"
     subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", scenario,
                     "--duration", str(duration), "--seed", str(seed), "-q"],
@@ -60,6 +66,11 @@ def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFact
         ph.on_event(t, kind, v)
         air.append((t / 1000.0, ph.phase(t) not in ("disarmed", "ground", "unknown")))
     return {"res": res, "truth": truth, "series": series, "air": air, "settings": mon}
+
+
+@pytest.fixture(scope="module", params=FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
+def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return _fly(*request.param, tmp_path_factory)
 
 
 def _runs(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
@@ -135,6 +146,21 @@ def test_our_heading_sigma_holds_our_heading_error_once_airborne(flight: dict) -
 def test_no_in_flight_warning_while_the_autopilot_is_within_tolerance(flight: dict) -> None:
     """Every in-flight WARNING must come with the (simulated) autopilot beyond 1° of tilt or 3° of heading
     of the truth at some moment of the 2 s before it; the monitor's own events, judged against the truth."""
+    _assert_no_false_warning(flight)
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 24, docs/monitor.md round fifteen): our tilt σ is short on "
+                   "this seed's accelerometer bias, a filter matter; by the divergence alone the monitor cannot tell it "
+                   "from an autopilot 1.75° off (firmware_sim aggressive 61 at 38.5 s: 1.72° against 1.83° here)")
+@pytest.mark.parametrize("spec", WARNING_FLIGHTS, ids=lambda f: f"{f[0]}-{f[1]}")
+def test_no_in_flight_warning_over_our_standing_tilt_error(spec: tuple, tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Our tilt error standing at about 2σ for the whole flight (an accelerometer bias the filter cannot see in
+    a hover) and the autopilot's at its 1° tolerance the other way: the divergence, up to 1.9°, is within what
+    the two allow, not a fault of the autopilot's.  Fails today (a WARNING at 123.0 s)."""
+    _assert_no_false_warning(_fly(*spec, tmp_path_factory))
+
+
+def _assert_no_false_warning(flight: dict) -> None:
     from mavahrs.protocol.codec import mavlink
     from mavahrs.service.monitor import FLIGHT_PHASES, align_attitudes, divergence_series
 
@@ -154,3 +180,27 @@ def test_no_in_flight_warning_while_the_autopilot_is_within_tolerance(flight: di
         if np.nanmax(tilt[m]) < TOLERANCE_TILT_DEG and np.nanmax(np.abs(hdg[m])) < TOLERANCE_HEADING_DEG:
             false.append((round(t, 2), e.text, f"AP off {np.nanmax(tilt[m]):.2f}° / {np.nanmax(np.abs(hdg[m])):.2f}°"))
     assert not false, f"in-flight WARNINGs with the autopilot within {TOLERANCE_TILT_DEG:g}°/{TOLERANCE_HEADING_DEG:g}°: {false}"
+
+
+def test_an_autopilot_standing_beyond_its_heading_tolerance_is_warned(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """firmware_sim hover 12: the simulated autopilot's heading runs 3.3–3.8° off for a second or more (past its
+    3° tolerance) with ours −0.85° at σ 1.16°, which has stood for a minute: a WARNING comes during that stretch
+    or within 2 s of its end (``MonitorSettings.change_heading_sigma_growth``: the change test's heading cap
+    with our σ as it stood, 3.80°, let a change of 3.9–4.1° pass for 1.2 s; none was raised)."""
+    from mavahrs.protocol.codec import mavlink
+    from mavahrs.service.monitor import FLIGHT_PHASES, align_attitudes, divergence_series
+
+    flight = _fly("hover", 12, 150.0, tmp_path_factory)
+    res = flight["res"]
+    t_ap, q_ap = res.references["autopilot ATTITUDE"]
+    t_tr, q_tr = res.references[flight["truth"]]
+    t_s = t_ap / 1e6
+    _, hdg = divergence_series(t_s, q_ap, t_s, align_attitudes(t_tr / 1e6, q_tr, t_s, tolerance_ms=30.0))
+    airborne = [t for t, a in flight["air"] if a]
+    beyond = np.abs(np.nan_to_num(hdg, nan=0.0)) > 1.1 * TOLERANCE_HEADING_DEG
+    stretches = [(a, b) for a, b in _runs(t_s, beyond) if b - a >= 1.0 and airborne and a > airborne[0]]
+    assert stretches, "the simulated autopilot never stood past its heading tolerance: not the flight it was"
+    warned = [e.t_ms / 1000.0 for e in flight["series"].events
+              if e.severity == mavlink.MAV_SEVERITY_WARNING and not e.update and e.phase in FLIGHT_PHASES]
+    missed = [(round(a, 1), round(b, 1)) for a, b in stretches if not any(a <= t <= b + 2.0 for t in warned)]
+    assert not missed, f"the autopilot past its heading tolerance at {missed}, WARNINGs at {warned}"

@@ -373,6 +373,32 @@ def test_an_imu_whose_messages_arrive_late_is_not_named_in_yaw_spin_ups() -> Non
     assert named and all("IMU2" in x for x in named), named
 
 
+def test_late_imu_samples_are_counted_in_the_status() -> None:
+    """The IMU check drops a gyro sample that comes after the interval it belongs to was judged (a resent or
+    reordered message): counted, shown in the status (``imu_late``, status.json's ``second_opinion``), kept
+    over a reset as the other counters are, and the sample not judged."""
+    from mavahrs.service.http import _second_opinion_extra
+
+    mon = AttitudeMonitor(MonitorSettings())
+    q = (1.0, 0.0, 0.0, 0.0)
+    resent = 0
+    for k in range(3200):  # 8 s: IMU1 at 400 Hz, the autopilot's attitude and ours at 50 Hz, all in time order
+        ms = 2.5 * k
+        mon.add_imu_gyro("IMU1", ms, (0.0, 0.0, 0.0))
+        if k % 8 == 0:
+            mon.add_autopilot(ms, q)
+            mon.add_estimate(ms, q, math.radians(0.3))
+        if k % 400 == 399:  # once a second: a sample from half a second ago comes again
+            mon.add_imu_gyro("IMU1", ms - 500.0, (0.0, 0.0, 1.0))
+            resent += 1
+    st = mon.status
+    assert st.comparisons > 300 and st.imu_late == resent == 8, st
+    assert _second_opinion_extra(st)["imu_late"] == resent
+    assert mon._imus.errors_dps()["IMU1"] < 0.01  # the resent 57 °/s samples were not judged
+    mon.reset()
+    assert mon.status.imu_late == resent
+
+
 @pytest.mark.parametrize("imu2_bias_dps", [0.0, 2.0])
 def test_the_daemons_imu_check_with_slow_streams(imu2_bias_dps: float) -> None:
     """The daemon's path with the streams `mavahrs-sim` gave a live run: RAW_IMU at the loop rate, SCALED_IMU2

@@ -233,6 +233,7 @@
       set("so-heading", signed(so.heading_deg, 1));
       set("so-comparisons", String(so.comparisons));
       set("so-episodes", String(so.episodes));
+      set("so-imu-late", String(so.imu_late ?? 0));
       if (so.comparisons === 0) badge("so-alarm", "unknown", "no autopilot attitude");
       else badge("so-alarm", so.warning ? "warn" : "ok", so.warning ? "DIFFERS" : "agrees");
       showEvidence(so);
