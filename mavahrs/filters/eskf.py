@@ -253,8 +253,7 @@ _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-er
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
 _REST_TURN_VAR = _MAG_DELAY + 23  # (rad/s)²: variance of the steady turn about the vertical a rest may hide (0: none)
 _REST_WOBBLE_VAR = _MAG_DELAY + 24  # (rad/s)²: variance of the mean rate across the vertical a rest may hide (0: none)
-_REST_WOBBLE_SCALE = _MAG_DELAY + 25  # the low-passed gyro's variance over the steady run, × this, added to the wobble's (0: not)
-_N_PARAMS = _MAG_DELAY + 26
+_N_PARAMS = _MAG_DELAY + 25
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -335,8 +334,7 @@ _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m
 #: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
 _SLOW = _DNIS + 2
 _REST_N = _SLOW + 14  # zero-rate updates fused since the detector's rest began (``_rest_rate_update``)
-_RSTAT = _SLOW + 15  # the detector's steady run: count, mean and Welford M2 of its low-passed gyro per body axis (7)
-_N_STATE = _SLOW + 22
+_N_STATE = _SLOW + 15
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -819,7 +817,6 @@ class EskfSettings(FilterSettings):
     rest_check_sigma_rad_s: float = 0.0
     rest_turn_sigma_rad_s: float = 0.0
     rest_wobble_sigma_rad_s: float = 0.0
-    rest_wobble_variance_scale: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -875,7 +872,7 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
-        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "rest_turn_sigma_rad_s", "rest_wobble_sigma_rad_s", "rest_wobble_variance_scale", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
+        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "rest_turn_sigma_rad_s", "rest_wobble_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
@@ -1075,8 +1072,6 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
             s[kp + i * N + i] = _P0_VEL_FLYING
     rest_reset(s, k + _REST)
     s[k + _REST_N] = 0.0
-    for i in range(7):
-        s[k + _RSTAT + i] = 0.0
     s[k + _LAST_FIX] = -1.0
     s[k + _PREJ_T] = -1.0
     for i in range(3):
@@ -1393,9 +1388,8 @@ def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
     r = params[p + _R_REST_RATE]
     q_turn = params[p + _REST_TURN_VAR]
     q_wob = params[p + _REST_WOBBLE_VAR]
-    w_scale = params[p + _REST_WOBBLE_SCALE]
     updated = False
-    if q_turn <= 0.0 and q_wob <= 0.0 and w_scale <= 0.0:
+    if q_turn <= 0.0 and q_wob <= 0.0:
         for c in range(3):
             for i in range(N):
                 s[k + _H + i] = 0.0
@@ -1427,12 +1421,6 @@ def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
     info = 1.0 / (q_turn + r / n_upd)
     if n_upd > 1.0:
         info -= 1.0 / (q_turn + r / (n_upd - 1.0))
-    if w_scale > 0.0 and s[k + _RSTAT] > 1.0:  # the wobble seen in the steady run, across the vertical
-        uu = (ux * ux, uy * uy, uz * uz)
-        v_h = 0.0
-        for c in range(3):
-            v_h += 0.5 * (1.0 - uu[c]) * s[k + _RSTAT + 4 + c] / (s[k + _RSTAT] - 1.0)
-        q_wob += w_scale * v_h
     info_h = 1.0 / (q_wob + r / n_upd)
     if n_upd > 1.0:
         info_h -= 1.0 / (q_wob + r / (n_upd - 1.0))
@@ -2205,15 +2193,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         n_known = 0
         if not at_rest:
             state[k + _REST_N] = 0.0
-        if state[k + _REST + 6] > 0.0:  # the detector's steady run: the low-passed gyro's mean and variance
-            state[k + _RSTAT] += 1.0
-            for c in range(3):
-                dw = state[k + _REST + c] - state[k + _RSTAT + 1 + c]
-                state[k + _RSTAT + 1 + c] += dw / state[k + _RSTAT]
-                state[k + _RSTAT + 4 + c] += dw * (state[k + _REST + c] - state[k + _RSTAT + 1 + c])
-        else:
-            for i in range(7):
-                state[k + _RSTAT + i] = 0.0
         if at_rest:
             # a low-passed rate the bias cannot explain is a slow steady turn (a hover's yaw), not rest:
             # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise);
@@ -2798,7 +2777,6 @@ class Eskf(AttitudeFilter):
         p[_REST_CHECK_VAR] = settings.rest_check_sigma_rad_s**2
         p[_REST_TURN_VAR] = settings.rest_turn_sigma_rad_s**2
         p[_REST_WOBBLE_VAR] = settings.rest_wobble_sigma_rad_s**2
-        p[_REST_WOBBLE_SCALE] = settings.rest_wobble_variance_scale
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
         p[_R_POS_H] = settings.position_noise_m**2
