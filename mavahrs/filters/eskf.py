@@ -251,9 +251,7 @@ _DRAG_C = _MAG_DELAY + 19  # the body's quadratic drag coefficient, 1/m (0: the 
 _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' excess over h P hᵀ (0: R as set)
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
-_REST_TURN_VAR = _MAG_DELAY + 23  # (rad/s)²: variance of the steady turn about the vertical a rest may hide (0: none)
-_REST_WOBBLE_VAR = _MAG_DELAY + 24  # (rad/s)²: variance of the mean rate across the vertical a rest may hide (0: none)
-_N_PARAMS = _MAG_DELAY + 25
+_N_PARAMS = _MAG_DELAY + 23
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -333,8 +331,7 @@ _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m
 #: the previous block's mean (3), blocks completed (1), the running mean of ‖f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂‖²/18 (the Hadamard
 #: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
 _SLOW = _DNIS + 2
-_REST_N = _SLOW + 14  # zero-rate updates fused since the detector's rest began (``_rest_rate_update``)
-_N_STATE = _SLOW + 15
+_N_STATE = _SLOW + 14
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -815,8 +812,6 @@ class EskfSettings(FilterSettings):
     rest_rate_noise_rad_s: float = math.radians(0.1)
     rest_velocity_noise_m_s: float = 0.0
     rest_check_sigma_rad_s: float = 0.0
-    rest_turn_sigma_rad_s: float = 0.0
-    rest_wobble_sigma_rad_s: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -872,7 +867,7 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
-        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "rest_turn_sigma_rad_s", "rest_wobble_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
+        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
@@ -1071,7 +1066,6 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         for i in range(3, 6):
             s[kp + i * N + i] = _P0_VEL_FLYING
     rest_reset(s, k + _REST)
-    s[k + _REST_N] = 0.0
     s[k + _LAST_FIX] = -1.0
     s[k + _PREJ_T] = -1.0
     for i in range(3):
@@ -1364,88 +1358,6 @@ def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
     for i in range(n):
         sv += s[kh + i] * s[kph + i]
     return y, sv
-
-
-@kernel(inline=True)
-def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
-    r"""The low-passed gyro ω̄ at detected rest as a measurement of the bias: ω̄ = b + ω_turn + e.
-
-    ``e`` is the low-pass's white noise (R = ``rest_rate_noise_rad_s``²).  ``ω_turn`` is the
-    steady turn the detector cannot see: a rotation about the vertical leaves the specific
-    force where it is, so a multirotor hovering in a slow yaw is as still as rest (any turn
-    across the vertical moves gravity through the accelerometer, which the detector's
-    steadiness test and the gravity measurement bound).  The measurement is split on the
-    body-frame vertical u (the detector's low-passed specific force, normalised) and two
-    axes across it: z_⊥ = e_iᵀ(ω̄ − b̂) with R, and z_u = uᵀ(ω̄ − b̂) with R + σ_turn² —
-    where σ_turn² = ``rest_turn_sigma_rad_s``² is the turn's variance, and since the turn is
-    one constant over a rest while e is white, a rest of n updates carries about the vertical
-    at most the information of its mean, 1 / (σ_turn² + R/n) (colored measurement noise:
-    Gelb 1974 §4.6, here the constant's limit).  The n-th update of a rest fuses the
-    increment, R_n = 1 / (1/(σ_turn² + R/n) − 1/(σ_turn² + R/(n−1))): the first takes
-    σ_turn² + R, the next ones almost nothing.  σ_turn = 0: all three axes with R every
-    update (the measurement as before).  Returns True when anything was fused.
-    """
-    r = params[p + _R_REST_RATE]
-    q_turn = params[p + _REST_TURN_VAR]
-    q_wob = params[p + _REST_WOBBLE_VAR]
-    updated = False
-    if q_turn <= 0.0 and q_wob <= 0.0:
-        for c in range(3):
-            for i in range(N):
-                s[k + _H + i] = 0.0
-            s[k + _H + 6 + c] = 1.0
-            if _scalar_update(s, k, s[k + _REST + c] - s[S_BIAS + c], r, 1.0e6):
-                updated = True
-        return updated
-    # the body-frame vertical from the detector's low-passed specific force
-    ux, uy, uz = s[k + _REST + 3], s[k + _REST + 4], s[k + _REST + 5]
-    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
-    if not (nu > 0.0):
-        return False
-    ux, uy, uz = ux / nu, uy / nu, uz / nu
-    # e1 ⟂ u from the body axis least aligned with u, e2 = u × e1
-    if abs(ux) <= abs(uy) and abs(ux) <= abs(uz):
-        ax_, ay_, az_ = 1.0, 0.0, 0.0
-    elif abs(uy) <= abs(uz):
-        ax_, ay_, az_ = 0.0, 1.0, 0.0
-    else:
-        ax_, ay_, az_ = 0.0, 0.0, 1.0
-    d = ax_ * ux + ay_ * uy + az_ * uz
-    e1x, e1y, e1z = ax_ - d * ux, ay_ - d * uy, az_ - d * uz
-    n1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
-    e1x, e1y, e1z = e1x / n1, e1y / n1, e1z / n1
-    e2x, e2y, e2z = uy * e1z - uz * e1y, uz * e1x - ux * e1z, ux * e1y - uy * e1x
-    # this rest's update count (restarts when the detector's rest ends)
-    s[k + _REST_N] += 1.0
-    n_upd = s[k + _REST_N]
-    info = 1.0 / (q_turn + r / n_upd)
-    if n_upd > 1.0:
-        info -= 1.0 / (q_turn + r / (n_upd - 1.0))
-    info_h = 1.0 / (q_wob + r / n_upd)
-    if n_upd > 1.0:
-        info_h -= 1.0 / (q_wob + r / (n_upd - 1.0))
-    for a in range(3):
-        if a < 2 and not (info_h > 0.0):
-            continue
-        if a == 0:
-            hx, hy, hz, ra = e1x, e1y, e1z, 1.0 / info_h
-        elif a == 1:
-            hx, hy, hz, ra = e2x, e2y, e2z, 1.0 / info_h
-        else:
-            hx, hy, hz = ux, uy, uz
-            if not (info > 0.0):
-                continue
-            ra = 1.0 / info
-        for i in range(N):
-            s[k + _H + i] = 0.0
-        s[k + _H + 6] = hx
-        s[k + _H + 7] = hy
-        s[k + _H + 8] = hz
-        y = (hx * (s[k + _REST] - s[S_BIAS]) + hy * (s[k + _REST + 1] - s[S_BIAS + 1])
-             + hz * (s[k + _REST + 2] - s[S_BIAS + 2]))  # fmt: skip
-        if _scalar_update(s, k, y, ra, 1.0e6):
-            updated = True
-    return updated
 
 
 @kernel(inline=True)
@@ -2191,8 +2103,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             ax, ay, az, accel_ok, math.nan, math.nan, math.nan, dt, params, p + _REST_P,
         )  # fmt: skip
         n_known = 0
-        if not at_rest:
-            state[k + _REST_N] = 0.0
         if at_rest:
             # a low-passed rate the bias cannot explain is a slow steady turn (a hover's yaw), not rest:
             # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise);
@@ -2215,8 +2125,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # the low-passed gyro is the bias (Madgwick's and VQF's rest phase, here as a measurement of
             # the bias state: its covariance with the tilt corrects that too); optionally the velocity is zero
             state[k + _LAST_REST] = clk
-            if _rest_rate_update(state, k, params, p):
-                updated = True
+            for c in range(3):
+                for i in range(N):
+                    state[k + _H + i] = 0.0
+                state[k + _H + 6 + c] = 1.0
+                if _scalar_update(state, k, state[k + _REST + c] - state[S_BIAS + c], params[p + _R_REST_RATE], 1.0e6):
+                    updated = True
             for c in range(3 if params[p + _R_REST_VEL] > 0.0 else 0):
                 for i in range(N):
                     state[k + _H + i] = 0.0
@@ -2775,8 +2689,6 @@ class Eskf(AttitudeFilter):
         p[_INIT_COS] = math.cos(min(settings.initial_realign_rad, math.pi))
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_REST_CHECK_VAR] = settings.rest_check_sigma_rad_s**2
-        p[_REST_TURN_VAR] = settings.rest_turn_sigma_rad_s**2
-        p[_REST_WOBBLE_VAR] = settings.rest_wobble_sigma_rad_s**2
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
         p[_R_POS_H] = settings.position_noise_m**2
