@@ -197,10 +197,11 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--noiseless", action="store_true",
                     help="no sensor noise, bias random walk or vibration (biases, scale, quantisation kept): "
                          "steady states repeat the same whole mG and mrad/s, as ArduPilot's SITL")
-    se.add_argument("--gyro-lowpass-hz", type=float, default=ImuErrorSettings.gyro_lowpass_hz, metavar="HZ",
-                    help="INS_GYRO_FILTER, Hz; 0 = off (default %(default)s)")
-    se.add_argument("--accel-lowpass-hz", type=float, default=ImuErrorSettings.accel_lowpass_hz, metavar="HZ",
-                    help="INS_ACCEL_FILTER, Hz; 0 = off (default %(default)s)")
+    se.add_argument("--gyro-lowpass-hz", type=float, default=None, metavar="HZ",
+                    help=f"INS_GYRO_FILTER, Hz; 0 = off (default {ImuErrorSettings.gyro_lowpass_hz:g}; with --autopilot "
+                         "px4 0: PX4's HIGHRES_IMU/SCALED_IMU are vehicle_imu's interval mean, not low-passed)")
+    se.add_argument("--accel-lowpass-hz", type=float, default=None, metavar="HZ",
+                    help=f"INS_ACCEL_FILTER, Hz; 0 = off (default {ImuErrorSettings.accel_lowpass_hz:g}; px4: 0)")
     se.add_argument("--field-ut", type=float, default=EarthField.strength_ut, metavar="UT",
                     help="earth field strength, uT (default %(default)s, WMM2025 at CMAC)")
     se.add_argument("--inclination-deg", type=float, default=EarthField.inclination_deg, metavar="DEG",
@@ -242,7 +243,13 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         ImuErrorSettings.raw() if args.imu_preset == "raw" else ImuErrorSettings())
     if args.gyro_bias_dps is not None:
         imu = replace(imu, gyro_bias_rad_s=tuple(math.radians(v) for v in args.gyro_bias_dps))
-    imu = replace(imu, gyro_lowpass_hz=args.gyro_lowpass_hz, accel_lowpass_hz=args.accel_lowpass_hz)
+    px4 = args.autopilot == "px4"  # PX4's vehicle_imu: the interval mean of the sensor samples, no INS low-pass
+
+    def lowpass(given: float | None, default: float) -> float:
+        return given if given is not None else (0.0 if px4 else default)
+
+    imu = replace(imu, gyro_lowpass_hz=lowpass(args.gyro_lowpass_hz, ImuErrorSettings.gyro_lowpass_hz),
+                  accel_lowpass_hz=lowpass(args.accel_lowpass_hz, ImuErrorSettings.accel_lowpass_hz))
     mag = MagSettings.ideal() if args.no_sensor_errors else MagSettings()
     if args.noiseless:
         imu, mag = imu.noiseless(), mag.noiseless()
@@ -296,6 +303,7 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         mag_anomaly=anomaly,
         mag_motor_ut_per_a=args.mag_motor_ut_per_a,
         current=CurrentSettings(hover_a=args.hover_current_a),
+        imu_sample="interval_mean" if px4 else "snapshot",
     )
     preset = args.preset or ("bench" if args.fast else "default")
     link_bps = None

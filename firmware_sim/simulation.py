@@ -206,6 +206,12 @@ class SimSettings:
         gps_velocity_noise_m_s: white noise on the reported NED velocity (m/s, σ).
         jit: run the sequential kernels compiled by numba (long batch runs; pays numba's
             start-up of about 2 s once per process); results are the same to rounding.
+        imu_sample: what a tick reports of its IMUs: ``"snapshot"`` (default), the latest filtered sensor
+            sample, as ArduPilot's INS front end once per loop; ``"interval_mean"``, the mean of the sensor
+            samples since the previous tick (the last one at the tick's stamp), as PX4's ``vehicle_imu``:
+            ``delta_angle / delta_angle_dt`` over the integration interval, which HIGHRES_IMU and SCALED_IMU
+            send (``streams/HIGHRES_IMU.hpp``; PX4's IMU_GYRO_CUTOFF filters the controllers' rate, not
+            ``vehicle_imu``, so the PX4 command line turns the 20 Hz low-pass off with it).
     """
 
     scenario: str = "hover"
@@ -231,8 +237,11 @@ class SimSettings:
     current: CurrentSettings = field(default_factory=CurrentSettings)
     gps_velocity_noise_m_s: float = 0.02
     jit: bool = False
+    imu_sample: str = "snapshot"
 
     def __post_init__(self) -> None:
+        if self.imu_sample not in ("snapshot", "interval_mean"):
+            raise ValueError(f"SimSettings.imu_sample must be 'snapshot' or 'interval_mean', got {self.imu_sample!r}")
         if not 1.0 <= self.loop_rate_hz <= 10000.0:
             raise ValueError(f"SimSettings.loop_rate_hz must be in [1, 10000], got {self.loop_rate_hz!r}")
         if not 1 <= self.oversample <= 32:
@@ -336,6 +345,8 @@ class Simulation:
         self._frozen: tuple[Array, Array] | None = None
         self._last_good: tuple[Array, Array] | None = None
         self._k = 0
+        #: interval_mean: each IMU's last oversample - 1 sensor samples (gyro, accel) of the previous block
+        self._imu_tail: list[tuple[Array, Array] | None] = [None] * s.imu_count
 
     @property
     def next_tick(self) -> int:
@@ -373,7 +384,10 @@ class Simulation:
         current_fine = s.current.current_a(fine.thrust_m_s2)
         for j, imu in enumerate(self.imus):
             c = imu.process(gyro_true, accel_true, fine.thrust_m_s2, temp_fine)
-            gyro[j], accel[j] = c.gyro_rad_s[snap], c.accel_m_s2[snap]
+            if s.imu_sample == "interval_mean":
+                gyro[j], accel[j] = self._interval_mean(j, c.gyro_rad_s, c.accel_m_s2, n, m)
+            else:
+                gyro[j], accel[j] = c.gyro_rad_s[snap], c.accel_m_s2[snap]
             gbias[j], abias[j] = c.gyro_bias_rad_s[snap], c.accel_bias_m_s2[snap]
         mag = np.empty((s.mag_count, n, 3))
         fresh = np.empty((s.mag_count, n), dtype=bool)
@@ -407,6 +421,20 @@ class Simulation:
             lat_deg=lat, lon_deg=lon, alt_m=alt, current_a=current, voltage_v=voltage, consumed_mah=mah[snap],
             c_imu_to_body=self.c_imu_to_body,
         )
+
+    def _interval_mean(self, j: int, gyro_fine: Array, accel_fine: Array, n: int, m: int) -> tuple[Array, Array]:
+        """IMU ``j``'s gyro and accel per tick as the mean of the ``m`` sensor samples ending at the tick's own
+        sample (PX4's ``vehicle_imu``: Δθ / Δt over the interval); the first tick of the flight repeats its
+        sample for the samples before the start."""
+        tail = self._imu_tail[j]
+        if tail is None:
+            tail = (np.repeat(gyro_fine[:1], m - 1, axis=0), np.repeat(accel_fine[:1], m - 1, axis=0))
+        out = []
+        for prev, fine in zip(tail, (gyro_fine, accel_fine), strict=True):
+            ext = np.concatenate((prev, fine))[: n * m]  # tick i: sensor samples i·m − m + 1 … i·m
+            out.append(ext.reshape(n, m, 3).mean(axis=1))
+        self._imu_tail[j] = (gyro_fine[n * m - (m - 1):], accel_fine[n * m - (m - 1):])
+        return out[0], out[1]
 
     def mag_anomaly_ned_ut(self, height_agl_m: Array) -> Array:
         """The anomaly's earth-frame field (µT, NED) at heights above home (m), shape (N, 3)."""

@@ -399,7 +399,9 @@ def _autopilot_bias(mg: dict[str, Any], names: list[str], profile: Any, settings
     steps in a loop) over the merged messages: PX4's EKF2 gyro bias, recovered from SCALED_IMU, added back to
     HIGHRES_IMU in place; a SCALED_IMU that served only that step is no sample (``use`` False)."""
     partner, primary = profile.bias_free_message, profile.primary_message
-    if not settings.enabled or partner is None or partner not in names or primary not in names:
+    # a log with the partner but no primary message runs the step too: the pipeline's partner serves only the
+    # step for its first second (it waits for the primary stream), so the replay starts where the daemon does
+    if not settings.enabled or partner is None or partner not in names:
         return
     from mavahrs.ingest.autopilot_bias import (
         ROLE_PARTNER,
@@ -412,7 +414,8 @@ def _autopilot_bias(mg: dict[str, Any], names: list[str], profile: Any, settings
 
     kind = mg["kind"]
     role = np.zeros(kind.shape[0], np.int64)
-    role[(kind == names.index(primary)) & (mg["imu"] == INSTANCE_OF_MESSAGE[partner])] = ROLE_PRIMARY
+    if primary in names:
+        role[(kind == names.index(primary)) & (mg["imu"] == INSTANCE_OF_MESSAGE[partner])] = ROLE_PRIMARY
     role[kind == names.index(partner)] = ROLE_PARTNER
     gyro = np.ascontiguousarray(mg["gyro"], np.float64)
     use = np.array(mg["use"], np.bool_)

@@ -206,3 +206,23 @@ def test_scaled_imu_at_a_low_rate_is_used_once_it_has_made_enough_pairs(trajecto
     after = rel_s >= 12.5
     assert np.abs(gyro[after] - truth[after]).max() < 0.6e-3
     assert len(t) == len(trajectory.t_us)  # SCALED_IMU never fed: it served the step from its first sample
+
+
+def test_replay_of_a_px4_stream_with_scaled_imu_alone_starts_as_the_daemon_does(tmp_path: Path, sim_tlog_writer) -> None:
+    """firmware_sim's PX4 streaming SCALED_IMU at 50 Hz and no HIGHRES_IMU: the daemon's pipeline lets SCALED_IMU
+    serve the bias step alone for its first second (it waits for HIGHRES_IMU) and then feeds it; the compiled loop
+    over the log (``prepare_inputs``) must feed the same samples.  Before px4h7 it skipped the step when the log had
+    no HIGHRES_IMU and fed that first second too (6000 against the daemon's 5949 samples over 120 s: best's heading
+    1.23 against 1.17° on aggressive 1, the two scores of one flight disagreeing)."""
+    from mavahrs.evaluation.tlogdata import prepare_inputs, read_tlog_data, run_pipelines
+
+    path = sim_tlog_writer(tmp_path / "px4_scaled_only.tlog", "--autopilot", "px4", "--scenario", "hover", "--seed", "3",
+                           "--duration", "6", "--stream", "SCALED_IMU=50", "--stream", "HIGHRES_IMU=0")  # fmt: skip
+    td = read_tlog_data(path)
+    s = PipelineSettings()
+    arrays = prepare_inputs(td, s)
+    piped = run_pipelines(td, s, [("complementary", None)], start_s=None, end_s=None, decimal_year=None)[0]
+    # the stream's samples: 50 Hz for 6 s, the first second (51 stamps, both ends in) serving only the bias step
+    assert 240 <= piped.t_us.shape[0] <= 255, piped.t_us.shape
+    assert np.array_equal(arrays.t_us, piped.t_us)
+    assert np.array_equal(arrays.rows[:, IN_GYRO : IN_GYRO + 3], piped.rows[:, IN_GYRO : IN_GYRO + 3])
