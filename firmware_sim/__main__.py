@@ -243,13 +243,7 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         ImuErrorSettings.raw() if args.imu_preset == "raw" else ImuErrorSettings())
     if args.gyro_bias_dps is not None:
         imu = replace(imu, gyro_bias_rad_s=tuple(math.radians(v) for v in args.gyro_bias_dps))
-    px4 = args.autopilot == "px4"  # PX4's vehicle_imu: the interval mean of the sensor samples, no INS low-pass
-
-    def lowpass(given: float | None, default: float) -> float:
-        return given if given is not None else (0.0 if px4 else default)
-
-    imu = replace(imu, gyro_lowpass_hz=lowpass(args.gyro_lowpass_hz, ImuErrorSettings.gyro_lowpass_hz),
-                  accel_lowpass_hz=lowpass(args.accel_lowpass_hz, ImuErrorSettings.accel_lowpass_hz))
+    imu = replace(imu, gyro_lowpass_hz=ImuErrorSettings.gyro_lowpass_hz, accel_lowpass_hz=ImuErrorSettings.accel_lowpass_hz)
     mag = MagSettings.ideal() if args.no_sensor_errors else MagSettings()
     if args.noiseless:
         imu, mag = imu.noiseless(), mag.noiseless()
@@ -303,8 +297,11 @@ def settings_from_args(args: argparse.Namespace) -> tuple[SimSettings, EndpointS
         mag_anomaly=anomaly,
         mag_motor_ut_per_a=args.mag_motor_ut_per_a,
         current=CurrentSettings(hover_a=args.hover_current_a),
-        imu_sample="interval_mean" if px4 else "snapshot",
-    )
+    ).for_autopilot(args.autopilot)  # PX4's vehicle_imu: the interval mean of the sensor samples, no INS low-pass
+    lowpass = {k: v for k, v in (("gyro_lowpass_hz", args.gyro_lowpass_hz), ("accel_lowpass_hz", args.accel_lowpass_hz))
+               if v is not None}  # fmt: skip
+    if lowpass:  # given on the command line: for either autopilot
+        sim = replace(sim, imu=replace(sim.imu, **lowpass))
     preset = args.preset or ("bench" if args.fast else "default")
     link_bps = None
     if args.baud is not None or not (args.out.startswith(("udp", "tcp", "pty")) or args.fast):

@@ -76,10 +76,16 @@ def mixed_fleet(n: int, *, faults: int = 2, clean_s: float = 12.0, fault_s: floa
     return out
 
 
+def fleet_sim_settings(log: FleetLog) -> SimSettings:
+    """The simulator's settings for ``log``: compiled physics, and its autopilot's IMU front end
+    (:meth:`SimSettings.for_autopilot`: a PX4 sends vehicle_imu's interval mean, as on the command line)."""
+    return SimSettings(jit=True, scenario=log.scenario, seed=log.seed, loop_rate_hz=log.loop_rate_hz,
+                       imu_count=log.imus, attitude_fault=log.fault).for_autopilot(log.autopilot)  # fmt: skip
+
+
 def write_fleet_log(folder: str | Path, log: FleetLog) -> Path:
     """Simulate ``log`` into ``folder/log.name`` (compiled physics, as ``--fast``); returns the path."""
-    sim = SimSettings(jit=True, scenario=log.scenario, seed=log.seed, loop_rate_hz=log.loop_rate_hz,
-                      imu_count=log.imus, attitude_fault=log.fault)  # fmt: skip
+    sim = fleet_sim_settings(log)
     ep = EndpointSettings(autopilot=log.autopilot, system_id=log.sysid, preset="bench", block_ticks=2000)
     path = Path(folder) / log.name
     write_tlog(Endpoint(Simulation(sim), ep), path, log.duration_s)

@@ -239,6 +239,15 @@ class SimSettings:
     jit: bool = False
     imu_sample: str = "snapshot"
 
+    def for_autopilot(self, autopilot: str) -> SimSettings:
+        """These settings with ``autopilot``'s IMU front end (one place for the command line and the fleet):
+        ``"px4"``: vehicle_imu's interval mean (``imu_sample="interval_mean"``) without the INS low-pass
+        (``gyro_lowpass_hz`` / ``accel_lowpass_hz`` 0), which HIGHRES_IMU and SCALED_IMU send; any other: as given."""
+        if autopilot != "px4":
+            return self
+        imu = replace(self.imu, gyro_lowpass_hz=0.0, accel_lowpass_hz=0.0)
+        return replace(self, imu_sample="interval_mean", imu=imu)
+
     def __post_init__(self) -> None:
         if self.imu_sample not in ("snapshot", "interval_mean"):
             raise ValueError(f"SimSettings.imu_sample must be 'snapshot' or 'interval_mean', got {self.imu_sample!r}")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from firmware_sim.__main__ import build_parser, settings_from_args
+from firmware_sim.fleet import fleet_sim_settings, mixed_fleet
 from firmware_sim.imu_model import ImuErrorSettings
 from firmware_sim.simulation import SimSettings, Simulation
 
@@ -55,3 +56,16 @@ def test_the_interval_mean_trails_its_stamp_by_half_an_interval_whatever_the_blo
     assert 0.25 <= _best_lag_ms(t, gyro, true) <= 1.5
     snap = SimSettings(scenario="aggressive", seed=1, imu=ImuErrorSettings.ideal(lowpass=True))
     assert 8.0 <= _best_lag_ms(*_blocks(Simulation(snap), [1601])) <= 14.0  # ArduPilot's 20 Hz low-pass
+
+
+def test_the_simulated_fleet_s_px4_vehicles_send_what_the_px4_command_line_sends() -> None:
+    """The fleet's PX4 flights (every fifth) had ArduPilot's 20 Hz snapshot: 12 ms of gyro lag behind a profile of 0."""
+    fleet = mixed_fleet(10)
+    px4 = [fleet_sim_settings(log) for log in fleet if log.autopilot == "px4"]
+    ap = [fleet_sim_settings(log) for log in fleet if log.autopilot != "px4"]
+    assert px4 and ap
+    cli = _settings("--autopilot", "px4")
+    for s in px4:
+        assert (s.imu_sample, s.imu.gyro_lowpass_hz, s.imu.accel_lowpass_hz) == (
+            cli.imu_sample, cli.imu.gyro_lowpass_hz, cli.imu.accel_lowpass_hz)
+    assert all(s.imu_sample == "snapshot" and s.imu.gyro_lowpass_hz == 20.0 for s in ap)

@@ -132,7 +132,10 @@ def test_every_row_of_the_fleet(fleet, local_run) -> None:  # type: ignore[no-un
         assert r.compared_s == pytest.approx(spec.duration_s - mon.startup_grace_s, abs=0.1)
         assert 0.0 <= r.gyro_clip_fraction < 0.01 and 0.0 <= r.accel_clip_fraction < 0.01
         vib = max(r.vibration_x_m_s2, r.vibration_y_m_s2, r.vibration_z_m_s2)
-        assert (vib > 0.5) if spec.scenario == "vibration" else (0.0 < vib < 0.3), (name, vib)
+        # ArduPilot's RAW_IMU is low-passed at 20 Hz; PX4's HIGHRES_IMU is vehicle_imu's interval mean, which keeps
+        # most of the motors' vibration (firmware_sim: a clean flight 1.4, the vibration scenario 11 m/s² RMS)
+        low, high = (3.0, 5.0) if px4 else (0.3, 0.5)
+        assert (vib > high) if spec.scenario == "vibration" else (0.0 < vib < low), (name, vib)
         if spec.imus == 1 and not px4:
             assert "IMU instance 1 sends all-zero accelerometer and gyro (no such IMU): not used" in r.notes
         if spec.fault is None:  # clean: no alarm
