@@ -176,7 +176,7 @@ def test_the_daemons_path_against_firmware_sims_px4_pairs_scaled_imu_and_changes
     fs = pytest.importorskip("firmware_sim")
     from tests.service.test_pipeline import _fly_sim, _tilt_errors_deg
 
-    sim = fs.SimSettings(scenario="hover", seed=4)
+    sim = fs.SimSettings(scenario="hover", seed=4).for_autopilot("px4")  # vehicle_imu's interval mean, as PX4
     ep = fs.EndpointSettings(autopilot="px4", streams_hz=(("SIMSTATE", 50.0),))
     runs = {}
     for on in (True, False):
