@@ -234,11 +234,6 @@ def best_settings() -> MadgwickSettings:
     )
 
 
-#: ``EskfSettings.mag_episode_tau_s`` on the plain path: the compass error's correlation time inside a
-#: disturbance episode, s (0: off; docs/accuracy.md "BROAD magnet trials, round two")
-BEST_MAG_EPISODE_TAU_S = 0.0
-
-
 def best_eskf_settings() -> EskfSettings:
     """The ESKF ``best`` runs when nothing is known of the source (the Python API's default).
 
@@ -282,7 +277,6 @@ def best_eskf_settings() -> EskfSettings:
         gyro_scale_sigma=0.0,
         gyro_scale_tilt_sigma=0.0,
         gyro_scale_state_sigma=BEST_GYRO_SCALE_SIGMA,
-        mag_episode_tau_s=BEST_MAG_EPISODE_TAU_S,
     )
 
 
@@ -320,7 +314,6 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         heading_noise_rad=d.heading_noise_rad,
         mag_rate_hz=d.mag_rate_hz,
         mag_noise_tau_s=VEHICLE_MAG_NOISE_TAU_S,
-        mag_episode_tau_s=d.mag_episode_tau_s,
         heading_walk_tau_s=VEHICLE_HEADING_WALK_TAU_S,
         gate_sigma=d.gate_sigma,
         bias_limit_rad_s=d.bias_limit_rad_s,

@@ -259,9 +259,7 @@ _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' ex
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
 _HALF_STEP = _MAG_DELAY + 23  # 1: the output's advance is ``_DELAY`` less half the step (``output_half_step``)
-_MAG_EPI_TAU = _MAG_DELAY + 24  # s: the compass error's correlation time inside a disturbance episode (0: off)
-_MAG_EPI_CLEAR = _MAG_DELAY + 25  # s of clean compass readings that close a disturbance episode
-_N_PARAMS = _MAG_DELAY + 26
+_N_PARAMS = _MAG_DELAY + 24
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -341,10 +339,7 @@ _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m
 #: the previous block's mean (3), blocks completed (1), the running mean of ‖f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂‖²/18 (the Hadamard
 #: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
 _SLOW = _DNIS + 2
-#: clock time of the compass's last rejection by the detector (schedule or innovation gate; −1e9: none): a
-#: disturbance episode is open while less than ``mag_episode_clear_s`` has passed since (``mag_episode_tau_s``)
-_MEPI = _SLOW + 14
-_N_STATE = _MEPI + 1
+_N_STATE = _SLOW + 14
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -507,27 +502,6 @@ class EskfSettings(FilterSettings):
             these, rad (1° and 20°: a compass's heading is not trusted beyond
             what its unmodelled errors — the WMM's, the tilt's projection —
             allow, nor dropped entirely).
-        mag_episode_tau_s: correlation time of the compass's heading error
-            inside a disturbance episode, s (0 = off: every reading fused as
-            independent).  A magnet or steel near the sensor gives an error
-            that is correlated in time, not white at the compass's rate: at
-            100 Hz the readings of a 30 s pass carry about one reading's
-            information per τ, not 100 per second (BROAD trial 30: accepted
-            readings one-signed, mean −9.3°; docs/accuracy.md "BROAD magnet
-            trials").  An episode opens at the detector's first rejection
-            (the schedule's norm/dip tolerances, the dip taken with the
-            filter's attitude; or the heading innovation beyond
-            ``gate_sigma`` of its un-inflated variance) and closes after
-            ``mag_episode_clear_s`` of readings that pass it; inside it each
-            reading's heading variance is multiplied by (1 + ρ)/(1 − ρ),
-            ρ = exp(−Δt/τ), Δt the time since the last fused reading: the
-            first-order Gauss–Markov error's variance of the mean per reading
-            (Gelb, *Applied Optimal Estimation* 1974, §4.5 correlated
-            measurement noise; Bryson & Henrikson 1968), ≈ 2τ/Δt readings'
-            worth.  Only without the magnetometer model (the plain path): the
-            model judges the reading itself.
-        mag_episode_clear_s: seconds of readings passing the detector's own
-            test that close a disturbance episode (hysteresis; 1.5 s).
         rejection_reset_s: every gravity and heading measurement rejected
             by the gate for this long re-opens the attitude covariance (the
             estimate is what is wrong: a bad start, a state set by hand).
@@ -882,8 +856,6 @@ class EskfSettings(FilterSettings):
     mag_noise_tau_s: float = 0.0
     mag_noise_min_rad: float = math.radians(1.0)
     mag_noise_max_rad: float = math.radians(20.0)
-    mag_episode_tau_s: float = 0.0
-    mag_episode_clear_s: float = 1.5
     gyro_scale_state_sigma: float = 0.0
     gyro_scale_state_walk_1_s: float = 0.0
     accel_bias_sigma_m_s2: float = 0.0
@@ -920,7 +892,7 @@ class EskfSettings(FilterSettings):
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
-                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s", "mag_episode_tau_s", "mag_episode_clear_s",
+                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
@@ -1121,7 +1093,6 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     for i in range(3):
         s[k + _PREV_POS + i] = math.nan
     s[k + _LAST_MAG] = -1.0e9
-    s[k + _MEPI] = -1.0e9
     s[k + _GREJ] = -1.0
     s[k + _DREJ] = -1.0
     s[k + _BIG] = -1.0
@@ -2405,23 +2376,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         w_out = 1.0 if tr == MAG_TRUSTED else (0.0 if tr == MAG_DISTURBED else 0.5)
     else:
         w_out = w_m
-    epi_tau = params[p + _MAG_EPI_TAU] if not model_on else 0.0
-    if epi_tau > 0.0 and mag_ok and new_mag:
-        # the schedule's test of the reading (its norm and dip against the reference it learnt), the dip
-        # taken with the filter's attitude, not the accelerometer's (which moves with every acceleration:
-        # the schedule's own dip rejected 38–43 % of BROAD's clean moving readings); failed: a disturbance
-        # episode opens (or goes on)
-        m_n = math.sqrt(mx * mx + my * my + mz * mz)
-        ref_n = state[S_SCHED + _g.GS_MAG_NORM]
-        if m_n > 0.0 and ref_n > 0.0:
-            sd_m = (state[kc + 6] * mx + state[kc + 7] * my + state[kc + 8] * mz) / m_n
-            dip_m = math.asin(min(max(sd_m, -1.0), 1.0))
-            ntol = params[P_SCHED + _g.GP_MAG_NORM_TOL]
-            dtol = params[P_SCHED + _g.GP_MAG_DIP_TOL]
-            if (ntol > 0.0 and abs(m_n / ref_n - 1.0) > ntol) or (
-                dtol > 0.0 and abs(dip_m - state[S_SCHED + _g.GS_MAG_DIP]) > dtol
-            ):
-                state[k + _MEPI] = clk
     if use_mag and mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
         hn = state[kc + 0] * mx + state[kc + 1] * my + state[kc + 2] * mz
         he = state[kc + 3] * mx + state[kc + 4] * my + state[kc + 5] * mz
@@ -2497,18 +2451,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # heading trails by rate × age
             stale = params[p + _MAG_STALE] * rate_d
             r_m = (r_head + stale * stale) / (w_m * w_m) + r_model
-            if epi_tau > 0.0:
-                # a disturbance episode (``mag_episode_tau_s``): the detector's own test on the reading as
-                # it is (innovation within the gate of its un-inflated variance) keeps it open or lets it
-                # close after ``_MAG_EPI_CLEAR`` s clean; inside it the error is a Gauss–Markov process of
-                # correlation time τ, so the reading counts (1 − ρ)/(1 + ρ) of an independent one
-                # (ρ = e^(−Δt/τ), Δt since the last fused reading; Gelb 1974 §4.5)
-                y_e, s_e = _innovation(state, k, psi, r_m)
-                if y_e * y_e > gate * gate * s_e:
-                    state[k + _MEPI] = clk
-                if clk - state[k + _MEPI] < params[p + _MAG_EPI_CLEAR]:
-                    rho = math.exp(-min(since, 1.0e3) / epi_tau)
-                    r_m *= (1.0 + rho) / max(1.0 - rho, 1.0e-9)
             if params[p + _HWALK_TAU] > 0.0:
                 # the heading's process noise from the innovations against their predicted variance
                 y_h, s_h = _innovation(state, k, psi, r_m)
@@ -2749,8 +2691,6 @@ class Eskf(AttitudeFilter):
         p[_MAG_NOISE_TAU] = settings.mag_noise_tau_s
         p[_MAG_NOISE_MIN] = settings.mag_noise_min_rad**2
         p[_MAG_NOISE_MAX] = settings.mag_noise_max_rad**2
-        p[_MAG_EPI_TAU] = settings.mag_episode_tau_s
-        p[_MAG_EPI_CLEAR] = settings.mag_episode_clear_s
         p[_REJECT_RESET] = settings.rejection_reset_s
         p[_R_ZV] = settings.unaided_velocity_noise_m_s**2
         p[_ZV_PERIOD] = settings.unaided_velocity_period_s
