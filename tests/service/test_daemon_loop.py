@@ -157,9 +157,13 @@ def test_attitude_goes_to_outputs_and_heartbeats_to_both(gcs: socket.socket) -> 
             ap.imu(5)
             time.sleep(0.01)
         got = _drain(gcs, 5.0, attitudes=200)
-        time.sleep(0.9)  # a heartbeat (tick 20 of the fake pipeline) reaches both sides
-        got += _drain(gcs, 0.2)
-        to_ap = ap.received()
+        # until a heartbeat (tick 20 of the fake pipeline) has reached both sides, however loaded the machine
+        to_ap: list[Any] = []
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and not (
+                any(m.get_type() == "HEARTBEAT" for m in got) and any(m.get_type() == "HEARTBEAT" for m in to_ap)):
+            got += _drain(gcs, 0.1)
+            to_ap += ap.received()
     finally:
         d.stop()
         thread.join(5)
