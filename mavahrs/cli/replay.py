@@ -209,7 +209,7 @@ def _report(args: argparse.Namespace, rp: Any, result: Any, wrote: dict[str, int
     print(rp.format_velocity(inp))
     for note in result.notes:
         print(f"note: {note}")
-    print(rp.format_comparison(rp.compare(result, skip_s=args.skip), skip_s=args.skip))
+    print(rp.format_comparison(rp.compare(result, skip_s=args.skip), skip_s=args.skip, result=result))
     so = rp.format_second_opinion(result)  # what the daemon's monitor would have said
     if so:
         print(so)

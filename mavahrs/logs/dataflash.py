@@ -637,10 +637,11 @@ def read_dataflash(
     fed_hz = _rate_hz(t_us)
     if loop is not None and math.isfinite(loop) and loop > 0 and fed_hz < 0.95 * loop:
         notes.append(f"IMU logged at {fed_hz:.0f} Hz, below the loop rate (SCHED_LOOP_RATE {loop:g}): the log "
-                     "holds every IMU sample only with LOG_BITMASK's IMU_FAST bit)")  # fmt: skip
+                     "holds every IMU sample only with LOG_BITMASK's IMU_FAST bit")  # fmt: skip
+    known = [f"{k} {params[k]:g}{unit}" for k, unit in (("INS_GYRO_FILTER", " Hz"), ("SCHED_LOOP_RATE", ""))
+             if k in params]  # fmt: skip
     found.append(f"IMU: instances {rates}; fed: instance {chosen}, {_rate_hz(t_us):.0f} Hz "
-                 f"(INS_GYRO_FILTER {params.get('INS_GYRO_FILTER', float('nan')):g} Hz, "
-                 f"SCHED_LOOP_RATE {params.get('SCHED_LOOP_RATE', float('nan')):g})")  # fmt: skip
+                 f"({', '.join(known) or 'no INS_GYRO_FILTER or SCHED_LOOP_RATE in the log'})")  # fmt: skip
     rows = rows_all[np.flatnonzero(window)[idx]]  # gyro, accelerometer, flagged vectors blanked (si_rows)
     rows[:, IN_DT] = dt
     temp = sub["T"][idx].astype(np.float64) if "T" in sub else np.full(m, _NAN)

@@ -155,6 +155,26 @@ def _open(path: Path) -> tuple[Any, list[str]]:
     return ulog, complaints
 
 
+def _cut_record_bytes(path: Path) -> int:
+    """How many bytes of a last, incomplete record end the file (0: it ends on a record boundary).
+
+    Walks the 3-byte record headers (``msg_size``, ``msg_type``) from the end of the 16-byte
+    file header: pyulog stops silently at a record cut short (power lost while logging).
+    Only meaningful for a log pyulog found undamaged (a corrupted one is re-synchronised, not walked).
+    """
+    import mmap
+
+    with path.open("rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        n, pos, start = len(data), 16, 16
+        header = struct.Struct("<HB").unpack_from
+        while pos + 3 <= n:
+            start = pos
+            pos += 3 + header(data, pos)[0]
+        if pos == n:
+            return 0
+        return n - (start if pos > n else pos)
+
+
 def _all_topics(path: Path, listed: int = 40) -> str:
     """Every topic the log holds data for (a second, unfiltered read: only on the error path)."""
     from pyulog import ULog
@@ -339,6 +359,10 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
                      f"'{complaints[0]}'): read as far as possible")  # fmt: skip
     if getattr(ulog, "file_corruption", False) and not complaints:
         notes.append("the log has damaged records: read as far as possible")
+    truncated = False
+    if not getattr(ulog, "file_corruption", False) and not complaints and (cut := _cut_record_bytes(p)):
+        truncated = True
+        notes.append(f"truncated: the log ends inside a record ({cut} bytes of it); read up to the last whole record")
     if ulog.dropouts:
         lost = sum(int(d.duration) for d in ulog.dropouts)
         notes.append(f"{len(ulog.dropouts)} logger dropouts ({lost} ms of data not written by PX4)")
@@ -491,7 +515,7 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
             f"{k} from {topic}" for k, topic in (("armed", "vehicle_status"), ("landed", "vehicle_land_detected"))
             if k in series))  # fmt: skip
     return LogInputs(path=str(p), format="ulog", inputs=prep, references=references, found=found,
-                     parameters=params, series=series)  # fmt: skip
+                     parameters=params, series=series, truncated=truncated)  # fmt: skip
 
 
 _ARMING_STATE_ARMED = 2  # vehicle_status.arming_state (PX4's VehicleStatus.msg)

@@ -882,10 +882,29 @@ def compare(result: ReplayResult, skip_s: float = 0.0) -> list[ComparisonRow]:
     return rows
 
 
-def format_comparison(rows: Sequence[ComparisonRow], skip_s: float | None = None) -> str:
-    """The comparison table; ``skip_s`` (when given) says which samples it covers in its title."""
+# the attitudes each reader takes as references (LogInputs.references, read_tlog_data), by log format
+_REFERENCE_RECORDS = {
+    "tlog": "ATTITUDE, AHRS2, SIM_STATE, SIMSTATE or HIL_STATE_QUATERNION",
+    "dataflash": "XKQ, XKF1, ATT, AHR2 or SIM",
+    "ulog": "vehicle_attitude or vehicle_attitude_groundtruth",
+}
+
+
+def format_comparison(rows: Sequence[ComparisonRow], skip_s: float | None = None, *,
+                      result: ReplayResult | None = None) -> str:  # fmt: skip
+    """The comparison table; ``skip_s`` (when given) says which samples it covers in its title.
+
+    With no row, one line saying why: the log holds no attitude (named in the records of
+    ``result``'s log format), or it does but too few of its samples fall in the compared span.
+    """
     if not rows:
-        return "no attitude in the log to compare with (no ATTITUDE, AHRS2, SIM_STATE, SIMSTATE or HIL_STATE_QUATERNION)"
+        refs = list(result.references) if result is not None else []
+        if refs:
+            span = f" from {skip_s:g} s after the first replayed sample (--skip)" if skip_s else ""
+            return (f"no comparison: fewer than 2 samples of {', '.join(refs)} fall within the replayed "
+                    f"span{span} after the filters initialised")  # fmt: skip
+        kinds = _REFERENCE_RECORDS.get(result.format if result is not None else "tlog", _REFERENCE_RECORDS["tlog"])
+        return f"no attitude in the log to compare with (no {kinds})"
     head = (f"{'filter':<14}{'vs':<22}{'samples':>8}{'total':>8}{'head':>8}{'incl':>8}"
             f"{'roll':>8}{'pitch':>8}{'yaw':>8}")  # fmt: skip
     if skip_s is None:

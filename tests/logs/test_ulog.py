@@ -304,6 +304,13 @@ def test_empty_and_text_files(tmp_path: Path) -> None:
         read_ulog(tmp_path / "absent.ulg")
 
 
+def _cuts(tmp_path: Path, data: bytes, at: int, n: int) -> list[Path]:
+    paths = [tmp_path / f"at{at + k}.ulg" for k in range(n)]
+    for k, p in enumerate(paths):
+        p.write_bytes(data[: at + k])
+    return paths
+
+
 def test_truncated_logs(good_log: Path, tmp_path: Path) -> None:
     data = good_log.read_bytes()
     # cut in the data section (power lost in flight): read as far as the log goes
@@ -313,6 +320,15 @@ def test_truncated_logs(good_log: Path, tmp_path: Path) -> None:
     full = read_ulog(good_log)
     assert 0.3 * full.inputs.n < li.inputs.n < 0.7 * full.inputs.n
     assert np.array_equal(li.inputs.t_us, full.inputs.t_us[: li.inputs.n])
+    # and says so, as the DataFlash reader does (pyulog stops silently at a record cut short)
+    assert not full.truncated and not any("truncated" in n for n in full.inputs.notes)
+    cut_short = tmp_path / "cut_short.ulg"  # the whole log, then 7 bytes of a 16-byte data record
+    cut_short.write_bytes(data + struct.pack("<HB", 16, ord("D")) + bytes(4))
+    li = read_ulog(cut_short)
+    assert li.truncated and li.inputs.n == full.inputs.n
+    assert "truncated: the log ends inside a record (7 bytes of it)" in " ".join(li.inputs.notes)
+    cuts = [read_ulog(half).truncated for half in _cuts(tmp_path, data, len(data) // 2, 3)]
+    assert sum(cuts) >= 2  # records are longer than 3 bytes: at most one of 3 successive cuts is between two
     # cut inside the definitions: no data at all
     head = tmp_path / "head.ulg"
     head.write_bytes(data[:200])
@@ -479,3 +495,24 @@ def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_data: P
     assert ref == "EKF2" and judged == "best"
     warned = [f"{e.t_ms / 1000.0:.3f}" for e in series.events if e.in_flight]
     assert row.alarm_times_s == ";".join(warned) and row.alarms == len(warned)
+
+
+def test_replay_without_a_comparison_says_why_in_the_log_s_own_terms(tmp_path: Path) -> None:
+    """A ULog without an attitude names the ULog topics (not a tlog's messages); a --skip past the
+    log's end says the references are there but none falls within the span (not "no attitude")."""
+    from mavahrs.replay import ReplaySettings, compare, format_comparison, replay
+
+    topics = _turning(6.0)
+    bare = tmp_path / "bare.ulg"
+    write_ulog(bare, {"sensor_combined": topics["sensor_combined"]})
+    res = replay(bare, ReplaySettings(filters=("mahony",)))
+    assert not res.references
+    text = format_comparison(compare(res), result=res)
+    assert text == "no attitude in the log to compare with (no vehicle_attitude or vehicle_attitude_groundtruth)"
+    full = tmp_path / "full.ulg"
+    write_ulog(full, topics)
+    res = replay(full, ReplaySettings(filters=("mahony",)))
+    assert "groundtruth truth" in format_comparison(compare(res, skip_s=1.0), skip_s=1.0, result=res)
+    text = format_comparison(compare(res, skip_s=60.0), skip_s=60.0, result=res)
+    assert text.startswith("no comparison: fewer than 2 samples of groundtruth truth fall within the replayed span "
+                           "from 60 s after the first replayed sample (--skip)")  # fmt: skip
