@@ -110,8 +110,8 @@ def _run(args: argparse.Namespace) -> int:
     logs = selection.logs
     if selection.skipped:  # a glob over a folder with tables, plots, notes: not failures of the fleet
         n = len(selection.skipped)
-        print(f"audit: skipped {n} file{'s' if n != 1 else ''} that {'are' if n != 1 else 'is'} not flight "
-              f"log{'s' if n != 1 else ''} (.tlog, .BIN, .ulg by name or content): "
+        what = f"{n} files that are not flight logs" if n != 1 else "1 file that is not a flight log"
+        print(f"audit: skipped {what} (.tlog, .BIN, .ulg by name or content): "
               f"{fa.skipped_text(selection.skipped)}", file=sys.stderr)  # fmt: skip
     from pathlib import Path
 

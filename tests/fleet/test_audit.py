@@ -350,6 +350,11 @@ def test_files_that_are_not_logs_are_skipped_with_one_line(fleet, tmp_path: Path
     assert "audited 3 logs (3 replayed" in res.stdout
     for name in ("fleet.csv", "notes.txt", "fleet.png"):
         assert name not in res.stdout
+    # one such file: said in the singular ("skipped 1 file that is not flight log" until user8)
+    res = _audit(str(flights / "a.tlog"), str(flights / "notes.txt"), "--serial", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    assert ("audit: skipped 1 file that is not a flight log (.tlog, .BIN, .ulg by name or content): "
+            "notes.txt") in res.stderr  # fmt: skip
     # nothing but files that are not logs: a usage-level error, not an empty table
     res = _audit(str(flights / "notes.txt"), str(flights / "fleet.csv"), "--serial")
     assert res.returncode != 0 and "no flight log among the 2 files given (fleet.csv, notes.txt)" in res.stderr
