@@ -40,7 +40,7 @@ import re
 import sys
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -85,9 +85,25 @@ def load_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
     except OSError as exc:
         raise ConfigError(f"cannot read config file {p}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config file {p} is not valid TOML: {exc}") from None
+        raise ConfigError(f"config file {p} is not valid TOML: {exc}{_none_hint(p, exc)}") from None
     except UnicodeDecodeError as exc:  # binary garbage: tomllib decodes UTF-8 before parsing
         raise ConfigError(f"config file {p} is not a text file (byte {exc.start} is not UTF-8)") from None
+
+
+def _none_hint(path: str, exc: Exception) -> str:
+    """The fix when the bad line is an example file's ``key = (none)`` uncommented as it stands."""
+    line = getattr(exc, "lineno", None)
+    if line is None:  # Python < 3.14: only in the message, "(at line N, column M)"
+        m = re.search(r"at line (\d+)", str(exc))
+        line = int(m.group(1)) if m else None
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read().splitlines()[line - 1] if line else ""
+    except (OSError, UnicodeDecodeError, IndexError):
+        return ""
+    if re.search(r"=\s*\(none\)", text):
+        return ' ("(none)" marks an unset setting in the example file: write "none" to leave it unset, or a value)'
+    return ""
 
 
 def parse_override(text: str) -> tuple[list[str], Any]:
@@ -427,18 +443,20 @@ def _merge(into: dict[str, Any], more: Mapping[str, Any]) -> None:
 
 
 def load_run_config(
-    path: str | os.PathLike[str] | None = None,
+    path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | None = None,
     overrides: Mapping[str, Any] | None = None,
     *,
     daemon_type: type | None = None,
     pipeline_type: type | None = None,
 ) -> RunConfig:
-    """Build the :class:`RunConfig` from an optional TOML file and dotted overrides.
+    """Build the :class:`RunConfig` from optional TOML files and dotted overrides.
 
     Args:
-        path: TOML file (``--config``), or None for defaults.
+        path: TOML file (``--config``), a sequence of them (``--config A --config B``: layered in
+            order, a later file's settings over an earlier one's, table by table and key by key),
+            or None for defaults.
         overrides: ``{"pipeline.out_rate_hz": 100, "daemon.outputs": [...], "filter.KEY": v}``
-            from command-line flags; they win over the file.
+            from command-line flags; they win over the files.
 
     Raises:
         ConfigError: unreadable file, unknown keys, bad values (file or flag named).
@@ -447,16 +465,20 @@ def load_run_config(
         from mavahrs.service.daemon import DaemonSettings as daemon_type
     if pipeline_type is None:
         from mavahrs.service.pipeline import PipelineSettings as pipeline_type
-    data: dict[str, Any] = {}
-    sources: tuple[str, ...] = ()
-    file_source = "configuration"
-    if path is not None:
-        data = load_toml(path)
-        file_source = f"config file {os.fspath(path)}"
-        sources = (os.fspath(path),)
-    for key in data:
-        if key not in ("daemon", "pipeline", "filter"):
-            raise ConfigError(f"{file_source}: unknown table [{key}] (tables: [daemon], [pipeline], [filter.<name>])")
+    if path is None:
+        paths: list[str] = []
+    elif isinstance(path, (str, os.PathLike)):
+        paths = [os.fspath(path)]
+    else:
+        paths = [os.fspath(x) for x in path]
+    files: list[tuple[str, dict[str, Any]]] = []  # (source, data) in order
+    for p in paths:
+        data = load_toml(p)
+        file_source = f"config file {p}"
+        for key in data:
+            if key not in ("daemon", "pipeline", "filter"):
+                raise ConfigError(f"{file_source}: unknown table [{key}] (tables: [daemon], [pipeline], [filter.<name>])")
+        files.append((file_source, data))
     cli: dict[str, Any] = {}
     for dotted, value in (overrides or {}).items():
         parts = dotted.split(".")
@@ -464,34 +486,33 @@ def load_run_config(
             raise ConfigError(f"command line: unknown setting {dotted!r} (use daemon.KEY, pipeline.KEY or filter.KEY)")
         _merge(cli, _nest(parts, value))
 
-    daemon = from_mapping(daemon_type, _table(data, "daemon", file_source), where="daemon", source=file_source)
-    daemon = from_mapping(daemon_type, cli.get("daemon", {}), base=daemon, where="daemon", source="command line")
-    pipeline = from_mapping(pipeline_type, _table(data, "pipeline", file_source), where="pipeline", source=file_source)
-    pipeline = from_mapping(
-        pipeline_type, cli.get("pipeline", {}), base=pipeline, where="pipeline", source="command line"
-    )
+    layers = [*files, ("command line", cli)]
+    daemon = pipeline = None
+    for source, data in layers:
+        table = cli.get("daemon", {}) if data is cli else _table(data, "daemon", source)
+        daemon = from_mapping(daemon_type, table, base=daemon, where="daemon", source=source)
+    for source, data in layers:
+        table = cli.get("pipeline", {}) if data is cli else _table(data, "pipeline", source)
+        pipeline = from_mapping(pipeline_type, table, base=pipeline, where="pipeline", source=source)
     name = getattr(pipeline, "filter_name", "best")
-    file_filters = _split_filter_tables(data.get("filter", {}), file_source)
+    file_filters = [(source, _split_filter_tables(data.get("filter", {}), source)) for source, data in files]
     cli_filter = dict(cli.get("filter", {}))
     names = _filter_names()
     cli_filters = {k: cli_filter.pop(k) for k in list(cli_filter) if k in names and isinstance(cli_filter[k], Mapping)}
     if cli_filter:  # filter.KEY: the filter in use
         _merge(cli_filters.setdefault(name, {}), cli_filter)
+    filter_layers = [*file_filters, ("command line", cli_filters)]
     filt = None
-    for fname in sorted(set(file_filters) | set(cli_filters) | {name}):
-        if fname not in file_filters and fname not in cli_filters:
+    for fname in sorted({f for _, tables in filter_layers for f in tables} | {name}):
+        if not any(fname in tables for _, tables in filter_layers):
             continue
         ftype = filter_settings_type(fname)
         settings = default_filter_settings(fname)
-        settings = from_mapping(
-            ftype, file_filters.get(fname, {}), base=settings, where=f"filter.{fname}", source=file_source
-        )
-        settings = from_mapping(
-            ftype, cli_filters.get(fname, {}), base=settings, where=f"filter.{fname}", source="command line"
-        )
+        for source, tables in filter_layers:
+            settings = from_mapping(ftype, tables.get(fname, {}), base=settings, where=f"filter.{fname}", source=source)
         if fname == name:
             filt = settings
-    return RunConfig(daemon=daemon, pipeline=pipeline, filter=filt, sources=sources)
+    return RunConfig(daemon=daemon, pipeline=pipeline, filter=filt, sources=tuple(paths))
 
 
 def _table(data: Mapping[str, Any], key: str, source: str) -> Mapping[str, Any]:

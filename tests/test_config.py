@@ -217,6 +217,28 @@ def test_config_file_errors_name_file_and_key(tmp_path: Path, text: str, needle:
     assert str(path) in msg and needle in msg, msg
 
 
+def test_the_example_file_s_none_uncommented_as_it_stands_says_what_to_write(tmp_path: Path) -> None:
+    """contrib/mavahrs.example.toml shows unset settings as ``#key = (none)``: uncommented as they stand,
+    the TOML error says what "(none)" means and what to write; "none" then loads as documented."""
+    from mavahrs.config import example_toml
+
+    lines = example_toml().splitlines()
+    k = lines.index("#duration_s = (none)")
+    path = tmp_path / "mine.toml"
+    path.write_text("\n".join(lines[:k] + ["duration_s = (none)"] + lines[k + 1 :]) + "\n")
+    with pytest.raises(ConfigError) as info:
+        load_run_config(path)
+    msg = str(info.value)
+    assert f"at line {k + 1}" in msg and 'write "none" to leave it unset' in msg, msg
+    path.write_text("\n".join(lines[:k] + ['duration_s = "none"', "status_interval_s = 2"] + lines[k + 1 :]) + "\n")
+    cfg = load_run_config(path)
+    assert cfg.daemon.duration_s is None and cfg.daemon.status_interval_s == 2.0
+    path.write_text("[daemon]\nstatus_interval_s = (2)\n")  # any other bad value: no such hint
+    with pytest.raises(ConfigError) as info:
+        load_run_config(path)
+    assert "is not valid TOML" in str(info.value) and "(none)" not in str(info.value)
+
+
 def test_command_line_errors_say_command_line(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="^command line: unknown setting 'daemon.nope'"):
         load_run_config(None, {"daemon.nope": 1})

@@ -91,7 +91,9 @@ def add_pipeline_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default=None, choices=("auto", "ardupilot", "px4", "generic"),
                    help="scaling profile (default: from the autopilot's HEARTBEAT)")
     add_source_option(p)
-    p.add_argument("--config", metavar="TOML", help="daemon settings file (pipeline, monitor and filter settings)")
+    p.add_argument("--config", metavar="TOML", action="append",
+                   help="daemon settings file (pipeline, monitor and filter settings); repeatable, layered in "
+                   "order as `mavahrs run --config` does")  # fmt: skip
 
 
 def settings_from_args(args: argparse.Namespace) -> Any:

@@ -163,7 +163,11 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
         "process list: prefer daemon.http_token in --config (default: none)",
     )
     ops = p.add_argument_group("operation")
-    ops.add_argument("--config", metavar="FILE", help="TOML settings file (see contrib/mavahrs.example.toml)")
+    ops.add_argument(
+        "--config", metavar="FILE", action="append",
+        help="TOML settings file (see contrib/mavahrs.example.toml); repeatable: a later file's settings "
+        "over an earlier one's (e.g. --config /etc/mavahrs.toml --config gains.toml from `mavahrs tune`)",
+    )
     ops.add_argument(
         "--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
         help="any setting, e.g. pipeline.out_rate_hz=100, daemon.input_queue=512, filter.max_gap_s=0.5 "

@@ -310,3 +310,32 @@ def test_velocity_source_flag_and_toml(tmp_path: Path, capsys: pytest.CaptureFix
     assert data["pipeline"]["velocity_source"] == "gps2_raw" and data["pipeline"]["monitor"]["receiver_velocity_only"]
     assert main(["run", "--config", str(cfg), "--velocity-source", "none", "--print-config"]) == EXIT_OK
     assert tomllib.loads(capsys.readouterr().out)["pipeline"]["velocity_source"] == "none"  # the flag wins
+
+
+def test_two_config_files_are_layered_in_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--config mine.toml --config gains.toml`` (a `mavahrs tune` file beside one's own): every setting of
+    both, the later file's over the earlier's key by key, flags over both. Until user8 the second --config
+    silently replaced the first: the daemon listened on the default port and logged nothing."""
+    mine = tmp_path / "mine.toml"
+    mine.write_text('[daemon]\nmaster = "udpin:127.0.0.1:14560"\nlog_path = "flight.tlog"\n'
+                    '[pipeline]\nfilter_name = "madgwick"\nout_rate_hz = 20.0\n'
+                    "[filter.madgwick]\nmax_gap_s = 0.4\n[pipeline.calibration]\naxis_remap = \"+x+y+z\"\n")  # fmt: skip
+    gains = tmp_path / "gains.toml"
+    gains.write_text("[pipeline]\nout_rate_hz = 25.0\n[pipeline.calibration.gyro_temperature]\n"
+                     "b0_rad_s = [0.001, 0.002, 0.003]\nk_rad_s_per_c = [0.0, 0.0, 0.0]\nt0_c = 30.0\n"
+                     "[filter.madgwick]\nbeta_rad_s = 0.05\n")  # fmt: skip
+    assert main(["run", "--config", str(mine), "--config", str(gains), "--out-rate", "30", "--print-config"]) == EXIT_OK
+    out = capsys.readouterr().out
+    assert out.startswith(f"# mavahrs effective configuration (from {mine}, {gains})")
+    data = tomllib.loads(out)
+    assert data["daemon"]["master"] == "udpin:127.0.0.1:14560" and data["daemon"]["log_path"] == "flight.tlog"
+    assert data["pipeline"]["filter_name"] == "madgwick" and data["pipeline"]["out_rate_hz"] == 30.0  # the flag
+    assert data["pipeline"]["calibration"]["gyro_temperature"]["t0_c"] == 30.0
+    assert data["filter"]["madgwick"]["max_gap_s"] == 0.4 and data["filter"]["madgwick"]["beta_rad_s"] == 0.05
+    assert main(["run", "--config", str(mine), "--config", str(gains), "--print-config"]) == EXIT_OK
+    assert tomllib.loads(capsys.readouterr().out)["pipeline"]["out_rate_hz"] == 25.0  # the later file
+    # an error names the file it is in
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[pipeline]\nout_rate = 3\n")
+    assert main(["run", "--config", str(mine), "--config", str(bad), "--print-config"]) == EXIT_USAGE
+    assert f"config file {bad}: unknown setting 'pipeline.out_rate'" in capsys.readouterr().err
