@@ -81,9 +81,16 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    import logging
+    from mavahrs.cli.common import report_errors
 
-    from mavahrs.errors import ConfigError
+    return report_errors("inject-fault", _run, args)  # one line naming the command, as replay's and audit's
+
+
+def _run(args: argparse.Namespace) -> int:
+    import logging
+    from pathlib import Path
+
+    from mavahrs.errors import ConfigError, DataError
     from mavahrs.evaluation.faults import AttitudeFault, FaultShape, ImuFault, inject_faults
 
     try:
@@ -100,13 +107,31 @@ def run(args: argparse.Namespace) -> int:
     if not faults:
         raise ConfigError("no fault given: --roll/--pitch/--yaw/--tilt/--heading for the attitude, "
                           "--imu with --gyro-bias/--accel-bias")
+    src, dst = Path(args.input), Path(args.output)
+    if src.is_dir():
+        raise DataError(f"{src} is a directory: inject-fault copies one telemetry log (.tlog)")
+    if not src.is_file():
+        raise DataError(f"{src}: no such file")
+    if not dst.parent.is_dir():  # before the whole log is read (the copy goes to a temporary file beside it)
+        raise DataError(f"cannot write {dst}: no such folder {dst.parent}")
     try:
-        report = inject_faults(args.input, args.output, faults, system_id=args.system, component_id=args.component)
+        report = inject_faults(src, dst, faults, system_id=args.system, component_id=args.component)
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
+    except OSError as exc:  # the copy is written to a hidden temporary file beside the output: name the output
+        if exc.filename and Path(exc.filename).name.startswith(f".{dst.name}."):
+            raise DataError(f"cannot write {dst}: {exc.strerror or exc}") from exc
+        raise
     print(f"{args.output}: {report.text()}", file=sys.stdout)
     if not report.modified:
-        logging.getLogger("mavahrs").warning("no message was rewritten: is --at within the log's boot times?")
+        import math
+
+        span = (f"the messages to rewrite span {report.seen_first_s:.3f}–{report.seen_last_s:.3f} s boot time"
+                if math.isfinite(report.seen_first_s) else
+                f"the log has none of them from system {report.source[0]} component {report.source[1]} "
+                "(--system, --component)")  # fmt: skip
+        logging.getLogger("mavahrs").warning("no message was rewritten: is --at within the log's boot times? %s",
+                                             span)  # fmt: skip
     elif report.first_s > args.at + 1.0:  # --at read as seconds into the log, or a log that starts later
         logging.getLogger("mavahrs").warning(
             "--at %g s is before the first message rewritten, at %.3f s boot time: the fault starts there (--at "

@@ -155,6 +155,8 @@ class InjectionReport:
         records: tlog records copied.
         modified: messages rewritten, by type.
         first_s, last_s: boot times of the first and last rewritten message, s (NaN: none).
+        seen_first_s, seen_last_s: boot times of the first and last message that could have been
+            rewritten (the fault's messages from its source), s (NaN: none in the log).
         unsigned: signed frames written without their signature (rewritten ones only).
         clipped: IMU fields that hit their integer range.
         source: the (system, component) whose messages were rewritten.
@@ -164,6 +166,8 @@ class InjectionReport:
     modified: dict[str, int] = field(default_factory=dict)
     first_s: float = math.nan
     last_s: float = math.nan
+    seen_first_s: float = math.nan
+    seen_last_s: float = math.nan
     unsigned: int = 0
     clipped: int = 0
     source: tuple[int, int] = (0, 0)
@@ -358,6 +362,8 @@ def inject_faults(
             continue
         name = ids[int(scan.msgid[j])]
         t_s = _boot_s(msg)
+        report.seen_first_s = min(report.seen_first_s, t_s) if math.isfinite(report.seen_first_s) else t_s
+        report.seen_last_s = max(report.seen_last_s, t_s) if math.isfinite(report.seen_last_s) else t_s
         hit = _apply_attitude(msg, att, t_s) if name.startswith("ATTITUDE") else _apply_imu(msg, imu, t_s, report)
         if not hit:
             continue

@@ -144,6 +144,31 @@ def test_usage_errors(original, tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert not list(tmp_path.glob(".*tmp"))
 
 
+def test_wrong_paths_and_a_fault_after_the_log_say_so(original, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Each wrong input is one line naming the command and the path given (until user8: "/tmp/x: Is a
+    directory", and a missing output folder named the hidden temporary file, after reading the whole log);
+    --at after the log's last message says where its messages are."""
+    from mavahrs.cli import main
+
+    src = original[0]
+    capsys.readouterr()
+    assert main(["inject-fault", str(tmp_path), str(tmp_path / "x.tlog"), "--at", "100", "--roll", "2"]) == 1
+    assert f"ERROR inject-fault: {tmp_path} is a directory: inject-fault copies one telemetry log" in capsys.readouterr().err
+    assert main(["inject-fault", str(tmp_path / "absent.tlog"), str(tmp_path / "x.tlog"), "--at", "1", "--roll", "2"]) == 1
+    assert f"ERROR inject-fault: {tmp_path / 'absent.tlog'}: no such file" in capsys.readouterr().err
+    out = tmp_path / "no_folder" / "x.tlog"
+    assert main(["inject-fault", str(src), str(out), "--at", "100", "--roll", "2"]) == 1
+    err = capsys.readouterr().err
+    assert f"ERROR inject-fault: cannot write {out}: no such folder {out.parent}" in err and ".tmp" not in err
+    assert main(["inject-fault", str(src), str(tmp_path / "after.tlog"), "--at", "5000", "--roll", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "no message was rewritten" in err and "the messages to rewrite span 72.641–" in err, err
+    assert main(["inject-fault", str(src), str(tmp_path / "other.tlog"), "--at", "100", "--roll", "2",
+                 "--system", "77"]) == 0  # fmt: skip
+    assert "the log has none of them from system 77 component 1" in capsys.readouterr().err
+
+
 def test_the_cli_offers_every_imu_message_the_injector_knows() -> None:
     from mavahrs.cli.inject_fault import _IMU_MESSAGES
     from mavahrs.evaluation.faults import IMU_FAULT_MESSAGES
