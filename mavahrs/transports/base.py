@@ -111,6 +111,8 @@ def describe_os_error(exc: BaseException) -> str:
         errno.ENETUNREACH: "network unreachable",
         errno.ETIMEDOUT: "timed out",
         errno.EIO: "input/output error (device unplugged?)",
+        errno.EISDIR: "it is a directory, not a serial device",
+        errno.ENOTTY: "not a serial device (a serial port is a terminal device such as /dev/ttyACM0 or /dev/serial0)",
     }
     if code in hints:
         return hints[code]

@@ -48,6 +48,8 @@ def _errno_of(exc: BaseException) -> int | None:
             code = errno.ENOENT
         elif "exclusively lock" in text or "Resource temporarily unavailable" in text:
             code = errno.EAGAIN
+        elif "Inappropriate ioctl" in text:  # "Could not configure port: (25, …)": a file that is not a tty
+            code = errno.ENOTTY
     return code
 
 

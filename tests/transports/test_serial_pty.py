@@ -147,6 +147,22 @@ def test_missing_device_says_so(tmp_path: Path) -> None:
     assert "no such device" in str(info.value)
 
 
+@pytest.mark.parametrize("kind", ["directory", "regular file", "/dev/null"])
+def test_a_path_that_is_no_serial_device_says_what_it_is(tmp_path: Path, kind: str) -> None:
+    """`--master` naming a folder or a plain file: one plain line (until user8 pyserial's "[Errno 21] could
+    not open port …: [Errno 21] Is a directory: '…'" and "Could not configure port: (25, 'Inappropriate ioctl
+    for device')")."""
+    path = {"directory": tmp_path, "regular file": tmp_path / "notes.txt", "/dev/null": Path("/dev/null")}[kind]
+    if kind == "regular file":
+        path.write_text("not a port")
+    with pytest.raises(TransportError) as info:
+        open_transport(str(path))
+    msg = str(info.value)
+    want = "it is a directory, not a serial device" if kind == "directory" else "not a serial device (a serial port"
+    assert msg.startswith(f"cannot open serial port {path}: {want}"), msg
+    assert "Errno" not in msg and "ioctl" not in msg and "\n" not in msg
+
+
 def test_permission_denied_names_the_dialout_group(device: FakeDevice) -> None:
     """As an unprivileged user (a forked child drops root), a 0600 root-owned tty is refused."""
     import serial  # noqa: F401 - imported before the fork so that the child needs no file access
