@@ -120,13 +120,16 @@ def _plot_replay_csv(path: Any, output: str, start_s: float | None = None, end_s
     col = {c: i for i, c in enumerate(cols)}
     names = [c[: -len("_qw")] for c in cols if c.endswith("_qw")]
     est = {}
+    missing = [f"{n}_{q}" for n in names for q in ("qw", "qx", "qy", "qz") if f"{n}_{q}" not in col]
+    if missing or "time_s" not in col:  # a replay CSV cut down by hand: say which, not "internal error: KeyError"
+        raise DataError(f"{path}: a replay CSV without its column(s) {', '.join(missing or ['time_s'])}")
     for n in names:
         out = np.full((data.shape[0], OUT_WIDTH), np.nan)
         for k, q in enumerate(("qw", "qx", "qy", "qz")):
             out[:, OUT_Q + k] = data[:, col[f"{n}_{q}"]]
-        out[:, OUT_GAIN] = data[:, col[f"{n}_gain"]]
-        out[:, OUT_ACCEL_WEIGHT] = data[:, col[f"{n}_accel_weight"]]
-        out[:, OUT_MAG_WEIGHT] = data[:, col[f"{n}_mag_weight"]]
+        for j, c in ((OUT_GAIN, "gain"), (OUT_ACCEL_WEIGHT, "accel_weight"), (OUT_MAG_WEIGHT, "mag_weight")):
+            if f"{n}_{c}" in col:  # optional: the trust panel is left empty without them
+                out[:, j] = data[:, col[f"{n}_{c}"]]
         est[n] = out
     t = data[:, col["time_s"]]
     step = np.diff(t)

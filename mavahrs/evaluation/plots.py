@@ -61,7 +61,11 @@ def _pyplot() -> Any:
 
 
 def _save(fig: Any, path: str | Path) -> Path:
+    """Write ``fig`` to ``path`` and return the file written: a name without a suffix gets ``.png``, as
+    matplotlib's own default format (said, so that ``wrote OUT`` names the file that exists)."""
     path = Path(path)
+    if not path.suffix:
+        path = path.with_name(path.name + ".png")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)

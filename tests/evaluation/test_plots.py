@@ -249,3 +249,39 @@ def test_audit_plot_draws_the_thresholds_of_its_config(sitl_gentle_tlog: Path, t
                  "--config", str(config)]) == 0  # fmt: skip
     (overview,) = [fig for fig in saved if fig.axes and fig.axes[0].get_title().startswith("mavahrs vs")]
     assert _threshold_lines(overview.axes[0]) == ([4.0], [12.0])
+
+
+def test_a_plot_name_without_a_suffix_is_written_as_png_and_said_so(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``-o flight`` (no suffix): matplotlib writes flight.png; the plot function returns, and the command
+    says, that file (until user8 "wrote flight" named a file that does not exist)."""
+    pytest.importorskip("matplotlib")
+    from mavahrs.cli import main
+    from mavahrs.evaluation.plots import plot_attitude
+
+    n = 300
+    written = plot_attitude(tmp_path / "api", np.arange(n) / 250.0, {"best": _rows(n, 1)})
+    assert written == tmp_path / "api.png" and written.is_file() and not (tmp_path / "api").exists()
+    csv = tmp_path / "r.csv"  # a replay CSV, drawn as it is
+    cols = ("qw,qx,qy,qz,roll_deg,pitch_deg,yaw_deg,gain,accel_weight,mag_weight,accel_rejected,mag_rejected,"
+            "bias_x_deg_s,bias_y_deg_s,bias_z_deg_s,flags,sent").split(",")  # as `mavahrs replay --csv` writes
+    rows = ["time_s," + ",".join(f"best_{c}" for c in cols)]
+    rows += [f"{10 + k * 0.004:.6f},{np.cos(k * 1e-3):.7f},{np.sin(k * 1e-3):.7f},0,0,{np.degrees(2e-3 * k):.3f},0,0,"
+             "0.01,1,1,0,0,0,0,0,0,1" for k in range(n)]  # fmt: skip
+    csv.write_text("\n".join(rows) + "\n")
+    capsys.readouterr()
+    assert main(["plot", str(csv), "-o", str(tmp_path / "flight")]) == 0
+    assert f"wrote {tmp_path / 'flight.png'}" in capsys.readouterr().err
+    assert (tmp_path / "flight.png").is_file() and not (tmp_path / "flight").exists()
+    # the same CSV cut down by hand: without the gain and trust columns it is drawn; without a quaternion
+    # column one line names it (until user8 "internal error: KeyError: 'best_gain'")
+    header = rows[0].split(",")
+    for name, keep in (("short", [c for c in header if not c.endswith(("_gain", "_weight"))]),
+                       ("broken", [c for c in header if c != "best_qz"])):  # fmt: skip
+        idx = [header.index(c) for c in keep]
+        (tmp_path / f"{name}.csv").write_text("\n".join(",".join(r.split(",")[i] for i in idx) for r in rows) + "\n")
+    assert main(["plot", str(tmp_path / "short.csv"), "-o", str(tmp_path / "short.png")]) == 0
+    assert (tmp_path / "short.png").is_file()
+    capsys.readouterr()
+    assert main(["plot", str(tmp_path / "broken.csv"), "-o", str(tmp_path / "broken.png")]) == 1
+    assert f"plot: {tmp_path / 'broken.csv'}: a replay CSV without its column(s) best_qz" in capsys.readouterr().err
