@@ -125,7 +125,7 @@ def _run(args: argparse.Namespace) -> int:
         with_ref = [r for r in recordings if r.extra.get("has_reference", True)] or recordings
         _plot_first(args, _one_of(with_ref, "--plot draws"), filters)
     if not any(r.scores for r in report.recordings):
-        return _error("nothing was scored (no reference attitude in the input; see the notes above)", 1)
+        return _error("nothing was scored (no usable reference attitude in the input; see the notes above)", 1)
     return 0
 
 

@@ -332,7 +332,8 @@ def evaluate_recording(
     has_ref = bool(np.all(np.isfinite(rec.q_ref_body_to_ned), axis=1).any())
     if not has_ref:
         report.notes += [str(n) for n in rec.extra.get("notes", ())]  # type: ignore[attr-defined]  # (why: the loader's)
-        report.notes.append("no reference attitude in this recording: nothing to score")
+        if not any("nothing is scored" in n for n in report.notes):  # the loader said why already
+            report.notes.append("no reference attitude in this recording: nothing to score")
         return report
     clipped = int(rec.extra.get("gyro_clipped_samples", 0) or 0)  # type: ignore[call-overload]
     if clipped:

@@ -1100,11 +1100,20 @@ def recording_from_inputs(
             half = -0.5 * prep.declination_rad  # true → magnetic: rotate by −D about down
             q_dec = np.stack([np.cos(half), np.zeros(n), np.zeros(n), np.sin(half)], axis=1)
             q_ref = multiply(q_dec, q_true)
-            notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame), "
-                         "slerped onto the IMU samples: every sample scored (`mavahrs replay` compares at the "
-                         "truth's own times instead; the two differ only where the IMU stream has gaps), "
-                         + (f"from {skip_s:g} s on (--skip)" if skip_s > 0 else
-                            "convergence included (--skip 10 leaves out the first 10 s, as the README's tables)"))
+            t_truth = np.asarray(t_ref, np.float64)
+            if n and not np.all(np.isfinite(q_true), axis=1).any():  # e.g. SIMSTATE at 1 Hz in a `run --log` tlog
+                gap = float(np.median(np.diff(t_truth))) * 1e-6 if t_truth.size > 1 else math.inf
+                notes.append(f"reference: {truth[0]}, but too sparse to slerp onto the IMU samples: "
+                             f"{t_truth.size} sample(s), {gap:.2g} s apart (median; truth more than 0.5 s apart "
+                             "is not interpolated), so nothing is scored; `mavahrs replay` compares at the "
+                             "truth's own times")  # fmt: skip
+            else:
+                notes.append(f"reference: {truth[0]} (true north, rotated into the filter's magnetic frame), "
+                             "slerped onto the IMU samples: every sample scored (`mavahrs replay` compares at the "
+                             "truth's own times instead; the two differ only where the IMU stream has gaps), "
+                             + (f"from {skip_s:g} s on (--skip)" if skip_s > 0 else
+                                "convergence included (--skip 10 leaves out the first 10 s, as the README's "
+                                "tables)"))  # fmt: skip
         else:
             others = [k for k in refs if not k.endswith("truth")]
             notes.append(no_truth + (f" (`mavahrs replay` compares with the log's {' and '.join(others)} instead)"

@@ -347,3 +347,21 @@ def test_a_folder_of_flight_logs_prints_no_magnetic_field_line_per_log(sim_hover
     assert capsys.readouterr().err.count(said) == 1
     assert main(["-v", "evaluate", str(folder), "-f", "mahony"]) == 0
     assert capsys.readouterr().err.count(said) == 2
+
+
+def test_truth_too_sparse_to_slerp_says_so(sim_tlog_writer, tmp_path: Path,  # type: ignore[no-untyped-def]
+                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A tlog whose simulator truth arrives at 1 Hz (what `mavahrs run --log` records from firmware_sim, which
+    asks for no SIMSTATE): it said both "reference: SIMSTATE truth … every sample scored" and "no reference
+    attitude in this recording" until user8; now one note says the truth is too sparse, and replay compares."""
+    log = sim_tlog_writer(tmp_path / "sparse.tlog", "--scenario", "hover", "--duration", "8",
+                         "--stream", "SIMSTATE=1", "--stream", "SIM_STATE=1")  # fmt: skip
+    capsys.readouterr()
+    assert main(["evaluate", str(log), "-f", "mahony"]) == 1
+    cap = capsys.readouterr()
+    text = cap.out + cap.err
+    assert "truth, but too sparse to slerp onto the IMU samples: 8 sample(s), 1 s apart" in text, text
+    assert "no reference attitude in this recording" not in text and "every sample scored" not in text
+    assert "nothing was scored (no usable reference attitude in the input" in cap.err
+    assert main(["replay", str(log), "-f", "mahony"]) == 0  # at the truth's own times
+    assert "SIM_STATE truth" in capsys.readouterr().out
