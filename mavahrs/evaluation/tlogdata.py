@@ -326,6 +326,11 @@ def _no_source_message(td: TlogData, s: Any) -> str:
         return (f"{td.path}: no MAVLink messages in this file: expected a telemetry log (.tlog, "
                 "as MAVProxy, QGroundControl, Mission Planner and mavahrs write them), an ArduPilot DataFlash "
                 "log (.BIN) or a PX4 ULog (.ulg)")  # fmt: skip
+    others = imu_senders(td) if wanted else []
+    if others:  # --source names a system that sent none: say who did (until user8: "… and no IMU messages")
+        listed = ", ".join(f"{a}:{b}" for a, b in others)
+        return (f"{td.path}: no autopilot HEARTBEAT and no IMU messages{wanted}; the log's IMU messages come "
+                f"from SYSID:COMPID {listed} (--source)")  # fmt: skip
     return f"{td.path}: no autopilot HEARTBEAT{wanted} and no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU)"
 
 

@@ -490,3 +490,14 @@ def test_plot_of_a_replay_csv_takes_start_and_end_and_says_what_has_no_effect(
     assert "plot: --no-mag has no effect here" in err and drawn[-1][2] == ["mahony"]
     assert main(["plot", str(csv), "--start", "100", "-o", str(tmp_path / "n.png")]) == 1
     assert "no rows between --start 100.0" in capsys.readouterr().err
+
+
+def test_a_source_that_sent_nothing_names_the_one_that_did(sim_hover_tlog: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``--source 2:1`` on a log whose IMU data all come from 1:1: the error says who sent them (until user8
+    "no autopilot HEARTBEAT from system 2, component 1 and no IMU messages", as if the log had none)."""
+    capsys.readouterr()
+    assert main(["replay", str(sim_hover_tlog), "--source", "2:1"]) == 1
+    err = capsys.readouterr().err
+    assert (f"replay: {sim_hover_tlog}: no autopilot HEARTBEAT and no IMU messages from system 2, component 1; "
+            "the log's IMU messages come from SYSID:COMPID 1:1 (--source)") in err, err  # fmt: skip
