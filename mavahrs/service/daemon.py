@@ -894,6 +894,12 @@ class Daemon:
             unit = "datagrams" if m.datagram else "bytes"
             hint = (f"{bytes_in} bytes received, all of them queued during start-up ({self.counters.startup_dropped} "
                     f"{unit}, dropped as older than the filter), none since: has the autopilot stopped sending?")  # fmt: skip
+        elif cc.signing_rejected:  # valid frames, all refused by signing (until user8: "no valid MAVLink frame")
+            total = cc.packets + cc.signing_rejected
+            share = "all" if cc.packets == 0 else f"{cc.signing_rejected}"
+            hint = (f"{total} MAVLink frames received, {share} dropped by MAVLink signing: {cc.unsigned_rejected} "
+                    f"unsigned (--require-signing), {cc.bad_signature} with a wrong signature, {cc.replayed} "
+                    "replayed; does the autopilot sign with this key?")  # fmt: skip
         elif cc.packets == 0:
             hint = (
                 f"{bytes_in} bytes received but no valid MAVLink frame"

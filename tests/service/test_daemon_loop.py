@@ -222,6 +222,23 @@ def test_no_heartbeat_is_a_transport_error_saying_what_arrived(gcs: socket.socke
     assert isinstance(box.get("error"), TransportError)
     assert "bytes received but no valid MAVLink frame" in str(box["error"])
 
+    # valid but unsigned frames with --require-signing: said as such (until user8 "no valid MAVLink frame")
+    d = _daemon(gcs, heartbeat_timeout_s=0.5)
+    d.enable_signing(bytes(range(32)), require=True)
+    ap = Autopilot(d.master.local_address[1])
+    thread, box = _start(d)
+    try:
+        for _ in range(5):
+            ap.heartbeat()
+            time.sleep(0.02)
+        thread.join(5)
+    finally:
+        ap.close()
+    assert isinstance(box.get("error"), TransportError)
+    said = str(box["error"])
+    assert "MAVLink frames received, all dropped by MAVLink signing: " in said and "unsigned (--require-signing)" in said
+    assert "does the autopilot sign with this key?" in said and "no valid MAVLink frame" not in said, said
+
 
 def test_silence_after_heartbeats_is_reported_not_fatal(gcs: socket.socket, caplog: pytest.LogCaptureFixture) -> None:
     d = _daemon(gcs, heartbeat_timeout_s=0.3)
