@@ -14,6 +14,7 @@ __all__ = [
     "TimestampError",
     "TransportError",
     "DataError",
+    "empty_window_error",
 ]
 
 
@@ -43,3 +44,17 @@ class TransportError(MavahrsError, OSError):
 
 class DataError(MavahrsError, ValueError):
     """An input file (recording, dataset) is malformed or missing data."""
+
+
+def empty_window_error(path: object, start_s: float | None, end_s: float | None,
+                       first_s: float, last_s: float) -> DataError:  # fmt: skip
+    """No IMU sample within ``--start``/``--end``: the window asked for and where the log's IMU data are
+    (``first_s``/``last_s``: seconds from the log's start, as the window counts), one wording for every reader."""
+    if start_s is not None and end_s is not None:
+        window = f"between {start_s:g} and {end_s:g} s"
+    elif start_s is not None:
+        window = f"from {start_s:g} s"
+    else:
+        window = f"up to {end_s:g} s"
+    return DataError(f"{path}: no IMU samples {window} after the log's start (--start/--end); its IMU data "
+                     f"span {first_s:.1f}–{last_s:.1f} s")

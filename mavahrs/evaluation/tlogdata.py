@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.errors import DataError
+from mavahrs.errors import DataError, empty_window_error
 from mavahrs.evaluation.datasets import Recording
 from mavahrs.filters.layout import (
     IN_ACCEL,
@@ -483,6 +483,14 @@ def prepare_inputs(
         sc["pos"] = pos[ok]
         parts.append(sc)
     if not parts:
+        if start_s is not None or end_s is not None:  # there may be some outside the window: say where
+            times = [td.t_us[td.pos[n][(td.arrays[n]["sysid"] == src[0]) & (td.arrays[n]["compid"] == src[1])
+                                       & (td.pos[n] > hb_pos)]] for n in IMU_TYPES
+                     if td.arrays[n].shape[0] and profile.scale_for(n) is not None]  # fmt: skip
+            t_src = np.concatenate(times) if times else np.zeros(0, np.int64)
+            if t_src.size:
+                raise empty_window_error(td.path, start_s, end_s, (int(t_src.min()) - t0) * 1e-6,
+                                         (int(t_src.max()) - t0) * 1e-6)  # fmt: skip
         raise DataError(f"{td.path}: no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) from the autopilot")
     # --- all IMU messages of the source merged in frame order
     keys = ("imu", "t_us", "gyro", "accel", "mag", "temp", "sat", "inv", "use", "zero", "pos")

@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.errors import DataError
+from mavahrs.errors import DataError, empty_window_error
 from mavahrs.filters.jit import kernel
 from mavahrs.ingest.arrays import select_over_arrays
 from mavahrs.logs import LogInputs
@@ -602,7 +602,7 @@ def read_dataflash(
     hi = 2**62 if end_s is None else t0 + int(end_s * 1e6)
     window = (t_all >= lo) & (t_all <= hi)
     if not window.any():
-        raise DataError(f"{p}: no IMU samples between {start_s} and {end_s} s")
+        raise empty_window_error(p, start_s, end_s, (int(t_all.min()) - t0) * 1e-6, (int(t_all.max()) - t0) * 1e-6)
     sub = {k: v[window] for k, v in imu.items()}
     feed, sel_notes = _select_imu(sub, s, sat[window])
     notes += sel_notes

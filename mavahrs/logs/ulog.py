@@ -89,7 +89,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavahrs.errors import DataError
+from mavahrs.errors import DataError, empty_window_error
 from mavahrs.filters.layout import IN_DT, IN_MAG, IN_POS, IN_VEL, IN_VEL_AGE
 from mavahrs.ingest.arrays import select_over_arrays
 from mavahrs.logs import LogInputs
@@ -381,8 +381,10 @@ def read_ulog(path: str | Path, settings: Any = None, *, start_s: float | None =
     dt = dt[keep]
     m = sel.shape[0]
     if m == 0:
-        raise DataError(f"{p}: no IMU sample of {topic} in the requested window" if (start_s or end_s)
-                        else f"{p}: {topic} has no usable samples")  # fmt: skip
+        if (start_s is not None or end_s is not None) and t_all.size and not win.any():
+            raise empty_window_error(p, start_s, end_s, (int(t_all.min()) - t0) * 1e-6,
+                                     (int(t_all.max()) - t0) * 1e-6)  # fmt: skip
+        raise DataError(f"{p}: {topic} has no usable samples")
     dropped = int(win.sum()) - m
     if dropped:
         notes.append(f"{dropped} IMU samples dropped by the timeline (a stamp not after the last one used, or a "

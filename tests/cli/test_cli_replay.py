@@ -501,3 +501,18 @@ def test_a_source_that_sent_nothing_names_the_one_that_did(sim_hover_tlog: Path,
     err = capsys.readouterr().err
     assert (f"replay: {sim_hover_tlog}: no autopilot HEARTBEAT and no IMU messages from system 2, component 1; "
             "the log's IMU messages come from SYSID:COMPID 1:1 (--source)") in err, err  # fmt: skip
+
+
+@pytest.mark.parametrize("log", ["sim", "px4_ulog/sample.ulg", "mavlink_logs/ardusub_log_tools/small.BIN"])
+def test_a_window_past_the_log_says_where_its_imu_data_are(log: str, sim_hover_tlog: Path, shared_data: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``--start`` past the end: one wording for every format, naming the log's span (until user8 a tlog said
+    "no IMU messages … from the autopilot", a .BIN "between 5000.0 and None s", a .ulg "the requested window")."""
+    path = sim_hover_tlog if log == "sim" else shared_data / log
+    capsys.readouterr()
+    assert main(["replay", str(path), "--start", "5000"]) == 1
+    err = capsys.readouterr().err
+    assert f"replay: {path}: no IMU samples from 5000 s after the log's start (--start/--end); its IMU data span " in err
+    assert "None" not in err and "from the autopilot" not in err
+    assert main(["replay", str(path), "--start", "5000", "--end", "6000"]) == 1
+    assert "no IMU samples between 5000 and 6000 s after the log's start" in capsys.readouterr().err
