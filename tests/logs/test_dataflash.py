@@ -149,6 +149,21 @@ def test_a_truncated_log_is_read_to_its_last_whole_record(dataflash_log, tmp_pat
     np.testing.assert_array_equal(li.inputs.rows[:, IN_GYRO : IN_GYRO + 3], whole.rows[:n, IN_GYRO : IN_GYRO + 3])
 
 
+def test_a_log_cut_before_its_parameters_says_so_not_nan(shared_data: Path, tmp_path: Path) -> None:
+    """The SITL .BIN's first 3000 bytes (an IMU record, no PARM yet): the header line said
+    "(INS_GYRO_FILTER nan Hz, SCHED_LOOP_RATE nan)" until user8; with the parameters it names them."""
+    data = _shared(shared_data, "sitl/arducopter_onboard.BIN").read_bytes()
+    cut = tmp_path / "head.BIN"
+    cut.write_bytes(data[:3000])
+    imu = [f for f in read_dataflash(cut).found if f.startswith("IMU:")]
+    assert imu and imu[0].endswith("(no INS_GYRO_FILTER or SCHED_LOOP_RATE in the log)") and "nan" not in imu[0], imu
+    small = read_dataflash(_shared(shared_data, "mavlink_logs/ardusub_log_tools/small.BIN"))
+    imu = [f for f in small.found if f.startswith("IMU:")]
+    assert imu[0].endswith("(INS_GYRO_FILTER 20 Hz, SCHED_LOOP_RATE 200)"), imu
+    fast = [n for n in small.inputs.notes if "IMU_FAST" in n]
+    assert fast and fast[0].endswith("LOG_BITMASK's IMU_FAST bit"), fast  # no stray ")" after it
+
+
 def test_a_corrupted_stretch_costs_only_its_own_records(dataflash_log, tmp_path: Path) -> None:
     path, fl = dataflash_log
     data = bytearray(path.read_bytes())
