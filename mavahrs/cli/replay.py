@@ -172,6 +172,10 @@ def _start(args: argparse.Namespace) -> tuple[Any, Any]:
                         "use `mavahrs audit FOLDER` (one row per flight)")  # fmt: skip
     if not Path(args.tlog).is_file():
         raise DataError(f"{args.tlog}: no such file")
+    # an output whose folder does not exist is said before the log is read and replayed, not after
+    for option, out in (("--output", args.output), ("--csv", args.csv), ("--plot", args.plot)):
+        if out and not Path(out).parent.is_dir():
+            raise DataError(f"{option} {out}: no such folder {Path(out).parent}")
     return rp, settings_from_args(args)
 
 

@@ -164,6 +164,23 @@ def test_replay_says_what_is_wrong_with_a_file_that_is_no_log(tmp_path: Path, ca
     ]
 
 
+def test_replay_names_a_missing_output_folder_before_reading_the_log(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--csv` into a folder that does not exist failed only after the whole replay had run (a long log's
+    minutes lost) with the OS's errno text; each output's folder is now checked first, the log not opened."""
+    log = tmp_path / "no_log_here.tlog"
+    log.write_bytes(b"\xfe" * 10)  # not read: the output check comes first
+    missing = tmp_path / "nowhere"
+    for option, name in (("--csv", "a.csv"), ("--output", "a.tlog"), ("--plot", "a.png")):
+        assert main(["replay", str(log), option, str(missing / name)]) == 1
+    assert [m for m in _err_lines(capsys.readouterr().err) if m.startswith("replay:")] == [
+        f"replay: {option} {missing / name}: no such folder {missing}"
+        for option, name in (("--csv", "a.csv"), ("--output", "a.tlog"), ("--plot", "a.png"))
+    ]
+    assert not missing.exists()
+
+
 def test_replay_of_a_recording_with_truth_points_to_evaluate_and_plot(
     broad_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
