@@ -135,6 +135,17 @@ def console_main() -> None:
     import os
     import signal
 
+    def terminated(_signum: int, _frame: Any) -> None:
+        # the batch commands (replay, audit, tune, evaluate …) stopped by `kill`, a job scheduler or a
+        # container's stop: as Ctrl-C, so what was written is kept and said and worker processes are shut
+        # down (it ended silently, with Dask's "leaked semaphore" warning); `run` installs its own handlers
+        raise KeyboardInterrupt
+
+    try:
+        if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, terminated)
+    except ValueError:  # not the main thread (embedded)
+        pass
     code = main()
 
     def at_shutdown(_signum: int, _frame: Any) -> None:

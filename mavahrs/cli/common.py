@@ -11,7 +11,7 @@ Exit codes (documented in docs/daemon.md and ``mavahrs --help``):
 2     usage or configuration error (bad option, config file, connection string)
 3     connection failure: a link cannot be opened (port busy, permission
       denied, no such device, address in use) or no autopilot heartbeat
-130   interrupted: Ctrl-C before the command finished (``demo`` still
+130   interrupted: Ctrl-C (or SIGTERM) before the command finished (``demo`` still
       scores the part flown, and exits 130); ``run`` is meant to run until
       stopped, so SIGINT/SIGTERM end it with 0
 ====  ======================================================================

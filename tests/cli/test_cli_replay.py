@@ -292,8 +292,12 @@ def test_replay_notes_a_hole_in_the_log(tmp_path: Path, capsys: pytest.CaptureFi
 
 
 @pytest.mark.slow
-def test_ctrl_c_in_a_fast_replay_keeps_every_row_and_frame_computed(shared_data: Path, tmp_path: Path) -> None:
-    """SIGINT to a real ``mavahrs replay --csv --output`` (fast engine) once its CSV has rows.
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_in_a_fast_replay_keeps_every_row_and_frame_computed(
+    shared_data: Path, tmp_path: Path, signame: str
+) -> None:
+    """SIGINT (Ctrl-C) or SIGTERM (`kill`, a job scheduler) to a real ``mavahrs replay --csv --output``
+    (fast engine) once its CSV has rows.
 
     Every row written is whole and in time order, the tlog holds the frames of
     the same samples, and the last line says how far it got and what was kept.
@@ -326,7 +330,7 @@ def test_ctrl_c_in_a_fast_replay_keeps_every_row_and_frame_computed(shared_data:
                 break
             time.sleep(0.01)
         assert proc.poll() is None, "the replay ended before it could be interrupted"
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(getattr(signal, signame))
         stdout, stderr = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
