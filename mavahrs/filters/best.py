@@ -169,6 +169,11 @@ BEST_BIAS_LIMIT_RAD_S = math.radians(6.0)
 #: better than VQF), against BROAD 0.66 → 0.61° whose check half gained only 0.011°.  Set 0.0025 (0.25 %) in
 #: ``EskfSettings.gyro_scale_state_sigma`` for a hand-held IMU
 BEST_GYRO_SCALE_SIGMA = 0.0
+#: the plain path's body-offset learner's pair interval, s (``EskfSettings.mag_body_offset_lag_s``; 0 = off): while
+#: the schedule rejects the compass, a body-fixed offset (a magnet on the sensor) is fitted from turns and the
+#: reading less it used again.  BROAD attached-magnet trials 1.73 → see docs/accuracy.md round three (bmag2); off on
+#: an autopilot's stream (:func:`vehicle_eskf_settings`, whose magnetometer model learns the vehicle's own field)
+BEST_MAG_BODY_OFFSET_LAG_S = 0.5
 #: the start checked against the specific force averaged over this long in the estimate's frame, s, and the tilt
 #: re-aligned to it when more than 30° apart (``EskfSettings.initial_average_s``; every path of ``best``; the plain
 #: path's gravity low-pass τ): firmware_sim's ``vibration`` flights declared a multirotor started 61–118° off from
@@ -281,6 +286,7 @@ def best_eskf_settings() -> EskfSettings:
         gyro_scale_sigma=0.0,
         gyro_scale_tilt_sigma=0.0,
         gyro_scale_state_sigma=BEST_GYRO_SCALE_SIGMA,
+        mag_body_offset_lag_s=BEST_MAG_BODY_OFFSET_LAG_S,
     )
 
 
@@ -317,6 +323,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         gravity_noise_m_s2=d.gravity_noise_m_s2,
         heading_noise_rad=d.heading_noise_rad,
         mag_rate_hz=d.mag_rate_hz,
+        mag_body_offset_lag_s=d.mag_body_offset_lag_s,
         mag_noise_tau_s=VEHICLE_MAG_NOISE_TAU_S,
         heading_walk_tau_s=VEHICLE_HEADING_WALK_TAU_S,
         gate_sigma=d.gate_sigma,

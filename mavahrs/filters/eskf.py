@@ -259,7 +259,11 @@ _DRAG_NIS_TAU = _MAG_DELAY + 20  # s: averaging time of the drag innovations' ex
 _SLOW_BLOCK = _MAG_DELAY + 21  # s: block length of the specific force's slow-error estimate (0: off, ``slow_force_block_s``)
 _SLOW_TAU = _MAG_DELAY + 22  # s: averaging time of its block-mean Hadamard variance
 _HALF_STEP = _MAG_DELAY + 23  # 1: the output's advance is ``_DELAY`` less half the step (``output_half_step``)
-_N_PARAMS = _MAG_DELAY + 24
+_BOFF_LAG = _MAG_DELAY + 24  # s: the body-offset learner's pair interval (0: off, ``mag_body_offset_lag_s``)
+_BOFF_MIN_TURN = _MAG_DELAY + 25  # its least eigenvalue of Σ (I − R)ᵀ(I − R) before the offset is used
+_BOFF_RESID = _MAG_DELAY + 26  # the largest share of Σ yᵀy a used fit leaves unexplained (its residual over the pairs')
+_BOFF_SIGMA = _MAG_DELAY + 27  # µT²: the largest variance of the fitted offset along its worst axis that is used
+_N_PARAMS = _MAG_DELAY + 28
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -339,7 +343,13 @@ _DNIS = _HWALK + 9  # running mean of the drag innovations' y² − h P hᵀ, (m
 #: the previous block's mean (3), blocks completed (1), the running mean of ‖f̄ₖ − 2f̄ₖ₋₁ + f̄ₖ₋₂‖²/18 (the Hadamard
 #: variance per axis) and of the white noise's share of it (2), (m/s²)², the block mean before the previous (3)
 _SLOW = _DNIS + 2
-_N_STATE = _SLOW + 14
+#: the body-offset learner (``mag_body_offset_lag_s``): the pair's earlier reading (3), its C_body_to_ned (9) and
+#: clock time (1; 0: none), Σ (I − R)ᵀ(I − R) (6: xx, xy, xz, yy, yz, zz), Σ (I − R)ᵀ y (3), Σ yᵀy (1) and the pairs
+#: (1), the offset (3) and 1 while it is valid (1)
+_BOFF = _SLOW + 14
+_BOFF_A = _BOFF + 13
+_BOFF_B = _BOFF_A + 11
+_N_STATE = _BOFF_B + 4
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -787,6 +797,34 @@ class EskfSettings(FilterSettings):
             sets it); off by default: a raw IMU's sample that is already
             the interval's mean (BROAD) has no lead (BROAD 0.66 → 0.86°
             inclination with it).
+        mag_body_offset_lag_s: the body-offset learner, plain path only (no
+            effect with ``mag_model`` on): while the gain schedule rejects the
+            compass, a body-fixed offset b (a magnet on the sensor) is fitted
+            by least squares from pairs of readings this far apart, s,
+            ``m_i − R m_j = (I − R) b`` with ``R = C_iᵀ C_j`` the rotation the
+            gyro measured between them (neither heading nor tilt needed: the
+            estimate's error is common to both); once the fit is valid (the
+            three settings below) the reading less b is fused when it passes
+            the schedule's norm and dip test (the dip from the estimate's
+            attitude); the fit is forgotten when the schedule accepts the raw
+            reading again.  0 = off (default;
+            :func:`mavahrs.filters.best.best_eskf_settings` sets 0.5 s,
+            ``vehicle_eskf_settings`` 0).
+            BROAD attached-magnet trials 1.73 → 1.02° heading
+            (docs/accuracy.md, round three bmag2).
+        mag_body_offset_min_turn: the fit is used once the least eigenvalue
+            of Σ (I − R)ᵀ(I − R) over its pairs reaches this (a 90° turn about
+            one axis adds 2 on the two axes across it: the turns must span
+            two axes).
+        mag_body_offset_residual_fraction: … and its residual is at most this
+            share of the pairs' Σ‖m_i − R m_j‖² (an earth-fixed disturbance
+            changes with the place, not with the body, and does not fit:
+            BROAD's stationary magnet leaves 0.5 unexplained, a clean
+            compass's calibration remainder 0.7–1, the attached magnet
+            0.05–0.1).
+        mag_body_offset_sigma_ut: … and the offset's standard error along its
+            worst axis (the residual per pair over that eigenvalue), µT, is
+            within this.
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -872,6 +910,10 @@ class EskfSettings(FilterSettings):
     slow_force_block_s: float = 0.0
     slow_force_tau_s: float = 5.0
     output_half_step: bool = False
+    mag_body_offset_lag_s: float = 0.0
+    mag_body_offset_min_turn: float = 2.0
+    mag_body_offset_residual_fraction: float = 0.2
+    mag_body_offset_sigma_ut: float = 2.5
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -1347,6 +1389,96 @@ def _scale_noise_tilt(s, k, dt, wx, wy, wz, var_sf, tau):  # type: ignore[no-unt
     s[kp + N + 1] += pee
     s[kp + 1] += pne
     s[kp + N] += pne
+
+
+@kernel
+def _boff_reset(s, k):  # type: ignore[no-untyped-def]
+    """Forget the body-offset learner's pairs and offset (the raw reading is accepted again)."""
+    for i in range(_BOFF, _BOFF_B + 4):
+        s[k + i] = 0.0
+
+
+@kernel
+def _boff_step(s, k, params, mx, my, mz, clk):  # type: ignore[no-untyped-def]
+    """The body-offset learner (``mag_body_offset_lag_s``), on a reading the schedule rejects: with the
+    reading held one lag before, ``m_i − R m_j = (I − R) b`` with ``R = C_iᵀ C_j`` the rotation the gyro
+    measured between them (the estimate's attitude error, common to both, cancels: neither heading nor tilt
+    is needed), fitted by least squares over the rejected stretch; the offset is valid once the turns make
+    every axis observable (least eigenvalue of Σ (I − R)ᵀ(I − R) ≥ ``_BOFF_MIN_TURN``) and the fit explains all
+    but ``_BOFF_RESID`` of the pairs' Σ yᵀy (an earth-fixed disturbance changes with the place, not with the
+    body: it does not fit; a clean compass's pairs are its calibration remainder and noise, no offset) and the
+    offset's standard error along its worst axis (the residual per pair over that eigenvalue) is within ``_BOFF_SIGMA``.  Returns True when the offset is valid."""
+    kb = k + _BOFF
+    kc = k + _C
+    tj = s[kb + 12]
+    if tj <= 0.0:  # the first reading of a stretch: the pair's earlier reading
+        s[kb], s[kb + 1], s[kb + 2] = mx, my, mz
+        for i in range(9):
+            s[kb + 3 + i] = s[kc + i]
+        s[kb + 12] = max(clk, 1e-9)
+    elif clk - tj >= params[P_FILTER + _BOFF_LAG]:
+        # R = C_iᵀ C_j (body j → NED → body i), y = m_i − R m_j
+        r = s[k + _A : k + _A + 9]  # the Φ·P scratch, free after the propagation
+        for a in range(3):
+            for b in range(3):
+                r[3 * a + b] = (
+                    s[kc + a] * s[kb + 3 + b] + s[kc + 3 + a] * s[kb + 6 + b] + s[kc + 6 + a] * s[kb + 9 + b]
+                )
+        y0 = mx - (r[0] * s[kb] + r[1] * s[kb + 1] + r[2] * s[kb + 2])
+        y1 = my - (r[3] * s[kb] + r[4] * s[kb + 1] + r[5] * s[kb + 2])
+        y2 = mz - (r[6] * s[kb] + r[7] * s[kb + 1] + r[8] * s[kb + 2])
+        # G = I − R; GᵀG = 2I − R − Rᵀ, Gᵀy = y − Rᵀy
+        ka = k + _BOFF_A
+        s[ka] += 2.0 - 2.0 * r[0]
+        s[ka + 1] += -r[1] - r[3]
+        s[ka + 2] += -r[2] - r[6]
+        s[ka + 3] += 2.0 - 2.0 * r[4]
+        s[ka + 4] += -r[5] - r[7]
+        s[ka + 5] += 2.0 - 2.0 * r[8]
+        s[ka + 6] += y0 - (r[0] * y0 + r[3] * y1 + r[6] * y2)
+        s[ka + 7] += y1 - (r[1] * y0 + r[4] * y1 + r[7] * y2)
+        s[ka + 8] += y2 - (r[2] * y0 + r[5] * y1 + r[8] * y2)
+        s[ka + 9] += y0 * y0 + y1 * y1 + y2 * y2
+        s[ka + 10] += 1.0
+        s[kb], s[kb + 1], s[kb + 2] = mx, my, mz  # this reading is the next pair's earlier one
+        for i in range(9):
+            s[kb + 3 + i] = s[kc + i]
+        s[kb + 12] = max(clk, 1e-9)
+        # the least eigenvalue of the symmetric Σ GᵀG (closed form, Smith 1961)
+        a00, a01, a02, a11, a12, a22 = s[ka], s[ka + 1], s[ka + 2], s[ka + 3], s[ka + 4], s[ka + 5]
+        q = (a00 + a11 + a22) / 3.0
+        p1 = a01 * a01 + a02 * a02 + a12 * a12
+        p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
+        pp = math.sqrt(p2 / 6.0)
+        lam_min = q
+        if pp > 1e-12:
+            b00, b11, b22 = (a00 - q) / pp, (a11 - q) / pp, (a22 - q) / pp
+            b01, b02, b12 = a01 / pp, a02 / pp, a12 / pp
+            det_b = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
+            hr = min(max(0.5 * det_b, -1.0), 1.0)
+            phi = math.acos(hr) / 3.0
+            lam_min = q + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)
+        det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+        kv = k + _BOFF_B
+        s[kv + 3] = 0.0
+        if lam_min >= params[P_FILTER + _BOFF_MIN_TURN] and det > 0.0:
+            c00 = a11 * a22 - a12 * a12
+            c01 = a02 * a12 - a01 * a22
+            c02 = a01 * a12 - a02 * a11
+            c11 = a00 * a22 - a02 * a02
+            c12 = a01 * a02 - a00 * a12
+            c22 = a00 * a11 - a01 * a01
+            r0, r1, r2 = s[ka + 6], s[ka + 7], s[ka + 8]
+            bx = (c00 * r0 + c01 * r1 + c02 * r2) / det
+            by = (c01 * r0 + c11 * r1 + c12 * r2) / det
+            bz = (c02 * r0 + c12 * r1 + c22 * r2) / det
+            ss = s[ka + 9] - (bx * r0 + by * r1 + bz * r2)
+            s[kv], s[kv + 1], s[kv + 2] = bx, by, bz
+            # … and its standard error along the worst axis, from the residual per pair, within ``_BOFF_SIGMA``
+            var_b = max(ss, 0.0) / (s[ka + 10] * lam_min)
+            if ss <= params[P_FILTER + _BOFF_RESID] * s[ka + 9] and var_b <= params[P_FILTER + _BOFF_SIGMA]:
+                s[kv + 3] = 1.0
+    return s[k + _BOFF_B + 3] > 0.0
 
 
 @kernel(inline=True)
@@ -2376,6 +2508,29 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         w_out = 1.0 if tr == MAG_TRUSTED else (0.0 if tr == MAG_DISTURBED else 0.5)
     else:
         w_out = w_m
+    if (
+        params[p + _BOFF_LAG] > 0.0 and not model_on and mag_ok and since >= params[p + _MAG_PERIOD]
+        and (new_mag or since >= 1.0)
+    ):  # fmt: skip
+        # the body-offset learner (``mag_body_offset_lag_s``, plain path): while the schedule rejects the reading,
+        # a body-fixed offset (a magnet on the sensor) is learnt from turns and, once valid, the reading less
+        # it serves when it passes the schedule's norm and dip test (the dip from the estimate's attitude)
+        if w_m >= 0.5:
+            if state[k + _BOFF + 12] > 0.0:
+                _boff_reset(state, k)
+        elif _boff_step(state, k, params, mx, my, mz, clk):
+            kv = k + _BOFF_B
+            cx, cy, cz = mx - state[kv], my - state[kv + 1], mz - state[kv + 2]
+            cn = math.sqrt(cx * cx + cy * cy + cz * cz)
+            ref_n = state[S_SCHED + _g.GS_MAG_NORM]
+            if cn > 0.0 and ref_n > 0.0:
+                sd = (state[kc + 6] * cx + state[kc + 7] * cy + state[kc + 8] * cz) / cn
+                dip_c = math.asin(min(max(sd, -1.0), 1.0))
+                ntol = params[P_SCHED + _g.GP_MAG_NORM_TOL]
+                dtol = params[P_SCHED + _g.GP_MAG_DIP_TOL]
+                if abs(cn / ref_n - 1.0) <= ntol and abs(dip_c - state[S_SCHED + _g.GS_MAG_DIP]) <= dtol:
+                    mx, my, mz = cx, cy, cz
+                    w_m = 1.0
     if use_mag and mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
         hn = state[kc + 0] * mx + state[kc + 1] * my + state[kc + 2] * mz
         he = state[kc + 3] * mx + state[kc + 4] * my + state[kc + 5] * mz
@@ -2739,6 +2894,10 @@ class Eskf(AttitudeFilter):
         p[_DRAG_NIS_TAU] = settings.drag_noise_match_s
         p[_SLOW_BLOCK] = settings.slow_force_block_s
         p[_SLOW_TAU] = settings.slow_force_tau_s
+        p[_BOFF_LAG] = settings.mag_body_offset_lag_s
+        p[_BOFF_MIN_TURN] = settings.mag_body_offset_min_turn
+        p[_BOFF_RESID] = settings.mag_body_offset_residual_fraction
+        p[_BOFF_SIGMA] = settings.mag_body_offset_sigma_ut**2
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
