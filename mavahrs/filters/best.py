@@ -171,7 +171,7 @@ BEST_BIAS_LIMIT_RAD_S = math.radians(6.0)
 BEST_GYRO_SCALE_SIGMA = 0.0
 #: the plain path's body-offset learner's pair interval, s (``EskfSettings.mag_body_offset_lag_s``; 0 = off): while
 #: the schedule rejects the compass, a body-fixed offset (a magnet on the sensor) is fitted from turns and the
-#: reading less it used again.  BROAD attached-magnet trials 1.73 → see docs/accuracy.md round three (bmag2); off on
+#: reading less it used again.  BROAD attached-magnet trials 1.73 → 1.02° heading (docs/accuracy.md round three, bmag2); off on
 #: an autopilot's stream (:func:`vehicle_eskf_settings`, whose magnetometer model learns the vehicle's own field)
 BEST_MAG_BODY_OFFSET_LAG_S = 0.5
 #: the start checked against the specific force averaged over this long in the estimate's frame, s, and the tilt
