@@ -96,8 +96,8 @@ class AutopilotBiasSettings:
         mag_enabled: also take the autopilot's magnetometer bias back out of the primary message's field, from
             the twin's raw field with the autopilot's calibration (PX4: EKF2's ``mag_bias`` from HIGHRES_IMU, with
             SCALED_IMU and ``CAL_MAG*``, requested by PARAM_REQUEST_READ; :mod:`mavahrs.ingest.autopilot_mag_bias`);
-            only while ``enabled`` and the calibration is known and modelled (on the PX4 SIH tlog whole heading
-            0.997 → 0.751°).
+            only while ``enabled`` and the calibration is known and modelled (on the PX4 SIH tlog `mavahrs evaluate` heading
+            1.00 → 0.76°).
         mag_time_constant_s: τ of the running mean of the field pairs, s (a pair scatters by 1–2 µT; EKF2 learns
             its bias in tens of seconds).
         mag_max_bias_ut: a field difference beyond this on any axis is no bias, µT (EKF2's limit: 0.5 gauss).
