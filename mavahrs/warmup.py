@@ -55,7 +55,8 @@ def synthetic_frames(seconds: float = _SECONDS, autopilot: str = "ardupilot") ->
     at 10 Hz: every message the daemon and replay read.  ``autopilot``
     ``"ardupilot"``: RAW_IMU; ``"ardupilot2"``: RAW_IMU and SCALED_IMU2 (two
     IMU instances, the selection's path); ``"px4"``: HIGHRES_IMU (SI floats) and SCALED_IMU at 50 Hz
-    (the same IMU without EKF2's gyro bias: the autopilot-bias step).
+    (the same IMU without EKF2's gyro bias: the autopilot-bias step) and PX4's compass calibration as PARAM_VALUE
+    (the magnetometer-bias step).
     """
     from mavahrs.protocol.codec import MavCodec, mavlink
 
@@ -69,6 +70,8 @@ def synthetic_frames(seconds: float = _SECONDS, autopilot: str = "ardupilot") ->
         if k % _RATE_HZ == 0:
             hb = ap.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, kind, 0, 0, 4)
             out.append((t, ap.encode(hb)))
+        if px4 and k == 0:  # PX4's compass calibration (the identity), as PARAM_VALUE: the mag-bias step's kernels
+            out += [(t, ap.encode(ap.mav.param_value_encode(n.encode(), v, ty, 0, 0))) for n, v, ty in _px4_cal_params()]
         if px4:  # m/s², rad/s, gauss; fields_updated: gyro, accel and magnetometer new
             imu = ap.mav.highres_imu_encode(t, 0.0, 0.0, -9.81, 0.001, -0.001, 0.0, 0.2, 0.03, 0.45,
                                             1013.0, 0.0, 0.0, 35.0, 0x1FF)  # fmt: skip
@@ -86,6 +89,21 @@ def synthetic_frames(seconds: float = _SECONDS, autopilot: str = "ardupilot") ->
             att = ap.mav.attitude_encode(t // 1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             out.append((t, ap.encode(gpi)))
             out.append((t, ap.encode(att)))
+    return out
+
+
+def _px4_cal_params() -> list[tuple[str, float, int]]:
+    """(name, PARAM_VALUE float, MAV_PARAM_TYPE) of one internal compass calibrated to the identity (PX4 SIH's)."""
+    import struct
+
+    def i32(v: int) -> float:  # PX4 sends an integer's bytes in the float
+        return float(struct.unpack("<f", struct.pack("<i", v))[0])
+
+    out = [("CAL_MAG0_ID", i32(197388), 6), ("CAL_MAG0_ROT", i32(-1), 6), ("CAL_MAG_COMP_TYP", i32(0), 6),
+           ("SENS_BOARD_ROT", i32(0), 6)]  # fmt: skip
+    out += [(f"CAL_MAG{k}_ID", i32(0), 6) for k in (1, 2, 3)]
+    out += [(f"SENS_BOARD_{a}_OFF", 0.0, 9) for a in "XYZ"]
+    out += [(f"CAL_MAG0_{a}{f}", 1.0 if f == "SCALE" else 0.0, 9) for a in "XYZ" for f in ("OFF", "SCALE", "ODIAG")]
     return out
 
 

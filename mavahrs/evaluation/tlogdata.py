@@ -74,7 +74,7 @@ from mavahrs.ingest.arrays import (  # noqa: F401 - the sample chain over arrays
     select_over_arrays,
     timeline_over_arrays,
 )
-from mavahrs.sensors.sample import ACCEL, GYRO
+from mavahrs.sensors.sample import ACCEL, GYRO, MAG
 
 __all__ = [
     "recording_from_inputs",
@@ -108,7 +108,10 @@ REFERENCE_TYPES = ("ATTITUDE", "AHRS2", "SIMSTATE", "SIM_STATE", "HIL_STATE_QUAT
 #: What replay reads from a log.
 #: battery current (the compass's motor interference, :mod:`mavahrs.sensors.current`)
 CURRENT_TYPES = ("SYS_STATUS", "BATTERY_STATUS")
-REPLAY_TYPES = IMU_TYPES + ("HEARTBEAT", "EXTENDED_SYS_STATE") + POSITION_TYPES + REFERENCE_TYPES + CURRENT_TYPES
+#: the autopilot's parameters (PX4's CAL_MAG*, for SCALED_IMU's raw field: ``mavahrs.ingest.autopilot_mag_bias``)
+PARAM_TYPES = ("PARAM_VALUE",)
+REPLAY_TYPES = (IMU_TYPES + ("HEARTBEAT", "EXTENDED_SYS_STATE") + POSITION_TYPES + REFERENCE_TYPES + CURRENT_TYPES
+                + PARAM_TYPES)  # fmt: skip
 
 _MAV_AUTOPILOT_INVALID = 8
 _NAN = math.nan
@@ -433,6 +436,58 @@ def _autopilot_bias(mg: dict[str, Any], names: list[str], profile: Any, settings
     mg["gyro"], mg["use"] = gyro, use
 
 
+def _autopilot_mag_bias(td: TlogData, mg: dict[str, Any], names: list[str], profile: Any, settings: Any,
+                        src: tuple[int, int], hb_pos: int, use: NDArray[np.bool_]) -> None:
+    """The autopilot-mag-bias step (:func:`mavahrs.ingest.autopilot_mag_bias.mag_restore_rows`, the pipeline's
+    per-message steps in a loop) over the merged messages: PX4's EKF2 magnetometer bias, recovered from SCALED_IMU's
+    field with the ``CAL_MAG*`` parameters as the pipeline would have them at each message, added back to
+    HIGHRES_IMU's field in place.  ``use``: the messages that reach the step (before the gyro step's)."""
+    partner, primary = profile.bias_free_message, profile.primary_message
+    if not (settings.enabled and settings.mag_enabled) or partner is None or partner not in names or primary not in names:
+        return
+    from mavahrs.ingest.autopilot_mag_bias import CAL_LEN, constants, mag_restore_rows, new_state
+    from mavahrs.sensors.profiles import INSTANCE_OF_MESSAGE
+    from mavahrs.sensors.px4_mag_calibration import mag_calibration, param_value, relevant_name
+
+    # the calibration in effect after each of the autopilot's PARAM_VALUE (as the pipeline's handler takes them)
+    a = td.arrays["PARAM_VALUE"]
+    ppos = td.pos["PARAM_VALUE"]
+    ok = (a["sysid"] == src[0]) & (a["compid"] == src[1]) & (ppos > hb_pos)
+    params: dict[str, float] = {}
+    cals = [np.full(CAL_LEN, np.nan)]
+    at_pos: list[int] = []
+    at_row: list[int] = []
+    for k in np.flatnonzero(ok).tolist():
+        name = a["param_id"][k].decode("ascii", "replace").rstrip("\0")
+        if not relevant_name(name):
+            continue
+        params[name] = param_value(float(a["param_value"][k]), int(a["param_type"][k]))
+        cal = mag_calibration(params)[0]
+        cal = np.full(CAL_LEN, np.nan) if cal is None else cal
+        if not np.array_equal(cal, cals[-1], equal_nan=True):
+            cals.append(cal)
+            at_pos.append(int(ppos[k]))
+            at_row.append(len(cals) - 1)
+    if len(cals) == 1:  # never calibrated: HIGHRES_IMU as sent (the step would only count)
+        return
+    kind = mg["kind"]
+    role = np.zeros(kind.shape[0], np.int64)
+    role[(kind == names.index(primary)) & (mg["imu"] == INSTANCE_OF_MESSAGE[partner]) & use] = 1
+    role[(kind == names.index(partner)) & use] = 2
+    j = np.searchsorted(np.array(at_pos, np.int64), mg["pos"], side="right") - 1
+    cal_index = np.where(j >= 0, np.array([0, *at_row], np.int64)[j + 1], 0).astype(np.int64)
+    mag = np.array(mg["mag"], np.float64)
+    mag[(role == 2) & (((mg["sat"] | mg["inv"]) & MAG) != 0), 0] = np.nan  # as the pipeline passes it
+    applied = np.zeros(kind.shape[0], np.int64)
+    twin = profile.scale_for(partner)
+    step = twin.mag_to_ut if twin.integer_fields else 0.0
+    mag_restore_rows(new_state(), constants(settings, step, twin.truncated), np.ascontiguousarray(np.array(cals)),
+                     np.ascontiguousarray(cal_index), role, np.ascontiguousarray(mg["t_us"], np.int64), mag, applied)  # fmt: skip
+    out = np.array(mg["mag"], np.float64)
+    out[role == 1] = mag[role == 1]  # only the primary's field changes
+    mg["mag"] = out
+
+
 def prepare_inputs(
     td: TlogData,
     settings: Any = None,
@@ -506,7 +561,9 @@ def prepare_inputs(
     resent, restamped = _resends(mg, names)
     if resent.any():
         mg["use"] = mg["use"] & ~resent
+    use_before = np.array(mg["use"], np.bool_)
     _autopilot_bias(mg, names, profile, s.autopilot_bias)
+    _autopilot_mag_bias(td, mg, names, profile, s.autopilot_bias, src, hb_pos, use_before)
     mg["zero"] = mg["zero"] & mg["use"]
     # --- which samples the selector feeds
     carriers: dict[int, set[int]] = {}

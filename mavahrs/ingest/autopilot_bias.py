@@ -93,6 +93,15 @@ class AutopilotBiasSettings:
         max_outlier_fraction: the mean is not applied while the outliers' share (mean over τ) exceeds
             this (SCALED_IMU not of HIGHRES_IMU's IMU).
         request_rate_hz: the rate to ask the autopilot for the twin message at, Hz (0 = do not ask).
+        mag_enabled: also take the autopilot's magnetometer bias back out of the primary message's field, from
+            the twin's raw field with the autopilot's calibration (PX4: EKF2's ``mag_bias`` from HIGHRES_IMU, with
+            SCALED_IMU and ``CAL_MAG*``, requested by PARAM_REQUEST_READ; :mod:`mavahrs.ingest.autopilot_mag_bias`);
+            only while ``enabled`` and the calibration is known and modelled (on the PX4 SIH tlog `mavahrs evaluate` heading
+            1.00 → 0.76°).
+        mag_time_constant_s: τ of the running mean of the field pairs, s (a pair scatters by 1–2 µT; EKF2 learns
+            its bias in tens of seconds).
+        mag_max_bias_ut: a field difference beyond this on any axis is no bias, µT (EKF2's limit: 0.5 gauss).
+        mag_outlier_ut: a field difference further than this from the mean on any axis is an outlier, µT.
     """
 
     enabled: bool = True
@@ -104,9 +113,14 @@ class AutopilotBiasSettings:
     outlier_rad_s: float = 0.01
     max_outlier_fraction: float = 0.2
     request_rate_hz: float = 50.0
+    mag_enabled: bool = True
+    mag_time_constant_s: float = 5.0
+    mag_max_bias_ut: float = 50.0
+    mag_outlier_ut: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("time_constant_s", "max_pair_lag_s", "hold_s", "max_bias_rad_s", "outlier_rad_s"):
+        for name in ("time_constant_s", "max_pair_lag_s", "hold_s", "max_bias_rad_s", "outlier_rad_s",
+                     "mag_time_constant_s", "mag_max_bias_ut", "mag_outlier_ut"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"autopilot_bias.{name} must be a positive number, got {v!r}")

@@ -82,6 +82,7 @@ from mavahrs.filters.layout import (
 )
 from mavahrs.filters.magfield import mag_state_text
 from mavahrs.ingest.autopilot_bias import AutopilotBias, AutopilotBiasSettings
+from mavahrs.ingest.autopilot_mag_bias import MagBias
 from mavahrs.ingest.resend import RESENT, ResendFilter, stream_code
 from mavahrs.ingest.timeline import (
     DROP_KINDS,
@@ -112,6 +113,7 @@ from mavahrs.sensors.profiles import (
     get_profile,
     profile_for_autopilot,
 )
+from mavahrs.sensors.px4_mag_calibration import mag_calibration, missing_names, param_value, relevant_name
 from mavahrs.sensors.sample import ACCEL, GYRO, MAG, write_row
 from mavahrs.sensors.scaling import Scaler, ScalingSettings
 from mavahrs.sensors.velocity import LABELS, VELOCITY_SOURCES, VelocitySelector, fix_age_s, source_messages
@@ -143,6 +145,9 @@ _MAV_TYPE_ONBOARD_CONTROLLER = 18
 #: the autopilot's attitudes (20–100 ms) then holds several of every IMU's samples, whatever its stream rate (one
 #: sample in 8 of a 50 Hz SCALED_IMU2 against a 10 Hz ATTITUDE named a healthy IMU in yaw spins)
 _IMU_CHECK_STEP_MS = 10.0
+#: PARAM_REQUEST_READ for PX4's CAL_MAG*: once a second, ten times (autopilot_mag_bias)
+_PARAM_PERIOD_US = 1_000_000
+_PARAM_ROUNDS = 10
 
 #: MAV_TYPE of multirotors (coaxial, quad-, hexa-, octo-, tri-, dodeca-, decarotor, generic): rotor drag applies
 _MAV_STATE_ACTIVE = 4
@@ -566,6 +571,7 @@ class Pipeline:
             "EXTENDED_SYS_STATE": self._on_flight_phase,
             "SYS_STATUS": self._on_current,
             "BATTERY_STATUS": self._on_current,
+            "PARAM_VALUE": self._on_param_value,
         }
         for name in IMU_MESSAGES:
             self._handlers[name] = self._on_imu
@@ -580,6 +586,13 @@ class Pipeline:
         self._ab_partner = ""
         self._ab_primary = ""
         self._ab_instance = 0
+        #: the autopilot's magnetometer bias added back (PX4 HIGHRES_IMU from SCALED_IMU and CAL_MAG*); None: not
+        #: for this profile.  The parameters it needs, as the autopilot sent them, and their requests' schedule
+        self._mb: MagBias | None = None
+        self._params: dict[str, float] = {}
+        self._mb_reason = ""
+        self._param_next_us = 0
+        self._param_rounds = 0
         self._calibrators: dict[str, Calibrator] = {}
         self._sysid_known = s.system_id is not None or separate
         self._last_hb_us: int | None = None
@@ -712,6 +725,8 @@ class Pipeline:
             heard = max(self._last_hb_us or 0, self._last_imu_us or 0)  # anything from the autopilot
             for req in self._requester.poll(now_us, heard):
                 out.append(Outgoing(self._request_frame(req), True, False))
+            if self._mb is not None and not self._link_lost and now_us >= self._param_next_us:
+                out += self._request_params(now_us)
             if self._monitor_on:
                 if now_us >= self._next_mag_offsets_us:
                     self._next_mag_offsets_us = now_us + 1_000_000
@@ -834,6 +849,13 @@ class Pipeline:
         else:
             self._ab = None
             self._ab_partner = self._ab_primary = ""
+        if self._ab is not None and ab.mag_enabled:
+            twin = profile.scale_for(profile.bias_free_message)
+            assert twin is not None
+            self._mb = MagBias(ab, twin.mag_to_ut if twin.integer_fields else 0.0, twin.truncated)
+            self._mb.set_calibration(mag_calibration(self._params)[0])
+        else:
+            self._mb = None
         self._calibrators = {
             name: Calibrator(self.settings.calibration, mag_already_calibrated=ms.mag_calibrated)
             for name, ms in profile.messages.items()
@@ -915,6 +937,8 @@ class Pipeline:
         ab = self._ab
         if ab is not None:
             if name == self._ab_partner:  # PX4 SCALED_IMU: EKF2's bias against HIGHRES_IMU (ingest.autopilot_bias)
+                if self._mb is not None:  # its raw field: EKF2's magnetometer bias (ingest.autopilot_mag_bias)
+                    self._mb.pair(v[1], _NAN if (sat | inv) & MAG else v[8], v[9], v[10])
                 bad = (sat | inv) & GYRO
                 if ab.pair(v[1], _NAN if bad else v[2], v[3], v[4]):
                     self._count(self._counters, "bias_twin_samples")  # served the bias step only
@@ -923,6 +947,8 @@ class Pipeline:
                 row = self._scaler.row
                 if ab.restore(v[1], row, IN_GYRO):
                     v = (v[0], v[1], float(row[IN_GYRO]), float(row[IN_GYRO + 1]), float(row[IN_GYRO + 2]), *v[5:])
+                if self._mb is not None and self._mb.restore(v[1], row, IN_MAG):
+                    v = (*v[:8], float(row[IN_MAG]), float(row[IN_MAG + 1]), float(row[IN_MAG + 2]), *v[11:])
         if self._monitor_on and not inv:  # every IMU's gyro for the monitor to name an IMU that is off, at most
             t_ms = v[1] / 1000.0  # one sample per _IMU_CHECK_STEP_MS per instance (its mean over 10 s is what
             last = self._imu_fed.get(v[0])  # counts; every sample costs the page's events on a loaded machine)
@@ -1204,6 +1230,47 @@ class Pipeline:
         return (hdr.srcSystem, hdr.srcComponent) == self._source
 
     # ------------------------------------------------------------------ events
+    def _on_param_value(self, msg: Any, now_us: int) -> list[Outgoing]:
+        """The autopilot's parameters that PX4's magnetometer calibration needs (``sensors.px4_mag_calibration``)."""
+        hdr = msg.get_header()
+        if self._source is None or (hdr.srcSystem, hdr.srcComponent) != self._source:
+            return []
+        pid = msg.param_id
+        name = (pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)).rstrip("\0")
+        if not relevant_name(name):
+            return []
+        self._params[name] = param_value(float(msg.param_value), int(msg.param_type))
+        if self._mb is not None:
+            cal, reason = mag_calibration(self._params)
+            was = self._mb.calibrated
+            self._mb.set_calibration(cal)
+            if cal is not None and not was:
+                self._notices.info("mag-bias-cal", "CAL_MAG* received: the autopilot's magnetometer bias is taken "
+                                   f"back out of {self._ab_primary}'s field (from {self._ab_partner})", now_us)  # fmt: skip
+            elif cal is None and not missing_names(self._params) and reason != self._mb_reason:
+                self._notices.warning("mag-bias-cal", f"{reason}: {self._ab_primary}'s field used as the autopilot "
+                                      "sends it (with its EKF's magnetometer bias)", now_us)  # fmt: skip
+            self._mb_reason = reason
+        return []
+
+    def _request_params(self, now_us: int) -> list[Outgoing]:
+        """PARAM_REQUEST_READ for the calibration's parameters not yet received: once a second, at most
+        :data:`_PARAM_ROUNDS` times (then HIGHRES_IMU's field stays as sent, said once)."""
+        self._param_next_us = now_us + _PARAM_PERIOD_US
+        missing = missing_names(self._params)
+        if not missing or self._source is None:
+            return []
+        self._param_rounds += 1
+        if self._param_rounds > _PARAM_ROUNDS:
+            if self._param_rounds == _PARAM_ROUNDS + 1:
+                self._notices.warning("mag-bias-params", f"no answer to PARAM_REQUEST_READ for {', '.join(missing[:3])}"
+                                      f"{' …' if len(missing) > 3 else ''}: {self._ab_primary}'s field used as the "
+                                      "autopilot sends it (with its EKF's magnetometer bias)", now_us)  # fmt: skip
+            return []
+        ts, tc = self._source
+        return [Outgoing(self._codec.encode(self._mav.param_request_read_encode(ts, tc, n.encode("ascii"), -1)), True, False)
+                for n in missing]  # fmt: skip
+
     def _on_reboot(self, name: str, now_us: int) -> None:
         self._count(self._counters, "reboots")
         self._filter.reset()
@@ -1211,6 +1278,8 @@ class Pipeline:
         self._resends.reset()
         if self._ab is not None:
             self._ab.reset()
+        if self._mb is not None:
+            self._mb.reset()
         self._monitor.reset()
         self._reset_stream_state()
         self._requester.start()
@@ -1432,7 +1501,8 @@ class Pipeline:
             drops=dict(self._drops),
             samples_dropped=sum(self._drops.values()),
             counters={**self._counters, "duplicate_source": self._selector.duplicate_source, **self._timeline_counts(),
-                      **({f"autopilot_bias_{k}": n for k, n in self._ab.counts.items()} if self._ab is not None else {})},
+                      **({f"autopilot_bias_{k}": n for k, n in self._ab.counts.items()} if self._ab is not None else {}),
+                      **({f"autopilot_mag_bias_{k}": n for k, n in self._mb.counts.items()} if self._mb is not None else {})},
             initialised=init,
             gain=diag.gain,
             accel_weight=diag.accel_weight,
