@@ -132,7 +132,13 @@ from mavahrs.filters.magfield import (
 from mavahrs.filters.magfield import (
     NX as MF_NX,
 )
-from mavahrs.filters.prefilter import BW_LEN, LP_LEN, nav_lowpass_rotate, ned_butterworth_step
+from mavahrs.filters.prefilter import (
+    BW_LEN,
+    LP_LEN,
+    lowpass_coefficient,
+    nav_lowpass_rotate,
+    ned_butterworth_step,
+)
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
 __all__ = [
@@ -263,7 +269,10 @@ _BOFF_LAG = _MAG_DELAY + 24  # s: the body-offset learner's pair interval (0: of
 _BOFF_MIN_TURN = _MAG_DELAY + 25  # its least eigenvalue of Σ (I − R)ᵀ(I − R) before the offset is used
 _BOFF_RESID = _MAG_DELAY + 26  # the largest share of Σ yᵀy a used fit leaves unexplained (its residual over the pairs')
 _BOFF_SIGMA = _MAG_DELAY + 27  # µT²: the largest variance of the fitted offset along its worst axis that is used
-_N_PARAMS = _MAG_DELAY + 28
+_REST_WOBBLE_VAR = _MAG_DELAY + 28  # (rad/s)²: variance of the mean rate across the vertical a hovering rest may hide (0: none)
+_REST_HOVER_VIB = _MAG_DELAY + 29  # m/s²: a rest is a hovering one only where the accelerometer's vibration RMS exceeds this (0: not asked)
+_REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is below this (0: not asked)
+_N_PARAMS = _MAG_DELAY + 31
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -349,7 +358,9 @@ _SLOW = _DNIS + 2
 _BOFF = _SLOW + 14
 _BOFF_A = _BOFF + 13
 _BOFF_B = _BOFF_A + 11
-_N_STATE = _BOFF_B + 4
+_REST_N = _BOFF_B + 4  # zero-rate updates fused since the detector's hovering rest began (``_rest_rate_update``)
+_REST_VIB = _REST_N + 1  # the accelerometer's mean square deviation from the rest detector's low-pass, 1 s mean, (m/s²)²
+_N_STATE = _REST_N + 2
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -635,6 +646,21 @@ class EskfSettings(FilterSettings):
             within 0.08 m/s² of its low-pass, the gyro 0.3–0.5 °/s), and raw
             ``hover`` seed 5 declared a multirotor measured 5.37° (0.71°
             with this at 0.5 °/s).  Set by ``best``'s multirotor hypothesis.
+        rest_wobble_sigma_rad_s: in a *hovering* rest, the rate across the
+            vertical that the rest may hide, rad/s (1-σ, one constant per rest:
+            the n-th update fuses only its information increment, so a rest
+            carries at most that of its mean; 0 = off, the default).  A
+            multirotor's specific force is its thrust, fixed in the body, so a
+            hover's slow tilting wobble moves nothing the detector sees.  ``best``'s
+            multirotor 0.3 °/s (firmware_sim raw ``hover`` 135 3.07 → 1.40°).
+        rest_hover_vibration_m_s2: a rest is a hovering one only where the
+            accelerometer's vibration (RMS of its deviation from the detector's
+            0.5 s low-pass, 1 s mean) exceeds this, m/s² (the rotors run; 0 = not
+            asked).  ``best``'s multirotor 0.04 (firmware_sim: landed
+            0.017–0.034, flying ≥ 0.048).
+        rest_hover_speed_m_s: … and only where the INS horizontal speed is below
+            this, m/s (0 = not asked).  ``best``'s multirotor 5 (a steady dash's
+            constant attitude is a true rest).
         rest_velocity_noise_m_s: 1-σ noise of a zero velocity fused at rest,
             m/s; 0 = not fused (the default: SITL's hover is as still as a
             landed vehicle and drifts; 0.05 m/s measured 1.94 → 2.07°).
@@ -871,6 +897,9 @@ class EskfSettings(FilterSettings):
     rest_rate_noise_rad_s: float = math.radians(0.1)
     rest_velocity_noise_m_s: float = 0.0
     rest_check_sigma_rad_s: float = 0.0
+    rest_wobble_sigma_rad_s: float = 0.0
+    rest_hover_vibration_m_s2: float = 0.0
+    rest_hover_speed_m_s: float = 0.0
     schedule: GainScheduleSettings = field(
         default_factory=lambda: GainScheduleSettings(
             startup_gain_factor=1.0,
@@ -931,7 +960,7 @@ class EskfSettings(FilterSettings):
             raise ValueError(f"EskfSettings.drag_coefficient_1_s must be in [0, 10] 1/s, got {self.drag_coefficient_1_s!r}")
         if not isinstance(self.rest, RestBiasSettings):
             raise ValueError(f"EskfSettings.rest must be a RestBiasSettings, got {type(self.rest).__name__}")
-        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
+        for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "rest_wobble_sigma_rad_s", "rest_hover_vibration_m_s2", "rest_hover_speed_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
@@ -1130,6 +1159,8 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         for i in range(3, 6):
             s[kp + i * N + i] = _P0_VEL_FLYING
     rest_reset(s, k + _REST)
+    s[k + _REST_N] = 0.0
+    s[k + _REST_VIB] = 0.0
     s[k + _LAST_FIX] = -1.0
     s[k + _PREJ_T] = -1.0
     for i in range(3):
@@ -1512,6 +1543,100 @@ def _innovation(s, k, y, r):  # type: ignore[no-untyped-def]
     for i in range(n):
         sv += s[kh + i] * s[kph + i]
     return y, sv
+
+
+@kernel(inline=True)
+def _rest_is_hovering(s, k, params, p):  # type: ignore[no-untyped-def]
+    """A detected rest is a hovering one (the rotors run, the vehicle hardly moves through the air).
+
+    The rotors run where the accelerometer's vibration (RMS of its deviation from the detector's
+    0.5 s low-pass, averaged over 1 s: ``_REST_VIB``) exceeds ``rest_hover_vibration_m_s2`` (0: not
+    asked); the vehicle hovers where the INS velocity's horizontal speed (the drag model's
+    airspeed without wind) is below ``rest_hover_speed_m_s`` (0: not asked).
+    """
+    v_min = params[p + _REST_HOVER_VIB]
+    if v_min > 0.0 and not (s[k + _REST_VIB] > v_min * v_min):
+        return False
+    v_max = params[p + _REST_HOVER_SPEED]
+    if v_max > 0.0:
+        vn, ve = s[k + _V], s[k + _V + 1]
+        if not (vn * vn + ve * ve < v_max * v_max):
+            return False
+    return True
+
+
+@kernel(inline=True)
+def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
+    r"""The low-passed gyro ω̄ at detected rest as a measurement of the bias: ω̄ = b + ω_wob + e.
+
+    ``e`` is the low-pass's white noise (R = ``rest_rate_noise_rad_s``²).  ``ω_wob`` is the
+    rate across the vertical a *hovering* rest may hide: a multirotor's specific force is its
+    thrust, fixed in the body, so a hover's slow tilting wobble moves nothing the detector sees,
+    and its 0.5 s low-pass carries it as a bias.  In a hovering rest (``_rest_is_hovering``) the
+    measurement is split on the body-frame vertical u (the detector's low-passed specific force,
+    normalised) and two axes e₁, e₂ across it; along u z_u = uᵀ(ω̄ − b̂) with R, across it
+    z_i = e_iᵀ(ω̄ − b̂) with ω_wob one constant over the rest (variance σ_w² =
+    ``rest_wobble_sigma_rad_s``²) while e is white, so a rest of n updates carries across the
+    vertical at most the information of its mean, 1 / (σ_w² + R/n) (colored measurement noise:
+    Gelb 1974 §4.6, here the constant's limit): the n-th update fuses the increment
+    R_n = 1 / (1/(σ_w² + R/n) − 1/(σ_w² + R/(n−1))), the first σ_w² + R, the next ones almost
+    nothing.  Otherwise (σ_w = 0, or a rest not hovering) all three axes with R every update (as
+    before).  Returns True when anything was fused.
+    """
+    r = params[p + _R_REST_RATE]
+    q_wob = params[p + _REST_WOBBLE_VAR]
+    updated = False
+    if q_wob <= 0.0 or not _rest_is_hovering(s, k, params, p):
+        for c in range(3):
+            for i in range(N):
+                s[k + _H + i] = 0.0
+            s[k + _H + 6 + c] = 1.0
+            if _scalar_update(s, k, s[k + _REST + c] - s[S_BIAS + c], r, 1.0e6):
+                updated = True
+        return updated
+    # the body-frame vertical from the detector's low-passed specific force
+    ux, uy, uz = s[k + _REST + 3], s[k + _REST + 4], s[k + _REST + 5]
+    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if not (nu > 0.0):
+        return False
+    ux, uy, uz = ux / nu, uy / nu, uz / nu
+    # e1 ⟂ u from the body axis least aligned with u, e2 = u × e1
+    if abs(ux) <= abs(uy) and abs(ux) <= abs(uz):
+        ax_, ay_, az_ = 1.0, 0.0, 0.0
+    elif abs(uy) <= abs(uz):
+        ax_, ay_, az_ = 0.0, 1.0, 0.0
+    else:
+        ax_, ay_, az_ = 0.0, 0.0, 1.0
+    d = ax_ * ux + ay_ * uy + az_ * uz
+    e1x, e1y, e1z = ax_ - d * ux, ay_ - d * uy, az_ - d * uz
+    n1 = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / n1, e1y / n1, e1z / n1
+    e2x, e2y, e2z = uy * e1z - uz * e1y, uz * e1x - ux * e1z, ux * e1y - uy * e1x
+    # this hovering rest's update count (restarts when the detector's rest ends)
+    s[k + _REST_N] += 1.0
+    n_upd = s[k + _REST_N]
+    info_h = 1.0 / (q_wob + r / n_upd)
+    if n_upd > 1.0:
+        info_h -= 1.0 / (q_wob + r / (n_upd - 1.0))
+    for a in range(3):
+        if a < 2 and not (info_h > 0.0):
+            continue
+        if a == 0:
+            hx, hy, hz, ra = e1x, e1y, e1z, 1.0 / info_h
+        elif a == 1:
+            hx, hy, hz, ra = e2x, e2y, e2z, 1.0 / info_h
+        else:
+            hx, hy, hz, ra = ux, uy, uz, r
+        for i in range(N):
+            s[k + _H + i] = 0.0
+        s[k + _H + 6] = hx
+        s[k + _H + 7] = hy
+        s[k + _H + 8] = hz
+        y = (hx * (s[k + _REST] - s[S_BIAS]) + hy * (s[k + _REST + 1] - s[S_BIAS + 1])
+             + hz * (s[k + _REST + 2] - s[S_BIAS + 2]))  # fmt: skip
+        if _scalar_update(s, k, y, ra, 1.0e6):
+            updated = True
+    return updated
 
 
 @kernel(inline=True)
@@ -2256,7 +2381,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             state, k + _REST, state, k + _RSCR, row[IN_GYRO], row[IN_GYRO + 1], row[IN_GYRO + 2],
             ax, ay, az, accel_ok, math.nan, math.nan, math.nan, dt, params, p + _REST_P,
         )  # fmt: skip
+        if accel_ok and params[p + _REST_HOVER_VIB] > 0.0:  # the rotors' vibration: deviation from the 0.5 s low-pass
+            dax, day, daz = ax - state[k + _REST + 3], ay - state[k + _REST + 4], az - state[k + _REST + 5]
+            state[k + _REST_VIB] += (dax * dax + day * day + daz * daz - state[k + _REST_VIB]) * lowpass_coefficient(dt, 1.0)
         n_known = 0
+        if not at_rest:
+            state[k + _REST_N] = 0.0
         if at_rest:
             # a low-passed rate the bias cannot explain is a slow steady turn (a hover's yaw), not rest:
             # each axis within 3 σ of the bias estimate (its covariance plus the measurement's noise);
@@ -2279,12 +2409,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # the low-passed gyro is the bias (Madgwick's and VQF's rest phase, here as a measurement of
             # the bias state: its covariance with the tilt corrects that too); optionally the velocity is zero
             state[k + _LAST_REST] = clk
-            for c in range(3):
-                for i in range(N):
-                    state[k + _H + i] = 0.0
-                state[k + _H + 6 + c] = 1.0
-                if _scalar_update(state, k, state[k + _REST + c] - state[S_BIAS + c], params[p + _R_REST_RATE], 1.0e6):
-                    updated = True
+            if _rest_rate_update(state, k, params, p):
+                updated = True
             for c in range(3 if params[p + _R_REST_VEL] > 0.0 else 0):
                 for i in range(N):
                     state[k + _H + i] = 0.0
@@ -2869,6 +2995,9 @@ class Eskf(AttitudeFilter):
         p[_INIT_COS] = math.cos(min(settings.initial_realign_rad, math.pi))
         p[_R_REST_RATE] = settings.rest_rate_noise_rad_s**2
         p[_REST_CHECK_VAR] = settings.rest_check_sigma_rad_s**2
+        p[_REST_WOBBLE_VAR] = settings.rest_wobble_sigma_rad_s**2
+        p[_REST_HOVER_VIB] = settings.rest_hover_vibration_m_s2
+        p[_REST_HOVER_SPEED] = settings.rest_hover_speed_m_s
         p[_R_REST_VEL] = settings.rest_velocity_noise_m_s**2
         p[_REST_P : _REST_P + RP_LEN] = settings.rest.to_params()
         p[_R_POS_H] = settings.position_noise_m**2
