@@ -537,6 +537,9 @@ def _replay_log(
     notes: list[str] = []
     if s.engine == "pipeline":
         notes.append(f"engine: fast (the pipeline engine reads MAVLink; this is {a_format(fmt)})")
+    if ps.source_system is not None or ps.source_component is not None:  # said, not silently ignored
+        notes.append(f"--source ignored: {a_format(fmt)} is written by the autopilot itself and holds its own "
+                     "IMU data only (no other senders to choose from)")  # fmt: skip
     sink = None
     try:
         if csv_path is not None:

@@ -537,3 +537,20 @@ def test_a_window_past_the_log_says_where_its_imu_data_are(log: str, sim_hover_t
     assert "None" not in err and "from the autopilot" not in err
     assert main(["replay", str(path), "--start", "5000", "--end", "6000"]) == 1
     assert "no IMU samples between 5000 and 6000 s after the log's start" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("log", ["px4_ulog/sample.ulg", "mavlink_logs/ardusub_log_tools/small.BIN"])
+def test_source_on_an_onboard_log_is_said_to_be_ignored(log: str, shared_data: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``--source`` chooses a sender in a telemetry log; an onboard log has one, its own, and the option was
+    dropped without a word (user8). The replay runs and its notes say so; without the option they do not."""
+    path = shared_data / log
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    said = "--source ignored: "
+    capsys.readouterr()
+    assert main(["replay", str(path), "-f", "madgwick", "--source", "2:1"]) == 0
+    out = capsys.readouterr().out
+    assert any(line.startswith("note: " + said) for line in out.splitlines()), out
+    assert main(["replay", str(path), "-f", "madgwick"]) == 0
+    assert said not in capsys.readouterr().out
