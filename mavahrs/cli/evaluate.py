@@ -107,6 +107,8 @@ def _run(args: argparse.Namespace) -> int:
                               source=args.source)
     finally:
         geomag.setLevel(level)
+    if Path(args.input).is_dir():
+        _say_what_the_folder_holds(Path(args.input))
     if args.multirotor:
         for rec in recordings:
             rec.extra["multirotor"] = True
@@ -127,6 +129,31 @@ def _run(args: argparse.Namespace) -> int:
     if not any(r.scores for r in report.recordings):
         return _error("nothing was scored (no usable reference attitude in the input; see the notes above)", 1)
     return 0
+
+
+def _say_what_the_folder_holds(folder: Path) -> None:
+    """The files a folder's evaluation skipped, and a mean over different kinds of recording, said as log lines
+    (both were silent: a mean of BROAD trials and flight logs reads as one figure of one kind)."""
+    import logging
+
+    from mavahrs.evaluation.loaders import folder_files
+
+    log = logging.getLogger("mavahrs")
+
+    taken, skipped = folder_files(folder)
+    if skipped:
+        n = len(skipped)
+        what = f"{n} files that are not recordings or logs" if n != 1 else "1 file that is not a recording or log"
+        names = ", ".join(f.name for f in skipped[:5]) + (f" and {n - 5} more" if n > 5 else "")
+        log.info("skipped %s (.mat, .csv, .tlog, .BIN, .ulg by name or content): %s", what, names)
+    kinds: dict[str, int] = {}
+    for f in taken:
+        kind = {".mat": "BROAD trial", ".csv": "recording CSV"}.get(f.suffix.lower(), "flight log")
+        kinds[kind] = kinds.get(kind, 0) + 1
+    if len(kinds) > 1:
+        held = ", ".join(f"{n} {k}{'s' if n != 1 else ''}" for k, n in kinds.items())
+        log.warning("this folder holds different kinds of recording (%s): the mean over them mixes kinds; "
+                    "evaluate a folder of one kind for a figure of that kind", held)
 
 
 def _one_of(recordings: list[Any], what: str) -> Any:

@@ -98,15 +98,23 @@ def load_one(path: Path, **kwargs: Any) -> Recording:
                     if why.endswith(", ".join(FORMATS.values())) else why)  # fmt: skip
 
 
+def folder_files(folder: Path) -> tuple[list[Path], list[Path]]:
+    """A folder's files that :func:`load_any` takes (by suffix, or a log by its content) and the ones it skips."""
+    from mavahrs.logs import sniff
+
+    taken, skipped = [], []
+    for f in sorted(f for f in folder.iterdir() if f.is_file()):
+        (taken if f.suffix.lower() in SUFFIXES or sniff(f) else skipped).append(f)
+    return taken, skipped
+
+
 def load_any(path: str | Path, **kwargs: Any) -> list[Recording]:
     """Load one file, or every recognised file in a folder."""
     p = Path(path)
     if not p.exists():
         raise _missing(p, "no such file or folder")
     if p.is_dir():
-        from mavahrs.logs import sniff
-
-        files = sorted(f for f in p.iterdir() if f.is_file() and (f.suffix.lower() in SUFFIXES or sniff(f)))
+        files, _ = folder_files(p)
         if not files:
             raise _missing(p, "no .mat, .csv, .tlog, .BIN or .ulg files in this folder")
         recs = [load_one(f, **kwargs) for f in files]

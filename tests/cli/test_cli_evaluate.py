@@ -365,3 +365,31 @@ def test_truth_too_sparse_to_slerp_says_so(sim_tlog_writer, tmp_path: Path,  # t
     assert "nothing was scored (no usable reference attitude in the input" in cap.err
     assert main(["replay", str(log), "-f", "mahony"]) == 0  # at the truth's own times
     assert "SIM_STATE truth" in capsys.readouterr().out
+
+
+def test_a_mixed_folder_says_what_it_skipped_and_that_its_mean_mixes_kinds(
+    broad_dir: Path, sim_hover_tlog: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A folder with a BROAD trial, a flight log and a note: the note was skipped and the trial and the flight
+    averaged into one "mean over 2 recordings" without a word (user8). Both are said now, as log lines; a
+    folder of one kind says neither."""
+    import re
+    import shutil
+
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    (folder / "trial.mat").symlink_to(broad_dir / "02_undisturbed_slow_rotation_B.mat")
+    shutil.copy(sim_hover_tlog, folder / "hover.tlog")
+    (folder / "notes.txt").write_text("flown on Tuesday\n")
+    assert main(["evaluate", str(folder), "-f", "mahony"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    said = [ln for ln in err if "skipped" in ln or "kinds" in ln]
+    assert all(re.match(r"\d\d:\d\d:\d\d\.\d{3} (INFO|WARNING) ", ln) for ln in said), said
+    assert any("skipped 1 file that is not a recording or log" in ln and ln.endswith(": notes.txt") for ln in said), err
+    assert any("different kinds of recording (" in ln and "1 BROAD trial" in ln and "1 flight log" in ln
+               for ln in said), err  # fmt: skip
+    (folder / "notes.txt").unlink()
+    (folder / "trial.mat").unlink()
+    assert main(["evaluate", str(folder), "-f", "mahony"]) == 0
+    err = capsys.readouterr().err
+    assert "skipped" not in err and "kinds" not in err, err
