@@ -144,6 +144,13 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
                     break
                 time.sleep(0.005)
             relay.set_faults(1, faults, phase)
+            if phase == "mix" and at == 5.0:
+                # the faulty daemon not scheduled for 1 s of flight (as on a loaded machine; SIGSTOP): its
+                # kernel receive buffer overflows, and those drops must be counted (asserted below)
+                faulty.proc.send_signal(signal.SIGSTOP)
+                while flown_ms[1] - flown_ms[0] < 6000 and sim.poll() is None and time.monotonic() < deadline:
+                    time.sleep(0.005)
+                faulty.proc.send_signal(signal.SIGCONT)
         assert sim.wait(240) == 0
         # the flight is over: wait until each daemon has answered the newest sample it received
         # (the event; a loaded machine can hold seconds of datagrams in the daemons' queues)
@@ -218,14 +225,18 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
     # its full receive buffer, or its bounded input queue sheds the oldest.  Both are counted
     # (``links.*.kernel_dropped``, ``counters.input_dropped``, the pipeline's drops): the rule is that
     # nothing is lost *uncounted*, so every intact sample is answered or counted as dropped, and most
-    # are answered.  Our own ground stations must lose nothing (their buffers are large).
+    # are answered (the 1 s stall above leaves ~98 % answered; a 2 s one 92 %).  Our own ground stations
+    # must lose nothing (their buffers are large).
     assert kdrops["gcs_clean"] == 0 and kdrops["gcs_faulty"] == 0, kdrops
     for leg, frac, name in ((0, frac_clean, "clean.json"), (1, frac_faulty, "faulty.json")):
         n_intact = len(_in_order(recv_clean if leg == 0 else recv_faulty))
         counted = _counted_drops(json.loads((tmp_path / name).read_text()))
         unanswered = round((1.0 - frac) * n_intact)
         assert unanswered <= counted + 0.01 * n_intact, f"{name}: {unanswered} intact samples unanswered, {counted} counted"
-        assert frac >= 0.95, f"{name}: only {frac:.2%} of the intact samples answered"
+        assert frac >= 0.90, f"{name}: only {frac:.2%} of the intact samples answered"
+    # the stall overflowed the faulty daemon's receive buffer: it counted exactly what the kernel dropped
+    kernel_counted = sum(int(link.get("kernel_dropped", 0)) for link in stats["links"].values())
+    assert kdrops["faulty_in"] > 0 and kernel_counted == kdrops["faulty_in"], (kernel_counted, kdrops)
     assert len(keys) > 1000  # the steady-mix window: 2.5 s or more of 400 Hz samples
     assert rms_clean <= TILT_BOUND_DEG
     assert abs(rms_faulty - rms_clean) <= 1.0, (rms_clean, rms_faulty)
