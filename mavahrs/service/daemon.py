@@ -928,7 +928,7 @@ class Daemon:
         latency = LatencyRing.summary_us(self.latency.values(self._status_latency_counts.get(window, 0)))
         self._status_latency_counts[window] = self.latency.count
         link_drops = self.counters.input_dropped + sum(
-            link.counters.writes_dropped for link in (self.master, *self.outputs)
+            link.counters.writes_dropped + link.counters.kernel_dropped for link in (self.master, *self.outputs)
         )
         drops = p.get("drops") or {}
         fields: dict[str, Any] = {

@@ -47,6 +47,9 @@ class TransportCounters:
         reconnects: times it came back (``tcpin``: a client connected;
             ``udpin``: a new sender after silence — a restarted peer).
         ignored_reads: reads discarded (e.g. a second TCP client's input).
+        kernel_dropped: datagrams the operating system threw away before we read them because
+            the socket's receive buffer was full (UDP on Linux, from ``SO_RXQ_OVFL``; 0 where the
+            platform does not tell) — the process was not scheduled for long enough.
     """
 
     bytes_in: int = 0
@@ -58,6 +61,7 @@ class TransportCounters:
     disconnects: int = 0
     reconnects: int = 0
     ignored_reads: int = 0
+    kernel_dropped: int = 0
 
 
 @runtime_checkable

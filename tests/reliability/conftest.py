@@ -189,6 +189,9 @@ class Collector:
 
     def __init__(self, codec: MavCodec | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # a ground station that is late (a loaded machine) must not lose what the daemon sent: the
+        # kernel caps this at net.core.rmem_max (4 MiB here: ~10 s of 400 Hz attitudes)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.05)
         self.port = self.sock.getsockname()[1]

@@ -77,6 +77,27 @@ def _answered_fraction(received_in_order: list[int], answered: dict[int, np.ndar
     return len(got & set(answered)) / len(got)
 
 
+def _kernel_udp_drops(port: int) -> int:
+    """Datagrams the kernel dropped at a full receive buffer of the socket bound to ``port``."""
+    total = 0
+    with open("/proc/net/udp") as f:
+        for line in f.readlines()[1:]:
+            cols = line.split()
+            if int(cols[1].split(":")[1], 16) == port:
+                total += int(cols[-1])
+    return total
+
+
+def _counted_drops(stats: dict) -> int:
+    """Datagrams a daemon says it dropped unanswered: kernel (full receive buffer), input queue, pipeline.
+
+    The pipeline's ``reordered`` drops are left out: late samples are not in the in-order set anyway.
+    """
+    kernel = sum(int(link.get("kernel_dropped", 0)) for link in stats["links"].values())
+    pipeline = sum(n for reason, n in stats["pipeline"]["drops"].items() if reason != "reordered")
+    return kernel + int(stats["counters"]["input_dropped"]) + int(stats["counters"]["startup_dropped"]) + pipeline
+
+
 def _in_order(ms_sequence: list[int]) -> list[int]:
     """Samples that arrived newer than everything before them (first copy only)."""
     out, newest = [], -1
@@ -123,6 +144,13 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
                     break
                 time.sleep(0.005)
             relay.set_faults(1, faults, phase)
+            if phase == "mix" and at == 5.0:
+                # the faulty daemon not scheduled for 1 s of flight (as on a loaded machine; SIGSTOP): its
+                # kernel receive buffer overflows, and those drops must be counted (asserted below)
+                faulty.proc.send_signal(signal.SIGSTOP)
+                while flown_ms[1] - flown_ms[0] < 6000 and sim.poll() is None and time.monotonic() < deadline:
+                    time.sleep(0.005)
+                faulty.proc.send_signal(signal.SIGCONT)
         assert sim.wait(240) == 0
         # the flight is over: wait until each daemon has answered the newest sample it received
         # (the event; a loaded machine can hold seconds of datagrams in the daemons' queues)
@@ -134,6 +162,8 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
                     break  # judged below: the answered fraction says what was missing
                 time.sleep(0.05)
     finally:
+        kdrops = {n: _kernel_udp_drops(p) for n, p in (("clean_in", port_clean), ("faulty_in", port_faulty),
+                                                       ("gcs_clean", gcs_clean.port), ("gcs_faulty", gcs_faulty.port))}
         rc_clean, rc_faulty = clean.stop(), faulty.stop()
         gcs_clean.close()
         gcs_faulty.close()
@@ -187,11 +217,26 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
         f"{len(in_order)} intact in-order samples; tilt RMS clean {rms_clean:.2f}° faulty {rms_faulty:.2f}° "
         f"over {len(keys)} samples (difference RMS {rt.rms(diff):.2f}° max {diff.max():.2f}°); bursts {bursts}; "
         f"worst excess error {worst}; recovery {recovery}\n codec {codec}\n drops {pipe['drops']}"
-        f"\n counters {pipe['counters']}"
+        f"\n counters {pipe['counters']}\n kernel drops {kdrops}; counted drops clean "
+        f"{_counted_drops(json.loads((tmp_path / 'clean.json').read_text()))} faulty {_counted_drops(stats)}"
     )
     assert len(in_order) > 5000
-    assert frac_clean >= 0.99
-    assert frac_faulty >= 0.99, f"only {frac_faulty:.2%} of the intact samples answered"
+    # On a loaded machine a daemon may not be scheduled for a while: then the kernel drops datagrams at
+    # its full receive buffer, or its bounded input queue sheds the oldest.  Both are counted
+    # (``links.*.kernel_dropped``, ``counters.input_dropped``, the pipeline's drops): the rule is that
+    # nothing is lost *uncounted*, so every intact sample is answered or counted as dropped, and most
+    # are answered (the 1 s stall above leaves ~98 % answered; a 2 s one 92 %).  Our own ground stations
+    # must lose nothing (their buffers are large).
+    assert kdrops["gcs_clean"] == 0 and kdrops["gcs_faulty"] == 0, kdrops
+    for leg, frac, name in ((0, frac_clean, "clean.json"), (1, frac_faulty, "faulty.json")):
+        n_intact = len(_in_order(recv_clean if leg == 0 else recv_faulty))
+        counted = _counted_drops(json.loads((tmp_path / name).read_text()))
+        unanswered = round((1.0 - frac) * n_intact)
+        assert unanswered <= counted + 0.01 * n_intact, f"{name}: {unanswered} intact samples unanswered, {counted} counted"
+        assert frac >= 0.90, f"{name}: only {frac:.2%} of the intact samples answered"
+    # the stall overflowed the faulty daemon's receive buffer: it counted exactly what the kernel dropped
+    kernel_counted = sum(int(link.get("kernel_dropped", 0)) for link in stats["links"].values())
+    assert kdrops["faulty_in"] > 0 and kernel_counted == kdrops["faulty_in"], (kernel_counted, kdrops)
     assert len(keys) > 1000  # the steady-mix window: 2.5 s or more of 400 Hz samples
     assert rms_clean <= TILT_BOUND_DEG
     assert abs(rms_faulty - rms_clean) <= 1.0, (rms_clean, rms_faulty)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import sys
 
 import pytest
 
@@ -116,3 +117,25 @@ def test_two_peers_talking_at_once_are_not_restarts(listener: UdpTransport) -> N
     finally:
         a.close()
         b.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_RXQ_OVFL is Linux's")
+def test_datagrams_the_kernel_drops_at_a_full_receive_buffer_are_counted(listener: UdpTransport) -> None:
+    """A process not scheduled for a while: its socket buffer fills and the kernel drops the rest."""
+    sock = listener._sock
+    assert sock is not None
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # the kernel's minimum: a few datagrams
+    port = listener.local_address[1]
+    sent = 200
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i in range(sent):  # nothing reads meanwhile
+            s.sendto(i.to_bytes(2, "little") * 100, ("127.0.0.1", port))
+        got = 0
+        while listener.read(0.2):
+            got += 1
+        assert 0 < got < sent
+        # the kernel stamps its running drop count on each datagram it queues: the next one tells
+        s.sendto(b"next", ("127.0.0.1", port))
+        assert listener.read(2.0) == b"next"
+    assert listener.counters.reads == got + 1
+    assert listener.counters.kernel_dropped == sent - got  # every datagram either read or counted
