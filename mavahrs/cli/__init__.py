@@ -147,6 +147,11 @@ def console_main() -> None:
     except ValueError:  # not the main thread (embedded)
         pass
     code = main()
+    try:  # the command is over (everything written): a SIGTERM from here on ends the process, as before
+        if signal.getsignal(signal.SIGTERM) is terminated:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    except ValueError:
+        pass
 
     def at_shutdown(_signum: int, _frame: Any) -> None:
         try:
