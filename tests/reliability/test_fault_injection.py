@@ -164,6 +164,8 @@ def test_udp_faults_clean_vs_faulty_same_flight(rt, tmp_path: Path) -> None:
                     break  # judged below: the answered fraction says what was missing
                 time.sleep(0.05)
     finally:
+        if faulty.proc.poll() is None:  # a failure during the stall must not leave the daemon stopped
+            faulty.proc.send_signal(signal.SIGCONT)
         kdrops = {n: _kernel_udp_drops(p) for n, p in (("clean_in", port_clean), ("faulty_in", port_faulty),
                                                        ("gcs_clean", gcs_clean.port), ("gcs_faulty", gcs_faulty.port))}
         rc_clean, rc_faulty = clean.stop(), faulty.stop()
