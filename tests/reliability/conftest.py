@@ -36,6 +36,8 @@ from mavahrs.protocol.codec import MavCodec
 REPO = Path(__file__).resolve().parents[2]
 G = 9.80665
 MAG_NED_UT = np.array([22.0, 2.0, 42.0])
+#: Linux's SO_RCVBUFFORCE (not in Python's socket module): a receive buffer beyond net.core.rmem_max (root)
+_SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33) if sys.platform.startswith("linux") else None
 
 
 # --------------------------------------------------------------------------- environment
@@ -189,9 +191,15 @@ class Collector:
 
     def __init__(self, codec: MavCodec | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        # a ground station that is late (a loaded machine) must not lose what the daemon sent: the
-        # kernel caps this at net.core.rmem_max (4 MiB here: ~10 s of 400 Hz attitudes)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        # a ground station that is late (a loaded machine) must not lose what the daemon sent: 4 MiB
+        # (~10 s of 400 Hz attitudes); SO_RCVBUFFORCE (root) passes net.core.rmem_max, to which
+        # SO_RCVBUF is capped (208 KiB by default on Linux)
+        try:
+            if _SO_RCVBUFFORCE is None:
+                raise OSError("Linux only")
+            self.sock.setsockopt(socket.SOL_SOCKET, _SO_RCVBUFFORCE, 4 << 20)
+        except OSError:  # not Linux, or not root
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.05)
         self.port = self.sock.getsockname()[1]
