@@ -197,8 +197,9 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
     assert math.isfinite(heading) and n >= 50, text  # 2 s scored at 50 Hz
     assert re.search(r"rates: IMU in [12][0-9]{2}\.\d Hz", r.stdout), text  # 250 Hz accepted by the simulated ArduPilot
     assert "meaning:" in r.stdout
-    # the simulator simply stops at the end: no stream-rate warnings about it
-    assert "fell to" not in text and "reset the stream rates" not in text, text
+    # the simulator simply stops at the end: no stream-rate warning or request about that (judged below from
+    # the tlog; a "fell to … requesting it again" while the simulator still streams, slowed by a loaded
+    # machine, is what the daemon should say)
     # the daemon's own start line names the port the demo says it listens on; the stop line reads well
     port = re.search(r"daemon: listening on udpin:127\.0\.0\.1:(\d+),", r.stdout)
     assert port and f"mavahrs running: master udpin:127.0.0.1:{port.group(1)};" in r.stdout, text
@@ -212,9 +213,18 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
 
     mlog = mavutil.mavlink_connection(str(tlog), dialect="ardupilotmega")
     kinds: dict[tuple[str, int], int] = {}
+    last_imu_s, requests_s = 0.0, []
     while (msg := mlog.recv_match()) is not None:
         key = (msg.get_type(), msg.get_srcComponent())
         kinds[key] = kinds.get(key, 0) + 1
+        if key == ("RAW_IMU", 1):
+            last_imu_s = msg._timestamp
+        elif msg.get_srcComponent() == 191 and (
+            key[0] == "REQUEST_DATA_STREAM" or (key[0] == "COMMAND_LONG" and msg.command == 511)
+        ):
+            requests_s.append(msg._timestamp)  # a stream request (SET_MESSAGE_INTERVAL or the old kind)
+    # none after the stream ended: a silent link is not asked again (it stopped, it did not slow down)
+    assert requests_s and max(requests_s) <= last_imu_s, (max(requests_s, default=None), last_imu_s, text)
     assert kinds.get(("SIMSTATE", 1), 0) > 100
     assert kinds.get(("RAW_IMU", 1), 0) > 500
     assert kinds.get(("ATTITUDE_QUATERNION", 191), 0) > 100
