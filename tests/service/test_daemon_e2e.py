@@ -275,6 +275,13 @@ def test_udp_400hz_accuracy_silence_and_restart(tmp_path: Path) -> None:
         sim = _sim(["--out", f"udpout:127.0.0.1:{port}", "--scenario", "aggressive", "--duration", "12",
                     "--seed", "1", "--blackout", "5:2", "--stats-json", "sim1.json"], tmp_path)
         assert sim.wait(90) == 0
+        # the answers are put in sessions by when they arrive: wait until the daemon has answered the flight's
+        # end (its last samples, 11.99 s on the flight's clock; a loaded machine answers them seconds late)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not any(
+            m.get_type() == "ATTITUDE_QUATERNION" and m.time_boot_ms >= 11950 for _, m in list(gcs.messages)
+        ):
+            time.sleep(0.05)
         # session 1: the simulator restarts (new process, new source port, clock from zero)
         boundaries = (time.time(),)
         sim = _sim(["--out", f"udpout:127.0.0.1:{port}", "--scenario", "aggressive", "--duration", "6",
