@@ -1,0 +1,347 @@
+#!/usr/bin/env python3
+"""What limits the BROAD magnetometer: its timing, its calibration, and what each does to ``best``'s heading.
+
+Usage::
+
+    python3 scripts/bench_broad_compass.py                 # every trial in ../shared/data/broad
+    python3 scripts/bench_broad_compass.py --data DIR      # another folder of BROAD .mat trials
+    python3 scripts/bench_broad_compass.py --no-filter     # the compass alone (seconds), not ``best``'s runs
+    python3 scripts/bench_broad_compass.py --only-eskf --eskf '{"mag_learn_tau_s": 20}'   # best's settings changed
+
+Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
+regression uses the optical reference, so none of them is something a filter could do online; they bound
+what an online calibration or delay estimate could give.
+
+* *A perfect-attitude compass*: each reading rotated to NED with the reference's attitude ``shift`` samples
+  later (negative: earlier) and its azimuth compared with the first valid second's field azimuth; RMS over
+  the scored samples.  The shift that minimises it is the compass's delay behind the reference, in samples
+  (285.7 Hz); the gyro's delay behind the reference is the shift that best matches the reference's own body
+  rate (:func:`gyro_shift_samples`).
+* *The delay without a reference* (:func:`compass_delay_s`): an earth-fixed field read in a turning body
+  obeys ṁ = −ω × m; a reading L s late obeys ṁ + ω × m ≈ L·(ω̇ × m); L by least squares over the trial, from
+  central differences over ±``half`` samples.  A body-fixed field (a magnet on the sensor) breaks it.
+* *The calibration's upper bound* (:func:`fit_calibration_with_truth`): m = A·(Cᵀ m_earth) + b fitted by least
+  squares with the reference's C over the scored samples (12 parameters: hard iron b, soft iron and
+  misalignment A; the most any ellipsoid calibration can learn, and more: A's rotation too), the reading
+  mapped back with A⁻¹(m − b); "own" fits each trial on itself (in-sample), "01" applies trial 01's fit.
+* *Windowed*: the largest |1 s mean| of the azimuth error, and of the 1 s mean less the previous 10 s mean
+  (the disturbance test bmag2 measured with the filter's own attitude), scored samples only.
+* *Repeats*: the share of samples whose reading equals the previous one (BROAD's magnetometer is read slower
+  than the IMU and held; ``best`` fuses a reading when it changes, at most ``mag_rate_hz``).
+* *``best``'s heading RMS* (BROAD's scoring, ``scripts/bench_accuracy.py``) with the compass input edited:
+  as is; 0.001 µT of Gaussian noise added (seeds 1–3: nothing physical changes, but no reading repeats, so
+  other readings are fused — the per-trial noise floor of any compass change); calibrated with the trial's
+  own truth fit; the project's ellipsoid fit (:func:`mavahrs.evaluation.magcal.fit_ellipsoid`, no
+  reference, its coverage test) on each trial's own readings, and trial 01's applied to all; the delay removed to first order,
+  m − L·(ω × m), for a few L.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+if str(REPO) not in sys.path:  # run from a checkout without installing
+    sys.path.insert(0, str(REPO))
+
+from mavahrs.errors import DataError  # noqa: E402
+from mavahrs.evaluation.datasets import Recording, find_broad_trials, load_broad_trial  # noqa: E402
+from mavahrs.evaluation.magcal import fit_ellipsoid  # noqa: E402
+from mavahrs.evaluation.metrics import summarize  # noqa: E402
+from mavahrs.filters import create  # noqa: E402
+from mavahrs.filters.base import make_inputs  # noqa: E402
+from mavahrs.filters.best import BestSettings  # noqa: E402
+from mavahrs.filters.layout import OUT_Q  # noqa: E402
+from mavahrs.geometry.quaternion import conjugate, multiply, rotate, to_rotation_vector  # noqa: E402
+
+DEFAULT_DATA = REPO.parent / "shared" / "data" / "broad"
+Array = np.ndarray
+
+
+# ------------------------------------------------------------------ the compass against the reference
+
+
+def _reference(rec: Recording) -> tuple[Array, Array]:
+    """(q_body_to_ned with invalid rows set to identity, valid mask)."""
+    ok = np.all(np.isfinite(rec.q_ref_body_to_ned), axis=1)
+    q = np.where(ok[:, None], rec.q_ref_body_to_ned, np.array([1.0, 0.0, 0.0, 0.0]))
+    return q, ok
+
+
+def azimuth_deg(v_ned: Array) -> Array:
+    return np.degrees(np.arctan2(v_ned[..., 1], v_ned[..., 0]))
+
+
+def wrap_deg(a: Array) -> Array:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def earth_field_ned(rec: Recording, mag_body_ut: Array) -> Array:
+    """The mean of the first valid second's readings rotated to NED with the reference (BROAD's north)."""
+    q, ok = _reference(rec)
+    i0 = int(np.flatnonzero(ok)[0])
+    sl = slice(i0, i0 + round(1.0 / float(rec.dt_s[0])))
+    return np.asarray(rotate(q[sl], mag_body_ut[sl]).mean(axis=0))
+
+
+def azimuth_error_deg(rec: Recording, mag_body_ut: Array, shift: int = 0) -> tuple[Array, Array]:
+    """Reading i against the reference's attitude at i + ``shift``: (error, scored mask), both over i."""
+    q, ok = _reference(rec)
+    n = rec.n
+    i = np.arange(max(0, -shift), min(n, n - shift))
+    e = np.full(n, np.nan)
+    e[i] = wrap_deg(
+        azimuth_deg(rotate(q[i + shift], mag_body_ut[i])) - azimuth_deg(earth_field_ned(rec, mag_body_ut))
+    )
+    mask = np.zeros(n, dtype=bool)
+    mask[i] = rec.scored[i] & ok[i] & ok[i + shift]
+    return e, mask
+
+
+def rest_and_motion_norm_ut(rec: Recording) -> tuple[float, float]:
+    """The field's mean norm over the first valid second (the rest the schedule takes its reference from) and
+    over the scored movement."""
+    _, ok = _reference(rec)
+    i0 = int(np.flatnonzero(ok)[0])
+    norm = np.linalg.norm(rec.mag_ut, axis=1)
+    return float(norm[i0 : i0 + round(1.0 / float(rec.dt_s[0]))].mean()), float(norm[rec.scored].mean())
+
+
+def rms(e: Array, mask: Array) -> float:
+    return float(np.sqrt(np.mean(e[mask] ** 2)))
+
+
+def gyro_shift_samples(rec: Recording, shifts: range = range(-4, 9)) -> int:
+    """The k whose gyro sample i + k best matches the reference's body rate between i and i + 1."""
+    q, ok = _reference(rec)
+    rate = 1.0 / float(rec.dt_s[0])
+    w_ref = to_rotation_vector(multiply(conjugate(q[:-1]), q[1:])) * rate
+    good = ok[:-1] & ok[1:] & rec.scored[:-1]
+    best_k, best = 0, np.inf
+    for k in shifts:
+        i = np.arange(max(0, -k), min(len(w_ref), rec.n - k))
+        d = rec.gyro_rad_s[i + k] - w_ref[i]
+        err = float(np.mean(np.sum(d[good[i]] ** 2, axis=1)))
+        if err < best:
+            best_k, best = k, err
+    return best_k
+
+
+def compass_delay_s(gyro_rad_s: Array, mag_ut: Array, dt_s: float, half: int = 6) -> float:
+    """The compass's delay behind the gyro, s, from the two alone: ṁ + ω × m ≈ L·(ω̇ × m) for an earth-fixed field."""
+    n = len(mag_ut)
+    i = np.arange(half, n - half)
+    span = 2 * half * dt_s
+    m_dot = (mag_ut[i + half] - mag_ut[i - half]) / span
+    w_dot = (gyro_rad_s[i + half] - gyro_rad_s[i - half]) / span
+    m_c = 0.5 * (mag_ut[i + half] + mag_ut[i - half])
+    w_c = 0.5 * (gyro_rad_s[i + half] + gyro_rad_s[i - half])
+    r = m_dot + np.cross(w_c, m_c)
+    g = np.cross(w_dot, m_c)
+    return float(np.sum(r * g) / np.sum(g * g))
+
+
+def fit_calibration_with_truth(mag_body_ut: Array, field_body_ut: Array) -> tuple[Array, Array]:
+    """Least-squares (A, b) of m = A·f + b over the rows given (m the reading, f the true field in the body)."""
+    x = np.column_stack([field_body_ut, np.ones(len(field_body_ut))])
+    coef, *_ = np.linalg.lstsq(x, mag_body_ut, rcond=None)
+    return coef[:3].T, coef[3]
+
+
+def apply_calibration(mag_body_ut: Array, a: Array, b: Array) -> Array:
+    return np.linalg.solve(a, (mag_body_ut - b).T).T
+
+
+def truth_calibration(rec: Recording, shift: int) -> tuple[Array, Array]:
+    """(A, b) fitted on the trial's scored samples, each reading against the reference ``shift`` samples later."""
+    q, ok = _reference(rec)
+    n = rec.n
+    i = np.arange(max(0, -shift), min(n, n - shift))
+    use = rec.scored[i] & ok[i] & ok[i + shift]
+    me = earth_field_ned(rec, rec.mag_ut)
+    f_body = rotate(conjugate(q[i + shift][use]), np.broadcast_to(me, (int(use.sum()), 3)))
+    return fit_calibration_with_truth(rec.mag_ut[i][use], f_body)
+
+
+def ellipsoid_calibration(rec: Recording) -> tuple[Array, Array] | None:
+    """(A, b) from :func:`mavahrs.evaluation.magcal.fit_ellipsoid` over the trial's own scored readings (no
+    reference; its coverage and conditioning tests), A = M⁻¹, b = the offset; None when it refuses the fit."""
+    try:
+        fit = fit_ellipsoid(rec.mag_ut[rec.scored], None)
+    except DataError:
+        return None
+    return np.linalg.inv(np.array(fit.matrix)), np.array(fit.offset_ut)
+
+
+def window_maxima(e: Array, mask: Array, rate_hz: float) -> tuple[float, float]:
+    """(max |1 s mean|, max |1 s mean − previous 10 s mean|) of e over the masked samples, windows ≥ 80 % full."""
+    v = np.where(mask, e, 0.0)
+    c = np.concatenate([[0.0], np.cumsum(v)])
+    cn = np.concatenate([[0], np.cumsum(mask)])
+    n1, n10 = round(rate_hz), round(10 * rate_hz)
+    idx = np.arange(n1 + n10, len(e), max(n1 // 4, 1))
+
+    def mean(a: Array, b: Array) -> tuple[Array, Array]:
+        cnt = cn[b] - cn[a]
+        return (c[b] - c[a]) / np.maximum(cnt, 1), cnt
+
+    m1, k1 = mean(idx - n1, idx)
+    m10, k10 = mean(idx - n1 - n10, idx - n1)
+    ok1 = k1 > 0.8 * n1
+    ok10 = ok1 & (k10 > 0.8 * n10)
+    a = float(np.max(np.abs(m1[ok1]))) if ok1.any() else float("nan")
+    s = float(np.max(np.abs(m1 - m10)[ok10])) if ok10.any() else float("nan")
+    return a, s
+
+
+# ------------------------------------------------------------------ best with the compass edited
+
+
+def best_settings_with(changes: dict[str, Any]) -> BestSettings:
+    """``best``'s defaults with fields of its plain-path ESKF changed (``"schedule"``: a dict of gain-schedule fields)."""
+    changes = dict(changes)
+    s = BestSettings()
+    schedule = replace(s.eskf.schedule, **changes.pop("schedule", {}))
+    return replace(s, eskf=replace(s.eskf, schedule=schedule, **changes))
+
+
+def best_heading_rms(rec: Recording, mag_ut: Array, settings: BestSettings | None = None) -> float:
+    q = create("best", settings).run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, mag_ut, dt_s=rec.dt_s))[
+        :, OUT_Q : OUT_Q + 4
+    ]
+    return summarize(q, rec.q_ref_body_to_ned, rec.scored).heading_rms_deg
+
+
+def delay_removed(rec: Recording, delay_s: float) -> Array:
+    """The reading carried forward by ``delay_s`` of the gyro's turn, to first order: m − L·(ω × m)."""
+    return rec.mag_ut - delay_s * np.cross(rec.gyro_rad_s, rec.mag_ut)
+
+
+def _groups(values: dict[str, float]) -> str:
+    def mean(keys: tuple[str, ...]) -> float:
+        return float(np.mean([values[k] for k in keys if k in values]))
+
+    clean = tuple(k for k in values if int(k[:2]) <= 18)
+    return (
+        f"all {np.mean(list(values.values())):.2f}  undisturbed(10) {mean(clean):.2f}  "
+        f"stat.magnet {mean(('28', '30')):.2f}  att.magnet {mean(('32', '34')):.2f}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=DEFAULT_DATA,
+        help=f"folder of BROAD .mat trials (default {DEFAULT_DATA})",
+    )
+    ap.add_argument("--no-filter", action="store_true", help="the compass figures only, not best's runs")
+    ap.add_argument(
+        "--delays-ms", type=float, nargs="*", default=[5.0, 10.0], help="L for best with m − L·(ω × m)"
+    )
+    ap.add_argument(
+        "--eskf", action="append", default=[], metavar="JSON",
+        help='best with its plain-path ESKF settings changed, the compass as is, e.g. \'{"mag_learn_tau_s": 20}\' '
+        'or \'{"schedule": {"mag_norm_tolerance": 0.12}}\' (repeatable; only these runs with --only-eskf)',
+    )  # fmt: skip
+    ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
+    args = ap.parse_args(argv)
+    paths = find_broad_trials(args.data) if args.data.is_dir() else []
+    if not paths:
+        print(f"skipped: no BROAD trials at {args.data} (use --data DIR)", file=sys.stderr)
+        return 0
+    recs = [load_broad_trial(p) for p in paths]
+    first = recs[0]
+    shifts = (0, -2, -3, -4, -5, -6)
+
+    print("A perfect-attitude compass (reading i against the reference at i + shift), azimuth RMS, degrees;")
+    print(
+        "gyro: best k with gyro[i + k] ≈ reference rate at i + ½; delay: ṁ + ω×m ≈ L·(ω̇×m), ms behind the gyro"
+    )
+    print(
+        f"{'trial':32s} "
+        + " ".join(f"{s:>6d}" for s in shifts)
+        + "  best  gyro k  delay ms  repeats  ‖m‖ rest / moving µT"
+    )
+    for rec in recs:
+        e = [rms(*azimuth_error_deg(rec, rec.mag_ut, s)) for s in shifts]
+        k = gyro_shift_samples(rec)
+        d = compass_delay_s(rec.gyro_rad_s, rec.mag_ut, float(rec.dt_s[0])) * 1e3
+        rep = float(np.mean(np.all(rec.mag_ut[1:] == rec.mag_ut[:-1], axis=1)))
+        n0, n1 = rest_and_motion_norm_ut(rec)
+        print(
+            f"{rec.name[:32]:32s} "
+            + " ".join(f"{x:6.2f}" for x in e)
+            + f"  {shifts[int(np.argmin(e))]:4d}  {k:+6d}  {d:8.2f}  {rep:7.3f}  {n0:5.1f} {n1:5.1f}"
+        )
+
+    shift = -4
+    a01, b01 = truth_calibration(first, shift)
+    print(
+        f"\nCalibration upper bound at shift {shift} (azimuth RMS, deg; A, b fitted with the reference), and windows"
+    )
+    print(
+        f"{'trial':32s} {'as is':>6s} {'own':>6s} {'01':>6s} | {'1s':>5s} {'shift':>5s} | own: {'1s':>5s} {'shift':>5s}"
+    )
+    rate = 1.0 / float(first.dt_s[0])
+    for rec in recs:
+        e0, m0 = azimuth_error_deg(rec, rec.mag_ut, shift)
+        a, b = truth_calibration(rec, shift)
+        e1, m1 = azimuth_error_deg(rec, apply_calibration(rec.mag_ut, a, b), shift)
+        e2, m2 = azimuth_error_deg(rec, apply_calibration(rec.mag_ut, a01, b01), shift)
+        w0 = window_maxima(e0, m0, rate)
+        w1 = window_maxima(e1, m1, rate)
+        print(
+            f"{rec.name[:32]:32s} {rms(e0, m0):6.2f} {rms(e1, m1):6.2f} {rms(e2, m2):6.2f} | "
+            f"{w0[0]:5.1f} {w0[1]:5.1f} |      {w1[0]:5.1f} {w1[1]:5.1f}"
+        )
+    if args.no_filter:
+        return 0
+
+    variants: dict[str, Callable[[Recording], Array]] = {"as is": lambda r: r.mag_ut}
+    for seed in (1, 2, 3):
+        variants[f"+0.001 uT noise, seed {seed}"] = lambda r, seed=seed: (
+            r.mag_ut + 1e-3 * np.random.default_rng(seed).standard_normal(r.mag_ut.shape)
+        )
+    variants["own truth calibration"] = lambda r: apply_calibration(r.mag_ut, *truth_calibration(r, shift))
+    ellipsoids = {r.name: ellipsoid_calibration(r) for r in recs}
+    print(
+        "\nmagcal.fit_ellipsoid on each trial's own scored readings: "
+        + " ".join(f"{r.name[:2]}:{'fit' if ellipsoids[r.name] is not None else 'refused'}" for r in recs)
+    )
+
+    def own_ellipsoid(r: Recording) -> Array:
+        cal = ellipsoids[r.name]
+        return r.mag_ut if cal is None else apply_calibration(r.mag_ut, *cal)
+
+    variants["own ellipsoid (magcal)"] = own_ellipsoid
+    cal01 = ellipsoids[first.name]
+    if cal01 is not None:
+        variants[f"{first.name[:2]}'s ellipsoid on all"] = lambda r: apply_calibration(r.mag_ut, *cal01)
+    for ms in args.delays_ms:
+        variants[f"m - L(w x m), L {ms:g} ms"] = lambda r, ms=ms: delay_removed(r, ms * 1e-3)
+    print("\nbest's heading RMS (BROAD scoring), degrees, with the compass input edited")
+    print(f"{'variant':28s} " + " ".join(f"{r.name[:2]:>5s}" for r in recs))
+    runs: list[tuple[str, Callable[[Recording], Array], BestSettings | None]] = [
+        (name, make, None) for name, make in variants.items() if not args.only_eskf or name == "as is"
+    ]
+    runs += [(f"eskf {text}", variants["as is"], best_settings_with(json.loads(text))) for text in args.eskf]
+    for name, make, settings in runs:
+        h = {r.name[:2]: best_heading_rms(r, make(r), settings) for r in recs}
+        print(
+            f"{name:28s} " + " ".join(f"{h[r.name[:2]]:5.2f}" for r in recs) + "   " + _groups(h), flush=True
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
