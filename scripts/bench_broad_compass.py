@@ -7,6 +7,7 @@ Usage::
     python3 scripts/bench_broad_compass.py --data DIR      # another folder of BROAD .mat trials
     python3 scripts/bench_broad_compass.py --no-filter     # the compass alone (seconds), not ``best``'s runs
     python3 scripts/bench_broad_compass.py --only-eskf --eskf '{"mag_learn_tau_s": 20}'   # best's settings changed
+    python3 scripts/bench_broad_compass.py --drop-above-deg-s 150 300   # also the reading dropped in fast turns
 
 Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
 regression uses the optical reference, so none of them is something a filter could do online; they bound
@@ -244,6 +245,13 @@ def delay_removed(rec: Recording, delay_s: float) -> Array:
     return rec.mag_ut - delay_s * np.cross(rec.gyro_rad_s, rec.mag_ut)
 
 
+def dropped_above(mag_ut: Array, gyro_rad_s: Array, limit_deg_s: float) -> Array:
+    """The readings taken while the gyro turns faster than ``limit_deg_s`` set to NaN (no magnetometer there)."""
+    out = mag_ut.copy()
+    out[np.degrees(np.linalg.norm(gyro_rad_s, axis=1)) > limit_deg_s] = np.nan
+    return out
+
+
 def _groups(values: dict[str, float]) -> str:
     def mean(keys: tuple[str, ...]) -> float:
         return float(np.mean([values[k] for k in keys if k in values]))
@@ -271,6 +279,10 @@ def main(argv: list[str] | None = None) -> int:
         "--eskf", action="append", default=[], metavar="JSON",
         help='best with its plain-path ESKF settings changed, the compass as is, e.g. \'{"mag_learn_tau_s": 20}\' '
         'or \'{"schedule": {"mag_norm_tolerance": 0.12}}\' (repeatable; only these runs with --only-eskf)',
+    )  # fmt: skip
+    ap.add_argument(
+        "--drop-above-deg-s", type=float, nargs="*", default=[],
+        help="also best with the reading dropped (NaN) where the gyro turns faster than this, for L 0 and each --delays-ms",
     )  # fmt: skip
     ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
     args = ap.parse_args(argv)
@@ -351,6 +363,11 @@ def main(argv: list[str] | None = None) -> int:
         variants[f"{first.name[:2]}'s ellipsoid on all"] = lambda r: apply_calibration(r.mag_ut, *cal01)
     for ms in args.delays_ms:
         variants[f"m - L(w x m), L {ms:g} ms"] = lambda r, ms=ms: delay_removed(r, ms * 1e-3)
+    for limit in args.drop_above_deg_s:
+        for ms in (0.0, *args.delays_ms):
+            variants[f"L {ms:g} ms, NaN > {limit:g} deg/s"] = lambda r, ms=ms, limit=limit: dropped_above(
+                delay_removed(r, ms * 1e-3), r.gyro_rad_s, limit
+            )
     print("\nbest's heading RMS (BROAD scoring), degrees, with the compass input edited")
     print(f"{'variant':28s} " + " ".join(f"{r.name[:2]:>5s}" for r in recs))
     runs: list[tuple[str, Callable[[Recording], Array], BestSettings | None]] = [
