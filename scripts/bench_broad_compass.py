@@ -8,6 +8,7 @@ Usage::
     python3 scripts/bench_broad_compass.py --no-filter     # the compass alone (seconds), not ``best``'s runs
     python3 scripts/bench_broad_compass.py --only-eskf --eskf '{"mag_learn_tau_s": 20}'   # best's settings changed
     python3 scripts/bench_broad_compass.py --drop-above-deg-s 150 300   # also the reading dropped in fast turns
+    python3 scripts/bench_broad_compass.py --tstick ../shared/data/repoimu_tstick --drop-above-deg-s 150 300
 
 Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
 regression uses the optical reference, so none of them is something a filter could do online; they bound
@@ -252,6 +253,41 @@ def dropped_above(mag_ut: Array, gyro_rad_s: Array, limit_deg_s: float) -> Array
     return out
 
 
+def tstick_check(folder: Path, limits_deg_s: list[float]) -> None:
+    """RepoIMU T-stick (another sensor, Xsens MTi + Vicon, not north-referenced): the compass's delay by the same
+    regression, and ``best``'s heading RMS after a fitted constant heading offset, as is and with the reading
+    dropped above each limit.  Test05 is left out (its gyro clips for 15–20 % of the trial)."""
+    from mavahrs.evaluation.datasets import load_repoimu_csv
+    from mavahrs.evaluation.report import score_estimate
+
+    paths = sorted(p for p in folder.glob("TStick_Test*_Trial1.csv") if "Test05" not in p.name)
+    if not paths:
+        print(f"skipped: no RepoIMU T-stick trials at {folder}", file=sys.stderr)
+        return
+    recs = {p.name.split("_")[1]: load_repoimu_csv(p) for p in paths}
+    print("\nRepoIMU T-stick: compass delay behind the gyro (ms), share of samples turning > 300 deg/s")
+    for key, rec in recs.items():
+        d = compass_delay_s(rec.gyro_rad_s, rec.mag_ut, float(rec.dt_s[0]), half=2) * 1e3
+        fast = float(np.mean(np.degrees(np.linalg.norm(rec.gyro_rad_s, axis=1)) > 300.0))
+        print(f"  {key}: {d:6.2f} ms, {fast:.3f}")
+    print("best's heading RMS after a fitted heading offset, degrees")
+    variants: dict[str, Callable[[Recording], Array]] = {"as is": lambda r: r.mag_ut}
+    for limit in limits_deg_s:
+        variants[f"NaN > {limit:g} deg/s"] = lambda r, limit=limit: dropped_above(
+            r.mag_ut, r.gyro_rad_s, limit
+        )
+    for name, make in variants.items():
+        h = {}
+        for key, rec in recs.items():
+            q = create("best").run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, make(rec), dt_s=rec.dt_s))
+            h[key] = score_estimate(q[:, OUT_Q : OUT_Q + 4], rec, alignment="heading").heading_rms_deg
+        print(
+            f"  {name:20s} "
+            + " ".join(f"{k[-2:]}:{v:.2f}" for k, v in h.items())
+            + f"   mean {np.mean(list(h.values())):.3f}"
+        )
+
+
 def _groups(values: dict[str, float]) -> str:
     def mean(keys: tuple[str, ...]) -> float:
         return float(np.mean([values[k] for k in keys if k in values]))
@@ -284,8 +320,15 @@ def main(argv: list[str] | None = None) -> int:
         "--drop-above-deg-s", type=float, nargs="*", default=[],
         help="also best with the reading dropped (NaN) where the gyro turns faster than this, for L 0 and each --delays-ms",
     )  # fmt: skip
+    ap.add_argument(
+        "--tstick", type=Path, metavar="DIR",
+        help="instead: the RepoIMU T-stick check (../shared/data/repoimu_tstick) with --drop-above-deg-s",
+    )  # fmt: skip
     ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
     args = ap.parse_args(argv)
+    if args.tstick is not None:
+        tstick_check(args.tstick, args.drop_above_deg_s)
+        return 0
     paths = find_broad_trials(args.data) if args.data.is_dir() else []
     if not paths:
         print(f"skipped: no BROAD trials at {args.data} (use --data DIR)", file=sys.stderr)
