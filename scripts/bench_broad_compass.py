@@ -9,6 +9,7 @@ Usage::
     python3 scripts/bench_broad_compass.py --only-eskf --eskf '{"mag_learn_tau_s": 20}'   # best's settings changed
     python3 scripts/bench_broad_compass.py --drop-above-deg-s 150 300   # also the reading dropped in fast turns
     python3 scripts/bench_broad_compass.py --tstick ../shared/data/repoimu_tstick --drop-above-deg-s 150 300
+    python3 scripts/bench_broad_compass.py --trace 30 --trace-blank 32 61   # one trial per 5 s, best's error and compass
 
 Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
 regression uses the optical reference, so none of them is something a filter could do online; they bound
@@ -192,6 +193,23 @@ def truth_calibration(rec: Recording, shift: int, fit_field: bool = False) -> tu
     return a, b, f
 
 
+def ellipsoid_report(rec: Recording) -> str:
+    """:func:`mavahrs.evaluation.magcal.fit_ellipsoid`'s figures on the trial's scored readings (forced when refused)."""
+    try:
+        fit = fit_ellipsoid(rec.mag_ut[rec.scored], None)
+        state = "fit"
+    except DataError:
+        fit = fit_ellipsoid(rec.mag_ut[rec.scored], None, force=True)
+        state = "refused"
+    m = np.array(fit.matrix)
+    soft = float(np.max(np.abs(m / np.mean(np.diag(m)) - np.eye(3)))) * 100.0
+    return (
+        f"{state:7s} coverage {fit.coverage:.2f}  offset {np.linalg.norm(fit.offset_ut):4.1f} µT  soft iron ≤ {soft:3.1f} %  "
+        f"axis ratio {fit.axis_ratio:.3f}  residual {fit.residual_rms_ut:.2f} µT ({fit.residual_rms_percent:.1f} %), raw "
+        f"{fit.raw_residual_rms_ut:.2f} µT"
+    )
+
+
 def ellipsoid_calibration(rec: Recording) -> tuple[Array, Array] | None:
     """(A, b) from :func:`mavahrs.evaluation.magcal.fit_ellipsoid` over the trial's own scored readings (no
     reference; its coverage and conditioning tests), A = M⁻¹, b = the offset; None when it refuses the fit."""
@@ -288,6 +306,57 @@ def tstick_check(folder: Path, limits_deg_s: list[float]) -> None:
         )
 
 
+def trace(
+    rec: Recording, blank_s: tuple[float, float] | None, delay_ms: float, window_s: float = 5.0
+) -> None:
+    """Per window: ``best``'s signed heading error (mean), the share of samples whose compass weight is ≥ 0.5, and
+    the true azimuth error (reading rotated with the reference 2 samples earlier, the gyro's time) of the new
+    readings among those; for the compass as is, carried forward by ``delay_ms``, its own ellipsoid, and (with
+    ``blank_s``) no compass over that span."""
+    from mavahrs.filters.layout import OUT_MAG_WEIGHT
+
+    q_ref, ok = _reference(rec)
+    t = np.arange(rec.n) * float(rec.dt_s[0])
+    field = earth_field_ned(rec, rec.mag_ut)
+    variants: dict[str, Array] = {
+        "as is": rec.mag_ut,
+        f"L {delay_ms:g} ms": delay_removed(rec, delay_ms * 1e-3),
+    }
+    cal = ellipsoid_calibration(rec)
+    if cal is not None:
+        variants["own ellipsoid"] = apply_calibration(rec.mag_ut, *cal)
+    if blank_s is not None:
+        m = rec.mag_ut.copy()
+        m[(t >= blank_s[0]) & (t < blank_s[1])] = np.nan
+        variants[f"no compass {blank_s[0]:g}-{blank_s[1]:g} s"] = m
+    for name, m in variants.items():
+        out = create("best").run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, m, dt_s=rec.dt_s))
+        q = out[:, OUT_Q : OUT_Q + 4]
+        e = multiply(q, conjugate(rec.q_ref_body_to_ned))
+        heading = np.degrees(2.0 * np.arctan(e[:, 3] / e[:, 0]))
+        h_rms = summarize(q, rec.q_ref_body_to_ned, rec.scored).heading_rms_deg
+        passed = out[:, OUT_MAG_WEIGHT] >= 0.5
+        new = np.r_[True, np.any(m[1:] != m[:-1], axis=1)] & np.all(np.isfinite(m), axis=1)
+        idx = np.arange(rec.n)
+        true_err = np.full(rec.n, np.nan)
+        good = np.isfinite(m[:, 0])
+        true_err[good] = wrap_deg(
+            azimuth_deg(rotate(q_ref[np.maximum(idx[good] - 2, 0)], m[good])) - azimuth_deg(field)
+        )
+        print(
+            f"{name} (heading RMS {h_rms:.2f}): window s: error / share passed / passed readings' true error"
+        )
+        cells = []
+        for a in np.arange(0.0, t[-1], window_s):
+            w = (t >= a) & (t < a + window_s) & ok
+            if not (w & rec.scored).any():
+                continue
+            sel = w & passed & new
+            te = f"{np.mean(true_err[sel]):+.1f}" if sel.any() else "-"
+            cells.append(f"{a:.0f}: {np.nanmean(heading[w]):+.1f}/{np.mean(passed[w]):.2f}/{te}")
+        print("  " + "  ".join(cells))
+
+
 def _groups(values: dict[str, float]) -> str:
     def mean(keys: tuple[str, ...]) -> float:
         return float(np.mean([values[k] for k in keys if k in values]))
@@ -324,6 +393,12 @@ def main(argv: list[str] | None = None) -> int:
         "--tstick", type=Path, metavar="DIR",
         help="instead: the RepoIMU T-stick check (../shared/data/repoimu_tstick) with --drop-above-deg-s",
     )  # fmt: skip
+    ap.add_argument(
+        "--trace", metavar="TRIAL", help="instead: per-5-s trace of one trial (its two-digit number)"
+    )
+    ap.add_argument(
+        "--trace-blank", type=float, nargs=2, metavar=("T0", "T1"), help="with --trace: no compass T0–T1 s"
+    )
     ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
     args = ap.parse_args(argv)
     if args.tstick is not None:
@@ -332,6 +407,14 @@ def main(argv: list[str] | None = None) -> int:
     paths = find_broad_trials(args.data) if args.data.is_dir() else []
     if not paths:
         print(f"skipped: no BROAD trials at {args.data} (use --data DIR)", file=sys.stderr)
+        return 0
+    if args.trace is not None:
+        match = [p for p in paths if p.name.startswith(args.trace)]
+        if not match:
+            print(f"no trial {args.trace!r} in {args.data}", file=sys.stderr)
+            return 2
+        blank = tuple(args.trace_blank) if args.trace_blank else None
+        trace(load_broad_trial(match[0]), blank, args.delays_ms[-1] if args.delays_ms else 10.0)
         return 0
     recs = [load_broad_trial(p) for p in paths]
     first = recs[0]
@@ -379,6 +462,12 @@ def main(argv: list[str] | None = None) -> int:
             f"{rec.name[:32]:32s} {rms(e0, m0):6.2f} {rms(e1, m1):6.2f} {rms(e2, m2):6.2f} | "
             f"{w0[0]:5.1f} {w0[1]:5.1f} |      {w1[0]:5.1f} {w1[1]:5.1f}"
         )
+    print(
+        "\nmagcal.fit_ellipsoid on each trial's scored readings (no reference); the raw norm's spread (1 σ)"
+    )
+    for rec in recs:
+        norm = np.linalg.norm(rec.mag_ut[rec.scored], axis=1)
+        print(f"{rec.name[:32]:32s} {ellipsoid_report(rec)}  ‖m‖ σ {100 * norm.std() / norm.mean():.1f} %")
     if args.no_filter:
         return 0
 
