@@ -1,0 +1,518 @@
+#!/usr/bin/env python3
+"""What limits the BROAD magnetometer: its timing, its calibration, and what each does to ``best``'s heading.
+
+Usage::
+
+    python3 scripts/bench_broad_compass.py                 # every trial in ../shared/data/broad
+    python3 scripts/bench_broad_compass.py --data DIR      # another folder of BROAD .mat trials
+    python3 scripts/bench_broad_compass.py --no-filter     # the compass alone (seconds), not ``best``'s runs
+    python3 scripts/bench_broad_compass.py --only-eskf --eskf '{"mag_learn_tau_s": 20}'   # best's settings changed
+    python3 scripts/bench_broad_compass.py --drop-above-deg-s 150 300   # also the reading dropped in fast turns
+    python3 scripts/bench_broad_compass.py --tstick ../shared/data/repoimu_tstick --drop-above-deg-s 150 300
+    python3 scripts/bench_broad_compass.py --trace 30 --trace-blank 32 61   # one trial per 5 s, best's error and compass
+
+Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
+regression uses the optical reference, so none of them is something a filter could do online; they bound
+what an online calibration or delay estimate could give.
+
+* *A perfect-attitude compass*: each reading rotated to NED with the reference's attitude ``shift`` samples
+  later (negative: earlier) and its azimuth compared with the first valid second's field azimuth; RMS over
+  the scored samples.  The shift that minimises it is the compass's delay behind the reference, in samples
+  (285.7 Hz); the gyro's delay behind the reference is the shift that best matches the reference's own body
+  rate (:func:`gyro_shift_samples`).
+* *The delay without a reference* (:func:`compass_delay_s`): an earth-fixed field read in a turning body
+  obeys ṁ = −ω × m; a reading L s late obeys ṁ + ω × m ≈ L·(ω̇ × m); L by least squares over the trial, from
+  central differences over ±``half`` samples.  A body-fixed field (a magnet on the sensor) breaks it.
+* *The calibration's upper bound* (:func:`truth_calibration`): m = A·(Cᵀ f) + b fitted by least squares with
+  the reference's C over the scored samples (hard iron b, soft iron and misalignment A, and the earth field
+  f: the most any calibration can learn, and more: A's rotation too), the reading mapped back with
+  A⁻¹(m − b) and its azimuth compared with f's; "own" fits each trial on itself (in-sample), "01" applies
+  trial 01's A, b to the others.  ``best``'s "own truth calibration" run keeps f = the rest's field (BROAD's
+  north).
+* *Windowed*: the largest |1 s mean| of the azimuth error, and of the 1 s mean less the previous 10 s mean
+  (the disturbance test bmag2 measured with the filter's own attitude), scored samples only.
+* *Repeats*: the share of samples whose reading equals the previous one (BROAD's magnetometer is read slower
+  than the IMU and held; ``best`` fuses a reading when it changes, at most ``mag_rate_hz``).
+* *``best``'s heading RMS* (BROAD's scoring, ``scripts/bench_accuracy.py``) with the compass input edited:
+  as is; 0.001 µT of Gaussian noise added (seeds 1–3: nothing physical changes, but no reading repeats, so
+  other readings are fused — the per-trial noise floor of any compass change); calibrated with the trial's
+  own truth fit; the project's ellipsoid fit (:func:`mavahrs.evaluation.magcal.fit_ellipsoid`, no
+  reference, its coverage test) on each trial's own readings, and trial 01's applied to all; the delay removed to first order,
+  m − L·(ω × m), for a few L.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+if str(REPO) not in sys.path:  # run from a checkout without installing
+    sys.path.insert(0, str(REPO))
+
+from mavahrs.errors import DataError  # noqa: E402
+from mavahrs.evaluation.datasets import Recording, find_broad_trials, load_broad_trial  # noqa: E402
+from mavahrs.evaluation.magcal import fit_ellipsoid  # noqa: E402
+from mavahrs.evaluation.metrics import summarize  # noqa: E402
+from mavahrs.filters import create  # noqa: E402
+from mavahrs.filters.base import make_inputs  # noqa: E402
+from mavahrs.filters.best import BestSettings  # noqa: E402
+from mavahrs.filters.layout import OUT_Q  # noqa: E402
+from mavahrs.geometry.quaternion import conjugate, multiply, rotate, to_rotation_vector  # noqa: E402
+
+DEFAULT_DATA = REPO.parent / "shared" / "data" / "broad"
+Array = np.ndarray
+
+
+# ------------------------------------------------------------------ the compass against the reference
+
+
+def _reference(rec: Recording) -> tuple[Array, Array]:
+    """(q_body_to_ned with invalid rows set to identity, valid mask)."""
+    ok = np.all(np.isfinite(rec.q_ref_body_to_ned), axis=1)
+    q = np.where(ok[:, None], rec.q_ref_body_to_ned, np.array([1.0, 0.0, 0.0, 0.0]))
+    return q, ok
+
+
+def azimuth_deg(v_ned: Array) -> Array:
+    return np.degrees(np.arctan2(v_ned[..., 1], v_ned[..., 0]))
+
+
+def wrap_deg(a: Array) -> Array:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def earth_field_ned(rec: Recording, mag_body_ut: Array) -> Array:
+    """The mean of the first valid second's readings rotated to NED with the reference (BROAD's north)."""
+    q, ok = _reference(rec)
+    i0 = int(np.flatnonzero(ok)[0])
+    sl = slice(i0, i0 + round(1.0 / float(rec.dt_s[0])))
+    return np.asarray(rotate(q[sl], mag_body_ut[sl]).mean(axis=0))
+
+
+def azimuth_error_deg(
+    rec: Recording, mag_body_ut: Array, shift: int = 0, field_ned: Array | None = None
+) -> tuple[Array, Array]:
+    """Reading i against the reference's attitude at i + ``shift``: (error, scored mask), both over i; the error
+    against ``field_ned``'s azimuth (default: the first valid second's reading rotated to NED)."""
+    if field_ned is None:
+        field_ned = earth_field_ned(rec, mag_body_ut)
+    q, ok = _reference(rec)
+    n = rec.n
+    i = np.arange(max(0, -shift), min(n, n - shift))
+    e = np.full(n, np.nan)
+    e[i] = wrap_deg(azimuth_deg(rotate(q[i + shift], mag_body_ut[i])) - azimuth_deg(field_ned))
+    mask = np.zeros(n, dtype=bool)
+    mask[i] = rec.scored[i] & ok[i] & ok[i + shift]
+    return e, mask
+
+
+def rest_and_motion_norm_ut(rec: Recording) -> tuple[float, float]:
+    """The field's mean norm over the first valid second (the rest the schedule takes its reference from) and
+    over the scored movement."""
+    _, ok = _reference(rec)
+    i0 = int(np.flatnonzero(ok)[0])
+    norm = np.linalg.norm(rec.mag_ut, axis=1)
+    return float(norm[i0 : i0 + round(1.0 / float(rec.dt_s[0]))].mean()), float(norm[rec.scored].mean())
+
+
+def rms(e: Array, mask: Array) -> float:
+    return float(np.sqrt(np.mean(e[mask] ** 2)))
+
+
+def gyro_shift_samples(rec: Recording, shifts: range = range(-4, 9)) -> int:
+    """The k whose gyro sample i + k best matches the reference's body rate between i and i + 1."""
+    q, ok = _reference(rec)
+    rate = 1.0 / float(rec.dt_s[0])
+    w_ref = to_rotation_vector(multiply(conjugate(q[:-1]), q[1:])) * rate
+    good = ok[:-1] & ok[1:] & rec.scored[:-1]
+    best_k, best = 0, np.inf
+    for k in shifts:
+        i = np.arange(max(0, -k), min(len(w_ref), rec.n - k))
+        d = rec.gyro_rad_s[i + k] - w_ref[i]
+        err = float(np.mean(np.sum(d[good[i]] ** 2, axis=1)))
+        if err < best:
+            best_k, best = k, err
+    return best_k
+
+
+def compass_delay_s(gyro_rad_s: Array, mag_ut: Array, dt_s: float, half: int = 6) -> float:
+    """The compass's delay behind the gyro, s, from the two alone: ṁ + ω × m ≈ L·(ω̇ × m) for an earth-fixed field."""
+    n = len(mag_ut)
+    i = np.arange(half, n - half)
+    span = 2 * half * dt_s
+    m_dot = (mag_ut[i + half] - mag_ut[i - half]) / span
+    w_dot = (gyro_rad_s[i + half] - gyro_rad_s[i - half]) / span
+    m_c = 0.5 * (mag_ut[i + half] + mag_ut[i - half])
+    w_c = 0.5 * (gyro_rad_s[i + half] + gyro_rad_s[i - half])
+    r = m_dot + np.cross(w_c, m_c)
+    g = np.cross(w_dot, m_c)
+    return float(np.sum(r * g) / np.sum(g * g))
+
+
+def fit_calibration_with_truth(mag_body_ut: Array, field_body_ut: Array) -> tuple[Array, Array]:
+    """Least-squares (A, b) of m = A·f + b over the rows given (m the reading, f the true field in the body)."""
+    x = np.column_stack([field_body_ut, np.ones(len(field_body_ut))])
+    coef, *_ = np.linalg.lstsq(x, mag_body_ut, rcond=None)
+    return coef[:3].T, coef[3]
+
+
+def apply_calibration(mag_body_ut: Array, a: Array, b: Array) -> Array:
+    return np.linalg.solve(a, (mag_body_ut - b).T).T
+
+
+def truth_calibration(rec: Recording, shift: int, fit_field: bool = False) -> tuple[Array, Array, Array]:
+    """(A, b, f) of m = A·(Cᵀ f) + b over the trial's scored samples, each reading against the reference ``shift``
+    samples later.  f is the first valid second's field rotated to NED (BROAD's north: the calibrated reading keeps
+    it), or with ``fit_field`` fitted too (alternating least squares, ‖f‖ kept): at a rest the reading carries
+    the distortion at that one orientation, which no body-fixed A can take out at the others."""
+    q, ok = _reference(rec)
+    n = rec.n
+    i = np.arange(max(0, -shift), min(n, n - shift))
+    use = rec.scored[i] & ok[i] & ok[i + shift]
+    m = rec.mag_ut[i][use]
+    q_ned_to_body = conjugate(q[i + shift][use])
+    me = earth_field_ned(rec, rec.mag_ut)
+    f = me.copy()
+    # Cᵀ as (N, 3, 3): its columns are the NED axes in the body
+    ct = np.stack([rotate(q_ned_to_body, np.broadcast_to(e, (len(m), 3))) for e in np.eye(3)], axis=2)
+    for _ in range(30 if fit_field else 1):
+        a, b = fit_calibration_with_truth(m, ct @ f)
+        if not fit_field:
+            break
+        mi = a @ ct  # (N, 3, 3): m − b = Mᵢ f
+        f = np.linalg.solve(np.einsum("nji,njk->ik", mi, mi), np.einsum("nji,nj->i", mi, m - b))
+        f *= np.linalg.norm(me) / np.linalg.norm(f)
+    return a, b, f
+
+
+def ellipsoid_report(rec: Recording) -> str:
+    """:func:`mavahrs.evaluation.magcal.fit_ellipsoid`'s figures on the trial's scored readings (forced when refused)."""
+    try:
+        fit = fit_ellipsoid(rec.mag_ut[rec.scored], None)
+        state = "fit"
+    except DataError:
+        fit = fit_ellipsoid(rec.mag_ut[rec.scored], None, force=True)
+        state = "refused"
+    m = np.array(fit.matrix)
+    soft = float(np.max(np.abs(m / np.mean(np.diag(m)) - np.eye(3)))) * 100.0
+    return (
+        f"{state:7s} coverage {fit.coverage:.2f}  offset {np.linalg.norm(fit.offset_ut):4.1f} µT  soft iron ≤ {soft:3.1f} %  "
+        f"axis ratio {fit.axis_ratio:.3f}  residual {fit.residual_rms_ut:.2f} µT ({fit.residual_rms_percent:.1f} %), raw "
+        f"{fit.raw_residual_rms_ut:.2f} µT"
+    )
+
+
+def ellipsoid_calibration(rec: Recording) -> tuple[Array, Array] | None:
+    """(A, b) from :func:`mavahrs.evaluation.magcal.fit_ellipsoid` over the trial's own scored readings (no
+    reference; its coverage and conditioning tests), A = M⁻¹, b = the offset; None when it refuses the fit."""
+    try:
+        fit = fit_ellipsoid(rec.mag_ut[rec.scored], None)
+    except DataError:
+        return None
+    return np.linalg.inv(np.array(fit.matrix)), np.array(fit.offset_ut)
+
+
+def window_maxima(e: Array, mask: Array, rate_hz: float) -> tuple[float, float]:
+    """(max |1 s mean|, max |1 s mean − previous 10 s mean|) of e over the masked samples, windows ≥ 80 % full."""
+    v = np.where(mask, e, 0.0)
+    c = np.concatenate([[0.0], np.cumsum(v)])
+    cn = np.concatenate([[0], np.cumsum(mask)])
+    n1, n10 = round(rate_hz), round(10 * rate_hz)
+    idx = np.arange(n1 + n10, len(e), max(n1 // 4, 1))
+
+    def mean(a: Array, b: Array) -> tuple[Array, Array]:
+        cnt = cn[b] - cn[a]
+        return (c[b] - c[a]) / np.maximum(cnt, 1), cnt
+
+    m1, k1 = mean(idx - n1, idx)
+    m10, k10 = mean(idx - n1 - n10, idx - n1)
+    ok1 = k1 > 0.8 * n1
+    ok10 = ok1 & (k10 > 0.8 * n10)
+    a = float(np.max(np.abs(m1[ok1]))) if ok1.any() else float("nan")
+    s = float(np.max(np.abs(m1 - m10)[ok10])) if ok10.any() else float("nan")
+    return a, s
+
+
+# ------------------------------------------------------------------ best with the compass edited
+
+
+def best_settings_with(changes: dict[str, Any]) -> BestSettings:
+    """``best``'s defaults with fields of its plain-path ESKF changed (``"schedule"``: a dict of gain-schedule fields)."""
+    changes = dict(changes)
+    s = BestSettings()
+    schedule = replace(s.eskf.schedule, **changes.pop("schedule", {}))
+    return replace(s, eskf=replace(s.eskf, schedule=schedule, **changes))
+
+
+def best_heading_rms(rec: Recording, mag_ut: Array, settings: BestSettings | None = None) -> float:
+    q = create("best", settings).run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, mag_ut, dt_s=rec.dt_s))[
+        :, OUT_Q : OUT_Q + 4
+    ]
+    return summarize(q, rec.q_ref_body_to_ned, rec.scored).heading_rms_deg
+
+
+def delay_removed(rec: Recording, delay_s: float) -> Array:
+    """The reading carried forward by ``delay_s`` of the gyro's turn, to first order: m − L·(ω × m)."""
+    return rec.mag_ut - delay_s * np.cross(rec.gyro_rad_s, rec.mag_ut)
+
+
+def dropped_above(mag_ut: Array, gyro_rad_s: Array, limit_deg_s: float) -> Array:
+    """The readings taken while the gyro turns faster than ``limit_deg_s`` set to NaN (no magnetometer there)."""
+    out = mag_ut.copy()
+    out[np.degrees(np.linalg.norm(gyro_rad_s, axis=1)) > limit_deg_s] = np.nan
+    return out
+
+
+def tstick_check(folder: Path, limits_deg_s: list[float]) -> None:
+    """RepoIMU T-stick (another sensor, Xsens MTi + Vicon, not north-referenced): the compass's delay by the same
+    regression, and ``best``'s heading RMS after a fitted constant heading offset, as is and with the reading
+    dropped above each limit.  Test05 is left out (its gyro clips for 15–20 % of the trial)."""
+    from mavahrs.evaluation.datasets import load_repoimu_csv
+    from mavahrs.evaluation.report import score_estimate
+
+    paths = sorted(p for p in folder.glob("TStick_Test*_Trial1.csv") if "Test05" not in p.name)
+    if not paths:
+        print(f"skipped: no RepoIMU T-stick trials at {folder}", file=sys.stderr)
+        return
+    recs = {p.name.split("_")[1]: load_repoimu_csv(p) for p in paths}
+    print("\nRepoIMU T-stick: compass delay behind the gyro (ms), share of samples turning > 300 deg/s")
+    for key, rec in recs.items():
+        d = compass_delay_s(rec.gyro_rad_s, rec.mag_ut, float(rec.dt_s[0]), half=2) * 1e3
+        fast = float(np.mean(np.degrees(np.linalg.norm(rec.gyro_rad_s, axis=1)) > 300.0))
+        print(f"  {key}: {d:6.2f} ms, {fast:.3f}")
+    print("best's heading RMS after a fitted heading offset, degrees")
+    variants: dict[str, Callable[[Recording], Array]] = {"as is": lambda r: r.mag_ut}
+    for limit in limits_deg_s:
+        variants[f"NaN > {limit:g} deg/s"] = lambda r, limit=limit: dropped_above(
+            r.mag_ut, r.gyro_rad_s, limit
+        )
+    for name, make in variants.items():
+        h = {}
+        for key, rec in recs.items():
+            q = create("best").run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, make(rec), dt_s=rec.dt_s))
+            h[key] = score_estimate(q[:, OUT_Q : OUT_Q + 4], rec, alignment="heading").heading_rms_deg
+        print(
+            f"  {name:20s} "
+            + " ".join(f"{k[-2:]}:{v:.2f}" for k, v in h.items())
+            + f"   mean {np.mean(list(h.values())):.3f}"
+        )
+
+
+def trace(
+    rec: Recording, blank_s: tuple[float, float] | None, delay_ms: float, window_s: float = 5.0
+) -> None:
+    """Per window: ``best``'s signed heading error (mean), the share of samples whose compass weight is ≥ 0.5, and
+    the true azimuth error (reading rotated with the reference 2 samples earlier, the gyro's time) of the new
+    readings among those; for the compass as is, carried forward by ``delay_ms``, its own ellipsoid, and (with
+    ``blank_s``) no compass over that span."""
+    from mavahrs.filters.layout import OUT_MAG_WEIGHT
+
+    q_ref, ok = _reference(rec)
+    t = np.arange(rec.n) * float(rec.dt_s[0])
+    field = earth_field_ned(rec, rec.mag_ut)
+    variants: dict[str, Array] = {
+        "as is": rec.mag_ut,
+        f"L {delay_ms:g} ms": delay_removed(rec, delay_ms * 1e-3),
+    }
+    cal = ellipsoid_calibration(rec)
+    if cal is not None:
+        variants["own ellipsoid"] = apply_calibration(rec.mag_ut, *cal)
+    if blank_s is not None:
+        m = rec.mag_ut.copy()
+        m[(t >= blank_s[0]) & (t < blank_s[1])] = np.nan
+        variants[f"no compass {blank_s[0]:g}-{blank_s[1]:g} s"] = m
+    for name, m in variants.items():
+        out = create("best").run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, m, dt_s=rec.dt_s))
+        q = out[:, OUT_Q : OUT_Q + 4]
+        e = multiply(q, conjugate(rec.q_ref_body_to_ned))
+        heading = np.degrees(2.0 * np.arctan(e[:, 3] / e[:, 0]))
+        h_rms = summarize(q, rec.q_ref_body_to_ned, rec.scored).heading_rms_deg
+        passed = out[:, OUT_MAG_WEIGHT] >= 0.5
+        new = np.r_[True, np.any(m[1:] != m[:-1], axis=1)] & np.all(np.isfinite(m), axis=1)
+        idx = np.arange(rec.n)
+        true_err = np.full(rec.n, np.nan)
+        good = np.isfinite(m[:, 0])
+        true_err[good] = wrap_deg(
+            azimuth_deg(rotate(q_ref[np.maximum(idx[good] - 2, 0)], m[good])) - azimuth_deg(field)
+        )
+        print(
+            f"{name} (heading RMS {h_rms:.2f}): window s: error / share passed / passed readings' true error"
+        )
+        cells = []
+        for a in np.arange(0.0, t[-1], window_s):
+            w = (t >= a) & (t < a + window_s) & ok
+            if not (w & rec.scored).any():
+                continue
+            sel = w & passed & new
+            te = f"{np.mean(true_err[sel]):+.1f}" if sel.any() else "-"
+            cells.append(f"{a:.0f}: {np.nanmean(heading[w]):+.1f}/{np.mean(passed[w]):.2f}/{te}")
+        print("  " + "  ".join(cells))
+
+
+def _groups(values: dict[str, float]) -> str:
+    def mean(keys: tuple[str, ...]) -> float:
+        return float(np.mean([values[k] for k in keys if k in values]))
+
+    clean = tuple(k for k in values if int(k[:2]) <= 18)
+    return (
+        f"all {np.mean(list(values.values())):.2f}  undisturbed(10) {mean(clean):.2f}  "
+        f"stat.magnet {mean(('28', '30')):.2f}  att.magnet {mean(('32', '34')):.2f}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=DEFAULT_DATA,
+        help=f"folder of BROAD .mat trials (default {DEFAULT_DATA})",
+    )
+    ap.add_argument("--no-filter", action="store_true", help="the compass figures only, not best's runs")
+    ap.add_argument(
+        "--delays-ms", type=float, nargs="*", default=[5.0, 10.0], help="L for best with m − L·(ω × m)"
+    )
+    ap.add_argument(
+        "--eskf", action="append", default=[], metavar="JSON",
+        help='best with its plain-path ESKF settings changed, the compass as is, e.g. \'{"mag_learn_tau_s": 20}\' '
+        'or \'{"schedule": {"mag_norm_tolerance": 0.12}}\' (repeatable; only these runs with --only-eskf)',
+    )  # fmt: skip
+    ap.add_argument(
+        "--drop-above-deg-s", type=float, nargs="*", default=[],
+        help="also best with the reading dropped (NaN) where the gyro turns faster than this, for L 0 and each --delays-ms",
+    )  # fmt: skip
+    ap.add_argument(
+        "--tstick", type=Path, metavar="DIR",
+        help="instead: the RepoIMU T-stick check (../shared/data/repoimu_tstick) with --drop-above-deg-s",
+    )  # fmt: skip
+    ap.add_argument(
+        "--trace", metavar="TRIAL", help="instead: per-5-s trace of one trial (its two-digit number)"
+    )
+    ap.add_argument(
+        "--trace-blank", type=float, nargs=2, metavar=("T0", "T1"), help="with --trace: no compass T0–T1 s"
+    )
+    ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
+    args = ap.parse_args(argv)
+    if args.tstick is not None:
+        tstick_check(args.tstick, args.drop_above_deg_s)
+        return 0
+    paths = find_broad_trials(args.data) if args.data.is_dir() else []
+    if not paths:
+        print(f"skipped: no BROAD trials at {args.data} (use --data DIR)", file=sys.stderr)
+        return 0
+    if args.trace is not None:
+        match = [p for p in paths if p.name.startswith(args.trace)]
+        if not match:
+            print(f"no trial {args.trace!r} in {args.data}", file=sys.stderr)
+            return 2
+        blank = tuple(args.trace_blank) if args.trace_blank else None
+        trace(load_broad_trial(match[0]), blank, args.delays_ms[-1] if args.delays_ms else 10.0)
+        return 0
+    recs = [load_broad_trial(p) for p in paths]
+    first = recs[0]
+    shifts = (0, -2, -3, -4, -5, -6)
+
+    print("A perfect-attitude compass (reading i against the reference at i + shift), azimuth RMS, degrees;")
+    print(
+        "gyro: best k with gyro[i + k] ≈ reference rate at i + ½; delay: ṁ + ω×m ≈ L·(ω̇×m), ms behind the gyro"
+    )
+    print(
+        f"{'trial':32s} "
+        + " ".join(f"{s:>6d}" for s in shifts)
+        + "  best  gyro k  delay ms  repeats  ‖m‖ rest / moving µT"
+    )
+    for rec in recs:
+        e = [rms(*azimuth_error_deg(rec, rec.mag_ut, s)) for s in shifts]
+        k = gyro_shift_samples(rec)
+        d = compass_delay_s(rec.gyro_rad_s, rec.mag_ut, float(rec.dt_s[0])) * 1e3
+        rep = float(np.mean(np.all(rec.mag_ut[1:] == rec.mag_ut[:-1], axis=1)))
+        n0, n1 = rest_and_motion_norm_ut(rec)
+        print(
+            f"{rec.name[:32]:32s} "
+            + " ".join(f"{x:6.2f}" for x in e)
+            + f"  {shifts[int(np.argmin(e))]:4d}  {k:+6d}  {d:8.2f}  {rep:7.3f}  {n0:5.1f} {n1:5.1f}"
+        )
+
+    shift = -4
+    a01, b01, f01 = truth_calibration(first, shift, fit_field=True)
+    print(
+        f"\nCalibration upper bound at shift {shift} (azimuth RMS, deg; own: A, b and the field f fitted with the reference, "
+        "error against f; 01: trial 01's A, b), and windows"
+    )
+    print(
+        f"{'trial':32s} {'as is':>6s} {'own':>6s} {'01':>6s} | {'1s':>5s} {'shift':>5s} | own: {'1s':>5s} {'shift':>5s}"
+    )
+    rate = 1.0 / float(first.dt_s[0])
+    for rec in recs:
+        e0, m0 = azimuth_error_deg(rec, rec.mag_ut, shift)
+        a, b, f = truth_calibration(rec, shift, fit_field=True)
+        e1, m1 = azimuth_error_deg(rec, apply_calibration(rec.mag_ut, a, b), shift, f)
+        e2, m2 = azimuth_error_deg(rec, apply_calibration(rec.mag_ut, a01, b01), shift)
+        w0 = window_maxima(e0, m0, rate)
+        w1 = window_maxima(e1, m1, rate)
+        print(
+            f"{rec.name[:32]:32s} {rms(e0, m0):6.2f} {rms(e1, m1):6.2f} {rms(e2, m2):6.2f} | "
+            f"{w0[0]:5.1f} {w0[1]:5.1f} |      {w1[0]:5.1f} {w1[1]:5.1f}"
+        )
+    print(
+        "\nmagcal.fit_ellipsoid on each trial's scored readings (no reference); the raw norm's spread (1 σ)"
+    )
+    for rec in recs:
+        norm = np.linalg.norm(rec.mag_ut[rec.scored], axis=1)
+        print(f"{rec.name[:32]:32s} {ellipsoid_report(rec)}  ‖m‖ σ {100 * norm.std() / norm.mean():.1f} %")
+    if args.no_filter:
+        return 0
+
+    variants: dict[str, Callable[[Recording], Array]] = {"as is": lambda r: r.mag_ut}
+    for seed in (1, 2, 3):
+        variants[f"+0.001 uT noise, seed {seed}"] = lambda r, seed=seed: (
+            r.mag_ut + 1e-3 * np.random.default_rng(seed).standard_normal(r.mag_ut.shape)
+        )
+    variants["own truth calibration"] = lambda r: apply_calibration(
+        r.mag_ut, *truth_calibration(r, shift)[:2]
+    )
+    ellipsoids = {r.name: ellipsoid_calibration(r) for r in recs}
+    print(
+        "\nmagcal.fit_ellipsoid on each trial's own scored readings: "
+        + " ".join(f"{r.name[:2]}:{'fit' if ellipsoids[r.name] is not None else 'refused'}" for r in recs)
+    )
+
+    def own_ellipsoid(r: Recording) -> Array:
+        cal = ellipsoids[r.name]
+        return r.mag_ut if cal is None else apply_calibration(r.mag_ut, *cal)
+
+    variants["own ellipsoid (magcal)"] = own_ellipsoid
+    cal01 = ellipsoids[first.name]
+    if cal01 is not None:
+        variants[f"{first.name[:2]}'s ellipsoid on all"] = lambda r: apply_calibration(r.mag_ut, *cal01)
+    for ms in args.delays_ms:
+        variants[f"m - L(w x m), L {ms:g} ms"] = lambda r, ms=ms: delay_removed(r, ms * 1e-3)
+    for limit in args.drop_above_deg_s:
+        for ms in (0.0, *args.delays_ms):
+            variants[f"L {ms:g} ms, NaN > {limit:g} deg/s"] = lambda r, ms=ms, limit=limit: dropped_above(
+                delay_removed(r, ms * 1e-3), r.gyro_rad_s, limit
+            )
+    print("\nbest's heading RMS (BROAD scoring), degrees, with the compass input edited")
+    print(f"{'variant':28s} " + " ".join(f"{r.name[:2]:>5s}" for r in recs))
+    runs: list[tuple[str, Callable[[Recording], Array], BestSettings | None]] = [
+        (name, make, None) for name, make in variants.items() if not args.only_eskf or name == "as is"
+    ]
+    runs += [(f"eskf {text}", variants["as is"], best_settings_with(json.loads(text))) for text in args.eskf]
+    for name, make, settings in runs:
+        h = {r.name[:2]: best_heading_rms(r, make(r), settings) for r in recs}
+        print(
+            f"{name:28s} " + " ".join(f"{h[r.name[:2]]:5.2f}" for r in recs) + "   " + _groups(h), flush=True
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
