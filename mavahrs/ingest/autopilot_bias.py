@@ -75,8 +75,10 @@ from mavahrs.ingest.pair_mean import (
     S_N,
     clear_mean,
     counter_names,
+    counter_values,
     mean_trusted,
     pair_mean_update,
+    trusted_mean,
 )
 
 __all__ = [
@@ -389,12 +391,9 @@ class AutopilotBias:
     @property
     def bias_rad_s(self) -> tuple[float, float, float] | None:
         """The mean being added (rad/s), or None while none is trusted."""
-        st = self._st
-        if not mean_trusted(st, self._p, st[_T_PRIMARY]):
-            return None
-        return float(st[S_B]), float(st[S_B + 1]), float(st[S_B + 2])
+        return trusted_mean(self._st, self._p, self._st[_T_PRIMARY])
 
     @property
     def counts(self) -> dict[str, int]:
         """The counters (:data:`COUNTER_NAMES`) since the start."""
-        return {name: int(self._st[_C + i]) for i, name in enumerate(COUNTER_NAMES)}
+        return counter_values(self._st, _C, COUNTER_NAMES)

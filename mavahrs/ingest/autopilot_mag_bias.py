@@ -55,8 +55,10 @@ from mavahrs.ingest.pair_mean import (
     S_B,
     clear_mean,
     counter_names,
+    counter_values,
     mean_trusted,
     pair_mean_update,
+    trusted_mean,
 )
 
 __all__ = [
@@ -241,11 +243,9 @@ class MagBias:
     @property
     def bias_ut(self) -> tuple[float, float, float] | None:
         """The mean being added (µT; the autopilot's bias is its negative), or None while none is trusted."""
-        st = self._st
-        if not mean_trusted(st, self._p, st[_T_PRIMARY]):
-            return None
-        return float(st[S_B]), float(st[S_B + 1]), float(st[S_B + 2])
+        return trusted_mean(self._st, self._p, self._st[_T_PRIMARY])
 
     @property
     def counts(self) -> dict[str, int]:
-        return {name: int(self._st[_C + i]) for i, name in enumerate(COUNTER_NAMES)}
+        """The counters (:data:`COUNTER_NAMES`) since the start."""
+        return counter_values(self._st, _C, COUNTER_NAMES)

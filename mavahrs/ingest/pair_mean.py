@@ -21,6 +21,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+from numpy.typing import NDArray
+
 from mavahrs.filters.jit import kernel
 
 __all__ = [
@@ -49,6 +52,8 @@ __all__ = [
     "clear_mean",
     "pair_mean_update",
     "mean_trusted",
+    "trusted_mean",
+    "counter_values",
 ]
 
 # state: the mean (3), its pair count, the last pair's stamp (µs), the outlier rate, outliers in a row
@@ -129,3 +134,15 @@ def mean_trusted(st, p, t):  # type: ignore[no-untyped-def]
     """Whether the mean is to be added at stamp ``t`` (µs): ``min_pairs`` pairs, the last at most ``hold`` old,
     few outliers."""
     return st[S_N] >= p[P_MIN_PAIRS] and t - st[S_T_LAST] <= p[P_HOLD_US] and st[S_R] <= p[P_MAX_FRAC]
+
+
+def trusted_mean(st: NDArray[np.float64], p: NDArray[np.float64], t: float) -> tuple[float, float, float] | None:
+    """The mean as the step adds it at stamp ``t`` (µs; the newest primary stamp), or None while none is trusted."""
+    if not mean_trusted(st, p, t):
+        return None
+    return float(st[S_B]), float(st[S_B + 1]), float(st[S_B + 2])
+
+
+def counter_values(st: NDArray[np.float64], c: int, names: tuple[str, ...]) -> dict[str, int]:
+    """A step's counters by name (:func:`counter_names`), its block starting at ``c`` in ``st``."""
+    return {name: int(st[c + i]) for i, name in enumerate(names)}
