@@ -48,7 +48,6 @@ dominates a short file).  Needs the ``bench`` extra (imufusion, vqf, ahrs).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import os
@@ -622,12 +621,11 @@ def _may_use_sched_fifo() -> bool:
 
 
 def bench_live(quick: bool, verbose: bool, realtime_priority: int = 20) -> tuple[list[Row], dict[str, Any]]:
+    from _sibling import load_script
+
     from mavahrs.filters import NAMES
 
-    spec = importlib.util.spec_from_file_location("bench_live", REPO / "scripts" / "bench_live.py")
-    assert spec is not None and spec.loader is not None
-    live = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(live)
+    live = load_script("bench_live")
     names = ["best"] if quick else ["best", *NAMES]
     warmup, duration = (2.0, 6.0) if quick else (3.0, 20.0)
     rows: list[Row] = []

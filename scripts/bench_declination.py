@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib.util
 import math
 import sys
 import tempfile
@@ -34,14 +33,12 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from _sibling import load_script  # noqa: E402
+
 from mavahrs.filters.best import BestSettings  # noqa: E402
 from mavahrs.replay import ReplaySettings, attitude_at_reference, replay  # noqa: E402
 
-_spec = importlib.util.spec_from_file_location("bench_mag", REPO / "scripts" / "bench_mag.py")
-assert _spec is not None and _spec.loader is not None
-_mag = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _mag
-_spec.loader.exec_module(_mag)
+_mag = load_script("bench_mag")
 
 DATA = REPO.parent / "shared" / "data"
 DEFAULT_LOGS = (

@@ -53,7 +53,6 @@ inclination / heading RMS, degrees (heading only where it means something).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import pickle
@@ -88,12 +87,9 @@ from mavahrs.sensors.profiles import get_profile  # noqa: E402
 
 sys.path.insert(0, str(REPO / "scripts"))
 from _cache import code_stamp, file_stamp  # noqa: E402
+from _sibling import load_script  # noqa: E402
 
-_spec = importlib.util.spec_from_file_location("bench_sitl", REPO / "scripts" / "bench_sitl.py")
-assert _spec is not None and _spec.loader is not None
-_sitl = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _sitl
-_spec.loader.exec_module(_sitl)  # write_variant (GNSS removal)
+_sitl = load_script("bench_sitl")  # write_variant (GNSS removal)
 
 DATA = REPO.parent / "shared" / "data"
 SETS = ("sitl", "sitl-nognss", "sitl-raw", "sitl-vib", "broad", "broad-raw", "px4")

@@ -32,7 +32,6 @@ model on).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import subprocess
 import sys
@@ -45,17 +44,15 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from _sibling import load_script  # noqa: E402
+
 from mavahrs.evaluation.tlogdata import interpolate_attitude  # noqa: E402
 from mavahrs.filters.best import BestSettings  # noqa: E402
 from mavahrs.filters.eskf import EskfSettings  # noqa: E402
 from mavahrs.filters.magfield import HEADING_UNKNOWN_TEXT, MagFieldSettings  # noqa: E402
 from mavahrs.replay import ReplaySettings, attitude_at_reference, replay  # noqa: E402
 
-_spec = importlib.util.spec_from_file_location("bench_sitl", REPO / "scripts" / "bench_sitl.py")
-assert _spec is not None and _spec.loader is not None
-_sitl = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _sitl
-_spec.loader.exec_module(_sitl)
+_sitl = load_script("bench_sitl")
 
 SHARED = REPO.parent / "shared" / "data" / "sitl" / "arducopter_magnetic.tlog"
 VARIANTS = ("as-is", "receiver-only")

@@ -20,7 +20,6 @@ multirotor).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import pickle
 import sys
@@ -37,6 +36,7 @@ from mavahrs.filters.layout import OUT_Q  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _cache import code_stamp  # noqa: E402
+from _sibling import load_script  # noqa: E402
 
 RATE_HZ = 200
 SCORE_AFTER_S = 20.0
@@ -76,10 +76,7 @@ def run_best(rows: np.ndarray, declared: bool = False) -> tuple[np.ndarray, dict
 
 
 def run_vqf(rows: np.ndarray, rate_hz: float) -> np.ndarray:
-    spec = importlib.util.spec_from_file_location("_bench_est", Path(__file__).with_name("bench_estimator.py"))
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_script("bench_estimator", "_bench_est")
     return mod.run_vqf(rows, rate_hz, use_mag=False)  # type: ignore[no-any-return]
 
 
@@ -106,10 +103,7 @@ def bench_sim(scenarios: list[str], seeds: list[int], cache: Path | None, declar
 
 
 def bench_broad() -> dict[str, dict[str, object]]:
-    spec = importlib.util.spec_from_file_location("_bench_est", Path(__file__).with_name("bench_estimator.py"))
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_script("bench_estimator", "_bench_est")
     from mavahrs.filters.base import make_inputs
     from mavahrs.geometry.quaternion import multiply
 

@@ -44,12 +44,9 @@ os.environ.setdefault("MAVLINK_DIALECT", "ardupilotmega")
 
 
 def _bench() -> Any:
-    spec = importlib.util.spec_from_file_location("mavahrs_bench", REPO / "scripts" / "bench.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # (its dataclasses look their module up)
-    spec.loader.exec_module(mod)
-    return mod
+    from _sibling import load_script
+
+    return load_script("bench", "mavahrs_bench")
 
 
 B = _bench()

@@ -48,7 +48,6 @@ flight, where ≤ 5°, total ≤ 1.1°) or on ``receiver-only`` (inclination ≤
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
 import tempfile
@@ -60,6 +59,8 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(REPO))
 
+from _sibling import load_script  # noqa: E402
+
 from mavahrs.evaluation.metrics import summarize  # noqa: E402
 from mavahrs.evaluation.tlogdata import interpolate_attitude  # noqa: E402
 from mavahrs.filters import NAMES  # noqa: E402
@@ -67,11 +68,7 @@ from mavahrs.filters.layout import IN_ACCEL, IN_GYRO, IN_MAG  # noqa: E402
 from mavahrs.protocol.tlog import iter_tlog, tlog_record  # noqa: E402
 from mavahrs.replay import ReplaySettings, attitude_at_reference, replay  # noqa: E402
 
-_spec = importlib.util.spec_from_file_location("bench_sim_accuracy", REPO / "scripts" / "bench_sim_accuracy.py")
-assert _spec is not None and _spec.loader is not None
-_sim = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = _sim
-_spec.loader.exec_module(_sim)  # the reference runners (VQF, imufusion) live there
+_sim = load_script("bench_sim_accuracy")  # the reference runners (VQF, imufusion) live there
 
 SITL = REPO.parent / "shared" / "data" / "sitl"
 GLOBAL_POSITION_INT, GPS_RAW_INT, GPS2_RAW = 33, 24, 124

@@ -48,7 +48,14 @@ from mavahrs.filters.base import (
     finish_step,
 )
 from mavahrs.filters.gains import GainScheduleSettings, schedule_step
-from mavahrs.filters.gnss import VD_LEN, velocity_derivative_reset, velocity_derivative_step
+from mavahrs.filters.gnss import (
+    CF_LEN,
+    CF_LP,
+    CFP_LEN,
+    compensated_force_params,
+    compensated_force_reset,
+    compensated_force_step,
+)
 from mavahrs.filters.jit import kernel
 from mavahrs.filters.kinematics import integrate_body_rate, ned_to_body, quat_multiply
 from mavahrs.filters.layout import (
@@ -61,7 +68,7 @@ from mavahrs.filters.layout import (
     IN_VEL,
     OUT_FLAGS,
 )
-from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_rotate, nav_lowpass_step
+from mavahrs.filters.prefilter import nav_lowpass_rotate
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
 __all__ = ["ComplementarySettings", "Complementary", "step", "paper_time_constant_s"]
@@ -72,18 +79,15 @@ _TAU_HEADING = 1
 _KB = 2
 _SPIN_FREEZE = 3
 _BIAS_LIMIT = 4
-_GNSS_COMP = 5
-_VDOT_TAU = 6
-_VEL_MAX_AGE = 7
-_ACCEL_TAU = 8
-_ERR_LIMIT = 9
+_FORCE = 5  # the compensated force's block (gnss.CFP_LEN)
+_ERR_LIMIT = _FORCE + CFP_LEN
 _REST = 10
 _N_PARAMS = _REST + RP_LEN
 
 # filter state, offsets from S_FILTER
-_VD = 0
-_LP = VD_LEN
-_RS = _LP + LP_LEN
+_CF = 0  # the compensated force: velocity derivative and navigation-frame low-pass (gnss.CF_LEN)
+_LP = _CF + CF_LP  # its low-pass (prefilter.LP_LEN)
+_RS = _CF + CF_LEN
 _N_STATE = _RS + REST_LEN
 
 
@@ -176,8 +180,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     flags = int(out[OUT_FLAGS])
     if dt < 0.0:
         if flags & FLAG_STARTUP:
-            velocity_derivative_reset(state, S_FILTER + _VD)
-            nav_lowpass_reset(state, S_FILTER + _LP)
+            compensated_force_reset(state, S_FILTER + _CF)
             rest_reset(state, S_FILTER + _RS)
         return
     p = P_FILTER
@@ -197,21 +200,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     n = math.sqrt(state[S_Q] ** 2 + state[S_Q + 1] ** 2 + state[S_Q + 2] ** 2 + state[S_Q + 3] ** 2)
     q0, q1, q2, q3 = state[S_Q] / n, state[S_Q + 1] / n, state[S_Q + 2] / n, state[S_Q + 3] / n
 
-    ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
-    have_vdot = velocity_derivative_step(
-        state, S_FILTER + _VD, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt,
-        params[p + _VDOT_TAU], params[p + _VEL_MAX_AGE],
-    )  # fmt: skip
-    if accel_ok and have_vdot and params[p + _GNSS_COMP] > 0.0:
-        k = S_FILTER + _VD + 3
-        cx, cy, cz = ned_to_body(q0, q1, q2, q3, state[k], state[k + 1], state[k + 2])
-        ax, ay, az = ax - cx, ay - cy, az - cz
-        n2 = ax * ax + ay * ay + az * az
-        accel_ok = n2 > 0.0 and math.isfinite(n2)
-    if accel_ok:
-        ax, ay, az = nav_lowpass_step(
-            state, S_FILTER + _LP, q0, q1, q2, q3, ax, ay, az, dt, params[p + _ACCEL_TAU]
-        )
+    # Specific force, GNSS-compensated (f − v̇) and low-passed in NED.
+    ax, ay, az, accel_ok = compensated_force_step(state, S_FILTER + _CF, params, p + _FORCE, row, q0, q1, q2, q3,
+                                                  accel_ok, dt)  # fmt: skip
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
     boost, w_a, w_m = schedule_step(
         state[S_SCHED : S_SCHED + _g.GS_LEN],
@@ -333,16 +324,14 @@ class Complementary(AttitudeFilter):
         p[_SPIN_FREEZE] = settings.spin_freeze_rad_s
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
         p[_ERR_LIMIT] = settings.integral_error_limit_rad
-        p[_GNSS_COMP] = 1.0 if settings.gnss_acceleration else 0.0
-        p[_VDOT_TAU] = settings.velocity_tau_s
-        p[_VEL_MAX_AGE] = settings.velocity_max_age_s
-        p[_ACCEL_TAU] = settings.accel_lowpass_s
+        p[_FORCE : _FORCE + CFP_LEN] = compensated_force_params(
+            settings.gnss_acceleration, settings.velocity_tau_s, settings.velocity_max_age_s, settings.accel_lowpass_s
+        )
         p[_REST : _REST + RP_LEN] = settings.rest.to_params()
         return p
 
     def initial_internal(self) -> np.ndarray:
         s = np.zeros(_N_STATE)
-        velocity_derivative_reset(s, _VD)
-        nav_lowpass_reset(s, _LP)
+        compensated_force_reset(s, _CF)
         rest_reset(s, _RS)
         return s

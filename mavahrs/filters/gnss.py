@@ -36,6 +36,12 @@ subtracts, with a weight that ramps linearly between 0 and 1 over
 never makes the gravity reference jump (state block ``GC_LEN`` values: the
 ``VD_LEN`` block, the last valid v̇ (3), the weight; after a reset the first
 valid v̇ applies in full at once).
+
+:func:`compensated_force_step` is the gravity reference of the complementary, gyro-platform and Mahony
+filters: the accelerometer's specific force less v̇ (in body axes, when the filter's
+``gnss_acceleration`` is on and v̇ is usable) and then low-passed in NED
+(:func:`mavahrs.filters.prefilter.nav_lowpass_step`).  State block ``CF_LEN`` values: the ``VD_LEN``
+block, then the low-pass's (at ``CF_LP``); parameter block ``CFP_LEN`` values (:func:`compensated_force_params`).
 """
 
 from __future__ import annotations
@@ -43,6 +49,9 @@ from __future__ import annotations
 import math
 
 from mavahrs.filters.jit import kernel
+from mavahrs.filters.kinematics import ned_to_body
+from mavahrs.filters.layout import IN_ACCEL, IN_VEL
+from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_step
 
 __all__ = [
     "VD_LEN",
@@ -52,6 +61,12 @@ __all__ = [
     "gnss_compensation_reset",
     "gnss_compensation_step",
     "gnss_compensation_fresh",
+    "CF_LP",
+    "CF_LEN",
+    "CFP_LEN",
+    "compensated_force_params",
+    "compensated_force_reset",
+    "compensated_force_step",
 ]
 
 VD_LEN = 10
@@ -170,3 +185,46 @@ def gnss_compensation_step(s, k, vn, ve, vd, dt, tau_s, max_age_s, fade_s):  # t
     w = min(w + step, 1.0) if valid else max(w - step, 0.0)
     s[k + _WEIGHT] = w
     return w * s[k + _HELD], w * s[k + _HELD + 1], w * s[k + _HELD + 2]
+
+
+CF_LP = VD_LEN  # the low-pass block (prefilter.LP_LEN) of the compensated force
+CF_LEN = VD_LEN + LP_LEN
+_CFP_COMP, _CFP_VDOT_TAU, _CFP_MAX_AGE, _CFP_LP_TAU = range(4)
+CFP_LEN = 4
+
+
+def compensated_force_params(gnss_acceleration: bool, velocity_tau_s: float, velocity_max_age_s: float,
+                             accel_lowpass_s: float) -> tuple[float, float, float, float]:  # fmt: skip
+    """The parameter block (``CFP_LEN`` values) of :func:`compensated_force_step` from a filter's settings."""
+    return 1.0 if gnss_acceleration else 0.0, velocity_tau_s, velocity_max_age_s, accel_lowpass_s
+
+
+@kernel
+def compensated_force_reset(s, k):  # type: ignore[no-untyped-def]
+    """Forget the velocity history and the low-pass (the filter's (re)initialisation)."""
+    velocity_derivative_reset(s, k)
+    nav_lowpass_reset(s, k + CF_LP)
+
+
+@kernel(inline=True)  # every sample; inlined into the steps (see filters/jit.py)
+def compensated_force_step(s, k, params, kp, row, q0, q1, q2, q3, accel_ok, dt):  # type: ignore[no-untyped-def]
+    """Advance by one input ``row`` at attitude ``q`` (body to NED); return the gravity reference (body axes, m/s²)
+    and whether it is usable (``accel_ok``: the accelerometer's; false also when f − v̇ is no direction).
+
+    The specific force less v̇ (rotated into body axes) where ``params[kp]`` (GNSS compensation) is on and v̇
+    usable, then low-passed in NED with ``params[kp + 3]`` (s; 0: not).  v̇ follows ``row``'s velocity every
+    row, with ``params[kp + 1]`` (τ, s) and ``params[kp + 2]`` (the largest fix age, s).
+    """
+    ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
+    have_vdot = velocity_derivative_step(
+        s, k, row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2], dt, params[kp + _CFP_VDOT_TAU], params[kp + _CFP_MAX_AGE]
+    )
+    if accel_ok and have_vdot and params[kp + _CFP_COMP] > 0.0:
+        j = k + _VDOT
+        cx, cy, cz = ned_to_body(q0, q1, q2, q3, s[j], s[j + 1], s[j + 2])
+        ax, ay, az = ax - cx, ay - cy, az - cz
+        n2 = ax * ax + ay * ay + az * az
+        accel_ok = n2 > 0.0 and math.isfinite(n2)
+    if accel_ok:
+        ax, ay, az = nav_lowpass_step(s, k + CF_LP, q0, q1, q2, q3, ax, ay, az, dt, params[kp + _CFP_LP_TAU])
+    return ax, ay, az, accel_ok

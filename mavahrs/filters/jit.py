@@ -23,7 +23,10 @@ cache folder a kernel's place is named by its sources' contents, not by where
 they are installed (:func:`cache_subpath`): a second virtual environment with
 the same version loads what the first compiled, and installs into temporary
 folders leave nothing behind there; the folders of versions unused for a day
-beyond the four most recently used are removed (:data:`CACHE_KEEP_VERSIONS`).  ``mavahrs warm-up``
+beyond the four most recently used are removed (:data:`CACHE_KEEP_VERSIONS`).  A kernel elsewhere in the
+package that calls a kernel of another of its files (an import) is compiled with that kernel in it, and
+numba's stamp (its own file) would keep it after the other file changed: its stamp and its folder cover
+the files of every kernel its module imports, and theirs in turn (:func:`kernel_dependencies`).  ``mavahrs warm-up``
 (:mod:`mavahrs.warmup`) fills it ahead of time; :func:`on_first_compile` tells
 the command line when a process is about to compile (a cold cache).
 
@@ -57,6 +60,7 @@ __all__ = [
     "cache_location",
     "user_cache_dir",
     "cache_subpath",
+    "kernel_dependencies",
     "HAVE_NUMBA",
 ]
 
@@ -162,13 +166,14 @@ _CONTENT_HASHES: dict[tuple[str, int, int], str] = {}
 _USED_PATHS: set[str] = set()
 
 
-def cache_subpath(py_file: str) -> str:
+def cache_subpath(py_file: str, depends: tuple[str, ...] = ()) -> str:
     """The folder, inside the user's cache folder, of the kernels of ``py_file`` (a module of this package).
 
     ``GROUP_VERSION``: GROUP names the module (``filters`` for every module of ``mavahrs/filters``, whose
     kernels share one stamp; else its dotted path in the package, e.g. ``protocol.tlog``) and VERSION is a
     hash of the sources the kernels are compiled from (all of ``mavahrs/filters``; else the module's own
-    file and this one, which decides the compile options).  numba's own choice, a hash of the folder the
+    file, the files ``depends`` of the kernels it calls (:func:`kernel_dependencies`) and this one, which
+    decides the compile options).  numba's own choice, a hash of the folder the
     file is installed in, gave every virtual environment and every temporary install a cold compile of
     its own (2–5 minutes on two cores) and a folder that nothing removed.
     """
@@ -179,6 +184,19 @@ def cache_subpath(py_file: str) -> str:
         return "filters_" + _filters_source_stamp()[:40]
     rel = os.path.relpath(path, _PACKAGE_DIR)
     group = os.path.splitext(rel)[0].replace(os.sep, ".")
+    digest = _file_digest(path)
+    if depends:
+        h = hashlib.sha256(digest.encode())
+        for dep in depends:
+            h.update(b"\0" + _file_digest(dep).encode())
+        digest = h.hexdigest()[:40]
+    return f"{group}_{digest}"
+
+
+def _file_digest(path: str) -> str:
+    """A hash of this module's source and the contents of ``path`` (hashed again only when its time or size changes)."""
+    import hashlib
+
     st = os.stat(path)
     key = (path, st.st_mtime_ns, st.st_size)
     digest = _CONTENT_HASHES.get(key)
@@ -187,7 +205,37 @@ def cache_subpath(py_file: str) -> str:
         with open(path, "rb") as f:
             h.update(f.read())
         digest = _CONTENT_HASHES[key] = h.hexdigest()[:40]
-    return f"{group}_{digest}"
+    return digest
+
+
+def kernel_dependencies(py_func: Any) -> tuple[str, ...]:
+    """The source files, other than its own, of the package's kernels that ``py_func`` may call, sorted.
+
+    Those are the compiled kernels of other files bound in its module's globals (imported at the top:
+    a kernel calls no other), and theirs in turn.  numba compiles a called kernel into its caller and
+    stamps the caller's cache with the caller's file alone, so a change to the called kernel's file
+    would otherwise leave the caller's old machine code in use (mavahrs/ingest's shared running
+    mean, the fast lane's parser).  Read when the kernel is decorated: its module's imports are there.
+    Files of ``mavahrs/filters`` count like any other (their own kernels are stamped with all of them).
+    """
+    own = os.path.abspath(py_func.__code__.co_filename)
+    files: set[str] = set()
+    seen: set[str] = set()
+    todo = [py_func.__globals__]
+    while todo:
+        glb = todo.pop()
+        for value in list(glb.values()):
+            py = getattr(value, "py_func", None)
+            code = getattr(py, "__code__", None)
+            if code is None or not isinstance(py, types.FunctionType):
+                continue
+            path = os.path.abspath(code.co_filename)
+            if path == own or not path.startswith(_PACKAGE_DIR + os.sep) or path in seen:
+                continue
+            seen.add(path)
+            files.add(path)
+            todo.append(py.__globals__)
+    return tuple(sorted(files))
 
 
 def _use_cache_path(path: str) -> None:
@@ -281,34 +329,64 @@ if HAVE_NUMBA:
     class _FiltersCacheLocator(_FiltersStamp, _caching.InTreeCacheLocator):  # type: ignore[misc]
         """… else (no writable home) ``mavahrs/filters/__pycache__``, numba's own default place."""
 
-    class _MavahrsCacheLocator(_caching.UserWideCacheLocator):  # type: ignore[misc]
+    class _DependsStamp:
+        """Cache-locator mixin for the package's kernels outside ``mavahrs/filters``: numba's stamp (the
+        file's time and size) with this module's contents and the contents of the files of the kernels the
+        module imports (:func:`kernel_dependencies`; a change there must compile the callers again)."""
+
+        _depends: tuple[str, ...] = ()
+
+        def get_source_stamp(self) -> Any:
+            return (super().get_source_stamp(), _jit_module_stamp(),  # type: ignore[misc]
+                    tuple(_file_digest(p) for p in self._depends))  # fmt: skip
+
+        @classmethod
+        def from_function(cls, py_func: Any, py_file: str) -> Any:
+            path = os.path.abspath(py_file)
+            if not path.startswith(_PACKAGE_DIR + os.sep) or os.path.dirname(path) == _FILTERS_DIR:
+                return None
+            return super().from_function(py_func, py_file)  # type: ignore[misc]
+
+    class _MavahrsUserCacheLocator(_DependsStamp, _caching.UserProvidedCacheLocator):  # type: ignore[misc]
+        """``NUMBA_CACHE_DIR`` set: the package's other kernels go there, numba's folder naming, our stamp."""
+
+        def __init__(self, py_func: Any, py_file: str) -> None:
+            super().__init__(py_func, py_file)
+            self._depends = kernel_dependencies(py_func)
+
+    class _MavahrsCacheLocator(_DependsStamp, _caching.UserWideCacheLocator):  # type: ignore[misc]
         """The other kernels of the package (tlog decoder, replay, CSV, fast lane) go to the same user cache
         folder, unless ``NUMBA_CACHE_DIR`` is set.  Their stamp is numba's own (their file's time and size)
         with this module's contents: the options every kernel is compiled with (reference counting or
         not) are decided here, and numba's cache index does not tell them apart — a kernel cached with
-        other options must be compiled again, not loaded."""
+        other options must be compiled again, not loaded; and with the files of the kernels they call."""
 
         def __init__(self, py_func: Any, py_file: str) -> None:
             super().__init__(py_func, py_file)
-            self._cache_path = os.path.join(user_cache_dir(), cache_subpath(py_file))
+            self._depends = kernel_dependencies(py_func)
+            self._cache_path = os.path.join(user_cache_dir(), cache_subpath(py_file, self._depends))
 
         def ensure_cache_path(self) -> None:
             _use_cache_path(self._cache_path)
             super().ensure_cache_path()
 
-        def get_source_stamp(self) -> Any:
-            return (super().get_source_stamp(), _jit_module_stamp())
-
         @classmethod
         def from_function(cls, py_func: Any, py_file: str) -> Any:
-            if _numba.config.CACHE_DIR or not os.path.abspath(py_file).startswith(_PACKAGE_DIR + os.sep):
+            if _numba.config.CACHE_DIR:
                 return None
             return super().from_function(py_func, py_file)
+
+    class _MavahrsInTreeCacheLocator(_DependsStamp, _caching.InTreeCacheLocator):  # type: ignore[misc]
+        """… else (no writable home) the module's ``__pycache__``, numba's own default place, our stamp."""
+
+        def __init__(self, py_func: Any, py_file: str) -> None:
+            super().__init__(py_func, py_file)
+            self._depends = kernel_dependencies(py_func)
 
     _locators = _caching.CacheImpl._locator_classes
     _locators[:] = [c for c in _locators if not getattr(c, "__name__", "").startswith(("_Filters", "_Mavahrs"))]
     _locators[0:0] = [_FiltersUserCacheLocator, _FiltersMavahrsCacheLocator, _FiltersCacheLocator,
-                      _MavahrsCacheLocator]  # idempotent across re-imports
+                      _MavahrsUserCacheLocator, _MavahrsCacheLocator, _MavahrsInTreeCacheLocator]  # idempotent across re-imports
 
 
 class _Interpreted:

@@ -46,9 +46,16 @@ from mavahrs.filters.base import (
     finish_step,
 )
 from mavahrs.filters.gains import GainScheduleSettings, schedule_step
-from mavahrs.filters.gnss import VD_LEN, velocity_derivative_reset, velocity_derivative_step
+from mavahrs.filters.gnss import (
+    CF_LEN,
+    CF_LP,
+    CFP_LEN,
+    compensated_force_params,
+    compensated_force_reset,
+    compensated_force_step,
+)
 from mavahrs.filters.jit import kernel
-from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate, ned_to_body
+from mavahrs.filters.kinematics import body_to_ned, integrate_body_rate
 from mavahrs.filters.layout import (
     FLAG_ACCEL_INVALID,
     FLAG_MAG_INVALID,
@@ -59,7 +66,7 @@ from mavahrs.filters.layout import (
     IN_VEL,
     OUT_FLAGS,
 )
-from mavahrs.filters.prefilter import LP_LEN, nav_lowpass_reset, nav_lowpass_rotate, nav_lowpass_step
+from mavahrs.filters.prefilter import nav_lowpass_rotate
 from mavahrs.filters.rest import REST_LEN, RP_LEN, RestBiasSettings, rest_reset, rest_step
 
 __all__ = ["MahonySettings", "Mahony", "step"]
@@ -73,18 +80,15 @@ _SPIN_FREEZE = 4
 _BIAS_LIMIT = 5
 _COG = 6
 _COG_SPEED = 7
-_GNSS_COMP = 8
-_VDOT_TAU = 9
-_VEL_MAX_AGE = 10
-_ACCEL_TAU = 11
-_ERR_LIMIT = 12
+_FORCE = 8  # the compensated force's block (gnss.CFP_LEN)
+_ERR_LIMIT = _FORCE + CFP_LEN
 _REST = 13  # rest-detector block (rest.RP_LEN)
 _N_PARAMS = _REST + RP_LEN
 
 # filter state, offsets from S_FILTER
-_VD = 0  # velocity-derivative block (gnss.VD_LEN)
-_LP = VD_LEN  # navigation-frame accelerometer low-pass (prefilter.LP_LEN)
-_RS = _LP + LP_LEN  # rest detector (rest.REST_LEN)
+_CF = 0  # the compensated force: velocity derivative and navigation-frame low-pass (gnss.CF_LEN)
+_LP = _CF + CF_LP  # its low-pass (prefilter.LP_LEN)
+_RS = _CF + CF_LEN  # rest detector (rest.REST_LEN)
 _N_STATE = _RS + REST_LEN
 
 
@@ -181,8 +185,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     flags = int(out[OUT_FLAGS])
     if dt < 0.0:
         if flags & FLAG_STARTUP:
-            velocity_derivative_reset(state, S_FILTER + _VD)
-            nav_lowpass_reset(state, S_FILTER + _LP)
+            compensated_force_reset(state, S_FILTER + _CF)
             rest_reset(state, S_FILTER + _RS)
         return
     p = P_FILTER
@@ -198,23 +201,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     gx = row[IN_GYRO] - bx
     gy = row[IN_GYRO + 1] - by
     gz = row[IN_GYRO + 2] - bz
-    ax, ay, az = row[IN_ACCEL], row[IN_ACCEL + 1], row[IN_ACCEL + 2]
 
-    # GNSS acceleration compensation: gravity reference f − Cᵀ v̇.
-    vn, ve, vd = row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2]
-    have_vdot = velocity_derivative_step(
-        state, S_FILTER + _VD, vn, ve, vd, dt, params[p + _VDOT_TAU], params[p + _VEL_MAX_AGE]
-    )
-    if accel_ok and have_vdot and params[p + _GNSS_COMP] > 0.0:
-        k = S_FILTER + _VD + 3
-        cx, cy, cz = ned_to_body(q0, q1, q2, q3, state[k], state[k + 1], state[k + 2])
-        ax, ay, az = ax - cx, ay - cy, az - cz
-        n2 = ax * ax + ay * ay + az * az
-        accel_ok = n2 > 0.0 and math.isfinite(n2)
-    if accel_ok:
-        ax, ay, az = nav_lowpass_step(
-            state, S_FILTER + _LP, q0, q1, q2, q3, ax, ay, az, dt, params[p + _ACCEL_TAU]
-        )
+    # GNSS acceleration compensation: gravity reference f − Cᵀ v̇, low-passed in NED.
+    vn, ve = row[IN_VEL], row[IN_VEL + 1]
+    ax, ay, az, accel_ok = compensated_force_step(state, S_FILTER + _CF, params, p + _FORCE, row, q0, q1, q2, q3,
+                                                  accel_ok, dt)  # fmt: skip
 
     mx, my, mz = row[IN_MAG], row[IN_MAG + 1], row[IN_MAG + 2]
     boost, w_a, w_m = schedule_step(
@@ -330,16 +321,14 @@ class Mahony(AttitudeFilter):
         p[_ERR_LIMIT] = settings.integral_error_limit_rad
         p[_COG] = 1.0 if settings.cog_heading else 0.0
         p[_COG_SPEED] = settings.cog_min_speed_m_s
-        p[_GNSS_COMP] = 1.0 if settings.gnss_acceleration else 0.0
-        p[_VDOT_TAU] = settings.velocity_tau_s
-        p[_VEL_MAX_AGE] = settings.velocity_max_age_s
-        p[_ACCEL_TAU] = settings.accel_lowpass_s
+        p[_FORCE : _FORCE + CFP_LEN] = compensated_force_params(
+            settings.gnss_acceleration, settings.velocity_tau_s, settings.velocity_max_age_s, settings.accel_lowpass_s
+        )
         p[_REST : _REST + RP_LEN] = settings.rest.to_params()
         return p
 
     def initial_internal(self) -> np.ndarray:
         s = np.zeros(_N_STATE)
-        velocity_derivative_reset(s, _VD)
-        nav_lowpass_reset(s, _LP)
+        compensated_force_reset(s, _CF)
         rest_reset(s, _RS)
         return s

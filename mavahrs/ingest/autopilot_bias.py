@@ -39,7 +39,8 @@ While HIGHRES_IMU is arriving, SCALED_IMU serves only this step (it is not a sec
 the instance for the IMU selector; :func:`bias_pair_step` says so); without HIGHRES_IMU for
 ``hold_s`` it is an ordinary IMU message again.
 
-One compiled step per message on state in plain arrays (:func:`new_state`, :func:`constants`):
+The running mean, its outlier gate and restarts are :mod:`mavahrs.ingest.pair_mean`'s (the magnetometer's
+step, :mod:`mavahrs.ingest.autopilot_mag_bias`, keeps the same).  One compiled step per message on state in plain arrays (:func:`new_state`, :func:`constants`):
 the live pipeline calls :func:`bias_pair_step` / :func:`bias_restore_step` per message through
 :class:`AutopilotBias`, replay runs :func:`bias_restore_rows`, the same steps over a log's merged
 messages in their order.
@@ -55,6 +56,30 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import ConfigError
 from mavahrs.filters.jit import kernel
+from mavahrs.ingest.pair_mean import (
+    C_APPLIED,
+    C_BACK,
+    C_BAD,
+    C_NOT_APPLIED,
+    C_PAIRS,
+    C_SECOND,
+    MEAN_LEN,
+    P_HOLD_US,
+    P_LEN,
+    P_MAX_BIAS,
+    P_MAX_FRAC,
+    P_MIN_PAIRS,
+    P_OUTLIER,
+    P_TAU_US,
+    S_B,
+    S_N,
+    clear_mean,
+    counter_names,
+    counter_values,
+    mean_trusted,
+    pair_mean_update,
+    trusted_mean,
+)
 
 __all__ = [
     "AutopilotBiasSettings",
@@ -135,22 +160,20 @@ class AutopilotBiasSettings:
 #: role of a message in :func:`bias_restore_rows`
 ROLE_NONE, ROLE_PRIMARY, ROLE_PARTNER = 0, 1, 2
 
-# constants (:func:`constants`)
-_P_TAU_US, _P_MIN_PAIRS, _P_LAG_US, _P_HOLD_US, _P_MAX_BIAS, _P_OUTLIER, _P_MAX_FRAC, _P_HALF_STEP = range(8)
-_P_LEN = 8
-# state: the mean, its pair count, the last pair's time, the outlier rate, outliers in a row, counters,
-# then a ring of the last HIGHRES_IMU samples (t, gyro) and the SCALED_IMU samples waiting for their pair
-_B = 0
-_N = 3
-_T_LAST = 4
-_R = 5
-_CONSEC = 6
-_T_PRIMARY = 7  # the newest primary stamp seen (−inf: none)
-_T_PARTNER = 8  # the newest partner stamp seen
-_T_FIRST = 9  # the first partner stamp since the start (the primary's grace period runs from it)
-_C = 10  # counters, in COUNTER_NAMES order
-COUNTER_NAMES = ("pairs", "unpaired", "bad_values", "outliers", "restarts", "clock_back", "applied", "not_applied")
-_C_PAIRS, _C_UNPAIRED, _C_BAD, _C_OUTLIERS, _C_RESTARTS, _C_BACK, _C_APPLIED, _C_NOT_APPLIED = range(8)
+# constants (:func:`constants`): the running mean's (:mod:`mavahrs.ingest.pair_mean`), then the pair's lag and
+# the partner's half step
+_P_LAG_US = P_LEN
+_P_HALF_STEP = P_LEN + 1
+_P_LEN = P_LEN + 2
+# state: the running mean (:mod:`mavahrs.ingest.pair_mean`: the mean, its pair count, the last pair's time, the
+# outlier rate, outliers in a row), then the stamps, the counters, a ring of the last HIGHRES_IMU samples (t, gyro)
+# and the SCALED_IMU samples waiting for their pair
+_T_PRIMARY = MEAN_LEN  # the newest primary stamp seen (−inf: none)
+_T_PARTNER = MEAN_LEN + 1  # the newest partner stamp seen
+_T_FIRST = MEAN_LEN + 2  # the first partner stamp since the start (the primary's grace period runs from it)
+_C = MEAN_LEN + 3  # counters, in COUNTER_NAMES order
+COUNTER_NAMES = counter_names("unpaired")
+_C_UNPAIRED = C_SECOND  # this step's own counter
 _RING = _C + len(COUNTER_NAMES)
 _RING_N = 16  # HIGHRES_IMU samples kept (64 ms at 250 Hz)
 _HEAD = _RING + 4 * _RING_N  # next slot to write
@@ -173,13 +196,13 @@ def constants(settings: AutopilotBiasSettings, step_rad_s: float = 0.0, truncate
     """
     p = np.empty(_P_LEN)
     p[_P_HALF_STEP] = 0.5 * step_rad_s if truncated else 0.0
-    p[_P_TAU_US] = settings.time_constant_s * 1e6
-    p[_P_MIN_PAIRS] = settings.min_pairs
+    p[P_TAU_US] = settings.time_constant_s * 1e6
+    p[P_MIN_PAIRS] = settings.min_pairs
     p[_P_LAG_US] = settings.max_pair_lag_s * 1e6
-    p[_P_HOLD_US] = settings.hold_s * 1e6
-    p[_P_MAX_BIAS] = settings.max_bias_rad_s
-    p[_P_OUTLIER] = settings.outlier_rad_s
-    p[_P_MAX_FRAC] = settings.max_outlier_fraction
+    p[P_HOLD_US] = settings.hold_s * 1e6
+    p[P_MAX_BIAS] = settings.max_bias_rad_s
+    p[P_OUTLIER] = settings.outlier_rad_s
+    p[P_MAX_FRAC] = settings.max_outlier_fraction
     return p
 
 
@@ -193,11 +216,7 @@ def new_state() -> NDArray[np.float64]:
 @kernel
 def _clear(st):  # type: ignore[no-untyped-def]
     """Forget the mean, the ring and the waiting samples (the counters stay)."""
-    st[_B] = st[_B + 1] = st[_B + 2] = 0.0
-    st[_N] = 0.0
-    st[_T_LAST] = -math.inf
-    st[_R] = 0.0
-    st[_CONSEC] = 0.0
+    clear_mean(st)
     st[_T_PRIMARY] = -math.inf
     st[_T_PARTNER] = -math.inf
     st[_T_FIRST] = -math.inf
@@ -205,52 +224,6 @@ def _clear(st):  # type: ignore[no-untyped-def]
         st[_RING + 4 * i] = -math.inf
     st[_HEAD] = 0.0
     st[_PEND_COUNT] = 0.0
-
-
-@kernel
-def _pair(st, p, t_h, d0, d1, d2):  # type: ignore[no-untyped-def]
-    """One pair's difference ``d`` (partner − primary, rad/s) at the primary's stamp ``t_h`` into the mean."""
-    lim = p[_P_MAX_BIAS]
-    if not (abs(d0) <= lim and abs(d1) <= lim and abs(d2) <= lim):  # NaN fails too
-        st[_C + _C_BAD] += 1.0
-        return
-    st[_C + _C_PAIRS] += 1.0
-    n = st[_N]
-    if n > 0.0 and t_h - st[_T_LAST] > p[_P_HOLD_US]:  # no pair for longer than the hold: start again
-        st[_C + _C_RESTARTS] += 1.0
-        n = 0.0
-        st[_R] = 0.0
-        st[_CONSEC] = 0.0
-    if n < p[_P_MIN_PAIRS]:  # the first pairs: their arithmetic mean (Welford)
-        k = 1.0 / (n + 1.0)  # 1 for the first pair: the mean is that pair
-        st[_B] += k * (d0 - st[_B])
-        st[_B + 1] += k * (d1 - st[_B + 1])
-        st[_B + 2] += k * (d2 - st[_B + 2])
-        st[_N] = n + 1.0
-        st[_T_LAST] = t_h
-        return
-    a = min(1.0, max(0.0, t_h - st[_T_LAST]) / p[_P_TAU_US])
-    e0, e1, e2 = d0 - st[_B], d1 - st[_B + 1], d2 - st[_B + 2]
-    g = p[_P_OUTLIER]
-    if abs(e0) > g or abs(e1) > g or abs(e2) > g:
-        st[_C + _C_OUTLIERS] += 1.0
-        st[_R] += a * (1.0 - st[_R])
-        st[_CONSEC] += 1.0
-        if st[_CONSEC] >= p[_P_MIN_PAIRS]:  # a step (EKF2 reset its bias): the mean starts from this pair
-            st[_C + _C_RESTARTS] += 1.0
-            st[_B], st[_B + 1], st[_B + 2] = d0, d1, d2
-            st[_N] = 1.0
-            st[_R] = 0.0
-            st[_CONSEC] = 0.0
-            st[_T_LAST] = t_h
-        return
-    st[_CONSEC] = 0.0
-    st[_R] -= a * st[_R]
-    st[_B] += a * e0
-    st[_B + 1] += a * e1
-    st[_B + 2] += a * e2
-    st[_N] = n + 1.0
-    st[_T_LAST] = t_h
 
 
 @kernel
@@ -280,7 +253,8 @@ def _resolve(st, p, final):  # type: ignore[no-untyped-def]
         if best < 0 or edge - best_t > p[_P_LAG_US]:
             st[_C + _C_UNPAIRED] += 1.0
             continue
-        _pair(st, p, best_t, st[o + 1] - st[best + 1], st[o + 2] - st[best + 2], st[o + 3] - st[best + 3])
+        pair_mean_update(st, p, _C, best_t, st[o + 1] - st[best + 1], st[o + 2] - st[best + 2],
+                         st[o + 3] - st[best + 3])  # fmt: skip
     st[_PEND_COUNT] = keep
 
 
@@ -296,10 +270,10 @@ def bias_pair_step(st, p, t_us, g0, g1, g2):  # type: ignore[no-untyped-def]
     """
     if not (g0 == g0 and g1 == g1 and g2 == g2 and abs(g0) < math.inf and abs(g1) < math.inf
             and abs(g2) < math.inf):  # fmt: skip
-        st[_C + _C_BAD] += 1.0
+        st[_C + C_BAD] += 1.0
         return _serves_only(st, p, t_us)
-    if t_us < st[_T_PARTNER] - p[_P_HOLD_US]:  # the autopilot's clock went back: a reboot
-        st[_C + _C_BACK] += 1.0
+    if t_us < st[_T_PARTNER] - p[P_HOLD_US]:  # the autopilot's clock went back: a reboot
+        st[_C + C_BACK] += 1.0
         _clear(st)
     if t_us > st[_T_PARTNER]:
         st[_T_PARTNER] = t_us
@@ -325,7 +299,7 @@ def _serves_only(st, p, t_us):  # type: ignore[no-untyped-def]
     """1 while the primary stream is arriving (or, none seen yet, in the partner's first second), else 0."""
     if st[_T_PRIMARY] == -math.inf:
         return 1 if st[_T_FIRST] != -math.inf and t_us - st[_T_FIRST] <= _GRACE_US else 0
-    return 1 if t_us - st[_T_PRIMARY] <= p[_P_HOLD_US] else 0
+    return 1 if t_us - st[_T_PRIMARY] <= p[P_HOLD_US] else 0
 
 
 @kernel
@@ -333,11 +307,11 @@ def _restore(st, p, t_us, gyro, j):  # type: ignore[no-untyped-def]
     """:func:`bias_restore_step` on ``gyro[j : j + 3]``."""
     g0, g1, g2 = gyro[j], gyro[j + 1], gyro[j + 2]
     if not (abs(g0) < math.inf and abs(g1) < math.inf and abs(g2) < math.inf):  # NaN fails too
-        st[_C + _C_BAD] += 1.0
-        st[_C + _C_NOT_APPLIED] += 1.0
+        st[_C + C_BAD] += 1.0
+        st[_C + C_NOT_APPLIED] += 1.0
         return 0
-    if t_us < st[_T_PRIMARY] - p[_P_HOLD_US]:  # the autopilot's clock went back: a reboot
-        st[_C + _C_BACK] += 1.0
+    if t_us < st[_T_PRIMARY] - p[P_HOLD_US]:  # the autopilot's clock went back: a reboot
+        st[_C + C_BACK] += 1.0
         _clear(st)
     if t_us > st[_T_PRIMARY]:
         st[_T_PRIMARY] = t_us
@@ -347,14 +321,14 @@ def _restore(st, p, t_us, gyro, j):  # type: ignore[no-untyped-def]
     st[_HEAD] = (h + 1) % _RING_N
     if st[_PEND_COUNT] > 0.0:
         _resolve(st, p, False)
-    if st[_N] >= p[_P_MIN_PAIRS] and t_us - st[_T_LAST] <= p[_P_HOLD_US] and st[_R] <= p[_P_MAX_FRAC]:
-        gyro[j] = g0 + st[_B]
-        gyro[j + 1] = g1 + st[_B + 1]
-        gyro[j + 2] = g2 + st[_B + 2]
-        st[_C + _C_APPLIED] += 1.0
+    if mean_trusted(st, p, t_us):
+        gyro[j] = g0 + st[S_B]
+        gyro[j + 1] = g1 + st[S_B + 1]
+        gyro[j + 2] = g2 + st[S_B + 2]
+        st[_C + C_APPLIED] += 1.0
         return 1
-    if st[_N] > 0.0 or st[_C + _C_PAIRS] > 0.0:  # a twin stream was seen: say the sample went uncorrected
-        st[_C + _C_NOT_APPLIED] += 1.0
+    if st[S_N] > 0.0 or st[_C + C_PAIRS] > 0.0:  # a twin stream was seen: say the sample went uncorrected
+        st[_C + C_NOT_APPLIED] += 1.0
     return 0
 
 
@@ -417,12 +391,9 @@ class AutopilotBias:
     @property
     def bias_rad_s(self) -> tuple[float, float, float] | None:
         """The mean being added (rad/s), or None while none is trusted."""
-        st, p = self._st, self._p
-        if st[_N] < p[_P_MIN_PAIRS] or st[_T_PRIMARY] - st[_T_LAST] > p[_P_HOLD_US] or st[_R] > p[_P_MAX_FRAC]:
-            return None
-        return float(st[_B]), float(st[_B + 1]), float(st[_B + 2])
+        return trusted_mean(self._st, self._p, self._st[_T_PRIMARY])
 
     @property
     def counts(self) -> dict[str, int]:
         """The counters (:data:`COUNTER_NAMES`) since the start."""
-        return {name: int(self._st[_C + i]) for i, name in enumerate(COUNTER_NAMES)}
+        return counter_values(self._st, _C, COUNTER_NAMES)

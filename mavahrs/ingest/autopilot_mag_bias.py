@@ -13,8 +13,9 @@ added to every HIGHRES_IMU field gives the field as PX4 calibrated it, without E
     b_k = b_{k-1} + α_k (d_k − b_{k-1}),   α_k = min(1, Δt_k / τ)      (the first ``min_pairs``: arithmetic mean)
     m_out = m_HIGHRES + b
 
-The pairs are taken in arrival order: the SCALED_IMU fields that arrived since the previous HIGHRES_IMU field
-update are averaged and paired with the next update.
+(the running mean of :mod:`mavahrs.ingest.pair_mean`, as the gyro's step keeps).  The pairs are taken in
+arrival order: the SCALED_IMU fields that arrived since the previous HIGHRES_IMU field update are averaged and
+paired with the next update.
 
 Bad input, each counted (:data:`COUNTER_NAMES`) and never written into a sample:
 
@@ -36,6 +37,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavahrs.filters.jit import kernel
+from mavahrs.ingest.pair_mean import (
+    C_APPLIED,
+    C_BACK,
+    C_BAD,
+    C_NOT_APPLIED,
+    C_PAIRS,
+    C_SECOND,
+    MEAN_LEN,
+    P_HOLD_US,
+    P_LEN,
+    P_MAX_BIAS,
+    P_MAX_FRAC,
+    P_MIN_PAIRS,
+    P_OUTLIER,
+    P_TAU_US,
+    S_B,
+    clear_mean,
+    counter_names,
+    counter_values,
+    mean_trusted,
+    pair_mean_update,
+    trusted_mean,
+)
 
 __all__ = [
     "COUNTER_NAMES",
@@ -47,22 +71,17 @@ __all__ = [
     "mag_restore_rows",
 ]
 
-# constants
-_P_TAU_US, _P_MIN_PAIRS, _P_HOLD_US, _P_MAX_BIAS, _P_OUTLIER, _P_MAX_FRAC, _P_HALF_STEP = range(7)
-_P_LEN = 7
-# state
-_B = 0  # the mean (3)
-_N = 3  # pairs in it
-_T_LAST = 4  # the last pair's stamp
-_R = 5  # outlier rate
-_CONSEC = 6  # outliers in a row
-_ACC = 7  # the sum of the calibrated partner fields waiting (3)
-_ACC_N = 10
-_T_PRIMARY = 11  # the newest primary stamp
-_T_PARTNER = 12  # the newest partner stamp
-_C = 13
-COUNTER_NAMES = ("pairs", "uncalibrated", "bad_values", "outliers", "restarts", "clock_back", "applied", "not_applied")
-_C_PAIRS, _C_UNCAL, _C_BAD, _C_OUTLIERS, _C_RESTARTS, _C_BACK, _C_APPLIED, _C_NOT_APPLIED = range(8)
+# constants: the running mean's (:mod:`mavahrs.ingest.pair_mean`), then the partner's half step
+_P_HALF_STEP = P_LEN
+_P_LEN = P_LEN + 1
+# state: the running mean (:mod:`mavahrs.ingest.pair_mean`), then
+_ACC = MEAN_LEN  # the sum of the calibrated partner fields waiting (3)
+_ACC_N = MEAN_LEN + 3
+_T_PRIMARY = MEAN_LEN + 4  # the newest primary stamp
+_T_PARTNER = MEAN_LEN + 5  # the newest partner stamp
+_C = MEAN_LEN + 6  # counters, in COUNTER_NAMES order
+COUNTER_NAMES = counter_names("uncalibrated")
+_C_UNCAL = C_SECOND  # this step's own counter
 _LEN = _C + len(COUNTER_NAMES)
 #: the calibration: offset (3, µT) then the 3×3 matrix row by row, applied as M · (m − o)
 CAL_LEN = 12
@@ -75,12 +94,12 @@ def constants(settings, step_ut: float = 0.0, truncated: bool = False) -> NDArra
     (PX4's float → int16), so the middle of each reading's interval is used.
     """
     p = np.empty(_P_LEN)
-    p[_P_TAU_US] = settings.mag_time_constant_s * 1e6
-    p[_P_MIN_PAIRS] = settings.min_pairs
-    p[_P_HOLD_US] = settings.hold_s * 1e6
-    p[_P_MAX_BIAS] = settings.mag_max_bias_ut
-    p[_P_OUTLIER] = settings.mag_outlier_ut
-    p[_P_MAX_FRAC] = settings.max_outlier_fraction
+    p[P_TAU_US] = settings.mag_time_constant_s * 1e6
+    p[P_MIN_PAIRS] = settings.min_pairs
+    p[P_HOLD_US] = settings.hold_s * 1e6
+    p[P_MAX_BIAS] = settings.mag_max_bias_ut
+    p[P_OUTLIER] = settings.mag_outlier_ut
+    p[P_MAX_FRAC] = settings.max_outlier_fraction
     p[_P_HALF_STEP] = 0.5 * step_ut if truncated else 0.0
     return p
 
@@ -95,13 +114,8 @@ def new_state() -> NDArray[np.float64]:
 @kernel
 def _clear(st):  # type: ignore[no-untyped-def]
     """Forget the mean and the waiting fields (the counters stay)."""
-    for k in range(3):
-        st[_B + k] = 0.0
-        st[_ACC + k] = 0.0
-    st[_N] = 0.0
-    st[_T_LAST] = -math.inf
-    st[_R] = 0.0
-    st[_CONSEC] = 0.0
+    clear_mean(st)
+    st[_ACC] = st[_ACC + 1] = st[_ACC + 2] = 0.0
     st[_ACC_N] = 0.0
     st[_T_PRIMARY] = -math.inf
     st[_T_PARTNER] = -math.inf
@@ -112,13 +126,13 @@ def mag_pair_step(st, p, cal, t_us, m0, m1, m2):  # type: ignore[no-untyped-def]
     """A partner message's raw field (PX4 SCALED_IMU, µT) stamped ``t_us``; ``cal`` (:data:`CAL_LEN`) the
     calibration, its first value NaN when there is none.  The calibrated field waits for the next primary update."""
     if not (abs(m0) < math.inf and abs(m1) < math.inf and abs(m2) < math.inf):  # NaN fails too
-        st[_C + _C_BAD] += 1.0
+        st[_C + C_BAD] += 1.0
         return
     if not (cal[0] == cal[0]):
         st[_C + _C_UNCAL] += 1.0
         return
-    if t_us < st[_T_PARTNER] - p[_P_HOLD_US]:  # the autopilot's clock went back: a reboot
-        st[_C + _C_BACK] += 1.0
+    if t_us < st[_T_PARTNER] - p[P_HOLD_US]:  # the autopilot's clock went back: a reboot
+        st[_C + C_BACK] += 1.0
         _clear(st)
     if t_us > st[_T_PARTNER]:
         st[_T_PARTNER] = t_us
@@ -134,75 +148,30 @@ def mag_pair_step(st, p, cal, t_us, m0, m1, m2):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def _pair(st, p, t, d0, d1, d2):  # type: ignore[no-untyped-def]
-    lim = p[_P_MAX_BIAS]
-    if not (abs(d0) <= lim and abs(d1) <= lim and abs(d2) <= lim):
-        st[_C + _C_BAD] += 1.0
-        return
-    st[_C + _C_PAIRS] += 1.0
-    n = st[_N]
-    if n > 0.0 and t - st[_T_LAST] > p[_P_HOLD_US]:  # no pair for longer than the hold: start again
-        st[_C + _C_RESTARTS] += 1.0
-        n = 0.0
-        st[_R] = 0.0
-        st[_CONSEC] = 0.0
-    if n < p[_P_MIN_PAIRS]:
-        k = 1.0 / (n + 1.0)
-        st[_B] += k * (d0 - st[_B])
-        st[_B + 1] += k * (d1 - st[_B + 1])
-        st[_B + 2] += k * (d2 - st[_B + 2])
-        st[_N] = n + 1.0
-        st[_T_LAST] = t
-        return
-    a = min(1.0, max(0.0, t - st[_T_LAST]) / p[_P_TAU_US])
-    e0, e1, e2 = d0 - st[_B], d1 - st[_B + 1], d2 - st[_B + 2]
-    g = p[_P_OUTLIER]
-    if abs(e0) > g or abs(e1) > g or abs(e2) > g:
-        st[_C + _C_OUTLIERS] += 1.0
-        st[_R] += a * (1.0 - st[_R])
-        st[_CONSEC] += 1.0
-        if st[_CONSEC] >= p[_P_MIN_PAIRS]:  # a step (EKF2 reset its bias): start from this pair
-            st[_C + _C_RESTARTS] += 1.0
-            st[_B], st[_B + 1], st[_B + 2] = d0, d1, d2
-            st[_N] = 1.0
-            st[_R] = 0.0
-            st[_CONSEC] = 0.0
-            st[_T_LAST] = t
-        return
-    st[_CONSEC] = 0.0
-    st[_R] -= a * st[_R]
-    st[_B] += a * e0
-    st[_B + 1] += a * e1
-    st[_B + 2] += a * e2
-    st[_N] = n + 1.0
-    st[_T_LAST] = t
-
-
-@kernel
 def _restore(st, p, t_us, mag, j):  # type: ignore[no-untyped-def]
     m0, m1, m2 = mag[j], mag[j + 1], mag[j + 2]
     if not (abs(m0) < math.inf and abs(m1) < math.inf and abs(m2) < math.inf):  # no new field in this message
         return 0
-    if t_us < st[_T_PRIMARY] - p[_P_HOLD_US]:  # the autopilot's clock went back: a reboot
-        st[_C + _C_BACK] += 1.0
+    if t_us < st[_T_PRIMARY] - p[P_HOLD_US]:  # the autopilot's clock went back: a reboot
+        st[_C + C_BACK] += 1.0
         _clear(st)
     if t_us > st[_T_PRIMARY]:
         st[_T_PRIMARY] = t_us
-    applies = st[_N] >= p[_P_MIN_PAIRS] and t_us - st[_T_LAST] <= p[_P_HOLD_US] and st[_R] <= p[_P_MAX_FRAC]
-    b0, b1, b2 = st[_B], st[_B + 1], st[_B + 2]  # the mean as it stood before this update's own pair
+    applies = mean_trusted(st, p, t_us)
+    b0, b1, b2 = st[S_B], st[S_B + 1], st[S_B + 2]  # the mean as it stood before this update's own pair
     k = st[_ACC_N]
     if k > 0.0:
-        _pair(st, p, t_us, st[_ACC] / k - m0, st[_ACC + 1] / k - m1, st[_ACC + 2] / k - m2)
+        pair_mean_update(st, p, _C, t_us, st[_ACC] / k - m0, st[_ACC + 1] / k - m1, st[_ACC + 2] / k - m2)
         st[_ACC] = st[_ACC + 1] = st[_ACC + 2] = 0.0
         st[_ACC_N] = 0.0
     if applies:
         mag[j] = m0 + b0
         mag[j + 1] = m1 + b1
         mag[j + 2] = m2 + b2
-        st[_C + _C_APPLIED] += 1.0
+        st[_C + C_APPLIED] += 1.0
         return 1
-    if st[_C + _C_PAIRS] > 0.0 or st[_C + _C_UNCAL] > 0.0:  # a twin stream was seen: say the field went uncorrected
-        st[_C + _C_NOT_APPLIED] += 1.0
+    if st[_C + C_PAIRS] > 0.0 or st[_C + _C_UNCAL] > 0.0:  # a twin stream was seen: say the field went uncorrected
+        st[_C + C_NOT_APPLIED] += 1.0
     return 0
 
 
@@ -274,11 +243,9 @@ class MagBias:
     @property
     def bias_ut(self) -> tuple[float, float, float] | None:
         """The mean being added (µT; the autopilot's bias is its negative), or None while none is trusted."""
-        st, p = self._st, self._p
-        if st[_N] < p[_P_MIN_PAIRS] or st[_T_PRIMARY] - st[_T_LAST] > p[_P_HOLD_US] or st[_R] > p[_P_MAX_FRAC]:
-            return None
-        return float(st[_B]), float(st[_B + 1]), float(st[_B + 2])
+        return trusted_mean(self._st, self._p, self._st[_T_PRIMARY])
 
     @property
     def counts(self) -> dict[str, int]:
-        return {name: int(self._st[_C + i]) for i, name in enumerate(COUNTER_NAMES)}
+        """The counters (:data:`COUNTER_NAMES`) since the start."""
+        return counter_values(self._st, _C, COUNTER_NAMES)

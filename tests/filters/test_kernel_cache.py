@@ -54,3 +54,71 @@ def test_one_folder_for_the_filters_one_per_other_module() -> None:
     assert filters.startswith("filters_")
     tlog = jit.cache_subpath(str(package / "protocol" / "tlog.py"))
     assert tlog.startswith("protocol.tlog_") and tlog != filters
+
+
+_RUN = """
+import sys
+from pathlib import Path
+
+import mavahrs.filters.jit as jit
+
+root = Path(sys.argv[1])
+jit._PACKAGE_DIR = str(root / "mavahrs_probe")  # its two files stand for two modules of the package
+jit.user_cache_dir = lambda: str(root / "cache")
+compiled = []
+jit.on_first_compile(compiled.append)
+sys.path.insert(0, str(root))
+from mavahrs_probe.caller import twice_plus
+
+print(twice_plus(1.0), bool(compiled))
+"""
+
+
+@pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba absent: nothing is cached")
+@pytest.mark.parametrize("numba_cache_dir", [False, True], ids=["user cache", "NUMBA_CACHE_DIR"])
+def test_a_kernel_calling_another_files_kernel_is_compiled_again_when_that_file_changes(
+    tmp_path: Path, numba_cache_dir: bool
+) -> None:
+    """numba stamps a cached kernel with its own file only; a kernel it calls from another file is compiled into
+    it, so without the dependency in the stamp the caller kept the callee's old code after the callee changed."""
+    import subprocess
+    import sys
+
+    pkg = tmp_path / "mavahrs_probe"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    callee = pkg / "callee.py"
+    callee.write_text("from mavahrs.filters.jit import kernel\n\n\n@kernel\ndef plus(x):\n    return x + 1.0\n")
+    (pkg / "caller.py").write_text(
+        "from mavahrs.filters.jit import kernel\nfrom mavahrs_probe.callee import plus\n\n\n"
+        "@kernel\ndef twice_plus(x):\n    return 2.0 * plus(x)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    if numba_cache_dir:
+        env["NUMBA_CACHE_DIR"] = str(tmp_path / "numba")
+
+    def run() -> tuple[float, bool]:
+        proc = subprocess.run([sys.executable, "-c", _RUN, str(tmp_path)], capture_output=True, text=True,
+                              timeout=300, env=env, cwd=tmp_path)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        value, compiled = proc.stdout.split()
+        return float(value), compiled == "True"
+
+    assert run() == (4.0, True)  # a cold cache: compiled
+    assert run() == (4.0, False)  # nothing changed: loaded from the cache
+    callee.write_text(callee.read_text().replace("x + 1.0", "x + 5.0"))
+    assert run() == (12.0, True)  # the callee's file changed: the caller is compiled again with it
+    assert run() == (12.0, False)
+
+
+@pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba absent: nothing is cached")
+def test_the_files_of_the_kernels_a_module_calls_are_its_kernels_dependencies() -> None:
+    import mavahrs
+    from mavahrs.service import fastlane
+
+    package = Path(mavahrs.__file__).parent
+    deps = jit.kernel_dependencies(fastlane._parse.py_func)
+    for called in ("protocol/fast_tlog.py", "sensors/scaling.py", "ingest/timeline.py"):
+        assert str(package / called) in deps
+    assert str(package / "service" / "fastlane.py") not in deps  # its own file is numba's stamp already
+    assert jit.cache_subpath(fastlane.__file__, deps) != jit.cache_subpath(fastlane.__file__)
