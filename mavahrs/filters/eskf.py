@@ -272,8 +272,7 @@ _BOFF_SIGMA = _MAG_DELAY + 27  # µT²: the largest variance of the fitted offse
 _REST_WOBBLE_VAR = _MAG_DELAY + 28  # (rad/s)²: variance of the mean rate across the vertical a hovering rest may hide (0: none)
 _REST_HOVER_VIB = _MAG_DELAY + 29  # m/s²: a rest is a hovering one only where the accelerometer's vibration RMS exceeds this (0: not asked)
 _REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is below this (0: not asked)
-_ABIAS_ACROSS = _MAG_DELAY + 31  # (m/s²)²: the accelerometer-bias states start across the thrust axis only, this variance (0: isotropic)
-_N_PARAMS = _MAG_DELAY + 32
+_N_PARAMS = _MAG_DELAY + 31
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -749,16 +748,6 @@ class EskfSettings(FilterSettings):
             reads it (the bias across gravity is then told from a tilt only
             by the body's turns, and a motion acceleration or a drag-model
             error is learnt as bias: see docs/accuracy.md).
-        accel_bias_across_thrust: the accelerometer-bias states start across
-            the thrust axis only (with the thrust-axis states, when they
-            start: P_ba = σ²(I − t tᵀ), the estimate's part along t dropped):
-            along the thrust the bias is one with the unknown thrust, which
-            nothing but the zero-velocity pseudo-measurement observes, and an
-            along-axis state there took the start's errors (firmware_sim raw
-            ``aggressive`` 101: 0.28 m/s² learnt for −0.05).  A constant bias
-            (``accel_bias_tau_s`` 0) stays in that span; with τ > 0 the
-            process noise is isotropic.  ``best`` declared a multirotor
-            through the API sets it (docs/accuracy.md, seventeenth round).
         heading_walk_tau_s: the heading's process noise is raised to what the
             compass's own heading innovations show (covariance matching, Sage &
             Husa 1969 / Myers & Tapley 1976; :func:`_heading_walk_step`): per
@@ -940,7 +929,6 @@ class EskfSettings(FilterSettings):
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
-    accel_bias_across_thrust: bool = False
     gyro_scale_tilt_sigma: float = 0.003
     gyro_scale_tilt_memory_s: float = 0.5
     heading_walk_tau_s: float = 0.0
@@ -1784,12 +1772,8 @@ def _least_aligned(tx, ty, tz):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
-def _axis_start(s, k, tx, ty, tz, p0, pa):  # type: ignore[no-untyped-def]
-    """The thrust-axis states start at the unit body vector t, variance ``p0``, uncorrelated with the rest.
-
-    ``pa`` > 0 (``accel_bias_across_thrust``): the accelerometer-bias states start afresh across t only,
-    P_ba = pa (I − t tᵀ), uncorrelated with the rest, and the estimate loses its part along t.
-    """
+def _axis_start(s, k, tx, ty, tz, p0):  # type: ignore[no-untyped-def]
+    """The thrust-axis states start at the unit body vector t, variance ``p0``, uncorrelated with the rest."""
     kt = k + _TAX
     s[kt], s[kt + 1], s[kt + 2] = tx, ty, tz
     s[k + _TREF] = _least_aligned(tx, ty, tz)
@@ -1799,21 +1783,6 @@ def _axis_start(s, k, tx, ty, tz, p0, pa):  # type: ignore[no-untyped-def]
             s[kp + i * N + j] = 0.0
             s[kp + j * N + i] = 0.0
         s[kp + i * N + i] = p0
-    if pa > 0.0:
-        ka = k + _ABIAS
-        along = s[ka] * tx + s[ka + 1] * ty + s[ka + 2] * tz
-        s[ka] -= along * tx
-        s[ka + 1] -= along * ty
-        s[ka + 2] -= along * tz
-        for i in range(_I_ABIAS, _I_ABIAS + 3):
-            for j in range(N):
-                s[kp + i * N + j] = 0.0
-                s[kp + j * N + i] = 0.0
-        for i in range(3):
-            ti = tx if i == 0 else (ty if i == 1 else tz)
-            for j in range(3):
-                tj = tx if j == 0 else (ty if j == 1 else tz)
-                s[kp + (_I_ABIAS + i) * N + _I_ABIAS + j] = pa * ((1.0 if i == j else 0.0) - ti * tj)
 
 
 @kernel(inline=True)
@@ -1838,7 +1807,7 @@ def _axis_start_check(s, k, params):  # type: ignore[no-untyped-def]
     if not m > 0.5 * G_M_S2:
         return
     if (mx * tx + my * ty + mz * tz) < params[P_FILTER + _INIT_COS] * m * tn:
-        _axis_start(s, k, mx / m, my / m, mz / m, p0, params[P_FILTER + _ABIAS_ACROSS])
+        _axis_start(s, k, mx / m, my / m, mz / m, p0)
 
 
 @kernel(inline=True)
@@ -1870,7 +1839,7 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         if not fn_ > 0.5 * G_M_S2:
             return False
         tx, ty, tz = fx / fn_, fy / fn_, fz / fn_
-        _axis_start(s, k, tx, ty, tz, p0, params[P_FILTER + _ABIAS_ACROSS])
+        _axis_start(s, k, tx, ty, tz, p0)
         tn = 1.0
     if not tn > 0.5:  # no steady thrust direction (tumbling, or not yet learnt)
         return False
@@ -3044,7 +3013,6 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
-        p[_ABIAS_ACROSS] = settings.accel_bias_sigma_m_s2**2 if settings.accel_bias_across_thrust else 0.0
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         p[_HWALK_TAU] = settings.heading_walk_tau_s
