@@ -12,12 +12,15 @@ receives (a restarted peer on a new port is followed at once, and counted in
 the service knows to ask it for its streams again).  Datagrams the kernel
 drops at a full receive buffer (the process not scheduled for a while) are
 counted too, in ``counters.kernel_dropped`` (Linux ``SO_RXQ_OVFL``: the
-kernel's running drop count comes with each datagram read).
+kernel's running drop count comes with each datagram read; while none arrives,
+``maintain`` reads the same count from ``/proc/net/udp`` once a second, so
+drops just before a stream stopped are counted too).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import socket
 import struct
 import sys
@@ -34,6 +37,26 @@ _MAX_DATAGRAM = 65535
 #: Linux: the socket's running count of datagrams dropped at a full receive buffer comes with each read
 _SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40) if sys.platform.startswith("linux") else None
 _ANC_SIZE = socket.CMSG_SPACE(4) if hasattr(socket, "CMSG_SPACE") else 0
+#: Linux: the kernel's socket tables, whose last column is the same running drop count
+_PROC_UDP = ("/proc/net/udp", "/proc/net/udp6")
+#: with no datagram for this long, the idle link's drop count is read from :data:`_PROC_UDP` (at most this often), s
+IDLE_DROPS_READ_S = 1.0
+
+
+def proc_udp_drops(inode: int) -> int | None:
+    """The kernel's drop count of the UDP socket with this inode, from ``/proc/net/udp[6]``; None if not found."""
+    key = str(inode)
+    for path in _PROC_UDP:
+        try:
+            with open(path, encoding="ascii", errors="replace") as f:
+                next(f, None)  # the header
+                for line in f:
+                    fields = line.split()
+                    if len(fields) >= 13 and fields[9] == key:
+                        return int(fields[-1])
+        except (OSError, ValueError):
+            continue
+    return None
 
 
 def resolve(host: str, port: int, what: str) -> tuple[int, Any]:
@@ -88,6 +111,8 @@ class UdpTransport:
         self._fds = (sock.fileno(),)
         self._warned_send = False
         self._last_rx_s = 0.0
+        self._last_data_s = time.monotonic()
+        self._last_drops_read_s = self._last_data_s
         #: ``udpin``: a sender that appears after this much silence counts as a restarted peer, s
         self.restart_silence_s = 0.5
 
@@ -135,8 +160,9 @@ class UdpTransport:
         except OSError as exc:  # e.g. ICMP errors reported on some platforms
             self._log.debug("%s: receive error: %s", self.endpoint.text, describe_os_error(exc))
             return b""
+        now = time.monotonic()
+        self._last_data_s = now
         if self._listen:
-            now = time.monotonic()
             if addr != self.peer:
                 # A new sender after the previous one fell silent is a restarted peer: count it as a
                 # reconnection (the service then asks for its streams again).  Two peers talking at
@@ -173,7 +199,24 @@ class UdpTransport:
             self._warned_send = False
 
     def maintain(self, now_s: float) -> None:
-        """Nothing to do: UDP has no connection to keep."""
+        """No connection to keep; on an idle link (no datagram for :data:`IDLE_DROPS_READ_S`), the kernel's drop
+        count read from ``/proc/net/udp`` once a second: the drops of a buffer that overflowed just before the
+        stream stopped come with no datagram (``now_s``: ``time.monotonic()``)."""
+        sock = self._sock
+        if (
+            sock is None
+            or not self._rxq_ovfl
+            or now_s - self._last_data_s < IDLE_DROPS_READ_S
+            or now_s - self._last_drops_read_s < IDLE_DROPS_READ_S
+        ):
+            return
+        self._last_drops_read_s = now_s
+        try:
+            drops = proc_udp_drops(os.fstat(sock.fileno()).st_ino)
+        except OSError:
+            return
+        if drops is not None and drops > self.counters.kernel_dropped:
+            self.counters.kernel_dropped = drops
 
     def close(self) -> None:
         if self._sock is not None:

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import socket
 import sys
+import time
 
 import pytest
 
 from mavahrs.errors import TransportError
 from mavahrs.transports import open_transport
-from mavahrs.transports.udp import UdpTransport
+from mavahrs.transports.udp import IDLE_DROPS_READ_S, UdpTransport
 
 
 @pytest.fixture
@@ -146,3 +147,28 @@ def test_datagrams_the_kernel_drops_at_a_full_receive_buffer_are_counted(listene
             got += 1
     assert listener.counters.reads == got + 1
     assert listener.counters.kernel_dropped == sent - got > 0  # every datagram either read or counted
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_RXQ_OVFL and /proc/net/udp are Linux's")
+def test_drops_just_before_a_stream_stops_are_counted_on_the_idle_link(listener: UdpTransport) -> None:
+    """The buffer overflows and then nothing more comes: no datagram brings the count, the idle link reads it."""
+    sock = listener._sock
+    assert sock is not None
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    rcvbuf = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    payload = 200
+    sent = 2 * rcvbuf // payload + 20
+    port = listener.local_address[1]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i in range(sent):  # the stream's last burst, unread; then it stops
+            s.sendto(i.to_bytes(2, "little") * (payload // 2), ("127.0.0.1", port))
+    got = 0
+    while listener.read(0.2):  # everything the buffer held: each brings the count from when it was queued
+        got += 1
+    assert 0 < got < sent, (got, sent, rcvbuf)
+    before = listener.counters.kernel_dropped
+    assert before < sent - got  # the drops after the last queued datagram are not known yet
+    listener.maintain(time.monotonic())  # not idle long enough yet: the link is left alone
+    assert listener.counters.kernel_dropped == before
+    listener.maintain(time.monotonic() + IDLE_DROPS_READ_S)  # idle: the kernel's table is read
+    assert listener.counters.kernel_dropped == sent - got  # every datagram either read or counted
