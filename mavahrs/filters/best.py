@@ -304,12 +304,6 @@ def best_eskf_settings() -> EskfSettings:
     )
 
 
-#: The gyro's white-noise density on an autopilot's stream, rad/s/√Hz (``EskfSettings.gyro_noise_rad_s``,
-#: the plain path's 0.003 otherwise). An autopilot's calibrated, low-passed gyro at 50–400 Hz; half the plain
-#: path's: docs/monitor.md round seventeen (accb2) measured the tilt's σ at twice its error with 0.003.
-VEHICLE_GYRO_NOISE_RAD_S = 0.0015
-
-
 def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
     """``eskf`` with the measurement models of a vehicle's stream (:class:`EskfSettings` defaults for them).
 
@@ -341,7 +335,6 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         mag_model=mag_model,
         gravity_lowpass_s=VEHICLE_GRAVITY_LOWPASS_S,
         gravity_noise_m_s2=d.gravity_noise_m_s2,
-        gyro_noise_rad_s=VEHICLE_GYRO_NOISE_RAD_S,
         heading_noise_rad=d.heading_noise_rad,
         mag_rate_hz=d.mag_rate_hz,
         mag_body_offset_lag_s=d.mag_body_offset_lag_s,

@@ -172,20 +172,6 @@ class MonitorSettings:
         unaided_tilt_sigma_deg, unaided_heading_sigma_deg: our 1-σ without
             GNSS velocity (Madgwick configuration: ≈ 2° inclination RMS in
             aggressive flight), deg.
-        min_tilt_sigma_deg: our tilt 1-σ while velocity-aided, deg: the least
-            the test takes (the ESKF's own, ``OUT_GAIN``, where it is larger,
-            as after a flip).  The ESKF's σ on an autopilot's stream shrank
-            from ≈ 0.55° to ≈ 0.47° when its gyro noise density was halved
-            for the estimate (``best.VEHICLE_GYRO_NOISE_RAD_S``), and with it
-            the threshold from ≈ 1.49° to ≈ 1.37°: autopilots 0.95–0.98° off,
-            inside their 1° tolerance, with ours up to 0.7° the other way
-            (firmware_sim aggressive 11 at 38.0 s, magnetic 13 at 120.3 s),
-            were warned of.  0.55° keeps the threshold where the stream's σ
-            held it (2·√(0.55² + 0.5²) = 1.49°, between the autopilot's
-            tolerance and a 2° step) and holds our tilt error at 2σ where the
-            filter's σ alone does not (aggressive 11 after take-off: 2.6 σ;
-            an accelerometer bias of 0.17 m/s² the filter cannot see in a
-            hover, magnetic 102); docs/monitor.md round nineteen.
         sync_s: timing uncertainty between the two estimates (the autopilot's
             attitude vs our sample of the same ``time_boot_ms``), s: a time
             offset δ makes the divergence ``q(t) ⊗ q(t − δ)*``, the earth-frame
@@ -460,7 +446,6 @@ class MonitorSettings:
     autopilot_tilt_sigma_deg: float = 0.5
     autopilot_heading_sigma_deg: float = 1.5
     heading_sigma_deg: float = 1.0
-    min_tilt_sigma_deg: float = 0.55
     unaided_tilt_sigma_deg: float = 1.5
     unaided_heading_sigma_deg: float = 3.0
     sync_s: float = 0.005
@@ -521,7 +506,7 @@ class MonitorSettings:
         if self.mode not in ("uncertainty", "fixed"):
             raise ValueError(f"monitor mode must be uncertainty or fixed, got {self.mode!r}")
         for name in ("sigma_k", "autopilot_tilt_sigma_deg", "autopilot_heading_sigma_deg", "heading_sigma_deg",
-                     "min_tilt_sigma_deg", "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
+                     "unaided_tilt_sigma_deg", "unaided_heading_sigma_deg", "sync_s", "min_tilt_threshold_deg",
                      "min_heading_threshold_deg", "cusum_leak_per_s", "ground_alt_m", "still_speed_m_s",
                      "transition_s", "learn_k", "learn_s", "learn_max_rate_dps", "learn_max_factor", "strip_s",
                      "imu_rate_tolerance_dps", "gnss_heading_min_m_s", "gnss_max_share_se", "imu_window_s", "change_k",
@@ -949,7 +934,6 @@ class AttitudeMonitor:
         self._sig_ap = (math.radians(s.autopilot_tilt_sigma_deg), math.radians(s.autopilot_heading_sigma_deg))
         self._sig_unaided = (math.radians(s.unaided_tilt_sigma_deg), math.radians(s.unaided_heading_sigma_deg))
         self._sig_hdg = math.radians(s.heading_sigma_deg)
-        self._sig_tilt_least = math.radians(s.min_tilt_sigma_deg)
         self._min_thr = (math.radians(s.min_tilt_threshold_deg), math.radians(s.min_heading_threshold_deg))
         self._uncertainty = u
         self._h = (1.0 - s.cusum_reference) * s.trigger_s
@@ -1223,7 +1207,7 @@ class AttitudeMonitor:
             return self._model_thr
         sig = self._sigma
         aided = math.isfinite(sig) and sig > 0.0
-        s_t = max(sig, self._sig_tilt_least) if aided else self._sig_unaided[0]
+        s_t = sig if aided else self._sig_unaided[0]
         sh = self._sigma_hdg
         s_h = (max(sh, self._sig_hdg) if math.isfinite(sh) else self._sig_hdg) if aided else self._sig_unaided[1]
         self._thr_sigmas = (s_t, s_h)
