@@ -332,28 +332,29 @@ def dump_toml(sections: Mapping[str, Any], *, header: str = "") -> str:
 
 
 def field_docs(cls: type) -> dict[str, str]:
-    """Field descriptions from the class docstring's ``Attributes:`` section (one paragraph each)."""
+    """Field descriptions from the class docstring's ``Attributes:`` section (one paragraph each; an entry
+    that names several fields, ``a, b: …``, describes each of them)."""
     docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         doc = klass.__doc__ or ""
         m = re.search(r"^\s*Attributes:\s*$", doc, re.MULTILINE)
         if not m:
             continue
-        current = None
+        current: list[str] = []
         indent = None
         for line in doc[m.end() :].splitlines():
             if not line.strip():
-                if current is not None and docs.get(current):
-                    continue
                 continue
             ind = len(line) - len(line.lstrip())
-            fm = re.match(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(\([^)]*\))?:\s*(.*)$", line)
+            fm = re.match(r"^\s*([A-Za-z_]\w*(?:\s*,\s*[A-Za-z_]\w*)*)\s*(\([^)]*\))?:\s*(.*)$", line)
             if fm and (indent is None or ind <= indent):
                 indent = ind
-                current = fm.group(1)
-                docs[current] = fm.group(3).strip()
-            elif current is not None and indent is not None and ind > indent:
-                docs[current] = (docs[current] + " " + line.strip()).strip()
+                current = [name.strip() for name in fm.group(1).split(",")]
+                for name in current:
+                    docs[name] = fm.group(3).strip()
+            elif current and indent is not None and ind > indent:
+                for name in current:
+                    docs[name] = (docs[name] + " " + line.strip()).strip()
             elif indent is not None and ind < indent:
                 break
     return docs

@@ -121,6 +121,28 @@ def test_field_docs_read_the_attributes_section() -> None:
     assert set(docs) == {f.name for f in dataclasses.fields(Outer)}
 
 
+def test_field_docs_give_an_entry_naming_several_fields_to_each_of_them() -> None:
+    @dataclasses.dataclass
+    class Pair:
+        """Two limits.
+
+        Attributes:
+            first: the first, s.
+            low_deg, high_deg: the band's
+                edges, deg.
+            last: the last.
+        """
+
+        first: float = 1.0
+        low_deg: float = 0.0
+        high_deg: float = 1.0
+        last: float = 2.0
+
+    docs = field_docs(Pair)
+    assert docs["low_deg"] == docs["high_deg"] == "the band's edges, deg."
+    assert docs["first"] == "the first, s." and docs["last"] == "the last."
+
+
 def test_dump_toml_round_trips() -> None:
     o = Outer(rate_hz=math.inf, name='quote " and \\ backslash', limit=None, ids=(), inner=Inner(2.5, False))
     text = dump_toml({"outer": o})
