@@ -209,17 +209,20 @@ def _file_digest(path: str) -> str:
 
 
 def kernel_dependencies(py_func: Any) -> tuple[str, ...]:
-    """The source files, other than its own, of the package's kernels that ``py_func`` may call, sorted.
+    """The source files, other than its own, that ``py_func``'s compiled code depends on, sorted.
 
-    Those are the compiled kernels of other files bound in its module's globals (imported at the top:
-    a kernel calls no other), and theirs in turn.  numba compiles a called kernel into its caller and
-    stamps the caller's cache with the caller's file alone, so a change to the called kernel's file
-    would otherwise leave the caller's old machine code in use (mavahrs/ingest's shared running
-    mean, the fast lane's parser).  Read when the kernel is decorated: its module's imports are there.
-    Files of ``mavahrs/filters`` count like any other (their own kernels are stamped with all of them).
+    Those are the files of the package's compiled kernels bound in its module's globals (imported at
+    the top: a kernel calls no other), and theirs in turn; and the package's modules each of those
+    modules imports from at its top, whose constants (``IN_GYRO``, a layout's offsets) are compiled into
+    the kernels as literals.  numba compiles a called kernel into its caller and stamps the caller's cache
+    with the caller's file alone, so a change to the called kernel's file or to an imported constant would
+    otherwise leave the caller's old machine code in use (mavahrs/ingest's shared running mean, the fast
+    lane's parser, the scaling kernels' column offsets).  Read when the kernel is decorated: its module's
+    imports are there.  Files of ``mavahrs/filters`` count like any other (their own kernels are stamped
+    with all of them).
     """
     own = os.path.abspath(py_func.__code__.co_filename)
-    files: set[str] = set()
+    files: set[str] = set(_imported_package_files(own))
     seen: set[str] = set()
     todo = [py_func.__globals__]
     while todo:
@@ -234,8 +237,51 @@ def kernel_dependencies(py_func: Any) -> tuple[str, ...]:
                 continue
             seen.add(path)
             files.add(path)
+            files.update(_imported_package_files(path))
             todo.append(py.__globals__)
+    files.discard(own)
     return tuple(sorted(files))
+
+
+_IMPORTS: dict[str, tuple[str, ...]] = {}
+
+
+def _imported_package_files(path: str) -> tuple[str, ...]:
+    """The files of the package's modules that the module at ``path`` imports from at its top level
+    (``from mavahrs.x import NAME`` and ``import mavahrs.x``; a name that is itself a module counts as
+    its file); read once per file."""
+    import ast
+
+    done = _IMPORTS.get(path)
+    if done is not None:
+        return done
+    try:
+        with open(path, "rb") as f:
+            tree = ast.parse(f.read(), path)
+    except (OSError, SyntaxError, ValueError):
+        _IMPORTS[path] = ()
+        return ()
+    names: list[str] = []
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            names.append(node.module)
+            names.extend(f"{node.module}.{alias.name}" for alias in node.names)
+        elif isinstance(node, ast.Import):
+            names.extend(alias.name for alias in node.names)
+    found: set[str] = set()
+    package = os.path.basename(_PACKAGE_DIR)
+    for name in names:
+        parts = name.split(".")
+        if parts[0] != package:
+            continue
+        base = os.path.join(_PACKAGE_DIR, *parts[1:])
+        for candidate in (base + ".py", os.path.join(base, "__init__.py")):
+            if os.path.isfile(candidate):
+                found.add(os.path.abspath(candidate))
+                break
+    found.discard(os.path.abspath(path))
+    _IMPORTS[path] = done = tuple(sorted(found))
+    return done
 
 
 def _use_cache_path(path: str) -> None:

@@ -112,6 +112,39 @@ def test_a_kernel_calling_another_files_kernel_is_compiled_again_when_that_file_
 
 
 @pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba absent: nothing is cached")
+def test_a_kernel_is_compiled_again_when_a_constant_it_imports_changes(tmp_path: Path) -> None:
+    """An imported module-level constant (a layout's column offset) is compiled into the kernel as a literal:
+    a change in the file it comes from must compile the kernel again, not load the old one."""
+    import subprocess
+    import sys
+
+    pkg = tmp_path / "mavahrs_probe"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "callee.py").write_text("from mavahrs.filters.jit import kernel\n\n\n@kernel\ndef plus(x):\n    return x\n")
+    consts = pkg / "consts.py"
+    consts.write_text("OFFSET = 1.0\n")
+    (pkg / "caller.py").write_text(
+        "from mavahrs.filters.jit import kernel\nfrom mavahrs_probe.callee import plus\n"
+        "from mavahrs_probe.consts import OFFSET\n\n\n@kernel\ndef twice_plus(x):\n    return 2.0 * (plus(x) + OFFSET)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+
+    def run() -> tuple[float, bool]:
+        proc = subprocess.run([sys.executable, "-c", _RUN, str(tmp_path)], capture_output=True, text=True,
+                              timeout=300, env=env, cwd=tmp_path)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        value, compiled = proc.stdout.split()
+        return float(value), compiled == "True"
+
+    assert run() == (4.0, True)
+    assert run() == (4.0, False)
+    consts.write_text("OFFSET = 3.0\n")
+    assert run() == (8.0, True)  # the constant's file changed: compiled again with the new literal
+    assert run() == (8.0, False)
+
+
+@pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba absent: nothing is cached")
 def test_the_files_of_the_kernels_a_module_calls_are_its_kernels_dependencies() -> None:
     import mavahrs
     from mavahrs.service import fastlane
@@ -121,4 +154,6 @@ def test_the_files_of_the_kernels_a_module_calls_are_its_kernels_dependencies() 
     for called in ("protocol/fast_tlog.py", "sensors/scaling.py", "ingest/timeline.py"):
         assert str(package / called) in deps
     assert str(package / "service" / "fastlane.py") not in deps  # its own file is numba's stamp already
+    scaling = jit.kernel_dependencies(__import__("mavahrs.sensors.scaling", fromlist=["x"]).scale_int_row.py_func)
+    assert str(package / "filters" / "layout.py") in scaling  # its column offsets are compiled in
     assert jit.cache_subpath(fastlane.__file__, deps) != jit.cache_subpath(fastlane.__file__)
