@@ -74,6 +74,18 @@ print(twice_plus(1.0), bool(compiled))
 """
 
 
+def _run_probe(root: Path, env: dict[str, str]) -> tuple[float, bool]:
+    """The probe package's kernel run in a fresh process: its value, and whether it was compiled (not loaded)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _RUN, str(root)], capture_output=True, text=True,
+                          timeout=300, env=env, cwd=root)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    value, compiled = proc.stdout.split()
+    return float(value), compiled == "True"
+
+
 @pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba absent: nothing is cached")
 @pytest.mark.parametrize("numba_cache_dir", [False, True], ids=["user cache", "NUMBA_CACHE_DIR"])
 def test_a_kernel_calling_another_files_kernel_is_compiled_again_when_that_file_changes(
@@ -81,8 +93,6 @@ def test_a_kernel_calling_another_files_kernel_is_compiled_again_when_that_file_
 ) -> None:
     """numba stamps a cached kernel with its own file only; a kernel it calls from another file is compiled into
     it, so without the dependency in the stamp the caller kept the callee's old code after the callee changed."""
-    import subprocess
-    import sys
 
     pkg = tmp_path / "mavahrs_probe"
     pkg.mkdir()
@@ -98,11 +108,7 @@ def test_a_kernel_calling_another_files_kernel_is_compiled_again_when_that_file_
         env["NUMBA_CACHE_DIR"] = str(tmp_path / "numba")
 
     def run() -> tuple[float, bool]:
-        proc = subprocess.run([sys.executable, "-c", _RUN, str(tmp_path)], capture_output=True, text=True,
-                              timeout=300, env=env, cwd=tmp_path)  # fmt: skip
-        assert proc.returncode == 0, proc.stderr
-        value, compiled = proc.stdout.split()
-        return float(value), compiled == "True"
+        return _run_probe(tmp_path, env)
 
     assert run() == (4.0, True)  # a cold cache: compiled
     assert run() == (4.0, False)  # nothing changed: loaded from the cache
@@ -115,8 +121,6 @@ def test_a_kernel_calling_another_files_kernel_is_compiled_again_when_that_file_
 def test_a_kernel_is_compiled_again_when_a_constant_it_imports_changes(tmp_path: Path) -> None:
     """An imported module-level constant (a layout's column offset) is compiled into the kernel as a literal:
     a change in the file it comes from must compile the kernel again, not load the old one."""
-    import subprocess
-    import sys
 
     pkg = tmp_path / "mavahrs_probe"
     pkg.mkdir()
@@ -131,11 +135,7 @@ def test_a_kernel_is_compiled_again_when_a_constant_it_imports_changes(tmp_path:
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
 
     def run() -> tuple[float, bool]:
-        proc = subprocess.run([sys.executable, "-c", _RUN, str(tmp_path)], capture_output=True, text=True,
-                              timeout=300, env=env, cwd=tmp_path)  # fmt: skip
-        assert proc.returncode == 0, proc.stderr
-        value, compiled = proc.stdout.split()
-        return float(value), compiled == "True"
+        return _run_probe(tmp_path, env)
 
     assert run() == (4.0, True)
     assert run() == (4.0, False)
