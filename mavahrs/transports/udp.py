@@ -152,7 +152,8 @@ class UdpTransport:
                 data, anc, _, addr = sock.recvmsg(_MAX_DATAGRAM, _ANC_SIZE)
                 for level, kind, value in anc:
                     if level == socket.SOL_SOCKET and kind == _SO_RXQ_OVFL and len(value) >= 4:
-                        c.kernel_dropped = struct.unpack("=I", value[:4])[0]  # the kernel's running total
+                        # the kernel's running total when this datagram was queued (an idle link's read may be later)
+                        c.kernel_dropped = max(c.kernel_dropped, struct.unpack("=I", value[:4])[0])
             else:
                 data, addr = sock.recvfrom(_MAX_DATAGRAM)
         except (BlockingIOError, InterruptedError):
