@@ -112,7 +112,7 @@ def _plot_replay_csv(path: Any, output: str, start_s: float | None = None, end_s
 
     from mavahrs.errors import DataError
     from mavahrs.evaluation.plots import plot_attitude
-    from mavahrs.filters.layout import OUT_ACCEL_WEIGHT, OUT_GAIN, OUT_MAG_WEIGHT, OUT_Q, OUT_WIDTH
+    from mavahrs.filters.layout import OUT_ACCEL_WEIGHT, OUT_FLAGS, OUT_GAIN, OUT_MAG_WEIGHT, OUT_Q, OUT_WIDTH
 
     with open(path, encoding="utf-8") as f:
         cols = f.readline().strip().split(",")
@@ -127,7 +127,8 @@ def _plot_replay_csv(path: Any, output: str, start_s: float | None = None, end_s
         out = np.full((data.shape[0], OUT_WIDTH), np.nan)
         for k, q in enumerate(("qw", "qx", "qy", "qz")):
             out[:, OUT_Q + k] = data[:, col[f"{n}_{q}"]]
-        for j, c in ((OUT_GAIN, "gain"), (OUT_ACCEL_WEIGHT, "accel_weight"), (OUT_MAG_WEIGHT, "mag_weight")):
+        for j, c in ((OUT_GAIN, "gain"), (OUT_ACCEL_WEIGHT, "accel_weight"), (OUT_MAG_WEIGHT, "mag_weight"),
+                     (OUT_FLAGS, "flags")):  # fmt: skip
             if f"{n}_{c}" in col:  # optional: the trust panel is left empty without them
                 out[:, j] = data[:, col[f"{n}_{c}"]]
         est[n] = out

@@ -22,7 +22,16 @@ from numpy.typing import NDArray
 
 from mavahrs.errors import MavahrsError
 from mavahrs.evaluation.metrics import euler_deg, euler_errors_rad
-from mavahrs.filters.layout import OUT_ACCEL_WEIGHT, OUT_GAIN, OUT_MAG_WEIGHT, OUT_Q, OUT_WIDTH
+from mavahrs.filters.layout import (
+    FLAG_ACCEL_INVALID,
+    FLAG_MAG_INVALID,
+    OUT_ACCEL_WEIGHT,
+    OUT_FLAGS,
+    OUT_GAIN,
+    OUT_MAG_WEIGHT,
+    OUT_Q,
+    OUT_WIDTH,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from mavahrs.evaluation.studies import StudyResult
@@ -182,6 +191,32 @@ def _quats(x: Array) -> Array:
     return x[:, OUT_Q : OUT_Q + 4] if x.shape[1] == OUT_WIDTH else x
 
 
+#: a sensor's trust is held over samples without its reading for at most this long (s); a longer absence is a gap
+TRUST_HOLD_S = 0.5
+
+
+def held_trust(t_s: Array, est: Array, column: int, invalid_flag: int, hold_s: float = TRUST_HOLD_S) -> Array:
+    """A filter's trust in one sensor (``OUT_ACCEL_WEIGHT`` / ``OUT_MAG_WEIGHT``) as the filter holds it.
+
+    A sample without that sensor's reading carries its ``FLAG_*_INVALID`` and a weight of 0: a 100 Hz
+    magnetometer between 250 Hz IMU samples, drawn as it is, alternates 0 and 1 and fills the panel as if
+    the compass were rejected on every other sample.  Such samples take the last weight of a sample that
+    had the reading, for up to ``hold_s`` of ``t_s``; after that (the sensor gone), and before its first
+    reading, they are NaN: a gap, not "rejected".  NaN rows (a reboot's line break) stay NaN.
+    """
+    t = np.asarray(t_s, dtype=float)
+    w = np.asarray(est[:, column], dtype=float)
+    flags = np.asarray(est[:, OUT_FLAGS], dtype=float)
+    without = np.isfinite(flags) & ((np.where(np.isfinite(flags), flags, 0.0).astype(np.int64) & invalid_flag) != 0)
+    if not without.any():
+        return w.copy()
+    pos = np.arange(w.size)
+    last = np.maximum.accumulate(np.where(without, -1, pos))  # the last sample with the reading (or a NaN row)
+    held = np.where(last >= 0, w[np.maximum(last, 0)], np.nan)
+    fresh = np.abs(t - t[np.maximum(last, 0)]) <= hold_s
+    return np.where(~without, w, np.where((last >= 0) & fresh, held, np.nan))
+
+
 def plot_attitude(
     path: str | Path,
     t_s: Array,
@@ -265,8 +300,8 @@ def plot_attitude(
                 continue
             st = _style(name, j, 0.9)
             axg.plot(t[idx], est[idx, OUT_GAIN], label=name, **st)
-            axw.plot(t[idx], est[idx, OUT_ACCEL_WEIGHT], **st)
-            axw.plot(t[idx], est[idx, OUT_MAG_WEIGHT], ls=":", **st)
+            axw.plot(t[idx], held_trust(t, est, OUT_ACCEL_WEIGHT, FLAG_ACCEL_INVALID)[idx], **st)
+            axw.plot(t[idx], held_trust(t, est, OUT_MAG_WEIGHT, FLAG_MAG_INVALID)[idx], ls=":", **st)
         axg.set_ylabel("gain")
         axg.set_yscale("symlog", linthresh=0.01)
         axg.grid(alpha=0.3)

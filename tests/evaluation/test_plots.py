@@ -285,3 +285,42 @@ def test_a_plot_name_without_a_suffix_is_written_as_png_and_said_so(tmp_path: Pa
     capsys.readouterr()
     assert main(["plot", str(tmp_path / "broken.csv"), "-o", str(tmp_path / "broken.png")]) == 1
     assert f"plot: {tmp_path / 'broken.csv'}: a replay CSV without its column(s) best_qz" in capsys.readouterr().err
+
+
+def test_a_slower_magnetometer_is_not_drawn_as_rejected_between_its_readings(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """A PX4 ULog's compass at 98 Hz between 248 Hz IMU samples: the samples without a reading carry
+    FLAG_MAG_INVALID and a weight of 0; the trust panel drew them as 0 ("rejected") and the compass line
+    alternated 0/1, a solid block.  Now: held between readings, a gap once the compass is gone, and a
+    real rejection (weight 0 on a sample with a reading) still drawn as 0."""
+    pytest.importorskip("matplotlib")
+    from mavahrs.evaluation.plots import TRUST_HOLD_S, held_trust, plot_attitude
+    from mavahrs.filters.layout import FLAG_MAG_INVALID, OUT_FLAGS
+
+    n = 2500
+    t = np.arange(n) / 250.0  # 10 s
+    rows = _rows(n, 0)
+    reading = np.arange(n) % 5 < 2  # 100 Hz of 250
+    rows[:, OUT_MAG_WEIGHT] = np.where(reading, 1.0, 0.0)
+    rows[:, OUT_FLAGS] = np.where(reading, 0, FLAG_MAG_INVALID)
+    rejected = (t >= 3.0) & (t < 4.0) & reading  # the filter rejects the compass for 1 s
+    rows[rejected, OUT_MAG_WEIGHT] = 0.0
+    gone = t >= 7.0  # and then the compass stops
+    rows[gone, OUT_MAG_WEIGHT] = 0.0
+    rows[gone, OUT_FLAGS] = FLAG_MAG_INVALID
+
+    w = held_trust(t, rows, OUT_MAG_WEIGHT, FLAG_MAG_INVALID)
+    trusted = (t < 3.0) | ((t >= 4.01) & (t < 7.0))
+    assert np.all(w[trusted] == 1.0), "held between the readings"
+    assert np.all(w[(t >= 3.01) & (t < 4.0)] == 0.0), "a rejection is still drawn as one"
+    last = t[reading & ~gone][-1]  # the compass's last reading
+    assert np.all(w[(t >= 7.0) & (t <= last + TRUST_HOLD_S)] == 1.0)
+    assert np.isnan(w[t > last + TRUST_HOLD_S]).all(), "a compass that is gone is a gap, not 'rejected'"
+
+    saved = _saved_figures(monkeypatch)
+    plot_attitude(tmp_path / "mag.png", t, {"best": rows})
+    (fig,) = saved
+    trust = next(ax for ax in fig.axes if ax.get_ylabel().startswith("trust"))
+    mag_line = next(ln for ln in trust.get_lines() if ln.get_linestyle() == ":" and len(ln.get_xdata()) > 0)
+    x, y = np.asarray(mag_line.get_xdata(), float), np.asarray(mag_line.get_ydata(), float)
+    assert np.all(y[(x < 3.0)] == 1.0), "the panel draws the held trust"
