@@ -357,6 +357,13 @@ def trace(
         print("  " + "  ".join(cells))
 
 
+#: round five's split (docs/accuracy.md, branch smag3), fixed before its variants were measured: settings are chosen
+#: on CHOICE_TRIALS (one of each kind: slow / fast rotation, slow / fast translation, tapping, each magnet) and
+#: confirmed on HELD_TRIALS
+CHOICE_TRIALS = ("01", "04", "08", "11", "15", "24", "28", "32")
+HELD_TRIALS = ("02", "06", "10", "14", "18", "26", "30", "34")
+
+
 def _groups(values: dict[str, float]) -> str:
     def mean(keys: tuple[str, ...]) -> float:
         return float(np.mean([values[k] for k in keys if k in values]))
@@ -364,7 +371,8 @@ def _groups(values: dict[str, float]) -> str:
     clean = tuple(k for k in values if int(k[:2]) <= 18)
     return (
         f"all {np.mean(list(values.values())):.2f}  undisturbed(10) {mean(clean):.2f}  "
-        f"stat.magnet {mean(('28', '30')):.2f}  att.magnet {mean(('32', '34')):.2f}"
+        f"stat.magnet {mean(('28', '30')):.2f}  att.magnet {mean(('32', '34')):.2f}  "
+        f"choice {mean(CHOICE_TRIALS):.3f}  held {mean(HELD_TRIALS):.3f}"
     )
 
 

@@ -174,6 +174,13 @@ BEST_GYRO_SCALE_SIGMA = 0.0
 #: reading less it used again.  BROAD attached-magnet trials 1.73 → 1.02° heading (docs/accuracy.md round three, bmag2); off on
 #: an autopilot's stream (:func:`vehicle_eskf_settings`, whose magnetometer model learns the vehicle's own field)
 BEST_MAG_BODY_OFFSET_LAG_S = 0.5
+#: the plain path's compass reading that the gain schedule rejects (dip test) with its norm in tolerance is fused at
+#: σ × this (``EskfSettings.mag_rejected_sigma_scale``; 0 = not fused): in fast turns a raw IMU's compass fails the
+#: dip test (BROAD's is ≈ 10 ms late) while the gyro's heading drifts 0.2–0.3 °/s.  Chosen on BROAD trials 01 04 08
+#: 11 15 24 28 32 (1.646 → 1.195°; 3 / 4 / 7: 1.242 / 1.203 / 1.251), confirmed on 02 06 10 14 18 26 30 34
+#: (1.508 → 1.441°; trial 06 1.76 → 3.35° worse); all 16 1.58 → 1.32°, stationary magnet 1.92 → 1.48°,
+#: attached 1.02 → 0.97°; off on an autopilot's stream (docs/accuracy.md round five, smag3)
+BEST_MAG_REJECTED_SIGMA_SCALE = 5.0
 #: the start checked against the specific force averaged over this long in the estimate's frame, s, and the tilt
 #: re-aligned to it when more than 30° apart (``EskfSettings.initial_average_s``; every path of ``best``; the plain
 #: path's gravity low-pass τ): firmware_sim's ``vibration`` flights declared a multirotor started 61–118° off from
@@ -301,6 +308,7 @@ def best_eskf_settings() -> EskfSettings:
         gyro_scale_tilt_sigma=0.0,
         gyro_scale_state_sigma=BEST_GYRO_SCALE_SIGMA,
         mag_body_offset_lag_s=BEST_MAG_BODY_OFFSET_LAG_S,
+        mag_rejected_sigma_scale=BEST_MAG_REJECTED_SIGMA_SCALE,
     )
 
 
@@ -338,6 +346,7 @@ def vehicle_eskf_settings(eskf: EskfSettings) -> EskfSettings:
         heading_noise_rad=d.heading_noise_rad,
         mag_rate_hz=d.mag_rate_hz,
         mag_body_offset_lag_s=d.mag_body_offset_lag_s,
+        mag_rejected_sigma_scale=d.mag_rejected_sigma_scale,
         mag_noise_tau_s=VEHICLE_MAG_NOISE_TAU_S,
         heading_walk_tau_s=VEHICLE_HEADING_WALK_TAU_S,
         gate_sigma=d.gate_sigma,

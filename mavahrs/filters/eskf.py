@@ -272,7 +272,8 @@ _BOFF_SIGMA = _MAG_DELAY + 27  # µT²: the largest variance of the fitted offse
 _REST_WOBBLE_VAR = _MAG_DELAY + 28  # (rad/s)²: variance of the mean rate across the vertical a hovering rest may hide (0: none)
 _REST_HOVER_VIB = _MAG_DELAY + 29  # m/s²: a rest is a hovering one only where the accelerometer's vibration RMS exceeds this (0: not asked)
 _REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is below this (0: not asked)
-_N_PARAMS = _MAG_DELAY + 31
+_MAG_REJ_SCALE = _MAG_DELAY + 31  # a reading the schedule rejects, its norm within tolerance: fused at σ × this (0: not)
+_N_PARAMS = _MAG_DELAY + 32
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -851,6 +852,18 @@ class EskfSettings(FilterSettings):
         mag_body_offset_sigma_ut: … and the offset's standard error along its
             worst axis (the residual per pair over that eigenvalue), µT, is
             within this.
+        mag_rejected_sigma_scale: plain path only (no effect with
+            ``mag_model`` on): a reading the gain schedule rejects (its weight
+            below 0.5: the dip test, or the 0.5 s recovery after it) but whose
+            norm is within the schedule's ``mag_norm_tolerance`` of its
+            reference is fused all the same, its heading σ multiplied by this
+            (the gate as usual); a reading whose norm is off (a magnet on the
+            sensor: the body-offset learner's case) stays out.  In fast turns a
+            raw IMU's compass fails the dip test (BROAD's reads ≈ 10 ms late)
+            while the gyro's heading drifts 0.2–0.3 °/s.  0 = such readings
+            are not fused (default; ``best_eskf_settings`` sets 5,
+            ``vehicle_eskf_settings`` 0).  BROAD heading 1.58 → 1.32°
+            (docs/accuracy.md, round five smag3).
     """
 
     gyro_noise_rad_s: float = 0.003
@@ -943,6 +956,7 @@ class EskfSettings(FilterSettings):
     mag_body_offset_min_turn: float = 2.0
     mag_body_offset_residual_fraction: float = 0.2
     mag_body_offset_sigma_ut: float = 2.5
+    mag_rejected_sigma_scale: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -963,7 +977,7 @@ class EskfSettings(FilterSettings):
         for name in ("rest_rate_noise_rad_s", "rest_velocity_noise_m_s", "rest_check_sigma_rad_s", "rest_wobble_sigma_rad_s", "rest_hover_vibration_m_s2", "rest_hover_speed_m_s", "thrust_axis_sigma_rad", "thrust_axis_walk_rad_s",
                      "gyro_scale_sigma", "gyro_cross_axis_sigma", "gyro_scale_tau_s", "declination_sigma_rad",
                      "position_noise_m", "vertical_position_noise_m", "position_walk_m_s", "bias_walk_aided_rad_s2",
-                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s",
+                     "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s", "mag_rejected_sigma_scale",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
@@ -2657,6 +2671,20 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 if abs(cn / ref_n - 1.0) <= ntol and abs(dip_c - state[S_SCHED + _g.GS_MAG_DIP]) <= dtol:
                     mx, my, mz = cx, cy, cz
                     w_m = 1.0
+    infl = 1.0
+    if (
+        params[p + _MAG_REJ_SCALE] > 0.0 and not model_on and mag_ok and w_m < 0.5
+        and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0)
+    ):  # fmt: skip
+        # ``mag_rejected_sigma_scale`` (plain path): a reading the schedule rejects for its dip (or while its
+        # weight recovers) but whose norm is the reference's is fused all the same, its σ inflated: in fast turns
+        # a raw IMU's compass fails the dip test (a late reading, the tilt's error) while the gyro's heading drifts
+        # (BROAD: 0.2–0.3 °/s); a reading whose norm is off (a magnet on the sensor) stays out
+        nn = math.sqrt(mx * mx + my * my + mz * mz)
+        ref_n = state[S_SCHED + _g.GS_MAG_NORM]
+        if ref_n > 0.0 and abs(nn / ref_n - 1.0) <= params[P_SCHED + _g.GP_MAG_NORM_TOL]:
+            infl = params[p + _MAG_REJ_SCALE]
+            w_m = 1.0
     if use_mag and mag_ok and w_m >= 0.5 and since >= params[p + _MAG_PERIOD] and (new_mag or since >= 1.0):
         hn = state[kc + 0] * mx + state[kc + 1] * my + state[kc + 2] * mz
         he = state[kc + 3] * mx + state[kc + 4] * my + state[kc + 5] * mz
@@ -2731,7 +2759,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             # a reading held between compass reads is up to its period old: while turning, its
             # heading trails by rate × age
             stale = params[p + _MAG_STALE] * rate_d
-            r_m = (r_head + stale * stale) / (w_m * w_m) + r_model
+            r_m = (r_head + stale * stale) / (w_m * w_m) * (infl * infl) + r_model
             if params[p + _HWALK_TAU] > 0.0:
                 # the heading's process noise from the innovations against their predicted variance
                 y_h, s_h = _innovation(state, k, psi, r_m)
@@ -3027,6 +3055,7 @@ class Eskf(AttitudeFilter):
         p[_BOFF_MIN_TURN] = settings.mag_body_offset_min_turn
         p[_BOFF_RESID] = settings.mag_body_offset_residual_fraction
         p[_BOFF_SIGMA] = settings.mag_body_offset_sigma_ut**2
+        p[_MAG_REJ_SCALE] = settings.mag_rejected_sigma_scale
         return p
 
     def set_multirotor(self, drag_coefficient_1_s: float | None = None) -> None:
