@@ -7,11 +7,12 @@ import select
 import socket
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from mavahrs.transports.relay import FaultSettings, PtyFaultRelay, UdpFaultRelay
+from mavahrs.transports.relay import FaultSettings, LegCounters, PtyFaultRelay, UdpFaultRelay
 
 
 def _sink() -> socket.socket:
@@ -23,9 +24,10 @@ def _sink() -> socket.socket:
 
 
 class _Reader(threading.Thread):
-    """Receives on a socket until 0.3 s of quiet after ``n`` datagrams (or a timeout)."""
+    """Receives on a socket until it holds ``n`` datagrams and 0.3 s passed without one; ``n`` may be set once
+    known (``None``: not yet).  ``timeout_s`` only bounds a run that went wrong."""
 
-    def __init__(self, s: socket.socket, n: int, timeout_s: float = 10.0) -> None:
+    def __init__(self, s: socket.socket, n: int | None, timeout_s: float = 120.0) -> None:
         super().__init__(daemon=True)
         self.s, self.n, self.timeout_s, self.got = s, n, timeout_s, []
         self.start()
@@ -36,12 +38,39 @@ class _Reader(threading.Thread):
             try:
                 self.got.append(self.s.recv(65536))
             except TimeoutError:
-                if len(self.got) >= self.n:
+                if self.n is not None and len(self.got) >= self.n:
                     break
 
-    def result(self) -> list[bytes]:
+    def result(self, n: int | None = None) -> list[bytes]:
+        if n is not None:
+            self.n = n
         self.join(self.timeout_s + 1)
         return self.got
+
+
+#: datagrams on their way (sent, not yet read at the far end) at most: no socket buffer on the way can
+#: overflow however late the relay's or a reader's thread runs (a sleep every 20 sends lost 180 at load 10)
+WINDOW = 40
+
+
+def _send_paced(send: Callable[[int], None], n: int, behind: Callable[[int], int]) -> None:
+    """``send(i)`` for i in range(n), waiting — for the event, the far end catching up — whenever ``behind(i)``
+    (how many of the first i have not arrived yet) exceeds :data:`WINDOW`."""
+    deadline = time.monotonic() + 120
+    for i in range(n):
+        while behind(i) > WINDOW:
+            assert time.monotonic() < deadline, f"the relay or a reader stopped after {i} of {n} datagrams"
+            time.sleep(0.001)
+        send(i)
+
+
+def _relay_read(counters: Callable[[], LegCounters], n: int) -> LegCounters:
+    """The leg's counters once the relay has read all ``n`` datagrams (the event; bounded for a failing run)."""
+    deadline = time.monotonic() + 60
+    while (c := counters()).datagrams < n:
+        assert time.monotonic() < deadline, f"the relay read {c.datagrams} of {n} datagrams"
+        time.sleep(0.005)
+    return c
 
 
 def _run_relay(faults: FaultSettings, n: int = 2000, seed: int = 1) -> tuple[list[bytes], list[bytes], UdpFaultRelay]:
@@ -51,13 +80,22 @@ def _run_relay(faults: FaultSettings, n: int = 2000, seed: int = 1) -> tuple[lis
     )
     src = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sent = [f"datagram {i:05d} ".encode() * 3 for i in range(n)]
-    readers = _Reader(clean_sink, n), _Reader(faulty_sink, 1)
+    readers = _Reader(clean_sink, n), _Reader(faulty_sink, None)
+
+    def behind(i: int) -> int:
+        # the clean leg: sent, not yet read; the faulty one: not yet read by the relay, plus what it sent on
+        # that has not arrived yet
+        on_faulty_way = i - relay.counters(1).datagrams + len(relay.sent(1)) - len(readers[1].got)
+        return max(i - len(readers[0].got), on_faulty_way)
+
     try:
-        for i, d in enumerate(sent):
-            src.sendto(d, relay.address)
-            if i % 20 == 19:
-                time.sleep(0.005)
-        clean, faulty = readers[0].result(), readers[1].result()
+        _send_paced(lambda i: src.sendto(sent[i], relay.address), n, behind)
+        _relay_read(lambda: relay.counters(1), n)
+        # what the faulty leg sends in all, from its records (a duplicate of a held datagram is not sent); the
+        # last held one goes out after max_hold_s
+        expected = sum(0 if "loss" in r.faults else 2 if "duplicate" in r.faults and "reorder" not in r.faults
+                       else 1 for r in relay.records(1))  # fmt: skip
+        clean, faulty = readers[0].result(), readers[1].result(expected)
     finally:
         relay.close()
         src.close()
@@ -142,13 +180,15 @@ def test_replies_get_faults_of_their_own_per_leg() -> None:
             assert t.recv(100) == b"hello"
         got: dict[int, list[bytes]] = {}
         for leg, t in enumerate(targets):
-            reader = _Reader(src, 1)
+            reader = _Reader(src, None)
             sent = [f"reply {leg} {i:05d}".encode() for i in range(n)]
-            for i, d in enumerate(sent):
-                t.sendto(d, relay.leg_address(leg))
-                if i % 20 == 19:
-                    time.sleep(0.005)
-            got[leg] = reader.result()
+
+            def behind(i: int, leg: int = leg, reader: _Reader = reader) -> int:
+                return i - len(reader.got) - relay.reply_counters(leg).lost
+
+            _send_paced(lambda i, t=t, leg=leg, sent=sent: t.sendto(sent[i], relay.leg_address(leg)), n, behind)
+            c = _relay_read(lambda leg=leg: relay.reply_counters(leg), n)
+            got[leg] = reader.result(n - c.lost)
         lossy, clean = relay.reply_counters(0), relay.reply_counters(1)
     finally:
         relay.close()
