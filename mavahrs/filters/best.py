@@ -379,6 +379,15 @@ MULTIROTOR_DRAG_NOISE_MATCH_S = 5.0
 #: block length of the declared multirotor's specific-force slow-error estimate (``EskfSettings.slow_force_block_s``:
 #: the velocity's process noise carries the Hadamard variance of 0.1 s block means beyond the white noise's share)
 MULTIROTOR_SLOW_FORCE_BLOCK_S = 0.1
+#: a declared raw multirotor's accelerometer bias across its thrust axis as two constant error states, prior 1-σ,
+#: m/s² (``EskfSettings.accel_bias_sigma_m_s2`` with ``accel_bias_across_thrust``, estimated without aiding): an
+#: uncalibrated accelerometer's offset across the thrust reads as a tilt of offset/g wherever the vehicle flies
+#: (0.3 m/s²: 1.75°), told apart only as the body yaws under it; along the thrust it is the unknown thrust's and
+#: is not estimated.  firmware_sim raw ``hover`` 113 2.04 → 1.58°, declared ``hover`` / ``aggressive``
+#: (docs/accuracy.md, seventeenth round)
+MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2 = 0.0
+MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S = 0.0
+MULTIROTOR_ACCEL_BIAS_LIVE_YAW_RAD_S = 0.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1078,6 +1087,13 @@ class Best(AttitudeFilter):
                 eskf = replace(eskf, drag_noise_match_s=MULTIROTOR_DRAG_NOISE_MATCH_S)
             if eskf.slow_force_block_s == 0.0:
                 eskf = replace(eskf, slow_force_block_s=MULTIROTOR_SLOW_FORCE_BLOCK_S)
+            # the accelerometer's bias across the thrust axis, constant (a σ set in the settings is kept)
+            sig_a = s.eskf.accel_bias_sigma_m_s2 or MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2
+            if sig_a > 0.0:
+                eskf = replace(eskf, accel_bias_sigma_m_s2=sig_a, accel_bias_tau_s=0.0, accel_bias_aided_only=False,
+                               accel_bias_across_thrust=True,
+                               accel_bias_live_speed_m_s=MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S,
+                               accel_bias_live_yaw_rad_s=MULTIROTOR_ACCEL_BIAS_LIVE_YAW_RAD_S)
         else:
             k = drag_coefficient_1_s
             if k is None:
