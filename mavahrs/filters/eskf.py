@@ -274,8 +274,7 @@ _REST_HOVER_VIB = _MAG_DELAY + 29  # m/s²: a rest is a hovering one only where 
 _REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is below this (0: not asked)
 _ABIAS_ACROSS = _MAG_DELAY + 31  # (m/s²)²: the accelerometer-bias states start across the thrust axis only, this variance (0: isotropic)
 _ABIAS_SPEED = _MAG_DELAY + 32  # m/s: the accelerometer-bias states are estimated only below this horizontal speed (0: always)
-_ABIAS_YAW = _MAG_DELAY + 33  # rad/s: … and only while the body turns about the thrust axis faster than this (0: not asked)
-_N_PARAMS = _MAG_DELAY + 34
+_N_PARAMS = _MAG_DELAY + 33
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -363,7 +362,7 @@ _BOFF_A = _BOFF + 13
 _BOFF_B = _BOFF_A + 11
 _REST_N = _BOFF_B + 4  # zero-rate updates fused since the detector's hovering rest began (``_rest_rate_update``)
 _REST_VIB = _REST_N + 1  # the accelerometer's mean square deviation from the rest detector's low-pass, 1 s mean, (m/s²)²
-_ABIAS_HELD = _REST_N + 2  # 1 while the accelerometer-bias states are only considered this step (their gates closed)
+_ABIAS_HELD = _REST_N + 2  # 1 while the accelerometer-bias states are only considered this step (above their speed)
 _N_STATE = _REST_N + 3
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
@@ -769,10 +768,6 @@ class EskfSettings(FilterSettings):
             their correlations are kept, but neither b̂_a nor its own variance
             is updated: a drag model's misfit grows with the speed, a
             body-fixed offset does not (docs/accuracy.md, eighteenth round).
-        accel_bias_live_yaw_rad_s: … and only while the body turns about
-            the thrust axis faster than this, rad/s (0 = not asked; no thrust
-            axis yet: not estimated): a body-fixed offset turns in the earth
-            frame as the body yaws, a tilt error does not.
         heading_walk_tau_s: the heading's process noise is raised to what the
             compass's own heading innovations show (covariance matching, Sage &
             Husa 1969 / Myers & Tapley 1976; :func:`_heading_walk_step`): per
@@ -956,7 +951,6 @@ class EskfSettings(FilterSettings):
     accel_bias_aided_only: bool = False
     accel_bias_across_thrust: bool = False
     accel_bias_live_speed_m_s: float = 0.0
-    accel_bias_live_yaw_rad_s: float = 0.0
     gyro_scale_tilt_sigma: float = 0.003
     gyro_scale_tilt_memory_s: float = 0.5
     heading_walk_tau_s: float = 0.0
@@ -1379,20 +1373,11 @@ def _accel_bias_variance(s, k, params):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
-def _accel_bias_gate_ok(s, k, params, gx, gy, gz):  # type: ignore[no-untyped-def]
-    """The accelerometer-bias states may be estimated now: the INS horizontal speed below
-    ``accel_bias_live_speed_m_s`` (0: any) and the rate about the thrust axis above ``accel_bias_live_yaw_rad_s``
-    (0: any)."""
+def _accel_bias_gate_ok(s, k, params):  # type: ignore[no-untyped-def]
+    """The accelerometer-bias states may be estimated now: the INS horizontal speed is below
+    ``accel_bias_live_speed_m_s`` (0: at any speed)."""
     lim = params[P_FILTER + _ABIAS_SPEED]
-    if lim > 0.0 and not s[k + _V] * s[k + _V] + s[k + _V + 1] * s[k + _V + 1] < lim * lim:
-        return False
-    yaw = params[P_FILTER + _ABIAS_YAW]
-    if yaw > 0.0:
-        tx, ty, tz = s[k + _TAX], s[k + _TAX + 1], s[k + _TAX + 2]
-        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
-        if not tn > 0.5 or not abs(gx * tx + gy * ty + gz * tz) > yaw * tn:
-            return False
-    return True
+    return lim <= 0.0 or s[k + _V] * s[k + _V] + s[k + _V + 1] * s[k + _V + 1] < lim * lim
 
 
 @kernel(inline=True)
@@ -2216,8 +2201,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         or (state[k + _LAST_FIX] >= 0.0 and state[k + _CLK] + dt - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT])
     )
     # … and *considered* only (Schmidt 1966: in every innovation's variance, correlations kept, b̂_a and its own
-    # variance not updated) while their gates are closed (``accel_bias_live_speed_m_s``, ``…_yaw_rad_s``)
-    state[k + _ABIAS_HELD] = 1.0 if abias_live and not _accel_bias_gate_ok(state, k, params, gx, gy, gz) else 0.0
+    # variance not updated) above ``accel_bias_live_speed_m_s``
+    state[k + _ABIAS_HELD] = 1.0 if abias_live and not _accel_bias_gate_ok(state, k, params) else 0.0
     if abias_on and not abias_live:
         _accel_bias_decouple(state, k)
     if abias_on:
@@ -3095,7 +3080,6 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         p[_ABIAS_ACROSS] = settings.accel_bias_sigma_m_s2**2 if settings.accel_bias_across_thrust else 0.0
         p[_ABIAS_SPEED] = settings.accel_bias_live_speed_m_s
-        p[_ABIAS_YAW] = settings.accel_bias_live_yaw_rad_s
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         p[_HWALK_TAU] = settings.heading_walk_tau_s
