@@ -273,7 +273,9 @@ _REST_WOBBLE_VAR = _MAG_DELAY + 28  # (rad/s)²: variance of the mean rate acros
 _REST_HOVER_VIB = _MAG_DELAY + 29  # m/s²: a rest is a hovering one only where the accelerometer's vibration RMS exceeds this (0: not asked)
 _REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is below this (0: not asked)
 _MAG_REJ_SCALE = _MAG_DELAY + 31  # a reading the schedule rejects, its norm within tolerance: fused at σ × this (0: not)
-_N_PARAMS = _MAG_DELAY + 32
+_ABIAS_ACROSS = _MAG_DELAY + 32  # (m/s²)²: the accelerometer-bias states start across the thrust axis only, this variance (0: isotropic)
+_ABIAS_SPEED = _MAG_DELAY + 33  # m/s: the accelerometer-bias states are estimated only below this horizontal speed (0: always)
+_N_PARAMS = _MAG_DELAY + 34
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -361,7 +363,8 @@ _BOFF_A = _BOFF + 13
 _BOFF_B = _BOFF_A + 11
 _REST_N = _BOFF_B + 4  # zero-rate updates fused since the detector's hovering rest began (``_rest_rate_update``)
 _REST_VIB = _REST_N + 1  # the accelerometer's mean square deviation from the rest detector's low-pass, 1 s mean, (m/s²)²
-_N_STATE = _REST_N + 2
+_ABIAS_HELD = _REST_N + 2  # 1 while the accelerometer-bias states are only considered this step (above their speed)
+_N_STATE = _REST_N + 3
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -749,6 +752,23 @@ class EskfSettings(FilterSettings):
             reads it (the bias across gravity is then told from a tilt only
             by the body's turns, and a motion acceleration or a drag-model
             error is learnt as bias: see docs/accuracy.md).
+        accel_bias_across_thrust: the accelerometer-bias states start across
+            the thrust axis only (with the thrust-axis states, when they
+            start: P_ba = σ²(I − t tᵀ), the estimate's part along t dropped):
+            along the thrust the bias is one with the unknown thrust, which
+            nothing but the zero-velocity pseudo-measurement observes, and an
+            along-axis state there took the start's errors (firmware_sim raw
+            ``aggressive`` 101: 0.28 m/s² learnt for −0.05).  A constant bias
+            (``accel_bias_tau_s`` 0) stays in that span; with τ > 0 the
+            process noise is isotropic.  ``best`` declared a multirotor
+            through the API sets it (docs/accuracy.md, seventeenth round).
+        accel_bias_live_speed_m_s: the accelerometer-bias states are
+            estimated only while the INS horizontal speed is below this, m/s
+            (0 = at any speed); above it they are *considered* (Schmidt
+            1966): their uncertainty enters every innovation's variance and
+            their correlations are kept, but neither b̂_a nor its own variance
+            is updated: a drag model's misfit grows with the speed, a
+            body-fixed offset does not (docs/accuracy.md, eighteenth round).
         heading_walk_tau_s: the heading's process noise is raised to what the
             compass's own heading innovations show (covariance matching, Sage &
             Husa 1969 / Myers & Tapley 1976; :func:`_heading_walk_step`): per
@@ -942,6 +962,8 @@ class EskfSettings(FilterSettings):
     accel_bias_tau_s: float = 0.0
     accel_bias_vibration_ratio: float = 0.0
     accel_bias_aided_only: bool = False
+    accel_bias_across_thrust: bool = False
+    accel_bias_live_speed_m_s: float = 0.0
     gyro_scale_tilt_sigma: float = 0.003
     gyro_scale_tilt_memory_s: float = 0.5
     heading_walk_tau_s: float = 0.0
@@ -1365,6 +1387,14 @@ def _accel_bias_variance(s, k, params):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
+def _accel_bias_gate_ok(s, k, params):  # type: ignore[no-untyped-def]
+    """The accelerometer-bias states may be estimated now: the INS horizontal speed is below
+    ``accel_bias_live_speed_m_s`` (0: at any speed)."""
+    lim = params[P_FILTER + _ABIAS_SPEED]
+    return lim <= 0.0 or s[k + _V] * s[k + _V] + s[k + _V + 1] * s[k + _V + 1] < lim * lim
+
+
+@kernel(inline=True)
 def _accel_bias_decouple(s, k):  # type: ignore[no-untyped-def]
     """The accelerometer-bias states' correlations with the rest cleared (their variances kept): held, not
     estimated (``accel_bias_aided_only`` while not aided)."""
@@ -1530,8 +1560,10 @@ def _boff_step(s, k, params, mx, my, mz, clk):  # type: ignore[no-untyped-def]
 def _n_active(s, k):  # type: ignore[no-untyped-def]
     """The error state's size in use: without the gyro scale-factor states (or the accelerometer-bias states)
     their rows and columns of P (and of P hᵀ, δx) stay 0, and the scalar updates' loops leave them out (the
-    daemon's per-sample cost)."""
-    if s[k + _P + _I_ABIAS * N + _I_ABIAS] > 0.0:
+    daemon's per-sample cost).  Any of the three bias variances counts: started across a thrust axis that is
+    exactly a body axis (``accel_bias_across_thrust``), that axis's own variance is 0 while the others are not."""
+    kb = k + _P + _I_ABIAS * N + _I_ABIAS
+    if s[kb] > 0.0 or s[kb + N + 1] > 0.0 or s[kb + 2 * N + 2] > 0.0:
         return N
     return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
@@ -1667,6 +1699,17 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
         return False
     n = _n_active(s, k)
     inv = 1.0 / sv
+    if s[k + _ABIAS_HELD] > 0.0 and n > _I_ABIAS:
+        # the accelerometer-bias states considered (Schmidt): gain 0 on their rows, their own block kept
+        for i in range(n):
+            if not _I_ABIAS <= i < _I_ABIAS + 3:
+                s[kdx + i] += s[kph + i] * inv * y
+        for i in range(n):
+            ki = s[kph + i] * inv
+            for j in range(n):
+                if not (_I_ABIAS <= i < _I_ABIAS + 3 and _I_ABIAS <= j < _I_ABIAS + 3):
+                    s[kp + i * N + j] -= ki * s[kph + j]
+        return True
     for i in range(n):
         s[kdx + i] += s[kph + i] * inv * y
     for i in range(n):
@@ -1786,8 +1829,12 @@ def _least_aligned(tx, ty, tz):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
-def _axis_start(s, k, tx, ty, tz, p0):  # type: ignore[no-untyped-def]
-    """The thrust-axis states start at the unit body vector t, variance ``p0``, uncorrelated with the rest."""
+def _axis_start(s, k, tx, ty, tz, p0, pa):  # type: ignore[no-untyped-def]
+    """The thrust-axis states start at the unit body vector t, variance ``p0``, uncorrelated with the rest.
+
+    ``pa`` > 0 (``accel_bias_across_thrust``): the accelerometer-bias states start afresh across t only,
+    P_ba = pa (I − t tᵀ), uncorrelated with the rest, and the estimate loses its part along t.
+    """
     kt = k + _TAX
     s[kt], s[kt + 1], s[kt + 2] = tx, ty, tz
     s[k + _TREF] = _least_aligned(tx, ty, tz)
@@ -1797,6 +1844,21 @@ def _axis_start(s, k, tx, ty, tz, p0):  # type: ignore[no-untyped-def]
             s[kp + i * N + j] = 0.0
             s[kp + j * N + i] = 0.0
         s[kp + i * N + i] = p0
+    if pa > 0.0:
+        ka = k + _ABIAS
+        along = s[ka] * tx + s[ka + 1] * ty + s[ka + 2] * tz
+        s[ka] -= along * tx
+        s[ka + 1] -= along * ty
+        s[ka + 2] -= along * tz
+        for i in range(_I_ABIAS, _I_ABIAS + 3):
+            for j in range(N):
+                s[kp + i * N + j] = 0.0
+                s[kp + j * N + i] = 0.0
+        for i in range(3):
+            ti = tx if i == 0 else (ty if i == 1 else tz)
+            for j in range(3):
+                tj = tx if j == 0 else (ty if j == 1 else tz)
+                s[kp + (_I_ABIAS + i) * N + _I_ABIAS + j] = pa * ((1.0 if i == j else 0.0) - ti * tj)
 
 
 @kernel(inline=True)
@@ -1821,7 +1883,7 @@ def _axis_start_check(s, k, params):  # type: ignore[no-untyped-def]
     if not m > 0.5 * G_M_S2:
         return
     if (mx * tx + my * ty + mz * tz) < params[P_FILTER + _INIT_COS] * m * tn:
-        _axis_start(s, k, mx / m, my / m, mz / m, p0)
+        _axis_start(s, k, mx / m, my / m, mz / m, p0, params[P_FILTER + _ABIAS_ACROSS])
 
 
 @kernel(inline=True)
@@ -1853,7 +1915,7 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         if not fn_ > 0.5 * G_M_S2:
             return False
         tx, ty, tz = fx / fn_, fy / fn_, fz / fn_
-        _axis_start(s, k, tx, ty, tz, p0)
+        _axis_start(s, k, tx, ty, tz, p0, params[P_FILTER + _ABIAS_ACROSS])
         tn = 1.0
     if not tn > 0.5:  # no steady thrust direction (tumbling, or not yet learnt)
         return False
@@ -2152,6 +2214,9 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         params[p + _ABIAS_AIDED] == 0.0
         or (state[k + _LAST_FIX] >= 0.0 and state[k + _CLK] + dt - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT])
     )
+    # … and *considered* only (Schmidt 1966: in every innovation's variance, correlations kept, b̂_a and its own
+    # variance not updated) above ``accel_bias_live_speed_m_s``
+    state[k + _ABIAS_HELD] = 1.0 if abias_live and not _accel_bias_gate_ok(state, k, params) else 0.0
     if abias_on and not abias_live:
         _accel_bias_decouple(state, k)
     if abias_on:
@@ -3041,6 +3106,8 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_TAU] = settings.accel_bias_tau_s
         p[_ABIAS_VIB] = settings.accel_bias_vibration_ratio**2
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
+        p[_ABIAS_ACROSS] = settings.accel_bias_sigma_m_s2**2 if settings.accel_bias_across_thrust else 0.0
+        p[_ABIAS_SPEED] = settings.accel_bias_live_speed_m_s
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         p[_HWALK_TAU] = settings.heading_walk_tau_s
