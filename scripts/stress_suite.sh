@@ -3,7 +3,7 @@
 #
 # Each round starts `stress-ng --cpu N` (N = the number of CPUs, by default; one busy-looping worker
 # per CPU at normal priority, so the tests get at most about half of the machine), runs
-# `python -m pytest -q` (the project's own options: four workers, --dist loadgroup), and stops
+# `python -m pytest -q` (the project's own options: two workers, --dist loadgroup), and stops
 # stress-ng again — also when pytest fails or the script is interrupted (Ctrl-C, SIGTERM).  It
 # prints each round's result and time and, at the end, one line per round; it exits 0 only if
 # every round passed.  Not part of .ci/run (three rounds take several times the suite's time).

@@ -17,23 +17,12 @@ SHARED = REPO.parent / "shared"
 DATA = SHARED / "data"
 
 
-#: The longest units of work, started first (longest processing time first: the suite ends when its
-#: longest unit does, so a long unit handed out last would run alone at the end), in this order, measured
-#: with ``--durations``.  A path ending in ``::`` makes each of its tests a unit of its own (a file with
-#: no module fixture whose tests are long: they run at the same time on different workers).
-#:
-#: * the cold compile of every kernel (``test_cli_warm_up.py``: its subject, minutes of CPU), the fleet
-#:   audit's module fixture and the other CPU-bound replays of whole shared flights;
-#: * the tests that stream in real time between processes (simulator, daemon, MAVProxy, a relay) over
-#:   sockets or ptys.  They spend most of their time waiting for a flight, so with more test processes
-#:   than cores (``-n 4`` on 2 cores) they overlap with each other and with the CPU-bound files.
-LONG_TESTS = (
-    "tests/cli/test_cli_warm_up.py::",
-    "tests/fleet/test_audit.py",
-    "tests/service/test_monitor_steps.py",
-    "tests/logs/test_ulog.py",
-    "tests/service/test_monitor_evidence.py",
-    "tests/service/test_monitor_consistency.py",
+#: Tests that stream in real time between processes (simulator, daemon, MAVProxy, a relay) over
+#: sockets or ptys, the files that take longest first (measured with ``--durations``).  They spend
+#: most of their time waiting for a flight, so they are started first, one file per test process
+#: (``-n 2``: at most two at a time), and the CPU-bound files fill the time around them.  One unit
+#: for all of them would have run ~20 minutes of flights one after the other on a loaded machine.
+LIVE_TESTS = (
     "tests/fleet/",
     "tests/reliability/",
     "tests/cli/test_cli_replay.py",
@@ -50,33 +39,26 @@ LONG_TESTS = (
 )
 
 
-def _long_rank(nodeid: str) -> int:
-    """Position of a test's file in :data:`LONG_TESTS` (``len(LONG_TESTS)`` for the others)."""
+def _live_rank(nodeid: str) -> int:
+    """Position of a test's file in :data:`LIVE_TESTS` (``len(LIVE_TESTS)`` for the others)."""
     path = nodeid.split("::", 1)[0]
-    return next((i for i, prefix in enumerate(LONG_TESTS) if path.startswith(prefix.rstrip(":"))), len(LONG_TESTS))
-
-
-def _unit(nodeid: str) -> str:
-    """The xdist unit of work a test belongs to: its file, or the test itself (``::`` in :data:`LONG_TESTS`)."""
-    path = nodeid.split("::", 1)[0]
-    return nodeid if path + "::" in LONG_TESTS else path
+    return next((i for i, prefix in enumerate(LIVE_TESTS) if path.startswith(prefix)), len(LIVE_TESTS))
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The long files first, longest first; then the rest in their usual order (a stable sort)."""
-    items.sort(key=lambda item: _long_rank(item.nodeid))
+    """The live files first, longest first; then the rest in their usual order (a stable sort)."""
+    items.sort(key=lambda item: _live_rank(item.nodeid))
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """``--dist loadgroup``: each test file is a unit of work (its module fixtures computed once; a test
-    of its own for the files so marked in :data:`LONG_TESTS`), handed out in collection order (the long
-    files first), whatever the pytest version.
+    """``--dist loadgroup``: each test file is a unit of work (its module fixtures computed once), handed
+    out in collection order (the live files first), whatever the pytest version.
 
     xdist's own ``loadgroup`` reads ``xdist_group`` marks by renaming each test's node id (``…@group``),
     which pytest ≥ 9 no longer lets it do (node ids became structured): every test would be a unit of
-    its own, and a module fixture computed in several workers.
+    its own, and a module fixture computed in both workers.
     """
     if config.getvalue("dist") != "loadgroup":
         return None
@@ -86,16 +68,7 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
 
     class _Files(LoadScopeScheduling):  # type: ignore[misc]
         def _split_scope(self, nodeid: str) -> str:
-            return _unit(nodeid)
-
-        def _assign_work_unit(self, node: object) -> None:
-            # A worker starts a test only once it has been sent the next one (pytest's teardown needs it), so
-            # xdist sends a worker its next unit while its last test runs: behind a long test of its own
-            # (a ``::`` unit, minutes) that unit would wait, so such a worker gets the queue's last (short) one.
-            pending = self.assigned_work.get(node, {})
-            if any("::" in scope and not all(done.values()) for scope, done in pending.items()):
-                self.workqueue.move_to_end(next(reversed(self.workqueue)), last=False)
-            super()._assign_work_unit(node)
+            return nodeid.split("::", 1)[0]
 
     return _Files(config, log)
 
