@@ -481,7 +481,7 @@ class MonitorSettings:
     change_step_outside: bool = True
     change_heading_sigma_growth: bool = True
     change_step_body_fixed: bool = True
-    change_baseline_cap_learnt: bool = True
+    change_baseline_cap_learnt: bool = False
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
