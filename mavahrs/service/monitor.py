@@ -95,7 +95,8 @@ _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 class _RecentRows:
     """The last seconds of ``(t_ms, e_north, e_east, e_down, ω_north, ω_east, ω_down, q_w, q_x, q_y, q_z)`` rows
-    (the divergence vector, our earth-frame turn rate, rad/s, and our attitude, body→NED, beside it), oldest first: a deque's ``append`` /
+    (the divergence vector, our earth-frame turn rate, rad/s, and our attitude, body→NED, beside it), oldest
+    first: a deque's ``append`` /
     ``popleft`` / ``clear`` over one growing array, which the step test reads whole on every comparison
     (copying a deque of tuples into an array each time was most of a .ulg's monitor at EKF2's 250 Hz)."""
 
@@ -323,6 +324,16 @@ class MonitorSettings:
             step, not the autopilot's own error turning with the vehicle (on
             firmware_sim aggressive 42 a 2–2.5° tilt divergence circling once
             in 2–3 s; at 2 and 3 × it gave 2–7 more WARNINGs per flight there).
+        change_step_body_fixed: within a warning, the tilt step test of
+            ``change_step_s`` fits each split with a rotation fixed in the
+            vehicle's body (seen in the earth frame through our attitude)
+            beside the two segments' levels, and judges the levels' change and
+            the spread about that fit (:func:`_body_fixed_split`): an error of
+            the autopilot's fixed in its body circles in the earth frame as the
+            vehicle yaws, and was spread as large as the step (firmware_sim
+            aggressive 33: a 2° step under a correct warning in a 150°/s spin
+            warned after 14.5 s; 1.5 s with it).  Without turning it is the
+            plain split.
         change_step_outside: the step test of ``change_step_s`` also outside
             a warning, beside the change test's baseline: over the last
             ``change_step_s`` the split that best shows a change in the mean,
@@ -481,7 +492,6 @@ class MonitorSettings:
     change_step_outside: bool = True
     change_heading_sigma_growth: bool = True
     change_step_body_fixed: bool = True
-    change_baseline_cap_learnt: bool = False
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -1002,7 +1012,6 @@ class AttitudeMonitor:
         self._w_earth = (0.0, 0.0, 0.0)  # … as a vector, north, east, down, rad/s (signed: the step test's timing term)
         self._z_step = 0.0  # the in-warning test's step part now (:meth:`_step_in_warning`)
         self._thr_sigmas = (0.0, 0.0)  # our (tilt, heading) σ the thresholds were built from, rad
-        self._thr_learnt_tilt = math.inf  # the tilt threshold now with what is learnt (before the tolerance floor), rad
         self._fresh = False  # a comparison since the last publication
 
     # ------------------------------------------------------------------ inputs
@@ -1250,7 +1259,6 @@ class AttitudeMonitor:
             lk, cap = self.settings.learn_k, self.settings.learn_max_factor
             tilt = max(tilt, min(lk * math.sqrt(m_t), cap * tilt))
             hdg = max(hdg, min(lk * math.sqrt(m_h), cap * hdg)) if hdg_on else 0.0
-        self._thr_learnt_tilt = tilt  # (the change test's baseline cap: change_baseline_cap_learnt)
         if hdg_on and self.settings.heading_tolerance_floor:
             # the least favourable autopilot within its tolerance: its heading error standing at the tolerance
             # (a compass error is correlated for minutes, not noise that averages out), ours at k σ the other way
@@ -1297,17 +1305,8 @@ class AttitudeMonitor:
         if not ch.update(t_ms, e, frozen=hold):
             return 0.0, 0.0
         f = self.settings.change_max_factor
-        cap = (f * self._change_cap[0], f * self._change_cap[1])
-        t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s, cap)
-        if self.settings.change_baseline_cap_learnt and math.isfinite(t_thr):
-            # the baseline lies 2–12 s back: over that span the two estimates' errors move as far as their level
-            # varies on this flight — the divergence's RMS learnt in calm stretches (a NEES of the two errors
-            # together), which widens the absolute test's threshold — so the change's cap is that widened threshold
-            # (firmware_sim hover 32, magnetic 32: our tilt 0.7° off standing, the autopilot's moving 1.5–1.7°
-            # within its tolerance; a change of 1.4–1.7° against the model's 1.42° — false WARNINGs).  The step
-            # tests over the last change_step_s keep the model's cap (ch.thresholds): a step is judged against the
-            # segments' own spread, and within 2 s the errors move little
-            t_thr = max(t_thr, min(ch.uncapped_tilt(self._rate_h), f * self._thr_learnt_tilt))
+        t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s,
+                                (f * self._change_cap[0], f * self._change_cap[1]))
         return ch.tilt / t_thr, abs(ch.heading) / h_thr
 
     def _in_warning_test(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
@@ -1864,13 +1863,6 @@ class _ChangeTest:
         self.tilt = math.hypot(e[0] - m[0], e[1] - m[1])
         self.heading = e[2] - m[2]
         return True
-
-    def uncapped_tilt(self, rate_h: float) -> float:
-        """The tilt threshold :meth:`judge` gives before its cap, rad (inf: not learnt enough)."""
-        n, m_t, _ = self._learnt
-        if n < 0.1 * self.s.learn_s:
-            return math.inf
-        return self.s.change_k * math.sqrt(max(m_t, self._floor2[0]) + (rate_h * self.s.sync_s) ** 2)
 
     def judge(
         self, rate: tuple[float, float], learn: bool, dt_s: float, cap: tuple[float, float]
