@@ -94,12 +94,13 @@ _INTERVALS = 7  # autopilot attitude intervals kept for the typical one (median)
 
 
 class _RecentRows:
-    """The last seconds of ``(t_ms, e_north, e_east, e_down, ω_north, ω_east, ω_down)`` rows (the divergence vector
-    and our earth-frame turn rate, rad/s, beside it), oldest first: a deque's ``append`` /
+    """The last seconds of ``(t_ms, e_north, e_east, e_down, ω_north, ω_east, ω_down, q_w, q_x, q_y, q_z)`` rows
+    (the divergence vector, our earth-frame turn rate, rad/s, and our attitude, body→NED, beside it), oldest
+    first: a deque's ``append`` /
     ``popleft`` / ``clear`` over one growing array, which the step test reads whole on every comparison
     (copying a deque of tuples into an array each time was most of a .ulg's monitor at EKF2's 250 Hz)."""
 
-    def __init__(self, capacity: int = 64, width: int = 7) -> None:
+    def __init__(self, capacity: int = 64, width: int = 11) -> None:
         self._rows = np.empty((capacity, width))
         self._first = self._end = 0
 
@@ -323,6 +324,16 @@ class MonitorSettings:
             step, not the autopilot's own error turning with the vehicle (on
             firmware_sim aggressive 42 a 2–2.5° tilt divergence circling once
             in 2–3 s; at 2 and 3 × it gave 2–7 more WARNINGs per flight there).
+        change_step_body_fixed: within a warning, the tilt step test of
+            ``change_step_s`` fits each split with a rotation fixed in the
+            vehicle's body (seen in the earth frame through our attitude)
+            beside the two segments' levels, and judges the levels' change and
+            the spread about that fit (:func:`_body_fixed_split`): an error of
+            the autopilot's fixed in its body circles in the earth frame as the
+            vehicle yaws, and was spread as large as the step (firmware_sim
+            aggressive 33: a 2° step under a correct warning in a 150°/s spin
+            warned after 14.5 s; 1.5 s with it).  Without turning it is the
+            plain split.
         change_step_outside: the step test of ``change_step_s`` also outside
             a warning, beside the change test's baseline: over the last
             ``change_step_s`` the split that best shows a change in the mean,
@@ -480,6 +491,7 @@ class MonitorSettings:
     change_drift_slope_s: float = 8.0
     change_step_outside: bool = True
     change_heading_sigma_growth: bool = True
+    change_step_body_fixed: bool = True
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -1279,7 +1291,7 @@ class AttitudeMonitor:
         if self.settings.change_step_s > 0.0:
             rec = self._recent
             w = self._w_earth
-            rec.append((t_ms, e[0], e[1], e[2], w[0], w[1], w[2]))
+            rec.append((t_ms, e[0], e[1], e[2], w[0], w[1], w[2], a[0] / na, a[1] / na, a[2] / na, a[3] / na))
             horizon = t_ms - 1000.0 * self.settings.change_step_s
             while rec and rec[0][0] < horizon:
                 rec.popleft()
@@ -1415,6 +1427,11 @@ class AttitudeMonitor:
                 spread = (np.maximum(0.0, p2[splits] / nb - mb * mb)
                           + np.maximum(0.0, (p2[n] - p2[splits]) / na - ma * ma)).sum(axis=1)  # fmt: skip
                 d = ma - mb
+                if in_warning and out == 0 and self.settings.change_step_body_fixed:
+                    # the autopilot's error fixed in its body turns with the vehicle (the earth-frame divergence
+                    # circles in a yaw spin): the two segments' levels fitted beside one body-fixed part shared by
+                    # both, whose motion is then not spread (_body_fixed_split)
+                    d, spread = _body_fixed_split(rows, splits, n)
                 c2 = (d * d).sum(axis=1)
                 step = ((d * ma).sum(axis=1) > 0.0) & ~(c2 < k_s2 * spread)  # away from agreement, and a step
                 if not step.any():
@@ -1872,6 +1889,65 @@ class _ChangeTest:
         if learn and self.tilt <= gate_t and abs(self.heading) <= gate_h:
             self._learnt = _mean_squares(self._learnt, self.tilt, self.heading, dt_s, self.s.learn_s)
         return t_thr, h_thr
+
+
+#: the body-fixed part's prior in :func:`_body_fixed_split`, as a share of the window's samples (a ridge: the
+#: part is fitted only as far as the vehicle's turning within the two segments tells it from their levels)
+_BODY_FIXED_RIDGE = 0.1
+
+
+def _body_fixed_split(rows: NDArray[np.float64], splits: NDArray[np.int64], n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The tilt step test's change and spread per split with a body-fixed part (``MonitorSettings.change_step_body_fixed``).
+
+    The horizontal divergence ``e_t`` (north, east; ``rows`` columns 1–2) is fitted per split ``k`` as a level
+    ``a₁`` before it and ``a₂`` after it plus ``M_t b``: a rotation vector ``b`` fixed in the body (an error of
+    the autopilot's, or ours, that turns with the vehicle) seen in the earth frame, ``M_t`` the first two rows of
+    our attitude's rotation matrix (``rows`` columns 7–10: q body→NED, w x y z).  Least squares with a ridge
+    ``λ = _BODY_FIXED_RIDGE · n`` on ``b``: with the segments' levels eliminated, ``(Σ MᵀM − S₁ᵀS₁/n₁ − S₂ᵀS₂/n₂
+    + λI) b = Σ Mᵀe − S₁ᵀē₁ − S₂ᵀē₂`` (``S`` a segment's sum of ``M``, ``ē`` its sum of ``e`` over its count), then
+    ``a_i = (Σ_i e − S_i b) / n_i``.  Without turning ``b`` → 0 and this is the plain split (the means' change, the
+    spread about them).  Returns ``a₂ − a₁`` (per split, 2) and the two segments' mean squared residuals summed."""
+    e = rows[:, 1:3]
+    w, x, y, z = rows[:, 7], rows[:, 8], rows[:, 9], rows[:, 10]
+    m = np.empty((n, 2, 3))
+    m[:, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    m[:, 0, 1] = 2.0 * (x * y - w * z)
+    m[:, 0, 2] = 2.0 * (x * z + w * y)
+    m[:, 1, 0] = 2.0 * (x * y + w * z)
+    m[:, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    m[:, 1, 2] = 2.0 * (y * z - w * x)
+
+    def prefix(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.zeros((n + 1, *v.shape[1:]))
+        np.cumsum(v, axis=0, out=out[1:])
+        return out
+
+    p_m = prefix(m)  # Σ M (2×3)
+    p_e = prefix(e)  # Σ e (2)
+    p_mm = prefix(np.einsum("tij,tik->tjk", m, m))  # Σ MᵀM (3×3)
+    p_me = prefix(np.einsum("tij,ti->tj", m, e))  # Σ Mᵀe (3)
+    p_ee = prefix((e * e).sum(axis=1))
+    n1 = splits.astype(np.float64)
+    n2 = n - n1
+    s1m, s2m = p_m[splits], p_m[n] - p_m[splits]
+    s1e, s2e = p_e[splits], p_e[n] - p_e[splits]
+    g = (p_mm[n] - np.einsum("kij,kil->kjl", s1m, s1m) / n1[:, None, None]
+         - np.einsum("kij,kil->kjl", s2m, s2m) / n2[:, None, None] + _BODY_FIXED_RIDGE * n * np.eye(3))  # fmt: skip
+    r = (p_me[n] - np.einsum("kij,ki->kj", s1m, s1e) / n1[:, None]
+         - np.einsum("kij,ki->kj", s2m, s2e) / n2[:, None])  # fmt: skip
+    b = np.linalg.solve(g, r[:, :, None])[:, :, 0]
+    a1 = (s1e - np.einsum("kij,kj->ki", s1m, b)) / n1[:, None]
+    a2 = (s2e - np.einsum("kij,kj->ki", s2m, b)) / n2[:, None]
+
+    def ss(pee: NDArray[np.float64], se: NDArray[np.float64], sm: NDArray[np.float64], pme: NDArray[np.float64],
+           pmm: NDArray[np.float64], a: NDArray[np.float64], cnt: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Σ |e − a − M b|² over a segment, from its sums."""
+        return (pee - 2.0 * (a * se).sum(axis=1) - 2.0 * (b * pme).sum(axis=1) + cnt * (a * a).sum(axis=1)
+                + 2.0 * np.einsum("ki,kij,kj->k", a, sm, b) + np.einsum("kj,kjl,kl->k", b, pmm, b))  # fmt: skip
+
+    ss1 = ss(p_ee[splits], s1e, s1m, p_me[splits], p_mm[splits], a1, n1)
+    ss2 = ss(p_ee[n] - p_ee[splits], s2e, s2m, p_me[n] - p_me[splits], p_mm[n] - p_mm[splits], a2, n2)
+    return a2 - a1, np.maximum(0.0, ss1) / n1 + np.maximum(0.0, ss2) / n2
 
 
 def _mean_squares(learnt: list[float], tilt: float, heading: float, dt_s: float, learn_s: float) -> list[float]:

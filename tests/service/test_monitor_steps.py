@@ -208,3 +208,18 @@ def test_a_heading_step_under_a_correct_warning_in_a_yaw_spin_is_warned_within_3
     assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
     assert 0.1 < latency <= 3.0, latency  # 5.7 s when the level threshold was needed too
     assert _false_warnings(path, clean) == []
+
+
+def test_a_tilt_step_under_a_warning_in_a_yaw_spin_is_warned_within_2_s(tmp_path: Path) -> None:
+    # firmware_sim aggressive 33: a correct WARNING at 98.9 s (the simulated autopilot 1.5–1.7° off in tilt) is on
+    # at the onset, and the vehicle yaws at ≈ 150°/s: the autopilot's own error, fixed in its body, circles in the
+    # earth frame (1.3–1.7° about the truth), so over the step test's 2 s the divergence's spread about the two
+    # segments' means was as large as the 2° step, which was not counted (change_step_spread_k) and warned only
+    # after 14.5 s.  The split fitted with a body-fixed part beside the two levels (change_step_body_fixed)
+    # leaves the step itself
+    path = _sim_flight(tmp_path, "aggressive", 33, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    assert [t for t in clean if ONSET_S - 5.0 <= t < ONSET_S], clean  # the warning already on at the onset
+    assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
+    assert 0.1 < latency <= 2.0, latency  # 14.5 s with the plain split
+    assert _false_warnings(path, clean) == []
