@@ -29,6 +29,7 @@ __all__ = [
     "from_rotation_vector",
     "to_rotation_vector",
     "integrate",
+    "trajectory",
     "from_axis_angle",
     "angle_between",
     "align_hemisphere",
@@ -134,6 +135,18 @@ def integrate(q_body_to_ned: ArrayLike, gyro_rad_s: ArrayLike, dt_s: ArrayLike) 
     dt = _as_float(dt_s)
     rotvec = _as_float(gyro_rad_s) * dt[..., None] if dt.ndim else _as_float(gyro_rad_s) * dt
     return normalize(multiply(q_body_to_ned, from_rotation_vector(rotvec)))
+
+
+def trajectory(q0_body_to_ned: ArrayLike, gyro_rad_s: ArrayLike, dt_s: float) -> Array:
+    """(N, 4) attitudes from ``q0`` by N − 1 steps of :func:`integrate` with the body rates ``gyro_rad_s[:-1]``
+    (row i held from sample i to i + 1; the last rate is not used): a truth built from known rates."""
+    w = _as_float(gyro_rad_s)
+    steps = from_rotation_vector(w * float(dt_s))
+    q = np.empty((w.shape[0], 4))
+    q[0] = normalize(q0_body_to_ned)
+    for i in range(1, w.shape[0]):
+        q[i] = normalize(multiply(q[i - 1], steps[i - 1]))
+    return q
 
 
 def angle_between(p: ArrayLike, q: ArrayLike) -> Array:

@@ -32,11 +32,7 @@ def _recording() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     t = np.arange(n) * dt
     w = np.stack([0.5 * np.sin(0.31 * t), 0.5 * np.sin(0.23 * t + 1.0), 0.7 * np.sin(0.17 * t + 2.0)], axis=1)
     w[t < 5.0] = 0.0  # a rest first
-    q = np.empty((n, 4))
-    q[0] = (1.0, 0.0, 0.0, 0.0)
-    steps = quat.from_rotation_vector(w * dt)
-    for i in range(1, n):
-        q[i] = quat.normalize(quat.multiply(q[i - 1], steps[i - 1]))
+    q = quat.trajectory((1.0, 0.0, 0.0, 0.0), w, dt)
     q_ned_to_body = quat.conjugate(q)
     rng = np.random.default_rng(1)
     mag = quat.rotate(q_ned_to_body, FIELD_NED_UT) + rng.normal(0.0, 0.3, (n, 3))

@@ -38,11 +38,7 @@ def _recording(dip_change_deg: float, seed: int) -> tuple[np.ndarray, np.ndarray
     t = np.arange(n) * dt
     w = np.stack([0.2 * np.sin(0.31 * t), 0.2 * np.sin(0.23 * t + 1.0), np.full(n, 0.5)], axis=1)
     w[t < 5.0] = 0.0  # a rest first
-    q = np.empty((n, 4))
-    q[0] = (1.0, 0.0, 0.0, 0.0)
-    steps = quat.from_rotation_vector(w * dt)
-    for i in range(1, n):
-        q[i] = quat.normalize(quat.multiply(q[i - 1], steps[i - 1]))
+    q = quat.trajectory((1.0, 0.0, 0.0, 0.0), w, dt)
     dip = np.where(t < 30.0, DIP_RAD, DIP_RAD + np.radians(dip_change_deg))
     field_ned = FIELD_UT * np.stack([np.cos(dip), np.zeros(n), np.sin(dip)], axis=1)
     q_ned_to_body = quat.conjugate(q)

@@ -130,3 +130,20 @@ def test_random_unit_is_unit_and_seeded() -> None:
     b = qm.random_unit(5, np.random.default_rng(1))
     np.testing.assert_array_equal(a, b)
     np.testing.assert_allclose(np.linalg.norm(a, axis=-1), 1.0)
+
+
+def test_trajectory_integrates_known_body_rates() -> None:
+    """A constant yaw rate for 2 s from level: yaw = rate × elapsed on every row; then a roll rate after a
+    yaw of 90° turns about the body's x axis (body rates: q ⊗ Δq), not the earth's."""
+    dt, rate = 0.01, 0.5
+    w = np.zeros((201, 3))
+    w[:, 2] = rate
+    q = qm.trajectory(qm.IDENTITY, w, dt)
+    assert q.shape == (201, 4)
+    yaw = 2.0 * np.arctan2(q[:, 3], q[:, 0])
+    np.testing.assert_allclose(yaw, rate * dt * np.arange(201), atol=1e-9)
+    w2 = np.zeros((101, 3))
+    w2[:, 0] = np.pi / 2  # 1 s of roll at 90°/s after a yaw of 90°
+    q90 = qm.from_axis_angle([0.0, 0.0, 1.0], np.pi / 2)
+    end = qm.trajectory(q90, w2, 0.01)[-1]
+    np.testing.assert_allclose(qm.rotate(end, [0.0, 1.0, 0.0]), [0.0, 0.0, 1.0], atol=1e-9)
