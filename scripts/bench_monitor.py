@@ -80,7 +80,11 @@ FIXED = MonitorSettings(mode="fixed", tilt_threshold_deg=10.0, heading_threshold
 
 
 def shared_flights() -> list[Path]:
-    return sorted((DATA / "sitl").glob("*.tlog")) + sorted((DATA / "px4_sitl").glob("*.tlog"))
+    found = sorted((DATA / "sitl").glob("*.tlog")) + sorted((DATA / "px4_sitl").glob("*.tlog"))
+    if not found:  # a checkout without ../shared beside it (e.g. a worktree elsewhere): say so, not a smaller table
+        print(f"bench_monitor: no shared flights in {DATA} (absent): measuring without them; "
+              "--no-shared says this on purpose", file=sys.stderr)  # fmt: skip
+    return found
 
 
 def sim_flights(tmp: Path, n: int) -> list[Path]:
