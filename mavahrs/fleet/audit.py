@@ -145,7 +145,9 @@ class FleetRow:
             mavahrs and the reference (BROAD's inclination), RMS and maximum, deg.
         heading_rms_deg, heading_max_deg: heading divergence (absolute), deg.
         alarms: in-flight WARNINGs the second-opinion monitor raised (the
-            divergence confirmed beyond its threshold; see ``MonitorSettings``).
+            divergence confirmed beyond its threshold; see ``MonitorSettings``;
+            None: nothing judged — no autopilot attitude, or our IMU input slower
+            than ``MonitorSettings.min_imu_rate_hz`` throughout).
         first_alarm_s: autopilot boot time of the first WARNING, s (NaN: none).
         alarm_times_s: boot times of every WARNING, s, ``;``-separated.
         ground_alarms: disagreements it raised on the ground, at take-off or
@@ -381,11 +383,15 @@ def _second_opinion(
         short = (f"nothing compared: the log's {span_s:.1f} s of {ref} lie within the monitor's start-up "
                  f"grace of {mon.startup_grace_s:g} s")
         row = _replace(row, notes=" | ".join(x for x in (row.notes, short) if x))
+    held = series.held_note(mon)  # our IMU input too slow to judge (MonitorSettings.min_imu_rate_hz)
+    if held:
+        row = _replace(row, notes=" | ".join(x for x in (row.notes, "second opinion " + held) if x))
+    none_judged = series.comparisons > 0 and series.held_comparisons == series.comparisons
     return _replace(
         row, reference=ref, compared_s=span(tj, boot[judged]) if tj.size > 1 else 0.0,
         inclination_rms_deg=_rms(tilt), inclination_max_deg=_max(tilt),
         heading_rms_deg=_rms(hdg), heading_max_deg=_max(hdg),
-        alarms=len(warns), first_alarm_s=times[0] if times else math.nan,
+        alarms=None if none_judged else len(warns), first_alarm_s=times[0] if times else math.nan,
         alarm_times_s=";".join(f"{t:.3f}" for t in times), ground_alarms=len(ground),
         alarm_causes=";".join(causes[id(e)] for e in warns),
         ground_alarm_times_s=";".join(f"{e.t_ms / 1000.0:.3f} {e.phase}" for e in ground),
@@ -444,7 +450,8 @@ def replay_monitor(
 
     series = MonitorSeries(*(cat([getattr(p[0], f) for p in parts]) for f in ("t_ms", "tilt_deg", "heading_deg")),
                            tuple(e for p in parts for e in p[0].events),
-                           *(cat([getattr(p[0], f) for p in parts]) for f in ("tilt_threshold_deg", "heading_threshold_deg")))  # fmt: skip
+                           *(cat([getattr(p[0], f) for p in parts]) for f in ("tilt_threshold_deg", "heading_threshold_deg")),
+                           sum(p[0].comparisons for p in parts), sum(p[0].held_comparisons for p in parts))  # fmt: skip
     return series, cat([p[1] for p in parts])
 
 
@@ -454,7 +461,7 @@ def _monitor_of_boot(
 ) -> tuple[Any, np.ndarray]:  # fmt: skip
     """:func:`replay_monitor` over the estimates ``sent`` (rows) and, with ``boot``, that boot's references."""
     from mavahrs.filters.layout import FLAG_VELOCITY_AIDED, OUT_FLAGS, OUT_GAIN, OUT_HEADING_SIGMA, OUT_Q
-    from mavahrs.service.monitor import monitor_series
+    from mavahrs.service.monitor import input_rate_hz, monitor_series
 
     prep = result.inputs
     track = result.tracks[name]
@@ -473,9 +480,10 @@ def _monitor_of_boot(
     aided = (track.out[sent, OUT_FLAGS].astype(np.int64) & FLAG_VELOCITY_AIDED) != 0
     sigma = np.where(aided, track.out[sent, OUT_GAIN], np.nan)  # the ESKF's 1-σ tilt, as the pipeline passes it
     sigma_hdg = np.where(aided, track.out[sent, OUT_HEADING_SIGMA], np.nan)  # … and heading (NaN: none)
+    rate = input_rate_hz(prep.t_us, sent)  # the IMU input's rate around each estimate
     series = monitor_series(t_est_ms, q_est, t_ref_us / 1000.0, q_ref, mon, heading_valid=heading_valid,
                             tilt_sigma_rad=sigma, heading_sigma_rad=sigma_hdg, phase_events=phase_events,
-                            sensors=monitor_sensors(prep, sent, imus))  # fmt: skip
+                            sensors=monitor_sensors(prep, sent, imus), imu_rate_hz=rate)  # fmt: skip
     return series, t_est_ms
 
 
@@ -1031,6 +1039,12 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "", startup: s
         lines += ["", "not compared (no autopilot attitude in the log):"] + [
             f"  {Path(r.path).name}: {r.imu_samples or 0} IMU samples" + (f"; {r.notes}" if r.notes else "")
             for r in bare]  # fmt: skip
+    held = [r for r in good if "second opinion not judged" in r.notes]
+    if held:
+        lines += ["", "second opinion not judged (our IMU input too slow; alarms '–' where none was):"] + [
+            f"  {Path(r.path).name}: IMU {r.imu_rate_hz:.0f} Hz, "
+            + next(n for n in r.notes.split(" | ") if n.startswith("second opinion not judged"))[len("second opinion "):]
+            for r in held]  # fmt: skip
     short = [r for r in good if r.reference and not r.compared_s]
     if short:
         lines += ["", "not compared (too short):"] + [

@@ -1154,6 +1154,9 @@ def format_second_opinion(result: ReplayResult) -> str:
         return ""
     series, ref, name = got
     lines = [f"second opinion ({name}) vs {ref}: {sum(e.in_flight for e in series.events)} in-flight WARNING(s)"]
+    held = series.held_note(result.settings.pipeline_settings().monitor)
+    if held:
+        lines[0] += f"; {held}"
     for e in series.events:
         lines.append(f"  {e.t_ms / 1000.0:9.3f} s  {e.phase or '':9s} {e.text}")
         if e.evidence is not None:

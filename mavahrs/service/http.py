@@ -303,6 +303,9 @@ def _second_opinion_extra(mon: Any) -> dict[str, Any]:
         "evidence_text": ev.text() if ev is not None else "",
         "strip": _strip(getattr(mon, "strip", ())),
         "imu_late": int(getattr(mon, "imu_late", 0)),
+        "judged": not getattr(mon, "held", False),
+        "imu_rate_hz": _finite(getattr(mon, "imu_rate_hz", math.nan)),
+        "held_comparisons": int(getattr(mon, "held_comparisons", 0)),
     }
 
 

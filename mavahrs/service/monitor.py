@@ -405,6 +405,15 @@ class MonitorSettings:
         startup_grace_s: comparisons in the first seconds after our first
             estimate (or a :meth:`AttitudeMonitor.reset`) are published but do
             not count: both estimators may still be converging, s.
+        min_imu_rate_hz: comparisons are not judged while fewer IMU samples
+            per second than this reach our filter (the pipeline's
+            ``low_imu_rate_hz``): at a ground station's 2–10 Hz stream our
+            estimate cannot follow a manoeuvre (firmware_sim ``aggressive``
+            at 4 / 10 / 25 Hz: 85 / 28 / 0.6° inclination error, with 1–17
+            false WARNINGs), and its σ does not say so.  They are published
+            (NAMED_VALUE_FLOAT, status) with no threshold; once the rate is
+            back, ``startup_grace_s`` again (our filter re-converges).  Hz; 0 =
+            judge at any rate.
         align_tolerance_ms: the autopilot's sample is compared with our
             estimate at the same time: interpolated when our estimates around
             it are at most 2× this apart, else the nearest one within this, ms.
@@ -498,6 +507,7 @@ class MonitorSettings:
     clear_s: float = 5.0
     clear_fraction: float = 0.7
     startup_grace_s: float = 10.0
+    min_imu_rate_hz: float = 50.0
     align_tolerance_ms: float = 50.0
     max_gap_s: float = 1.0
     gap_intervals: float = 2.5
@@ -536,7 +546,8 @@ class MonitorSettings:
             raise ValueError("monitor air_alt_m must be ≥ ground_alt_m")
         if not (self.rate_hz == 0.0 or 1.0 <= self.rate_hz <= 5.0):
             raise ValueError(f"monitor rate_hz must be 1–5 Hz (or 0 = off), got {self.rate_hz!r}")
-        for name in ("tilt_threshold_deg", "heading_threshold_deg", "trigger_s", "clear_s", "startup_grace_s"):
+        for name in ("tilt_threshold_deg", "heading_threshold_deg", "trigger_s", "clear_s", "startup_grace_s",
+                     "min_imu_rate_hz"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"monitor setting {name} must be ≥ 0, got {v!r}")
@@ -588,6 +599,10 @@ class MonitorStatus:
             the interval they belong to was judged (:class:`_ImuCheck`: a
             sample older than its IMU's judged intervals, e.g. a reordered or
             resent message); counted over the monitor's life, resets included.
+        held: the latest comparison was not judged: fewer IMU samples per
+            second than ``MonitorSettings.min_imu_rate_hz`` reach our filter.
+        imu_rate_hz: that rate as told with our latest estimate, Hz (NaN: not told).
+        held_comparisons: comparisons not judged for that, over the monitor's life.
         strip: the last ``strip_s`` of comparisons for the status page's strip
             chart, a point every 0.5 s and at each STATUSTEXT: ``(boot time s,
             tilt°, heading° signed, tilt threshold°, heading threshold° (0 = not
@@ -610,6 +625,9 @@ class MonitorStatus:
     trigger: str = ""
     strip: tuple[tuple[float, float, float, float, float, bool, int], ...] = ()
     imu_late: int = 0
+    held: bool = False
+    imu_rate_hz: float = math.nan
+    held_comparisons: int = 0
 
     def text(self) -> str:
         """E.g. ``AP cmp: tilt 0.8° hdg +1.2° (vel GPS_RAW)``: the divergence, and the velocity our side used."""
@@ -623,6 +641,8 @@ class MonitorStatus:
             self.tilt_threshold_deg) else ""  # fmt: skip
         why = f" [{self.cause}]" if self.warning and self.cause else ""
         hdg = f"{self.heading_deg:+.1f}°" if math.isfinite(self.heading_deg) else "–"
+        if self.held:
+            thr = f" (not judged: IMU {self.imu_rate_hz:.0f} Hz, too slow)"
         return f"AP cmp: tilt {self.tilt_deg:.1f}° hdg {hdg}{thr}{flag}{why}{vel}"
 
 
@@ -934,6 +954,8 @@ class AttitudeMonitor:
         self.last_update = False
         self._comparisons = 0
         self._unmatched = 0
+        #: comparisons not judged because our IMU input was slower than ``min_imu_rate_hz``
+        self.held_comparisons = 0
         self._episodes = 0
         self._ground_episodes = 0
         #: (t_s, tilt°, heading°, tilt threshold°, heading threshold°, warning on, raised: 0 / 1 notice / 2 warning)
@@ -1005,6 +1027,8 @@ class AttitudeMonitor:
             self._evidence.mag_model_disturbed = old.mag_model_disturbed
         self._sigma = math.nan  # our latest 1-σ tilt, rad (NaN: not velocity-aided)
         self._sigma_hdg = math.nan  # our latest 1-σ heading, rad (NaN: not given: heading_sigma_deg)
+        self._imu_rate_hz = math.nan  # IMU samples per second reaching our filter (NaN: not told)
+        self._held = False  # the latest comparison was not judged: our IMU input too slow (min_imu_rate_hz)
         self._sig_hdg_least: deque[tuple[float, float]] = deque()  # (t_ms, σ) rising: the window's least σ first
         self._rate = 0.0  # our latest angular rate, rad/s (from successive estimates)
         self._rate_h = 0.0  # … its earth-frame horizontal part (what turns the tilt), rad/s
@@ -1021,6 +1045,7 @@ class AttitudeMonitor:
         q_body_to_ned: Sequence[float],
         tilt_sigma_rad: float = math.nan,
         heading_sigma_rad: float = math.nan,
+        imu_rate_hz: float = math.nan,
     ) -> list[Any]:
         """Our published attitude at ``t_boot_ms``; returns STATUSTEXTs this resolves (usually none).
 
@@ -1030,11 +1055,15 @@ class AttitudeMonitor:
         ``heading_sigma_rad``: its 1-σ heading uncertainty (the ESKF's
         ``OUT_HEADING_SIGMA``, with the tilt's); NaN = not known (``heading_sigma_deg``
         while the tilt's is given).
+        ``imu_rate_hz``: IMU samples per second reaching our filter around this
+        estimate; below ``MonitorSettings.min_imu_rate_hz`` comparisons are not
+        judged; NaN = not known (judged).
         """
         if not self.settings.enabled:
             return []
         self._sigma = float(tilt_sigma_rad)
         self._sigma_hdg = float(heading_sigma_rad)
+        self._imu_rate_hz = float(imu_rate_hz)
         est = self._estimates
         t = float(t_boot_ms)
         if est and t < est[-1][0]:
@@ -1620,6 +1649,18 @@ class AttitudeMonitor:
         prev = self._last_cmp_ms
         gap = prev is not None and t_ms - prev > self._gap_ms()
         self._last_cmp_ms = t_ms
+        if self._imu_rate_hz < s.min_imu_rate_hz:  # (NaN: not told, judged)
+            # our estimate cannot follow the vehicle at this rate, and its σ does not say so: not judged, nothing
+            # learnt; once the rate is back, the start-up grace again (our filter re-converges) and no
+            # "continuous" timer carried across (a gap)
+            self._held = True
+            self.held_comparisons += 1
+            self._tilt_thr_now = self._hdg_thr_now = math.nan
+            return []
+        if self._held:
+            self._held = False
+            self._first_est_ms = t_ms
+            gap = True
         if gap:
             self._above_since_ms = self._below_since_ms = None
             self._cusum = self._cusum_c = self._cusum_w = self._cusum_d = 0.0
@@ -1787,6 +1828,9 @@ class AttitudeMonitor:
             trigger=self._trigger if self._warning else "",
             strip=tuple(self._strip),
             imu_late=self._imus.late,
+            held=self._held,
+            imu_rate_hz=self._imu_rate_hz,
+            held_comparisons=self.held_comparisons,
         )
 
     @property
@@ -2428,6 +2472,17 @@ class MonitorSeries:
     #: the thresholds in force at each comparison, deg (NaN: none made then; heading 0 = not judged)
     tilt_threshold_deg: Array | None = None
     heading_threshold_deg: Array | None = None
+    #: comparisons made, and of them those not judged: our IMU input slower than ``min_imu_rate_hz``
+    comparisons: int = 0
+    held_comparisons: int = 0
+
+    def held_note(self, settings: MonitorSettings | None = None) -> str:
+        """E.g. ``not judged: 100 % of the comparisons (our IMU input below 50 Hz)``; "" when every one was."""
+        if not self.held_comparisons:
+            return ""
+        floor = (settings if settings is not None else MonitorSettings()).min_imu_rate_hz
+        share = 100.0 * self.held_comparisons / max(self.comparisons, 1)
+        return f"not judged: {share:.0f} % of the comparisons (our IMU input below {floor:g} Hz)"
 
 
 def monitor_series(
@@ -2442,6 +2497,7 @@ def monitor_series(
     heading_sigma_rad: ArrayLike | None = None,
     phase_events: Sequence[tuple[float, str, float]] = (),
     sensors: MonitorSensors | None = None,
+    imu_rate_hz: ArrayLike | None = None,
 ) -> MonitorSeries:
     """Run :class:`AttitudeMonitor` over whole arrays (replay): which warnings, when.
 
@@ -2453,13 +2509,16 @@ def monitor_series(
     ``heading_sigma_deg``); ``phase_events``: the flight's phase
     (:func:`phase_events_of_arrays`), applied in time order; ``sensors``: the
     samples behind the estimates, for the evidence of who is wrong
-    (:attr:`MonitorEvent.evidence`; without them only our confidence).
+    (:attr:`MonitorEvent.evidence`; without them only our confidence);
+    ``imu_rate_hz``: (N,) IMU samples per second reaching our filter around each
+    estimate (:func:`input_rate_hz`; None: not known, every comparison judged).
     """
     s = settings if settings is not None else MonitorSettings()
     mon = AttitudeMonitor(s)
     mon.heading_valid = heading_valid
     sig = np.full(len(np.asarray(t_ms)), np.nan) if tilt_sigma_rad is None else np.asarray(tilt_sigma_rad, float)
     sig_h = np.full(len(sig), np.nan) if heading_sigma_rad is None else np.asarray(heading_sigma_rad, float)
+    rate = np.full(len(sig), np.nan) if imu_rate_hz is None else np.asarray(imu_rate_hz, float)
     ph = mon.phase
     k, n_ph = 0, len(phase_events)
 
@@ -2511,7 +2570,7 @@ def monitor_series(
                     r += 1
                 mon.add_sensors(t[i], acc[i], None if mag is None else mag[i], None if vel is None else vel[i],
                                 math.nan if vt is None else vt[i])
-            out = mon.add_estimate(t[i], q[i], sig[i], sig_h[i])
+            out = mon.add_estimate(t[i], q[i], sig[i], sig_h[i], rate[i])
             i += 1
         else:
             if n_ph:
@@ -2535,7 +2594,35 @@ def monitor_series(
     if thr_t:  # the thresholds at the comparisons, onto the autopilot's sample times (most are one-to-one)
         k_at = np.searchsorted(ta, np.asarray(thr_t), side="left").clip(0, max(len(ta) - 1, 0))
         thr[k_at] = np.degrees(np.asarray(thr_v))
-    return MonitorSeries(ta, tilt, heading, tuple(events), thr[:, 0], thr[:, 1])
+    return MonitorSeries(ta, tilt, heading, tuple(events), thr[:, 0], thr[:, 1], mon._comparisons,
+                         mon.held_comparisons)
+
+
+def input_rate_hz(t_us: ArrayLike, rows: ArrayLike, window_s: float = 2.0) -> np.ndarray:
+    """IMU samples per second reaching the filter at each of ``rows`` (indices into ``t_us``, the filtered
+    samples' times, µs): those within the last ``window_s`` (the daemon's
+    :class:`~mavahrs.service.stats.RateMeter` window) over that span; in the first ``window_s``, the intervals
+    since the first sample over their span (at the first, its first interval's; NaN for a lone sample).  Where the times go back (an autopilot's reboot)
+    the count starts again.  For :func:`monitor_series`'s ``imu_rate_hz``."""
+    t = np.asarray(t_us, dtype=np.float64)
+    k = np.asarray(rows, dtype=np.int64)
+    if not k.size:
+        return np.zeros(0)
+    back = np.zeros(t.shape[0], np.int64)
+    back[1:] = t[1:] < t[:-1]
+    run = np.cumsum(back)
+    starts = np.flatnonzero(np.diff(run, prepend=-1) > 0)  # first sample of each run
+    first = starts[run[k]]
+    t_run = t + run * 1e15  # rising over the runs, each far from the others
+    lo = np.maximum(np.searchsorted(t_run, t_run[k] - window_s * 1e6, side="right"), first)
+    full = t[k] - t[first] >= window_s * 1e6
+    span_s = np.where(full, window_s, (t[k] - t[first]) * 1e-6)
+    count = np.where(full, k - lo + 1, k - first)
+    nxt = np.minimum(first + 1, t.shape[0] - 1)  # at a run's first sample: its first interval
+    first_dt_s = np.where((nxt > first) & (run[nxt] == run[first]), (t[nxt] - t[first]) * 1e-6, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        at_first = np.where(first_dt_s > 0, 1.0 / first_dt_s, np.nan)
+        return np.where(span_s > 0, count / span_s, at_first)
 
 
 def _text(msg: Any) -> str:

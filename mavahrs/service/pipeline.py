@@ -1097,7 +1097,7 @@ class Pipeline:
             fix = self._monitor_fix  # the evidence of who is wrong: the sample and the last GNSS velocity
             self._monitor.add_sensors(t_ms, row[IN_ACCEL : IN_ACCEL + 3].tolist(), row[IN_MAG : IN_MAG + 3].tolist(),
                                       fix, fix[2] if fix is not None else math.nan)  # fmt: skip
-            said = self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma, sigma_hdg)
+            said = self._monitor.add_estimate(t_ms, (qw, qx, qy, qz), sigma, sigma_hdg, self._filter_meter.rate(now_us))
             for m in self._saying(said) if said else ():
                 frames.append(Outgoing(self._codec.encode(m), to_master, to_outputs))
         if self.settings.send_attitude_euler:

@@ -186,6 +186,11 @@
     e.dataset.cause = so.warning ? so.cause || "" : "";
     var how = so.warning && so.trigger === "step" ? " (raised by a step against its recent baseline, not the dashed line)" : "";
     e.textContent = so.warning && so.evidence_text ? "likely: " + (so.cause || "unclear") + " — " + so.evidence_text + how : "";
+    if (so.judged === false) {
+      // our IMU input too slow to judge the autopilot (MonitorSettings.min_imu_rate_hz)
+      e.dataset.cause = "not-judged";
+      e.textContent = "not judged: our IMU input at " + fmt(so.imu_rate_hz, 0) + " Hz is too slow to follow the vehicle";
+    }
   }
 
   function onStatus(s) {
