@@ -1039,7 +1039,7 @@ def format_summary(run: AuditRun, *, top: int = 10, engine: str = "", startup: s
         lines += ["", "not compared (no autopilot attitude in the log):"] + [
             f"  {Path(r.path).name}: {r.imu_samples or 0} IMU samples" + (f"; {r.notes}" if r.notes else "")
             for r in bare]  # fmt: skip
-    held = [r for r in good if "second opinion not judged" in r.notes]
+    held = sorted((r for r in good if "second opinion not judged" in r.notes), key=lambda r: r.path)
     if held:
         lines += ["", "second opinion not judged (our IMU input too slow; alarms '–' where none was):"] + [
             f"  {Path(r.path).name}: IMU {r.imu_rate_hz:.0f} Hz, "
