@@ -735,6 +735,12 @@ def read_dataflash(
         found.append(f"parameters: {n_par} ({', '.join(shown)})")
     refs = _references(sc, found)
     series = _series(sc, found)
+    live = [i for i in np.unique(sub["I"]).tolist()
+            if not np.all((sub["GyrX"][sub["I"] == i] == 0) & (sub["GyrY"][sub["I"] == i] == 0))]  # fmt: skip
+    if len(live) > 1:  # every IMU's gyro, for the monitor to name the one that is off (as a tlog's IMU messages)
+        keep = np.isin(sub["I"], live)
+        series["imu_gyro"] = {"t_us": sub["TimeUS"][keep].astype(np.int64), "instance": sub["I"][keep].astype(np.int64),
+                              "gyro_rad_s": g_all[window][keep]}  # fmt: skip
     found.append(f"read with numpy over the log's FMT records: {len(sc.offsets)} records of {len(sc.formats)} types")
     sysid = int(params.get("SYSID_THISMAV", 1)) or 1
     # the logged IMU values trail TimeUS by the group delay of the autopilot's low-pass (second order):

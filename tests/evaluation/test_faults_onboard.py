@@ -37,8 +37,9 @@ def _error_deg(q_old: np.ndarray, q_new: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.degrees(2.0 * np.arctan2(s, e[:, 0])), e[:, 1:] / np.maximum(s, 1e-12)[:, None]
 
 
-def _alarms(path: Path, start_s: float, end_s: float) -> list[float]:
-    """The in-flight WARNING times (boot s) of ``mavahrs audit``'s monitor over a cut replay of ``path``."""
+def _alarms(path: Path, start_s: float, end_s: float, causes: list[str] | None = None) -> list[float]:
+    """The in-flight WARNING times (boot s) of ``mavahrs audit``'s monitor over a cut replay of ``path`` (their
+    evidence into ``causes``)."""
     from mavahrs.fleet.audit import AuditSettings, summarise_log
     from mavahrs.replay import ReplaySettings
     from mavahrs.service.pipeline import PipelineSettings
@@ -46,6 +47,8 @@ def _alarms(path: Path, start_s: float, end_s: float) -> list[float]:
     s = AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(), start_s=start_s, end_s=end_s))
     row = summarise_log(path, s)
     assert row.ok, row.error
+    if causes is not None:
+        causes += row.alarm_causes.split(";")
     return [float(x) for x in row.alarm_times_s.split(";") if x]
 
 
@@ -120,6 +123,8 @@ def test_bin_tilt_step_is_warned_within_2_s(bin_tilt) -> None:  # type: ignore[n
 
 
 def test_bin_gyro_and_accel_bias_on_imu_instance_1(shared_data: Path, tmp_path: Path) -> None:
+    """The bias in IMU instance 1's records only; the monitor names that IMU (``IMU2?``, as on a tlog's
+    SCALED_IMU2) though replay feeds instance 0 (until inj1 a .BIN gave the monitor no IMU but the fed one)."""
     src = _need(shared_data, BIN)
     dst = tmp_path / "imu1.BIN"
     fault = ImuFault(when=FaultShape("step", ONSET_S, duration_s=30.0), gyro_bias_deg_s=(0.0, 0.0, 3.0),
@@ -141,6 +146,9 @@ def test_bin_gyro_and_accel_bias_on_imu_instance_1(shared_data: Path, tmp_path: 
     allowed[_field_bytes(a, "IMU", ("GyrZ", "AccY"), ONSET_S)] = True
     diff = a.data != b.data
     assert diff.any() and not (diff & ~allowed).any()
+    causes: list[str] = []
+    times = _alarms(dst, 30.0, 110.0, causes)  # the original over this cut: no WARNING (the tilt test)
+    assert len(times) == 1 and ONSET_S < times[0] <= ONSET_S + 10.0 and "IMU2?" in causes[0], (times, causes)
 
 
 def test_the_cli_copies_a_bin_atomically(shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
