@@ -29,7 +29,7 @@ IN is chosen by its content, as replay chooses:
 (docs/monitor.md, "Trying it on your own logs", lists every field.)
 
 Times are the autopilot's boot clock (time_boot_ms; a .BIN's TimeUS, a .ulg's
-timestamp), as replay and audit report them.
+timestamp_sample), as replay and audit report them.
 Shapes: step (the full offset at --at), ramp (from 0 at --at to the full
 offset --ramp-s later, then held), intermittent (the full offset for --on-s of
 every --period-s).  --duration limits any of them (default: to the end).
@@ -102,8 +102,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                         "RAW_IMU 0, SCALED_IMU2 1, SCALED_IMU3 2)")  # fmt: skip
     i.add_argument("--gyro-bias", type=_triple, metavar="X,Y,Z", help="gyro bias, deg/s")
     i.add_argument("--accel-bias", type=_triple, metavar="X,Y,Z", help="accelerometer bias, m/s²")
-    p.add_argument("--system", type=int, metavar="ID", help="the autopilot's system id (default: from its HEARTBEAT)")
-    p.add_argument("--component", type=int, default=1, metavar="ID", help="its component id (default 1)")
+    p.add_argument("--system", type=int, metavar="ID", help="a tlog's: the autopilot's system id (default: from its HEARTBEAT)")
+    p.add_argument("--component", type=int, default=1, metavar="ID", help="a tlog's: its component id (default 1)")
     return p
 
 

@@ -57,7 +57,9 @@ ArduPilot's body frame is FRD, its earth frame NED, angles in degrees, yaw
 * ``BAT`` (``Curr`` A, ``Volt`` V, first battery), ``VIBE`` (per IMU, m/s²,
   clip count) and the batch sampler's ``ISBH``/``ISBD`` headers go to
   :attr:`~mavahrs.logs.LogInputs.series` and the replay header; none feeds
-  the filters (ISBD holds raw bursts, not a continuous stream).
+  the filters (ISBD holds raw bursts, not a continuous stream).  With two or more live IMU instances every
+  instance's gyro goes to the series ``imu_gyro``, for the second-opinion monitor to name the IMU that is off
+  (:func:`mavahrs.fleet.audit.onboard_imu_gyros`), as a tlog's RAW_IMU / SCALED_IMU2 do.
 
 A log cut off in the middle of a record is read up to its last whole record
 and flagged (:attr:`~mavahrs.logs.LogInputs.truncated`); bytes that are not
