@@ -1,4 +1,4 @@
-"""``mavahrs inject-fault``: a copy of a tlog with a known error in the autopilot's attitude or an IMU."""
+"""``mavahrs inject-fault``: a copy of a log (.tlog, .BIN, .ulg) with a known error in the autopilot's attitude or an IMU."""
 
 from __future__ import annotations
 
@@ -8,16 +8,28 @@ from typing import Any
 
 __all__ = ["register", "run"]
 
-HELP = "copy a tlog with a step, ramp or intermittent error added to the autopilot's attitude or an IMU"
+HELP = "copy a log (.tlog, .BIN, .ulg) with a step, ramp or intermittent error added to the autopilot's attitude or an IMU"
 
 DESCRIPTION = """\
-Write OUT, a copy of the tlog IN in which the autopilot's own attitude
-(ATTITUDE and ATTITUDE_QUATERNION, the same Euler-angle offsets in both) or
-one IMU message's gyro / accelerometer is off by a known amount from a known
-time, to test the second-opinion monitor (mavahrs replay / audit / run) or
-your own settings for it.  Everything else is copied byte for byte.
+Write OUT, a copy of the log IN in which the autopilot's own attitude or one
+IMU's gyro / accelerometer is off by a known amount from a known time, to test
+the second-opinion monitor (mavahrs replay / audit / run) or your own settings
+for it.  Everything else is copied byte for byte.
 
-Times are the autopilot's boot clock (time_boot_ms), as audit reports them.
+IN is chosen by its content, as replay chooses:
+  telemetry log (.tlog)   ATTITUDE and ATTITUDE_QUATERNION (the same offsets in
+                          both); --imu names a message (RAW_IMU, SCALED_IMU2 …)
+  ArduPilot .BIN          rewritten in place: XKQ/NKQ and XKF1/NKF1 (every EKF
+                          core), ATT, AHR2, DCM; --imu N: the IMU/GYR/ACC records
+                          of instance N (0 = the first IMU)
+  PX4 .ulg                rewritten in place: vehicle_attitude (and
+                          estimator_attitude) q; --imu N: vehicle_imu[N],
+                          sensor_gyro[N], sensor_accel[N], and sensor_combined
+                          when N is the voted IMU
+(docs/monitor.md, "Trying it on your own logs", lists every field.)
+
+Times are the autopilot's boot clock (time_boot_ms; a .BIN's TimeUS, a .ulg's
+timestamp_sample), as replay and audit report them.
 Shapes: step (the full offset at --at), ramp (from 0 at --at to the full
 offset --ramp-s later, then held), intermittent (the full offset for --on-s of
 every --period-s).  --duration limits any of them (default: to the end).
@@ -28,7 +40,10 @@ examples:
   mavahrs inject-fault flight.tlog drift.tlog --at 100 --roll 10 --shape ramp --ramp-s 50   # 0.2 deg/s
   mavahrs inject-fault flight.tlog yaw6.tlog --at 100 --yaw 6 --shape intermittent --on-s 2 --period-s 5
   mavahrs inject-fault flight.tlog gyro.tlog --at 100 --imu SCALED_IMU2 --gyro-bias 0,0,3
-  mavahrs audit roll2.tlog drift.tlog"""
+  mavahrs inject-fault 00000042.BIN tilt2.BIN --at 100 --tilt 2
+  mavahrs inject-fault 00000042.BIN gyro1.BIN --at 100 --imu 1 --gyro-bias 0,0,3
+  mavahrs inject-fault log_7.ulg tilt2.ulg --at 100 --tilt 2
+  mavahrs audit roll2.tlog drift.tlog tilt2.BIN tilt2.ulg"""
 
 
 def _triple(text: str) -> tuple[float, float, float]:
@@ -42,6 +57,16 @@ def _triple(text: str) -> tuple[float, float, float]:
     return x, y, z
 
 
+def _imu(text: str) -> str | int:
+    """--imu: a MAVLink IMU message's name, or an instance number."""
+    if text.isdigit():
+        return int(text)
+    if text not in _IMU_MESSAGES:
+        raise argparse.ArgumentTypeError(f"expected an IMU message ({', '.join(_IMU_MESSAGES)}) or an instance "
+                                         f"number (0, 1, …), got {text!r}")  # fmt: skip
+    return text
+
+
 #: mavahrs.evaluation.faults.IMU_FAULT_MESSAGES, named here so that ``--help`` imports no numpy
 #: (tests/evaluation/test_faults.py keeps the two equal)
 _IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
@@ -52,7 +77,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = subparsers.add_parser(
         "inject-fault", help=HELP, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("input", metavar="IN", help="the tlog to copy")
+    p.add_argument("input", metavar="IN", help="the log to copy: .tlog, ArduPilot .BIN or PX4 .ulg (by content)")
     p.add_argument("output", metavar="OUT", help="the faulty copy (must differ from IN)")
     g = p.add_argument_group("when")
     g.add_argument("--at", type=float, required=True, metavar="S", help="boot time the fault begins, s")
@@ -71,12 +96,14 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="the tilt's rotation axis, from north (default 0: about north)")
     a.add_argument("--heading", type=float, default=0.0, metavar="DEG", help="an earth-frame heading error")
     i = p.add_argument_group("an IMU (body axes)")
-    i.add_argument("--imu", choices=_IMU_MESSAGES, metavar="MESSAGE",
-                   help=f"the IMU message to bias ({', '.join(_IMU_MESSAGES)})")  # fmt: skip
+    i.add_argument("--imu", type=_imu, metavar="MESSAGE|N",
+                   help=f"the IMU to bias: in a tlog its message ({', '.join(_IMU_MESSAGES)}); in a .BIN or "
+                        ".ulg its instance N (0 = the first IMU; a message name means the instance it carries: "
+                        "RAW_IMU 0, SCALED_IMU2 1, SCALED_IMU3 2)")  # fmt: skip
     i.add_argument("--gyro-bias", type=_triple, metavar="X,Y,Z", help="gyro bias, deg/s")
     i.add_argument("--accel-bias", type=_triple, metavar="X,Y,Z", help="accelerometer bias, m/s²")
-    p.add_argument("--system", type=int, metavar="ID", help="the autopilot's system id (default: from its HEARTBEAT)")
-    p.add_argument("--component", type=int, default=1, metavar="ID", help="its component id (default 1)")
+    p.add_argument("--system", type=int, metavar="ID", help="a tlog's: the autopilot's system id (default: from its HEARTBEAT)")
+    p.add_argument("--component", type=int, default=1, metavar="ID", help="a tlog's: its component id (default 1)")
     return p
 
 
@@ -100,16 +127,21 @@ def _run(args: argparse.Namespace) -> int:
     faults: list[Any] = []
     if args.roll or args.pitch or args.yaw or args.tilt or args.heading:
         faults.append(AttitudeFault(when, args.roll, args.pitch, args.yaw, args.tilt, args.tilt_azimuth, args.heading))
-    if args.imu or args.gyro_bias or args.accel_bias:
-        if not args.imu or not (args.gyro_bias or args.accel_bias):
-            raise ConfigError("an IMU fault needs --imu MESSAGE and --gyro-bias and/or --accel-bias")
-        faults.append(ImuFault(args.imu, when, args.gyro_bias or (0.0, 0.0, 0.0), args.accel_bias or (0.0, 0.0, 0.0)))
+    if args.imu is not None or args.gyro_bias or args.accel_bias:
+        if args.imu is None or not (args.gyro_bias or args.accel_bias):
+            raise ConfigError("an IMU fault needs --imu MESSAGE|N and --gyro-bias and/or --accel-bias")
+        message, instance = (args.imu, None) if isinstance(args.imu, str) else ("RAW_IMU", args.imu)
+        try:
+            faults.append(ImuFault(message, when, args.gyro_bias or (0.0, 0.0, 0.0),
+                                   args.accel_bias or (0.0, 0.0, 0.0), instance))  # fmt: skip
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
     if not faults:
         raise ConfigError("no fault given: --roll/--pitch/--yaw/--tilt/--heading for the attitude, "
                           "--imu with --gyro-bias/--accel-bias")
     src, dst = Path(args.input), Path(args.output)
     if src.is_dir():
-        raise DataError(f"{src} is a directory: inject-fault copies one telemetry log (.tlog)")
+        raise DataError(f"{src} is a directory: inject-fault copies one log (.tlog, .BIN or .ulg)")
     if not src.is_file():
         raise DataError(f"{src}: no such file")
     if not dst.parent.is_dir():  # before the whole log is read (the copy goes to a temporary file beside it)
@@ -126,12 +158,14 @@ def _run(args: argparse.Namespace) -> int:
     if not report.modified:
         import math
 
-        span = (f"the messages to rewrite span {report.seen_first_s:.3f}–{report.seen_last_s:.3f} s boot time"
+        what = "messages" if report.format == "tlog" else "records"
+        span = (f"the {what} to rewrite span {report.seen_first_s:.3f}–{report.seen_last_s:.3f} s boot time"
                 if math.isfinite(report.seen_first_s) else
                 f"the log has none of them from system {report.source[0]} component {report.source[1]} "
-                "(--system, --component)")  # fmt: skip
-        logging.getLogger("mavahrs").warning("no message was rewritten: is --at within the log's boot times? %s",
-                                             span)  # fmt: skip
+                "(--system, --component)" if report.format == "tlog" else
+                "the log has none of them (for an IMU: is --imu an instance it logged?)")  # fmt: skip
+        logging.getLogger("mavahrs").warning("no %s was rewritten: is --at within the log's boot times? %s",
+                                             what[:-1], span)  # fmt: skip
     elif report.first_s > args.at + 1.0:  # --at read as seconds into the log, or a log that starts later
         logging.getLogger("mavahrs").warning(
             "--at %g s is before the first message rewritten, at %.3f s boot time: the fault starts there (--at "

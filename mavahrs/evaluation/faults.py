@@ -1,4 +1,8 @@
-r"""Fault injection for telemetry logs: a copy of a tlog with a known error added.
+r"""Fault injection for logs: a copy of a tlog (or an onboard .BIN / .ulg) with a known error added.
+
+An ArduPilot DataFlash log (.BIN) or a PX4 ULog (.ulg) — chosen by content — gets the same faults, shapes
+and clock, rewritten in place in the records that carry the autopilot's attitude or the IMU's samples:
+:mod:`mavahrs.evaluation.onboard_faults` says which.  What follows describes the tlog.
 
 To test a monitor (mavahrs's second opinion, or one's own settings for it) one
 needs flights where the autopilot's attitude is wrong by a known amount from a
@@ -110,6 +114,18 @@ class FaultShape:
             return min(1.0, dt / self.ramp_s)
         return 1.0 if (dt % self.period_s) < self.on_s else 0.0
 
+    def factors(self, t_s: np.ndarray) -> np.ndarray:
+        """:meth:`factor` at every boot time of ``t_s`` (an array), s."""
+        dt = np.asarray(t_s, np.float64) - self.start_s
+        inside = (dt >= 0.0) & (dt < self.duration_s)
+        if self.shape == "step":
+            k = np.ones_like(dt)
+        elif self.shape == "ramp":
+            k = np.minimum(1.0, dt / self.ramp_s)
+        else:
+            k = np.where(np.mod(dt, self.period_s) < self.on_s, 1.0, 0.0)
+        return np.where(inside, k, 0.0)
+
 
 @dataclass(frozen=True)
 class AttitudeFault:
@@ -131,16 +147,24 @@ class AttitudeFault:
 
 @dataclass(frozen=True)
 class ImuFault:
-    """A gyro and/or accelerometer bias on one IMU message, body axes (x, y, z)."""
+    """A gyro and/or accelerometer bias on one IMU, body axes (x, y, z).
+
+    In a tlog the IMU is a message (``message``); in an onboard log (.BIN, .ulg) an instance: ``instance``
+    (0 = the first IMU), else the one ``message`` carries (RAW_IMU / SCALED_IMU 0, SCALED_IMU2 1,
+    SCALED_IMU3 2, HIGHRES_IMU 0; :mod:`mavahrs.evaluation.onboard_faults`). A tlog refuses ``instance``.
+    """
 
     message: str = "RAW_IMU"
     when: FaultShape = field(default_factory=FaultShape)
     gyro_bias_deg_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     accel_bias_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    instance: int | None = None
 
     def __post_init__(self) -> None:
         if self.message not in IMU_FAULT_MESSAGES:
             raise ValueError(f"IMU fault message must be one of {', '.join(IMU_FAULT_MESSAGES)}, got {self.message!r}")
+        if self.instance is not None and not (isinstance(self.instance, int) and 0 <= self.instance < 256):
+            raise ValueError(f"IMU fault instance must be an integer 0…255, got {self.instance!r}")
         for name in ("gyro_bias_deg_s", "accel_bias_m_s2"):
             v = getattr(self, name)
             if len(v) != 3 or not all(math.isfinite(x) for x in v):
@@ -159,7 +183,10 @@ class InjectionReport:
             rewritten (the fault's messages from its source), s (NaN: none in the log).
         unsigned: signed frames written without their signature (rewritten ones only).
         clipped: IMU fields that hit their integer range.
-        source: the (system, component) whose messages were rewritten.
+        source: the (system, component) whose messages were rewritten (a tlog's).
+        format: the log's format (:data:`mavahrs.logs.FORMATS`): ``tlog``, ``dataflash``, ``ulog``; an
+            onboard log's ``records`` are its DataFlash / ULog records, ``modified`` counts record types
+            (DataFlash; IMU records as ``IMU[1]``: instance 1) or topics (ULog, ``name[multi_id]``).
     """
 
     records: int = 0
@@ -171,12 +198,15 @@ class InjectionReport:
     unsigned: int = 0
     clipped: int = 0
     source: tuple[int, int] = (0, 0)
+    format: str = "tlog"
 
     def text(self) -> str:
         what = ", ".join(f"{n} {k}" for k, n in sorted(self.modified.items())) or "nothing"
         span = f" from {self.first_s:.3f} to {self.last_s:.3f} s boot time" if self.modified else ""
         extra = f"; {self.unsigned} signed frames written unsigned" if self.unsigned else ""
-        extra += f"; {self.clipped} IMU values clipped to their integer range" if self.clipped else ""
+        extra += f"; {self.clipped} values clipped to their integer range" if self.clipped else ""
+        if self.format != "tlog":
+            return f"{self.records} records copied, rewritten in place: {what}{span}{extra}"
         return f"{self.records} records copied, rewritten: {what}{span} (system {self.source[0]} component " \
                f"{self.source[1]}){extra}"  # fmt: skip
 
@@ -313,12 +343,15 @@ def inject_faults(
     system_id: int | None = None,
     component_id: int = 1,
 ) -> InjectionReport:
-    """Copy the tlog ``src`` to ``dst`` with ``faults`` added (see the module docstring).
+    """Copy the log ``src`` to ``dst`` with ``faults`` added (see the module docstring).
 
-    ``dst`` is the original's bytes (junk and all) with the rewritten frames spliced in, written
+    The format is chosen by content (:func:`mavahrs.logs.sniff`, as replay chooses): a DataFlash log
+    (.BIN) or a ULog (.ulg) is rewritten in place by :mod:`mavahrs.evaluation.onboard_faults`
+    (``system_id`` / ``component_id`` do not apply), anything else is copied as a tlog.
+    ``dst`` is the original's bytes (junk and all) with the rewritten frames (records) spliced in, written
     to a temporary file beside it and renamed when complete.
-    Raises DataError when ``src`` holds no MAVLink records, ValueError when
-    ``dst`` is ``src``.
+    Raises DataError when ``src`` holds no MAVLink (DataFlash, ULog) records, ValueError when
+    ``dst`` is ``src`` or an :class:`ImuFault` names an ``instance`` for a tlog.
     """
     from mavahrs.errors import DataError
     from mavahrs.protocol.codec import mavlink
@@ -327,14 +360,19 @@ def inject_faults(
     src_p, dst_p = Path(src), Path(dst)
     if dst_p.exists() and os.path.samefile(src_p, dst_p):
         raise ValueError(f"{dst_p}: the faulty copy must not replace the original")
-    from mavahrs.logs import a_format, sniff
+    from mavahrs.logs import sniff
 
-    kind = sniff(src_p)
-    if kind in ("dataflash", "ulog"):  # scanned as a tlog, a .ulg's bytes held 24 "records": copied, exit 0
-        raise DataError(f"{src_p}: {a_format(kind)}: inject-fault copies a telemetry log (.tlog); use the same "
-                        "flight's tlog (the ground station's, or one `mavahrs run --log` recorded)")
+    kind = sniff(src_p)  # by content, as replay chooses (a .ulg scanned as a tlog held 24 "records")
+    if kind in ("dataflash", "ulog"):
+        from mavahrs.evaluation import onboard_faults
+
+        inject = onboard_faults.inject_dataflash if kind == "dataflash" else onboard_faults.inject_ulog
+        return inject(src_p, dst_p, faults)
     att = [f for f in faults if isinstance(f, AttitudeFault)]
     imu = [f for f in faults if isinstance(f, ImuFault)]
+    if any(f.instance is not None for f in imu):
+        raise ValueError(f"{src_p}: a telemetry log's IMU is named by its message ({', '.join(IMU_FAULT_MESSAGES)}), "
+                         "not an instance number")
     types = {"ATTITUDE", "ATTITUDE_QUATERNION"} if att else set()
     types |= {f.message for f in imu}
     sysid = system_id if system_id is not None else _autopilot_source(src_p)[0]

@@ -60,6 +60,7 @@ __all__ = [
     "format_startup",
     "SERIAL_HINT",
     "imu_gyros",
+    "onboard_imu_gyros",
     "phase_events",
     "onboard_phase_events",
     "replay_monitor",
@@ -466,7 +467,9 @@ def _monitor_of_boot(
     prep = result.inputs
     track = result.tracks[name]
     try:
-        imus = imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings(), boot=boot)
+        log = getattr(result, "log", None)
+        imus = (onboard_imu_gyros(log) if log is not None else
+                imu_gyros(getattr(result, "tlog", None), prep, result.settings.pipeline_settings(), boot=boot))  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - the IMU check is evidence, never the reason a flight fails
         _log.warning("%s: the IMUs' gyros could not be compared: %s", result.path, exc)
         imus = []
@@ -567,6 +570,25 @@ def imu_gyros(td: Any, prep: Any, settings: Any, boot: int | None = None) -> lis
         keep = np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)  # re-sends once
         out.append((f"IMU{inst + 1}", t[keep], g[keep]))
     return out
+
+
+def onboard_imu_gyros(li: Any) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Every IMU's gyro in an onboard log (:class:`mavahrs.logs.LogInputs` series ``imu_gyro``: a DataFlash log's
+    IMU records; ``IMU1`` = instance 0 …; boot-clock ms, rad/s), as :func:`imu_gyros` gives a tlog's; [] where
+    the log has one IMU (or does not say)."""
+    d = (getattr(li, "series", None) or {}).get("imu_gyro")
+    if d is None:
+        return []
+    out = []
+    for inst in np.unique(d["instance"]).tolist():
+        sel = d["instance"] == inst
+        t = d["t_us"][sel] / 1000.0
+        g = np.asarray(d["gyro_rad_s"][sel], np.float64)
+        order = np.argsort(t, kind="stable")
+        t, g = t[order], g[order]
+        keep = (np.concatenate([[True], np.diff(t) > 0]) if t.size else np.zeros(0, bool)) & np.all(np.isfinite(g), axis=1)
+        out.append((f"IMU{int(inst) + 1}", t[keep], g[keep]))
+    return out if len(out) > 1 else []
 
 
 def phase_events(td: Any, prep: Any, src: tuple[int, int], boot: int | None = None) -> list[tuple[float, str, float]]:

@@ -90,7 +90,9 @@ class LogInputs:
         start_us: the log's first time stamp on ``inputs.t_us``'s clock (what ``start_s``/``end_s`` count from).
         series: other time series the log holds, name → columns (each with ``t_us`` on the same clock), e.g.
             DataFlash ``battery`` (``current_a``, ``voltage_v``), ``vibration`` (``imu``, ``x_m_s2`` …,
-            ``clips``), ``batch_sampler`` (ISBH headers: ``sensor``, ``instance``, ``rate_hz``, ``samples``);
+            ``clips``), ``batch_sampler`` (ISBH headers: ``sensor``, ``instance``, ``rate_hz``, ``samples``),
+            ``imu_gyro`` (every IMU's gyro when the log has two or more live ones: ``instance``, ``gyro_rad_s``
+            (K, 3); for the monitor to name the IMU that is off);
             the flight's phase as logged (DataFlash ARM/EV, ULog vehicle_status / vehicle_land_detected):
             ``armed`` (``base_mode``: 128 armed, 0 not) and ``landed`` (``landed_state``: 1 on the ground, 2 in
             the air), as HEARTBEAT and EXTENDED_SYS_STATE carry them.

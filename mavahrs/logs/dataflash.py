@@ -57,7 +57,9 @@ ArduPilot's body frame is FRD, its earth frame NED, angles in degrees, yaw
 * ``BAT`` (``Curr`` A, ``Volt`` V, first battery), ``VIBE`` (per IMU, m/s²,
   clip count) and the batch sampler's ``ISBH``/``ISBD`` headers go to
   :attr:`~mavahrs.logs.LogInputs.series` and the replay header; none feeds
-  the filters (ISBD holds raw bursts, not a continuous stream).
+  the filters (ISBD holds raw bursts, not a continuous stream).  With two or more live IMU instances every
+  instance's gyro goes to the series ``imu_gyro``, for the second-opinion monitor to name the IMU that is off
+  (:func:`mavahrs.fleet.audit.onboard_imu_gyros`), as a tlog's RAW_IMU / SCALED_IMU2 do.
 
 A log cut off in the middle of a record is read up to its last whole record
 and flagged (:attr:`~mavahrs.logs.LogInputs.truncated`); bytes that are not
@@ -735,6 +737,12 @@ def read_dataflash(
         found.append(f"parameters: {n_par} ({', '.join(shown)})")
     refs = _references(sc, found)
     series = _series(sc, found)
+    live = [i for i in np.unique(sub["I"]).tolist()
+            if not np.all((sub["GyrX"][sub["I"] == i] == 0) & (sub["GyrY"][sub["I"] == i] == 0))]  # fmt: skip
+    if len(live) > 1:  # every IMU's gyro, for the monitor to name the one that is off (as a tlog's IMU messages)
+        keep = np.isin(sub["I"], live)
+        series["imu_gyro"] = {"t_us": sub["TimeUS"][keep].astype(np.int64), "instance": sub["I"][keep].astype(np.int64),
+                              "gyro_rad_s": g_all[window][keep]}  # fmt: skip
     found.append(f"read with numpy over the log's FMT records: {len(sc.offsets)} records of {len(sc.formats)} types")
     sysid = int(params.get("SYSID_THISMAV", 1)) or 1
     # the logged IMU values trail TimeUS by the group delay of the autopilot's low-pass (second order):

@@ -154,7 +154,7 @@ def test_wrong_paths_and_a_fault_after_the_log_say_so(original, tmp_path: Path,
     src = original[0]
     capsys.readouterr()
     assert main(["inject-fault", str(tmp_path), str(tmp_path / "x.tlog"), "--at", "100", "--roll", "2"]) == 1
-    assert f"ERROR inject-fault: {tmp_path} is a directory: inject-fault copies one telemetry log" in capsys.readouterr().err
+    assert f"ERROR inject-fault: {tmp_path} is a directory: inject-fault copies one log (.tlog, .BIN or .ulg)" in capsys.readouterr().err
     assert main(["inject-fault", str(tmp_path / "absent.tlog"), str(tmp_path / "x.tlog"), "--at", "1", "--roll", "2"]) == 1
     assert f"ERROR inject-fault: {tmp_path / 'absent.tlog'}: no such file" in capsys.readouterr().err
     out = tmp_path / "no_folder" / "x.tlog"
@@ -176,24 +176,35 @@ def test_the_cli_offers_every_imu_message_the_injector_knows() -> None:
     assert _IMU_MESSAGES == IMU_FAULT_MESSAGES
 
 
-@pytest.mark.parametrize("rel", ["sitl/arducopter_onboard.BIN", "px4_ulog/sample.ulg"])
-def test_an_onboard_log_is_named_for_what_it_is(shared_data: Path, rel: str, tmp_path: Path,
-                                                capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    """inject-fault on a .BIN / .ulg (logs that replay and audit take) scanned it as a tlog: the real board's
-    ULog held 24 byte runs that looked like records, so it wrote a 4 MB "x.tlog" copy, warned that nothing was
-    rewritten and exited 0. Now it names the format and that it copies a tlog, and writes nothing."""
+def test_a_real_boards_ulog_copy_reads_as_the_original(shared_data: Path, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """inject-fault on a .ulg (until inj1 refused: "use the same flight's tlog"; before user6 scanned as a tlog, a
+    4 MB "x.tlog" of 24 byte runs that looked like records). The real board's log (PX4 1.x, no vehicle_imu):
+    the copy parses with pyulog and the reader, the same records, EKF2's attitude 2° off from boot time 120 s."""
     from mavahrs.cli import main
+    from mavahrs.logs import read_log
 
-    src = shared_data / rel
+    src = shared_data / "px4_ulog/sample.ulg"
     if not src.is_file():
         pytest.skip(f"reference data not found at {src} (expected ../shared/data beside the checkout)")
+    out = tmp_path / "x.tlog"  # the name does not matter: the content does
     capsys.readouterr()
-    out = tmp_path / "x.tlog"
-    assert main(["inject-fault", str(src), str(out), "--at", "100", "--tilt", "2"]) in (1, 2)
-    err = capsys.readouterr().err
-    kind = "an ArduPilot DataFlash log (.BIN)" if rel.endswith(".BIN") else "a PX4 ULog (.ulg)"  # "a ArduPilot" before user6
-    assert f"{src}: {kind}: inject-fault copies a telemetry log (.tlog); use the same flight's tlog" in err, err
-    assert not out.exists()
+    assert main(["inject-fault", str(src), str(out), "--at", "120", "--tilt", "2"]) == 0
+    said = capsys.readouterr().out
+    assert "rewritten in place:" in said and "vehicle_attitude" in said, said
+    a, b = read_log(src), read_log(out)
+    assert b.found == a.found and np.array_equal(a.inputs.rows, b.inputs.rows, equal_nan=True)
+    (ta, qa), (tb, qb) = a.references["EKF2"], b.references["EKF2"]
+    assert np.array_equal(ta, tb)
+    e = np.array([_qmul(y, (x[0], -x[1], -x[2], -x[3])) for x, y in zip(qa, qb, strict=True)])
+    ang = np.degrees(2.0 * np.arccos(np.clip(np.abs(e[:, 0]), 0.0, 1.0)))
+    after = ta >= 120_000_000
+    assert after.sum() > 3000 and np.allclose(ang[after], 2.0, atol=1e-3) and np.array_equal(qa[~after], qb[~after])
+
+
+def _qmul(a, b):  # type: ignore[no-untyped-def]
+    return (a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3], a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1], a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0])  # fmt: skip
 
 
 def test_the_gyro_bias_examples_are_large_enough_to_be_named(capsys: pytest.CaptureFixture[str]) -> None:
