@@ -10,6 +10,7 @@ Usage::
     python3 scripts/bench_broad_compass.py --drop-above-deg-s 150 300   # also the reading dropped in fast turns
     python3 scripts/bench_broad_compass.py --tstick ../shared/data/repoimu_tstick --drop-above-deg-s 150 300
     python3 scripts/bench_broad_compass.py --trace 30 --trace-blank 32 61   # one trial per 5 s, best's error and compass
+    python3 scripts/bench_broad_compass.py --motion        # a late reading's azimuth error in each trial's motion, the gyro's drift
 
 Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
 regression uses the optical reference, so none of them is something a filter could do online; they bound
@@ -65,7 +66,13 @@ from mavahrs.filters import create  # noqa: E402
 from mavahrs.filters.base import make_inputs  # noqa: E402
 from mavahrs.filters.best import BestSettings  # noqa: E402
 from mavahrs.filters.layout import OUT_Q  # noqa: E402
-from mavahrs.geometry.quaternion import conjugate, multiply, rotate, to_rotation_vector  # noqa: E402
+from mavahrs.geometry.quaternion import (  # noqa: E402
+    conjugate,
+    from_rotation_vector,
+    multiply,
+    rotate,
+    to_rotation_vector,
+)
 
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "broad"
 Array = np.ndarray
@@ -241,6 +248,95 @@ def window_maxima(e: Array, mask: Array, rate_hz: float) -> tuple[float, float]:
     return a, s
 
 
+# ------------------------------------------------------------------ what the motion does to a late reading and to the gyro
+
+
+def late_azimuth_rate_rad_s(q_body_to_ned: Array, gyro_rad_s: Array, mag_ut: Array) -> Array:
+    """Per sample, how fast a reading's azimuth runs ahead as the body turns, rad/s: read L s late and rotated to
+    NED with the attitude of now, its azimuth is off by L × this (to first order).
+
+    With ω and h the body rate and the reading in NED, the late reading is h + L·(ω × h), whose azimuth is off by
+    L·(ω_D − (h_D/h_H)·(ω_N h_N + ω_E h_E)/h_H): the yaw rate, and the turn about the field's horizontal direction
+    times tan(dip) (≈ 2.7 at BROAD's 70°).  The ESKF's delay correction (``mag_delay_s``, ``mag_learn_tau_s``)
+    has the yaw rate alone."""
+    w = rotate(q_body_to_ned, gyro_rad_s)
+    h = rotate(q_body_to_ned, mag_ut)
+    hh2 = h[:, 0] ** 2 + h[:, 1] ** 2
+    return np.asarray(w[:, 2] - h[:, 2] * (w[:, 0] * h[:, 0] + w[:, 1] * h[:, 1]) / hh2)
+
+
+def late_azimuth_bias_deg(rec: Recording, lag_samples: int) -> tuple[float, float]:
+    """(mean, RMS) over the scored samples of the azimuth of reading i rotated with the reference at i less that
+    rotated with the reference at i − ``lag_samples``: what a reading that many samples late is off by when it is
+    rotated with the attitude of now, as the filter does."""
+    q, ok = _reference(rec)
+    i = np.arange(lag_samples, rec.n)
+    d = wrap_deg(
+        azimuth_deg(rotate(q[i], rec.mag_ut[i])) - azimuth_deg(rotate(q[i - lag_samples], rec.mag_ut[i]))
+    )
+    s = ok[i] & ok[i - lag_samples] & rec.scored[i]
+    return float(np.mean(d[s])), float(np.sqrt(np.mean(d[s] ** 2)))
+
+
+def gyro_heading_drift_deg_s(
+    rec: Recording, bias_rad_s: Array, window_s: float = 10.0, gyro_shift: int = 2
+) -> Array:
+    """The gyro's heading drift against the reference, °/s, per window of ``window_s``: the gyro less
+    ``bias_rad_s`` ((3,) or (N, 3)) integrated from the reference's attitude at the window's start (the gyro
+    ``gyro_shift`` samples behind the reference, :func:`gyro_shift_samples`), its heading against the
+    reference's at the end, over the window's length; windows with an invalid end or less than half scored are
+    left out."""
+    q, ok = _reference(rec)
+    dt = float(rec.dt_s[0])
+    g = rec.gyro_rad_s - np.broadcast_to(bias_rad_s, rec.gyro_rad_s.shape)
+    steps = from_rotation_vector(g * dt)
+    per = round(window_s / dt)
+    out = []
+    for i0 in range(gyro_shift, rec.n - per, per):
+        i1 = i0 + per
+        a, b = i0 - gyro_shift, i1 - gyro_shift
+        if not (ok[a] and ok[b] and rec.scored[i0:i1].mean() > 0.5):
+            continue
+        qq = q[a]
+        for r in steps[i0:i1]:
+            qq = multiply(qq, r)
+        e = multiply(qq / np.linalg.norm(qq), conjugate(q[b]))
+        out.append(np.degrees(2.0 * np.arctan(e[3] / e[0])) / window_s)
+    return np.asarray(out)
+
+
+def motion_report(recs: list[Recording]) -> None:
+    """Per trial: the compass's delay (regression), the mean rates in NED (reference), what a reading late by
+    that delay is off by in azimuth (measured: reference at i against i − 3; predicted: L × the mean of
+    :func:`late_azimuth_rate_rad_s`; and the yaw-rate term alone), the gyro's heading drift against the
+    reference (``best``'s own bias; mean and RMS of the 10 s windows) and ``best``'s heading RMS."""
+    from mavahrs.filters.layout import OUT_BIAS
+
+    print(
+        "\nA late reading in this motion, and the gyro's heading drift (rates and azimuths from the reference)"
+    )
+    print(
+        f"{'trial':32s} {'L ms':>5s} {'mean rate N/E/D deg/s':>22s} {'late az: 3 samples':>18s} "
+        f"{'L·rate':>6s} {'L·w_D':>6s} {'drift deg/s':>12s} {'best hdg':>8s}"
+    )
+    for rec in recs:
+        dt = float(rec.dt_s[0])
+        q, ok = _reference(rec)
+        s = ok & rec.scored
+        lag_s = compass_delay_s(rec.gyro_rad_s, rec.mag_ut, dt)
+        w = np.degrees(rotate(q[s], rec.gyro_rad_s[s])).mean(axis=0)
+        meas, _ = late_azimuth_bias_deg(rec, 3)
+        rate = late_azimuth_rate_rad_s(q[s], rec.gyro_rad_s[s], rec.mag_ut[s])
+        out = create("best").run(make_inputs(rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut, dt_s=rec.dt_s))
+        drift = gyro_heading_drift_deg_s(rec, out[:, OUT_BIAS : OUT_BIAS + 3])
+        h = summarize(out[:, OUT_Q : OUT_Q + 4], rec.q_ref_body_to_ned, rec.scored).heading_rms_deg
+        print(
+            f"{rec.name[:32]:32s} {lag_s * 1e3:5.1f} {w[0]:+7.0f}{w[1]:+7.0f}{w[2]:+7.0f}  {meas:+17.2f} "
+            f"{np.degrees(lag_s * rate.mean()):+6.2f} {lag_s * w[2]:+6.2f} {drift.mean():+6.2f}/{np.sqrt(np.mean(drift**2)):5.2f} "
+            f"{h:8.2f}"
+        )
+
+
 # ------------------------------------------------------------------ best with the compass edited
 
 
@@ -408,6 +504,10 @@ def main(argv: list[str] | None = None) -> int:
         "--trace-blank", type=float, nargs=2, metavar=("T0", "T1"), help="with --trace: no compass T0–T1 s"
     )
     ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
+    ap.add_argument(
+        "--motion", action="store_true",
+        help="instead: per trial, what a late reading is off by in that motion and the gyro's heading drift",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if args.tstick is not None:
         tstick_check(args.tstick, args.drop_above_deg_s)
@@ -425,6 +525,9 @@ def main(argv: list[str] | None = None) -> int:
         trace(load_broad_trial(match[0]), blank, args.delays_ms[-1] if args.delays_ms else 10.0)
         return 0
     recs = [load_broad_trial(p) for p in paths]
+    if args.motion:
+        motion_report(recs)
+        return 0
     first = recs[0]
     shifts = (0, -2, -3, -4, -5, -6)
 
