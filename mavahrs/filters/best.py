@@ -403,10 +403,6 @@ MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2 = 0.03
 #: not.  ArduCopter SITL's ``sitl-vib`` declared / ``sitl-raw`` 1.33 / 0.91° with the states ungated (σ 0.05),
 #: 1.29 / 0.90 (σ 0.03), 1.24 / 0.88 with this gate (main 1.26 / 0.89; docs/accuracy.md, eighteenth round)
 MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S = 7.0
-#: the drag measurement's linear coefficient learnt per axis across the thrust through the API
-#: (``EskfSettings.drag_axis_sigma_1_s``, 1/s; 0: k as set on both axes) and its random walk (1/s per √s)
-MULTIROTOR_DRAG_AXIS_SIGMA_1_S = 0.0
-MULTIROTOR_DRAG_AXIS_WALK_1_S = 0.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1115,11 +1111,6 @@ class Best(AttitudeFilter):
                                accel_bias_across_thrust=True,
                                accel_bias_live_speed_m_s=(s.eskf.accel_bias_live_speed_m_s
                                                           or MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S))
-            # the drag coefficient per axis across the thrust (a σ set in the settings is kept)
-            sig_k = s.eskf.drag_axis_sigma_1_s or MULTIROTOR_DRAG_AXIS_SIGMA_1_S
-            if sig_k > 0.0:
-                eskf = replace(eskf, drag_axis_sigma_1_s=sig_k,
-                               drag_axis_walk_1_s=s.eskf.drag_axis_walk_1_s or MULTIROTOR_DRAG_AXIS_WALK_1_S)
         else:
             k = drag_coefficient_1_s
             if k is None:

@@ -149,16 +149,14 @@ __all__ = [
     "OUTPUT_HALF_STEP_MAX_S",
 ]  # fmt: skip
 
-N = 23  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
+N = 21  # error-state size: δθ (0–2), δv (3–5), δb (6–8), δα (9–10: the thrust axis, see thrust_axis_sigma_rad),
 #        δD (11: the declination's error against the WMM, see declination_sigma_rad), δp (12–14: the GNSS position),
 #        δs (15–17: the gyro's scale-factor errors, see gyro_scale_state_sigma), δb_a (18–20: the accelerometer's
-#        bias, body frame, see accel_bias_sigma_m_s2), δk (21–22: the drag coefficient per axis across the thrust,
-#        see drag_axis_sigma_1_s)
+#        bias, body frame, see accel_bias_sigma_m_s2)
 _I_DECL = 11  # index of the declination error in the error state
 _I_POS = 12  # index of the position error (3) in the error state
 _I_SCALE = 15  # index of the gyro scale-factor errors (3) in the error state
 _I_ABIAS = 18  # index of the accelerometer-bias errors (3, body frame) in the error state
-_I_DRAGK = 21  # index of the drag coefficient's per-axis errors (2, across the thrust axis) in the error state
 #: rotor-drag coefficient of a multirotor, 1/s (see ``EskfSettings.drag_coefficient_1_s``)
 MULTIROTOR_DRAG_1_S = 0.5
 #: prior 1-σ of the thrust-axis states (a raw IMU declared a multirotor; ``EskfSettings.thrust_axis_sigma_rad``):
@@ -277,9 +275,7 @@ _REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is belo
 _MAG_REJ_SCALE = _MAG_DELAY + 31  # a reading the schedule rejects, its norm within tolerance: fused at σ × this (0: not)
 _ABIAS_ACROSS = _MAG_DELAY + 32  # (m/s²)²: the accelerometer-bias states start across the thrust axis only, this variance (0: isotropic)
 _ABIAS_SPEED = _MAG_DELAY + 33  # m/s: the accelerometer-bias states are estimated only below this horizontal speed (0: always)
-_DRAGK_P0 = _MAG_DELAY + 34  # (1/s)²: prior variance of the per-axis drag coefficient states (0: not estimated)
-_DRAGK_Q = _MAG_DELAY + 35  # (1/s)²/s: their random walk
-_N_PARAMS = _MAG_DELAY + 36
+_N_PARAMS = _MAG_DELAY + 34
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -368,8 +364,7 @@ _BOFF_B = _BOFF_A + 11
 _REST_N = _BOFF_B + 4  # zero-rate updates fused since the detector's hovering rest began (``_rest_rate_update``)
 _REST_VIB = _REST_N + 1  # the accelerometer's mean square deviation from the rest detector's low-pass, 1 s mean, (m/s²)²
 _ABIAS_HELD = _REST_N + 2  # 1 while the accelerometer-bias states are only considered this step (above their speed)
-_DRAGK = _REST_N + 3  # the drag coefficient's learnt correction per axis across the thrust (e₁, e₂ of the axis basis), 1/s (2)
-_N_STATE = _REST_N + 5
+_N_STATE = _REST_N + 3
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -824,13 +819,6 @@ class EskfSettings(FilterSettings):
             its velocity, which h P hᵀ trusts, are then weighed as they fit,
             not as the covariance claims (0 = R as set, default;
             ``best``'s raw multirotor sets ``best.MULTIROTOR_DRAG_NOISE_MATCH_S``).
-        drag_axis_sigma_1_s: the drag measurement's linear coefficient learnt
-            per axis across the thrust (the axis basis e₁, e₂, fixed in the
-            IMU), 1/s: two error states δk₁, δk₂ with this prior σ, k_c = k +
-            δk_c, ∂h_c/∂δk_c = −e_cᵀv_b (PX4 EKF2's / ArduPilot EKF3's
-            per-axis coefficients, learnt instead of set); the correction is
-            bounded by 3σ; 0 = k as set on both axes (default).
-        drag_axis_walk_1_s: their random walk, 1/s per √s (0 = constant).
         slow_force_block_s: the velocity's process noise also carries the
             specific force's slow error (aliased vibration, rectification):
             the Hadamard variance of the NED specific force's means over
@@ -983,8 +971,6 @@ class EskfSettings(FilterSettings):
     heading_walk_window_s: float = 2.0
     drag_quadratic_1_m: float = 0.0
     drag_noise_match_s: float = 0.0
-    drag_axis_sigma_1_s: float = 0.0
-    drag_axis_walk_1_s: float = 0.0
     slow_force_block_s: float = 0.0
     slow_force_tau_s: float = 5.0
     output_half_step: bool = False
@@ -1018,7 +1004,6 @@ class EskfSettings(FilterSettings):
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
                      "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
-                     "drag_axis_sigma_1_s", "drag_axis_walk_1_s",
                      "slow_force_tau_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -1205,9 +1190,6 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
         s[kp + i * N + i] = params[p + _SCALE_P0]
     for i in range(_I_ABIAS, _I_ABIAS + 3):  # the accelerometer's bias (0: not estimated; b̂_a restarts at 0)
         s[kp + i * N + i] = params[p + _ABIAS_P0]
-    if params[p + _DRAG_K] > 0.0:  # the drag coefficient per axis (0: not estimated; its correction restarts at 0)
-        for i in range(_I_DRAGK, N):
-            s[kp + i * N + i] = params[p + _DRAGK_P0]
     if params[p + _DRAG_K] > 0.0:
         # a multirotor may start in flight: its velocity is unknown (the drag measurement tells it)
         for i in range(3, 6):
@@ -1287,7 +1269,7 @@ def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
 
 @kernel(inline=True)
 def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz,
-                          abias_on, phi_a, q_abias, dragk_on, q_dragk):  # type: ignore[no-untyped-def]
+                          abias_on, phi_a, q_abias):  # type: ignore[no-untyped-def]
     """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ − C δb_a with M = −[f]×,
     δṗ = δv, δḃ_a = −δb_a/τ_a; scratch C, M).
 
@@ -1298,16 +1280,12 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
     with ω the rate used this sample, are constant but for ``q_scale``; left at 0 unless ``scale_on``.  The
     accelerometer's bias (18–20, body frame) is a first-order Gauss–Markov process: its rows of Φ are
     ``phi_a`` = 1 − dt/τ_a (1: constant), its noise ``q_abias`` = 2σ_a²/τ_a; left at 0 unless ``abias_on``.
-    The drag coefficient's per-axis errors (21–22) are constant but for ``q_dragk``; carried while ``dragk_on``
-    (then the bias rows, if not ``abias_on``, are carried unchanged).
     """
     kp = k + _P
     ka = k + _A
     kc = k + _C
     km = k + _M
-    ext_on = abias_on or dragk_on
-    n = N if ext_on else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
-    phi_b = phi_a if abias_on else 1.0
+    n = N if abias_on else (_I_ABIAS if scale_on else (_I_SCALE if pos_on else _I_POS))
     # A = Φ P
     for j in range(n):
         for i in range(3):
@@ -1332,17 +1310,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for i in range(3):  # δṗ = δv
                 s[ka + (_I_POS + i) * N + j] = s[kp + (_I_POS + i) * N + j] + dt * s[kp + (3 + i) * N + j]
-        elif scale_on or ext_on:
+        elif scale_on or abias_on:
             for r in range(_I_POS, _I_SCALE):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if scale_on or ext_on:
+        if scale_on or abias_on:
             for r in range(_I_SCALE, _I_ABIAS):
                 s[ka + r * N + j] = s[kp + r * N + j]
-        if ext_on:
-            for r in range(_I_ABIAS, _I_DRAGK):
-                s[ka + r * N + j] = phi_b * s[kp + r * N + j]
-            for r in range(_I_DRAGK, N):
-                s[ka + r * N + j] = s[kp + r * N + j]
+        if abias_on:
+            for r in range(_I_ABIAS, N):
+                s[ka + r * N + j] = phi_a * s[kp + r * N + j]
     # P = A Φᵀ
     for i in range(n):
         for j in range(3):
@@ -1367,17 +1343,15 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         if pos_on:
             for j in range(3):
                 s[kp + i * N + _I_POS + j] = s[ka + i * N + _I_POS + j] + dt * s[ka + i * N + 3 + j]
-        elif scale_on or ext_on:
+        elif scale_on or abias_on:
             for j in range(_I_POS, _I_SCALE):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if scale_on or ext_on:
+        if scale_on or abias_on:
             for j in range(_I_SCALE, _I_ABIAS):
                 s[kp + i * N + j] = s[ka + i * N + j]
-        if ext_on:
-            for j in range(_I_ABIAS, _I_DRAGK):
-                s[kp + i * N + j] = phi_b * s[ka + i * N + j]
-            for j in range(_I_DRAGK, N):
-                s[kp + i * N + j] = s[ka + i * N + j]
+        if abias_on:
+            for j in range(_I_ABIAS, N):
+                s[kp + i * N + j] = phi_a * s[ka + i * N + j]
     for i in range(3):
         s[kp + i * N + i] += q_gyro * dt
         s[kp + (3 + i) * N + 3 + i] += q_accel * dt
@@ -1393,11 +1367,8 @@ def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_
         for i in range(_I_SCALE, _I_ABIAS):
             s[kp + i * N + i] += q_scale * dt
     if abias_on and q_abias > 0.0:
-        for i in range(_I_ABIAS, _I_DRAGK):
+        for i in range(_I_ABIAS, N):
             s[kp + i * N + i] += q_abias * dt
-    if dragk_on and q_dragk > 0.0:
-        for i in range(_I_DRAGK, N):
-            s[kp + i * N + i] += q_dragk * dt
     # keep P symmetric against round-off
     for i in range(n):
         for j in range(i + 1, n):
@@ -1428,7 +1399,7 @@ def _accel_bias_decouple(s, k):  # type: ignore[no-untyped-def]
     """The accelerometer-bias states' correlations with the rest cleared (their variances kept): held, not
     estimated (``accel_bias_aided_only`` while not aided)."""
     kp = k + _P
-    for i in range(_I_ABIAS, _I_DRAGK):
+    for i in range(_I_ABIAS, N):
         for j in range(N):
             if j != i:
                 s[kp + i * N + j] = 0.0
@@ -1593,8 +1564,6 @@ def _n_active(s, k):  # type: ignore[no-untyped-def]
     exactly a body axis (``accel_bias_across_thrust``), that axis's own variance is 0 while the others are not."""
     kb = k + _P + _I_ABIAS * N + _I_ABIAS
     if s[kb] > 0.0 or s[kb + N + 1] > 0.0 or s[kb + 2 * N + 2] > 0.0:
-        return N
-    if s[k + _P + _I_DRAGK * N + _I_DRAGK] > 0.0 or s[k + _P + (_I_DRAGK + 1) * N + _I_DRAGK + 1] > 0.0:
         return N
     return _I_ABIAS if s[k + _P + _I_SCALE * N + _I_SCALE] > 0.0 else _I_SCALE
 
@@ -1968,23 +1937,20 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         utd = s[kc + 6] * tx + s[kc + 7] * ty + s[kc + 8] * tz
         thrust = fx * tx + fy * ty + fz * tz + k_eff * (utn * vn + ute * ve + utd * vd)
     fused = False
-    # the drag coefficient learnt per axis across the thrust (``drag_axis_sigma_1_s``): k_c = k + δk_c on e_c
-    dragk_on = params[P_FILTER + _DRAGK_P0] > 0.0
     for c in range(2):
         if c == 0:
             ex, ey, ez = e1x, e1y, e1z
         else:
             ex, ey, ez = e2x, e2y, e2z
-        k_c = k_eff + s[k + _DRAGK + c] if dragk_on else k_eff
         un = s[kc + 0] * ex + s[kc + 1] * ey + s[kc + 2] * ez
         ue = s[kc + 3] * ex + s[kc + 4] * ey + s[kc + 5] * ez
         ud = s[kc + 6] * ex + s[kc + 7] * ey + s[kc + 8] * ez
         uv = un * vn + ue * ve + ud * vd
-        y = (fx * ex + fy * ey + fz * ez) + k_c * uv
+        y = (fx * ex + fy * ey + fz * ez) + k_eff * uv
         # w = M u: h = −uᵀD, ∂h/∂δv = −wᵀ, ∂h/∂δθ = −(w × v)ᵀ (w = k u without the quadratic term)
-        wn = k_c * un + c_v * uv * vn
-        we = k_c * ue + c_v * uv * ve
-        wd = k_c * ud + c_v * uv * vd
+        wn = k_eff * un + c_v * uv * vn
+        we = k_eff * ue + c_v * uv * ve
+        wd = k_eff * ud + c_v * uv * vd
         for i in range(N):
             s[k + _H + i] = 0.0
         s[k + _H + 0] = -(we * vd - wd * ve)
@@ -1995,8 +1961,6 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
         s[k + _H + 5] = -wd
         if states:
             s[k + _H + 9 + c] = thrust
-        if dragk_on:  # ∂h_c/∂δk_c = −uᵀv: the body velocity across the thrust on e_c
-            s[k + _H + _I_DRAGK + c] = -uv
         if ((params[P_FILTER + _ABIAS_P0] > 0.0 or params[P_FILTER + _ABIAS_VIB] > 0.0)
                 and params[P_FILTER + _ABIAS_AIDED] == 0.0):  # the mean force (less b̂_a) holds δb_a: ∂h_c/∂δb_a = e_cᵀ
             s[k + _H + _I_ABIAS] = ex
@@ -2374,8 +2338,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                           state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0,
                           params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
                           abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
-                          if params[p + _ABIAS_TAU] > 0.0 else 0.0,
-                          params[p + _DRAGK_P0] > 0.0 and params[p + _DRAG_K] > 0.0, params[p + _DRAGK_Q])
+                          if params[p + _ABIAS_TAU] > 0.0 else 0.0)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -2925,11 +2888,6 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(3):
                 ba = state[k + _ABIAS + i] + state[kdx + _I_ABIAS + i]
                 state[k + _ABIAS + i] = min(max(ba, -lim_a), lim_a)
-        if params[p + _DRAGK_P0] > 0.0 and k_drag > 0.0:  # the drag coefficient per axis, bounded by 3σ of its prior
-            lim_k = 3.0 * math.sqrt(params[p + _DRAGK_P0])
-            for i in range(2):
-                dk = state[k + _DRAGK + i] + state[kdx + _I_DRAGK + i]
-                state[k + _DRAGK + i] = min(max(dk, -lim_k), lim_k)
         lim_s = params[p + _SCALE_LIM]
         if lim_s > 0.0:
             for i in range(3):
@@ -3150,8 +3108,6 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         p[_ABIAS_ACROSS] = settings.accel_bias_sigma_m_s2**2 if settings.accel_bias_across_thrust else 0.0
         p[_ABIAS_SPEED] = settings.accel_bias_live_speed_m_s
-        p[_DRAGK_P0] = settings.drag_axis_sigma_1_s**2
-        p[_DRAGK_Q] = settings.drag_axis_walk_1_s**2
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         p[_HWALK_TAU] = settings.heading_walk_tau_s
