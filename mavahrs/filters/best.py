@@ -403,14 +403,6 @@ MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2 = 0.03
 #: not.  ArduCopter SITL's ``sitl-vib`` declared / ``sitl-raw`` 1.33 / 0.91° with the states ungated (σ 0.05),
 #: 1.29 / 0.90 (σ 0.03), 1.24 / 0.88 with this gate (main 1.26 / 0.89; docs/accuracy.md, eighteenth round)
 MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S = 7.0
-#: a raw IMU declared a multirotor through the API: its gyro-bias estimate held within this, rad/s per axis (the
-#: vehicle's models would give it the ESKF's 10 °/s, an autopilot's calibrated gyro's bound).  A raw MEMS gyro's
-#: bias is up to ≈ 5 °/s (``BEST_BIAS_LIMIT_RAD_S``), but a start under vibration took firmware_sim's raw
-#: ``aggressive`` 170 to 14 °/s of bias error at 5 s: firmware_sim raw declared ``hover`` / ``aggressive``
-#: 0.866 / 1.165 → 0.856 / 1.134° on the seeds chosen on (8 °/s: 0.857 / 1.147; 6 °/s: 0.863 / 1.119 but
-#: ArduCopter SITL's ``sitl-raw`` 0.884 → 0.904), ArduCopter SITL's raw sets identical (docs/accuracy.md,
-#: nineteenth round)
-MULTIROTOR_RAW_BIAS_LIMIT_RAD_S = math.radians(7.0)
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1095,9 +1087,7 @@ class Best(AttitudeFilter):
         (``EskfSettings.thrust_axis_sigma_rad``, 15°) and the drag noise 0.35 m/s²: the raw
         SITL set declared a multirotor 1.89 → 1.00°, its vibrating 200 Hz version 2.25 → 1.24°.
         Through the API the accelerometer's offset across the thrust axis is two constant states too
-        (``MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2``), estimated below ``MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S``, and the
-        gyro-bias estimate is held within ``MULTIROTOR_RAW_BIAS_LIMIT_RAD_S`` (7 °/s; unless the settings give
-        a limit other than ``best_eskf_settings()``'s 6 °/s).
+        (``MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2``), estimated below ``MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S``.
         """
         s = self._settings
         assert isinstance(s, BestSettings)
@@ -1121,9 +1111,6 @@ class Best(AttitudeFilter):
                                accel_bias_across_thrust=True,
                                accel_bias_live_speed_m_s=(s.eskf.accel_bias_live_speed_m_s
                                                           or MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S))
-            # a raw gyro's bias bound (a limit set in the settings other than best's own default is kept)
-            lim = s.eskf.bias_limit_rad_s
-            eskf = replace(eskf, bias_limit_rad_s=MULTIROTOR_RAW_BIAS_LIMIT_RAD_S if lim == BEST_BIAS_LIMIT_RAD_S else lim)
         else:
             k = drag_coefficient_1_s
             if k is None:
