@@ -275,7 +275,9 @@ _REST_HOVER_SPEED = _MAG_DELAY + 30  # m/s: … and the horizontal speed is belo
 _MAG_REJ_SCALE = _MAG_DELAY + 31  # a reading the schedule rejects, its norm within tolerance: fused at σ × this (0: not)
 _ABIAS_ACROSS = _MAG_DELAY + 32  # (m/s²)²: the accelerometer-bias states start across the thrust axis only, this variance (0: isotropic)
 _ABIAS_SPEED = _MAG_DELAY + 33  # m/s: the accelerometer-bias states are estimated only below this horizontal speed (0: always)
-_N_PARAMS = _MAG_DELAY + 34
+#: (m/s²)²: the accelerometer's bias *considered* without states (``accel_bias_consider_sigma_m_s2``; 0: not)
+_CONS_P0 = _MAG_DELAY + 34
+_N_PARAMS = _MAG_DELAY + 35
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -364,7 +366,13 @@ _BOFF_B = _BOFF_A + 11
 _REST_N = _BOFF_B + 4  # zero-rate updates fused since the detector's hovering rest began (``_rest_rate_update``)
 _REST_VIB = _REST_N + 1  # the accelerometer's mean square deviation from the rest detector's low-pass, 1 s mean, (m/s²)²
 _ABIAS_HELD = _REST_N + 2  # 1 while the accelerometer-bias states are only considered this step (above their speed)
-_N_STATE = _REST_N + 3
+#: the error state's sensitivity to a constant accelerometer bias the filter does not estimate (N × 3, row-major:
+#: ∂δx/∂b_a; ``accel_bias_consider_sigma_m_s2``), a measurement's own sensitivity to it (3, scratch, 0 unless the
+#: measurement reads the bias) and 1 while it is carried
+_SENS = _REST_N + 3
+_SENS_HB = _SENS + 3 * N
+_SENS_ON = _SENS_HB + 3
+_N_STATE = _SENS_ON + 1
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -769,6 +777,20 @@ class EskfSettings(FilterSettings):
             their correlations are kept, but neither b̂_a nor its own variance
             is updated: a drag model's misfit grows with the speed, a
             body-fixed offset does not (docs/accuracy.md, eighteenth round).
+        accel_bias_consider_sigma_m_s2: 1-σ per axis of a constant
+            accelerometer bias the filter does *not* estimate (no states, the
+            estimate and every gain as without it), m/s²; 0 = off (the
+            default).  The error's sensitivity to it, S = ∂δx/∂b_a (N × 3), is
+            carried beside P with the filter's own Φ and gains (Maybeck 1979,
+            §6.11: S ← Φ S − C dt in the velocity's rows, S ← S − K (h S + h_b)
+            at each update, h_b the gravity measurement's C_N / C_E), and the
+            published tilt σ is √(P_θN + P_θE + σ_b² ‖S_θN,θE‖²): a body-fixed
+            bias stands in the tilt b/g wherever the body does not turn under
+            it (a hover, a straight leg), less just after turns, which the
+            velocity fixes see it through — where the published σ without it
+            was short.  ``best`` keeps it off on a vehicle's stream
+            (``best.VEHICLE_ACCEL_BIAS_CONSIDER_SIGMA_M_S2``: measured at 0.05,
+            not kept; docs/monitor.md round twenty-one).
         heading_walk_tau_s: the heading's process noise is raised to what the
             compass's own heading innovations show (covariance matching, Sage &
             Husa 1969 / Myers & Tapley 1976; :func:`_heading_walk_step`): per
@@ -964,6 +986,7 @@ class EskfSettings(FilterSettings):
     accel_bias_aided_only: bool = False
     accel_bias_across_thrust: bool = False
     accel_bias_live_speed_m_s: float = 0.0
+    accel_bias_consider_sigma_m_s2: float = 0.0
     gyro_scale_tilt_sigma: float = 0.003
     gyro_scale_tilt_memory_s: float = 0.5
     heading_walk_tau_s: float = 0.0
@@ -1002,6 +1025,7 @@ class EskfSettings(FilterSettings):
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s", "mag_rejected_sigma_scale",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
+                     "accel_bias_consider_sigma_m_s2",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
                      "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
                      "slow_force_tau_s"):
@@ -1686,6 +1710,60 @@ def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
 
 
 @kernel(inline=True)
+def _sensitivity_update(s, k, n, inv, first):  # type: ignore[no-untyped-def]
+    """A scalar update's effect on the error's sensitivity to the bias the filter does not estimate
+    (``accel_bias_consider_sigma_m_s2``; Maybeck 1979, §6.11, sensitivity analysis): S ← S − K (h S + h_b), K the
+    filter's own gain P hᵀ/S (in scratch: P hᵀ, h; ``inv`` = 1/S), h_b the measurement's own sensitivity to the bias
+    (``_SENS_HB``, 0 for all but the gravity measurement); rows below ``first`` get no gain (the tilt *considered* by
+    the heading)."""
+    ks = k + _SENS
+    kh = k + _H
+    kph = k + _PH
+    for j in range(3):
+        hs = s[k + _SENS_HB + j]
+        for i in range(n):
+            hs += s[kh + i] * s[ks + 3 * i + j]
+        if hs != 0.0:
+            for i in range(first, n):
+                s[ks + 3 * i + j] -= s[kph + i] * inv * hs
+
+
+@kernel(inline=True)
+def _propagate_sensitivity(s, k, dt, n, pos_on, scale_on, wx, wy, wz, abias_on, phi_a):  # type: ignore[no-untyped-def]
+    """S ← Φ S + Γ dt for the error's sensitivity to a constant accelerometer bias b the filter does not estimate
+    (``accel_bias_consider_sigma_m_s2``): Φ as :func:`_propagate_covariance`'s, Γ the bias's way into the
+    velocity, δv̇ = … − C b (the rows of the velocity, the position and the attitude in this order: each
+    block from the old values of the one before)."""
+    ks = k + _SENS
+    kc = k + _C
+    km = k + _M
+    for j in range(3):
+        if pos_on:
+            for i in range(3):
+                s[ks + 3 * (_I_POS + i) + j] += dt * s[ks + 3 * (3 + i) + j]
+        for i in range(3):
+            acc = -s[kc + 3 * i + j]
+            for m in range(3):
+                acc += s[km + 3 * i + m] * s[ks + 3 * m + j]
+            if abias_on:
+                for m in range(3):
+                    acc -= s[kc + 3 * i + m] * s[ks + 3 * (_I_ABIAS + m) + j]
+            s[ks + 3 * (3 + i) + j] += dt * acc
+        for i in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += s[kc + 3 * i + m] * s[ks + 3 * (6 + m) + j]
+            if scale_on:
+                acc += s[kc + 3 * i] * wx * s[ks + 3 * _I_SCALE + j]
+                acc += s[kc + 3 * i + 1] * wy * s[ks + 3 * (_I_SCALE + 1) + j]
+                acc += s[kc + 3 * i + 2] * wz * s[ks + 3 * (_I_SCALE + 2) + j]
+            s[ks + 3 * i + j] -= dt * acc
+        if abias_on:
+            for i in range(_I_ABIAS, n):
+                s[ks + 3 * i + j] *= phi_a
+
+
+@kernel(inline=True)
 def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     """One scalar measurement: innovation ``y`` (before this update's δx), h in scratch, noise ``r``.
 
@@ -1699,6 +1777,8 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
         return False
     n = _n_active(s, k)
     inv = 1.0 / sv
+    if s[k + _SENS_ON] > 0.0:
+        _sensitivity_update(s, k, n, inv, 0)
     if s[k + _ABIAS_HELD] > 0.0 and n > _I_ABIAS:
         # the accelerometer-bias states considered (Schmidt): gain 0 on their rows, their own block kept
         for i in range(n):
@@ -1735,6 +1815,8 @@ def _heading_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
         return False
     n = _n_active(s, k)
     inv = 1.0 / sv
+    if s[k + _SENS_ON] > 0.0:
+        _sensitivity_update(s, k, n, inv, 2)
     for i in range(2, n):
         s[kdx + i] += s[kph + i] * inv * y
     # Joseph form with the gain 0 on the tilt rows: P − K uᵀ − u Kᵀ + K S Kᵀ, u = P hᵀ, K = u/S off the
@@ -2339,6 +2421,11 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                           params[p + _SCALE_P0] > 0.0, params[p + _SCALE_Q], gx, gy, gz,
                           abias_live, phi_a, _accel_bias_variance(state, k, params) * 2.0 / params[p + _ABIAS_TAU]
                           if params[p + _ABIAS_TAU] > 0.0 else 0.0)
+    state[k + _SENS_ON] = 1.0 if params[p + _CONS_P0] > 0.0 else 0.0
+    if params[p + _CONS_P0] > 0.0:
+        _propagate_sensitivity(state, k, dt, N if abias_live else _I_ABIAS,
+                               state[k + _POS_ON] > 0.0 or state[k + _POS_ON_V] > 0.0, params[p + _SCALE_P0] > 0.0,
+                               gx, gy, gz, abias_live, phi_a)
     q_sf, q_ma = params[p + _Q_SCALE], params[p + _Q_CROSS]
     p_dd = state[k + _P + 2 * N + 2]
     if q_sf > 0.0 or q_ma > 0.0:
@@ -2616,6 +2703,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 state[k + _H + _I_ABIAS] = cl_n0
                 state[k + _H + _I_ABIAS + 1] = cl_n1
                 state[k + _H + _I_ABIAS + 2] = cl_n2
+            for m in range(3):  # … and so does it a bias the filter does not estimate (its sensitivity, if carried)
+                state[k + _SENS_HB + m] = state[kc + m]
             tried = True
             if not big and _scalar_update(state, k, gn * sc, r_g, gate):
                 updated = passed = True
@@ -2630,8 +2719,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 state[k + _H + _I_ABIAS] = cl_e0
                 state[k + _H + _I_ABIAS + 1] = cl_e1
                 state[k + _H + _I_ABIAS + 2] = cl_e2
+            for m in range(3):
+                state[k + _SENS_HB + m] = state[kc + 3 + m]
             if not big and _scalar_update(state, k, ge * sc, r_g, gate):
                 updated = passed = True
+            for m in range(3):
+                state[k + _SENS_HB + m] = 0.0
 
     # ---- magnetometer heading ----------------------------------------------------------------
     new_mag = mx != state[k + _PREV_MAG] or my != state[k + _PREV_MAG + 1] or mz != state[k + _PREV_MAG + 2]
@@ -2929,7 +3022,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         else:
             add_flag(out, FLAG_STARTUP)
     kp = k + _P
-    tilt_sigma = math.sqrt(max(s_pos(state[kp + 0]) + s_pos(state[kp + N + 1]), 0.0))
+    tilt_var = s_pos(state[kp + 0]) + s_pos(state[kp + N + 1])
+    if params[p + _CONS_P0] > 0.0:  # … and what the bias the filter does not estimate puts into the tilt: σ_b² ‖S_θh‖²
+        ks = k + _SENS
+        for j in range(6):
+            tilt_var += params[p + _CONS_P0] * state[ks + j] * state[ks + j]
+    tilt_sigma = math.sqrt(max(tilt_var, 0.0))
     finish_step(state, out, tilt_sigma, 1.0 if aided else w_a, w_out)
     out[OUT_HEADING_SIGMA] = math.sqrt(s_pos(state[kp + 2 * N + 2]))
     if aided:
@@ -3108,6 +3206,7 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_AIDED] = 1.0 if settings.accel_bias_aided_only else 0.0
         p[_ABIAS_ACROSS] = settings.accel_bias_sigma_m_s2**2 if settings.accel_bias_across_thrust else 0.0
         p[_ABIAS_SPEED] = settings.accel_bias_live_speed_m_s
+        p[_CONS_P0] = settings.accel_bias_consider_sigma_m_s2**2
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         p[_HWALK_TAU] = settings.heading_walk_tau_s

@@ -51,6 +51,14 @@ WARNING_FLIGHTS = [
         "accelerometer bias, a filter matter; by the divergence alone the monitor cannot tell it from an autopilot "
         "1.75° off (firmware_sim aggressive 61 at 38.5 s: 1.72° against 1.83° here)")),
     pytest.param(("magnetic", 13, 125.0), id="magnetic-13"),
+    # hover 32: a 0.13 m/s² horizontal bias (2.7 σ of the simulator's draw) our filter cannot tell from tilt in a
+    # hover: our tilt 0.73° off at σ 0.51° (1.4σ), the autopilot 0.75° off the other way and moving; the change
+    # test warns at 96.4 s.  Passes with the bias considered in our tilt σ
+    # (``best.VEHICLE_ACCEL_BIAS_CONSIDER_SIGMA_M_S2`` 0.05: σ 0.65° there), which is off (docs/monitor.md round
+    # twenty-one: it moves aggressive 11's correct WARNING from 101.0 to 104.8 s)
+    pytest.param(("hover", 32, 100.0), id="hover-32", marks=pytest.mark.xfail(
+        strict=True, reason="open (issue 24, docs/monitor.md rounds twenty and twenty-one): our tilt σ is short on "
+        "this seed's accelerometer bias; the filter's considered bias fixes it but is off")),
 ]
 
 
