@@ -18,7 +18,9 @@ environment, another source folder) from any working directory; upgrading
 mavahrs compiles again.  Without it, each
 command that runs a filter compiles what it needs the first time and says so.
 A full warm-up measured 40 s to 6 min on a 2-core PC (idle to heavily
-loaded); expect longer on a Raspberry Pi.  Run it once after installing or
+loaded); expect longer on a Raspberry Pi.  Where two CPUs are free it compiles
+on two processes at once (the ESKF's filters in one, the others in the other;
+--jobs 1: one process).  Run it once after installing or
 upgrading mavahrs, before a flight, or from a systemd unit's ExecStartPre=
 (contrib/mavahrs.service).  With a warm cache it only loads the cached code
 and returns in a few seconds.
