@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["WarmUpStep", "warm_up", "synthetic_frames", "STEPS"]
+__all__ = ["WarmUpStep", "warm_up", "warm_up_part", "synthetic_frames", "STEPS", "PARTS"]
 
 #: what :func:`warm_up` compiles, in order (names shown by ``mavahrs warm-up``)
 STEPS: tuple[str, ...] = ("daemon", "replay and evaluation", "gain sweeps")
@@ -107,14 +107,19 @@ def _px4_cal_params() -> list[tuple[str, float, int]]:
     return out
 
 
-def _daemon_path() -> None:
+def _every_filter() -> tuple[str, ...]:
     from mavahrs.filters import ALIASES, NAMES
+
+    return (*NAMES, *ALIASES)
+
+
+def _daemon_path(names: tuple[str, ...] | None = None, px4: bool = True) -> None:
     from mavahrs.protocol.codec import MavCodec
     from mavahrs.service.fastlane import FastLane
     from mavahrs.service.pipeline import Pipeline, PipelineSettings
 
     frames = synthetic_frames(1.0)
-    for name in (*NAMES, *ALIASES):
+    for name in _every_filter() if names is None else names:
         pipeline = Pipeline(PipelineSettings(filter_name=name))
         lane = FastLane(pipeline)
         rx = MavCodec()
@@ -124,6 +129,8 @@ def _daemon_path() -> None:
             for msg in rx.receive_datagram(frame):
                 pipeline.handle(msg, t_us)
             lane.refresh()
+    if not px4:
+        return
     # PX4: HIGHRES_IMU with SCALED_IMU, the autopilot-bias step's per-message kernels
     pipeline = Pipeline(PipelineSettings(filter_name="best"))
     rx = MavCodec()
@@ -132,22 +139,26 @@ def _daemon_path() -> None:
             pipeline.handle(msg, t_us)
 
 
-def _replay_path(tmp: Path) -> None:
-    from mavahrs.filters import ALIASES, NAMES
+def _replay_path(tmp: Path, names: tuple[str, ...] | None = None, readers: bool = True, dataflash: bool = True) -> None:
     from mavahrs.protocol.tlog import tlog_record
     from mavahrs.replay import ReplaySettings, replay
 
     tlog = tmp / "warm-up.tlog"
     tlog.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames()))
-    every = (*NAMES, *ALIASES)
+    every = _every_filter() if names is None else names
     replay(tlog, ReplaySettings(filters=every, engine="fast"), csv_path=tmp / "warm-up.csv")
     replay(tlog, ReplaySettings(filters=every, engine="pipeline"), csv_path=tmp / "warm-up-pipeline.csv")
     # the readers' other compiled steps: two IMU instances (the selection), PX4's HIGHRES_IMU (float scaling)
-    for autopilot in ("ardupilot2", "px4"):
+    for autopilot in ("ardupilot2", "px4") if readers else ():
         other = tmp / f"warm-up-{autopilot}.tlog"
         other.write_bytes(b"".join(tlog_record(t, f) for t, f in synthetic_frames(autopilot=autopilot)))
         replay(other, ReplaySettings(filters=("best",), engine="fast"))
-    # a DataFlash .BIN's record walk (its samples then take the steps above); a ULog compiles nothing of its own
+    if dataflash:
+        _dataflash_scan()
+
+
+def _dataflash_scan() -> None:
+    """A DataFlash .BIN's record walk (its samples then take the replay's steps); a ULog compiles nothing of its own."""
     import numpy as np
 
     from mavahrs.logs.dataflash import scan
@@ -155,7 +166,7 @@ def _replay_path(tmp: Path) -> None:
     scan(np.zeros(8, np.uint8))  # a writable array, as np.fromfile gives (bytes: a read-only one, another signature)
 
 
-def _sweeps() -> None:
+def _sweeps(names: tuple[str, ...] | None = None) -> None:
     import numpy as np
 
     from mavahrs.filters import NAMES, create
@@ -166,8 +177,45 @@ def _sweeps() -> None:
     accel = np.tile([0.0, 0.0, -9.80665], (n, 1))
     mag = np.tile([20.0, 0.0, 40.0], (n, 1))
     inputs = make_inputs(gyro, accel, mag, dt_s=np.full(n, 1.0 / _RATE_HZ))
-    for name in NAMES:
+    for name in NAMES if names is None else names:
         run_many([create(name), create(name)], inputs)
+
+
+#: The parts of a warm-up that ``mavahrs warm-up`` compiles in processes of their own (``--jobs``), before
+#: the whole warm-up runs in its own process and finds them cached: the ESKF's filters (``eskf``, ``best``:
+#: one large kernel, about half of a cold compile, measured in docs/reliability.md) and everything else.
+PARTS: tuple[str, ...] = ("eskf", "others")
+_ESKF_FILTERS = ("eskf", "best")
+
+
+def warm_up_part(part: str) -> float:
+    """Compile (or load) one of :data:`PARTS`' kernels in this process; returns the seconds it took.
+
+    ``"eskf"``: the ESKF's per-sample kernels first (nothing else needed to compile them), then the daemon's,
+    replay's and the readers' paths with those filters and their gain sweeps; ``"others"``: the same paths
+    with every other filter, and the DataFlash reader.  Shared kernels (the sample chain, the decoder) are
+    compiled by whichever part gets there first (the other loads them, or compiles them too when both get
+    there at once: several processes may add to one cache, ``mavahrs.filters.jit``).  Together they compile
+    what :func:`warm_up` does; :func:`warm_up` after them compiles only what neither did.
+    """
+    from mavahrs.filters import create
+
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="mavahrs-warm-up-") as tmp:
+        if part == "eskf":
+            for name in _ESKF_FILTERS:
+                create(name).warm_up()
+            _daemon_path(_ESKF_FILTERS, px4=True)
+            _replay_path(Path(tmp), _ESKF_FILTERS, readers=True, dataflash=False)
+            _sweeps(("eskf",))
+        elif part == "others":
+            others = tuple(n for n in _every_filter() if n not in _ESKF_FILTERS)
+            _daemon_path(others, px4=False)
+            _replay_path(Path(tmp), others, readers=False, dataflash=True)
+            _sweeps(others)
+        else:
+            raise ValueError(f"unknown warm-up part {part!r}; one of {', '.join(PARTS)}")
+    return time.monotonic() - t0
 
 
 def warm_up(done: Callable[[WarmUpStep], None] = lambda step: None) -> list[WarmUpStep]:

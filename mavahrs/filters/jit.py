@@ -434,6 +434,48 @@ if HAVE_NUMBA:
     _locators[0:0] = [_FiltersUserCacheLocator, _FiltersMavahrsCacheLocator, _FiltersCacheLocator,
                       _MavahrsUserCacheLocator, _MavahrsCacheLocator, _MavahrsInTreeCacheLocator]  # idempotent across re-imports
 
+    #: the lock file, in each cache folder, that serialises the processes adding kernels to that folder
+    CACHE_LOCK_NAME = ".mavahrs-save.lock"
+
+    def _save_locked(self: Any, key: Any, data: Any) -> Any:
+        """numba's ``IndexDataCacheFile.save``, made safe for several processes adding to one cache folder.
+
+        numba reads the kernel's index, picks the first data file number the index does not use, writes the
+        index and then the data file — without a lock.  Two processes saving two signatures of one kernel at
+        once (``mavahrs warm-up`` compiling on several processes; the test workers; a daemon beside a replay)
+        could both pick ``.1.nbc``: the index then names one signature while the file holds the other's
+        machine code.  Here the read-modify-write holds an exclusive ``flock`` on :data:`CACHE_LOCK_NAME` in
+        the folder, and the data file is written before the index that names it, so a process loading at
+        the same time finds either the old index or the new one with its data.
+        """
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX: numba's own save
+            return _numba_save(self, key, data)  # type: ignore[no-any-return]
+        os.makedirs(self._cache_path, exist_ok=True)
+        fd = os.open(os.path.join(self._cache_path, CACHE_LOCK_NAME), os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            overloads = self._load_index()
+            data_name = overloads.get(key)
+            if data_name is not None:  # the same signature again: its file is replaced, the index stays
+                self._save_data(data_name, data)
+                return
+            existing = set(overloads.values())
+            number = 1
+            while self._data_name(number) in existing:
+                number += 1
+            data_name = self._data_name(number)
+            self._save_data(data_name, data)
+            overloads[key] = data_name
+            self._save_index(overloads)
+        finally:
+            os.close(fd)  # releases the lock
+
+    _numba_save = getattr(_caching.IndexDataCacheFile.save, "_numba_save", _caching.IndexDataCacheFile.save)
+    _save_locked._numba_save = _numba_save  # type: ignore[attr-defined]  # idempotent across re-imports
+    _caching.IndexDataCacheFile.save = _save_locked  # type: ignore[method-assign]
+
 
 class _Interpreted:
     """Stand-in for a numba dispatcher: exposes ``py_func`` like numba does."""

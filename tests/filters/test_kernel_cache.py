@@ -157,3 +157,48 @@ def test_the_files_of_the_kernels_a_module_calls_are_its_kernels_dependencies() 
     scaling = jit.kernel_dependencies(__import__("mavahrs.sensors.scaling", fromlist=["x"]).scale_int_row.py_func)
     assert str(package / "filters" / "layout.py") in scaling  # its column offsets are compiled in
     assert jit.cache_subpath(fastlane.__file__, deps) != jit.cache_subpath(fastlane.__file__)
+
+
+def _lock_waiters(inode: int) -> int:
+    """Processes/threads blocked in ``flock`` on the file with ``inode`` (``/proc/locks``: ``N: -> FLOCK …``)."""
+    with open("/proc/locks", encoding="ascii") as f:
+        return sum(1 for line in f if " -> " in line and line.split()[6].rsplit(":", 1)[-1] == str(inode))
+
+
+@pytest.mark.skipif(not jit.HAVE_NUMBA, reason="numba absent: nothing is cached")
+@pytest.mark.skipif(not os.path.exists("/proc/locks"), reason="needs Linux's /proc/locks to see a waiting lock")
+def test_processes_adding_kernels_to_one_cache_folder_take_turns(tmp_path: Path) -> None:
+    """numba's save reads a kernel's index, picks the first free data file number and writes index and data,
+    without a lock: two processes saving two signatures at once (``warm-up --jobs 2``, the test workers) could
+    both pick ``.1.nbc``, and the index then named one signature's machine code for the other's.  Here
+    another process is in the middle of its save (it holds the folder's lock, has read the index and writes
+    its entry); a save meanwhile waits for it, then adds its own entry beside it."""
+    import fcntl
+    import threading
+    import time
+
+    from numba.core.caching import IndexDataCacheFile
+
+    def index() -> IndexDataCacheFile:
+        return IndexDataCacheFile(str(tmp_path), "probe.kernel-1.py311", "stamp")
+
+    other, ours = index(), index()
+    fd = os.open(tmp_path / jit.CACHE_LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
+    fcntl.flock(fd, fcntl.LOCK_EX)  # the other process's save has begun
+    assert other._load_index() == {}
+    saved = threading.Event()
+    thread = threading.Thread(target=lambda: (ours.save(("sig", "ours"), b"ours"), saved.set()), daemon=True)
+    thread.start()
+    inode = os.fstat(fd).st_ino
+    while not saved.is_set() and not _lock_waiters(inode):  # an event either way: it waits, or it saved
+        time.sleep(0.005)
+    try:
+        assert not saved.is_set(), "saved while another process was in the middle of saving to the folder"
+        other._save_data(other._data_name(1), b"other's")  # the other process's entry: data, then index
+        other._save_index({("sig", "other"): other._data_name(1)})
+    finally:
+        os.close(fd)  # its save is done: the lock is free
+    thread.join(timeout=60)
+    assert saved.is_set()
+    assert index().load(("sig", "other")) == b"other's"
+    assert index().load(("sig", "ours")) == b"ours"  # its own data file, not the other's
