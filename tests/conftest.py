@@ -298,6 +298,13 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def shared_file() -> Callable[[str], Path]:
+    """``shared_file("sitl/arducopter_onboard.BIN")``: that file under ``../shared/data``; the test skips, saying
+    where it looked, when the file is absent."""
+    return lambda rel: _require(DATA / rel)
+
+
+@pytest.fixture(scope="session")
 def sitl_gentle_tlog() -> Path:
     """``../shared/data/sitl/arducopter_gentle.tlog`` (the shortest ArduCopter SITL flight, 59 s); skips when absent."""
     return _require(DATA / "sitl" / "arducopter_gentle.tlog")

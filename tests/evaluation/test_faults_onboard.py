@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +21,6 @@ from mavahrs.logs.dataflash import DTYPE_OF_FORMAT, decode, scan
 BIN = "sitl/arducopter_onboard.BIN"  # ArduCopter SITL: airborne 46–249 s boot time (EV 28 / 18), IMUs 0 and 1
 ULG = "px4_sitl/px4_aggressive.ulg"  # PX4 SITL (SIH), EKF2's vehicle_attitude at 250 Hz, one IMU
 ONSET_S = 100.0
-
-
-def _need(shared_data: Path, rel: str) -> Path:
-    p = shared_data / rel
-    if not p.is_file():
-        pytest.skip(f"reference data not found at {p} (expected ../shared/data beside the checkout)")
-    return p
 
 
 def _error_deg(q_old: np.ndarray, q_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -71,8 +65,8 @@ def _field_bytes(sc, name: str, cols: tuple[str, ...], sel_t_s: float) -> np.nda
 
 
 @pytest.fixture(scope="module")
-def bin_tilt(shared_data: Path, tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    src = _need(shared_data, BIN)
+def bin_tilt(shared_file: Callable[[str], Path], tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    src = shared_file(BIN)
     dst = tmp_path_factory.mktemp("bin") / "tilt2.BIN"
     report = inject_faults(src, dst, [AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0)])
     return src, dst, report
@@ -122,10 +116,10 @@ def test_bin_tilt_step_is_warned_within_2_s(bin_tilt) -> None:  # type: ignore[n
     assert late and 0.0 < late[0] <= 2.0, late  # 0.25 s measured
 
 
-def test_bin_gyro_and_accel_bias_on_imu_instance_1(shared_data: Path, tmp_path: Path) -> None:
+def test_bin_gyro_and_accel_bias_on_imu_instance_1(shared_file: Callable[[str], Path], tmp_path: Path) -> None:
     """The bias in IMU instance 1's records only; the monitor names that IMU (``IMU2?``, as on a tlog's
     SCALED_IMU2) though replay feeds instance 0 (until inj1 a .BIN gave the monitor no IMU but the fed one)."""
-    src = _need(shared_data, BIN)
+    src = shared_file(BIN)
     dst = tmp_path / "imu1.BIN"
     fault = ImuFault(when=FaultShape("step", ONSET_S, duration_s=30.0), gyro_bias_deg_s=(0.0, 0.0, 3.0),
                      accel_bias_m_s2=(0.0, -0.2, 0.0), instance=1)  # fmt: skip
@@ -151,7 +145,7 @@ def test_bin_gyro_and_accel_bias_on_imu_instance_1(shared_data: Path, tmp_path: 
     assert len(times) == 1 and ONSET_S < times[0] <= ONSET_S + 10.0 and "IMU2?" in causes[0], (times, causes)
 
 
-def test_the_cli_copies_a_bin_atomically(shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+def test_the_cli_copies_a_bin_atomically(shared_file: Callable[[str], Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The CLI takes a .BIN by its content (whatever its name), says what it rewrote; an error while writing
     leaves neither the copy nor its temporary file."""
@@ -159,7 +153,7 @@ def test_the_cli_copies_a_bin_atomically(shared_data: Path, tmp_path: Path, monk
 
     from mavahrs.cli import main
 
-    src = _need(shared_data, BIN)
+    src = shared_file(BIN)
     out = tmp_path / "copy.log"
     capsys.readouterr()
     assert main(["inject-fault", str(src), str(out), "--at", "100", "--heading", "6"]) == 0
@@ -205,10 +199,10 @@ def _ulog(path: Path):  # type: ignore[no-untyped-def]
     return ULog(str(path))
 
 
-def test_ulg_tilt_step_in_place_and_warned_within_2_s(shared_data: Path, tmp_path: Path) -> None:
+def test_ulg_tilt_step_in_place_and_warned_within_2_s(shared_file: Callable[[str], Path], tmp_path: Path) -> None:
     from pyulog.core import ULog as _U
 
-    src = _need(shared_data, ULG)
+    src = shared_file(ULG)
     dst = tmp_path / "tilt2.ulg"
     report = inject_faults(src, dst, [AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0, tilt_azimuth_deg=90.0)])
     assert set(report.modified) == {"vehicle_attitude"} and 100.0 <= report.first_s < 100.01
@@ -249,10 +243,10 @@ def test_ulg_tilt_step_in_place_and_warned_within_2_s(shared_data: Path, tmp_pat
     assert late and 0.0 < late[0] <= 2.0, late
 
 
-def test_ulg_gyro_bias_on_the_voted_imu(shared_data: Path, tmp_path: Path) -> None:
+def test_ulg_gyro_bias_on_the_voted_imu(shared_file: Callable[[str], Path], tmp_path: Path) -> None:
     """The .ulg's only IMU (instance 0, the voted one): sensor_combined (what replay feeds), vehicle_imu's delta
     angles (bias × their interval), sensor_gyro."""
-    src = _need(shared_data, ULG)
+    src = shared_file(ULG)
     dst = tmp_path / "gyro0.ulg"
     fault = ImuFault(when=FaultShape("step", ONSET_S), gyro_bias_deg_s=(3.0, 0.0, 0.0), instance=0)
     report = inject_faults(src, dst, [fault])

@@ -11,6 +11,7 @@ convention measures tens of degrees.  The bad inputs and the unknown-topic log a
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,21 +35,14 @@ from mavahrs.logs.ulog import read_ulog
 G = 9.80665
 
 
-def _shared(shared_data: Path, rel: str) -> Path:
-    path = shared_data / rel
-    if not path.exists():
-        pytest.skip(f"reference data not found at {path} (expected ../shared/data beside the checkout)")
-    return path
+@pytest.fixture(scope="module")
+def sitl(shared_file: Callable[[str], Path]):
+    return read_ulog(shared_file("px4_sitl/px4_aggressive.ulg"))
 
 
 @pytest.fixture(scope="module")
-def sitl(shared_data: Path):
-    return read_ulog(_shared(shared_data, "px4_sitl/px4_aggressive.ulg"))
-
-
-@pytest.fixture(scope="module")
-def bench(shared_data: Path):
-    return read_ulog(_shared(shared_data, "px4_ulog/sample.ulg"))
+def bench(shared_file: Callable[[str], Path]):
+    return read_ulog(shared_file("px4_ulog/sample.ulg"))
 
 
 def _score(li, filter_name: str, ref_name: str, q_est=None, t_est=None) -> tuple[float, float, int]:
@@ -125,10 +119,10 @@ def test_sitl_best_scores_against_the_truth_at_or_below_ekf2(sitl) -> None:
     assert incl <= e_incl * 1.1 and head <= e_head * 1.1, ((incl, head), (e_incl, e_head))
 
 
-def test_window_and_receiver_velocity(shared_data: Path) -> None:
+def test_window_and_receiver_velocity(shared_file: Callable[[str], Path]) -> None:
     from mavahrs.service.pipeline import PipelineSettings
 
-    path = _shared(shared_data, "px4_sitl/px4_aggressive.ulg")
+    path = shared_file("px4_sitl/px4_aggressive.ulg")
     li = read_ulog(path, PipelineSettings(velocity_source="gps_raw_int"), start_s=30.0, end_s=60.0)
     t = li.inputs.t_us
     assert 30.4 < t[0] * 1e-6 < 30.6 and 60.4 < t[-1] * 1e-6 < 60.6  # the log starts at 0.512 s
@@ -440,7 +434,7 @@ def test_the_vehicle_is_known_to_the_filters_as_in_the_daemon(sitl, bench) -> No
     assert bench.inputs.multirotor == (int(bench.parameters.get("MAV_TYPE", 0)) in (2, 3, 13, 14, 15, 29, 35, 43))
 
 
-def test_plot_of_a_ulog_draws_ekf2_beside_our_estimate(shared_data: Path, monkeypatch: pytest.MonkeyPatch,
+def test_plot_of_a_ulog_draws_ekf2_beside_our_estimate(shared_file: Callable[[str], Path], monkeypatch: pytest.MonkeyPatch,
                                                        tmp_path: Path) -> None:
     """``mavahrs plot LOG.ulg`` drew only our estimate: plot_replay took an autopilot's attitude only from a
     reference named "autopilot …" (a tlog's, a .BIN's) while the ULog reader names PX4's "EKF2".  Now every
@@ -456,17 +450,17 @@ def test_plot_of_a_ulog_draws_ekf2_beside_our_estimate(shared_data: Path, monkey
         return Path(path)
 
     monkeypatch.setattr(plots, "plot_attitude", capture)
-    board = rp.replay(_shared(shared_data, "px4_ulog/sample.ulg"), rp.ReplaySettings(filters=("best",)))
+    board = rp.replay(shared_file("px4_ulog/sample.ulg"), rp.ReplaySettings(filters=("best",)))
     rp.plot_replay(board, tmp_path / "board.png")
     assert drawn[-1]["reference_label"] == "EKF2" and drawn[-1]["reference_q"] is not None
-    sih = rp.replay(_shared(shared_data, "px4_sitl/px4_aggressive.ulg"),
+    sih = rp.replay(shared_file("px4_sitl/px4_aggressive.ulg"),
                     rp.ReplaySettings(filters=("best",), end_s=40.0))
     rp.plot_replay(sih, tmp_path / "sih.png")
     assert drawn[-1]["reference_label"] == "SIH truth" and "EKF2" in drawn[-1]["others"]
 
 
 @pytest.mark.parametrize("rel", ["px4_ulog/sample.ulg", "px4_sitl/px4_aggressive.ulg"])
-def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_data: Path, rel: str) -> None:
+def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_file: Callable[[str], Path], rel: str) -> None:
     """One rule for the autopilot's reference (mavahrs.logs.autopilot_reference: the first not ending in
     " truth"): the audit's row names EKF2 and warns at the times replay's second opinion does, on the real
     board's log (no truth) and on the SIH flight (truth beside EKF2; EKF2's heading off at 36.6 s). A .BIN's
@@ -479,7 +473,7 @@ def test_the_fleet_audit_compares_a_ulog_with_ekf2_as_replay_does(shared_data: P
     from mavahrs.logs import autopilot_reference
     from mavahrs.replay.engine import _monitor_of, format_second_opinion
 
-    path = _shared(shared_data, rel)
+    path = shared_file(rel)
     row = summarise_log(path)
     assert row.error == "" and row.reference == "EKF2" and row.compared_s > 50.0
     # `mavahrs replay LOG`'s own settings (every sample in its outputs): its second opinion judges what the
