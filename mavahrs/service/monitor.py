@@ -2477,7 +2477,8 @@ class MonitorSeries:
     held_comparisons: int = 0
 
     def held_note(self, settings: MonitorSettings | None = None) -> str:
-        """E.g. ``not judged: 100 % of the comparisons (our IMU input below 50 Hz)``; "" when every one was."""
+        """E.g. ``not judged: 100 % of the comparisons (our IMU input below 50 Hz)``; "" when every comparison
+        was judged."""
         if not self.held_comparisons:
             return ""
         floor = (settings if settings is not None else MonitorSettings()).min_imu_rate_hz
