@@ -213,18 +213,35 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
 
     mlog = mavutil.mavlink_connection(str(tlog), dialect="ardupilotmega")
     kinds: dict[tuple[str, int], int] = {}
-    last_imu_s, requests_s = 0.0, []
+    imu_s: list[float] = []
+    sim_s: list[float] = []  # every message from the simulated autopilot
+    requests_s: list[float] = []
     while (msg := mlog.recv_match()) is not None:
         key = (msg.get_type(), msg.get_srcComponent())
         kinds[key] = kinds.get(key, 0) + 1
+        if msg.get_srcComponent() == 1:
+            sim_s.append(msg._timestamp)
         if key == ("RAW_IMU", 1):
-            last_imu_s = msg._timestamp
+            imu_s.append(msg._timestamp)
         elif msg.get_srcComponent() == 191 and (
             key[0] == "REQUEST_DATA_STREAM" or (key[0] == "COMMAND_LONG" and msg.command == 511)
         ):
             requests_s.append(msg._timestamp)  # a stream request (SET_MESSAGE_INTERVAL or the old kind)
-    # none after the stream ended: a silent link is not asked again (it stopped, it did not slow down)
-    assert requests_s and max(requests_s) <= last_imu_s, (max(requests_s, default=None), last_imu_s, text)
+    # None after the stream ended unless a message showed a real collapse: a silent link is not asked again
+    # (it stopped, it did not slow down), but a simulator slowed by a loaded machine in its last moments is,
+    # as the daemon acts on a collapse once a message shows the link still carries them — which may be a
+    # trailing one after the last RAW_IMU.  Such a request goes out as that message is handled (within 50 ms of
+    # it here) with RAW_IMU below low_rate_fraction 0.5 of the accepted 250 Hz over drop_window_s 0.5 s before
+    # it (StreamRequestSettings); one sent in the silence after the end (commit 36c17c5's case) has no message
+    # just before it.
+    assert requests_s and imu_s, text
+    imu, sim = np.array(imu_s), np.array(sim_s)
+    for t_req in requests_s:
+        if t_req > imu[-1]:
+            trigger = sim[(sim <= t_req) & (sim >= t_req - 0.05)]
+            assert trigger.size, (t_req, imu[-1], "a stream request in the silence after the end", text)
+            in_window = int(np.count_nonzero((imu > trigger[-1] - 0.5) & (imu <= trigger[-1])))
+            assert in_window < 0.5 * 250 * 0.5, (t_req, imu[-1], in_window, text)
     assert kinds.get(("SIMSTATE", 1), 0) > 100
     assert kinds.get(("RAW_IMU", 1), 0) > 500
     assert kinds.get(("ATTITUDE_QUATERNION", 191), 0) > 100
