@@ -2478,11 +2478,12 @@ class MonitorSeries:
 
     def held_note(self, settings: MonitorSettings | None = None) -> str:
         """E.g. ``not judged: 100 % of the comparisons (our IMU input below 50 Hz)``; "" when every comparison
-        was judged."""
-        if not self.held_comparisons:
+        was judged, or fewer than 1 % were not (a log starting with a logger dropout: the rate from its first
+        interval or two; PX4's sample.ulg, 2 of 3441) — ``held_comparisons`` keeps the count."""
+        share = 100.0 * self.held_comparisons / max(self.comparisons, 1)
+        if share < 1.0:
             return ""
         floor = (settings if settings is not None else MonitorSettings()).min_imu_rate_hz
-        share = 100.0 * self.held_comparisons / max(self.comparisons, 1)
         return f"not judged: {share:.0f} % of the comparisons (our IMU input below {floor:g} Hz)"
 
 

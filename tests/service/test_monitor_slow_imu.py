@@ -123,3 +123,21 @@ def test_the_input_rate_of_each_estimate() -> None:
     assert np.allclose(input_rate_hz(t_us, [1999, 2019]), [400.0, 4.0])
     jitter = np.cumsum(np.random.default_rng(1).uniform(4_000, 6_000, 2_000))  # 200 Hz on average
     assert input_rate_hz(jitter, [1_999])[0] == pytest.approx(200.0, rel=0.02)
+
+
+def test_a_few_slow_intervals_at_the_start_are_not_worth_a_note() -> None:
+    """The replay line names the share of comparisons not judged; a log whose first interval or two span a
+    logger dropout (PX4's sample.ulg: 2 of 3441, at 0.00 and 0.04 s) reads 27 Hz there and held them — counted,
+    but no line saying "not judged: 0 %"; half a flight held is said."""
+    from mavahrs.service.monitor import monitor_series
+
+    t_ms = np.arange(0.0, 30_000.0, 10.0)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (t_ms.size, 1))
+    rate = np.full(t_ms.size, 250.0)
+    rate[:2] = 27.8
+    few = monitor_series(t_ms, q, t_ms, q, imu_rate_hz=rate)
+    assert few.held_comparisons == 2 and few.comparisons == t_ms.size
+    assert few.held_note() == ""
+    rate[t_ms.size // 2 :] = 4.0
+    half = monitor_series(t_ms, q, t_ms, q, imu_rate_hz=rate)
+    assert half.held_note() == "not judged: 50 % of the comparisons (our IMU input below 50 Hz)"
