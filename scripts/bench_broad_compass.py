@@ -732,7 +732,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
     ap.add_argument(
         "--oracle-gyro", action="store_true",
-        help="best's runs with the reference's own rotation as the gyro (plus the rests' bias): no gyro drift left",
+        help="best's runs (and --trace) with the reference's own rotation as the gyro (plus the rests' bias): no gyro drift left",
     )  # fmt: skip
     ap.add_argument(
         "--gyro-rate-scale", type=float, nargs=3, metavar=("NX", "NY", "NZ"),
@@ -764,7 +764,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"no trial {args.trace!r} in {args.data}", file=sys.stderr)
             return 2
         blank = tuple(args.trace_blank) if args.trace_blank else None
-        trace(load_broad_trial(match[0]), blank, args.delays_ms[-1] if args.delays_ms else 10.0)
+        rec = load_broad_trial(match[0])
+        if args.oracle_gyro:
+            rec.gyro_rad_s = oracle_gyro(rec)
+        trace(rec, blank, args.delays_ms[-1] if args.delays_ms else 10.0)
         return 0
     recs = [load_broad_trial(p) for p in paths]
     if args.gyro_rate_scale is not None:
