@@ -453,20 +453,21 @@ def gyro_window_errors(
     norm = np.linalg.norm(w, axis=1)
     res = np.einsum("nab,nb->na", c, (w - bias) * dt - phi)
     good = ok[i] & ok[i + 1] & rec.scored[i] & (np.linalg.norm(phi, axis=1) < 0.2)
-    body: dict[str, Array] = {}
+    body: dict[str, tuple[int, Array]] = {}  # term: (the body axis it reads on, its value per sample)
     for a in range(3):
         for j in range(3):
-            body[f"G{a}{j}"], body[f"M{a}{j}"] = (a, f[:, j]), (a, w[:, j])  # type: ignore[assignment]
-        body[f"T{a}"], body[f"K{a}"], body[f"N{a}"] = (a, -wd[:, a]), (a, cone[:, a]), (a, norm * w[:, a])  # type: ignore[assignment]
+            body[f"G{a}{j}"], body[f"M{a}{j}"] = (a, f[:, j]), (a, w[:, j])
+        body[f"T{a}"], body[f"K{a}"], body[f"N{a}"] = (a, -wd[:, a]), (a, cone[:, a]), (a, norm * w[:, a])
     per = round(window_s / dt)
-    errors, regs = [], {k: [] for k in body}
+    errors: list[Array] = []
+    regs: dict[str, list[Array]] = {k: [] for k in body}
     for s0 in range(0, len(i) - per, per):
         sl = slice(s0, s0 + per)
         m = good[sl]
         if m.mean() < 0.95:
             continue
         errors.append(res[sl][m].sum(axis=0))
-        for k, (a, x) in body.items():  # type: ignore[misc]
+        for k, (a, x) in body.items():
             regs[k].append(c[sl][m][:, :, a].T @ (x[sl][m] * dt))
     return np.array(errors).reshape(-1, 3), {k: np.array(v).reshape(-1, 3) for k, v in regs.items()}
 
