@@ -11,6 +11,9 @@ Usage::
     python3 scripts/bench_broad_compass.py --tstick ../shared/data/repoimu_tstick --drop-above-deg-s 150 300
     python3 scripts/bench_broad_compass.py --trace 30 --trace-blank 32 61   # one trial per 5 s, best's error and compass
     python3 scripts/bench_broad_compass.py --motion        # a late reading's azimuth error in each trial's motion, the gyro's drift
+    python3 scripts/bench_broad_compass.py --rests         # whose drift: the compass at each rest against the reference and the gyro
+    python3 scripts/bench_broad_compass.py --gyro-models   # candidate causes of the gyro's drift, fitted on one half, tested on the other
+    python3 scripts/bench_broad_compass.py --only-eskf --oracle-gyro   # best with a gyro that cannot drift (the reference's rotation)
 
 Issue 23 (docs/accuracy.md "BROAD magnet trials, round four (branch smag)").  Every figure but the delay
 regression uses the optical reference, so none of them is something a filter could do online; they bound
@@ -337,6 +340,230 @@ def motion_report(recs: list[Recording]) -> None:
         )
 
 
+# ------------------------------------------------------------------ whose drift: the gyro's or the reference's
+
+
+def still_rests(
+    rec: Recording, min_s: float = 2.0, still_deg_s: float = 3.0, trim_s: float = 0.3
+) -> list[tuple[int, int]]:
+    """BROAD's rests: unscored stretches with a valid reference where the gyro turns slower than ``still_deg_s``,
+    at least ``min_s`` long after ``trim_s`` is cut from each end; (first, end) sample indices."""
+    _, ok = _reference(rec)
+    still = (~rec.scored) & ok & (np.degrees(np.linalg.norm(rec.gyro_rad_s, axis=1)) < still_deg_s)
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    trim = round(trim_s / float(rec.dt_s[0]))
+    out = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        a, b = int(a) + trim, int(b) - trim
+        if (b - a) * float(rec.dt_s[0]) >= min_s:
+            out.append((a, b))
+    return out
+
+
+def _qmul(a: tuple[float, ...], b: Array) -> tuple[float, float, float, float]:
+    w0, x0, y0, z0 = a
+    w1, x1, y1, z1 = b
+    return (
+        w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1,
+        w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+        w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
+        w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1,
+    )
+
+
+def _heading_error_deg(q_est: Array, q_ref: Array) -> float:
+    e = multiply(np.asarray(q_est) / np.linalg.norm(q_est), conjugate(q_ref))
+    return float(np.degrees(2.0 * np.arctan(e[3] / e[0])))
+
+
+def rest_to_rest(rec: Recording, gyro_shift: int = 2) -> list[dict[str, float]]:
+    """Per rest (:func:`still_rests`): its times; the field's azimuth read there with the reference, less the
+    first rest's (the compass at rest is an earth-fixed direction and its delay plays no part, so a reference
+    that drifted in the motion before would show here); the gyro (less the mean of every rest's rate, ``gyro_shift``
+    samples behind the reference) integrated from the previous rest's middle with the reference's attitude there,
+    its heading against the reference's at this rest's middle; and the motion's length between the two."""
+    q, _ = _reference(rec)
+    dt = float(rec.dt_s[0])
+    rests = still_rests(rec)
+    if not rests:
+        return []
+    idx = np.concatenate([np.arange(a, b) for a, b in rests])
+    bias = rec.gyro_rad_s[idx].mean(axis=0)
+    steps = from_rotation_vector((rec.gyro_rad_s - bias) * dt)
+    az = [float(np.mean(azimuth_deg(rotate(q[a:b], rec.mag_ut[a:b])))) for a, b in rests]
+    out = []
+    for k, (a, b) in enumerate(rests):
+        row = {"t0_s": a * dt, "t1_s": b * dt, "field_azimuth_deg": float(wrap_deg(az[k] - az[0]))}
+        row["gyro_heading_error_deg"], row["motion_s"] = 0.0, 0.0
+        if k:
+            m0, m1 = (rests[k - 1][0] + rests[k - 1][1]) // 2, (a + b) // 2
+            qq = tuple(q[m0])
+            for i in range(m0, min(m1, rec.n - gyro_shift)):
+                qq = _qmul(qq, steps[i + gyro_shift])
+            row["gyro_heading_error_deg"] = _heading_error_deg(np.array(qq), q[m1])
+            row["motion_s"] = (a - rests[k - 1][1]) * dt
+        out.append(row)
+    return out
+
+
+def _rotation_matrices(q: Array) -> Array:
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        1,
+    )
+
+
+#: candidate causes of the gyro's error, each a set of body-frame terms (what the gyro reads beyond the true rate):
+#: g-sensitivity G (f_j on axis a), a scale / cross-axis matrix M (ω_j on axis a), a time skew per axis T (−ω̇_a),
+#: the pseudo-coning of a low-pass K ((ω × ω̇)_a), a scale error growing with the rate N (|ω|·ω_a)
+GYRO_MODELS: dict[str, tuple[str, ...]] = {
+    "g-sensitivity (9)": tuple(f"G{a}{j}" for a in range(3) for j in range(3)),
+    "matrix (9)": tuple(f"M{a}{j}" for a in range(3) for j in range(3)),
+    "axis time skew (3)": tuple(f"T{a}" for a in range(3)),
+    "pseudo-coning (3)": tuple(f"K{a}" for a in range(3)),
+    "scale ∝ |ω| (3)": tuple(f"N{a}" for a in range(3)),
+}
+
+
+def gyro_window_errors(
+    rec: Recording, window_s: float = 5.0, gyro_shift: int = 2
+) -> tuple[Array, dict[str, Array]]:
+    """The gyro's error against the reference per window of ``window_s``, to first order in NED (rad, (n, 3)):
+    Σ C_i (ω_g(i + shift) − b) dt − C_i φ_i, φ_i the reference's own step i → i + 1 in the body, b the mean rate of
+    the rests; and each term of :data:`GYRO_MODELS` summed the same way, Σ C_i e_a x_i dt, so that the errors are
+    linear in the terms' coefficients.  Windows with less than 95 % scored valid steps are left out."""
+    q, ok = _reference(rec)
+    dt = float(rec.dt_s[0])
+    rests = still_rests(rec)
+    idx = np.concatenate([np.arange(a, b) for a, b in rests]) if rests else np.arange(round(1.0 / dt))
+    bias = rec.gyro_rad_s[idx].mean(axis=0)
+    force_rest = rec.accel_m_s2[idx].mean(axis=0)
+    i = np.arange(rec.n - gyro_shift - 1)
+    c = _rotation_matrices(q[i])
+    phi = to_rotation_vector(multiply(conjugate(q[i]), q[i + 1]))
+    w = rec.gyro_rad_s[i + gyro_shift]
+    wd = np.gradient(rec.gyro_rad_s, dt, axis=0)[i + gyro_shift]
+    f = rec.accel_m_s2[i + gyro_shift] - force_rest
+    cone = np.cross(w, wd)
+    norm = np.linalg.norm(w, axis=1)
+    res = np.einsum("nab,nb->na", c, (w - bias) * dt - phi)
+    good = ok[i] & ok[i + 1] & rec.scored[i] & (np.linalg.norm(phi, axis=1) < 0.2)
+    body: dict[str, tuple[int, Array]] = {}  # term: (the body axis it reads on, its value per sample)
+    for a in range(3):
+        for j in range(3):
+            body[f"G{a}{j}"], body[f"M{a}{j}"] = (a, f[:, j]), (a, w[:, j])
+        body[f"T{a}"], body[f"K{a}"], body[f"N{a}"] = (a, -wd[:, a]), (a, cone[:, a]), (a, norm * w[:, a])
+    per = round(window_s / dt)
+    errors: list[Array] = []
+    regs: dict[str, list[Array]] = {k: [] for k in body}
+    for s0 in range(0, len(i) - per, per):
+        sl = slice(s0, s0 + per)
+        m = good[sl]
+        if m.mean() < 0.95:
+            continue
+        errors.append(res[sl][m].sum(axis=0))
+        for k, (a, x) in body.items():
+            regs[k].append(c[sl][m][:, :, a].T @ (x[sl][m] * dt))
+    return np.array(errors).reshape(-1, 3), {k: np.array(v).reshape(-1, 3) for k, v in regs.items()}
+
+
+def fit_gyro_model(
+    data: dict[str, tuple[Array, dict[str, Array]]], keys: tuple[str, ...], trials: tuple[str, ...]
+) -> Array:
+    """Least-squares coefficients of ``keys`` to the heading (down) component of the window errors of ``trials``."""
+    a = np.concatenate([np.stack([data[t][1][k][:, 2] for k in keys], -1) for t in trials if t in data])
+    y = np.concatenate([data[t][0][:, 2] for t in trials if t in data])
+    return np.linalg.lstsq(a, y, rcond=None)[0]
+
+
+def window_heading_drift_deg_s(
+    data: dict[str, tuple[Array, dict[str, Array]]],
+    trial: str,
+    window_s: float,
+    keys: tuple[str, ...] = (),
+    coef: Array | None = None,
+) -> Array:
+    """The heading (down) component of a trial's window errors, °/s, less the model ``keys`` × ``coef``."""
+    y = data[trial][0][:, 2].copy()
+    if keys and coef is not None:
+        y -= np.stack([data[trial][1][k][:, 2] for k in keys], -1) @ coef
+    return np.degrees(y) / window_s
+
+
+def gyro_models_report(recs: list[Recording], window_s: float) -> None:
+    """Each candidate of :data:`GYRO_MODELS` fitted on CHOICE_TRIALS and tested on HELD_TRIALS, and the reverse:
+    the window heading drift's RMS (mean over the trials of each half) and per trial mean / RMS, °/s."""
+    data = {r.name[:2]: gyro_window_errors(r, window_s) for r in recs}
+    names = list(data)
+
+    def rms_mean(keys: tuple[str, ...], coef: Array | None, trials: tuple[str, ...]) -> float:
+        d = [window_heading_drift_deg_s(data, t, window_s, keys, coef) for t in trials if t in data]
+        return float(np.mean([np.sqrt(np.mean(x**2)) for x in d]))
+
+    print(
+        f"\nThe gyro's heading drift per {window_s:g} s window against the reference, °/s (first order), with each "
+        "candidate cause fitted on one half and tested on the other; per trial mean / RMS with the choice fit"
+    )
+    print(
+        f"{'model':22s} {'fit choice: choice / held':>26s} {'fit held: held / choice':>24s}  "
+        + " ".join(f"{t:>10s}" for t in names)
+    )
+    for model, keys in {"none": (), **GYRO_MODELS}.items():
+        c1 = fit_gyro_model(data, keys, CHOICE_TRIALS) if keys else None
+        c2 = fit_gyro_model(data, keys, HELD_TRIALS) if keys else None
+        cells = []
+        for t in names:
+            d = window_heading_drift_deg_s(data, t, window_s, keys, c1)
+            cells.append(f"{d.mean():+.2f}/{np.sqrt(np.mean(d**2)):.2f}")
+        print(
+            f"{model:22s} {rms_mean(keys, c1, CHOICE_TRIALS):12.3f} / {rms_mean(keys, c1, HELD_TRIALS):.3f}   "
+            f"{rms_mean(keys, c2, HELD_TRIALS):11.3f} / {rms_mean(keys, c2, CHOICE_TRIALS):.3f}   "
+            + " ".join(f"{x:>10s}" for x in cells)
+        )
+        if model == "scale ∝ |ω| (3)" and c1 is not None:
+            print(f"{'':22s} choice fit N = {', '.join(f'{x:+.2e}' for x in c1)} per rad/s")
+
+
+def rate_scaled_gyro(gyro_rad_s: Array, n_per_rad_s: Array) -> Array:
+    """The gyro with a scale error that grows with the rate taken out: ω − N_a·|ω|·ω_a (N per rad/s, per axis)."""
+    return gyro_rad_s - n_per_rad_s * np.linalg.norm(gyro_rad_s, axis=1)[:, None] * gyro_rad_s
+
+
+def rests_report(recs: list[Recording]) -> None:
+    print(
+        "\nAt each rest: the field's azimuth with the reference less the first rest's (the compass at rest: an earth-fixed "
+        "direction), and the gyro integrated over the motion before it from the previous rest's reference attitude"
+    )
+    print(f"{'trial':32s} rests: t s | field az ° | gyro heading error ° over the motion's s")
+    for rec in recs:
+        rows = rest_to_rest(rec)
+        cells = [
+            f"{r['t0_s']:.0f}|{r['field_azimuth_deg']:+.2f}|{r['gyro_heading_error_deg']:+.2f}/{r['motion_s']:.0f}"
+            for r in rows
+        ]
+        print(f"{rec.name[:32]:32s} " + "  ".join(cells))
+
+
+def oracle_gyro(rec: Recording, gyro_shift: int = 2) -> Array:
+    """The reference's own rotation over each sample as the gyro (``gyro_shift`` samples behind it, as BROAD's gyro
+    is), plus the rests' mean rate as its bias; the gyro as is where the reference is not valid: a gyro that cannot
+    drift against the reference, to see what is left of ``best``'s heading error with the compass alone."""
+    q, ok = _reference(rec)
+    dt = float(rec.dt_s[0])
+    rests = still_rests(rec)
+    bias = rec.gyro_rad_s[np.concatenate([np.arange(a, b) for a, b in rests])].mean(axis=0) if rests else 0.0
+    i = np.arange(rec.n - gyro_shift - 1)
+    good = ok[i] & ok[i + 1]
+    g = rec.gyro_rad_s.copy()
+    g[i[good] + gyro_shift] = to_rotation_vector(multiply(conjugate(q[i[good]]), q[i[good] + 1])) / dt + bias
+    return g
+
+
 # ------------------------------------------------------------------ best with the compass edited
 
 
@@ -505,6 +732,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--only-eskf", action="store_true", help="run only the --eskf variants (and best as is)")
     ap.add_argument(
+        "--oracle-gyro", action="store_true",
+        help="best's runs (and --trace) with the reference's own rotation as the gyro (plus the rests' bias): no gyro drift left",
+    )  # fmt: skip
+    ap.add_argument(
+        "--gyro-rate-scale", type=float, nargs=3, metavar=("NX", "NY", "NZ"),
+        help="the gyro read as ω − N_a·|ω|·ω_a first (a scale error growing with the rate, per rad/s; --gyro-models fits it)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--rests", action="store_true",
+        help="instead: at each rest, the compass's azimuth with the reference and the gyro's heading error over the motion before",
+    )  # fmt: skip
+    ap.add_argument(
+        "--gyro-models", type=float, nargs="?", const=5.0, metavar="WINDOW_S",
+        help="instead: candidate causes of the gyro's heading drift fitted on one half of the trials, tested on the other",
+    )  # fmt: skip
+    ap.add_argument(
         "--motion", action="store_true",
         help="instead: per trial, what a late reading is off by in that motion and the gyro's heading drift",
     )  # fmt: skip
@@ -522,11 +765,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"no trial {args.trace!r} in {args.data}", file=sys.stderr)
             return 2
         blank = tuple(args.trace_blank) if args.trace_blank else None
-        trace(load_broad_trial(match[0]), blank, args.delays_ms[-1] if args.delays_ms else 10.0)
+        rec = load_broad_trial(match[0])
+        if args.oracle_gyro:
+            rec.gyro_rad_s = oracle_gyro(rec)
+        trace(rec, blank, args.delays_ms[-1] if args.delays_ms else 10.0)
         return 0
     recs = [load_broad_trial(p) for p in paths]
+    if args.gyro_rate_scale is not None:
+        for r in recs:
+            r.gyro_rad_s = rate_scaled_gyro(r.gyro_rad_s, np.asarray(args.gyro_rate_scale))
     if args.motion:
         motion_report(recs)
+        return 0
+    if args.rests:
+        rests_report(recs)
+        return 0
+    if args.gyro_models is not None:
+        gyro_models_report(recs, args.gyro_models)
         return 0
     first = recs[0]
     shifts = (0, -2, -3, -4, -5, -6)
@@ -611,7 +866,13 @@ def main(argv: list[str] | None = None) -> int:
             variants[f"L {ms:g} ms, NaN > {limit:g} deg/s"] = lambda r, ms=ms, limit=limit: dropped_above(
                 delay_removed(r, ms * 1e-3), r.gyro_rad_s, limit
             )
-    print("\nbest's heading RMS (BROAD scoring), degrees, with the compass input edited")
+    if args.oracle_gyro:
+        for r in recs:
+            r.gyro_rad_s = oracle_gyro(r)
+    print(
+        "\nbest's heading RMS (BROAD scoring), degrees, with the compass input edited"
+        + (" (the oracle gyro: the reference's rotation)" if args.oracle_gyro else "")
+    )
     print(f"{'variant':28s} " + " ".join(f"{r.name[:2]:>5s}" for r in recs))
     runs: list[tuple[str, Callable[[Recording], Array], BestSettings | None]] = [
         (name, make, None) for name, make in variants.items() if not args.only_eskf or name == "as is"
