@@ -88,8 +88,8 @@ def test_compiled_eskf_equals_its_interpreted_source_bit_for_bit(
                 sys.setprofile(None)
             for label, got in (("batch", batch), ("per sample", one)):
                 differ = np.argwhere(got.view(np.uint64) != interpreted.view(np.uint64))
-                assert differ.size == 0, (
+                assert len(differ) == 0, (
                     f"{scenario} {name} ({mode}), {label}: {len(differ)} values differ from the interpreted "
-                    f"kernel's, first at row/column {tuple(differ[0])}"
+                    f"kernel's, first at row/column {tuple(int(i) for i in differ[0])}"
                 )
     assert seen == set(CALLED_HELPERS), f"not run on these flights: {sorted(set(CALLED_HELPERS) - seen)}"
