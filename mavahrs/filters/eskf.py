@@ -1062,7 +1062,7 @@ def mag_noise_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[kn + 7] = s[kn + 8] = 0.0
 
 
-@kernel(inline=True)
+@kernel
 def _mag_noise_step(s, k, params, psi, cn, ce, learn, clk):  # type: ignore[no-untyped-def]
     """The compass's heading noise per reading, learnt from its own innovations; returns it, rad².
 
@@ -1126,7 +1126,7 @@ def _mag_noise_carry(s, k, dx0, dx1, dx2, dx_decl):  # type: ignore[no-untyped-d
     s[kn + 3] -= c
 
 
-@kernel(inline=True)
+@kernel
 def _heading_walk_step(s, k, params, y, sv, r, learn, clk):  # type: ignore[no-untyped-def]
     """The heading's extra random-walk density, learnt from the compass's heading innovations (covariance matching).
 
@@ -1291,7 +1291,7 @@ def _drag_reopen_velocity(s, k):  # type: ignore[no-untyped-def]
         s[kp + i * N + i] = _P0_VEL_FLYING
 
 
-@kernel(inline=True)
+@kernel
 def _propagate_covariance(s, k, dt, q_gyro, q_accel, q_bias, q_axis, q_pos, pos_on, scale_on, q_scale, wx, wy, wz,
                           abias_on, phi_a, q_abias):  # type: ignore[no-untyped-def]
     """P ← Φ P Φᵀ + Q·dt, Φ = I + F·dt (blocks δθ̇ = −C δb − C diag(ω) δs, δv̇ = M δθ − C δb_a with M = −[f]×,
@@ -1635,7 +1635,7 @@ def _rest_is_hovering(s, k, params, p):  # type: ignore[no-untyped-def]
     return True
 
 
-@kernel(inline=True)
+@kernel
 def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
     r"""The low-passed gyro ω̄ at detected rest as a measurement of the bias: ω̄ = b + ω_wob + e.
 
@@ -1763,7 +1763,7 @@ def _propagate_sensitivity(s, k, dt, n, pos_on, scale_on, wx, wy, wz, abias_on, 
                 s[ks + 3 * i + j] *= phi_a
 
 
-@kernel(inline=True)
+@kernel
 def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     """One scalar measurement: innovation ``y`` (before this update's δx), h in scratch, noise ``r``.
 
@@ -1799,7 +1799,7 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     return True
 
 
-@kernel(inline=True)
+@kernel
 def _heading_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     """The magnetometer's heading, h = [h_N, h_E, −1, 0…] in scratch, with the tilt *considered*
     (Schmidt 1966): the tilt's uncertainty enters the innovation's variance and the heading keeps its
@@ -1943,7 +1943,7 @@ def _axis_start(s, k, tx, ty, tz, p0, pa):  # type: ignore[no-untyped-def]
                 s[kp + (_I_ABIAS + i) * N + _I_ABIAS + j] = pa * ((1.0 if i == j else 0.0) - ti * tj)
 
 
-@kernel(inline=True)
+@kernel
 def _axis_start_check(s, k, params):  # type: ignore[no-untyped-def]
     """At the end of the start window: a thrust axis (states) farther from the window's mean specific force
     (body frame) than ``initial_realign_rad`` restarts from that mean's direction with its prior σ.
@@ -1968,7 +1968,7 @@ def _axis_start_check(s, k, params):  # type: ignore[no-untyped-def]
         _axis_start(s, k, mx / m, my / m, mz / m, p0, params[P_FILTER + _ABIAS_ACROSS])
 
 
-@kernel(inline=True)
+@kernel
 def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
     """Rotor drag: the mean specific force across the thrust axis = −k × the body velocity across it.
 
