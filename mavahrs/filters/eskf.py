@@ -277,7 +277,15 @@ _ABIAS_ACROSS = _MAG_DELAY + 32  # (m/s²)²: the accelerometer-bias states star
 _ABIAS_SPEED = _MAG_DELAY + 33  # m/s: the accelerometer-bias states are estimated only below this horizontal speed (0: always)
 #: (m/s²)²: the accelerometer's bias *considered* without states (``accel_bias_consider_sigma_m_s2``; 0: not)
 _CONS_P0 = _MAG_DELAY + 34
-_N_PARAMS = _MAG_DELAY + 35
+#: s: the gyro-bias bound acts on an axis only once its estimate has been beyond it this long (0: at once)
+_BIAS_HOLD = _MAG_DELAY + 35
+#: (rad/s)²: the gyro bias's plausible range as a pseudo-measurement b = 0 of this variance (0: none)
+_BPRIOR_VAR = _MAG_DELAY + 36
+#: s: … fused on an axis only once its estimate has been beyond that σ this long (< 0: on every axis, always)
+_BPRIOR_AFTER = _MAG_DELAY + 37
+#: s: … its information spread over this long: R = σ² · this / dt per sample (0: σ² per sample)
+_BPRIOR_SPREAD = _MAG_DELAY + 38
+_N_PARAMS = _MAG_DELAY + 39
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -372,7 +380,10 @@ _ABIAS_HELD = _REST_N + 2  # 1 while the accelerometer-bias states are only cons
 _SENS = _REST_N + 3
 _SENS_HB = _SENS + 3 * N
 _SENS_ON = _SENS_HB + 3
-_N_STATE = _SENS_ON + 1
+#: how long each axis's gyro-bias estimate has been beyond the bound without a break (3) and beyond the prior's
+#: σ (3), s (``bias_limit_hold_s``, ``bias_prior_sigma_rad_s``)
+_BOUT = _SENS_ON + 1
+_N_STATE = _BOUT + 6
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -494,6 +505,17 @@ class EskfSettings(FilterSettings):
             start's error explain.
         initial_bias_rad_s: 1-σ uncertainty of the initial gyro bias.
         bias_limit_rad_s: the bias estimate is clamped to ± this per axis.
+        bias_limit_hold_s: … only on an axis whose estimate has been beyond
+            it for this long without a break, s (0 = at once, the default):
+            a second-long excursion is followed, a lasting one cut.
+        bias_prior_sigma_rad_s: the gyro bias's plausible range as a Gaussian
+            prior, rad/s (0 = none, the default): the pseudo-measurement
+            b = 0 with this σ, on an axis whose estimate has been beyond it
+            for ``bias_prior_after_s`` (a soft bound).
+        bias_prior_after_s: that time, s (< 0: on every axis at every sample,
+            the prior held throughout).
+        bias_prior_spread_s: the prior's information per sample spread over
+            this long, s: R = σ² × this / dt (0 = σ² at every sample).
         velocity_reset_s: every fix rejected for this long resets the INS
             velocity to the fix (as autopilot EKFs do).
         mag_staleness_s: how old a magnetometer reading may be when it
@@ -930,6 +952,10 @@ class EskfSettings(FilterSettings):
     initial_realign_rad: float = math.radians(30.0)
     initial_bias_rad_s: float = math.radians(3.0)
     bias_limit_rad_s: float = math.radians(10.0)
+    bias_limit_hold_s: float = 0.0
+    bias_prior_sigma_rad_s: float = 0.0
+    bias_prior_after_s: float = 0.0
+    bias_prior_spread_s: float = 0.0
     velocity_reset_s: float = 5.0
     mag_staleness_s: float = 0.1
     rejection_reset_s: float = 2.0
@@ -1025,7 +1051,8 @@ class EskfSettings(FilterSettings):
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s", "mag_rejected_sigma_scale",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
-                     "accel_bias_consider_sigma_m_s2",
+                     "accel_bias_consider_sigma_m_s2", "bias_limit_hold_s", "bias_prior_sigma_rad_s",
+                     "bias_prior_spread_s",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
                      "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
                      "slow_force_tau_s"):
@@ -1038,6 +1065,8 @@ class EskfSettings(FilterSettings):
                 raise ValueError(f"EskfSettings.{name} must be a finite number > 0, got {value!r}")
         if not (math.isfinite(self.initial_average_s) and 0.0 <= self.initial_average_s <= 10.0):
             raise ValueError(f"EskfSettings.initial_average_s must be in [0, 10] s, got {self.initial_average_s!r}")
+        if not math.isfinite(self.bias_prior_after_s):
+            raise ValueError(f"EskfSettings.bias_prior_after_s must be finite, got {self.bias_prior_after_s!r}")
         if not (math.isfinite(self.realign_after_s) and self.realign_after_s >= 0.0):
             raise ValueError(f"EskfSettings.realign_after_s must be ≥ 0 s, got {self.realign_after_s!r}")
         if not (math.isfinite(self.mag_noise_min_rad) and 0.0 < self.mag_noise_min_rad <= self.mag_noise_max_rad
@@ -2457,6 +2486,13 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         state[k + _DX + i] = 0.0
     updated = False
     gate = params[p + _GATE]
+    # how long each axis's bias estimate has been beyond the bound and beyond the prior's σ (without a break)
+    lim_b = params[p + _BIAS_LIMIT]
+    sd_prior = math.sqrt(params[p + _BPRIOR_VAR])
+    for i in range(3):
+        b_abs = abs(state[S_BIAS + i])
+        state[k + _BOUT + i] = state[k + _BOUT + i] + dt if b_abs > lim_b else 0.0
+        state[k + _BOUT + 3 + i] = state[k + _BOUT + 3 + i] + dt if b_abs > sd_prior else 0.0
 
     # ---- velocity fix ------------------------------------------------------------------------
     vn, ve, vd = row[IN_VEL], row[IN_VEL + 1], row[IN_VEL + 2]
@@ -2942,6 +2978,18 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             eskf_reopen_attitude(state, k, params, _REOPEN_TILT, _REOPEN_HEADING)
             state[k + _GREJ] = -1.0
 
+    # ---- the gyro bias's plausible range: the pseudo-measurement b = 0 (bias_prior_sigma_rad_s) --------------
+    if params[p + _BPRIOR_VAR] > 0.0 and dt > 0.0:
+        after = params[p + _BPRIOR_AFTER]
+        r_b = params[p + _BPRIOR_VAR] * max(params[p + _BPRIOR_SPREAD], dt) / dt
+        for i in range(3):
+            if after < 0.0 or (after >= 0.0 and state[k + _BOUT + 3 + i] >= after and state[k + _BOUT + 3 + i] > 0.0):
+                for j in range(N):
+                    state[k + _H + j] = 0.0
+                state[k + _H + 6 + i] = 1.0
+                if _scalar_update(state, k, -state[S_BIAS + i], r_b, 1.0e9):
+                    updated = True
+
     # ---- inject ------------------------------------------------------------------------------
     if updated:
         kdx = k + _DX
@@ -2973,9 +3021,12 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
         if state[k + _POS_ON_V] > 0.0:
             state[k + _POS + 2] += state[kdx + _I_POS + 2]
         lim = params[p + _BIAS_LIMIT]
+        hold = params[p + _BIAS_HOLD]
         for i in range(3):
             b = state[S_BIAS + i] + state[kdx + 6 + i]
-            state[S_BIAS + i] = min(max(b, -lim), lim)
+            if hold <= 0.0 or state[k + _BOUT + i] >= hold:  # (bias_limit_hold_s: a lasting excursion only)
+                b = min(max(b, -lim), lim)
+            state[S_BIAS + i] = b
         if abias_on:  # the accelerometer's bias, bounded by 3σ (``accel_bias_sigma_m_s2``, the vibration's share)
             lim_a = 3.0 * math.sqrt(_accel_bias_variance(state, k, params))
             for i in range(3):
@@ -3207,6 +3258,10 @@ class Eskf(AttitudeFilter):
         p[_ABIAS_ACROSS] = settings.accel_bias_sigma_m_s2**2 if settings.accel_bias_across_thrust else 0.0
         p[_ABIAS_SPEED] = settings.accel_bias_live_speed_m_s
         p[_CONS_P0] = settings.accel_bias_consider_sigma_m_s2**2
+        p[_BIAS_HOLD] = settings.bias_limit_hold_s
+        p[_BPRIOR_VAR] = settings.bias_prior_sigma_rad_s**2
+        p[_BPRIOR_AFTER] = settings.bias_prior_after_s
+        p[_BPRIOR_SPREAD] = settings.bias_prior_spread_s
         p[_Q_SCALE_TILT] = settings.gyro_scale_tilt_sigma**2
         p[_SCALE_TILT_TAU] = settings.gyro_scale_tilt_memory_s
         p[_HWALK_TAU] = settings.heading_walk_tau_s
