@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import subprocess
 import sys
 import tempfile
@@ -105,10 +106,20 @@ def sim_flights(tmp: Path, n: int) -> list[Path]:
     return [_sim(tmp, scen, 11 + i, f"sim_{scen}") for i, scen in enumerate(("aggressive", "hover", "magnetic")[:n])]
 
 
+#: where firmware_sim's flights are kept between runs (``--flight-cache``; None: written anew in the run's folder)
+FLIGHT_CACHE: list[Path] = []
+
+
 def _sim(tmp: Path, scenario: str, seed: int, name: str) -> Path:
-    p = tmp / f"{name}.tlog"
-    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(p), "--scenario", scenario,
+    """A 150 s firmware_sim flight (deterministic per scenario and seed: a cached copy is the same flight)."""
+    folder = FLIGHT_CACHE[0] if FLIGHT_CACHE else tmp
+    p = folder / f"{name}.tlog"
+    if p.exists():
+        return p
+    part = folder / f".{name}.{os.getpid()}.tlog"  # written whole, then renamed: runs side by side share the cache
+    subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(part), "--scenario", scenario,
                     "--duration", "150", "--seed", str(seed), "-q"], check=True, cwd=REPO)  # fmt: skip
+    part.replace(p)
     return p
 
 
@@ -257,9 +268,14 @@ def main() -> int:
     ap.add_argument("--no-shared", action="store_true", help="leave out the shared SITL flights")
     ap.add_argument("--no-fixed", action="store_true", help="leave out the fixed-threshold comparison (one audit less)")
     ap.add_argument("--json", default="", metavar="PATH", help="also write the per-flight results as JSON")
+    ap.add_argument("--flight-cache", default="", metavar="DIR",
+                    help="keep firmware_sim's flights in DIR and reuse them (a flight is the same for a scenario/seed)")
     args = ap.parse_args()
     want = [w for w in args.flights.split(",") if w]
     faults = [f for f in FAULTS if not args.faults or f.name in args.faults.split(",")]  # "none": as recorded only
+    if args.flight_cache:
+        FLIGHT_CACHE.append(Path(args.flight_cache))
+        FLIGHT_CACHE[0].mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_monitor_") as td:
         tmp = Path(td)
