@@ -143,12 +143,14 @@ def _capture_series(*args: object, **kwargs: object) -> object:
     return out
 
 
-_audit_module.replay_monitor = _capture_series  # the audit's own replay of the monitor; its events kept for the spans
-
-
 def audit(path: Path, mon: MonitorSettings) -> object:
+    """``mavahrs audit``'s row of ``path``; its monitor's series kept (``_SERIES``) for the warnings' spans."""
     _SERIES.clear()
-    return summarise_log(path, AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=mon))))
+    _audit_module.replay_monitor = _capture_series  # the audit's own replay of the monitor, unchanged
+    try:
+        return summarise_log(path, AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=mon))))
+    finally:
+        _audit_module.replay_monitor = _replay_monitor
 
 
 def audit_events(path: Path, mon: MonitorSettings) -> tuple[object, list]:
