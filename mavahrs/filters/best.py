@@ -240,7 +240,7 @@ VEHICLE_ACCEL_BIAS_SIGMA_M_S2 = 0.0
 #: away the CUSUM our own error had built there, so aggressive 11's correct WARNING (the autopilot 1.4° off) comes at
 #: 104.8 s, not 101.0 s, and magnetic 32's false one at 40.2 s (the autopilot 0.80° off) is no longer hidden under a
 #: warning that our own 0.83° had raised (docs/monitor.md round twenty-one)
-VEHICLE_ACCEL_BIAS_CONSIDER_SIGMA_M_S2 = 0.05
+VEHICLE_ACCEL_BIAS_CONSIDER_SIGMA_M_S2 = 0.0
 
 
 def best_settings() -> MadgwickSettings:

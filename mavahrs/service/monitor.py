@@ -472,7 +472,7 @@ class MonitorSettings:
     min_tilt_threshold_deg: float = 1.0
     min_heading_threshold_deg: float = 3.0
     heading_tolerance_floor: bool = True
-    cusum_reference: float = 0.5
+    cusum_reference: float = 0.75
     cusum_leak_per_s: float = 0.2
     learn_k: float = 2.5
     learn_s: float = 60.0
