@@ -205,8 +205,15 @@ class MonitorSettings:
             ``cusum_leak_per_s`` per second, so repeated short excursions add
             up (the sum is kept within twice the alarm level).  A WARNING when the sum reaches ``(1 − cusum_reference)·trigger_s``
             while ``z ≥ 1``: a divergence at the threshold warns after
-            ``trigger_s``, twice the threshold after a third of it, a slow drift
-            once the excess has built up.
+            ``trigger_s``, twice the threshold after a fifth of it, a slow drift
+            once the excess has built up.  0.75: halfway between the ratio
+            the divergence keeps with no fault (≈ 0.5: our error and the
+            autopilot's at their σ, the larger of tilt and heading) and 1 (Page's
+            reference for a shift from one mean to the other); at 0.5 the sum
+            grew from a no-fault divergence correlated over seconds (at 0.5–0.8
+            of the threshold) to its cap, and one comparison at the threshold
+            then warned (firmware_sim magnetic 91 at 131.3 s, the autopilot
+            0.89° off; docs/monitor.md round twenty-two).
         cusum_leak_per_s: see ``cusum_reference``, 1/s.
         mag_norm_tolerance, mag_dip_tolerance_deg: who is likely wrong, the
             magnetometer: with a WARNING, ``[mag]`` when the measured field
@@ -472,7 +479,7 @@ class MonitorSettings:
     min_tilt_threshold_deg: float = 1.0
     min_heading_threshold_deg: float = 3.0
     heading_tolerance_floor: bool = True
-    cusum_reference: float = 0.5
+    cusum_reference: float = 0.75
     cusum_leak_per_s: float = 0.2
     learn_k: float = 2.5
     learn_s: float = 60.0

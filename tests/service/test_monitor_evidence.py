@@ -461,14 +461,20 @@ def test_no_verdict_is_said_once_the_disagreement_is_gone(tmp_path: Path) -> Non
     # firmware_sim aggressive 41: a correct WARNING at 18.5 s (the simulated autopilot 1.2–1.3° off in tilt) stays
     # on until 29.6 s (clear_s after agreeing again); at 27.5 s, the two 0.3° apart and both within 0.2° of the
     # truth, the evidence said again `us?` (its GNSS windows still held the seconds of the disagreement): no
-    # verdict is said again once the divergence is back within its thresholds
+    # verdict is said again once the divergence is back within its thresholds.  That warning (grey by issue 24's
+    # bar) is raised with the level CUSUM's reference at 0.5, not at the default 0.75 (docs/monitor.md round
+    # twenty-two): the case is built with 0.5
     pytest.importorskip("firmware_sim", reason="firmware_sim (the simulator with known truth) is not importable")
-    from mavahrs.fleet.audit import summarise_log
+    from mavahrs.fleet.audit import AuditSettings, summarise_log
+    from mavahrs.replay import ReplaySettings
+    from mavahrs.service.monitor import MonitorSettings
+    from mavahrs.service.pipeline import PipelineSettings
 
     path = tmp_path / "aggressive_41.tlog"
     subprocess.run([sys.executable, "-m", "firmware_sim", "--fast", "--tlog", str(path), "--scenario", "aggressive",
                     "--duration", "32", "--seed", "41", "-q"], check=True, cwd=Path(__file__).parents[2])  # fmt: skip
-    row = summarise_log(path)
+    mon = MonitorSettings(cusum_reference=0.5)
+    row = summarise_log(path, AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=mon))))
     assert row.ok, row.error
     times = [float(x) for x in row.alarm_times_s.split(";") if x]
     causes = row.alarm_causes.split(";")

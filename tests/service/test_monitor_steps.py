@@ -30,16 +30,20 @@ from mavahrs.evaluation.faults import AttitudeFault, FaultShape, inject_faults
 ONSET_S = 100.0
 
 
-def _first_after(path: Path, fault: AttitudeFault, tmp: Path, onset_s: float = ONSET_S) -> tuple[float, list[float]]:
+def _first_after(path: Path, fault: AttitudeFault, tmp: Path, onset_s: float = ONSET_S,
+                 monitor: object = None) -> tuple[float, list[float]]:  # fmt: skip
     """Latency of the first in-flight WARNING after the onset on the faulted copy, s (inf: none), and the
-    WARNING times on the flight as recorded."""
-    from mavahrs.fleet.audit import summarise_log
+    WARNING times on the flight as recorded (``monitor``: the MonitorSettings, default the defaults)."""
+    from mavahrs.fleet.audit import AuditSettings, summarise_log
+    from mavahrs.replay import ReplaySettings
+    from mavahrs.service.pipeline import PipelineSettings
 
-    clean = summarise_log(path)
+    audit = None if monitor is None else AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=monitor)))
+    clean = summarise_log(path, audit)
     assert clean.ok, clean.error
     copy = tmp / f"{path.stem}_fault.tlog"
     inject_faults(path, copy, [fault])
-    row = summarise_log(copy)
+    row = summarise_log(copy, audit)
     copy.unlink()
     assert row.ok, row.error
     times = [float(x) for x in row.alarm_times_s.split(";") if x]
@@ -201,13 +205,22 @@ def test_a_heading_step_under_a_correct_warning_in_a_yaw_spin_is_warned_within_3
     # yaw spins (≈ 300 °/s) in which our heading σ lifts the level threshold past the divergence the step makes
     # (the autopilot's own heading error stood the other way). A new step under a warning had to cross that
     # level threshold as well as the in-warning test's: warned after 5.7 s (docs/monitor.md, round nine). It is
-    # judged now as one outside a warning: beyond the change test's threshold suffices (round eleven)
+    # judged now as one outside a warning: beyond the change test's threshold suffices (round eleven).  That
+    # warning (the autopilot 1–1.5° off: grey by issue 24's bar) is raised with the level CUSUM's reference at 0.5;
+    # at the default 0.75 it is not (docs/monitor.md round twenty-two), so the case is built with 0.5, and the
+    # step is also judged with the defaults, no warning standing
+    from mavahrs.service.monitor import MonitorSettings
+
     path = _sim_flight(tmp_path, "aggressive", 81, 106.0)
-    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), heading_deg=6.0), tmp_path)
+    fault = AttitudeFault(FaultShape("step", ONSET_S), heading_deg=6.0)
+    latency, clean = _first_after(path, fault, tmp_path, monitor=MonitorSettings(cusum_reference=0.5))
     assert [t for t in clean if ONSET_S - 20.0 <= t < ONSET_S], clean  # the warning already on at the onset
     assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
     assert 0.1 < latency <= 3.0, latency  # 5.7 s when the level threshold was needed too
     assert _false_warnings(path, clean) == []
+    latency, clean = _first_after(path, fault, tmp_path)
+    assert not [t for t in clean if t >= ONSET_S], clean
+    assert 0.0 < latency <= 3.0, latency
 
 
 def test_a_tilt_step_under_a_warning_in_a_yaw_spin_is_warned_within_2_s(tmp_path: Path) -> None:
