@@ -5,27 +5,16 @@ is missed."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
+from collections.abc import Callable
 from types import ModuleType, SimpleNamespace
 
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
 
-
-def _script() -> ModuleType:
-    name = "bench_monitor"
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+@pytest.fixture(scope="module")
+def bm(bench_script: Callable[[str], ModuleType]) -> ModuleType:
+    return bench_script("bench_monitor")
 
 
 def _judge(tilt: list[tuple[float, float, float]], hdg: list[tuple[float, float, float]] = ()) -> dict:
@@ -45,16 +34,14 @@ def _judge(tilt: list[tuple[float, float, float]], hdg: list[tuple[float, float,
     (2.0, 0.0, "correct"),  # the fault sizes the monitor promises
     (0.3, 6.0, "correct"),
 ])
-def test_a_warning_is_judged_by_the_autopilots_largest_error_over_the_2_s_before(tilt: float, hdg: float, want: str) -> None:
-    bm = _script()
+def test_a_warning_is_judged_by_the_autopilots_largest_error_over_the_2_s_before(tilt: float, hdg: float, want: str, bm: ModuleType) -> None:
     judge = _judge([(20.0, 20.5, tilt)], [(20.0, 20.5, hdg)])
     assert bm.verdict(judge, 21.9) == want  # the error 1.4–1.9 s before
     assert bm.verdict(judge, 22.6) == "false"  # … and 2.1 s after it, gone from the window
     assert bm.verdict({}, 21.9) == "?"
 
 
-def test_a_stretch_of_2_s_at_the_promised_fault_size_unwarned_is_missed() -> None:
-    bm = _script()
+def test_a_stretch_of_2_s_at_the_promised_fault_size_unwarned_is_missed(bm: ModuleType) -> None:
     judge = _judge([(10.0, 13.0, 2.5), (30.0, 31.5, 3.0), (40.0, 45.0, 1.9)], [(50.0, 53.0, 7.0)])
     stretches = bm.bad_stretches(judge, 5.0, 55.0)
     # 1.5 s at 3° is too short, 1.9° too small; the heading's 3 s counts; clipped to the airborne time

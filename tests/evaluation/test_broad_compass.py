@@ -9,8 +9,7 @@ regression recovers the delay from the gyro and the readings alone.  BROAD (skip
 
 from __future__ import annotations
 
-import importlib.util
-import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -20,7 +19,6 @@ import pytest
 from mavahrs.evaluation.datasets import Recording
 from mavahrs.geometry.quaternion import conjugate, from_rotation_vector, multiply, normalize, rotate
 
-REPO = Path(__file__).resolve().parents[2]
 RATE_HZ = 2000.0 / 7.0  # BROAD's
 FINE = 10  # truth integrated at 10 × the sample rate, so a delay need not be a whole number of samples
 FIELD_NED_UT = np.array([20.0, 1.0, 43.0])  # ≈ BROAD's: 47 µT, dip 65°
@@ -30,16 +28,9 @@ SOFT = np.array(
 HARD_UT = np.array([3.0, -2.0, 1.5])
 
 
-def _script() -> ModuleType:
-    name = "bench_broad_compass"
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+@pytest.fixture(scope="module")
+def bb(bench_script: Callable[[str], ModuleType]) -> ModuleType:
+    return bench_script("bench_broad_compass")
 
 
 def _turning_sensor(delay_s: float, seconds: float = 30.0, noise_ut: float = 0.1) -> Recording:
@@ -82,8 +73,7 @@ def _turning_sensor(delay_s: float, seconds: float = 30.0, noise_ut: float = 0.1
     )
 
 
-def test_truth_fitted_calibration_recovers_a_known_distortion_and_the_azimuth() -> None:
-    bb = _script()
+def test_truth_fitted_calibration_recovers_a_known_distortion_and_the_azimuth(bb: ModuleType) -> None:
     rec = _turning_sensor(delay_s=0.0)
     e_raw, mask = bb.azimuth_error_deg(rec, rec.mag_ut)
     truth_body = rotate(conjugate(rec.q_ref_body_to_ned), np.broadcast_to(FIELD_NED_UT, (rec.n, 3)))
@@ -98,8 +88,7 @@ def test_truth_fitted_calibration_recovers_a_known_distortion_and_the_azimuth() 
 
 
 @pytest.mark.parametrize("delay_ms", [0.0, 10.5])
-def test_delay_regression_recovers_a_known_compass_delay_through_a_distortion(delay_ms: float) -> None:
-    bb = _script()
+def test_delay_regression_recovers_a_known_compass_delay_through_a_distortion(delay_ms: float, bb: ModuleType) -> None:
     rec = _turning_sensor(delay_s=delay_ms * 1e-3)
     got_ms = bb.compass_delay_s(rec.gyro_rad_s, rec.mag_ut, float(rec.dt_s[0])) * 1e3
     assert abs(got_ms - delay_ms) < 1.0, got_ms
@@ -118,8 +107,7 @@ def broad(broad_dir: Path) -> dict[str, Recording]:
     return {k: load_broad_trial(paths[k]) for k in ("02", "06", "30")}
 
 
-def test_broad_compass_is_about_10_ms_behind_the_gyro(broad: dict[str, Recording]) -> None:
-    bb = _script()
+def test_broad_compass_is_about_10_ms_behind_the_gyro(broad: dict[str, Recording], bb: ModuleType) -> None:
     for key, rec in broad.items():
         got_ms = bb.compass_delay_s(rec.gyro_rad_s, rec.mag_ut, float(rec.dt_s[0])) * 1e3
         assert 8.0 < got_ms < 13.0, (key, got_ms)
@@ -133,8 +121,8 @@ def test_broad_compass_is_about_10_ms_behind_the_gyro(broad: dict[str, Recording
 
 def test_broad_compass_is_calibrated_and_its_rest_norm_is_not_the_moving_one(
     broad: dict[str, Recording],
+    bb: ModuleType,
 ) -> None:
-    bb = _script()
     from mavahrs.evaluation.magcal import fit_ellipsoid
 
     rec = broad["02"]
@@ -168,8 +156,7 @@ def _rolling_sensor(w_ned_rad_s: np.ndarray, lag_samples: int, seconds: float = 
     )
 
 
-def test_a_late_reading_in_a_roll_about_north_is_off_by_the_roll_times_tan_dip_not_by_the_yaw_rate() -> None:
-    bb = _script()
+def test_a_late_reading_in_a_roll_about_north_is_off_by_the_roll_times_tan_dip_not_by_the_yaw_rate(bb: ModuleType) -> None:
     w_ned = np.array([2.6, 0.0, 0.7])  # 150 °/s about north, 40 °/s of yaw: trial 30's motion, in the mean
     rec = _rolling_sensor(w_ned, lag_samples=3)
     lag_s = 3.0 / RATE_HZ
@@ -185,8 +172,7 @@ def test_a_late_reading_in_a_roll_about_north_is_off_by_the_roll_times_tan_dip_n
     assert yaw_only > 0.0
 
 
-def test_gyro_heading_drift_is_measured_against_the_reference_and_is_zero_with_the_true_bias() -> None:
-    bb = _script()
+def test_gyro_heading_drift_is_measured_against_the_reference_and_is_zero_with_the_true_bias(bb: ModuleType) -> None:
     rec = _rolling_sensor(np.array([0.0, 0.0, 1.0]), lag_samples=0)  # yawing at 57 °/s, body z along down
     err = np.radians([0.0, 0.0, 0.3])  # the gyro 0.3 °/s high about its z axis
     rec.gyro_rad_s = rec.gyro_rad_s + err
@@ -199,12 +185,12 @@ def test_gyro_heading_drift_is_measured_against_the_reference_and_is_zero_with_t
 
 def test_broad_trial_30_rolls_about_north_so_its_late_compass_is_4_degrees_off_and_its_gyro_drifts(
     broad: dict[str, Recording],
+    bb: ModuleType,
 ) -> None:
     """docs/accuracy.md round six (branch smag4): the stationary magnet's trial 30 turns 164 °/s about north in the
     mean; there the ≈ 10 ms late compass reads −4° of azimuth in every reading (its yaw-rate term has the
     other sign), and the gyro's heading drifts −0.18 °/s against the reference.  Trial 06 (fast rotation,
     no mean turn) has neither."""
-    bb = _script()
     rec = broad["30"]
     measured, _ = bb.late_azimuth_bias_deg(rec, 3)
     q, ok = bb._reference(rec)
@@ -267,8 +253,7 @@ def _rest_motion_rest(gyro_scale_z: float, reference_drift_deg: float, motion_s:
     )
 
 
-def test_rests_tell_a_drifting_gyro_from_a_drifting_reference() -> None:
-    bb = _script()
+def test_rests_tell_a_drifting_gyro_from_a_drifting_reference(bb: ModuleType) -> None:
     gyro = bb.rest_to_rest(_rest_motion_rest(gyro_scale_z=0.01, reference_drift_deg=0.0), gyro_shift=0)
     assert len(gyro) == 2
     # the gyro drifts: the compass at the second rest agrees with the reference, the integrated gyro does not
@@ -280,8 +265,7 @@ def test_rests_tell_a_drifting_gyro_from_a_drifting_reference() -> None:
     assert abs(ref[1]["gyro_heading_error_deg"] - 5.0) < 0.1, ref
 
 
-def test_gyro_model_fit_recovers_a_scale_error_growing_with_the_rate() -> None:
-    bb = _script()
+def test_gyro_model_fit_recovers_a_scale_error_growing_with_the_rate(bb: ModuleType) -> None:
     rec = _rest_motion_rest(gyro_scale_z=0.0, reference_drift_deg=0.0, motion_s=60.0)
     n_true = np.array([-2e-3, 1e-3, -3e-3])  # per rad/s: −0.4 / +0.2 / −0.6 % at 200 °/s
     rec.gyro_rad_s = (
@@ -311,12 +295,12 @@ def broad_rests(broad_dir: Path) -> dict[str, Recording]:
 
 def test_broad_reference_agrees_with_the_compass_at_rests_while_the_gyro_drifts(
     broad_rests: dict[str, Recording],
+    bb: ModuleType,
 ) -> None:
     """docs/accuracy.md round seven (branch smag5): the heading drift of trials 08 / 30 is the gyro's.  At every
     rest the compass (an earth-fixed direction; at rest its delay plays no part) read with the reference is within
     0.5° of the first rest's, while the gyro integrated over each motion before it is 2–15° off, always negative
     (08 −26°, 30 −17° in all); trial 06 (no mean turn) within 1°."""
-    bb = _script()
     for key, total in (("08", -20.0), ("30", -12.0)):
         rows = bb.rest_to_rest(broad_rests[key])
         assert len(rows) >= 4, (key, rows)
