@@ -601,7 +601,8 @@ def plot_second_opinion(path: str | Path, series: Any, *, title: str = "", t0_s:
             ax.axvspan(start, t[-1], color="tab:red", alpha=0.12, lw=0)
     n_warn = sum(1 for e in series.events if e.in_flight)
     held = series.held_comparisons / max(series.comparisons, 1)
-    held_text = f"; {100.0 * held:.0f} % not judged (our IMU input too slow)" if series.held_comparisons else ""
+    # as the replay line says it (MonitorSeries.held_note): under 1 % is not worth saying
+    held_text = f"; {100.0 * held:.0f} % not judged (our IMU input too slow)" if held >= 0.01 else ""
     axes[0].set_title((title + " — " if title else "") + f"second opinion: {n_warn} in-flight WARNING(s){held_text}")
     axes[0].legend(loc="upper right", fontsize=8)
     # the autopilot's boot clock, as the WARNING times replay and audit print

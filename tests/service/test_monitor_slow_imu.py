@@ -125,11 +125,19 @@ def test_the_input_rate_of_each_estimate() -> None:
     assert input_rate_hz(jitter, [1_999])[0] == pytest.approx(200.0, rel=0.02)
 
 
-def test_a_few_slow_intervals_at_the_start_are_not_worth_a_note() -> None:
-    """The replay line names the share of comparisons not judged; a log whose first interval or two span a
-    logger dropout (PX4's sample.ulg: 2 of 3441, at 0.00 and 0.04 s) reads 27 Hz there and held them — counted,
-    but no line saying "not judged: 0 %"; half a flight held is said."""
+def test_a_few_slow_intervals_at_the_start_are_not_worth_a_note(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The replay line and the plot's title name the share of comparisons not judged; a log whose first interval
+    or two span a logger dropout (PX4's sample.ulg: 2 of 3441, at 0.00 and 0.04 s) reads 27 Hz there and held
+    them — counted, but no "not judged: 0 %"; half a flight held is said."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.axes import Axes
+
+    from mavahrs.evaluation.plots import plot_second_opinion
     from mavahrs.service.monitor import monitor_series
+
+    titles: list[str] = []
+    set_title = Axes.set_title
+    monkeypatch.setattr(Axes, "set_title", lambda ax, text, *a, **k: (titles.append(text), set_title(ax, text, *a, **k))[1])
 
     t_ms = np.arange(0.0, 30_000.0, 10.0)
     q = np.tile([1.0, 0.0, 0.0, 0.0], (t_ms.size, 1))
@@ -138,6 +146,10 @@ def test_a_few_slow_intervals_at_the_start_are_not_worth_a_note() -> None:
     few = monitor_series(t_ms, q, t_ms, q, imu_rate_hz=rate)
     assert few.held_comparisons == 2 and few.comparisons == t_ms.size
     assert few.held_note() == ""
+    plot_second_opinion(tmp_path / "few.png", few)
+    assert titles and "not judged" not in titles[-1], titles
     rate[t_ms.size // 2 :] = 4.0
     half = monitor_series(t_ms, q, t_ms, q, imu_rate_hz=rate)
     assert half.held_note() == "not judged: 50 % of the comparisons (our IMU input below 50 Hz)"
+    plot_second_opinion(tmp_path / "half.png", half)
+    assert "50 % not judged" in titles[-1], titles
