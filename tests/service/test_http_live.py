@@ -18,6 +18,7 @@ Skipped with a message when Chromium/chromedriver or selenium are missing
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -48,6 +49,7 @@ MOVING_MS = 9500  # time_boot_ms from which the aggressive scenario is manoeuvri
 def _env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONFAULTHANDLER"] = "1"  # a SIGABRT writes every thread's stack to the log (Proc.stop, a hang)
     return env
 
 
@@ -88,6 +90,14 @@ class Proc:
             self.proc.send_signal(signal.SIGTERM)
         try:
             return self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            # still running 30 s after SIGTERM (seen once, on a quiet machine, not reproduced): its threads' stacks
+            # into the log (faulthandler on SIGABRT), so that the failure says where it hung
+            self.proc.send_signal(signal.SIGABRT)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.proc.wait(10)
+            raise AssertionError(f"still running 30 s after SIGTERM; its log, with every thread's stack:\n"
+                                 f"{self.log[-20000:]}") from None
         finally:
             if self.proc.poll() is None:
                 self.proc.kill()
