@@ -230,15 +230,16 @@ def test_demo_from_a_clean_virtual_environment(tmp_path: Path) -> None:
     # None after the stream ended unless a message showed a real collapse: a silent link is not asked again
     # (it stopped, it did not slow down), but a simulator slowed by a loaded machine in its last moments is,
     # as the daemon acts on a collapse once a message shows the link still carries them — which may be a
-    # trailing one after the last RAW_IMU.  Such a request goes out as that message is handled (within 50 ms of
-    # it here) with RAW_IMU below low_rate_fraction 0.5 of the accepted 250 Hz over drop_window_s 0.5 s before
-    # it (StreamRequestSettings); one sent in the silence after the end (commit 36c17c5's case) has no message
-    # just before it.
+    # trailing one after the last RAW_IMU.  Such a request goes out as that message is handled, with RAW_IMU below
+    # low_rate_fraction 0.5 of the accepted 250 Hz over drop_window_s 0.5 s before it (StreamRequestSettings); one
+    # sent in the silence after the end (commit 36c17c5's case) could come only once that rule saw a collapse in
+    # silence, i.e. after at least half the window, 0.25 s, without a message.  So the message that caused it is
+    # within 0.2 s before it (handling one message takes far less, also on a loaded machine), a silence's is not.
     assert requests_s and imu_s, text
     imu, sim = np.array(imu_s), np.array(sim_s)
     for t_req in requests_s:
         if t_req > imu[-1]:
-            trigger = sim[(sim <= t_req) & (sim >= t_req - 0.05)]
+            trigger = sim[(sim <= t_req) & (sim >= t_req - 0.2)]
             assert trigger.size, (t_req, imu[-1], "a stream request in the silence after the end", text)
             in_window = int(np.count_nonzero((imu > trigger[-1] - 0.5) & (imu <= trigger[-1])))
             assert in_window < 0.5 * 250 * 0.5, (t_req, imu[-1], in_window, text)
