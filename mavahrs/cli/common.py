@@ -62,6 +62,10 @@ EXIT_USAGE = 2
 EXIT_CONNECTION = 3
 EXIT_INTERRUPTED = 130
 
+#: the stop signals (SIGINT/SIGTERM) the command line's own handler received, in order (``console_main``
+#: records each before raising it: a raise that lands in a callback run from C is dropped, the record stays)
+SIGNALS_RECEIVED: list[int] = []
+
 EXIT_CODES_HELP = (
     "exit codes: 0 ok, 1 runtime failure, 2 usage/config error, "
     "3 connection failure or no heartbeat, 130 interrupted by Ctrl-C before finishing "

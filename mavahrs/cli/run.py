@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import threading
 from typing import Any
@@ -11,6 +12,7 @@ from typing import Any
 from mavahrs.cli.common import (
     EXIT_CODES_HELP,
     EXIT_OK,
+    SIGNALS_RECEIVED,
     LazyDefaultsFormatter,
     add_velocity_source_option,
     gc_paused,
@@ -225,8 +227,53 @@ class _StopRequested(Exception):
     """SIGINT/SIGTERM while the daemon is still starting (links opening, filter compiling)."""
 
 
-def _stop_during_startup(signum: int, frame: Any) -> None:
-    raise _StopRequested(signal.Signals(signum).name)
+class _StartupSignals:
+    """SIGINT/SIGTERM while the daemon starts: remembered, acted on where the start-up can stop cleanly.
+
+    Never raised from the handler: an exception raised wherever the signal lands was dropped inside numba's
+    ctypes callbacks to LLVM (the stop lost, the daemon running on — forever with ``--heartbeat-timeout 0`` —
+    or the kernel cache handing LLVM garbage: a segmentation fault) and turned into a ``RuntimeError`` inside a
+    class's creation (exit 1).  :meth:`checkpoint` raises :class:`_StopRequested` between the steps; once the
+    daemon is built it is stopped as its own handler would.  A second signal ends the process at once (a cold
+    compilation of the kernels takes minutes; numba writes its cache files whole).
+    """
+
+    def __init__(self, log: logging.Logger) -> None:
+        self.received: list[int] = []
+        self._log = log
+        self._daemon: Any = None
+
+    def install(self) -> dict[Any, Any]:
+        """Become the SIGINT/SIGTERM handler (main thread only); the handlers replaced, to restore."""
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        old = {s: signal.signal(s, self) for s in (signal.SIGINT, signal.SIGTERM)}
+        self.received.extend(SIGNALS_RECEIVED)  # the command line's handler's, whose raise was dropped
+        return old
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        self.received.append(signum)
+        name = signal.Signals(signum).name
+        if self._daemon is not None:
+            self._daemon.stop_on_signal(signum)
+        elif len(self.received) == 1:
+            self._log.info("%s: stopping as soon as the start-up allows (again to stop at once)", name)
+        else:
+            self._log.info("mavahrs stopped (%s) while starting, at once", name)
+            logging.shutdown()
+            os._exit(EXIT_OK)
+
+    def checkpoint(self) -> None:
+        """Raise :class:`_StopRequested` if a stop was asked for."""
+        if self.received:
+            raise _StopRequested(signal.Signals(self.received[0]).name)
+
+    def attach(self, daemon: Any) -> None:
+        """From now on a signal stops ``daemon`` (as its own handler, which replaces this one, does); one
+        received before stops it at once."""
+        self._daemon = daemon
+        if self.received:
+            daemon.stop_on_signal(self.received[0])
 
 
 def _restore_signals(old: dict[Any, Any]) -> None:
@@ -235,34 +282,33 @@ def _restore_signals(old: dict[Any, Any]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavahrs.config import load_run_config
-    from mavahrs.service.daemon import build_daemon
-
-    # the collector rests while the daemon starts (settings, imports, kernels: see gc_paused) and
-    # resumes before it serves
-    with gc_paused():
-        config = load_run_config(args.config, overrides_from_args(args))
-        if args.print_config:
-            print(config.to_toml(), end="")
-            return EXIT_OK
-        start_kernels()  # cached kernels load without numba's compiler registries; announces a first compile
-        # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130;
-        # the daemon installs its own handlers for the loop and restores these afterwards.
-        in_main = threading.current_thread() is threading.main_thread()
-        old = {s: signal.signal(s, _stop_during_startup) for s in (signal.SIGINT, signal.SIGTERM)} if in_main else {}
-        try:
-            daemon = build_daemon(config.daemon, config.pipeline, config.filter)
-        except _StopRequested as exc:
-            _restore_signals(old)
-            logging.getLogger("mavahrs.daemon").info("mavahrs stopped (%s) while starting", exc)
-            return EXIT_OK
-        except BaseException:
-            _restore_signals(old)
-            raise
+    stopping = logging.getLogger("mavahrs.daemon")
+    # A stop request during start-up is a clean stop too (exit code 0), not a traceback or 130; the
+    # daemon installs its own handlers for the loop and restores these afterwards.
+    startup = _StartupSignals(stopping)
+    old = startup.install()
+    daemon = None
     try:
+        startup.checkpoint()
+        from mavahrs.config import load_run_config
+        from mavahrs.service.daemon import build_daemon
+
+        # the collector rests while the daemon starts (settings, imports, kernels: see gc_paused) and
+        # resumes before it serves
+        with gc_paused():
+            config = load_run_config(args.config, overrides_from_args(args))
+            if args.print_config:
+                print(config.to_toml(), end="")
+                return EXIT_OK
+            start_kernels()  # cached kernels load without numba's compiler registries; announces a first compile
+            startup.checkpoint()
+            daemon = build_daemon(config.daemon, config.pipeline, config.filter)
+        startup.attach(daemon)
         daemon.run()
     except _StopRequested as exc:
-        logging.getLogger("mavahrs.daemon").info("mavahrs stopped (%s) while starting", exc)
+        if daemon is not None:
+            daemon.close()
+        stopping.info("mavahrs stopped (%s) while starting", exc)
     finally:
         _restore_signals(old)
     return EXIT_OK

@@ -488,9 +488,14 @@ class Daemon:
         except OSError:
             pass
 
-    def _on_signal(self, signum: int, frame: Any) -> None:
+    def stop_on_signal(self, signum: int) -> None:
+        """End the loop soon because of a signal (its name goes in the stop line); before :meth:`run`, it
+        makes :meth:`run` close everything and return at once."""
         self._signal_name = signal.Signals(signum).name
         self.stop("signal")
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self.stop_on_signal(signum)
 
     # ------------------------------------------------------------------ signing
     def enable_signing(self, key: bytes, *, link_id: int = 0, require: bool = False) -> None:

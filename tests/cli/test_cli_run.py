@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from mavahrs.cli import SUBCOMMANDS, _load, main
-from mavahrs.cli.common import EXIT_CONNECTION, EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from mavahrs.cli.common import EXIT_CONNECTION, EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -230,6 +230,105 @@ def test_signals_stop_cleanly_with_exit_code_0(tmp_path: Path, sig: signal.Signa
     assert not log.exists()
     assert f"removed the empty log file {log}" in rest
     assert "log 0 frames (nothing recorded: empty file removed)" in rest
+
+
+def test_an_interrupt_before_run_has_its_own_handlers_is_still_exit_code_0(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C / SIGTERM between the command line's start and `run`'s own handlers (the command line's handler
+    raises there): `run` ends with 0 and says so (it was 130); other commands still end with 130."""
+    import mavahrs.cli.run as run_module
+
+    real_install = run_module._StartupSignals.install
+
+    def interrupted_at_install(self: object) -> dict[object, object]:
+        raise KeyboardInterrupt  # as the command line's SIGTERM handler and Ctrl-C raise
+
+    monkeypatch.setattr(run_module._StartupSignals, "install", interrupted_at_install)
+    assert main(["run", "--master", "udpin:127.0.0.1:0"]) == EXIT_OK
+    err = capsys.readouterr().err
+    assert "mavahrs stopped (interrupted) while starting" in err and "ERROR" not in err
+    monkeypatch.setattr(run_module._StartupSignals, "install", real_install)
+    import mavahrs.cli.replay as replay_module
+
+    def interrupted(*_a: object, **_k: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(replay_module, "run", interrupted)
+    assert main(["replay", "x.tlog"]) == EXIT_INTERRUPTED
+    assert capsys.readouterr().err.strip().endswith("ERROR interrupted")
+
+
+def test_a_stop_signal_during_start_up_is_acted_on_between_its_steps(tmp_path: Path) -> None:
+    """The start-up's handler never raises (a raise landing in numba's ctypes callbacks was dropped: the daemon
+    ran on, or segfaulted); it remembers, the start-up stops at its next step, and a signal received before the
+    daemon is built stops it as its own handler would: `run` returns at once, the stop said, links closed."""
+    import logging
+
+    from mavahrs.cli import common
+    from mavahrs.cli.run import _StartupSignals, _StopRequested
+    from mavahrs.service.daemon import DaemonSettings, build_daemon
+    from mavahrs.service.pipeline import PipelineSettings
+
+    log = logging.getLogger("mavahrs.test.startup")
+    startup = _StartupSignals(log)
+    startup.checkpoint()  # nothing received: goes on
+    startup(signal.SIGTERM, None)  # what the signal does: no exception, whatever code it lands in
+    with pytest.raises(_StopRequested, match="SIGTERM"):
+        startup.checkpoint()
+
+    daemon = build_daemon(
+        DaemonSettings(master="udpin:127.0.0.1:0", heartbeat_timeout_s=0.0, status_interval_s=0.0,
+                       log_path=str(tmp_path / "x.tlog")),
+        PipelineSettings(), None,
+    )  # fmt: skip
+    startup.attach(daemon)  # received before: the daemon is stopped before it runs
+    result = daemon.run()  # returns (with --heartbeat-timeout 0 it would otherwise run until stopped)
+    assert (result.reason, result.signal_name) == ("signal", "SIGTERM")
+    assert not (tmp_path / "x.tlog").exists()  # nothing recorded: the empty log removed, as on any stop
+
+    # a signal the command line's handler received, whose raise was dropped on the way, counts too
+    received = common.SIGNALS_RECEIVED
+    received.append(signal.SIGINT)
+    try:
+        again = _StartupSignals(log)
+        old = again.install()
+        signal.signal(signal.SIGINT, old[signal.SIGINT])
+        signal.signal(signal.SIGTERM, old[signal.SIGTERM])
+        with pytest.raises(_StopRequested, match="SIGINT"):
+            again.checkpoint()
+    finally:
+        received.clear()
+
+
+def test_sigterm_while_the_kernels_load_stops_the_daemon(tmp_path: Path) -> None:
+    """SIGTERM sent the moment the status page is up — the daemon is loading its filter kernels then (numba,
+    LLVM's callbacks): exit code 0 and the stop said, never lost (it ran on), never a crash or an ignored
+    exception.  Three starts, each signalled at that event."""
+    for attempt in range(3):
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "mavahrs", "run", "--filter", "best", "--status-interval", "0",
+             "--master", "udpin:127.0.0.1:0", "--heartbeat-timeout", "0", "--http", "127.0.0.1:0"],
+            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=_env(), cwd=tmp_path,
+        )  # fmt: skip
+        assert proc.stderr is not None
+        try:
+            seen = ""
+            for line in proc.stderr:
+                seen += line
+                if "status page on http://" in line:
+                    proc.send_signal(signal.SIGTERM)
+                    break
+            rc = proc.wait(60)
+            rest = seen + proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            proc.stderr.close()
+        assert rc == EXIT_OK, (attempt, rest)
+        assert "mavahrs stopped (SIGTERM)" in rest, (attempt, rest)
+        assert "Exception ignored" not in rest and "Traceback" not in rest, (attempt, rest)
 
 
 def _may_use_sched_fifo() -> bool:
