@@ -1160,7 +1160,8 @@ class Best(AttitudeFilter):
                 eskf = replace(eskf, bias_prior_sigma_rad_s=MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S,
                                bias_prior_after_s=MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S, bias_prior_spread_s=0.0)
             # started in flight: the first tilt as uncertain as a manoeuvre makes it, and the accelerometer as a
-            # gravity measurement weighed for the manoeuvre it holds (each at least; a larger one set is kept)
+            # gravity measurement weighed for the manoeuvre it holds (each at least: a larger first tilt σ set is kept;
+            # the gravity noise is vehicle_eskf_settings' own, as every vehicle model is)
             eskf = replace(eskf, initial_tilt_rad=max(eskf.initial_tilt_rad, MULTIROTOR_RAW_INITIAL_TILT_RAD),
                            gravity_noise_m_s2=max(eskf.gravity_noise_m_s2, MULTIROTOR_RAW_GRAVITY_NOISE_M_S2))
         else:
