@@ -427,6 +427,21 @@ MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S = 7.0
 MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S = math.radians(5.0)
 #: … the time, s, an axis's estimate must have been beyond that σ without a break before the prior is fused on it
 MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S = 2.0
+#: a raw IMU declared a multirotor through the API starts in flight: the 1-σ of its first tilt, rad
+#: (``EskfSettings.initial_tilt_rad``, at least this).  The tilt is taken from the first accelerometer sample, which
+#: on a multirotor in a manoeuvre, its rotors' vibration on, is not gravity: on firmware_sim's raw flights (seeds
+#: 100–129) that sample's tilt is 17.3° RMS off (mean 15.2°, largest 30.6°; averaging the first 0.25–2 s is no better
+#: in a manoeuvre, 13–21°), against the 3° a sensor started at rest has.  With 3° the filter took the start's tilt
+#: error for a gyro bias (``aggressive`` 101: 1.9 → 6.5 °/s wrong at 2.5 s) and closed the bias's covariance on it
+#: (docs/accuracy.md, twenty-first round)
+MULTIROTOR_RAW_INITIAL_TILT_RAD = math.radians(20.0)
+#: … and its accelerometer as a gravity measurement (``EskfSettings.gravity_noise_m_s2``, at least this), m/s²: the
+#: 0.1 s mean specific force, fused at every sample, holds a multirotor's manoeuvre for seconds, so one sample's
+#: information is far less than 3 m/s² (the vehicle default) says.  With 3 the filter was inconsistent on the raw
+#: flights (tilt NEES 10.5 in the first 20 s, 6.1 after, against 2; the bias's 22.9 / 9.9 against 3): a 5 °/s bias
+#: left 3 °/s wrong at 20 s with its σ 0.3 °/s.  Chosen with the initial tilt on firmware_sim raw seeds 100–129,
+#: confirmed on 130–219 and on ArduCopter SITL's raw sets (docs/accuracy.md, twenty-first round)
+MULTIROTOR_RAW_GRAVITY_NOISE_M_S2 = 8.0
 
 
 def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | None = None) -> EskfSettings:
@@ -1114,7 +1129,8 @@ class Best(AttitudeFilter):
         (``MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2``), estimated below ``MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S``, and the
         gyro bias's plausible range is a prior fused on a lasting excursion beyond it
         (``MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S`` 5 °/s after ``MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S`` 2 s; a prior set in
-        the settings is kept).
+        the settings is kept).  Started in flight, its first tilt's σ is ``MULTIROTOR_RAW_INITIAL_TILT_RAD`` (20°) and
+        the accelerometer as a gravity measurement ``MULTIROTOR_RAW_GRAVITY_NOISE_M_S2`` (8 m/s²).
         """
         s = self._settings
         assert isinstance(s, BestSettings)
@@ -1143,6 +1159,11 @@ class Best(AttitudeFilter):
             if s.eskf.bias_prior_sigma_rad_s == 0.0 and MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S > 0.0:
                 eskf = replace(eskf, bias_prior_sigma_rad_s=MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S,
                                bias_prior_after_s=MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S, bias_prior_spread_s=0.0)
+            # started in flight: the first tilt as uncertain as a manoeuvre makes it, and the accelerometer as a
+            # gravity measurement weighed for the manoeuvre it holds (each at least: a larger first tilt σ set is kept;
+            # the gravity noise is vehicle_eskf_settings' own, as every vehicle model is)
+            eskf = replace(eskf, initial_tilt_rad=max(eskf.initial_tilt_rad, MULTIROTOR_RAW_INITIAL_TILT_RAD),
+                           gravity_noise_m_s2=max(eskf.gravity_noise_m_s2, MULTIROTOR_RAW_GRAVITY_NOISE_M_S2))
         else:
             k = drag_coefficient_1_s
             if k is None:
