@@ -13,7 +13,8 @@ correction (the attitude's change beyond the gyro's) exceeds ``--jump-deg``.
 
     python scripts/trace_rate_return.py --flights aggressive:3 --slow-hz 4 --trace 31:45
     python scripts/trace_rate_return.py --flights aggressive:1-4,hover:1,flips:1,magnetic:1 --slow-hz 4 10 25
-    python scripts/trace_rate_return.py ... --set max_attitude_step_rad=0.35   (an EskfSettings field, variants)
+    python scripts/trace_rate_return.py ... --vehicle-bound 0     (main's unbounded update on the vehicle stream)
+    python scripts/trace_rate_return.py ... --set max_attitude_step_window_s=5   (an EskfSettings field: a variant)
 """
 
 from __future__ import annotations
@@ -208,18 +209,31 @@ def main() -> int:
     ap.add_argument("--fast-from", type=float, default=30.0, help="s: when the 250 Hz request is sent")
     ap.add_argument("--duration", type=float, default=60.0, help="s of flight")
     ap.add_argument("--set", action="append", default=[], help="EskfSettings field=value (a variant)")
+    ap.add_argument("--vehicle-bound", type=float, default=None,
+                    help="rad: best.VEHICLE_MAX_ATTITUDE_STEP_RAD for this run (0: main's unbounded update)")
+    ap.add_argument("--vehicle-window", type=float, default=None,
+                    help="s: best.VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S with --vehicle-bound (0: at every update)")
     ap.add_argument("--trace", default="", help="A:B: print the ESKF's state over sim time A–B s")
     ap.add_argument("--jump-deg", type=float, default=5.0, help="print every sample correcting more than this")
     ap.add_argument("--json", default="", help="write the per-flight summaries here")
     a = ap.parse_args()
     eskf_set = parse_set(a.set)
+    import mavahrs.filters.best as best_mod
+
+    if a.vehicle_bound is not None:
+        best_mod.VEHICLE_MAX_ATTITUDE_STEP_RAD = a.vehicle_bound
+        eskf_set["vehicle_bound"] = a.vehicle_bound  # (for the JSON and the header only)
+    if a.vehicle_window is not None:
+        best_mod.VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S = a.vehicle_window
+        eskf_set["vehicle_window"] = a.vehicle_window
     rows = []
-    print(f"variant: {eskf_set or 'main settings'}")
+    print(f"variant: {eskf_set or 'this tree as it is'}")
     print("flight, slow Hz   return s  | incl / head RMS 0–2 s | 2–20 s | after: RMS; worst")
     for hz in a.slow_hz:
         for sc, seed in parse_flights(a.flights):
             t0 = time.time()
-            r = fly(sc, seed, hz, a.fast_from, a.duration, eskf_set, trace=bool(a.trace))
+            r = fly(sc, seed, hz, a.fast_from, a.duration, {k: v for k, v in eskf_set.items() if not k.startswith("vehicle_")},
+                    trace=bool(a.trace))
             s = summarise(r, rate_returned_s(r["t"], a.fast_from))
             s.update({"scenario": sc, "seed": seed, "slow_hz": hz})
             rows.append(s)

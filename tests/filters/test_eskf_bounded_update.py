@@ -105,13 +105,15 @@ def _hover_rows(seconds: float, fix_hz: float = 5.0, seed: int = 3) -> np.ndarra
 def test_a_velocity_residual_after_a_re_opening_moves_the_tilt_only_by_the_bound(seed: int) -> None:
     """Level and still (the truth), velocity-aided for 10 s; then the attitude covariance re-opened (as after
     persistent rejection) with the INS velocity 2 m/s off north (integrated with a wrong attitude before): the next
-    fixes read that residual as tilt.  Unbounded (main) the tilt goes 52–58° off and is still 12–14° off 10 s later;
-    bounded by 11.5° per update it goes at most 19–22° off (one fix's three components) and is back within 2.5°."""
+    fixes read that residual as tilt.  Unbounded (main) the tilt goes 57–58° off (20° RMS over the next 10 s);
+    bounded by 11.5° per update at most 19–22° (one fix's three components; 11–12° RMS) — so it is with the bound
+    acting only for 5 s after the re-opening (``max_attitude_step_window_s``, as on an autopilot's stream), and not
+    with a window that has closed before the first fix."""
     rows = _hover_rows(20.0, seed=seed)
     truth = np.tile([1.0, 0.0, 0.0, 0.0], (len(rows), 1))
-    worst, end = [], []
-    for bound in (0.0, math.radians(11.5)):
-        f = Eskf(replace(EskfSettings(), max_attitude_step_rad=bound))
+    worst, rms = [], []
+    for bound, window in ((0.0, 0.0), (math.radians(11.5), 0.0), (math.radians(11.5), 5.0), (math.radians(11.5), 0.001)):
+        f = Eskf(replace(EskfSettings(), max_attitude_step_rad=bound, max_attitude_step_window_s=window))
         first = f.run(rows[: 10 * RATE_HZ])
         _, _, incl = attitude_errors_rad(first[:, OUT_Q : OUT_Q + 4], truth[: 10 * RATE_HZ])
         assert np.degrees(incl[-RATE_HZ:]).max() < 0.5
@@ -123,7 +125,31 @@ def test_a_velocity_residual_after_a_re_opening_moves_the_tilt_only_by_the_bound
         out = f.run(rows[10 * RATE_HZ :])
         _, _, incl = attitude_errors_rad(out[:, OUT_Q : OUT_Q + 4], truth[10 * RATE_HZ :])
         worst.append(float(np.degrees(incl.max())))
-        end.append(float(np.degrees(incl[-2 * RATE_HZ :].max())))
+        rms.append(float(np.degrees(np.sqrt(np.mean(incl**2)))))
         assert np.isclose(np.linalg.norm(f._state[S_Q : S_Q + 4]), 1.0)
-    assert worst[0] > 45.0 and end[0] > 8.0, f"unbounded {worst[0]:.1f}° / {end[0]:.1f}°: the case shows nothing"
-    assert worst[1] < 30.0 and end[1] < 4.0, (worst, end)
+    assert worst[0] > 45.0, f"unbounded {worst[0]:.1f}°: the case shows nothing"
+    assert worst[1] < 30.0 and rms[1] < rms[0], (worst, rms)
+    assert worst[2] < 30.0 and rms[2] < rms[0], (worst, rms)
+    assert worst[3] > 45.0, (worst, rms)
+
+
+def test_the_bound_is_set_on_an_autopilot_s_stream_only() -> None:
+    """On by default only where it was measured to help (the daemon's vehicle stream); a raw IMU through the API
+    keeps main's unbounded update (BROAD as a raw IMU 1.10 → 1.73° with it: its large start corrections are right)."""
+    from mavahrs.filters import create
+    from mavahrs.filters.best import VEHICLE_MAX_ATTITUDE_STEP_RAD, VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S
+
+    assert EskfSettings().max_attitude_step_rad == 0.0
+    raw = create("best")
+    assert raw.settings.eskf.max_attitude_step_rad == 0.0  # type: ignore[attr-defined]
+    raw.set_multirotor()  # type: ignore[attr-defined]
+    assert raw.settings.eskf.max_attitude_step_rad == 0.0  # type: ignore[attr-defined]
+    assert VEHICLE_MAX_ATTITUDE_STEP_RAD > 0.0 and VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S > 0.0
+    for declared_first in (False, True):
+        f = create("best")
+        if declared_first:
+            f.set_multirotor()  # type: ignore[attr-defined]
+        f.set_vehicle_stream()  # type: ignore[attr-defined]
+        f.set_multirotor()  # type: ignore[attr-defined]
+        assert f.settings.eskf.max_attitude_step_rad == VEHICLE_MAX_ATTITUDE_STEP_RAD  # type: ignore[attr-defined]
+        assert f.settings.eskf.max_attitude_step_window_s == VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S  # type: ignore[attr-defined]
