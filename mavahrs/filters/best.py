@@ -124,6 +124,16 @@ VEHICLE_GRAVITY_LOWPASS_S = 0.1
 #: the onboard tlog with the receiver's velocity 0.38 → 0.42° (1e-4: 0.38°), the magnetic flight's heading
 #: 0.54 → 0.61° (1e-4: 0.57°); docs/accuracy.md
 VEHICLE_BIAS_WALK_RAD_S2 = 1e-4
+#: on an autopilot's stream, the largest attitude correction one ESKF measurement update may make, rad
+#: (``EskfSettings.max_attitude_step_rad``; :meth:`Best.set_vehicle_stream`), for ``VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S``
+#: after the attitude covariance was re-opened: after a ground station's slow IMU stream a freshly re-opened
+#: covariance read velocity residuals as 47–80° of tilt in one fix (firmware_sim ``aggressive`` 3 after 30 s at 4 Hz:
+#: 60.6° inclination RMS over 2–20 s after the rate returned → 7.0°, its worst 171.8° → 26.3°; docs/accuracy.md "One
+#: update that moves the attitude far").  Not on a raw IMU through the API (bounded at every update, BROAD as a raw IMU
+#: 1.10 → 1.73°: its start corrections are large and right)
+VEHICLE_MAX_ATTITUDE_STEP_RAD = 0.1
+#: s: … only this long after a re-opening (at every update: chosen flights better, but single held-out flights worse)
+VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S = 5.0
 #: a vehicle's compass delay (behind the IMU's attitude) is learnt from its readings over this long, s
 #: (``EskfSettings.mag_learn_tau_s``): ArduCopter SITL's readings (RAW_IMU and DataFlash), rotated with the
 #: simulator's true attitude, point the field's azimuth within 0.11–0.23° (1 σ) when taken 0.05 s before their
@@ -1107,7 +1117,9 @@ class Best(AttitudeFilter):
             eskf = replace(declared[1], sensor_delay_s=s.eskf.sensor_delay_s, schedule=s.eskf.schedule)
         # an autopilot's IMU is calibrated and low-passed: its first sample is the start, no start window
         # (``initial_average_s``, built for a raw IMU's vibration through the API)
-        eskf = replace(eskf, initial_average_s=0.0)
+        # (the attitude part of one update bounded for a while after the attitude covariance is re-opened)
+        eskf = replace(eskf, initial_average_s=0.0, max_attitude_step_rad=VEHICLE_MAX_ATTITUDE_STEP_RAD,
+                       max_attitude_step_window_s=VEHICLE_MAX_ATTITUDE_STEP_WINDOW_S)
         self._set_eskf(vehicle_eskf_settings(eskf), unaided_filter="eskf", detect=replace(s.detect, enabled=False))
         if declared is not None and not was_vehicle:
             self.set_multirotor(declared[0])

@@ -285,7 +285,11 @@ _BPRIOR_VAR = _MAG_DELAY + 36
 _BPRIOR_AFTER = _MAG_DELAY + 37
 #: s: … its information spread over this long: R = σ² · this / dt per sample (0: σ² per sample)
 _BPRIOR_SPREAD = _MAG_DELAY + 38
-_N_PARAMS = _MAG_DELAY + 39
+#: rad: the largest attitude correction one scalar update may make (``max_attitude_step_rad``; 0: unbounded)
+_ATT_STEP = _MAG_DELAY + 39
+#: s: … only this long after the attitude covariance was re-opened (``max_attitude_step_window_s``; 0: always)
+_ATT_STEP_WIN = _MAG_DELAY + 40
+_N_PARAMS = _MAG_DELAY + 41
 #: offset of ``sensor_delay_s`` in the filter's own parameter block (for :meth:`Eskf.set_sensor_delay`)
 DELAY_PARAM = _DELAY
 #: offset of ``drag_coefficient_1_s`` in the filter's own parameter block
@@ -383,7 +387,9 @@ _SENS_ON = _SENS_HB + 3
 #: how long each axis's gyro-bias estimate has been beyond the bound without a break (3) and beyond the prior's
 #: σ (3), s (``bias_limit_hold_s``, ``bias_prior_sigma_rad_s``)
 _BOUT = _SENS_ON + 1
-_N_STATE = _BOUT + 6
+_T_OPEN = _BOUT + 6  # clock time the attitude covariance was last re-opened (−1e9: not since the start)
+_BNOW = _T_OPEN + 1  # the bound on one update's attitude correction in force this sample, rad (0: none)
+_N_STATE = _T_OPEN + 2
 #: offset of the "start window over" flag in the ESKF's own state (a state set by hand ends the window)
 START_DONE_STATE = _STARTED
 #: offset of the magnetometer model's block in the ESKF's own state (status, the saved model)
@@ -518,6 +524,15 @@ class EskfSettings(FilterSettings):
             this long, s: R = σ² × this / dt (0 = σ² at every sample).
         velocity_reset_s: every fix rejected for this long resets the INS
             velocity to the fix (as autopilot EKFs do).
+        max_attitude_step_rad: the largest attitude correction one scalar
+            measurement update may make, rad (0 = unbounded; the compass's
+            heading, an angle measured as such, is never bounded): beyond it
+            the update's noise is inflated until the correction is this
+            large, and the covariance updated with that noise (the
+            error-state model is a small-angle one).
+        max_attitude_step_window_s: the bound acts only this long after the
+            attitude covariance was last re-opened (a rejection reset, a
+            re-alignment, an aiding restart), s (0 = always).
         mag_staleness_s: how old a magnetometer reading may be when it
             arrives, s (ArduPilot repeats a 10 Hz compass reading in every IMU
             message): the heading noise grows by yaw rate × this, so readings
@@ -957,6 +972,8 @@ class EskfSettings(FilterSettings):
     bias_prior_after_s: float = 0.0
     bias_prior_spread_s: float = 0.0
     velocity_reset_s: float = 5.0
+    max_attitude_step_rad: float = 0.0
+    max_attitude_step_window_s: float = 0.0
     mag_staleness_s: float = 0.1
     rejection_reset_s: float = 2.0
     unaided_velocity_noise_m_s: float = 10.0
@@ -1051,7 +1068,8 @@ class EskfSettings(FilterSettings):
                      "mag_delay_s", "mag_learn_tau_s", "mag_noise_tau_s", "drag_reset_s", "mag_rejected_sigma_scale",
                      "gyro_scale_state_sigma", "gyro_scale_state_walk_1_s",
                      "accel_bias_sigma_m_s2", "accel_bias_tau_s", "accel_bias_vibration_ratio", "gyro_scale_tilt_sigma",
-                     "accel_bias_consider_sigma_m_s2", "bias_limit_hold_s", "bias_prior_sigma_rad_s",
+                     "accel_bias_consider_sigma_m_s2", "bias_limit_hold_s", "bias_prior_sigma_rad_s", "max_attitude_step_rad",
+                     "max_attitude_step_window_s",
                      "bias_prior_spread_s",
                      "gyro_scale_tilt_memory_s", "heading_walk_tau_s", "heading_walk_max_rad_s",
                      "heading_walk_window_s", "drag_quadratic_1_m", "drag_noise_match_s", "slow_force_block_s",
@@ -1257,6 +1275,7 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
     s[k + _LAST_MAG] = -1.0e9
     s[k + _GREJ] = -1.0
     s[k + _DREJ] = -1.0
+    s[k + _T_OPEN] = -1.0e9
     s[k + _BIG] = -1.0
     for i in range(3):
         s[k + _PREV_VEL + i] = math.nan
@@ -1270,6 +1289,8 @@ def eskf_reset(s, k, params):  # type: ignore[no-untyped-def]
 def eskf_reopen_attitude(s, k, params, big_tilt, big_heading):  # type: ignore[no-untyped-def]
     """Attitude covariance re-opened (at least its initial values, or the variances given), uncorrelated."""
     kp = k + _P
+    s[k + _T_OPEN] = s[k + _CLK]
+    s[k + _BNOW] = params[P_FILTER + _ATT_STEP]
     for i in range(3):
         for j in range(N):
             s[kp + i * N + j] = 0.0
@@ -1690,7 +1711,7 @@ def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
             for i in range(N):
                 s[k + _H + i] = 0.0
             s[k + _H + 6 + c] = 1.0
-            if _scalar_update(s, k, s[k + _REST + c] - s[S_BIAS + c], r, 1.0e6):
+            if _scalar_update(s, k, s[k + _REST + c] - s[S_BIAS + c], r, 1.0e6, s[k + _BNOW]):
                 updated = True
         return updated
     # the body-frame vertical from the detector's low-passed specific force
@@ -1733,7 +1754,7 @@ def _rest_rate_update(s, k, params, p):  # type: ignore[no-untyped-def]
         s[k + _H + 8] = hz
         y = (hx * (s[k + _REST] - s[S_BIAS]) + hy * (s[k + _REST + 1] - s[S_BIAS + 1])
              + hz * (s[k + _REST + 2] - s[S_BIAS + 2]))  # fmt: skip
-        if _scalar_update(s, k, y, ra, 1.0e6):
+        if _scalar_update(s, k, y, ra, 1.0e6, s[k + _BNOW]):
             updated = True
     return updated
 
@@ -1793,10 +1814,13 @@ def _propagate_sensitivity(s, k, dt, n, pos_on, scale_on, wx, wy, wz, abias_on, 
 
 
 @kernel
-def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
+def _scalar_update(s, k, y, r, gate, bound):  # type: ignore[no-untyped-def]
     """One scalar measurement: innovation ``y`` (before this update's δx), h in scratch, noise ``r``.
 
-    Returns False (and changes nothing) when the innovation fails the χ gate.
+    Returns False (and changes nothing) when the innovation fails the χ gate.  ``bound`` > 0: the attitude
+    part of the correction is at most this, rad (``max_attitude_step_rad``): beyond it the innovation's
+    variance is raised until it is (the noise inflated, R' = S' − h P hᵀ; the covariance updated with the
+    same S', so it shrinks only by what that weaker measurement tells).
     """
     kp = k + _P
     kph = k + _PH
@@ -1804,6 +1828,10 @@ def _scalar_update(s, k, y, r, gate):  # type: ignore[no-untyped-def]
     y, sv = _innovation(s, k, y, r)
     if not (sv > 0.0) or y * y > gate * gate * sv:
         return False
+    if bound > 0.0:
+        d = abs(y) * math.sqrt(s[kph] * s[kph] + s[kph + 1] * s[kph + 1] + s[kph + 2] * s[kph + 2])
+        if d > bound * sv:
+            sv = d / bound
     n = _n_active(s, k)
     inv = 1.0 / sv
     if s[k + _SENS_ON] > 0.0:
@@ -2097,7 +2125,7 @@ def _drag_update(s, k, params, k_drag):  # type: ignore[no-untyped-def]
             if not (sv0 + r > 0.0) or yy * yy > gate * gate * (sv0 + r):
                 continue
             r_c = max(r, s[k + _DNIS])
-        if _scalar_update(s, k, y, r_c, params[P_FILTER + _VEL_GATE]):
+        if _scalar_update(s, k, y, r_c, params[P_FILTER + _VEL_GATE], s[k + _BNOW]):
             fused = True
     return fused
 
@@ -2191,7 +2219,7 @@ def _position_fix(s, k, params, pn, pe, pd, t_fix, clk):  # type: ignore[no-unty
                 for i in range(N):
                     s[k + _H + i] = 0.0
                 s[k + _H + _I_POS + c] = 1.0
-                if _scalar_update(s, k, y0 if c == 0 else y1, r_h, gate):
+                if _scalar_update(s, k, y0 if c == 0 else y1, r_h, gate, s[k + _BNOW]):
                     fused = True
     if r_v > 0.0 and math.isfinite(pd):
         if s[k + _POS_ON_V] == 0.0:
@@ -2203,7 +2231,7 @@ def _position_fix(s, k, params, pn, pe, pd, t_fix, clk):  # type: ignore[no-unty
             for i in range(N):
                 s[k + _H + i] = 0.0
             s[k + _H + _I_POS + 2] = 1.0
-            if _scalar_update(s, k, y2, r_v, gate):
+            if _scalar_update(s, k, y2, r_v, gate, s[k + _BNOW]):
                 fused = True
     if fused or not tried:
         s[k + _PREJ_T] = -1.0
@@ -2380,6 +2408,8 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
     # ---- propagate ---------------------------------------------------------------------------
     state[k + _CLK] += dt
     clk = state[k + _CLK]
+    win = params[p + _ATT_STEP_WIN]
+    state[k + _BNOW] = params[p + _ATT_STEP] if win <= 0.0 or clk - state[k + _T_OPEN] < win else 0.0
     aided = state[k + _LAST_FIX] >= 0.0 and clk - state[k + _LAST_FIX] <= params[p + _AID_TIMEOUT]
     if accel_ok and state[k + _STARTED] == 0.0:  # the start window's mean specific force (initial_average_s)
         state[k + _START] += fn * dt
@@ -2545,7 +2575,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                     for i in range(N):
                         state[k + _H + i] = 0.0
                     state[k + _H + 3 + c] = 1.0
-                    if _scalar_update(state, k, y, r_h if c < 2 else r_v, params[p + _VEL_GATE]):
+                    if _scalar_update(state, k, y, r_h if c < 2 else r_v, params[p + _VEL_GATE], state[k + _BNOW]):
                         accepted = True
                         updated = True
                 if accepted:
@@ -2617,7 +2647,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for i in range(N):
                     state[k + _H + i] = 0.0
                 state[k + _H + 3 + c] = 1.0
-                if _scalar_update(state, k, -state[k + _V + c], params[p + _R_REST_VEL], 1.0e6):
+                if _scalar_update(state, k, -state[k + _V + c], params[p + _R_REST_VEL], 1.0e6, state[k + _BNOW]):
                     updated = True
 
     # ---- gravity direction while not aided -------------------------------------------------
@@ -2633,7 +2663,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for i in range(N):
                 state[k + _H + i] = 0.0
             state[k + _H + 3 + c] = 1.0
-            if _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6):
+            if _scalar_update(state, k, -state[k + _V + c], r_zv, 1.0e6, state[k + _BNOW]):
                 updated = True
     k_drag = params[p + _DRAG_K]
     if k_drag > 0.0 and accel_ok:
@@ -2742,7 +2772,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             for m in range(3):  # … and so does it a bias the filter does not estimate (its sensitivity, if carried)
                 state[k + _SENS_HB + m] = state[kc + m]
             tried = True
-            if not big and _scalar_update(state, k, gn * sc, r_g, gate):
+            if not big and _scalar_update(state, k, gn * sc, r_g, gate, state[k + _BNOW]):
                 updated = passed = True
             for i in range(N):
                 state[k + _H + i] = 0.0
@@ -2757,7 +2787,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 state[k + _H + _I_ABIAS + 2] = cl_e2
             for m in range(3):
                 state[k + _SENS_HB + m] = state[kc + 3 + m]
-            if not big and _scalar_update(state, k, ge * sc, r_g, gate):
+            if not big and _scalar_update(state, k, ge * sc, r_g, gate, state[k + _BNOW]):
                 updated = passed = True
             for m in range(3):
                 state[k + _SENS_HB + m] = 0.0
@@ -2962,7 +2992,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
             if consider:
                 ok = _heading_update(state, k, psi, r_m, gate)
             else:
-                ok = _scalar_update(state, k, psi, r_m, gate)
+                ok = _scalar_update(state, k, psi, r_m, gate, 0.0)  # (the heading read as an angle: no bound)
             if ok:
                 updated = passed = True
             state[k + _LAST_MAG] = clk
@@ -2987,7 +3017,7 @@ def step(state, params, row, out):  # type: ignore[no-untyped-def]
                 for j in range(N):
                     state[k + _H + j] = 0.0
                 state[k + _H + 6 + i] = 1.0
-                if _scalar_update(state, k, -state[S_BIAS + i], r_b, 1.0e9):
+                if _scalar_update(state, k, -state[S_BIAS + i], r_b, 1.0e9, state[k + _BNOW]):
                     updated = True
 
     # ---- inject ------------------------------------------------------------------------------
@@ -3208,6 +3238,8 @@ class Eskf(AttitudeFilter):
         p[_P0_BIAS] = settings.initial_bias_rad_s**2
         p[_BIAS_LIMIT] = settings.bias_limit_rad_s
         p[_VEL_RESET] = settings.velocity_reset_s
+        p[_ATT_STEP] = settings.max_attitude_step_rad
+        p[_ATT_STEP_WIN] = settings.max_attitude_step_window_s
         p[_MAG_STALE] = settings.mag_staleness_s
         p[_MAG_DELAY] = settings.mag_delay_s
         p[_MAG_LEARN_TAU] = settings.mag_learn_tau_s

@@ -153,3 +153,20 @@ def test_a_few_slow_intervals_at_the_start_are_not_worth_a_note(tmp_path: Path, 
     assert half.held_note() == "not judged: 50 % of the comparisons (our IMU input below 50 Hz)"
     plot_second_opinion(tmp_path / "half.png", half)
     assert "50 % not judged" in titles[-1], titles
+
+
+@pytest.mark.slow
+def test_our_estimate_recovers_when_the_rate_returns_after_a_slow_stretch(bench_script: Any) -> None:
+    """firmware_sim ``aggressive`` 3: RAW_IMU at 4 Hz for 30 s, then 250 Hz (the daemon's Pipeline, as in ``_fly``;
+    scored against the simulator's truth by ``scripts/trace_rate_return.py``).  Main's ESKF left the slow stretch
+    100° off in heading and then single velocity fixes of a freshly re-opened covariance moved the tilt 47–80° in one
+    step (60.6° RMS over 2–20 s after the rate returned, 171.8° at worst); the attitude part of one update bounded
+    for 5 s after each re-opening (``best.VEHICLE_MAX_ATTITUDE_STEP_RAD``, 0.1 rad) 7.0° RMS, 26.3° at worst
+    (docs/accuracy.md, "One update that moves the attitude far")."""
+    pytest.importorskip("firmware_sim")
+    tr = bench_script("trace_rate_return")
+    r = tr.fly("aggressive", 3, 4.0, 30.0, 44.0)
+    s = tr.summarise(r, tr.rate_returned_s(r["t"], 30.0))
+    assert 30.0 <= s["t_return_s"] < 30.5
+    assert s["incl_rms_2-20"] < 15.0 and s["incl_max_2-20"] < 45.0, s
+    assert s["head_rms_2-20"] < 18.0, s
