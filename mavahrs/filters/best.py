@@ -424,7 +424,8 @@ MULTIROTOR_ACCEL_BIAS_SIGMA_M_S2 = 0.03
 #: not.  ArduCopter SITL's ``sitl-vib`` declared / ``sitl-raw`` 1.33 / 0.91° with the states ungated (σ 0.05),
 #: 1.29 / 0.90 (σ 0.03), 1.24 / 0.88 with this gate (main 1.26 / 0.89; docs/accuracy.md, eighteenth round)
 MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S = 7.0
-#: a raw IMU declared a multirotor through the API: its gyro bias's plausible range as a Gaussian prior, rad/s
+#: a raw IMU's multirotor through the API (declared, and since raw16 the plain path's multirotor hypothesis,
+#: :func:`multirotor_eskf_settings`): its gyro bias's plausible range as a Gaussian prior, rad/s
 #: (``EskfSettings.bias_prior_sigma_rad_s``: the pseudo-measurement b = 0 with this σ, per axis), fused only on an
 #: axis whose estimate has been beyond it for ``MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S`` (a soft bound on lasting
 #: excursions: a second-long vibration pass the gyro really reads is followed).  5 °/s: the issue's raw MEMS gyro
@@ -437,7 +438,8 @@ MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S = 7.0
 MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S = math.radians(5.0)
 #: … the time, s, an axis's estimate must have been beyond that σ without a break before the prior is fused on it
 MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S = 2.0
-#: a raw IMU declared a multirotor through the API starts in flight: the 1-σ of its first tilt, rad
+#: a raw IMU's multirotor through the API (declared, and since raw16 the plain path's multirotor hypothesis,
+#: :func:`multirotor_eskf_settings`) starts in flight: the 1-σ of its first tilt, rad
 #: (``EskfSettings.initial_tilt_rad``, at least this).  The tilt is taken from the first accelerometer sample, which
 #: on a multirotor in a manoeuvre, its rotors' vibration on, is not gravity: on firmware_sim's raw flights (seeds
 #: 100–129) that sample's tilt is 17.3° RMS off (mean 15.2°, largest 30.6°; averaging the first 0.25–2 s is no better
@@ -489,8 +491,21 @@ def multirotor_eskf_settings(eskf: EskfSettings, drag_coefficient_1_s: float | N
     # round eight); an autopilot's stream, where the monitor reads the tilt σ, has it from vehicle_eskf_settings
     # the output's timing as ``eskf`` has it too (off): a raw IMU's sample may be its interval's mean, with no
     # right-rectangle lead to remove (BROAD 0.66 → 0.86° with the half step; docs/monitor.md round fourteen)
-    return replace(vehicle_eskf_settings(eskf), gyro_scale_tilt_sigma=eskf.gyro_scale_tilt_sigma,
+    eskf = replace(vehicle_eskf_settings(eskf), gyro_scale_tilt_sigma=eskf.gyro_scale_tilt_sigma,
                    output_half_step=eskf.output_half_step)
+    # a raw IMU's multirotor through the API, declared or the plain path's hypothesis, starts in flight: the first
+    # tilt as uncertain as a manoeuvre makes it and the accelerometer as a gravity measurement weighed for the
+    # manoeuvre it holds (each at least: a larger first tilt σ set is kept; the gravity noise is
+    # vehicle_eskf_settings' own, as every vehicle model is), and the raw gyro's plausible bias range as a prior on
+    # lasting excursions (one set is kept).  On the plain path's hypothesis since raw16: firmware_sim raw
+    # ``aggressive`` through ``create("best")`` 1.206 → 0.975° on the seeds chosen on (docs/accuracy.md,
+    # twenty-second round)
+    eskf = replace(eskf, initial_tilt_rad=max(eskf.initial_tilt_rad, MULTIROTOR_RAW_INITIAL_TILT_RAD),
+                   gravity_noise_m_s2=max(eskf.gravity_noise_m_s2, MULTIROTOR_RAW_GRAVITY_NOISE_M_S2))
+    if eskf.bias_prior_sigma_rad_s == 0.0 and MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S > 0.0:
+        eskf = replace(eskf, bias_prior_sigma_rad_s=MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S,
+                       bias_prior_after_s=MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S, bias_prior_spread_s=0.0)
+    return eskf
 
 
 @dataclass(frozen=True)
@@ -1167,15 +1182,8 @@ class Best(AttitudeFilter):
                                accel_bias_across_thrust=True, accel_bias_consider_sigma_m_s2=0.0,
                                accel_bias_live_speed_m_s=(s.eskf.accel_bias_live_speed_m_s
                                                           or MULTIROTOR_ACCEL_BIAS_LIVE_SPEED_M_S))
-            # a raw gyro's plausible bias range as a prior on lasting excursions (one set in the settings is kept)
-            if s.eskf.bias_prior_sigma_rad_s == 0.0 and MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S > 0.0:
-                eskf = replace(eskf, bias_prior_sigma_rad_s=MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S,
-                               bias_prior_after_s=MULTIROTOR_RAW_BIAS_PRIOR_AFTER_S, bias_prior_spread_s=0.0)
-            # started in flight: the first tilt as uncertain as a manoeuvre makes it, and the accelerometer as a
-            # gravity measurement weighed for the manoeuvre it holds (each at least: a larger first tilt σ set is kept;
-            # the gravity noise is vehicle_eskf_settings' own, as every vehicle model is)
-            eskf = replace(eskf, initial_tilt_rad=max(eskf.initial_tilt_rad, MULTIROTOR_RAW_INITIAL_TILT_RAD),
-                           gravity_noise_m_s2=max(eskf.gravity_noise_m_s2, MULTIROTOR_RAW_GRAVITY_NOISE_M_S2))
+            # (the start in flight and the raw gyro's bias prior are multirotor_eskf_settings' own: the plain path's
+            # hypothesis has them too)
         else:
             k = drag_coefficient_1_s
             if k is None:

@@ -91,8 +91,11 @@ def test_the_prior_is_a_raw_imu_s_through_the_api_only() -> None:
     # a prior the user set is kept
     g = _declared(bias_prior_sigma_rad_s=math.radians(8.0), bias_prior_after_s=-1.0).settings.eskf  # type: ignore[attr-defined]
     assert math.isclose(g.bias_prior_sigma_rad_s, math.radians(8.0)) and g.bias_prior_after_s == -1.0
-    # the plain path and an autopilot's stream (calibrated gyro) have none
+    # the plain path's generic hypothesis and an autopilot's stream (calibrated gyro) have none; the plain path's
+    # multirotor hypothesis has it (raw16)
     assert create("best").settings.eskf.bias_prior_sigma_rad_s == 0.0  # type: ignore[attr-defined]
+    hyp = create("best").settings.multirotor_eskf  # type: ignore[attr-defined]
+    assert hyp.bias_prior_sigma_rad_s == MULTIROTOR_RAW_BIAS_PRIOR_SIGMA_RAD_S
     v = create("best")
     v.set_vehicle_stream()  # type: ignore[attr-defined]
     v.set_multirotor()  # type: ignore[attr-defined]

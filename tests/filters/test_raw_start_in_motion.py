@@ -87,11 +87,15 @@ def test_the_start_settings_are_a_raw_imu_s_through_the_api_only() -> None:
     # a larger first tilt σ the user set is kept (the gravity noise is the vehicle models' own, as before)
     g = _declared(initial_tilt_rad=math.radians(30.0)).settings.eskf  # type: ignore[attr-defined]
     assert math.isclose(g.initial_tilt_rad, math.radians(30.0))
-    # the plain path and an autopilot's stream (a calibrated IMU, the vehicle at rest before take-off) are untouched
+    # the plain path's generic hypothesis and an autopilot's stream (a calibrated IMU, the vehicle at rest before
+    # take-off) are untouched; the plain path's multirotor hypothesis has them (raw16, test_plain_start_in_flight.py)
     d = EskfSettings()
     plain = create("best").settings.eskf  # type: ignore[attr-defined]
     assert plain.initial_tilt_rad == best_eskf_settings().initial_tilt_rad
     assert plain.gravity_noise_m_s2 == best_eskf_settings().gravity_noise_m_s2
+    hyp = create("best").settings.multirotor_eskf  # type: ignore[attr-defined]
+    assert hyp.initial_tilt_rad == MULTIROTOR_RAW_INITIAL_TILT_RAD
+    assert hyp.gravity_noise_m_s2 == MULTIROTOR_RAW_GRAVITY_NOISE_M_S2
     v = create("best")
     v.set_vehicle_stream()  # type: ignore[attr-defined]
     v.set_multirotor()  # type: ignore[attr-defined]
