@@ -230,7 +230,8 @@ class MonitorSettings:
             over the windows of the last 3 × ``gnss_window_s``; see
             :class:`Evidence`) and they differ by at least ``gnss_min_m_s``,
             ``[us?]`` the other way round.  A disagreement in heading alone
-            (the tilt within its threshold) needs them to differ by at least
+            (the tilt within its threshold, the heading the larger of the two
+            ratios to their thresholds) needs them to differ by at least
             ``gnss_heading_min_m_s``: a heading error shows only through the
             horizontal acceleration it turns, in the manoeuvres in which the
             GNSS velocity's own lag is largest (no verdict, rather than a
