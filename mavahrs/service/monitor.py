@@ -230,8 +230,7 @@ class MonitorSettings:
             over the windows of the last 3 × ``gnss_window_s``; see
             :class:`Evidence`) and they differ by at least ``gnss_min_m_s``,
             ``[us?]`` the other way round.  A disagreement in heading alone
-            (the tilt within its threshold, the heading the larger of the two
-            ratios to their thresholds) needs them to differ by at least
+            (the tilt within its threshold) needs them to differ by at least
             ``gnss_heading_min_m_s``: a heading error shows only through the
             horizontal acceleration it turns, in the manoeuvres in which the
             GNSS velocity's own lag is largest (no verdict, rather than a
@@ -1726,11 +1725,7 @@ class AttitudeMonitor:
         z_d = self._drift_in_warning(t_ms, tilt, heading, hdg_on)
         # learnt: only what lies within the model's own thresholds (never a disagreement the learnt widening
         # itself let through, else a slowly growing fault would raise the threshold ahead of it)
-        # … a disagreement in heading rather than tilt: the tilt within its threshold and the heading the larger
-        # share of its own (not only once beyond it: a heading step standing under its warning with the divergence
-        # back under the threshold turns the specific force as much, and was said `us?` with 0.4 m/s; firmware_sim
-        # flips 61 with a +6° heading step, docs/monitor.md round twenty-three)
-        self._evidence.heading_only = hdg_on and z_t <= 1.0 and z_h > z_t
+        self._evidence.heading_only = hdg_on and z_t <= 1.0 and z_h > 1.0
         m_t, m_h = self._model_thr
         inside = tilt <= m_t and (not hdg_on or abs(heading) <= m_h)
         if self._uncertainty and not self._warning and inside and slow and prev is not None and not gap:
