@@ -168,18 +168,26 @@ def test_a_ramp_half_a_second_after_a_correct_warning_is_warned_before_2_5_deg(t
     # firmware_sim aggressive 11: a correct WARNING at 100.8 s (the simulated autopilot 1.4° off in tilt); a
     # 0.2°/s tilt ramp from 0.5 s later is a disagreement growing under the warning already on — within any 2 s
     # it moves too little for the step tests, so before the drift test (change_drift_s) it was never warned
-    # (aggressive 41, whose 99.6 s warning is no longer raised: none; aggressive 43: 16.2 s, 3.2°)
+    # (aggressive 41, whose 99.6 s warning is no longer raised: none; aggressive 43: 16.2 s, 3.2°).  That warning
+    # (grey by issue 24's bar: the autopilot 1.1–1.4° off) comes at 106.7 s with the change test's baseline
+    # through turns (change_baseline_turn, docs/monitor.md round twenty-three); the mechanism tested here is the
+    # drift test's, so the case is built with the earth-frame baseline
     path = _sim_flight(tmp_path, "aggressive", 11, 117.0)
-    from mavahrs.fleet.audit import summarise_log
+    from mavahrs.fleet.audit import AuditSettings, summarise_log
+    from mavahrs.replay import ReplaySettings
+    from mavahrs.service.monitor import MonitorSettings
+    from mavahrs.service.pipeline import PipelineSettings
 
-    clean = [float(x) for x in summarise_log(path).alarm_times_s.split(";") if x]
+    mon = MonitorSettings(change_baseline_turn=False)
+    audit = AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=mon)))
+    clean = [float(x) for x in summarise_log(path, audit).alarm_times_s.split(";") if x]
     warned = [t for t in clean if 95.0 <= t < 102.0]
     assert warned, clean  # the correct warning, on when the ramp starts
     onset = warned[-1] + 0.5
     assert not [t for t in clean if t >= onset], clean  # … and no other on the flight as recorded until 117 s
     copy = tmp_path / "ramp.tlog"
     inject_faults(path, copy, [AttitudeFault(FaultShape("ramp", onset, ramp_s=50.0), tilt_deg=10.0)])
-    row = summarise_log(copy)
+    row = summarise_log(copy, audit)
     copy.unlink()
     after = [float(x) - onset for x in row.alarm_times_s.split(";") if x and float(x) >= onset]
     assert after, row.alarm_times_s  # none before
