@@ -341,6 +341,16 @@ class MonitorSettings:
             aggressive 33: a 2° step under a correct warning in a 150°/s spin
             warned after 14.5 s; 1.5 s with it).  Without turning it is the
             plain split.
+        change_baseline_turn: ``change_test``'s tilt against a baseline that may
+            hold a part fixed in the vehicle's heading axes (an accelerometer
+            bias's tilt error, the autopilot's or ours, turns with the vehicle
+            in the earth frame): the baseline's comparisons fitted as a level
+            fixed in the earth frame plus one fixed in our heading's axes (a
+            Gaussian prior on it of the error model's level variance, σ_ours² +
+            σ_autopilot²), predicted at our heading now; the change's
+            threshold widened by that prediction's own variance (a turn since
+            a baseline without turns: the prior's whole variance; where the
+            baseline turned, small).  Off: the plain earth-frame mean.
         change_step_outside: the step test of ``change_step_s`` also outside
             a warning, beside the change test's baseline: over the last
             ``change_step_s`` the split that best shows a change in the mean,
@@ -508,6 +518,7 @@ class MonitorSettings:
     change_step_outside: bool = True
     change_heading_sigma_growth: bool = True
     change_step_body_fixed: bool = True
+    change_baseline_turn: bool = True
     tilt_threshold_deg: float = 10.0
     heading_threshold_deg: float = 25.0
     trigger_s: float = 1.5
@@ -1338,11 +1349,28 @@ class AttitudeMonitor:
             while hist and hist[0][0] < horizon:
                 hist.popleft()
         hold = self._warning and t_ms - self._warning_since_ms < 3000.0 * self.settings.change_baseline_s
-        if not ch.update(t_ms, e, frozen=hold):
+        yaw = None
+        if self.settings.change_baseline_turn:  # our heading (body x axis in the horizontal)
+            c = 1.0 - 2.0 * (a[2] * a[2] + a[3] * a[3]) / (na * na)
+            sn = 2.0 * (a[1] * a[2] + a[0] * a[3]) / (na * na)
+            r = math.hypot(c, sn)
+            yaw = (c / r, sn / r) if r > 1e-6 else (1.0, 0.0)
+        if not ch.update(t_ms, e, frozen=hold, yaw=yaw):
             return 0.0, 0.0
+        extra2 = 0.0
+        if yaw is not None:
+            # the standing divergence may be fixed in the vehicle's axes (an accelerometer bias's tilt, ours or
+            # the autopilot's): the change against the baseline predicted at our heading now, its threshold
+            # widened by what that prediction does not know (its prior: the error model's level variance)
+            s_t = self._thr_sigmas[0]
+            prior2 = 0.5 * (s_t * s_t + self._sig_ap[0] ** 2)
+            noise2 = 0.5 * max(ch._learnt[1], ch._floor2[0])
+            ch.tilt, extra2 = ch.turned(e, yaw, prior2, noise2)
         f = self.settings.change_max_factor
         t_thr, h_thr = ch.judge((self._rate_h, self._rate_v), learn and not self._warning, dt_s,
                                 (f * self._change_cap[0], f * self._change_cap[1]))
+        if extra2 > 0.0:
+            t_thr = math.sqrt(t_thr * t_thr + self._k ** 2 * extra2)
         return ch.tilt / t_thr, abs(ch.heading) / h_thr
 
     def _in_warning_test(self, t_ms: float, tilt: float, heading: float, hdg_on: bool) -> float:
@@ -1877,12 +1905,16 @@ class _ChangeTest:
 
     def restart(self) -> None:
         """Forget the baseline (not the learnt noise): e.g. GNSS aiding lost and back."""
-        self._buf: deque[tuple[float, float, float, float]] = deque()  # (t_ms, e) not yet fed
+        self._buf: deque[tuple[float, ...]] = deque()  # (t_ms, e[, q]) not yet fed
         self._fed_s = 0.0
         self._fed_ms: float | None = None
         self._mean = [0.0, 0.0, 0.0]
+        # the turn's weighted means (MonitorSettings.change_baseline_turn), with the baseline's weights: our heading
+        # as z = e^{iψ} (cos, sin) and the tilt divergence in our heading's axes, conj(z)·(e_n + i e_e)
+        self._z_mean = [0.0, 0.0]
+        self._u_mean = [0.0, 0.0]
 
-    def _feed(self, t: float, e: Sequence[float]) -> None:
+    def _feed(self, t: float, e: Sequence[float], q: Sequence[float] | None = None) -> None:
         prev = self._fed_ms
         self._fed_ms = t
         if prev is None:
@@ -1896,24 +1928,57 @@ class _ChangeTest:
         m = self._mean
         for i in range(3):
             m[i] += w * (e[i] - m[i])
+        if q is not None:  # the turn's means (q: cos ψ, sin ψ of our heading)
+            c, sn = q[0], q[1]
+            zm, um = self._z_mean, self._u_mean
+            zm[0] += w * (c - zm[0])
+            zm[1] += w * (sn - zm[1])
+            um[0] += w * (c * e[0] + sn * e[1] - um[0])
+            um[1] += w * (c * e[1] - sn * e[0] - um[1])
 
-    def update(self, t: float, e: Sequence[float], frozen: bool) -> bool:
-        """A comparison; True when the baseline is ready and :attr:`tilt` / :attr:`heading` hold the change."""
+    def update(self, t: float, e: Sequence[float], frozen: bool, yaw: Sequence[float] | None = None) -> bool:
+        """A comparison; True when the baseline is ready and :attr:`tilt` / :attr:`heading` hold the change.
+        ``yaw``: our heading now as (cos ψ, sin ψ), kept beside the divergence for :meth:`turned`
+        (``MonitorSettings.change_baseline_turn``); None: not kept."""
         buf = self._buf
-        buf.append((t, e[0], e[1], e[2]))
+        buf.append((t, e[0], e[1], e[2]) if yaw is None else (t, e[0], e[1], e[2], yaw[0], yaw[1]))
         horizon = t - self._delay_ms
         while buf and buf[0][0] <= horizon:
-            t0, x, y, z = buf.popleft()
+            row = buf.popleft()
             if frozen:
-                self._fed_ms = t0  # the time frozen does not count as fed
+                self._fed_ms = row[0]  # the time frozen does not count as fed
             else:
-                self._feed(t0, (x, y, z))
+                self._feed(row[0], row[1:4], row[4:6] if len(row) > 4 else None)
         if self._fed_s < self._ready_s:  # used once fed for its time constant (after GNSS comes back: our
             return False  # own error converging is not a change to warn of)
         m = self._mean
         self.tilt = math.hypot(e[0] - m[0], e[1] - m[1])
         self.heading = e[2] - m[2]
         return True
+
+    def turned(self, e: Sequence[float], yaw: Sequence[float], prior2: float, noise2: float) -> tuple[float, float]:
+        """The tilt's change against a baseline that may hold a part fixed in our heading's axes
+        (``MonitorSettings.change_baseline_turn``): the baseline's tilt divergence ``E_s = A + z_s B`` (complex
+        north + i east; ``A`` fixed in the earth frame, ``B`` in the vehicle's heading axes, ``z_s = e^{iψ_s}``)
+        fitted to the baseline's weighted comparisons with a Gaussian prior of ``prior2`` per axis on ``B``
+        (Bayesian ridge, λ = ``noise2`` / ``prior2``), predicted at our heading now: ``Ê = Ē + (z − z̄) B̂``.
+        Returns ``|E − Ê|`` and the prediction's variance (both axes), ``|z − z̄|² · prior2 · λ / (1 − |z̄|² + λ)``:
+        without a turn in the baseline (|z̄| = 1) a turn since adds the prior's whole variance for what the
+        standing divergence's body-fixed part may turn into; where the baseline turned, ``B`` is measured and
+        the prediction's variance small.  Rad, rad²."""
+        m, zm, um = self._mean, self._z_mean, self._u_mean
+        lam = noise2 / prior2 if prior2 > 0.0 else math.inf
+        den = 1.0 - (zm[0] * zm[0] + zm[1] * zm[1]) + lam
+        if not (math.isfinite(lam) and den > 0.0):
+            return math.hypot(e[0] - m[0], e[1] - m[1]), 0.0
+        # B̂ = (mean(conj(z) E) − conj(z̄) Ē) / den (complex)
+        br = (um[0] - (zm[0] * m[0] + zm[1] * m[1])) / den
+        bi = (um[1] - (zm[0] * m[1] - zm[1] * m[0])) / den
+        dzr, dzi = yaw[0] - zm[0], yaw[1] - zm[1]
+        pn = m[0] + dzr * br - dzi * bi
+        pe = m[1] + dzr * bi + dzi * br
+        g2 = dzr * dzr + dzi * dzi
+        return math.hypot(e[0] - pn, e[1] - pe), 2.0 * g2 * prior2 * lam / den
 
     def judge(
         self, rate: tuple[float, float], learn: bool, dt_s: float, cap: tuple[float, float]

@@ -568,3 +568,51 @@ def test_the_change_test_starts_again_when_gnss_aiding_returns() -> None:
         out += fly(mon, 81000.0, 20.0, 1.1, aided=True)
         warned = [m for m in out if m.severity == mavlink.MAV_SEVERITY_WARNING]
         assert bool(warned) is warns, (gap, [m.text for m in out])
+
+
+def test_the_change_tests_baseline_through_a_turn() -> None:
+    """``MonitorSettings.change_baseline_turn`` (docs/monitor.md round twenty-three), on the change test's own
+    arithmetic with a known divergence: a standing tilt divergence fixed in the vehicle's heading axes (0.7°,
+    an accelerometer bias's tilt) while the vehicle turns at 10 °/s is predicted where it has turned to, not
+    read as a change (the earth-frame baseline reads up to 1.4°); a 2° step on it is read whole; after a turn
+    from a baseline flown on one heading the prediction cannot know the standing part's frame, and says so in
+    its variance (the prior's, × |z − z̄|²)."""
+    from mavahrs.service.monitor import MonitorSettings, _ChangeTest
+
+    s = MonitorSettings()
+    prior2, noise2 = math.radians(0.5) ** 2, math.radians(0.15) ** 2
+    b = np.radians([0.5, -0.49])  # fixed in the heading axes (north, east at ψ = 0)
+
+    def e_at(psi: float, step: float = 0.0) -> tuple[float, float, float]:
+        c, sn = math.cos(psi), math.sin(psi)
+        return (c * b[0] - sn * b[1] + step, sn * b[0] + c * b[1], 0.0)
+
+    def fly(rate_dps: float, until_s: float, after_dps: float = 0.0) -> tuple[_ChangeTest, list]:
+        ch, out = _ChangeTest(s), []
+        for k in range(int(until_s * 50) + 1):
+            t = k / 50.0
+            psi = math.radians(rate_dps * min(t, 20.0) + after_dps * max(0.0, t - 20.0))
+            e = e_at(psi)
+            ready = ch.update(1000.0 * t, e, frozen=False, yaw=(math.cos(psi), math.sin(psi)))
+            out.append((psi, e, ready, ch.tilt))
+        return ch, out
+
+    ch, out = fly(10.0, 20.0)
+    psi, e, ready, plain = out[-1]
+    assert ready
+    turned, var = ch.turned(e, (math.cos(psi), math.sin(psi)), prior2, noise2)
+    assert math.degrees(plain) > 0.8  # the earth-frame baseline (12 s back on average) reads the turn as a change
+    g2 = (math.cos(psi) - ch._z_mean[0]) ** 2 + (math.sin(psi) - ch._z_mean[1]) ** 2
+    assert math.degrees(turned) < 0.2, math.degrees(turned)
+    assert var < 0.25 * 2.0 * g2 * prior2, (var, g2)  # the baseline turned: the standing part's frame is measured
+    e2 = e_at(psi, step=math.radians(2.0))
+    stepped, _ = ch.turned(e2, (math.cos(psi), math.sin(psi)), prior2, noise2)
+    assert abs(math.degrees(stepped) - 2.0) < 0.2
+    # a baseline flown on one heading, then a 90° turn: the standing part's frame is unknown
+    ch, out = fly(0.0, 20.0)
+    psi = math.radians(90.0)
+    z = (math.cos(psi), math.sin(psi))
+    turned, var = ch.turned(e_at(psi), z, prior2, noise2)
+    lam = noise2 / prior2
+    assert math.isclose(var, 2.0 * 2.0 * prior2 * lam / lam, rel_tol=1e-6)  # |z − z̄|² = 2 at 90°
+    assert math.degrees(turned) > 0.9  # the standing 0.7° turned by 90°: read as a change of ≈ 1°, its variance wide

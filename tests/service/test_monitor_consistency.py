@@ -60,9 +60,14 @@ WARNING_FLIGHTS = [
     # as evidence (the sum at its cap of 2 × the alarm level from 129.8 s), and one comparison at the threshold
     # completed it.  Passes with the reference at 0.75 (docs/monitor.md round twenty-two)
     pytest.param(("magnetic", 91, 135.0), id="magnetic-91"),
-    pytest.param(("hover", 32, 100.0), id="hover-32", marks=pytest.mark.xfail(
-        strict=True, reason="open (issue 24, docs/monitor.md rounds twenty and twenty-one): our tilt σ is short on "
-        "this seed's accelerometer bias; the filter's considered bias fixes it but is off")),
+    # hover 32 (a strict xfail until round twenty-three) and magnetic 32: the change test's WARNINGs at 96.4 s and
+    # 93.8 s, the autopilot 0.75° / 0.48° off.  Over the baseline's seconds the vehicle turned (hover 32 ≈ 110° at
+    # 10 °/s, our error fixed in its axes turning with it; magnetic 32 71° in 3 s, the autopilot's own error fixed
+    # in its body), so the standing divergence turned in the earth frame and read as a change of 1.4–1.7°.  Pass
+    # since the baseline holds a part fixed in the vehicle's heading axes (MonitorSettings.change_baseline_turn,
+    # docs/monitor.md round twenty-three)
+    pytest.param(("hover", 32, 100.0), id="hover-32"),
+    pytest.param(("magnetic", 32, 100.0), id="magnetic-32"),
 ]
 
 

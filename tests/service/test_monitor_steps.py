@@ -168,18 +168,26 @@ def test_a_ramp_half_a_second_after_a_correct_warning_is_warned_before_2_5_deg(t
     # firmware_sim aggressive 11: a correct WARNING at 100.8 s (the simulated autopilot 1.4° off in tilt); a
     # 0.2°/s tilt ramp from 0.5 s later is a disagreement growing under the warning already on — within any 2 s
     # it moves too little for the step tests, so before the drift test (change_drift_s) it was never warned
-    # (aggressive 41, whose 99.6 s warning is no longer raised: none; aggressive 43: 16.2 s, 3.2°)
+    # (aggressive 41, whose 99.6 s warning is no longer raised: none; aggressive 43: 16.2 s, 3.2°).  That warning
+    # (grey by issue 24's bar: the autopilot 1.1–1.4° off) comes at 106.7 s with the change test's baseline
+    # through turns (change_baseline_turn, docs/monitor.md round twenty-three); the mechanism tested here is the
+    # drift test's, so the case is built with the earth-frame baseline
     path = _sim_flight(tmp_path, "aggressive", 11, 117.0)
-    from mavahrs.fleet.audit import summarise_log
+    from mavahrs.fleet.audit import AuditSettings, summarise_log
+    from mavahrs.replay import ReplaySettings
+    from mavahrs.service.monitor import MonitorSettings
+    from mavahrs.service.pipeline import PipelineSettings
 
-    clean = [float(x) for x in summarise_log(path).alarm_times_s.split(";") if x]
+    mon = MonitorSettings(change_baseline_turn=False)
+    audit = AuditSettings(replay=ReplaySettings(pipeline=PipelineSettings(monitor=mon)))
+    clean = [float(x) for x in summarise_log(path, audit).alarm_times_s.split(";") if x]
     warned = [t for t in clean if 95.0 <= t < 102.0]
     assert warned, clean  # the correct warning, on when the ramp starts
     onset = warned[-1] + 0.5
     assert not [t for t in clean if t >= onset], clean  # … and no other on the flight as recorded until 117 s
     copy = tmp_path / "ramp.tlog"
     inject_faults(path, copy, [AttitudeFault(FaultShape("ramp", onset, ramp_s=50.0), tilt_deg=10.0)])
-    row = summarise_log(copy)
+    row = summarise_log(copy, audit)
     copy.unlink()
     after = [float(x) - onset for x in row.alarm_times_s.split(";") if x and float(x) >= onset]
     assert after, row.alarm_times_s  # none before
@@ -229,10 +237,29 @@ def test_a_tilt_step_under_a_warning_in_a_yaw_spin_is_warned_within_2_s(tmp_path
     # earth frame (1.3–1.7° about the truth), so over the step test's 2 s the divergence's spread about the two
     # segments' means was as large as the 2° step, which was not counted (change_step_spread_k) and warned only
     # after 14.5 s.  The split fitted with a body-fixed part beside the two levels (change_step_body_fixed)
-    # leaves the step itself
+    # leaves the step itself.  That warning (grey by issue 24's bar: the autopilot 1.66–1.75° off) comes at 100.78 s
+    # with the change test's baseline through turns (change_baseline_turn, docs/monitor.md round twenty-three); the
+    # mechanism tested here is the in-warning step test's, so the case is built with the earth-frame baseline
+    from mavahrs.service.monitor import MonitorSettings
+
     path = _sim_flight(tmp_path, "aggressive", 33, 106.0)
-    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path,
+                                  monitor=MonitorSettings(change_baseline_turn=False))
     assert [t for t in clean if ONSET_S - 5.0 <= t < ONSET_S], clean  # the warning already on at the onset
     assert not [t for t in clean if t >= ONSET_S], clean  # … and no other on the flight as recorded until 106 s
     assert 0.1 < latency <= 2.0, latency  # 14.5 s with the plain split
     assert _false_warnings(path, clean) == []
+
+
+def test_a_tilt_step_after_a_standing_divergence_turned_is_warned_within_2_s(tmp_path: Path) -> None:
+    # firmware_sim magnetic 32: at 91–94 s the vehicle turns 71° in 3 s; the autopilot's own tilt error (fixed in
+    # its body, 1.2° at 87 s, 0.5° at 93.8 s) and ours (0.7°) standing, the divergence turned in the earth frame
+    # and the change test read it as a change of 1.4° against its earth-frame baseline: a WARNING at 93.84 s with the
+    # autopilot 0.48° off, which stood over the 2° step at 100 s (the in-warning tests take a change only as far as
+    # the divergence is from the disagreement warned of): no WARNING for it.  The baseline with a part fixed in the
+    # vehicle's heading axes (change_baseline_turn): no false WARNING, the step warned within 2 s
+    path = _sim_flight(tmp_path, "magnetic", 32, 106.0)
+    latency, clean = _first_after(path, AttitudeFault(FaultShape("step", ONSET_S), tilt_deg=2.0), tmp_path)
+    assert _false_warnings(path, clean) == []
+    assert not [t for t in clean if ONSET_S - 10.0 <= t], clean  # no warning standing at the onset
+    assert 0.0 < latency <= 2.0, latency  # inf with the earth-frame baseline
