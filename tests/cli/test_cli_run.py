@@ -283,7 +283,17 @@ def test_a_stop_signal_during_start_up_is_acted_on_between_its_steps(tmp_path: P
         PipelineSettings(), None,
     )  # fmt: skip
     startup.attach(daemon)  # received before: the daemon is stopped before it runs
-    result = daemon.run()  # returns (with --heartbeat-timeout 0 it would otherwise run until stopped)
+    import threading
+
+    results: list[object] = []
+    runner = threading.Thread(target=lambda: results.append(daemon.run()), daemon=True)
+    runner.start()  # with --heartbeat-timeout 0 it would otherwise run until stopped: a failure, not a hang
+    runner.join(60)
+    if runner.is_alive():
+        daemon.stop()
+        runner.join(10)
+        pytest.fail("the daemon ran on although a stop signal came before it was built")
+    (result,) = results
     assert (result.reason, result.signal_name) == ("signal", "SIGTERM")
     assert not (tmp_path / "x.tlog").exists()  # nothing recorded: the empty log removed, as on any stop
 
